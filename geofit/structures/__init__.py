@@ -1,0 +1,18 @@
+"""Data structures: meshes, point clouds, textures, and their batches."""
+from .mesh import Mesh, Meshes, Normalization, Topology, as_meshes
+from .pointcloud import PointCloud, Pointclouds, as_pointclouds
+from .textures import TexturesBase, TexturesUV, TexturesVertex
+
+__all__ = [
+    "Mesh",
+    "Meshes",
+    "Normalization",
+    "Topology",
+    "as_meshes",
+    "PointCloud",
+    "Pointclouds",
+    "as_pointclouds",
+    "TexturesBase",
+    "TexturesUV",
+    "TexturesVertex",
+]

@@ -1,0 +1,496 @@
+"""Triangle meshes: a single ``Mesh`` and a batch ``Meshes`` with packed views.
+
+Topology (unique edges, edge-face and vertex adjacency, Laplacian-ready incidence) depends on the
+faces only and is cached in a ``Topology`` object shared by every mesh derived through
+``update_verts`` / ``offset_verts``. Geometry (normals, areas) is cached per mesh.
+"""
+from __future__ import annotations
+
+from functools import cached_property
+from typing import NamedTuple, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .._validate import as_array, as_faces, as_points
+from .textures import TexturesBase, TexturesUV, TexturesVertex
+
+__all__ = ["Mesh", "Meshes", "Topology", "Normalization"]
+
+
+class Topology:
+    """Connectivity of a triangle mesh, computed lazily from the faces and cached.
+
+    Parameters
+    ----------
+    faces : (F, 3) int64
+        Triangle vertex indices (validated by the caller).
+    n_verts : int
+        Number of vertices.
+    """
+
+    def __init__(self, faces: np.ndarray, n_verts: int):
+        self.faces = faces
+        self.n_verts = int(n_verts)
+
+    @cached_property
+    def _edges(self):
+        F = self.faces
+        V = max(self.n_verts, 1)
+        # PyTorch3D's order: per face the edges (v1, v2), (v2, v0), (v0, v1), i.e. opposite v0, v1, v2.
+        e = np.concatenate([F[:, [1, 2]], F[:, [2, 0]], F[:, [0, 1]]], axis=0)
+        e.sort(axis=1)
+        h = e[:, 0] * V + e[:, 1]
+        u, inv = np.unique(h, return_inverse=True)
+        edges = np.stack([u // V, u % V], axis=1).astype(np.int64)
+        faces_to_edges = inv.reshape(3, -1).T.astype(np.int64)
+        return edges, np.ascontiguousarray(faces_to_edges)
+
+    @property
+    def edges(self) -> np.ndarray:
+        """(E, 2) int64 unique undirected edges, ``edges[:, 0] < edges[:, 1]``, sorted (PyTorch3D order)."""
+        return self._edges[0]
+
+    @property
+    def faces_to_edges(self) -> np.ndarray:
+        """(F, 3) int64: for each face, the edge opposite corner 0, 1 and 2."""
+        return self._edges[1]
+
+    @cached_property
+    def edge_face_incidence(self) -> sp.csr_matrix:
+        """(E, F) sparse 0/1 matrix: entry (e, f) is 1 when edge e bounds face f."""
+        F = len(self.faces)
+        rows = self.faces_to_edges.ravel()
+        cols = np.repeat(np.arange(F), 3)
+        return sp.csr_matrix((np.ones(3 * F), (rows, cols)), shape=(len(self.edges), F))
+
+    @cached_property
+    def edge_face_counts(self) -> np.ndarray:
+        """(E,) int64 number of faces on each edge: 1 boundary, 2 manifold interior, >2 non-manifold."""
+        return np.diff(self.edge_face_incidence.indptr).astype(np.int64)
+
+    @cached_property
+    def boundary_edges(self) -> np.ndarray:
+        """(b,) int64 indices of the edges with exactly one incident face."""
+        return np.flatnonzero(self.edge_face_counts == 1)
+
+    @cached_property
+    def adjacency(self) -> sp.csr_matrix:
+        """(V, V) symmetric sparse 0/1 matrix of the edge graph (vertex neighbours)."""
+        e = self.edges
+        n = self.n_verts
+        A = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
+                          shape=(n, n)).tocsr()
+        return A
+
+    @cached_property
+    def degrees(self) -> np.ndarray:
+        """(V,) int64 number of neighbours of each vertex."""
+        return np.diff(self.adjacency.indptr).astype(np.int64)
+
+    def vertex_neighbours(self, i: int) -> np.ndarray:
+        """Indices of the neighbours of vertex ``i`` (a view into the CSR adjacency)."""
+        A = self.adjacency
+        return A.indices[A.indptr[i]:A.indptr[i + 1]]
+
+    @cached_property
+    def vertex_face_incidence(self) -> sp.csr_matrix:
+        """(V, F) sparse 0/1 matrix: entry (v, f) is 1 when v is a corner of face f."""
+        F = len(self.faces)
+        return sp.csr_matrix((np.ones(3 * F), (self.faces.ravel(), np.repeat(np.arange(F), 3))),
+                             shape=(self.n_verts, F))
+
+    @cached_property
+    def is_watertight(self) -> bool:
+        """True when every edge has exactly two faces."""
+        return bool(len(self.edges) > 0 and np.all(self.edge_face_counts == 2))
+
+    @cached_property
+    def euler_characteristic(self) -> int:
+        """V - E + F (counting only referenced vertices)."""
+        used = np.unique(self.faces).size
+        return int(used - len(self.edges) + len(self.faces))
+
+
+class Normalization(NamedTuple):
+    """Result of :meth:`Mesh.normalize`: ``mesh = (original - center) / scale``."""
+
+    mesh: "Mesh"
+    center: np.ndarray
+    scale: float
+
+    def undo(self, verts: np.ndarray) -> np.ndarray:
+        """Map (n, 3) vertices from the normalised frame back to the original one."""
+        return np.asarray(verts) * self.scale + self.center
+
+
+class Mesh:
+    """A triangle mesh with optional textures.
+
+    Parameters
+    ----------
+    verts : (V, 3) float64
+        Vertex positions.
+    faces : (F, 3) int64
+        Triangles as vertex indices in [0, V). Counter-clockwise seen from outside.
+    textures : TexturesUV or TexturesVertex, optional
+        Surface colour.
+
+    Raises
+    ------
+    ValueError
+        If shapes are wrong, coordinates are not finite, or indices are out of range.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from geofit import Mesh
+    >>> m = Mesh(np.eye(3), [[0, 1, 2]])
+    >>> m.face_areas.round(4)
+    array([0.866])
+    """
+
+    def __init__(self, verts, faces, textures: TexturesBase | None = None, *,
+                 _topology: Topology | None = None):
+        verts = as_points(verts, "verts")
+        if _topology is None:
+            faces = as_faces(faces, "faces", len(verts))
+            _topology = Topology(faces, len(verts))
+        elif len(verts) != _topology.n_verts:
+            raise ValueError(f"verts: expected shape ({_topology.n_verts}, 3), got {verts.shape}")
+        verts.setflags(write=False)
+        _topology.faces.setflags(write=False)
+        self._verts = verts
+        self.topology = _topology
+        self.textures = self._check_textures(textures)
+
+    def _check_textures(self, textures):
+        if textures is None:
+            return None
+        if isinstance(textures, TexturesUV):
+            if len(textures.faces_uvs) != self.n_faces:
+                raise ValueError(f"textures.faces_uvs: expected shape ({self.n_faces}, 3), "
+                                 f"got {textures.faces_uvs.shape}")
+        elif isinstance(textures, TexturesVertex):
+            if len(textures.verts_features) != self.n_verts:
+                raise ValueError(f"textures.verts_features: expected shape ({self.n_verts}, "
+                                 f"{textures.n_channels}), got {textures.verts_features.shape}")
+        elif not isinstance(textures, TexturesBase):
+            raise TypeError(f"textures: expected TexturesUV or TexturesVertex, got {type(textures)!r}")
+        return textures
+
+    # ------------------------------------------------------------------ basic views
+    @property
+    def verts(self) -> np.ndarray:
+        """(V, 3) float64 vertex positions (read-only)."""
+        return self._verts
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(F, 3) int64 triangles (read-only)."""
+        return self.topology.faces
+
+    @property
+    def n_verts(self) -> int:
+        return len(self._verts)
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.topology.faces)
+
+    @property
+    def edges(self) -> np.ndarray:
+        """(E, 2) int64 unique edges (see :class:`Topology`)."""
+        return self.topology.edges
+
+    def isempty(self) -> bool:
+        return self.n_verts == 0 or self.n_faces == 0
+
+    def __repr__(self) -> str:
+        tex = f", textures={self.textures!r}" if self.textures is not None else ""
+        return f"Mesh(n_verts={self.n_verts}, n_faces={self.n_faces}{tex})"
+
+    # ------------------------------------------------------------------ geometry
+    @cached_property
+    def face_cross(self) -> np.ndarray:
+        """(F, 3) float64 un-normalised face normals (v1 - v0) x (v2 - v0), length 2 * area."""
+        v = self._verts[self.faces]
+        return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+
+    @cached_property
+    def face_areas(self) -> np.ndarray:
+        """(F,) float64 triangle areas."""
+        return 0.5 * np.linalg.norm(self.face_cross, axis=1)
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) float64 unit face normals; zero for degenerate (zero-area) faces."""
+        c = self.face_cross
+        n = np.linalg.norm(c, axis=1, keepdims=True)
+        return np.divide(c, n, out=np.zeros_like(c), where=n > 0)
+
+    @cached_property
+    def verts_normals(self) -> np.ndarray:
+        """(V, 3) float64 area-weighted unit vertex normals (PyTorch3D: eps 1e-6).
+
+        The un-normalised face cross products are summed onto the corners and normalised with
+        ``max(|n|, 1e-6)``, so isolated vertices get a zero normal, never NaN.
+        """
+        c = self.face_cross
+        n = np.zeros((self.n_verts, 3))
+        idx = self.faces.ravel()
+        cc = np.repeat(c, 3, axis=0)
+        for d in range(3):  # the three coordinates
+            n[:, d] = np.bincount(idx, weights=cc[:, d], minlength=self.n_verts)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-6)
+
+    @cached_property
+    def edge_lengths(self) -> np.ndarray:
+        """(E,) float64 edge lengths."""
+        e = self.edges
+        return np.linalg.norm(self._verts[e[:, 0]] - self._verts[e[:, 1]], axis=1)
+
+    def bounding_box(self) -> np.ndarray:
+        """(2, 3) float64 min and max corner; zeros for an empty mesh."""
+        if self.n_verts == 0:
+            return np.zeros((2, 3))
+        return np.stack([self._verts.min(0), self._verts.max(0)])
+
+    # ------------------------------------------------------------------ derived meshes
+    def update_verts(self, verts) -> "Mesh":
+        """A new mesh with the same faces, topology cache and textures but new positions.
+
+        Parameters
+        ----------
+        verts : (V, 3) float64
+            New vertex positions.
+        """
+        return Mesh(verts, None, self.textures, _topology=self.topology)
+
+    def offset_verts(self, offsets) -> "Mesh":
+        """A new mesh with ``verts + offsets``.
+
+        Parameters
+        ----------
+        offsets : (V, 3) or (3,) float64
+            Per-vertex offsets or one offset for all vertices.
+        """
+        off = np.asarray(offsets, dtype=np.float64)
+        if off.shape == (3,):
+            off = np.broadcast_to(off, self._verts.shape)
+        off = as_array(off, "offsets", (self.n_verts, 3))
+        return self.update_verts(self._verts + off)
+
+    def scale_verts(self, scale: float) -> "Mesh":
+        """A new mesh with ``verts * scale``."""
+        s = float(scale)
+        if not np.isfinite(s):
+            raise ValueError(f"scale: expected a finite number, got {scale!r}")
+        return self.update_verts(self._verts * s)
+
+    def normalize(self) -> Normalization:
+        """Centre on the vertex mean and divide by the largest absolute centred coordinate.
+
+        This is the PyTorch3D tutorials' normalisation. Returns the new mesh with the ``center``
+        (3,) and ``scale`` that undo it: ``original = normalised * scale + center``.
+
+        Raises
+        ------
+        ValueError
+            For an empty mesh or one whose vertices all coincide.
+        """
+        if self.n_verts == 0:
+            raise ValueError("normalize: the mesh has no vertices")
+        center = self._verts.mean(0)
+        scale = float(np.abs(self._verts - center).max())
+        if not scale > 0:
+            raise ValueError("normalize: all vertices coincide, the scale would be zero")
+        return Normalization(self.update_verts((self._verts - center) / scale), center, scale)
+
+    def extend(self, n: int) -> "Meshes":
+        """A batch holding this mesh ``n`` times (PyTorch3D's ``Meshes.extend``)."""
+        return Meshes([self]).extend(n)
+
+    def copy(self) -> "Mesh":
+        return Mesh(self._verts.copy(), self.faces.copy(), self.textures)
+
+    def sample_textures(self, face_idx: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """Colours at surface points (k,) face ids and (k, 3) barycentrics -> (k, C).
+
+        Raises ValueError when the mesh has no textures.
+        """
+        if self.textures is None:
+            raise ValueError("sample_textures: the mesh has no textures")
+        if isinstance(self.textures, TexturesVertex):
+            return self.textures.sample_faces(self.faces, face_idx, bary)
+        return self.textures.sample(face_idx, bary)
+
+    def to_trimesh(self):
+        """A ``trimesh.Trimesh`` with the same vertices and faces (no processing)."""
+        import trimesh
+
+        return trimesh.Trimesh(self._verts.copy(), self.faces.copy(), process=False)
+
+    def to_open3d(self):
+        """An ``open3d.geometry.TriangleMesh`` with vertex normals (and vertex colours if any)."""
+        import open3d as o3d
+
+        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(self._verts),
+                                      o3d.utility.Vector3iVector(self.faces.astype(np.int32)))
+        m.vertex_normals = o3d.utility.Vector3dVector(self.verts_normals)
+        if isinstance(self.textures, TexturesVertex) and self.textures.n_channels >= 3:
+            m.vertex_colors = o3d.utility.Vector3dVector(
+                np.clip(self.textures.verts_features[:, :3], 0, 1))
+        return m
+
+
+class Meshes:
+    """A batch of meshes of different sizes with packed views (PyTorch3D's ``Meshes``).
+
+    Parameters
+    ----------
+    meshes : sequence of Mesh
+        The meshes in the batch.
+
+    Notes
+    -----
+    The packed face array offsets each mesh's indices by the number of vertices before it, so
+    ``verts_packed()[faces_packed()]`` addresses the right triangles. ``extend(n)`` repeats each
+    mesh ``n`` times consecutively (m0, m0, ..., m1, ...), as PyTorch3D does.
+    """
+
+    def __init__(self, meshes: Sequence[Mesh]):
+        meshes = list(meshes)
+        for i, m in enumerate(meshes):
+            if not isinstance(m, Mesh):
+                raise TypeError(f"meshes[{i}]: expected a Mesh, got {type(m)!r}")
+        self._meshes = meshes
+
+    @classmethod
+    def from_lists(cls, verts: Sequence, faces: Sequence, textures: Sequence | None = None) -> "Meshes":
+        """Build from lists of (V_i, 3) vertex and (F_i, 3) face arrays (PyTorch3D's constructor)."""
+        if len(verts) != len(faces):
+            raise ValueError(f"faces: expected {len(verts)} face arrays, got {len(faces)}")
+        tex = list(textures) if textures is not None else [None] * len(verts)
+        if len(tex) != len(verts):
+            raise ValueError(f"textures: expected {len(verts)} entries, got {len(tex)}")
+        return cls([Mesh(v, f, t) for v, f, t in zip(verts, faces, tex)])
+
+    def __len__(self) -> int:
+        return len(self._meshes)
+
+    def __getitem__(self, i):
+        if isinstance(i, (int, np.integer)):
+            return self._meshes[i]
+        if isinstance(i, slice):
+            return Meshes(self._meshes[i])
+        idx = np.asarray(i)
+        if idx.dtype == bool:
+            idx = np.flatnonzero(idx)
+        return Meshes([self._meshes[int(j)] for j in idx])
+
+    def __iter__(self):
+        return iter(self._meshes)
+
+    def __repr__(self) -> str:
+        return f"Meshes(n={len(self)}, verts={self.num_verts_per_mesh().tolist()})"
+
+    def isempty(self) -> bool:
+        return len(self) == 0 or all(m.isempty() for m in self._meshes)
+
+    def verts_list(self) -> list[np.ndarray]:
+        return [m.verts for m in self._meshes]
+
+    def faces_list(self) -> list[np.ndarray]:
+        return [m.faces for m in self._meshes]
+
+    @property
+    def textures(self) -> list:
+        return [m.textures for m in self._meshes]
+
+    def num_verts_per_mesh(self) -> np.ndarray:
+        """(N,) int64."""
+        return np.array([m.n_verts for m in self._meshes], dtype=np.int64)
+
+    def num_faces_per_mesh(self) -> np.ndarray:
+        """(N,) int64."""
+        return np.array([m.n_faces for m in self._meshes], dtype=np.int64)
+
+    def mesh_to_verts_packed_first_idx(self) -> np.ndarray:
+        """(N,) int64 index of each mesh's first vertex in the packed array."""
+        n = self.num_verts_per_mesh()
+        return np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64) if len(n) else n
+
+    def mesh_to_faces_packed_first_idx(self) -> np.ndarray:
+        """(N,) int64 index of each mesh's first face in the packed array."""
+        n = self.num_faces_per_mesh()
+        return np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64) if len(n) else n
+
+    def verts_packed(self) -> np.ndarray:
+        """(sum V_i, 3) float64."""
+        if not self._meshes:
+            return np.zeros((0, 3))
+        return np.concatenate(self.verts_list(), axis=0)
+
+    def faces_packed(self) -> np.ndarray:
+        """(sum F_i, 3) int64 with each mesh's indices offset into ``verts_packed``."""
+        if not self._meshes:
+            return np.zeros((0, 3), np.int64)
+        off = self.mesh_to_verts_packed_first_idx()
+        return np.concatenate([m.faces + o for m, o in zip(self._meshes, off)], axis=0)
+
+    def verts_packed_to_mesh_idx(self) -> np.ndarray:
+        """(sum V_i,) int64 mesh index of every packed vertex."""
+        return np.repeat(np.arange(len(self)), self.num_verts_per_mesh())
+
+    def faces_packed_to_mesh_idx(self) -> np.ndarray:
+        """(sum F_i,) int64 mesh index of every packed face."""
+        return np.repeat(np.arange(len(self)), self.num_faces_per_mesh())
+
+    def verts_padded(self, pad_value: float = 0.0) -> np.ndarray:
+        """(N, max V_i, 3) float64, padded with ``pad_value``."""
+        n = self.num_verts_per_mesh()
+        out = np.full((len(self), int(n.max()) if len(n) else 0, 3), pad_value, dtype=np.float64)
+        for i, m in enumerate(self._meshes):  # loop over meshes in the batch, not vertices
+            out[i, : m.n_verts] = m.verts
+        return out
+
+    def faces_normals_packed(self) -> np.ndarray:
+        """(sum F_i, 3) float64 unit face normals."""
+        return np.concatenate([m.face_normals for m in self._meshes], axis=0)
+
+    def verts_normals_packed(self) -> np.ndarray:
+        """(sum V_i, 3) float64 area-weighted unit vertex normals."""
+        return np.concatenate([m.verts_normals for m in self._meshes], axis=0)
+
+    def update_packed(self, verts_packed) -> "Meshes":
+        """A batch with the same topology and new packed vertex positions (sum V_i, 3)."""
+        vp = as_array(verts_packed, "verts_packed", (int(self.num_verts_per_mesh().sum()), 3))
+        parts = np.split(vp, np.cumsum(self.num_verts_per_mesh())[:-1])
+        return Meshes([m.update_verts(p) for m, p in zip(self._meshes, parts)])
+
+    def offset_verts(self, offsets) -> "Meshes":
+        """A batch with packed vertices moved by (sum V_i, 3) offsets or one (3,) offset."""
+        vp = self.verts_packed()
+        off = np.asarray(offsets, dtype=np.float64)
+        if off.shape == (3,):
+            off = np.broadcast_to(off, vp.shape)
+        off = as_array(off, "offsets", vp.shape)
+        return self.update_packed(vp + off)
+
+    def extend(self, n: int) -> "Meshes":
+        """Repeat each mesh ``n`` times consecutively (m0, m0, ..., m1, m1, ...)."""
+        if not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"n: expected an integer >= 1, got {n!r}")
+        return Meshes([m for m in self._meshes for _ in range(int(n))])
+
+
+def as_meshes(meshes, name: str = "meshes") -> Meshes:
+    """Accept a Mesh or Meshes and return a Meshes batch."""
+    if isinstance(meshes, Meshes):
+        return meshes
+    if isinstance(meshes, Mesh):
+        return Meshes([meshes])
+    if isinstance(meshes, (list, tuple)) and all(isinstance(m, Mesh) for m in meshes):
+        return Meshes(meshes)
+    raise TypeError(f"{name}: expected a Mesh or Meshes, got {type(meshes)!r}")

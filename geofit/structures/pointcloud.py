@@ -1,0 +1,191 @@
+"""Point clouds: a single ``PointCloud`` and a batch ``Pointclouds`` with packed views."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .._validate import as_array, as_points
+
+__all__ = ["PointCloud", "Pointclouds", "as_pointclouds"]
+
+
+class PointCloud:
+    """Points with optional per-point features (colours) and normals.
+
+    Parameters
+    ----------
+    points : (k, 3) float64
+        Positions.
+    features : (k, C) float64, optional
+        Per-point features, typically RGB in [0, 1].
+    normals : (k, 3) float64, optional
+        Per-point normals.
+    """
+
+    def __init__(self, points, features=None, normals=None):
+        self.points = as_points(points, "points")
+        k = len(self.points)
+        self.features = None
+        if features is not None:
+            f = np.asarray(features)
+            if f.ndim == 1:
+                f = f[:, None]
+            self.features = as_array(f, "features", (k, None))
+        self.normals = None if normals is None else as_array(normals, "normals", (k, 3))
+        for a in (self.points, self.features, self.normals):
+            if a is not None:
+                a.setflags(write=False)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+    def isempty(self) -> bool:
+        return len(self.points) == 0
+
+    def __repr__(self) -> str:
+        f = "" if self.features is None else f", features={self.features.shape[1]}"
+        n = "" if self.normals is None else ", normals"
+        return f"PointCloud(n_points={len(self)}{f}{n})"
+
+    def bounding_box(self) -> np.ndarray:
+        """(2, 3) float64 min and max corner; zeros when empty."""
+        if len(self.points) == 0:
+            return np.zeros((2, 3))
+        return np.stack([self.points.min(0), self.points.max(0)])
+
+    def update_points(self, points) -> "PointCloud":
+        """A new cloud with new positions and the same features and normals."""
+        return PointCloud(points, self.features, self.normals)
+
+    def subsample(self, n: int, *, seed=None) -> "PointCloud":
+        """A random subset of ``min(n, len)`` points without replacement (reproducible with ``seed``)."""
+        from .._validate import as_rng
+
+        rng = as_rng(seed)
+        k = len(self)
+        idx = np.sort(rng.choice(k, size=min(int(n), k), replace=False))
+        return PointCloud(self.points[idx],
+                          None if self.features is None else self.features[idx],
+                          None if self.normals is None else self.normals[idx])
+
+    def extend(self, n: int) -> "Pointclouds":
+        """A batch holding this cloud ``n`` times."""
+        return Pointclouds([self]).extend(n)
+
+    def to_open3d(self):
+        """An ``open3d.geometry.PointCloud`` with colours (first three feature channels) and normals."""
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+        if self.features is not None and self.features.shape[1] >= 3:
+            pc.colors = o3d.utility.Vector3dVector(np.clip(self.features[:, :3], 0, 1))
+        if self.normals is not None:
+            pc.normals = o3d.utility.Vector3dVector(self.normals)
+        return pc
+
+
+class Pointclouds:
+    """A batch of point clouds of different sizes with packed and padded views.
+
+    Parameters
+    ----------
+    clouds : sequence of PointCloud
+        The clouds; all or none must carry features (with the same channel count).
+    """
+
+    def __init__(self, clouds: Sequence[PointCloud]):
+        clouds = list(clouds)
+        for i, c in enumerate(clouds):
+            if not isinstance(c, PointCloud):
+                raise TypeError(f"clouds[{i}]: expected a PointCloud, got {type(c)!r}")
+        has_f = {c.features is not None for c in clouds}
+        if len(has_f) > 1:
+            raise ValueError("clouds: either every cloud has features or none does")
+        if clouds and clouds[0].features is not None:
+            chans = {c.features.shape[1] for c in clouds}
+            if len(chans) > 1:
+                raise ValueError(f"clouds: feature channel counts differ: {sorted(chans)}")
+        self._clouds = clouds
+
+    @classmethod
+    def from_lists(cls, points: Sequence, features: Sequence | None = None) -> "Pointclouds":
+        """Build from lists of (k_i, 3) points and optional (k_i, C) features."""
+        feats = list(features) if features is not None else [None] * len(points)
+        if len(feats) != len(points):
+            raise ValueError(f"features: expected {len(points)} arrays, got {len(feats)}")
+        return cls([PointCloud(p, f) for p, f in zip(points, feats)])
+
+    def __len__(self) -> int:
+        return len(self._clouds)
+
+    def __getitem__(self, i):
+        if isinstance(i, (int, np.integer)):
+            return self._clouds[i]
+        if isinstance(i, slice):
+            return Pointclouds(self._clouds[i])
+        return Pointclouds([self._clouds[int(j)] for j in np.atleast_1d(i)])
+
+    def __iter__(self):
+        return iter(self._clouds)
+
+    def __repr__(self) -> str:
+        return f"Pointclouds(n={len(self)}, points={self.num_points_per_cloud().tolist()})"
+
+    def num_points_per_cloud(self) -> np.ndarray:
+        """(N,) int64."""
+        return np.array([len(c) for c in self._clouds], dtype=np.int64)
+
+    def cloud_to_packed_first_idx(self) -> np.ndarray:
+        """(N,) int64 index of each cloud's first point in the packed array."""
+        n = self.num_points_per_cloud()
+        return np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64) if len(n) else n
+
+    def packed_to_cloud_idx(self) -> np.ndarray:
+        """(sum k_i,) int64 cloud index of every packed point."""
+        return np.repeat(np.arange(len(self)), self.num_points_per_cloud())
+
+    def points_list(self) -> list[np.ndarray]:
+        return [c.points for c in self._clouds]
+
+    def features_list(self) -> list:
+        return [c.features for c in self._clouds]
+
+    def points_packed(self) -> np.ndarray:
+        """(sum k_i, 3) float64."""
+        if not self._clouds:
+            return np.zeros((0, 3))
+        return np.concatenate(self.points_list(), axis=0)
+
+    def features_packed(self) -> np.ndarray | None:
+        """(sum k_i, C) float64, or None when the clouds have no features."""
+        if not self._clouds or self._clouds[0].features is None:
+            return None
+        return np.concatenate(self.features_list(), axis=0)
+
+    def points_padded(self, pad_value: float = 0.0) -> np.ndarray:
+        """(N, max k_i, 3) float64 padded with ``pad_value``."""
+        n = self.num_points_per_cloud()
+        out = np.full((len(self), int(n.max()) if len(n) else 0, 3), pad_value)
+        for i, c in enumerate(self._clouds):  # loop over clouds in the batch, not points
+            out[i, : len(c)] = c.points
+        return out
+
+    def extend(self, n: int) -> "Pointclouds":
+        """Repeat each cloud ``n`` times consecutively."""
+        if not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"n: expected an integer >= 1, got {n!r}")
+        return Pointclouds([c for c in self._clouds for _ in range(int(n))])
+
+
+def as_pointclouds(clouds, name: str = "point_clouds") -> Pointclouds:
+    """Accept a PointCloud or Pointclouds and return a Pointclouds batch."""
+    if isinstance(clouds, Pointclouds):
+        return clouds
+    if isinstance(clouds, PointCloud):
+        return Pointclouds([clouds])
+    raise TypeError(f"{name}: expected a PointCloud or Pointclouds, got {type(clouds)!r}")
