@@ -1,0 +1,285 @@
+"""Mesh, Meshes, PointCloud, Pointclouds and textures: invariants, caches and validation."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from geofit import (
+    Mesh,
+    Meshes,
+    PointCloud,
+    Pointclouds,
+    TexturesUV,
+    TexturesVertex,
+    box,
+    ico_sphere,
+    plane,
+    torus,
+)
+from geofit._validate import as_array, as_faces, as_rng, check_choice, check_positive
+
+DATA = Path(__file__).parent / "data"
+
+
+def _slow_edges(faces):
+    """Reference: unique sorted edges by a Python set."""
+    s = set()
+    for f in faces.tolist():
+        for a, b in ((f[1], f[2]), (f[2], f[0]), (f[0], f[1])):
+            s.add((min(a, b), max(a, b)))
+    return np.array(sorted(s))
+
+
+def test_edges_match_slow_reference_and_faces_to_edges():
+    """Unique edges equal a set-based reference; faces_to_edges[f, k] is the edge opposite corner k."""
+    m = ico_sphere(2)
+    assert_array_equal(m.edges, _slow_edges(m.faces))
+    fe = m.topology.faces_to_edges
+    e = m.edges[fe]  # (F, 3, 2)
+    for k in range(3):
+        opp = np.sort(m.faces[:, [(k + 1) % 3, (k + 2) % 3]], axis=1)
+        assert_array_equal(e[:, k], opp)
+
+
+def test_topology_counts_and_euler():
+    """An ico-sphere is watertight with V - E + F = 2; a torus has 0; a plane has boundary edges."""
+    m = ico_sphere(3)
+    t = m.topology
+    assert t.is_watertight and t.euler_characteristic == 2
+    assert len(m.edges) == 3 * m.n_faces // 2
+    assert t.adjacency.nnz == 2 * len(m.edges)
+    assert_array_equal(t.degrees, np.asarray(t.adjacency.sum(1)).ravel())
+    assert set(np.unique(t.degrees)) == {5, 6}
+    assert torus().topology.euler_characteristic == 0
+    p = plane(n=3)
+    assert not p.topology.is_watertight
+    assert len(p.topology.boundary_edges) == 12
+    assert_array_equal(np.sort(p.topology.vertex_neighbours(0)), [1, 4, 5])
+
+
+def test_face_normals_areas_and_vertex_normals_on_sphere():
+    """Areas sum to about 4 pi, face normals are unit and outward, vertex normals ~ positions."""
+    m = ico_sphere(4)
+    assert_allclose(m.face_areas.sum(), 4 * np.pi, rtol=3e-3)
+    assert_allclose(np.linalg.norm(m.face_normals, axis=1), 1.0, rtol=1e-12)
+    centroids = m.verts[m.faces].mean(1)
+    assert np.all(np.einsum("ij,ij->i", m.face_normals, centroids) > 0)
+    assert_allclose(np.linalg.norm(m.verts_normals, axis=1), 1.0, rtol=1e-12)
+    assert np.min(np.einsum("ij,ij->i", m.verts_normals, m.verts)) > 0.999
+
+
+def test_areas_converge_under_refinement():
+    """Total area of the ico-sphere approaches 4 pi monotonically as the level rises."""
+    errs = [abs(ico_sphere(level).face_areas.sum() - 4 * np.pi) for level in range(5)]
+    assert all(a > b for a, b in zip(errs, errs[1:]))
+    assert errs[-1] < 0.02
+
+
+def test_degenerate_and_isolated_vertices_give_zero_normals_not_nan():
+    """A zero-area face gets a zero normal; an unreferenced vertex gets a zero vertex normal."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [5, 5, 5.0]])
+    m = Mesh(V, [[0, 1, 2]])
+    assert m.face_areas[0] == 0
+    assert_array_equal(m.face_normals, 0)
+    assert np.all(np.isfinite(m.verts_normals))
+    assert_array_equal(m.verts_normals[3], 0)
+
+
+def test_update_verts_shares_topology_and_recomputes_geometry():
+    """update_verts keeps the Topology object and recomputes areas for the new positions."""
+    m = ico_sphere(2)
+    _ = m.edges
+    m2 = m.update_verts(m.verts * 2)
+    assert m2.topology is m.topology
+    assert_allclose(m2.face_areas, 4 * m.face_areas, rtol=1e-12)
+    m3 = m.offset_verts([1.0, 0, 0])
+    assert_allclose(m3.verts - m.verts, np.broadcast_to([1.0, 0, 0], m.verts.shape))
+    assert_allclose(m.scale_verts(3).verts, 3 * m.verts)
+
+
+def test_arrays_are_read_only():
+    """Cached geometry stays valid because vertex and face arrays cannot be changed in place."""
+    m = ico_sphere(1)
+    with pytest.raises(ValueError):
+        m.verts[0, 0] = 1.0
+    with pytest.raises(ValueError):
+        m.faces[0, 0] = 1
+
+
+def test_normalize_round_trip():
+    """normalize() centres on the mean, scales max |coord| to 1, and undo restores the input."""
+    rng = np.random.default_rng(0)
+    m = ico_sphere(2).update_verts(ico_sphere(2).verts * [3, 1, 2] + [5, -1, 2])
+    norm = m.normalize()
+    assert_allclose(norm.mesh.verts.mean(0), 0, atol=1e-12)
+    assert_allclose(np.abs(norm.mesh.verts).max(), 1.0)
+    assert_allclose(norm.undo(norm.mesh.verts), m.verts, atol=1e-12)
+    with pytest.raises(ValueError, match="coincide"):
+        Mesh(np.ones((3, 3)), [[0, 1, 2]]).normalize()
+    with pytest.raises(ValueError, match="no vertices"):
+        Mesh(np.zeros((0, 3)), np.zeros((0, 3), int)).normalize()
+    assert rng is not None
+
+
+def test_meshes_packed_views_and_extend():
+    """Packed faces index packed verts; extend repeats each mesh consecutively (PyTorch3D order)."""
+    a, b = ico_sphere(0), box()
+    batch = Meshes([a, b])
+    assert_array_equal(batch.num_verts_per_mesh(), [12, 8])
+    assert_array_equal(batch.mesh_to_faces_packed_first_idx(), [0, 20])
+    vp, fp = batch.verts_packed(), batch.faces_packed()
+    assert_allclose(vp[fp[20:]], b.verts[b.faces])
+    assert_array_equal(batch.faces_packed_to_mesh_idx()[[0, 19, 20, 31]], [0, 0, 1, 1])
+    assert batch.verts_padded().shape == (2, 12, 3)
+    ext = batch.extend(3)
+    assert len(ext) == 6 and ext[0] is a and ext[2] is a and ext[3] is b
+    assert len(a.extend(4)) == 4
+    moved = batch.offset_verts(np.ones((20, 3)))
+    assert_allclose(moved.verts_packed(), vp + 1)
+    assert moved[1].topology is b.topology
+    sub = ext[2:4]
+    assert len(sub) == 2 and sub[1] is b
+    assert len(ext[np.array([True, False, False, True, False, False])]) == 2
+    m2 = Meshes.from_lists([a.verts, b.verts], [a.faces, b.faces])
+    assert_allclose(m2.verts_packed(), vp)
+
+
+def test_textures_uv_bilinear_sampling_convention():
+    """v = 1 is the top row; u, v at pixel centres (align_corners) return those pixels exactly."""
+    img = np.arange(4 * 5 * 3, dtype=float).reshape(4, 5, 3) / 60.0
+    uvs = np.array([[0.0, 1.0], [1.0, 0.0], [0.25, 2 / 3], [-1.0, 2.0]])
+    tex = TexturesUV(img, np.zeros((1, 3), int), uvs)
+    s = tex.sample_uv(uvs)
+    assert_allclose(s[0], img[0, 0])          # u=0, v=1: top-left
+    assert_allclose(s[1], img[3, 4])          # u=1, v=0: bottom-right
+    assert_allclose(s[2], img[1, 1])          # x = 0.25*4 = 1, y = (1/3)*3 = 1
+    assert_allclose(s[3], img[0, 0])          # border padding clamps
+    mid = tex.sample_uv(np.array([[0.125, 1.0]]))  # halfway between columns 0 and 1
+    assert_allclose(mid[0], 0.5 * (img[0, 0] + img[0, 1]))
+    rep = TexturesUV(img, np.zeros((1, 3), int), uvs, padding_mode="repeat")
+    assert_allclose(rep.sample_uv(np.array([[1.25, 2 / 3]])), rep.sample_uv(np.array([[0.25, 2 / 3]])))
+
+
+def test_textures_on_mesh_and_vertex_colours():
+    """sample_textures interpolates per-vertex colours barycentrically and reads UV maps per face."""
+    m = Mesh(np.eye(3), [[0, 1, 2]], TexturesVertex(np.eye(3)))
+    bary = np.array([[0.2, 0.3, 0.5]])
+    assert_allclose(m.sample_textures(np.array([0]), bary), bary)
+    img = np.zeros((2, 2, 3))
+    img[0, 0] = 1.0  # top-left texel
+    tex = TexturesUV(img, [[0, 1, 2]], [[0, 1], [0, 1], [0, 1]])
+    m2 = Mesh(np.eye(3), [[0, 1, 2]], tex)
+    assert_allclose(m2.sample_textures(np.array([0]), bary), [[1, 1, 1]])
+    with pytest.raises(ValueError, match="no textures"):
+        Mesh(np.eye(3), [[0, 1, 2]]).sample_textures(np.array([0]), bary)
+
+
+def test_pointclouds_batch():
+    """Packed and padded point views, features, extend and subsample reproducibility."""
+    rng = np.random.default_rng(1)
+    a = PointCloud(rng.random((5, 3)), rng.random((5, 3)))
+    b = PointCloud(rng.random((3, 3)), rng.random((3, 3)))
+    pcs = Pointclouds([a, b])
+    assert_array_equal(pcs.num_points_per_cloud(), [5, 3])
+    assert_array_equal(pcs.cloud_to_packed_first_idx(), [0, 5])
+    assert pcs.points_packed().shape == (8, 3) and pcs.features_packed().shape == (8, 3)
+    assert pcs.points_padded().shape == (2, 5, 3)
+    assert len(pcs.extend(2)) == 4
+    assert_array_equal(a.subsample(3, seed=4).points, a.subsample(3, seed=4).points)
+    assert PointCloud(np.zeros((0, 3))).isempty()
+    assert Pointclouds([PointCloud(np.zeros((2, 3)))]).features_packed() is None
+
+
+# ---------------------------------------------------------------------------- validation
+@pytest.mark.parametrize(
+    "verts, faces, match",
+    [
+        (np.zeros((3, 2)), [[0, 1, 2]], r"verts: expected shape \(n, 3\), got \(3, 2\)"),
+        ([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], "verts: expected finite"),
+        (np.eye(3), [[0, 1, 3]], r"faces: vertex indices must lie in \[0, 2\]"),
+        (np.eye(3), [[0, -1, 2]], r"faces: vertex indices must lie in \[0, 2\]"),
+        (np.eye(3), [[0, 1]], r"faces: expected shape \(n, 3\), got \(1, 2\)"),
+        (np.eye(3), [[0, 1, 1.5]], "faces: expected integer indices, got fractional"),
+        (np.eye(3), [["a", "b", "c"]], "faces: expected integers"),
+        ([[1, 2], [3]], [[0, 1, 2]], "verts: "),
+    ],
+)
+def test_mesh_validation(verts, faces, match):
+    with pytest.raises(ValueError, match=match):
+        Mesh(verts, faces)
+
+
+def test_texture_and_batch_validation():
+    with pytest.raises(ValueError, match="textures.faces_uvs"):
+        Mesh(np.eye(3), [[0, 1, 2]], TexturesUV(np.zeros((2, 2, 3)), [[0, 0, 0], [0, 0, 0]], [[0, 0]]))
+    with pytest.raises(ValueError, match="textures.verts_features"):
+        Mesh(np.eye(3), [[0, 1, 2]], TexturesVertex(np.zeros((2, 3))))
+    with pytest.raises(TypeError, match="textures"):
+        Mesh(np.eye(3), [[0, 1, 2]], textures="red")
+    with pytest.raises(ValueError, match="maps: expected a non-empty"):
+        TexturesUV(np.zeros((0, 2, 3)), [[0, 0, 0]], [[0, 0]])
+    with pytest.raises(ValueError, match="faces_uvs: vertex indices"):
+        TexturesUV(np.zeros((2, 2, 3)), [[0, 0, 5]], [[0, 0]])
+    with pytest.raises(ValueError, match="padding_mode"):
+        TexturesUV(np.zeros((2, 2, 3)), [[0, 0, 0]], [[0, 0]], padding_mode="zeros")
+    with pytest.raises(ValueError, match="verts_uvs"):
+        TexturesUV(np.zeros((2, 2, 3)), [[0, 0, 0]], [[0, 0, 0]])
+    with pytest.raises(TypeError, match=r"meshes\[1\]"):
+        Meshes([ico_sphere(0), "x"])
+    with pytest.raises(ValueError, match="n: expected an integer >= 1"):
+        Meshes([ico_sphere(0)]).extend(0)
+    with pytest.raises(ValueError, match="faces: expected 1 face arrays"):
+        Meshes.from_lists([np.eye(3)], [])
+    with pytest.raises(ValueError, match="textures: expected 1 entries"):
+        Meshes.from_lists([np.eye(3)], [[[0, 1, 2]]], textures=[])
+    with pytest.raises(ValueError, match=r"offsets: expected shape \(12, 3\)"):
+        ico_sphere(0).offset_verts(np.zeros((5, 3)))
+    with pytest.raises(ValueError, match=r"verts: expected shape \(12, 3\)"):
+        ico_sphere(0).update_verts(np.zeros((5, 3)))
+    with pytest.raises(ValueError, match=r"verts_packed: expected shape \(12, 3\)"):
+        Meshes([ico_sphere(0)]).update_packed(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="scale: expected a finite"):
+        ico_sphere(0).scale_verts(np.inf)
+
+
+def test_pointcloud_validation():
+    with pytest.raises(ValueError, match=r"points: expected shape \(n, 3\)"):
+        PointCloud(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match=r"features: expected shape \(4, n\)"):
+        PointCloud(np.zeros((4, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"normals: expected shape \(4, 3\)"):
+        PointCloud(np.zeros((4, 3)), normals=np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="points: expected finite"):
+        PointCloud([[0, 0, np.inf]])
+    with pytest.raises(ValueError, match="either every cloud has features"):
+        Pointclouds([PointCloud(np.zeros((1, 3)), np.zeros((1, 3))), PointCloud(np.zeros((1, 3)))])
+    with pytest.raises(ValueError, match="channel counts differ"):
+        Pointclouds([PointCloud(np.zeros((1, 3)), np.zeros((1, 3))),
+                     PointCloud(np.zeros((1, 3)), np.zeros((1, 4)))])
+    with pytest.raises(TypeError, match=r"clouds\[0\]"):
+        Pointclouds([np.zeros((2, 3))])
+    with pytest.raises(ValueError, match="features: expected 1 arrays"):
+        Pointclouds.from_lists([np.zeros((1, 3))], [])
+
+
+def test_validate_helpers():
+    with pytest.raises(ValueError, match="x: expected a non-empty array"):
+        as_array(np.zeros((0, 3)), "x", (None, 3), allow_empty=False)
+    with pytest.raises(ValueError, match="x: expected real numbers"):
+        as_array(np.array(["a"]), "x")
+    with pytest.raises(ValueError, match="f: expected integer indices, got non-finite"):
+        as_faces(np.array([[0, 1, np.nan]]), "f", 3)
+    with pytest.raises(TypeError, match="seed"):
+        as_rng("seed")
+    with pytest.raises(ValueError, match=r"mode: expected one of \('a', 'b'\)"):
+        check_choice("c", "mode", ("a", "b"))
+    with pytest.raises(ValueError, match="r: expected a finite number > 0"):
+        check_positive(0.0, "r")
+    with pytest.raises(ValueError, match="r: expected a finite number >= 0"):
+        check_positive(-1.0, "r", strict=False)
+    with pytest.raises(ValueError, match="r: expected a number"):
+        check_positive("x", "r")
+    g = np.random.default_rng(3)
+    assert as_rng(g) is g
+    assert_array_equal(as_rng(5).random(3), np.random.default_rng(5).random(3))
