@@ -176,6 +176,11 @@ class PointToMeshDistance:
         The target surface; must have at least one face.
     n_threads : int, optional
         Threads Open3D may use per query; 0 (default) lets Open3D choose (all cores).
+    one_ring : bool, optional
+        When the float64 closest point lies on an edge or vertex of the face Open3D picked,
+        also test (in float64) every face incident on that edge's or vertex's corners and keep
+        the nearest (default True). This removes the float32 face-choice error at edges and
+        vertices, which is where it occurs.
 
     Raises
     ------
@@ -193,8 +198,11 @@ class PointToMeshDistance:
     barycentrics and the distance are recomputed in float64 on the original coordinates with
     :func:`closest_point_on_triangles`. The distance is therefore float64-exact for that face.
     Where two faces are within float32 error (~1e-7 of the mesh size) of being equally close,
-    Open3D may pick either; the reported distance then exceeds the true minimum by at most that
-    amount.
+    Open3D may pick either. When the picked face's closest point is on its boundary (the usual
+    case, e.g. outside a convex mesh near an edge) the ``one_ring`` check finds the right face
+    among its neighbours. Two near-tied faces that share no vertex, or two faces that both
+    project the point into their interior, are not checked: there the reported distance may
+    exceed the true minimum by float32 error (~1e-7 of the mesh size), never fall below it.
 
     Examples
     --------
@@ -206,7 +214,7 @@ class PointToMeshDistance:
     True
     """
 
-    def __init__(self, mesh: Mesh, *, n_threads: int = 0):
+    def __init__(self, mesh: Mesh, *, n_threads: int = 0, one_ring: bool = True):
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
         if mesh.n_faces == 0:
@@ -214,6 +222,7 @@ class PointToMeshDistance:
         if not isinstance(n_threads, (int, np.integer)) or n_threads < 0:
             raise ValueError(f"n_threads: expected an integer >= 0, got {n_threads!r}")
         self._n_threads = int(n_threads)
+        self._one_ring = bool(one_ring)
         self._faces = mesh.faces
         self._mesh = mesh
         self._build(mesh.verts)
@@ -298,11 +307,51 @@ class PointToMeshDistance:
         return self._refine(P, fid)
 
     def _refine(self, P: np.ndarray, fid: np.ndarray) -> ClosestPoints:
-        tri = self._faces[fid]
-        V = self._verts
+        """Float64 closest point on face ``fid``, then a one-ring check for boundary hits."""
+        F, V = self._faces, self._verts
+        tri = F[fid]
         Q, bary = _closest_point_on_triangles(P, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
-        d = np.sqrt(np.einsum("ij,ij->i", P - Q, P - Q))
-        return ClosestPoints(d, Q, fid, bary)
+        diff = P - Q
+        d2 = np.einsum("ij,ij->i", diff, diff)
+        if self._one_ring:
+            # A closest point on an edge or vertex of the picked face (a zero barycentric) is
+            # where a float32 face choice can be wrong by ~1e-7: the true closest feature is then
+            # on a face sharing that edge or vertex. Check those faces in float64.
+            q = np.flatnonzero((bary == 0).any(axis=1))
+            if len(q):
+                fid, Q, bary, d2 = fid.copy(), Q.copy(), bary.copy(), d2.copy()
+                self._one_ring_check(P, q, tri[q], bary[q], fid, Q, bary, d2)
+        return ClosestPoints(np.sqrt(d2), Q, fid, bary)
+
+    def _one_ring_check(self, P, q, tri, b, fid, Q, bary, d2) -> None:
+        """Replace (in place) rows ``q`` of the results by the best face incident on the
+        picked face's corners that carry a non-zero barycentric (one corner for a vertex hit,
+        the two ends for an edge hit)."""
+        F, V = self._faces, self._verts
+        inc = self._mesh.topology.vertex_face_incidence  # (V, F) csr: row v lists v's faces
+        indptr, indices = inc.indptr, inc.indices
+        corners = np.where(b > 0, tri, -1).ravel()  # (n*3,) in query order
+        owner = np.repeat(np.arange(len(q)), 3)
+        keep = corners >= 0
+        corners, owner = corners[keep], owner[keep]
+        counts = indptr[corners + 1] - indptr[corners]
+        starts = np.repeat(indptr[corners] - np.cumsum(counts) + counts, counts)
+        cand = indices[starts + np.arange(int(counts.sum()))].astype(np.int64)
+        owner = np.repeat(owner, counts)
+        ct = F[cand]
+        Pc = P[q[owner]]
+        Qc, bc = _closest_point_on_triangles(Pc, V[ct[:, 0]], V[ct[:, 1]], V[ct[:, 2]])
+        dc = Pc - Qc
+        dc2 = np.einsum("ij,ij->i", dc, dc)
+        order = np.lexsort((dc2, owner))
+        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+        rows = q[owner[first]]
+        better = dc2[first] < d2[rows]
+        rows, first = rows[better], first[better]
+        fid[rows] = cand[first]
+        Q[rows] = Qc[first]
+        bary[rows] = bc[first]
+        d2[rows] = dc2[first]
 
     def distance(self, points) -> np.ndarray:
         """(k,) float64 unsigned distances; shorthand for ``query(points).distances``."""
