@@ -1,0 +1,325 @@
+"""The harness every geofit benchmark shares: timing, machine facts, one JSON schema, one chart.
+
+A benchmark script builds a :class:`BenchmarkReport`, adds one :class:`MethodRun` per method
+(a curve of metrics against solver seconds, the final numbers, the status), then calls
+:meth:`BenchmarkReport.write` (JSON) and :func:`plot_accuracy_vs_time` (PNG). Conventions:
+
+* ``seconds`` are the method's own wall time on this machine; work done only to *observe* the
+  method (metric checkpoints, plotting) is excluded and the report's ``notes`` say so;
+* accuracy is measured with :mod:`geofit.metrics`; the JSON states in which frame;
+* the JSON is self-describing: ``schema``, ``benchmark``, ``created`` (UTC), ``command``,
+  ``machine``, ``config``, ``notes``, ``reference`` (numbers measured elsewhere, with their
+  source), ``methods`` and optional ``tables``.
+
+Run benchmarks from the repository root, e.g. ``python benchmarks/fit_mesh.py [--quick]``.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCHEMA = "geofit-benchmark/1"
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+
+__all__ = [
+    "RESULTS_DIR",
+    "SCHEMA",
+    "BenchmarkReport",
+    "MethodRun",
+    "json_safe",
+    "machine_info",
+    "markdown_table",
+    "parser",
+    "plot_accuracy_vs_time",
+    "time_call",
+]
+
+
+# ---------------------------------------------------------------------------------------- facts
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _version(*dists: str) -> str | None:
+    """Installed version of the first distribution found among ``dists``, else None."""
+    from importlib import metadata
+
+    for d in dists:
+        try:
+            return metadata.version(d)
+        except metadata.PackageNotFoundError:
+            continue
+    return None
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU, core count, memory, OS, Python and the versions of the numerical stack."""
+    try:
+        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
+    except (ValueError, OSError, AttributeError):
+        mem = None
+    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    return {
+        "cpu": _cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "cpu_affinity": affinity,
+        "memory_gib": round(mem, 1) if mem else None,
+        "os": platform.platform(),
+        "python": platform.python_version(),
+        "versions": {
+            "geofit": _version("geofit"), "numpy": _version("numpy"),
+            "scipy": _version("scipy"), "open3d": _version("open3d-cpu", "open3d"),
+            "nlopt": _version("nlopt"), "trimesh": _version("trimesh"),
+            "embreex": _version("embreex"), "matplotlib": _version("matplotlib"),
+        },
+    }
+
+
+def time_call(fn: Callable[[], Any], *, repeat: int = 1) -> tuple[Any, float]:
+    """Run ``fn`` ``repeat`` times; return its last result and the best wall time (s)."""
+    best = np.inf
+    out = None
+    for _ in range(max(int(repeat), 1)):  # repetitions
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return out, float(best)
+
+
+def json_safe(obj):
+    """Plain-JSON version of ``obj``: numpy scalars/arrays converted, NaN/inf as strings."""
+    if isinstance(obj, Mapping):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        if np.isfinite(v):
+            return v
+        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+# ---------------------------------------------------------------------------------------- data
+@dataclass
+class MethodRun:
+    """One method's run: a curve against solver seconds and its final numbers.
+
+    Attributes
+    ----------
+    name : str
+        Short key (``"sgd"``, ``"lbfgs"``).
+    label : str
+        Legend text.
+    seconds : list of float
+        Solver time at each checkpoint.
+    curve : dict str -> list of float
+        Metric values at each checkpoint (same length as ``seconds``).
+    final : dict
+        Final metrics and sizes (``n_verts``, ...).
+    status, message : str
+        How the method ended.
+    config : dict
+        Its settings.
+    """
+
+    name: str
+    label: str
+    seconds: list = field(default_factory=list)
+    curve: dict = field(default_factory=dict)
+    final: dict = field(default_factory=dict)
+    status: str = ""
+    message: str = ""
+    config: dict = field(default_factory=dict)
+
+    def add(self, seconds: float, **metrics: float) -> None:
+        """Append a checkpoint."""
+        self.seconds.append(float(seconds))
+        for k, v in metrics.items():
+            self.curve.setdefault(k, []).append(float(v))
+
+    def first_reaching(self, criteria: Mapping[str, tuple[str, float]]) -> float | None:
+        """Seconds of the first checkpoint meeting all ``{metric: ("<=" | ">=", value)}``."""
+        for i, s in enumerate(self.seconds):
+            ok = True
+            for k, (op, v) in criteria.items():
+                x = self.curve[k][i]
+                ok &= (x <= v) if op == "<=" else (x >= v)
+            if ok:
+                return s
+        return None
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "label": self.label, "status": self.status,
+                "message": self.message, "config": self.config, "final": self.final,
+                "curve": {"seconds": self.seconds, **self.curve}}
+
+
+@dataclass
+class BenchmarkReport:
+    """Everything one benchmark writes to JSON."""
+
+    benchmark: str
+    config: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    reference: dict = field(default_factory=dict)
+    methods: list = field(default_factory=list)
+    tables: dict = field(default_factory=dict)
+    command: str = field(default_factory=lambda: " ".join([Path(sys.executable).name]
+                                                          + sys.argv))
+
+    def add(self, run: MethodRun) -> MethodRun:
+        self.methods.append(run)
+        return run
+
+    def to_dict(self) -> dict:
+        return json_safe({
+            "schema": SCHEMA,
+            "benchmark": self.benchmark,
+            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            "command": self.command,
+            "machine": machine_info(),
+            "config": self.config,
+            "notes": self.notes,
+            "reference": self.reference,
+            "methods": [m.to_dict() for m in self.methods],
+            "tables": self.tables,
+        })
+
+    def write(self, path: str | Path) -> Path:
+        """Write the JSON (indented, sorted keys off: the order above is the reading order)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_dict(), indent=1) + "\n", encoding="utf-8")
+        return path
+
+
+# ---------------------------------------------------------------------------------------- chart
+_STYLE = {
+    "figure.dpi": 110, "savefig.dpi": 110, "font.size": 9, "axes.grid": True,
+    "grid.alpha": 0.3, "axes.spines.top": False, "axes.spines.right": False,
+    "legend.fontsize": 8, "legend.frameon": False,
+}
+
+
+def plot_accuracy_vs_time(methods: Sequence[MethodRun], panels: Sequence[Mapping[str, Any]],
+                          path: str | Path, *, title: str = "",
+                          time_limit: float | None = None,
+                          reference_points: Iterable[Mapping[str, Any]] = ()) -> Path:
+    """One figure, one panel per metric, one curve per method, accuracy against seconds.
+
+    Parameters
+    ----------
+    methods : sequence of MethodRun
+        The curves.
+    panels : sequence of dict
+        Per panel: ``metric`` (key in ``MethodRun.curve``), ``label`` (y-axis text),
+        ``logy`` (bool), optional ``target`` (a horizontal line: the accuracy to reach) and
+        ``target_label``.
+    path : str or Path
+        PNG to write.
+    title : str
+        Figure title.
+    time_limit : float, optional
+        A vertical dashed line (e.g. the time budget of an acceptance criterion).
+    reference_points : iterable of dict
+        Single measurements to mark: ``seconds``, ``label`` and one value per panel metric.
+
+    Returns
+    -------
+    Path
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    refs = list(reference_points)
+    with plt.rc_context(_STYLE):
+        fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.0), squeeze=False)
+        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        for ax, panel in zip(axes[0], panels):
+            key = panel["metric"]
+            for i, m in enumerate(methods):
+                if key not in m.curve or not m.seconds:
+                    continue
+                t = np.maximum(np.asarray(m.seconds), 1e-3)
+                ax.plot(t, m.curve[key], marker="o", ms=2.5, lw=1.4,
+                        color=colors[i % len(colors)], label=m.label)
+            for r in refs:
+                if key in r:
+                    ax.plot([r["seconds"]], [r[key]], marker="*", ms=12, color="black",
+                            ls="none", label=r.get("label"))
+            if panel.get("target") is not None:
+                ax.axhline(panel["target"], color="black", lw=0.8, ls=":",
+                           label=panel.get("target_label"))
+            if time_limit is not None:
+                ax.axvline(time_limit, color="crimson", lw=0.8, ls="--",
+                           label=f"{time_limit:g} s")
+            ax.set_xscale("log")
+            if panel.get("logy"):
+                ax.set_yscale("log")
+            ax.set_xlabel("solver wall time (s, log)")
+            ax.set_ylabel(panel.get("label", key))
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        seen = {}
+        for h, lab in zip(handles, labels):
+            if lab and lab not in seen:
+                seen[lab] = h
+        fig.legend(seen.values(), seen.keys(), loc="lower center",
+                   ncol=min(4, len(seen)), bbox_to_anchor=(0.5, -0.01))
+        if title:
+            fig.suptitle(title)
+        fig.tight_layout(rect=(0, 0.1 + 0.03 * ((len(seen) - 1) // 4), 1, 1))
+        fig.savefig(path)
+        plt.close(fig)
+    return path
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A GitHub-flavoured markdown table (cells converted with ``str``; ``|`` escaped)."""
+    def cell(x):
+        return str(x).replace("|", "\\|").replace("\n", " ")
+
+    lines = ["| " + " | ".join(cell(h) for h in header) + " |",
+             "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(cell(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def parser(description: str) -> argparse.ArgumentParser:
+    """The common command line: ``--quick`` (CI-sized) and ``--out DIR``."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--quick", action="store_true",
+                   help="reduced sizes for CI (numbers not comparable to the full run)")
+    p.add_argument("--out", type=Path, default=RESULTS_DIR,
+                   help=f"directory for the JSON and PNG (default {RESULTS_DIR})")
+    return p

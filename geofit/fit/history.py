@@ -1,0 +1,343 @@
+"""What every fit in geofit records and returns: a clock, a history, a result.
+
+* :class:`Clock` measures the solver's wall time and can be paused, so that work done for the
+  observer (accuracy metrics at checkpoints, progress bars, plotting) is not charged to the solver.
+* :class:`FitHistory` keeps one row per recorded step (step, seconds, loss, each loss term,
+  number of parameters, stage) and, at checkpoints, the accuracy metrics.
+* :class:`FitResult` is the common result of a fit: its status (from :data:`STATUSES`), the
+  message that explains it, the history, and the size of the problem. Workflow-specific results
+  (the fitted mesh, texture, volume, network) subclass it.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult"]
+
+#: Every status a solver or a fit can end with, and what it means.
+STATUSES: dict[str, str] = {
+    "converged": "a convergence test was met (relative decrease, gradient norm or step size)",
+    "max_iter": "stopped: the iteration budget was used up",
+    "max_eval": "stopped: the evaluation budget was used up",
+    "time_budget": "stopped: the time budget was used up",
+    "stalled": "stopped: the line search could not decrease the objective any more",
+    "callback": "stopped: the callback asked to stop",
+    "nonfinite": "stopped: the objective or its gradient became NaN or inf; "
+                 "the last finite parameters are returned",
+    "diverged": "stopped: the objective grew beyond the divergence threshold; "
+                "the best finite parameters are returned",
+    "failed": "the solver failed; the message says why",
+}
+
+#: Statuses counted as a successful solve.
+CONVERGED_STATUSES = frozenset({"converged"})
+
+
+class Clock:
+    """A wall clock for a solver that can be paused while the observer works.
+
+    Examples
+    --------
+    >>> clock = Clock()
+    >>> with clock.paused():
+    ...     pass  # metric evaluation, not charged to the solver
+    >>> clock.elapsed() >= 0.0
+    True
+    """
+
+    def __init__(self) -> None:
+        self._start = time.perf_counter()
+        self._paused_total = 0.0
+        self._paused_at: float | None = None
+
+    def elapsed(self) -> float:
+        """Seconds since construction, minus the paused intervals."""
+        now = self._paused_at if self._paused_at is not None else time.perf_counter()
+        return now - self._start - self._paused_total
+
+    @property
+    def is_paused(self) -> bool:
+        return self._paused_at is not None
+
+    @contextmanager
+    def paused(self) -> Iterator[None]:
+        """Context manager: time spent inside is excluded from :meth:`elapsed` (re-entrant)."""
+        if self._paused_at is not None:  # already paused by an outer block
+            yield
+            return
+        self._paused_at = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._paused_total += time.perf_counter() - self._paused_at
+            self._paused_at = None
+
+
+def _as_float(value, name: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {value!r}") from None
+
+
+class FitHistory:
+    """The trace of a fit: one row per recorded step, metrics at checkpoints.
+
+    Rows hold the step number (objective evaluations or iterations, as the fit documents), the
+    solver's seconds (see :class:`Clock`), the total loss, each weighted loss term, the number of
+    free parameters and the stage (coarse-to-fine level or sample redraw). The set of term names
+    is fixed by the first row, and the set of metric names by the first checkpoint, so the
+    columns of :meth:`as_arrays` are complete (no placeholder values).
+
+    Examples
+    --------
+    >>> h = FitHistory()
+    >>> h.record(0, 0.0, 2.0, {"chamfer": 1.5, "edge": 0.5}, n_params=6)
+    >>> h.record(1, 0.1, 1.0, {"chamfer": 0.8, "edge": 0.2}, {"chamfer_l2": 0.3}, n_params=6)
+    >>> h.as_arrays()["terms"]["chamfer"]
+    array([1.5, 0.8])
+    >>> h.as_arrays()["metrics"]["chamfer_l2"]
+    array([0.3])
+    """
+
+    def __init__(self) -> None:
+        self.steps: list[int] = []
+        self.seconds: list[float] = []
+        self.loss: list[float] = []
+        self.terms: dict[str, list[float]] = {}
+        self.n_params: list[int] = []
+        self.stage: list[int] = []
+        self.checkpoints: list[dict[str, Any]] = []
+        self.events: list[dict[str, Any]] = []
+        self._metric_names: tuple[str, ...] | None = None
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+    def __repr__(self) -> str:
+        last = f", last loss={self.loss[-1]:.4g} at {self.seconds[-1]:.3g} s" if self.loss else ""
+        return (f"FitHistory({len(self)} rows, {len(self.checkpoints)} checkpoints, "
+                f"terms={list(self.terms)}{last})")
+
+    def record(self, step: int, seconds: float, loss: float,
+               terms: Mapping[str, float] | None = None,
+               metrics: Mapping[str, float] | None = None, *,
+               n_params: int = 0, stage: int = 0) -> None:
+        """Append one row, and a checkpoint when ``metrics`` is given.
+
+        Parameters
+        ----------
+        step : int
+            Step number (non-decreasing).
+        seconds : float
+            Solver time at this step (non-decreasing).
+        loss : float
+            Total objective value (may be inf/NaN when the solver reports a non-finite step;
+            such rows are kept so the failure is visible).
+        terms : mapping str -> float, optional
+            Weighted loss terms; the names must match those of the first row.
+        metrics : mapping str -> float, optional
+            Accuracy metrics at this step (a checkpoint); names must match the first checkpoint.
+        n_params : int
+            Number of free parameters at this step.
+        stage : int
+            Stage index (coarse-to-fine level, sample redraw).
+
+        Raises
+        ------
+        ValueError
+            If step or seconds decrease, or the term or metric names change.
+        """
+        step = int(step)
+        seconds = _as_float(seconds, "seconds")
+        if self.steps and step < self.steps[-1]:
+            raise ValueError(f"step: expected >= {self.steps[-1]} (non-decreasing), got {step}")
+        if self.seconds and seconds < self.seconds[-1]:
+            raise ValueError(
+                f"seconds: expected >= {self.seconds[-1]} (non-decreasing), got {seconds}")
+        terms = dict(terms or {})
+        if not self.steps:
+            self.terms = {k: [] for k in terms}
+        elif set(terms) != set(self.terms):
+            raise ValueError(f"terms: expected the names {sorted(self.terms)}, got {sorted(terms)}")
+        self.steps.append(step)
+        self.seconds.append(seconds)
+        self.loss.append(_as_float(loss, "loss"))
+        for k, v in terms.items():
+            self.terms[k].append(_as_float(v, f"terms[{k!r}]"))
+        self.n_params.append(int(n_params))
+        self.stage.append(int(stage))
+        if metrics is not None:
+            self.checkpoint(step, seconds, metrics)
+
+    def checkpoint(self, step: int, seconds: float, metrics: Mapping[str, float]) -> None:
+        """Record accuracy metrics at ``step`` (see :meth:`record`)."""
+        metrics = {k: _as_float(v, f"metrics[{k!r}]") for k, v in dict(metrics).items()}
+        if self._metric_names is None:
+            self._metric_names = tuple(metrics)
+        elif set(metrics) != set(self._metric_names):
+            raise ValueError(f"metrics: expected the names {sorted(self._metric_names)}, "
+                             f"got {sorted(metrics)}")
+        if self.checkpoints and seconds < self.checkpoints[-1]["seconds"]:
+            raise ValueError("seconds: checkpoints must not go back in time")
+        self.checkpoints.append({"step": int(step), "seconds": float(seconds), **metrics})
+
+    def note(self, step: int, seconds: float, message: str, **info) -> None:
+        """Record an event (stage change, subdivision, sample redraw) with a message."""
+        self.events.append({"step": int(step), "seconds": float(seconds),
+                            "message": str(message), **info})
+
+    @property
+    def metric_names(self) -> tuple[str, ...]:
+        return self._metric_names or ()
+
+    def last_metrics(self) -> dict[str, float] | None:
+        """The metrics of the last checkpoint, or None."""
+        if not self.checkpoints:
+            return None
+        c = self.checkpoints[-1]
+        return {k: c[k] for k in self.metric_names}
+
+    def as_arrays(self) -> dict[str, Any]:
+        """Columns as numpy arrays.
+
+        Returns
+        -------
+        dict
+            ``step`` (n,) int64, ``seconds`` (n,) float64, ``loss`` (n,) float64,
+            ``n_params`` (n,) int64, ``stage`` (n,) int64, ``terms`` {name: (n,) float64},
+            ``checkpoint_step`` (c,) int64, ``checkpoint_seconds`` (c,) float64 and
+            ``metrics`` {name: (c,) float64}.
+        """
+        return {
+            "step": np.asarray(self.steps, dtype=np.int64),
+            "seconds": np.asarray(self.seconds, dtype=np.float64),
+            "loss": np.asarray(self.loss, dtype=np.float64),
+            "n_params": np.asarray(self.n_params, dtype=np.int64),
+            "stage": np.asarray(self.stage, dtype=np.int64),
+            "terms": {k: np.asarray(v, dtype=np.float64) for k, v in self.terms.items()},
+            "checkpoint_step": np.asarray([c["step"] for c in self.checkpoints], dtype=np.int64),
+            "checkpoint_seconds": np.asarray([c["seconds"] for c in self.checkpoints],
+                                             dtype=np.float64),
+            "metrics": {k: np.asarray([c[k] for c in self.checkpoints], dtype=np.float64)
+                        for k in self.metric_names},
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (non-finite floats become the strings "nan", "inf", "-inf")."""
+        return _json_safe({
+            "step": self.steps, "seconds": self.seconds, "loss": self.loss,
+            "n_params": self.n_params, "stage": self.stage, "terms": self.terms,
+            "checkpoints": self.checkpoints, "events": self.events,
+        })
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FitHistory:
+        """Rebuild a history written by :meth:`to_dict`."""
+        h = cls()
+        terms = d.get("terms", {})
+        for i, step in enumerate(d["step"]):
+            h.record(step, float(d["seconds"][i]), float(d["loss"][i]),
+                     {k: float(v[i]) for k, v in terms.items()},
+                     n_params=d["n_params"][i], stage=d["stage"][i])
+        for c in d.get("checkpoints", []):
+            h.checkpoint(c["step"], c["seconds"],
+                         {k: float(v) for k, v in c.items() if k not in ("step", "seconds")})
+        h.events = [dict(e) for e in d.get("events", [])]
+        return h
+
+    def to_json(self, path=None, **kwargs) -> str:
+        """The history as JSON text; also written to ``path`` when given."""
+        text = json.dumps(self.to_dict(), **kwargs)
+        if path is not None:
+            with open(path, "w", encoding="utf-8") as fh:
+                fh.write(text)
+        return text
+
+
+def _json_safe(obj):
+    """Convert numpy scalars/arrays and non-finite floats into plain JSON values."""
+    if isinstance(obj, Mapping):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_json_safe(v) for v in obj.tolist()]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        if np.isfinite(v):
+            return v
+        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
+    return obj
+
+
+@dataclass(kw_only=True)
+class FitResult:
+    """The common result of every geofit fit.
+
+    Attributes
+    ----------
+    status : str
+        One of :data:`STATUSES` (``"converged"``, ``"max_iter"``, ``"time_budget"``, ...).
+    message : str
+        A human-readable explanation of the status (solver message, stopping reason).
+    history : FitHistory
+        The trace of the fit.
+    n_params : int
+        Number of free parameters at the end.
+    seconds : float
+        Solver time (observer work such as metric checkpoints excluded).
+    n_iterations : int
+        Iterations (or SGD/Adam steps) over all stages.
+    n_evaluations : int
+        Objective evaluations over all stages.
+    """
+
+    status: str
+    message: str = ""
+    history: FitHistory = field(default_factory=FitHistory)
+    n_params: int = 0
+    seconds: float = 0.0
+    n_iterations: int = 0
+    n_evaluations: int = 0
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status: expected one of {tuple(STATUSES)}, got {self.status!r}")
+
+    @property
+    def converged(self) -> bool:
+        """True when the status is ``"converged"``."""
+        return self.status in CONVERGED_STATUSES
+
+    @property
+    def ok(self) -> bool:
+        """True unless the fit failed or produced a non-finite/diverged objective."""
+        return self.status not in ("failed", "nonfinite", "diverged")
+
+    def summary(self) -> dict[str, Any]:
+        """Status, message, sizes, time and the last metrics, JSON-ready."""
+        return _json_safe({
+            "status": self.status, "message": self.message, "n_params": self.n_params,
+            "seconds": self.seconds, "n_iterations": self.n_iterations,
+            "n_evaluations": self.n_evaluations,
+            "final_loss": self.history.loss[-1] if self.history.loss else None,
+            "metrics": self.history.last_metrics(),
+        })
+
+    def to_dict(self) -> dict[str, Any]:
+        """:meth:`summary` plus the full history."""
+        d = self.summary()
+        d["history"] = self.history.to_dict()
+        return d
