@@ -5,6 +5,18 @@ casting, Open3D KD-trees and scipy.sparse operators with analytic gradients.
 """
 from __future__ import annotations
 
+from .cameras import (
+    CamerasBase,
+    FoVOrthographicCameras,
+    FoVPerspectiveCameras,
+    Rays,
+    camera_position_from_spherical_angles,
+    cameras_from_opencv_projection,
+    look_at_rotation,
+    look_at_view_transform,
+    ndc_grid,
+    opencv_from_cameras_projection,
+)
 from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
     Mesh,
@@ -30,6 +42,17 @@ __all__ = [
     "TexturesUV",
     "TexturesVertex",
     "Topology",
+    # cameras
+    "CamerasBase",
+    "FoVOrthographicCameras",
+    "FoVPerspectiveCameras",
+    "Rays",
+    "camera_position_from_spherical_angles",
+    "cameras_from_opencv_projection",
+    "look_at_rotation",
+    "look_at_view_transform",
+    "ndc_grid",
+    "opencv_from_cameras_projection",
     # shapes
     "box",
     "ico_sphere",
