@@ -1,0 +1,1 @@
+"""Rendering: meshes and point clouds."""

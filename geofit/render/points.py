@@ -1,0 +1,542 @@
+"""Point cloud rasterization with PyTorch3D's semantics, vectorised in numpy.
+
+Every point is a disc of radius ``r`` in NDC units (PyTorch3D's convention: not scaled by depth,
+even for perspective cameras). Each pixel keeps the ``K`` points nearest in view depth whose disc
+covers its centre (squared NDC distance ``< r**2``, strict), sorted front to back; ties in depth go
+to the lower point index. Points with view depth ``z < 0`` are dropped. Outputs are
+``PointFragments``: ``idx`` (-1 where empty), ``zbuf`` (view depth) and ``dists`` (squared NDC
+distance), as ``pytorch3d.renderer.PointsRasterizer`` returns them, but channel-last
+``(N, H, W, K)``.
+
+How it is vectorised: all points are projected at once and put in front-to-back order (a stable
+sort by depth, so equal depths keep index order). Each point's disc covers a small box of pixel
+centres; the (point, pixel) candidates of every box are generated with ``np.repeat``, the ones
+inside the disc are kept, and one integer sort on ``pixel * M + depth_rank`` groups them by pixel
+in front-to-back order. The rank of a hit within its pixel is its position in the group; hits of
+rank ``< K`` are scattered into the output. Candidates are processed in chunks of bounded size
+in front-to-back order, so a pixel that already holds ``K`` points ignores later chunks and the
+memory stays bounded for any radius.
+
+Beyond PyTorch3D: ``radius_units="world"`` makes the radius a world-space size that shrinks with
+depth (``r_ndc = r * K00 / z`` for a perspective camera, ``r * K00`` for an orthographic one),
+``radius`` may be one value per point, and ``PointFragments.depth`` is the depth image.
+"""
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from .._validate import as_array, check_choice
+from ..cameras import CamerasBase
+from ..structures.pointcloud import Pointclouds, as_pointclouds
+from .compositing import AlphaCompositor, NormWeightedCompositor
+
+__all__ = [
+    "PointsRasterizationSettings",
+    "PointFragments",
+    "PointsRasterizer",
+    "PointsRenderer",
+    "PointsRendering",
+    "rasterize_points",
+]
+
+# Number of (point, pixel) candidates processed at once (bounds the working memory to a few
+# hundred MB whatever the radius).
+_CHUNK_CANDIDATES = 1 << 22
+# Slack, in pixels, when bounding a disc by pixel centres: the exact distance test decides.
+_BOX_SLACK = 1e-7
+
+
+def _check_int(value, name: str, minimum: int) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral,
+                                                                     np.integer)):
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _image_hw(image_size) -> tuple[int, int]:
+    if isinstance(image_size, (numbers.Integral, np.integer)) and not isinstance(
+            image_size, (bool, np.bool_)):
+        s = _check_int(image_size, "image_size", 1)
+        return s, s
+    try:
+        h, w = image_size
+    except (TypeError, ValueError):
+        raise ValueError(f"image_size: expected an int or (H, W), got {image_size!r}") from None
+    return _check_int(h, "image_size[0]", 1), _check_int(w, "image_size[1]", 1)
+
+
+@dataclass(frozen=True)
+class PointsRasterizationSettings:
+    """How points are rasterized (PyTorch3D's ``PointsRasterizationSettings``).
+
+    Parameters
+    ----------
+    image_size : int or (2,) int
+        Image size; an int is a square image, ``(H, W)`` a rectangular one (the shorter side
+        spans NDC [-1, 1]).
+    radius : float or (P,) float64
+        Point radius, ``>= 0``; one value for every point, or one per packed point of the
+        clouds rendered. In NDC units by default (a radius of 0 covers no pixel).
+    points_per_pixel : int
+        ``K``, the number of points kept per pixel (nearest in view depth first).
+    radius_units : {"ndc", "world"}
+        ``"ndc"`` (PyTorch3D): the radius is an NDC distance, the same at every depth.
+        ``"world"``: the radius is a world-space length; a point at view depth ``z`` gets the NDC
+        radius ``radius * K00 / z`` for a perspective camera and ``radius * K00`` for an
+        orthographic one (``K00`` the camera's x scale, ``get_projection_transform()[:, 0, 0]``).
+
+    Examples
+    --------
+    >>> s = PointsRasterizationSettings(image_size=512, radius=0.003, points_per_pixel=10)
+    >>> s.hw, s.points_per_pixel
+    ((512, 512), 10)
+    """
+
+    image_size: int | tuple[int, int] = 256
+    radius: float | np.ndarray = 0.01
+    points_per_pixel: int = 8
+    radius_units: str = "ndc"
+
+    def __post_init__(self):
+        _image_hw(self.image_size)
+        _check_int(self.points_per_pixel, "points_per_pixel", 1)
+        check_choice(self.radius_units, "radius_units", ("ndc", "world"))
+        r = np.asarray(self.radius)
+        if r.ndim == 0:
+            try:
+                v = float(r)
+            except (TypeError, ValueError):
+                raise ValueError(f"radius: expected a number, got {self.radius!r}") from None
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"radius: expected a finite number >= 0, got {self.radius!r}")
+        else:
+            r = as_array(r, "radius", (None,))
+            if np.any(r < 0):
+                raise ValueError(f"radius: expected values >= 0, got minimum {r.min():g}")
+            r.setflags(write=False)
+            object.__setattr__(self, "radius", r)
+
+    @property
+    def hw(self) -> tuple[int, int]:
+        """``(H, W)`` in pixels."""
+        return _image_hw(self.image_size)
+
+
+@dataclass(frozen=True)
+class PointFragments:
+    """What each pixel sees: the ``K`` nearest points covering its centre.
+
+    Attributes
+    ----------
+    idx : (N, H, W, K) int64
+        If ``idx[n, j, i, k] = p >= 0`` then packed point ``p`` of the clouds is the ``k``-th
+        nearest (in view depth) point covering pixel row ``j``, column ``i`` of image ``n``.
+        Slots past the last hit are -1; entries are sorted front to back.
+    zbuf : (N, H, W, K) float64
+        View depth of that point; -1 where ``idx`` is -1.
+    dists : (N, H, W, K) float64
+        Squared NDC distance from the pixel centre to the point's projection, ``< radius**2``;
+        -1 where ``idx`` is -1.
+    radius : (N, H, W, K) float64
+        NDC radius of that point's disc (the settings' radius, or per point / world-scaled);
+        0 where ``idx`` is -1.
+    """
+
+    idx: np.ndarray
+    zbuf: np.ndarray
+    dists: np.ndarray
+    radius: np.ndarray
+
+    @property
+    def depth(self) -> np.ndarray:
+        """(N, H, W) float64 view depth of the nearest point per pixel; -1 where none."""
+        return self.zbuf[..., 0]
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(N, H, W) bool: pixels covered by at least one point."""
+        return self.idx[..., 0] >= 0
+
+    def weights(self) -> np.ndarray:
+        """(N, H, W, K) float64 compositing weights ``1 - dists / radius**2``; 0 where empty.
+
+        The weights of ``pytorch3d.renderer.PointsRenderer`` (SynSin's), in ``(0, 1]``.
+        """
+        w = np.zeros(self.dists.shape)
+        valid = self.idx >= 0
+        w[valid] = 1.0 - self.dists[valid] / (self.radius[valid] ** 2)
+        return w
+
+
+def _pixel_hits(x, y, r, img, H, W):
+    """Candidate generation for entries already in front-to-back order.
+
+    Returns the image-flat pixel index and entry position of every (entry, pixel) pair whose
+    pixel centre lies strictly inside the entry's disc, in entry order then row-major pixel order.
+    """
+    S = min(H, W)
+    cx = (W - 1 - S * x) * 0.5         # continuous column of the projection
+    cy = (H - 1 - S * y) * 0.5         # continuous row
+    rp = r * (0.5 * S)                 # radius in pixels
+    c0 = np.ceil(np.clip(cx - rp - _BOX_SLACK, 0, W)).astype(np.int64)
+    c1 = np.floor(np.clip(cx + rp + _BOX_SLACK, -1, W - 1)).astype(np.int64)
+    r0 = np.ceil(np.clip(cy - rp - _BOX_SLACK, 0, H)).astype(np.int64)
+    r1 = np.floor(np.clip(cy + rp + _BOX_SLACK, -1, H - 1)).astype(np.int64)
+    nx = np.maximum(c1 - c0 + 1, 0)
+    ny = np.maximum(r1 - r0 + 1, 0)
+    count = nx * ny
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    ent = np.repeat(np.arange(len(x)), count)
+    start = np.cumsum(count) - count
+    local = np.arange(total, dtype=np.int64) - start[ent]
+    nxe = nx[ent]
+    row, col = np.divmod(local, nxe)
+    col += c0[ent]
+    row += r0[ent]
+    d2 = _dist2(x[ent], y[ent], row, col, H, W)
+    hit = d2 < (r * r)[ent]
+    return (img[ent[hit]] * (H * W) + row[hit] * W + col[hit]), ent[hit]
+
+
+def _dist2(x, y, row, col, H, W):
+    """Squared NDC distance from pixel centres ``(row, col)`` to points ``(x, y)``."""
+    S = min(H, W)
+    dx = (W - 1 - 2 * col) / S - x
+    dy = (H - 1 - 2 * row) / S - y
+    return dx * dx + dy * dy
+
+
+def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: int):
+    """Rasterize projected points (the numeric core of ``PointsRasterizer``).
+
+    Parameters
+    ----------
+    xy : (M, 2) float64
+        NDC x, y of every entry (+X left, +Y up).
+    z : (M,) float64
+        View depth of every entry; entries with ``z < 0`` are dropped.
+    radius : (M,) float64
+        NDC radius of every entry, ``>= 0``.
+    image_index : (M,) int64
+        Image each entry is drawn into, in ``[0, n_images)``; within one image entries must be
+        in increasing point order (their position breaks depth ties).
+    n_images : int
+        ``N``.
+    image_size : (2,) int
+        ``(H, W)``.
+    K : int
+        Points kept per pixel.
+
+    Returns
+    -------
+    entry : (N, H, W, K) int64
+        Index into the M entries (-1 where empty), front to back.
+    zbuf, dists : (N, H, W, K) float64
+        View depth and squared NDC distance (-1 where empty).
+    """
+    H, W = image_size
+    n_pix = n_images * H * W
+    entry_out = np.full(n_pix * K, -1, dtype=np.int64)
+    dist_out = np.full(n_pix * K, -1.0)
+    keep = (z >= 0) & (radius > 0)
+    sel = np.flatnonzero(keep)
+    # Front-to-back order; the stable sort keeps the entry (point index) order on equal depths.
+    sel = sel[np.argsort(z[sel], kind="stable")]
+    M = len(sel)
+    if M:
+        x, y, r, img = xy[sel, 0], xy[sel, 1], radius[sel], image_index[sel]
+        S = min(H, W)
+        rp = r * (0.5 * S)
+        # Upper bound on each entry's candidate count, for chunking.
+        box = (np.minimum(2 * rp + 1, W + 1)) * (np.minimum(2 * rp + 1, H + 1))
+        csum = np.cumsum(box)
+        bounds = np.searchsorted(csum, np.arange(1, int(csum[-1] // _CHUNK_CANDIDATES) + 1)
+                                 * float(_CHUNK_CANDIDATES))
+        bounds = np.unique(np.concatenate([[0], bounds, [M]]))
+        filled = np.zeros(n_pix, dtype=np.int64)
+        for a, b in zip(bounds[:-1], bounds[1:]):   # chunks of candidates, front to back
+            pix, ent = _pixel_hits(x[a:b], y[a:b], r[a:b], img[a:b], H, W)
+            if len(pix) == 0:
+                continue
+            # One integer sort of the unique keys pixel * m + depth rank groups the hits by
+            # pixel, front to back within a pixel.
+            m = b - a
+            key = np.sort(pix * m + ent)
+            pix, ent = np.divmod(key, m)
+            new = np.empty(len(pix), dtype=bool)
+            new[0] = True
+            np.not_equal(pix[1:], pix[:-1], out=new[1:])
+            first = np.flatnonzero(new)
+            rank = np.arange(len(pix)) - np.repeat(first, np.diff(np.append(first, len(pix))))
+            rank += filled[pix]
+            ok = rank < K
+            pix, ent = pix[ok], ent[ok] + a
+            slot = pix * K + rank[ok]
+            entry_out[slot] = sel[ent]
+            rc = pix % (H * W)
+            dist_out[slot] = _dist2(x[ent], y[ent], rc // W, rc % W, H, W)
+            filled += np.bincount(pix, minlength=n_pix)
+    shape = (n_images, H, W, K)
+    entry_out = entry_out.reshape(shape)
+    valid = entry_out >= 0
+    zbuf = np.full(shape, -1.0)
+    zbuf[valid] = z[entry_out[valid]]
+    return entry_out, zbuf, dist_out.reshape(shape)
+
+
+def _batch(point_clouds, cameras) -> tuple[Pointclouds, CamerasBase, int]:
+    clouds = as_pointclouds(point_clouds)
+    if not isinstance(cameras, CamerasBase):
+        raise TypeError(f"cameras: expected a geofit camera batch (FoVPerspectiveCameras, "
+                        f"FoVOrthographicCameras), got {type(cameras)!r}")
+    nc, nk = len(clouds), len(cameras)
+    if nc == 0:
+        raise ValueError("point_clouds: expected at least one cloud, got an empty batch")
+    if nc != nk and nc != 1 and nk != 1:
+        raise ValueError(f"cameras: expected 1 or {nc} cameras for {nc} clouds, got {nk}")
+    return clouds, cameras, max(nc, nk)
+
+
+class PointsRasterizer:
+    """Rasterize point clouds seen by cameras into ``PointFragments`` (PyTorch3D's class).
+
+    Parameters
+    ----------
+    cameras : CamerasBase, optional
+        Default cameras (``FoVPerspectiveCameras`` or ``FoVOrthographicCameras``); can be
+        given per call instead.
+    raster_settings : PointsRasterizationSettings, optional
+        Defaults to ``PointsRasterizationSettings()``.
+
+    Notes
+    -----
+    Batches: ``N`` clouds with ``N`` cameras render cloud ``n`` with camera ``n``; one cloud
+    with ``N`` cameras renders it from every camera; ``N`` clouds with one camera render them all
+    from it. ``idx`` always indexes the packed points of the clouds given
+    (``point_clouds.points_packed()``), so a shared cloud's images index the same points.
+    Nothing here is differentiable (which points a pixel keeps is piecewise constant).
+
+    Examples
+    --------
+    >>> from geofit import PointCloud
+    >>> from geofit.cameras import FoVOrthographicCameras
+    >>> cloud = PointCloud([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]], [[1, 0, 0], [0, 1, 0]])
+    >>> settings = PointsRasterizationSettings(image_size=4, radius=0.5, points_per_pixel=2)
+    >>> frags = PointsRasterizer(FoVOrthographicCameras(), settings)(cloud)
+    >>> frags.idx[0, 1, 1].tolist(), frags.zbuf[0, 1, 1].tolist()
+    ([0, 1], [1.0, 2.0])
+    """
+
+    def __init__(self, cameras: CamerasBase | None = None,
+                 raster_settings: PointsRasterizationSettings | None = None):
+        if raster_settings is None:
+            raster_settings = PointsRasterizationSettings()
+        if not isinstance(raster_settings, PointsRasterizationSettings):
+            raise TypeError("raster_settings: expected PointsRasterizationSettings, got "
+                            f"{type(raster_settings)!r}")
+        if cameras is not None and not isinstance(cameras, CamerasBase):
+            raise TypeError(f"cameras: expected a geofit camera batch, got {type(cameras)!r}")
+        self.cameras = cameras
+        self.raster_settings = raster_settings
+
+    def _settings(self, raster_settings):
+        s = self.raster_settings if raster_settings is None else raster_settings
+        if not isinstance(s, PointsRasterizationSettings):
+            raise TypeError(f"raster_settings: expected PointsRasterizationSettings, got "
+                            f"{type(s)!r}")
+        return s
+
+    def transform(self, point_clouds, cameras: CamerasBase | None = None, *,
+                  raster_settings: PointsRasterizationSettings | None = None):
+        """Project the clouds: NDC x, y, view depth and NDC radius of every (image, point).
+
+        Parameters
+        ----------
+        point_clouds : PointCloud or Pointclouds
+            ``N`` (or 1) clouds with ``P`` packed points in total.
+        cameras : CamerasBase, optional
+            Overrides the rasterizer's cameras.
+        raster_settings : PointsRasterizationSettings, optional
+            Overrides the rasterizer's settings.
+
+        Returns
+        -------
+        xy : (M, 2) float64
+            NDC x, y of each entry.
+        z : (M,) float64
+            View depth of each entry.
+        radius : (M,) float64
+            NDC radius of each entry.
+        image : (M,) int64
+            Image of each entry.
+        point : (M,) int64
+            Packed point index of each entry.
+        n_images : int
+            ``N``.
+        """
+        cameras = self.cameras if cameras is None else cameras
+        if cameras is None:
+            raise ValueError("cameras: none given to the rasterizer or to this call")
+        s = self._settings(raster_settings)
+        clouds, cameras, n_images = _batch(point_clouds, cameras)
+        n_pts = clouds.num_points_per_cloud()
+        P = int(n_pts.sum())
+        r = np.asarray(s.radius, dtype=np.float64)
+        if r.ndim == 1 and len(r) != P:
+            raise ValueError(f"radius: expected a scalar or shape ({P},) (one per packed point), "
+                             f"got shape {r.shape}")
+        packed = clouds.points_packed()
+        first = clouds.cloud_to_packed_first_idx()
+        proj = cameras.get_projection_transform()        # (Nc, 4, 4) row vectors
+        xy_l, z_l, r_l, img_l, pt_l = [], [], [], [], []
+        for n in range(n_images):                       # loop over the batch, not points
+            c = 0 if len(clouds) == 1 else n
+            k = 0 if len(cameras) == 1 else n
+            lo, hi = int(first[c]), int(first[c]) + int(n_pts[c])
+            view = packed[lo:hi] @ cameras.R[k] + cameras.T[k]
+            h = view @ proj[k, :3, :] + proj[k, 3, :]
+            w = h[:, 3]
+            z = view[:, 2].copy()
+            ok = (z >= 0) & (w > 0)          # w <= 0 only for perspective points at z == 0
+            z[~ok] = -1.0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xy = np.where(ok[:, None], h[:, :2] / np.where(ok, w, 1.0)[:, None], 0.0)
+            rr = np.broadcast_to(r, (P,))[lo:hi] if r.ndim else np.full(hi - lo, float(r))
+            if s.radius_units == "world":
+                rr = np.where(ok, rr * abs(proj[k, 0, 0]) / np.where(ok, w, 1.0), 0.0)
+            xy_l.append(xy)
+            z_l.append(z)
+            r_l.append(rr)
+            img_l.append(np.full(hi - lo, n, dtype=np.int64))
+            pt_l.append(np.arange(lo, hi, dtype=np.int64))
+        return (np.concatenate(xy_l), np.concatenate(z_l), np.concatenate(r_l),
+                np.concatenate(img_l), np.concatenate(pt_l), n_images)
+
+    def __call__(self, point_clouds, cameras: CamerasBase | None = None, *,
+                 raster_settings: PointsRasterizationSettings | None = None) -> PointFragments:
+        """Rasterize.
+
+        Parameters
+        ----------
+        point_clouds : PointCloud or Pointclouds
+            The clouds (their points must be finite; ``PointCloud`` checks this).
+        cameras : CamerasBase, optional
+            Overrides the rasterizer's cameras.
+        raster_settings : PointsRasterizationSettings, optional
+            Overrides the rasterizer's settings.
+
+        Returns
+        -------
+        PointFragments
+            ``(N, H, W, K)`` arrays. A pixel no point covers (empty cloud, zero radius, every
+            point behind the camera) has ``idx == -1``.
+        """
+        s = self._settings(raster_settings)
+        xy, z, r, img, pt, n_images = self.transform(point_clouds, cameras, raster_settings=s)
+        K = s.points_per_pixel
+        entry, zbuf, dists = rasterize_points(xy, z, r, img, n_images, s.hw, K)
+        valid = entry >= 0
+        idx = np.full(entry.shape, -1, dtype=np.int64)
+        idx[valid] = pt[entry[valid]]
+        radius = np.zeros(entry.shape)
+        radius[valid] = r[entry[valid]]
+        return PointFragments(idx=idx, zbuf=zbuf, dists=dists, radius=radius)
+
+
+class PointsRendering(NamedTuple):
+    """Everything a point render produces.
+
+    Attributes
+    ----------
+    images : (N, H, W, C) float64
+        The composited features (C channels, or C + 1 with a background of C channels).
+    depth : (N, H, W) float64
+        View depth of the nearest point per pixel; -1 where no point.
+    fragments : PointFragments
+        The rasterizer's output.
+    """
+
+    images: np.ndarray
+    depth: np.ndarray
+    fragments: PointFragments
+
+
+class PointsRenderer:
+    """Rasterize point clouds and composite their features (PyTorch3D's ``PointsRenderer``).
+
+    The compositing weights are ``1 - dists / r**2`` (PyTorch3D's, from SynSin): 1 at a point's
+    centre, 0 at its rim.
+
+    Parameters
+    ----------
+    rasterizer : PointsRasterizer
+    compositor : AlphaCompositor or NormWeightedCompositor
+
+    Examples
+    --------
+    >>> from geofit import PointCloud
+    >>> from geofit.cameras import FoVOrthographicCameras
+    >>> cloud = PointCloud([[0.0, 0.0, 1.0]], [[1.0, 0.5, 0.0]])
+    >>> renderer = PointsRenderer(
+    ...     PointsRasterizer(FoVOrthographicCameras(),
+    ...                      PointsRasterizationSettings(image_size=2, radius=1.5)),
+    ...     AlphaCompositor(background_color=(0, 0, 1)))
+    >>> renderer(cloud).shape
+    (1, 2, 2, 3)
+    """
+
+    def __init__(self, rasterizer: PointsRasterizer, compositor):
+        if not isinstance(rasterizer, PointsRasterizer):
+            raise TypeError(f"rasterizer: expected a PointsRasterizer, got {type(rasterizer)!r}")
+        if not isinstance(compositor, (AlphaCompositor, NormWeightedCompositor)):
+            raise TypeError("compositor: expected an AlphaCompositor or NormWeightedCompositor, "
+                            f"got {type(compositor)!r}")
+        self.rasterizer = rasterizer
+        self.compositor = compositor
+
+    _UNSET = object()
+
+    def render(self, point_clouds, cameras: CamerasBase | None = None, *,
+               raster_settings: PointsRasterizationSettings | None = None,
+               background_color=_UNSET) -> PointsRendering:
+        """Rasterize and composite, returning images, depth image and fragments.
+
+        Parameters
+        ----------
+        point_clouds : PointCloud or Pointclouds
+            Clouds with features (``(k, C)`` per cloud, e.g. RGB).
+        cameras : CamerasBase, optional
+            Overrides the rasterizer's cameras.
+        raster_settings : PointsRasterizationSettings, optional
+            Overrides the rasterizer's settings.
+        background_color : (C,) or (C - 1,) float or None, optional
+            Overrides the compositor's background colour for this call.
+
+        Returns
+        -------
+        PointsRendering
+        """
+        clouds = as_pointclouds(point_clouds)
+        features = clouds.features_packed()
+        if features is None:
+            raise ValueError("point_clouds: the clouds have no features to render "
+                             "(give PointCloud(points, features))")
+        frags = self.rasterizer(clouds, cameras, raster_settings=raster_settings)
+        kw = {} if background_color is self._UNSET else {"background_color": background_color}
+        images = self.compositor(frags.idx, frags.weights(), features, **kw)
+        return PointsRendering(images, frags.depth, frags)
+
+    def __call__(self, point_clouds, cameras: CamerasBase | None = None, *,
+                 raster_settings: PointsRasterizationSettings | None = None,
+                 background_color=_UNSET) -> np.ndarray:
+        """The images ``(N, H, W, C)`` float64 (see ``render`` for the parameters)."""
+        return self.render(point_clouds, cameras, raster_settings=raster_settings,
+                           background_color=background_color).images
