@@ -254,7 +254,7 @@ class PointToMeshDistance:
     def n_faces(self) -> int:
         return len(self._faces)
 
-    def update_verts(self, verts) -> "PointToMeshDistance":
+    def update_verts(self, verts) -> PointToMeshDistance:
         """Move the vertices (same faces) and rebuild the scene in place.
 
         Parameters
