@@ -1,0 +1,639 @@
+"""Wavefront OBJ/MTL reading and writing with PyTorch3D's ``load_obj`` semantics.
+
+The reader keeps the file's vertex order and its per-corner texture-coordinate indices exactly
+(no vertex merging or splitting, unlike general-purpose mesh loaders), fan-triangulates polygons
+as ``(v0, vi, vi+1)``, and raises on anything it cannot load instead of returning a partial mesh.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from .._validate import as_array, as_faces, as_points
+from ..structures.mesh import Mesh, Meshes
+from ..structures.textures import TexturesUV
+
+__all__ = [
+    "Material",
+    "ObjData",
+    "load_obj",
+    "load_objs_as_meshes",
+    "load_mesh",
+    "save_obj",
+]
+
+PathLike = str | os.PathLike
+
+
+@dataclass
+class Material:
+    """One ``newmtl`` block of an MTL file (the keys PyTorch3D reads).
+
+    Attributes
+    ----------
+    name : str
+        The material name (``newmtl``).
+    Ka, Kd, Ks : (3,) float64 or None
+        Ambient, diffuse and specular RGB reflectivity; None where the MTL does not set them.
+    Ns : float or None
+        Specular exponent (shininess).
+    map_Kd : str or None
+        Absolute path of the diffuse texture image, resolved against the MTL's folder.
+    """
+
+    name: str
+    Ka: np.ndarray | None = None
+    Kd: np.ndarray | None = None
+    Ks: np.ndarray | None = None
+    Ns: float | None = None
+    map_Kd: str | None = None
+    extra: dict = field(default_factory=dict, repr=False)
+
+
+class ObjData(NamedTuple):
+    """Everything :func:`load_obj` reads from an OBJ file (and its MTL and textures).
+
+    Attributes
+    ----------
+    verts : (V, 3) float64
+        Vertex positions in file order.
+    faces : (F, 3) int64
+        Triangles as 0-based vertex indices (polygons fan-triangulated).
+    faces_uvs : (F, 3) int64
+        Per-corner index into ``verts_uvs``; -1 for faces written without ``vt`` indices.
+    verts_uvs : (T, 2) float64
+        Texture coordinates (``vt``) in file order; (0, 2) when there are none.
+    faces_normals_idx : (F, 3) int64
+        Per-corner index into ``normals``; -1 for faces written without ``vn`` indices.
+    normals : (N, 3) float64
+        Normals (``vn``) in file order; (0, 3) when there are none.
+    materials : dict of str to Material
+        The materials used by the OBJ (``usemtl``) and defined in its MTL, in order of first use.
+        Empty when ``load_textures`` is False (the MTL is not read).
+    face_materials : (F,) int64
+        Index of each face's material in ``material_names``; -1 before any ``usemtl``.
+    texture_images : dict of str to (H, W, 3) float64
+        Diffuse texture (``map_Kd``) of each used material that has one, RGB in [0, 1] (8-bit
+        value / 255), row 0 at the top of the image; in order of first use.
+    material_names : list of str
+        Material names in order of first ``usemtl`` (what ``face_materials`` indexes).
+    """
+
+    verts: np.ndarray
+    faces: np.ndarray
+    faces_uvs: np.ndarray
+    verts_uvs: np.ndarray
+    faces_normals_idx: np.ndarray
+    normals: np.ndarray
+    materials: dict
+    face_materials: np.ndarray
+    texture_images: dict
+    material_names: list
+
+
+# --------------------------------------------------------------------------- parsing helpers
+def _read_text(path: Path) -> str:
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def _strip_comment(line: str) -> str:
+    h = line.find("#")
+    return line if h < 0 else line[:h]
+
+
+def _to_float(rows: list, lines: list, what: str, path: Path) -> np.ndarray:
+    """Convert a list of equal-length string lists to float64, naming the first bad line."""
+    ncol = len(rows[0]) if rows else 0
+    if not rows:
+        return np.zeros((0, ncol))
+    try:
+        arr = np.array(rows, dtype=np.float64)
+    except ValueError:
+        for row, ln in zip(rows, lines):  # error path only: find the offending line
+            try:
+                [float(t) for t in row]
+            except ValueError:
+                raise ValueError(
+                    f"{path}: line {ln}: {what} has a non-numeric value in {' '.join(row)!r}"
+                ) from None
+        raise  # pragma: no cover - the loop above always finds the bad row
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{path}: line {lines[i]}: {what} is not finite ({' '.join(rows[i])!r}); "
+                         f"{int(bad.sum())} such line(s)")
+    return arr
+
+
+def _to_int(strings: list, what: str, corner_lines: np.ndarray, path: Path) -> np.ndarray:
+    try:
+        return np.array(strings, dtype=np.int64) if strings else np.zeros(0, np.int64)
+    except ValueError:
+        for s, ln in zip(strings, corner_lines):  # error path only
+            try:
+                int(s)
+            except ValueError:
+                raise ValueError(
+                    f"{path}: line {ln}: face has a non-integer {what} index {s!r}"
+                ) from None
+        raise  # pragma: no cover
+
+
+def _resolve_indices(raw: np.ndarray, count_at: np.ndarray, total: int, what: str,
+                     corner_lines: np.ndarray, path: Path) -> np.ndarray:
+    """1-based / negative (relative) OBJ indices -> 0-based, checked against ``total``."""
+    idx = np.where(raw > 0, raw - 1, count_at + raw)
+    bad = (raw == 0) | (idx < 0) | (idx >= total)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        r = int(raw[i])
+        if r == 0:
+            why = "index 0 is invalid (OBJ indices start at 1)"
+        elif r > 0:
+            why = f"index {r} is out of range (the file has {total} {what} entries)"
+        else:
+            why = (f"relative index {r} points before the first {what} "
+                   f"({int(count_at[i])} defined before this line)")
+        raise ValueError(f"{path}: line {int(corner_lines[i])}: face {what} {why}; "
+                         f"{int(bad.sum())} bad {what} index/indices in total")
+    return idx
+
+
+def _parse_mtl(path: Path) -> dict:
+    """Read the MTL keys PyTorch3D uses (newmtl, Ka, Kd, Ks, Ns, map_Kd) -> name -> Material."""
+    mats: dict[str, Material] = {}
+    cur: Material | None = None
+    for ln, raw_line in enumerate(_read_text(path).splitlines(), 1):
+        line = _strip_comment(raw_line).strip()
+        if not line:
+            continue
+        tokens = line.split()
+        key = tokens[0]
+        if key == "newmtl":
+            if len(tokens) < 2:
+                raise ValueError(f"{path}: line {ln}: newmtl without a material name")
+            cur = Material(name=line[len(key):].strip())
+            mats[cur.name] = cur
+            continue
+        if key not in ("Ka", "Kd", "Ks", "Ns", "map_Kd"):
+            continue
+        if cur is None:
+            raise ValueError(f"{path}: line {ln}: {key} before any newmtl")
+        if key == "map_Kd":
+            rest = line[len(key):].strip()
+            if not rest:
+                raise ValueError(f"{path}: line {ln}: map_Kd without a file name")
+            if rest.startswith("-"):  # options such as "-s 1 1 1 file.png": the file comes last
+                rest = rest.split()[-1]
+            rest = rest.replace("\\", "/")
+            p = Path(rest)
+            cur.map_Kd = str(p if p.is_absolute() else (path.parent / p))
+            continue
+        try:
+            vals = [float(t) for t in tokens[1:4]]
+        except ValueError:
+            raise ValueError(f"{path}: line {ln}: {key} has a non-numeric value in {line!r}") from None
+        if key == "Ns":
+            if len(vals) < 1:
+                raise ValueError(f"{path}: line {ln}: Ns needs a value")
+            cur.Ns = vals[0]
+        else:
+            if len(vals) == 1:  # "Kd 0.5" means grey
+                vals = vals * 3
+            if len(vals) != 3:
+                raise ValueError(f"{path}: line {ln}: {key} needs 3 values, got {line!r}")
+            setattr(cur, key, np.array(vals, dtype=np.float64))
+    return mats
+
+
+def _read_image(path: str) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        rgb = np.asarray(im.convert("RGB"))
+    return rgb.astype(np.float64) / 255.0
+
+
+# --------------------------------------------------------------------------- public API
+def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
+    """Read a Wavefront OBJ file, its MTL materials and its texture images.
+
+    Follows ``pytorch3d.io.load_obj``: vertices, texture coordinates and normals are kept in
+    file order; polygons are fan-triangulated as ``(v0, vi, vi+1)`` (assumed convex and
+    counter-clockwise); faces may use the ``v``, ``v/vt``, ``v//vn`` and ``v/vt/vn`` forms.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.obj`` file.
+    load_textures : bool
+        Read the ``mtllib`` files and the ``map_Kd`` images they name. When False, neither is
+        read (``materials`` and ``texture_images`` are empty), as in PyTorch3D.
+
+    Returns
+    -------
+    ObjData
+        ``verts (V, 3) float64``, ``faces (F, 3) int64``, ``faces_uvs (F, 3) int64`` (-1 where a
+        face has no ``vt``), ``verts_uvs (T, 2) float64``, ``faces_normals_idx (F, 3) int64``,
+        ``normals (N, 3) float64``, ``materials``, ``face_materials (F,) int64``,
+        ``texture_images`` (name -> (H, W, 3) float64 in [0, 1]) and ``material_names``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the OBJ file, or (with ``load_textures``) an MTL file or a texture image it names,
+        does not exist. The message names the missing file.
+    ValueError
+        Naming the file and line: a non-numeric or non-finite coordinate, a ``v``/``vn`` line
+        with fewer than 3 values or a ``vt`` line with fewer than 2, a face with fewer than 3
+        corners, a face mixing corners with and without ``vt`` (or ``vn``), an index that is 0
+        or out of range, or a file without any face.
+
+    Notes
+    -----
+    * Negative indices are relative, as the OBJ specification defines them: ``-1`` is the last
+      ``v`` (``vt``, ``vn``) defined *before the face's line*. PyTorch3D counts from the end of
+      the whole file instead; the two agree whenever every vertex precedes the faces (as in
+      the tutorial files) and differ only for files interleaving ``v`` and ``f`` lines.
+    * Positive indices may refer to vertices defined later in the file (as PyTorch3D allows).
+    * Extra values are ignored: ``v x y z w`` or ``v x y z r g b`` use the first three,
+      ``vt u v w`` the first two. Comments (``#`` to the end of a line) are ignored.
+    * Where PyTorch3D warns and continues (indices out of range, missing texture file), this
+      function raises, so nothing half-loaded is ever returned.
+    * ``usemtl`` names that the MTL does not define are kept in ``material_names`` but have no
+      entry in ``materials``. A ``usemtl`` without any ``mtllib`` is ignored likewise.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from geofit.io import load_obj
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "quad.obj"
+    >>> _ = p.write_text("v 0 0 0\\nv 1 0 0\\nv 1 1 0\\nv 0 1 0\\nf 1 2 3 4\\n")
+    >>> load_obj(p).faces
+    array([[0, 1, 2],
+           [0, 2, 3]])
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"OBJ file not found: {path}")
+    lines = _read_text(path).splitlines()
+
+    v_rows: list = []
+    v_lines: list = []
+    vt_rows: list = []
+    vt_lines: list = []
+    vn_rows: list = []
+    vn_lines: list = []
+    corners: list = []
+    f_len: list = []
+    f_line: list = []
+    f_mat: list = []
+    f_counts: list = []  # (nv, nt, nn) defined before each face's line
+    mtllibs: list = []
+    material_names: list = []
+    mat_index: dict = {}
+    cur_mat = -1
+
+    for ln, line in enumerate(lines, 1):  # one pass over the lines of the file
+        if "#" in line:
+            line = _strip_comment(line)
+        tokens = line.split()
+        if not tokens:
+            continue
+        key = tokens[0]
+        if key == "v":
+            if len(tokens) < 4:
+                raise ValueError(f"{path}: line {ln}: vertex needs 3 coordinates, got {line.strip()!r}")
+            v_rows.append(tokens[1:4])
+            v_lines.append(ln)
+        elif key == "f":
+            if len(tokens) < 4:
+                raise ValueError(
+                    f"{path}: line {ln}: face needs at least 3 vertices, got {len(tokens) - 1} "
+                    f"({line.strip()!r})")
+            corners.extend(tokens[1:])
+            f_len.append(len(tokens) - 1)
+            f_line.append(ln)
+            f_mat.append(cur_mat)
+            f_counts.append((len(v_rows), len(vt_rows), len(vn_rows)))
+        elif key == "vt":
+            if len(tokens) < 3:
+                raise ValueError(f"{path}: line {ln}: texture coordinate needs 2 values, "
+                                 f"got {line.strip()!r}")
+            vt_rows.append(tokens[1:3])
+            vt_lines.append(ln)
+        elif key == "vn":
+            if len(tokens) < 4:
+                raise ValueError(f"{path}: line {ln}: normal needs 3 values, got {line.strip()!r}")
+            vn_rows.append(tokens[1:4])
+            vn_lines.append(ln)
+        elif key == "usemtl":
+            if len(tokens) < 2:
+                raise ValueError(f"{path}: line {ln}: usemtl without a material name")
+            name = line.strip()[len(key):].strip()
+            if name not in mat_index:
+                mat_index[name] = len(material_names)
+                material_names.append(name)
+            cur_mat = mat_index[name]
+        elif key == "mtllib":
+            if len(tokens) < 2:
+                raise ValueError(f"{path}: line {ln}: mtllib without a file name")
+            mtllibs.append((line.strip()[len(key):].strip(), ln))
+
+    verts = _to_float(v_rows, v_lines, "vertex", path).reshape(-1, 3)
+    verts_uvs = _to_float(vt_rows, vt_lines, "texture coordinate", path).reshape(-1, 2)
+    normals = _to_float(vn_rows, vn_lines, "normal", path).reshape(-1, 3)
+    if not f_len:
+        raise ValueError(f"{path}: the file has no faces (empty mesh; {len(verts)} vertices)")
+
+    # ---- corners: "v", "v/vt", "v//vn", "v/vt/vn"
+    f_len_a = np.asarray(f_len, dtype=np.int64)
+    n_faces = len(f_len_a)
+    starts = np.concatenate([[0], np.cumsum(f_len_a)[:-1]])
+    corner_face = np.repeat(np.arange(n_faces), f_len_a)
+    corner_lines = np.asarray(f_line, dtype=np.int64)[corner_face]
+    split = [c.split("/") for c in corners]  # part of the line parse: one split per corner token
+    nparts = np.fromiter(map(len, split), dtype=np.int64, count=len(split))
+    if nparts.max() > 3:
+        i = int(np.flatnonzero(nparts > 3)[0])
+        raise ValueError(f"{path}: line {int(corner_lines[i])}: face corner {corners[i]!r} has "
+                         f"more than 3 '/'-separated indices")
+    v_str = [s[0] for s in split]
+    if any(s == "" for s in v_str):
+        i = v_str.index("")
+        raise ValueError(f"{path}: line {int(corner_lines[i])}: face corner {corners[i]!r} "
+                         f"has no vertex index")
+    t_str = [s[1] if len(s) > 1 and s[1] else "0" for s in split]
+    n_str = [s[2] if len(s) > 2 and s[2] else "0" for s in split]
+    has_t = np.fromiter((len(s) > 1 and s[1] != "" for s in split), dtype=bool, count=len(split))
+    has_n = np.fromiter((len(s) > 2 and s[2] != "" for s in split), dtype=bool, count=len(split))
+
+    counts = np.asarray(f_counts, dtype=np.int64)[corner_face]
+    raw_v = _to_int(v_str, "vertex", corner_lines, path)
+    v_idx = _resolve_indices(raw_v, counts[:, 0], len(verts), "vertex", corner_lines, path)
+
+    def _optional(has, strs, col, total, what):
+        per_face = np.add.reduceat(has.astype(np.int64), starts)
+        mixed = (per_face != 0) & (per_face != f_len_a)
+        if mixed.any():
+            i = int(np.flatnonzero(mixed)[0])
+            raise ValueError(f"{path}: line {f_line[i]}: face mixes corners with and without "
+                             f"{what} indices")
+        out = np.full(len(strs), -1, dtype=np.int64)
+        if has.any():
+            raw = _to_int(strs, what, corner_lines, path)[has]
+            out[has] = _resolve_indices(raw, counts[has, col], total, what, corner_lines[has], path)
+        return out
+
+    t_idx = _optional(has_t, t_str, 1, len(verts_uvs), "texture coordinate")
+    n_idx = _optional(has_n, n_str, 2, len(normals), "normal")
+
+    # ---- fan triangulation (c0, ci, ci+1) for i = 1 .. k-2
+    n_tri = f_len_a - 2
+    tri_face = np.repeat(np.arange(n_faces), n_tri)
+    local = np.arange(len(tri_face)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    base = starts[tri_face]
+    c = np.stack([base, base + local, base + local + 1], axis=1)
+    faces = v_idx[c]
+    faces_uvs = t_idx[c]
+    faces_normals_idx = n_idx[c]
+    face_materials = np.asarray(f_mat, dtype=np.int64)[tri_face]
+
+    materials: dict = {}
+    texture_images: dict = {}
+    if load_textures and mtllibs:
+        defined: dict = {}
+        for name, ln in mtllibs:  # one per mtllib statement
+            mp = Path(name.replace("\\", "/"))
+            mp = mp if mp.is_absolute() else path.parent / mp
+            if not mp.is_file():
+                raise FileNotFoundError(f"{path}: line {ln}: material library not found: {mp}")
+            defined.update(_parse_mtl(mp))
+        cache: dict = {}
+        for name in material_names:  # only the materials the OBJ uses, in order of first use
+            if name not in defined:
+                continue
+            m = defined[name]
+            materials[name] = m
+            if m.map_Kd is not None:
+                if not Path(m.map_Kd).is_file():
+                    raise FileNotFoundError(
+                        f"{path}: texture image of material {name!r} not found: {m.map_Kd}")
+                if m.map_Kd not in cache:
+                    cache[m.map_Kd] = _read_image(m.map_Kd)
+                texture_images[name] = cache[m.map_Kd]
+
+    return ObjData(verts, faces, faces_uvs, verts_uvs, faces_normals_idx, normals, materials,
+                   face_materials, texture_images, material_names)
+
+
+def _obj_to_mesh(path: Path, load_textures: bool) -> Mesh:
+    d = load_obj(path, load_textures=load_textures)
+    tex = None
+    if d.texture_images:
+        if len(d.verts_uvs) == 0:
+            raise ValueError(f"{path}: the material has a texture image but the file has no "
+                             f"texture coordinates (vt); load with load_textures=False")
+        # PyTorch3D indexes faces_uvs == -1 as the last UV (torch negative indexing); do the same.
+        fuv = np.where(d.faces_uvs < 0, len(d.verts_uvs) - 1, d.faces_uvs)
+        tex = TexturesUV(next(iter(d.texture_images.values())), fuv, d.verts_uvs)
+    return Mesh(d.verts, d.faces, tex)
+
+
+def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: bool = True) -> Meshes:
+    """Load OBJ files into a :class:`~geofit.structures.Meshes` batch (PyTorch3D semantics).
+
+    Parameters
+    ----------
+    files : str, os.PathLike or sequence of them
+        The ``.obj`` files, one mesh each.
+    load_textures : bool
+        Attach a :class:`~geofit.structures.TexturesUV` to meshes whose materials have a
+        texture image.
+
+    Returns
+    -------
+    Meshes
+        One mesh per file. A textured mesh gets ``TexturesUV(maps=<first texture image>,
+        faces_uvs, verts_uvs)``, like ``pytorch3d.io.load_objs_as_meshes``: only the first
+        texture image (in order of ``usemtl``) is used, and MTL colours (Ka, Kd, Ks, Ns) are not
+        applied. Meshes without a texture image have ``textures=None``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As :func:`load_obj`; also ValueError when a texture image exists but the file has no
+        ``vt`` coordinates.
+
+    Notes
+    -----
+    Faces without ``vt`` indices in a textured file use the last texture coordinate, which is
+    what PyTorch3D's indexing with -1 does.
+    """
+    if isinstance(files, (str, os.PathLike)):
+        files = [files]
+    return Meshes([_obj_to_mesh(Path(f), load_textures) for f in files])
+
+
+def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
+    """Load one triangle mesh.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An ``.obj`` file (read by :func:`load_obj`, with textures as in
+        :func:`load_objs_as_meshes`), or a ``.ply``, ``.stl`` or ``.off`` file (read by trimesh
+        without any processing, so the vertex order is the file's; no textures).
+    load_textures : bool
+        For OBJ files, attach the first texture image as a TexturesUV.
+
+    Returns
+    -------
+    Mesh
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        For an unsupported extension, or as :func:`load_obj`; also for a non-OBJ file with no
+        faces or non-finite vertices.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        return _obj_to_mesh(path, load_textures)
+    if suffix not in (".ply", ".stl", ".off"):
+        raise ValueError(f"path: expected a .obj, .ply, .stl or .off file, got {path.name!r}")
+    if not path.is_file():
+        raise FileNotFoundError(f"mesh file not found: {path}")
+    import trimesh
+
+    tm = trimesh.load(str(path), process=False, force="mesh")
+    verts = np.asarray(tm.vertices, dtype=np.float64)
+    faces = np.asarray(tm.faces, dtype=np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        raise ValueError(f"{path}: the file has no faces (empty mesh; {len(verts)} vertices)")
+    if not np.isfinite(verts).all():
+        raise ValueError(f"{path}: the vertex coordinates are not all finite")
+    return Mesh(verts, faces)
+
+
+def _fmt_floats(arr: np.ndarray, decimal_places: int | None) -> tuple:
+    vals = arr.ravel().tolist()
+    if decimal_places is None:
+        return tuple(map(repr, vals))  # shortest string that round-trips exactly
+    f = f"%.{decimal_places}f"
+    return tuple(f % x for x in vals)
+
+
+def save_obj(path: PathLike, mesh_or_verts, faces=None, *, verts_uvs=None, faces_uvs=None,
+             texture_map=None, decimal_places: int | None = None) -> None:
+    """Write a triangle mesh as an OBJ file (with an MTL and a PNG texture when textured).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.obj`` file to write. A texture is written next to it as ``<stem>.mtl`` and
+        ``<stem>.png``.
+    mesh_or_verts : Mesh or (V, 3) float64
+        A :class:`~geofit.structures.Mesh` (its TexturesUV, if any, is written; vertex colours
+        are not, OBJ has no standard place for them), or vertex positions.
+    faces : (F, 3) int64, optional
+        Triangles; required with vertex positions, not allowed with a Mesh.
+    verts_uvs : (T, 2) float64, optional
+        Texture coordinates (with vertex positions only), written as ``vt`` lines.
+    faces_uvs : (F, 3) int64, optional
+        Per-corner indices into ``verts_uvs``; faces are then written as ``f v/vt``.
+    texture_map : (H, W, C) float64, optional
+        Texture image with values in [0, 1], C in {1, 3, 4}; written as an 8-bit PNG
+        (``round(255 * value)``) named by an MTL ``map_Kd``. Needs UVs.
+    decimal_places : int, optional
+        Write coordinates with this many decimals. By default every float is written with its
+        shortest exact representation (``repr``), so loading gives back the same float64 values.
+
+    Raises
+    ------
+    ValueError
+        For inconsistent arguments, shapes or index ranges, non-finite values, a mesh without
+        faces, or texture values outside [0, 1].
+
+    Notes
+    -----
+    The round trip ``load_obj(save_obj(...))`` returns identical vertices, faces and UVs by
+    default; the texture comes back quantised to multiples of 1/255 (exact when the map already
+    holds such values, as any map read from an 8-bit image does).
+    """
+    path = Path(path)
+    if isinstance(mesh_or_verts, Mesh):
+        if faces is not None or verts_uvs is not None or faces_uvs is not None \
+                or texture_map is not None:
+            raise ValueError("faces, verts_uvs, faces_uvs, texture_map: give them only with a "
+                             "vertex array, not with a Mesh (the Mesh carries its own)")
+        verts = mesh_or_verts.verts
+        faces = mesh_or_verts.faces
+        tex = mesh_or_verts.textures
+        if isinstance(tex, TexturesUV):
+            verts_uvs, faces_uvs, texture_map = tex.verts_uvs, tex.faces_uvs, tex.maps
+    else:
+        verts = as_points(mesh_or_verts, "verts")
+        if faces is None:
+            raise ValueError("faces: required when mesh_or_verts is a vertex array")
+    faces = as_faces(faces, "faces", len(verts), allow_empty=False)
+    if (verts_uvs is None) != (faces_uvs is None):
+        raise ValueError("verts_uvs, faces_uvs: give both or neither")
+    if verts_uvs is not None:
+        verts_uvs = as_array(verts_uvs, "verts_uvs", (None, 2))
+        faces_uvs = as_faces(faces_uvs, "faces_uvs", len(verts_uvs))
+        if len(faces_uvs) != len(faces):
+            raise ValueError(f"faces_uvs: expected shape ({len(faces)}, 3), got {faces_uvs.shape}")
+    if texture_map is not None:
+        if verts_uvs is None:
+            raise ValueError("texture_map: needs verts_uvs and faces_uvs")
+        tm = np.asarray(texture_map)
+        if tm.ndim == 2:
+            tm = tm[:, :, None]
+        tm = as_array(tm, "texture_map", (None, None, None))
+        if tm.shape[2] not in (1, 3, 4) or tm.shape[0] < 1 or tm.shape[1] < 1:
+            raise ValueError(f"texture_map: expected shape (H, W, C) with C in (1, 3, 4), "
+                             f"got {tm.shape}")
+        if tm.min() < 0.0 or tm.max() > 1.0:
+            raise ValueError(f"texture_map: expected values in [0, 1], got range "
+                             f"[{tm.min():.6g}, {tm.max():.6g}]")
+        texture_map = tm
+    if decimal_places is not None and (not isinstance(decimal_places, (int, np.integer))
+                                       or isinstance(decimal_places, bool)
+                                       or not 0 <= decimal_places <= 30):
+        raise ValueError(f"decimal_places: expected None or an integer in [0, 30], "
+                         f"got {decimal_places!r}")
+
+    parts = ["# written by geofit\n"]
+    if texture_map is not None:
+        parts.append(f"mtllib {path.stem}.mtl\nusemtl mesh\n")
+    parts.append(("v %s %s %s\n" * len(verts)) % _fmt_floats(verts, decimal_places))
+    if verts_uvs is not None:
+        parts.append(("vt %s %s\n" * len(verts_uvs)) % _fmt_floats(verts_uvs, decimal_places))
+        fv = np.stack([faces + 1, faces_uvs + 1], axis=2)  # (F, 3, 2): v/vt per corner
+        parts.append(("f %d/%d %d/%d %d/%d\n" * len(faces)) % tuple(fv.ravel().tolist()))
+    else:
+        parts.append(("f %d %d %d\n" * len(faces)) % tuple((faces + 1).ravel().tolist()))
+    path.write_text("".join(parts))
+
+    if texture_map is not None:
+        from PIL import Image
+
+        img = np.round(texture_map * 255.0).astype(np.uint8)
+        Image.fromarray(img[:, :, 0] if img.shape[2] == 1 else img).save(
+            path.with_suffix(".png"))
+        path.with_suffix(".mtl").write_text(
+            "# written by geofit\nnewmtl mesh\n"
+            f"map_Kd {path.stem}.png\n"
+            "Ka 1.0 1.0 1.0\nKd 1.0 1.0 1.0\nKs 0.0 0.0 0.0\nNs 0.0\n")
