@@ -26,6 +26,9 @@ _NORM_EPS = 1e-4
 def _background(background_color, name: str = "background_color"):
     if background_color is None:
         return None
+    if np.ndim(background_color) == 0:     # a scalar fills every channel
+        v = as_array([background_color], name)[0]
+        return np.asarray(v)
     bg = as_array(background_color, name)
     if bg.ndim > 1:
         raise ValueError(f"{name}: expected a scalar or shape (C,), got {bg.shape}")

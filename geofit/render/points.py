@@ -23,6 +23,7 @@ depth (``r_ndc = r * K00 / z`` for a perspective camera, ``r * K00`` for an orth
 """
 from __future__ import annotations
 
+import itertools
 import numbers
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -35,8 +36,8 @@ from ..structures.pointcloud import Pointclouds, as_pointclouds
 from .compositing import AlphaCompositor, NormWeightedCompositor
 
 __all__ = [
-    "PointsRasterizationSettings",
     "PointFragments",
+    "PointsRasterizationSettings",
     "PointsRasterizer",
     "PointsRenderer",
     "PointsRendering",
@@ -53,7 +54,7 @@ _BOX_SLACK = 1e-7
 def _check_int(value, name: str, minimum: int) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral,
                                                                      np.integer)):
-        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+        raise TypeError(f"{name}: expected an integer >= {minimum}, got {value!r}")
     if value < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
     return int(value)
@@ -262,7 +263,7 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
                                  * float(_CHUNK_CANDIDATES))
         bounds = np.unique(np.concatenate([[0], bounds, [M]]))
         filled = np.zeros(n_pix, dtype=np.int64)
-        for a, b in zip(bounds[:-1], bounds[1:]):   # chunks of candidates, front to back
+        for a, b in itertools.pairwise(bounds):   # chunks of candidates, front to back
             pix, ent = _pixel_hits(x[a:b], y[a:b], r[a:b], img[a:b], H, W)
             if len(pix) == 0:
                 continue
