@@ -444,3 +444,59 @@ def test_docstring_examples():
     for mod in (points_mod, compositing):
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.attempted >= 2 and result.failed == 0
+
+
+# ------------------------------------------------------------------ command line
+
+def test_cli_renders_an_npz_cloud(tmp_path, capsys):
+    """`geofit render-points CLOUD.npz` writes the renderer's image and the depth image."""
+    from PIL import Image
+
+    from geofit.cli import main
+
+    rng = np.random.default_rng(7)
+    verts = rng.uniform(-0.8, 0.8, (3000, 3))
+    rgb = rng.uniform(0, 1, (3000, 3))
+    np.savez(tmp_path / "cloud.npz", verts=verts, rgb=rgb)
+    out = tmp_path / "out"
+    code = main(["render-points", str(tmp_path / "cloud.npz"), "--out", str(out),
+                 "--image-size", "48", "--radius", "0.05", "--background", "0", "0", "1"])
+    assert code == 0
+    assert "3000 points" in capsys.readouterr().out
+    img = np.asarray(Image.open(out / "render_points.png"))
+    depth = np.asarray(Image.open(out / "render_points_depth.png"))
+    assert img.shape == (48, 48, 3) and depth.shape == (48, 48)
+    # the same render through the API (tutorial camera: ortho, look_at(20, 10, 0), znear 0.01)
+    R, T = look_at_view_transform(20.0, 10.0, 0.0)
+    renderer = PointsRenderer(
+        PointsRasterizer(FoVOrthographicCameras(R=R, T=T, znear=0.01),
+                         PointsRasterizationSettings(48, 0.05, 10)),
+        AlphaCompositor(background_color=(0, 0, 1)))
+    want = renderer.render(PointCloud(verts, rgb))
+    assert np.max(np.abs(img / 255.0 - want.images[0])) <= 0.5 / 255 + 1e-9
+    assert_array_equal(depth == 0, want.depth[0] < 0)
+
+
+def test_cli_default_cloud_without_data(tmp_path, monkeypatch, capsys):
+    """Without tutorial data the default cloud samples the procedural textured mesh."""
+    from geofit.cli import main
+
+    monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "nodata"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    code = main(["render-points", "--out", str(tmp_path / "o"), "--image-size", "32",
+                 "--n-points", "2000", "--camera", "persp"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "procedural_textured (2000 points" in text
+    assert (tmp_path / "o" / "render_points.png").is_file()
+
+
+def test_cli_errors(tmp_path, capsys):
+    """A missing file or a cloud without colours is a clear error with exit code 1."""
+    from geofit.cli import main
+
+    assert main(["render-points", str(tmp_path / "missing.npz"), "--out", str(tmp_path)]) == 1
+    assert "not found" in capsys.readouterr().err
+    np.savez(tmp_path / "plain.npz", verts=np.zeros((4, 3)))
+    assert main(["render-points", str(tmp_path / "plain.npz"), "--out", str(tmp_path)]) == 1
+    assert "no colours" in capsys.readouterr().err
