@@ -343,8 +343,11 @@ class PointToMeshDistance:
         Qc, bc = _closest_point_on_triangles(Pc, V[ct[:, 0]], V[ct[:, 1]], V[ct[:, 2]])
         dc = Pc - Qc
         dc2 = np.einsum("ij,ij->i", dc, dc)
-        order = np.lexsort((dc2, owner))
-        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+        # segmented argmin: ``owner`` is sorted, so each query's candidates are contiguous
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+        gmin = np.minimum.reduceat(dc2, starts)
+        at_min = np.flatnonzero(dc2 == np.repeat(gmin, np.diff(np.r_[starts, len(owner)])))
+        first = at_min[np.r_[True, owner[at_min][1:] != owner[at_min][:-1]]]
         rows = q[owner[first]]
         better = dc2[first] < d2[rows]
         rows, first = rows[better], first[better]
