@@ -102,25 +102,31 @@ class _CotPattern:
         F = len(faces)
         V = int(n_verts)
         # PyTorch3D: L[v1, v2] = cot a, L[v2, v0] = cot b, L[v0, v1] = cot c, then L += L^T.
-        ii = faces[:, [1, 2, 0]].ravel()
-        jj = faces[:, [2, 0, 1]].ravel()
+        ii = faces[:, [1, 2, 0]].T.ravel()  # corner-major: all cot a, then cot b, then cot c
+        jj = faces[:, [2, 0, 1]].T.ravel()
         rows = np.concatenate([ii, jj])
         cols = np.concatenate([jj, ii])
         key = rows * max(V, 1) + cols
         uniq, pos = np.unique(key, return_inverse=True)
         self.n_verts = V
         self.n_faces = F
-        self.pos = pos.astype(np.int64).ravel()
+        pos = pos.astype(np.int64).ravel()
+        # slots of the contributions, split per corner k and direction: cot[k] goes to
+        # (ii, jj) entries pos[k*F:(k+1)*F] and to their transposes pos[3F + k*F: ...]
+        self.pos = [np.ascontiguousarray(pos[k * F:(k + 1) * F]) for k in range(3)]
+        self.pos_t = [np.ascontiguousarray(pos[3 * F + k * F:3 * F + (k + 1) * F]) for k in range(3)]
+        self.faces_cols = tuple(np.ascontiguousarray(faces[:, k]) for k in range(3))
         self.indices = (uniq % max(V, 1)).astype(np.int32 if V < 2**31 else np.int64)
         urows = uniq // max(V, 1)
         self.indptr = np.searchsorted(urows, np.arange(V + 1)).astype(self.indices.dtype)
         self.nnz = len(uniq)
-        self.faces_flat = faces.ravel()
 
-    def build(self, cot: np.ndarray) -> sp.csr_matrix:
-        """cot : (F, 3) float64 (cot a, cot b, cot c) -> symmetric csr (V, V)."""
-        w = cot.ravel()
-        data = np.bincount(self.pos, weights=np.concatenate([w, w]), minlength=self.nnz)
+    def build(self, cot) -> sp.csr_matrix:
+        """cot : three (F,) float64 arrays (cot a, cot b, cot c) -> symmetric csr (V, V)."""
+        data = np.zeros(self.nnz)
+        for k in range(3):  # the three corners
+            data += np.bincount(self.pos[k], cot[k], self.nnz)
+            data += np.bincount(self.pos_t[k], cot[k], self.nnz)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n_verts, self.n_verts))
 
 
@@ -135,34 +141,39 @@ def _cot_pattern(faces: np.ndarray, n_verts: int, topology: Topology | None) -> 
     return pat
 
 
-def _cot_weights(verts: np.ndarray, faces: np.ndarray, eps: float):
-    """PyTorch3D's cotangents (F, 3) and Heron areas (F,), unvalidated."""
-    v0 = verts[faces[:, 0]]
-    v1 = verts[faces[:, 1]]
-    v2 = verts[faces[:, 2]]
-    A2 = np.sum((v1 - v2) ** 2, axis=1)
-    B2 = np.sum((v0 - v2) ** 2, axis=1)
-    C2 = np.sum((v0 - v1) ** 2, axis=1)
+def _cot_weights(verts: np.ndarray, faces_cols, eps: float):
+    """PyTorch3D's cotangents (three (F,) arrays: cot a, cot b, cot c) and Heron areas (F,).
+
+    ``faces_cols`` are the three contiguous corner columns of the faces. Coordinates are handled
+    as separate 1-D arrays (faster than column slices of (F, 3) arrays).
+    """
+    f0, f1, f2 = faces_cols
+    A2 = 0.0
+    B2 = 0.0
+    C2 = 0.0
+    for x in verts.T:  # the three coordinates
+        x = np.ascontiguousarray(x)
+        x0, x1, x2 = x[f0], x[f1], x[f2]
+        A2 = A2 + (x1 - x2) ** 2
+        B2 = B2 + (x0 - x2) ** 2
+        C2 = C2 + (x0 - x1) ** 2
     A = np.sqrt(A2)
     B = np.sqrt(B2)
     C = np.sqrt(C2)
     s = 0.5 * (A + B + C)
     area = np.sqrt(np.maximum(s * (s - A) * (s - B) * (s - C), eps))
-    cot = np.empty((len(faces), 3))
     inv4 = 0.25 / area
-    cot[:, 0] = (B2 + C2 - A2) * inv4
-    cot[:, 1] = (A2 + C2 - B2) * inv4
-    cot[:, 2] = (A2 + B2 - C2) * inv4
-    return cot, area
+    return ((B2 + C2 - A2) * inv4, (A2 + C2 - B2) * inv4, (A2 + B2 - C2) * inv4), area
 
 
 def _cot_laplacian(verts, faces, eps, topology=None):
     """Unvalidated core: (L csr, inv_areas (V,))."""
     V = len(verts)
     pat = _cot_pattern(faces, V, topology)
-    cot, area = _cot_weights(verts, faces, eps)
+    cot, area = _cot_weights(verts, pat.faces_cols, eps)
     L = pat.build(cot)
-    tot = np.bincount(pat.faces_flat, weights=np.repeat(area, 3), minlength=V)
+    tot = (np.bincount(pat.faces_cols[0], area, V) + np.bincount(pat.faces_cols[1], area, V)
+           + np.bincount(pat.faces_cols[2], area, V))
     inv_areas = np.divide(1.0, tot, out=np.zeros_like(tot), where=tot > 0)
     return L, inv_areas
 
