@@ -17,8 +17,9 @@ import os
 import tempfile
 import urllib.error
 import urllib.request
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Iterable, Mapping, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,16 +31,16 @@ __all__ = [
     "DEFAULT_URL",
     "FILES",
     "GROUPS",
-    "DataUnavailableError",
     "DataMesh",
+    "DataUnavailableError",
     "cache_dir",
     "data_dir",
-    "find",
     "download",
-    "procedural_target",
-    "procedural_textured_mesh",
+    "find",
     "load_target_mesh",
     "load_textured_mesh",
+    "procedural_target",
+    "procedural_textured_mesh",
 ]
 
 #: Where PyTorch3D's tutorials download their data from.
@@ -344,8 +345,12 @@ def procedural_target() -> Mesh:
 def _uv_sphere(n_lat: int, n_lon: int):
     """Indices of a latitude-longitude sphere: 3-D faces (closed) and seam-split UV faces."""
     R = n_lat - 1  # rings between the poles
-    ring = lambda i, j: 1 + i * n_lon + (j % n_lon)  # noqa: E731  (i ring, j column)
-    uvring = lambda i, j: i * (n_lon + 1) + j  # noqa: E731  (UV grid, seam column duplicated)
+    def ring(i, j):  # vertex of ring i, column j (the seam column wraps to column 0)
+        return 1 + i * n_lon + (j % n_lon)
+
+    def uvring(i, j):  # UV of ring i, column j (the seam column n_lon is its own UV)
+        return i * (n_lon + 1) + j
+
     north, south = 0, 1 + R * n_lon
     j = np.arange(n_lon)
     n_uv_grid = R * (n_lon + 1)

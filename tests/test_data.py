@@ -99,7 +99,7 @@ def test_download_file_url_writes_verified_files(dirs, mirror):
 
 
 def test_download_default_dest_is_the_cache_and_find_sees_it(dirs, mirror):
-    root, sums, content = mirror
+    root, sums, _ = mirror
     out = gd.download(base_url=root.as_uri() + "/", files={"a/one.txt": sums["a/one.txt"]})
     assert out["a/one.txt"] == gd.cache_dir() / "a" / "one.txt"
     assert gd.find("a/one.txt") == out["a/one.txt"]

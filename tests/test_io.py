@@ -211,6 +211,103 @@ def test_texture_without_uvs_raises(tmp_path):
     assert load_obj(tmp_path / "t.obj").texture_images["m"].shape == (2, 2, 3)
 
 
+def reference_parse(text: str):
+    """Slow line-by-line OBJ parser (spec semantics) to check the vectorised one against."""
+    v, vt, vn, faces, fuv, fnv, fmat, names = [], [], [], [], [], [], [], []
+    cur = -1
+    for line in text.splitlines():
+        tok = line.split("#")[0].split()
+        if not tok:
+            continue
+        if tok[0] == "v":
+            v.append([float(x) for x in tok[1:4]])
+        elif tok[0] == "vt":
+            vt.append([float(x) for x in tok[1:3]])
+        elif tok[0] == "vn":
+            vn.append([float(x) for x in tok[1:4]])
+        elif tok[0] == "usemtl":
+            if tok[1] not in names:
+                names.append(tok[1])
+            cur = names.index(tok[1])
+        elif tok[0] == "f":
+            corners = []
+            for c in tok[1:]:
+                parts = c.split("/") + ["", ""]
+                out = []
+                for s_, n in zip(parts[:3], (len(v), len(vt), len(vn))):
+                    out.append(-1 if s_ == "" else (int(s_) - 1 if int(s_) > 0 else n + int(s_)))
+                corners.append(out)
+            for i in range(1, len(corners) - 1):
+                tri = [corners[0], corners[i], corners[i + 1]]
+                faces.append([c[0] for c in tri])
+                fuv.append([c[1] for c in tri])
+                fnv.append([c[2] for c in tri])
+                fmat.append(cur)
+    return np.array(v), np.array(vt), np.array(vn), np.array(faces), np.array(fuv), \
+        np.array(fnv), np.array(fmat), names
+
+
+def random_obj(rng) -> str:
+    """Interleaved v/vt/vn/f/usemtl lines, polygons of 3-6 corners, every corner form, absolute
+    and relative indices, tabs, repeated spaces, comments and explicit '+' signs."""
+    out, nv, nt, nn = [], 0, 0, 0
+    for _ in range(300):
+        kind = rng.choice(["v", "vt", "vn", "f", "f", "f", "usemtl"], p=[.3, .1, .1, .15, .15,
+                                                                          .15, .05])
+        if kind == "v" or nv < 3:
+            out.append("v " + " ".join(repr(float(x)) for x in rng.normal(size=3)))
+            nv += 1
+        elif kind == "vt":
+            u, w = rng.uniform(size=2).tolist()
+            out.append(f"vt\t{u!r} {w!r}")
+            nt += 1
+        elif kind == "vn":
+            a, b, c = rng.normal(size=3).tolist()
+            out.append(f"vn {a!r}  {b!r} {c!r}  # unit-ish")
+            nn += 1
+        elif kind == "usemtl":
+            out.append(f"usemtl m{rng.integers(3)}")
+        else:
+            k = int(rng.integers(3, 7))
+            use_t = nt > 0 and rng.random() < 0.5
+            use_n = nn > 0 and rng.random() < 0.5
+            rel = rng.random() < 0.3
+
+            def ref(n, rel=rel):
+                i = int(rng.integers(1, n + 1))
+                return str(i - n - 1) if rel else ("+" if rng.random() < 0.1 else "") + str(i)
+            corners = []
+            for _ in range(k):
+                c = ref(nv)
+                if use_t and use_n:
+                    c += f"/{ref(nt)}/{ref(nn)}"
+                elif use_t:
+                    c += f"/{ref(nt)}"
+                elif use_n:
+                    c += f"//{ref(nn)}"
+                corners.append(c)
+            out.append("f " + "  ".join(corners) + ("\t# face" if rng.random() < 0.2 else ""))
+    out.append("f 1 2 3")
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_vectorised_parser_matches_reference_loop(tmp_path, seed):
+    """The byte-level tokeniser gives what a plain line-by-line parser gives."""
+    text = random_obj(np.random.default_rng(seed))
+    d = load_obj(write(tmp_path / "r.obj", text))
+    v, vt, vn, faces, fuv, fnv, fmat, names = reference_parse(text)
+    np.testing.assert_array_equal(d.verts, v)
+    np.testing.assert_array_equal(d.verts_uvs, vt.reshape(-1, 2))
+    np.testing.assert_array_equal(d.normals, vn.reshape(-1, 3))
+    np.testing.assert_array_equal(d.faces, faces)
+    np.testing.assert_array_equal(d.faces_uvs, fuv)
+    np.testing.assert_array_equal(d.faces_normals_idx, fnv)
+    np.testing.assert_array_equal(d.face_materials, fmat)
+    assert d.material_names == names
+    assert (fuv >= 0).any() and (fnv >= 0).any() and (fuv < 0).any()  # all forms occurred
+
+
 # --------------------------------------------------------------------------- round trips
 def test_round_trip_plain_mesh_is_exact(tmp_path):
     """save_obj then load_obj gives bit-identical float64 vertices and the same faces."""
@@ -320,23 +417,23 @@ TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
         (TRI + "vt 0\nf 1 2 3\n", r"line 4: texture coordinate needs 2 values"),
         (TRI + "vn 0 1\nf 1 2 3\n", r"line 4: normal needs 3 values"),
         (TRI + "f 1 2\n", r"line 4: face needs at least 3 vertices, got 2"),
-        (TRI + "f 1 2 3\nf 1 2 4\n", r"line 5: face vertex index 4 is out of range "
-                                     r"\(the file has 3 vertex entries\)"),
+        (TRI + "f 1 2 3\nf 1 2 4\n", (r"line 5: face vertex index 4 is out of range "
+                                      r"\(the file has 3 vertex entries\)")),
         (TRI + "f 0 1 2\n", r"line 4: face vertex index 0 is invalid"),
         ("v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n",
          r"line 3: face vertex relative index -3 points before the first vertex"),
         (TRI + "f 1 2 3.5\n", r"line 4: face has a non-integer vertex index '3.5'"),
         (TRI + "f 1 2 a\n", r"line 4: face has a non-integer vertex index 'a'"),
-        (TRI + "vt 0 0\nf 1/1 2/2 3/1\n", r"line 5: face texture coordinate index 2 is out of "
-                                          r"range \(the file has 1 texture coordinate entries\)"),
+        (TRI + "vt 0 0\nf 1/1 2/2 3/1\n", (r"line 5: face texture coordinate index 2 is out of "
+                                           r"range \(the file has 1 texture coordinate entries\)")),
         (TRI + "vn 0 0 1\nf 1//1 2//1 3//-2\n",
          r"line 5: face normal relative index -2 points before the first normal"),
-        (TRI + "vt 0 0\nf 1/1 2 3/1\n", r"line 5: face mixes corners with and without "
-                                        r"texture coordinate indices"),
-        (TRI + "vn 0 0 1\nf 1//1 2//1 3\n", r"line 5: face mixes corners with and without "
-                                            r"normal indices"),
-        (TRI + "vt 0 0\nf 1/x 2/1 3/1\n", r"line 5: face has a non-integer texture coordinate "
-                                          r"index 'x'"),
+        (TRI + "vt 0 0\nf 1/1 2 3/1\n", (r"line 5: face mixes corners with and without "
+                                         r"texture coordinate indices")),
+        (TRI + "vn 0 0 1\nf 1//1 2//1 3\n", (r"line 5: face mixes corners with and without "
+                                             r"normal indices")),
+        (TRI + "vt 0 0\nf 1/x 2/1 3/1\n", (r"line 5: face has a non-integer texture coordinate "
+                                           r"index 'x'")),
         (TRI + "f 1/1/1/1 2 3\n", r"line 4: face corner '1/1/1/1' has more than 3"),
         (TRI + "f /1 2 3\n", r"line 4: face corner '/1' has no vertex index"),
         (TRI, r"has no faces \(empty mesh; 3 vertices\)"),

@@ -5,10 +5,10 @@ from .points import load_pointcloud, save_pointcloud
 __all__ = [
     "Material",
     "ObjData",
+    "load_mesh",
     "load_obj",
     "load_objs_as_meshes",
-    "load_mesh",
-    "save_obj",
     "load_pointcloud",
+    "save_obj",
     "save_pointcloud",
 ]

@@ -7,9 +7,10 @@ as ``(v0, vi, vi+1)``, and raises on anything it cannot load instead of returnin
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -20,9 +21,9 @@ from ..structures.textures import TexturesUV
 __all__ = [
     "Material",
     "ObjData",
+    "load_mesh",
     "load_obj",
     "load_objs_as_meshes",
-    "load_mesh",
     "save_obj",
 ]
 
@@ -109,15 +110,48 @@ def _strip_comment(line: str) -> str:
     return line if h < 0 else line[:h]
 
 
-def _to_float(rows: list, lines: list, what: str, path: Path) -> np.ndarray:
-    """Convert a list of equal-length string lists to float64, naming the first bad line."""
-    ncol = len(rows[0]) if rows else 0
-    if not rows:
+_WS = np.zeros(256, dtype=bool)
+_WS[[9, 10, 11, 12, 13, 32]] = True  # \t \n \v \f \r and space
+_POW10 = 10 ** np.arange(19, dtype=np.int64)
+_SLOT_NAMES = ("vertex", "texture coordinate", "normal")
+
+
+def _tokens_per_line(blob: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Byte-level tokeniser. ``blob`` holds uint8 text whose every line ends in a newline.
+
+    Returns (positions of the newlines, positions of the token starts, tokens per line).
+    """
+    ws = _WS[blob]
+    start = ~ws
+    start[1:] &= ws[:-1]
+    nlpos = np.flatnonzero(blob == 10)
+    spos = np.flatnonzero(start)
+    counts = np.bincount(np.searchsorted(nlpos, spos), minlength=len(nlpos))
+    return nlpos, spos, counts
+
+
+def _parse_float_lines(bodies: list, lines: list, ncol: int, what: str, path: Path) -> np.ndarray:
+    """Parse lines of >= ``ncol`` numbers (extra ones ignored) into an (n, ncol) float64 array."""
+    if not bodies:
         return np.zeros((0, ncol))
+    joined = "\n".join(bodies)
+    blob = np.frombuffer((joined + "\n").encode("utf-8", "replace"), dtype=np.uint8)
+    counts = _tokens_per_line(blob)[2]
+    short = counts < ncol
+    if short.any():
+        i = int(np.flatnonzero(short)[0])
+        need = f"{ncol} coordinates" if what == "vertex" else f"{ncol} values"
+        raise ValueError(f"{path}: line {lines[i]}: {what} needs {need}, got "
+                         f"{bodies[i].strip()!r}")
+    if np.all(counts == ncol):
+        tokens = joined.split()
+    else:  # some lines carry extra values (v x y z r g b, vt u v w): keep the first ncol
+        tokens = [t for b in bodies for t in b.split()[:ncol]]
     try:
-        arr = np.array(rows, dtype=np.float64)
+        arr = np.array(tokens, dtype=np.float64).reshape(-1, ncol)
     except ValueError:
-        for row, ln in zip(rows, lines):  # error path only: find the offending line
+        for body, ln in zip(bodies, lines):  # error path only: find the offending line
+            row = body.split()[:ncol]
             try:
                 [float(t) for t in row]
             except ValueError:
@@ -128,23 +162,81 @@ def _to_float(rows: list, lines: list, what: str, path: Path) -> np.ndarray:
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"{path}: line {lines[i]}: {what} is not finite ({' '.join(rows[i])!r}); "
-                         f"{int(bad.sum())} such line(s)")
+        raise ValueError(f"{path}: line {lines[i]}: {what} is not finite "
+                         f"({' '.join(bodies[i].split()[:ncol])!r}); {int(bad.sum())} such line(s)")
     return arr
 
 
-def _to_int(strings: list, what: str, corner_lines: np.ndarray, path: Path) -> np.ndarray:
-    try:
-        return np.array(strings, dtype=np.int64) if strings else np.zeros(0, np.int64)
-    except ValueError:
-        for s, ln in zip(strings, corner_lines):  # error path only
-            try:
-                int(s)
-            except ValueError:
-                raise ValueError(
-                    f"{path}: line {ln}: face has a non-integer {what} index {s!r}"
-                ) from None
-        raise  # pragma: no cover
+def _face_line_error(body: str, ln: int, path: Path) -> ValueError:
+    """The error for a face line the vectorised parser rejected (run on that one line only)."""
+    for tok in body.split():
+        parts = tok.split("/")
+        if len(parts) > 3:
+            return ValueError(f"{path}: line {ln}: face corner {tok!r} has more than 3 "
+                              f"'/'-separated indices")
+        if parts[0] == "":
+            return ValueError(f"{path}: line {ln}: face corner {tok!r} has no vertex index")
+        for slot, part in enumerate(parts):
+            body_digits = part[1:] if part[:1] in "+-" else part
+            if part and not (body_digits.isascii() and body_digits.isdigit()):
+                return ValueError(f"{path}: line {ln}: face has a non-integer {_SLOT_NAMES[slot]} "
+                                  f"index {part!r}")
+            if len(body_digits) > 18:
+                return ValueError(f"{path}: line {ln}: face index {part!r} is too large")
+    return ValueError(f"{path}: line {ln}: malformed face {body.strip()!r}")  # pragma: no cover
+
+
+def _parse_faces(bodies: list, lines: np.ndarray, path: Path):
+    """Vectorised parse of face corners ``v``, ``v/vt``, ``v//vn``, ``v/vt/vn``.
+
+    Returns ``(corners per face (F,), raw indices (C, 3) int64, present (C, 3) bool)`` where
+    column 0/1/2 is the vertex / texture / normal index as written (1-based or negative).
+    """
+    blob = np.frombuffer(("\n".join(bodies) + "\n").encode("utf-8", "replace"), dtype=np.uint8)
+    nlpos, cpos, counts = _tokens_per_line(blob)
+    few = counts < 3
+    if few.any():
+        i = int(np.flatnonzero(few)[0])
+        raise ValueError(f"{path}: line {lines[i]}: face needs at least 3 vertices, got "
+                         f"{int(counts[i])} ({('f ' + bodies[i]).strip()!r})")
+    digit = (blob >= 48) & (blob <= 57)
+    sign = (blob == 45) | (blob == 43)
+    slash = blob == 47
+    num = digit | sign
+    nstart = num.copy()
+    nstart[1:] &= ~num[:-1]
+    nend = num.copy()
+    nend[:-1] &= ~num[1:]
+    sign_ok = np.zeros_like(sign)
+    sign_ok[:-1] = nstart[:-1] & digit[1:]  # a sign only at the start of a number, before a digit
+    bad_pos = np.flatnonzero(~(_WS[blob] | slash | num) | (sign & ~sign_ok))
+    # sparse positions; the corner of a position p is the last corner start <= p
+    npos = np.flatnonzero(nstart)
+    epos = np.flatnonzero(nend)
+    spos = np.flatnonzero(slash)
+    n_corners = len(cpos)
+    n_corner = np.searchsorted(cpos, npos, side="right") - 1
+    nslot = np.searchsorted(spos, npos) - np.searchsorted(spos, cpos)[n_corner]
+    nslash = np.bincount(np.searchsorted(cpos, spos, side="right") - 1, minlength=n_corners)
+    has = np.zeros((n_corners, 3), dtype=bool)
+    ok_slot = nslot <= 2
+    has[n_corner[ok_slot], nslot[ok_slot]] = True
+    bad_corner = np.flatnonzero((nslash > 2) | ~has[:, 0])
+    run_len = epos - npos + 1
+    too_long = np.flatnonzero(run_len - sign[npos] > 18)
+    if len(bad_pos) or len(bad_corner) or len(too_long):
+        cand = [p[0] for p in (bad_pos, cpos[bad_corner], npos[too_long]) if len(p)]
+        i = int(np.searchsorted(nlpos, min(cand)))
+        raise _face_line_error(bodies[i], int(lines[i]), path)
+    # number values: sum of digit * 10^place over each run of number bytes
+    numpos = np.flatnonzero(num)  # every corner has a vertex number, so this is not empty
+    place = np.repeat(epos, run_len) - numpos
+    contrib = np.where(digit[numpos], (blob[numpos].astype(np.int64) - 48) * _POW10[place], 0)
+    values = np.add.reduceat(contrib, np.concatenate([[0], np.cumsum(run_len)[:-1]]))
+    values = np.where(blob[npos] == 45, -values, values)
+    raw = np.zeros((n_corners, 3), dtype=np.int64)
+    raw[n_corner, nslot] = values
+    return counts, raw, has
 
 
 def _resolve_indices(raw: np.ndarray, count_at: np.ndarray, total: int, what: str,
@@ -286,126 +378,98 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
         raise FileNotFoundError(f"OBJ file not found: {path}")
     lines = _read_text(path).splitlines()
 
-    v_rows: list = []
-    v_lines: list = []
-    vt_rows: list = []
-    vt_lines: list = []
-    vn_rows: list = []
-    vn_lines: list = []
-    corners: list = []
-    f_len: list = []
-    f_line: list = []
-    f_mat: list = []
-    f_counts: list = []  # (nv, nt, nn) defined before each face's line
+    # One pass over the lines sorts them by keyword; the numbers are parsed afterwards in bulk.
+    vb: list = []
+    vl: list = []
+    tb: list = []
+    tl: list = []
+    nb: list = []
+    nl: list = []
+    fb: list = []
+    fl: list = []
+    mat_lines: list = []  # (line, material index) of every usemtl
     mtllibs: list = []
     material_names: list = []
     mat_index: dict = {}
-    cur_mat = -1
-
-    for ln, line in enumerate(lines, 1):  # one pass over the lines of the file
+    for ln, line in enumerate(lines, 1):  # the line loop of the parser
         if "#" in line:
             line = _strip_comment(line)
-        tokens = line.split()
-        if not tokens:
+        parts = line.split(None, 1)
+        if not parts:
             continue
-        key = tokens[0]
+        key = parts[0]
+        rest = parts[1] if len(parts) > 1 else ""
         if key == "v":
-            if len(tokens) < 4:
-                raise ValueError(f"{path}: line {ln}: vertex needs 3 coordinates, got {line.strip()!r}")
-            v_rows.append(tokens[1:4])
-            v_lines.append(ln)
+            vb.append(rest)
+            vl.append(ln)
         elif key == "f":
-            if len(tokens) < 4:
-                raise ValueError(
-                    f"{path}: line {ln}: face needs at least 3 vertices, got {len(tokens) - 1} "
-                    f"({line.strip()!r})")
-            corners.extend(tokens[1:])
-            f_len.append(len(tokens) - 1)
-            f_line.append(ln)
-            f_mat.append(cur_mat)
-            f_counts.append((len(v_rows), len(vt_rows), len(vn_rows)))
+            fb.append(rest)
+            fl.append(ln)
         elif key == "vt":
-            if len(tokens) < 3:
-                raise ValueError(f"{path}: line {ln}: texture coordinate needs 2 values, "
-                                 f"got {line.strip()!r}")
-            vt_rows.append(tokens[1:3])
-            vt_lines.append(ln)
+            tb.append(rest)
+            tl.append(ln)
         elif key == "vn":
-            if len(tokens) < 4:
-                raise ValueError(f"{path}: line {ln}: normal needs 3 values, got {line.strip()!r}")
-            vn_rows.append(tokens[1:4])
-            vn_lines.append(ln)
+            nb.append(rest)
+            nl.append(ln)
         elif key == "usemtl":
-            if len(tokens) < 2:
+            name = rest.strip()
+            if not name:
                 raise ValueError(f"{path}: line {ln}: usemtl without a material name")
-            name = line.strip()[len(key):].strip()
             if name not in mat_index:
                 mat_index[name] = len(material_names)
                 material_names.append(name)
-            cur_mat = mat_index[name]
+            mat_lines.append((ln, mat_index[name]))
         elif key == "mtllib":
-            if len(tokens) < 2:
+            if not rest.strip():
                 raise ValueError(f"{path}: line {ln}: mtllib without a file name")
-            mtllibs.append((line.strip()[len(key):].strip(), ln))
+            mtllibs.append((rest.strip(), ln))
 
-    verts = _to_float(v_rows, v_lines, "vertex", path).reshape(-1, 3)
-    verts_uvs = _to_float(vt_rows, vt_lines, "texture coordinate", path).reshape(-1, 2)
-    normals = _to_float(vn_rows, vn_lines, "normal", path).reshape(-1, 3)
-    if not f_len:
+    verts = _parse_float_lines(vb, vl, 3, "vertex", path)
+    verts_uvs = _parse_float_lines(tb, tl, 2, "texture coordinate", path)
+    normals = _parse_float_lines(nb, nl, 3, "normal", path)
+    if not fb:
         raise ValueError(f"{path}: the file has no faces (empty mesh; {len(verts)} vertices)")
 
-    # ---- corners: "v", "v/vt", "v//vn", "v/vt/vn"
-    f_len_a = np.asarray(f_len, dtype=np.int64)
-    n_faces = len(f_len_a)
-    starts = np.concatenate([[0], np.cumsum(f_len_a)[:-1]])
-    corner_face = np.repeat(np.arange(n_faces), f_len_a)
-    corner_lines = np.asarray(f_line, dtype=np.int64)[corner_face]
-    split = [c.split("/") for c in corners]  # part of the line parse: one split per corner token
-    nparts = np.fromiter(map(len, split), dtype=np.int64, count=len(split))
-    if nparts.max() > 3:
-        i = int(np.flatnonzero(nparts > 3)[0])
-        raise ValueError(f"{path}: line {int(corner_lines[i])}: face corner {corners[i]!r} has "
-                         f"more than 3 '/'-separated indices")
-    v_str = [s[0] for s in split]
-    if any(s == "" for s in v_str):
-        i = v_str.index("")
-        raise ValueError(f"{path}: line {int(corner_lines[i])}: face corner {corners[i]!r} "
-                         f"has no vertex index")
-    t_str = [s[1] if len(s) > 1 and s[1] else "0" for s in split]
-    n_str = [s[2] if len(s) > 2 and s[2] else "0" for s in split]
-    has_t = np.fromiter((len(s) > 1 and s[1] != "" for s in split), dtype=bool, count=len(split))
-    has_n = np.fromiter((len(s) > 2 and s[2] != "" for s in split), dtype=bool, count=len(split))
-
-    counts = np.asarray(f_counts, dtype=np.int64)[corner_face]
-    raw_v = _to_int(v_str, "vertex", corner_lines, path)
-    v_idx = _resolve_indices(raw_v, counts[:, 0], len(verts), "vertex", corner_lines, path)
-
-    def _optional(has, strs, col, total, what):
-        per_face = np.add.reduceat(has.astype(np.int64), starts)
-        mixed = (per_face != 0) & (per_face != f_len_a)
+    f_line = np.asarray(fl, dtype=np.int64)
+    f_len, raw, has = _parse_faces(fb, f_line, path)
+    n_faces = len(f_len)
+    starts = np.concatenate([[0], np.cumsum(f_len)[:-1]])
+    corner_face = np.repeat(np.arange(n_faces), f_len)
+    corner_lines = f_line[corner_face]
+    # entries defined before each face's line, for relative indices
+    before = [np.searchsorted(np.asarray(x, dtype=np.int64), f_line)[corner_face]
+              for x in (vl, tl, nl)]
+    totals = (len(verts), len(verts_uvs), len(normals))
+    idx = np.full(raw.shape, -1, dtype=np.int64)
+    idx[:, 0] = _resolve_indices(raw[:, 0], before[0], totals[0], "vertex", corner_lines, path)
+    for col in (1, 2):  # texture coordinates, normals
+        h = has[:, col]
+        per_face = np.add.reduceat(h.astype(np.int64), starts)
+        mixed = (per_face != 0) & (per_face != f_len)
         if mixed.any():
             i = int(np.flatnonzero(mixed)[0])
-            raise ValueError(f"{path}: line {f_line[i]}: face mixes corners with and without "
-                             f"{what} indices")
-        out = np.full(len(strs), -1, dtype=np.int64)
-        if has.any():
-            raw = _to_int(strs, what, corner_lines, path)[has]
-            out[has] = _resolve_indices(raw, counts[has, col], total, what, corner_lines[has], path)
-        return out
-
-    t_idx = _optional(has_t, t_str, 1, len(verts_uvs), "texture coordinate")
-    n_idx = _optional(has_n, n_str, 2, len(normals), "normal")
+            raise ValueError(f"{path}: line {fl[i]}: face mixes corners with and without "
+                             f"{_SLOT_NAMES[col]} indices")
+        if h.any():
+            idx[h, col] = _resolve_indices(raw[h, col], before[col][h], totals[col],
+                                           _SLOT_NAMES[col], corner_lines[h], path)
 
     # ---- fan triangulation (c0, ci, ci+1) for i = 1 .. k-2
-    n_tri = f_len_a - 2
+    n_tri = f_len - 2
     tri_face = np.repeat(np.arange(n_faces), n_tri)
     local = np.arange(len(tri_face)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
     base = starts[tri_face]
     c = np.stack([base, base + local, base + local + 1], axis=1)
-    faces = v_idx[c]
-    faces_uvs = t_idx[c]
-    faces_normals_idx = n_idx[c]
-    face_materials = np.asarray(f_mat, dtype=np.int64)[tri_face]
+    faces = idx[c, 0]
+    faces_uvs = idx[c, 1]
+    faces_normals_idx = idx[c, 2]
+    if mat_lines:
+        ml = np.asarray(mat_lines, dtype=np.int64)
+        k = np.searchsorted(ml[:, 0], f_line) - 1  # last usemtl before each face
+        face_mat = np.where(k >= 0, ml[np.maximum(k, 0), 1], -1)
+    else:
+        face_mat = np.full(n_faces, -1, dtype=np.int64)
+    face_materials = face_mat[tri_face]
 
     materials: dict = {}
     texture_images: dict = {}
