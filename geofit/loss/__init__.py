@@ -1,8 +1,10 @@
 """Losses with analytic gradients: each returns ``(value, grad)`` with ``grad`` shaped like its input.
 
+- :func:`chamfer_distance` and :class:`ChamferTarget` (a KD-tree over a fixed target);
 - mesh regularisers (:mod:`geofit.loss.mesh`): :func:`mesh_edge_loss`,
   :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`;
 """
+from .chamfer import ChamferResult, ChamferTarget, chamfer_distance
 from .mesh import (
     mesh_edge_loss,
     mesh_laplacian_smoothing,
@@ -11,6 +13,9 @@ from .mesh import (
 )
 
 __all__ = [
+    "ChamferResult",
+    "ChamferTarget",
+    "chamfer_distance",
     "mesh_edge_loss",
     "mesh_laplacian_smoothing",
     "mesh_normal_consistency",

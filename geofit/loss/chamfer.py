@@ -1,0 +1,470 @@
+"""Chamfer distance between point clouds with analytic gradients (PyTorch3D's ``chamfer_distance``).
+
+For every point of ``x`` the nearest point of ``y`` is found (and vice versa) with an exact
+KD-tree (``scipy.spatial.cKDTree``); the distances are then recomputed in float64 from the
+coordinate differences, so values and gradients are exact for the neighbours found. The choice of
+neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
+``knn_points`` indices are constants), and the gradient is exact wherever the nearest neighbours
+are unique.
+
+Gradients (squared distances, ``point_reduction="mean"``, one direction): with ``j = nn(i)``,
+``d/dx_i mean_i |x_i - y_j|^2 = 2 (x_i - y_j) / n_x`` and ``-2 (x_i - y_j) / n_x`` is scattered onto
+``y_j`` (``np.bincount``); the other direction is the mirror image. The two directions are
+**summed** (PyTorch3D's convention): one point at (0, 0) against one at (3, 0) gives 18.
+
+Why cKDTree: measured on this 2-core machine for both directions of a chamfer distance between
+two uniform clouds (tree builds included), ``cKDTree(balanced_tree=False, compact_nodes=False)``
+with ``workers=-1`` took 1.3 / 5.9 / 20 / 122 ms for 1k / 5k / 20k / 100k points per cloud;
+Open3D's ``core.nns.NearestNeighborSearch`` (float64 tensors, knn_index + knn_search) took
+0.7 / 4.9 / 27 / 166 ms and ``KDTreeFlann`` needs a Python loop per query point. Both trees
+are exact and returned identical neighbours; cKDTree also supports the L1 metric (``norm=1``)
+that PyTorch3D's ``knn_points(norm=1)`` uses.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._validate import as_array, as_points, check_choice
+
+__all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance"]
+
+_BATCH_REDUCTIONS = ("mean", "sum", None)
+_POINT_REDUCTIONS = ("mean", "sum", "max")
+_COS_EPS = 1e-6  # PyTorch3D's cosine_similarity eps in chamfer_distance
+_PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (measured break-even)
+
+
+class ChamferResult(NamedTuple):
+    """Chamfer distance, its normal term, and their gradients.
+
+    Attributes
+    ----------
+    loss : float or (N,) float64
+        The distance term (an (N,) array when ``batch_reduction=None``).
+    loss_normals : float, (N,) float64 or None
+        The normal term ``1 - |cos|`` (or ``1 - cos``), None without normals.
+    grad_x, grad_y : float64 arrays shaped like ``x`` and ``y``
+        Gradients of ``loss`` (of ``loss.sum()`` when ``batch_reduction=None``). Padding entries
+        (beyond ``x_lengths`` / ``y_lengths``) get 0.
+    grad_x_normals, grad_y_normals : float64 arrays shaped like the normals, or None
+        Gradients of ``loss_normals`` with respect to the normals (it does not depend on the
+        positions except through the piecewise-constant neighbour choice).
+    """
+
+    loss: float | np.ndarray
+    loss_normals: float | np.ndarray | None
+    grad_x: np.ndarray
+    grad_y: np.ndarray
+    grad_x_normals: np.ndarray | None
+    grad_y_normals: np.ndarray | None
+
+
+def _make_tree(points: np.ndarray) -> cKDTree:
+    # Unbalanced, non-compact trees build faster and query as fast (measured: see module doc).
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
+def _nearest(tree: cKDTree, tree_points: np.ndarray, q: np.ndarray, norm: int):
+    """Nearest tree point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
+    # Threads pay off only for large queries (scipy starts them on every call).
+    _, idx = tree.query(q, k=1, p=norm, workers=-1 if len(q) >= _PARALLEL_QUERY else 1)
+    idx = np.asarray(idx, dtype=np.int64)
+    diff = q - tree_points[idx]
+    if norm == 2:
+        d = np.einsum("ij,ij->i", diff, diff)
+        dd = 2.0 * diff
+    else:
+        d = np.abs(diff).sum(axis=1)
+        dd = np.sign(diff)  # torch: d|t|/dt = sign(t), 0 at 0
+    return idx, d, dd
+
+
+def _scatter(idx: np.ndarray, vals: np.ndarray, n: int) -> np.ndarray:
+    """Sum rows of (k, C) ``vals`` into an (n, C) array at rows ``idx``."""
+    out = np.empty((n, vals.shape[1]))
+    for c in range(vals.shape[1]):  # the coordinates
+        out[:, c] = np.bincount(idx, vals[:, c], n)
+    return out
+
+
+def _cos_and_grads(a: np.ndarray, b: np.ndarray):
+    """torch.cosine_similarity(a, b, eps=1e-6) per row and its exact gradients.
+
+    ``cos = (a / max(|a|, eps)) . (b / max(|b|, eps))``; for ``|a| > eps``,
+    ``d cos / d a = b / (m_a m_b) - cos a / |a|^2``; below eps only the first term.
+    """
+    sa = np.einsum("ij,ij->i", a, a)
+    sb = np.einsum("ij,ij->i", b, b)
+    e2 = _COS_EPS * _COS_EPS
+    ma = np.maximum(sa, e2)
+    mb = np.maximum(sb, e2)
+    inv = 1.0 / np.sqrt(ma * mb)
+    cos = np.einsum("ij,ij->i", a, b) * inv
+    ca = np.where(sa > e2, cos / ma, 0.0)
+    cb = np.where(sb > e2, cos / mb, 0.0)
+    ga = b * inv[:, None] - a * ca[:, None]
+    gb = a * inv[:, None] - b * cb[:, None]
+    return cos, ga, gb
+
+
+class _Direction(NamedTuple):
+    """One direction (p -> q) of one batch member, before reduction."""
+
+    d: np.ndarray  # (k,) distance of each p to its nearest q
+    idx: np.ndarray  # (k,) index of that q
+    dd: np.ndarray  # (k, 3) d d / d p
+    nterm: np.ndarray | None  # (k,) normal term 1 - |cos| (or 1 - cos)
+    dn_p: np.ndarray | None  # (k, 3) d nterm / d p_normal
+    dn_q: np.ndarray | None  # (k, 3) d nterm / d q_normal[idx]
+
+
+def _direction(p, q, tree_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
+    if len(p) == 0 or len(q) == 0:  # nothing to match: this direction contributes 0
+        z = np.zeros(len(p))
+        zz = np.zeros((len(p), 3))
+        with_n = p_normals is not None
+        return _Direction(z, np.zeros(len(p), np.int64), zz, z if with_n else None,
+                          zz if with_n else None, zz if with_n else None)
+    idx, d, dd = _nearest(tree_q, q, p, norm)
+    if p_normals is None:
+        return _Direction(d, idx, dd, None, None, None)
+    cos, ga, gb = _cos_and_grads(p_normals, q_normals[idx])
+    if abs_cosine:
+        s = np.sign(cos)
+        nterm = 1.0 - np.abs(cos)
+    else:
+        s = np.ones_like(cos)
+        nterm = 1.0 - cos
+    return _Direction(d, idx, dd, nterm, -s[:, None] * ga, -s[:, None] * gb)
+
+
+class _Reduced(NamedTuple):
+    """One reduced direction p -> q: values and gradients (already times the member weight)."""
+
+    value: float
+    value_n: float | None
+    g_p: np.ndarray  # (k, 3)
+    g_q: np.ndarray  # (n_q, 3)
+    gn_p: np.ndarray | None
+    gn_q: np.ndarray | None
+
+
+def _reduce_direction(dr: _Direction, point_reduction: str, w: float, n_q: int) -> _Reduced:
+    """Reduce one direction over its points (mean, sum or max), times the member weight ``w``."""
+    k = len(dr.d)
+    if point_reduction == "max":
+        if k == 0:
+            return _Reduced(0.0, None, np.zeros((0, 3)), np.zeros((n_q, 3)), None, None)
+        i = int(np.argmax(dr.d))
+        coef = np.zeros(k)
+        coef[i] = w
+        value = w * dr.d[i]
+    else:
+        scale = w / max(k, 1) if point_reduction == "mean" else w
+        coef = np.full(k, scale)
+        value = scale * dr.d.sum()
+    g_p = dr.dd * coef[:, None]
+    g_q = -_scatter(dr.idx, g_p, n_q)
+    if dr.nterm is None:
+        return _Reduced(float(value), None, g_p, g_q, None, None)
+    # the normal term has the same per-point weights (normals are never used with 'max')
+    value_n = float(np.dot(coef, dr.nterm))
+    gpn = dr.dn_p * coef[:, None]
+    gqn = _scatter(dr.idx, dr.dn_q * coef[:, None], n_q)
+    return _Reduced(float(value), value_n, g_p, g_q, gpn, gqn)
+
+
+def _member(xb, yb, tree_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
+            abs_cosine):
+    """Both directions of one batch member combined: (loss, loss_n, gx, gy, gxn, gyn)."""
+    rx = _reduce_direction(_direction(xb, yb, tree_y, norm, xnb, ynb, abs_cosine),
+                           point_reduction, w, len(yb))
+    if single_directional:
+        return rx.value, rx.value_n, rx.g_p, rx.g_q, rx.gn_p, rx.gn_q
+    tree_x = _make_tree(xb) if len(xb) else None  # x moves: its tree is rebuilt per call
+    ry = _reduce_direction(_direction(yb, xb, tree_x, norm, ynb, xnb, abs_cosine),
+                           point_reduction, w, len(xb))
+    if point_reduction == "max":
+        # torch.maximum: the gradient goes to the larger term, split evenly on a tie
+        sx, sy = (1.0, 0.0) if rx.value > ry.value else (0.0, 1.0) if ry.value > rx.value \
+            else (0.5, 0.5)
+        return (max(rx.value, ry.value), None, sx * rx.g_p + sy * ry.g_q,
+                sx * rx.g_q + sy * ry.g_p, None, None)
+    if rx.value_n is None:
+        return rx.value + ry.value, None, rx.g_p + ry.g_q, rx.g_q + ry.g_p, None, None
+    return (rx.value + ry.value, rx.value_n + ry.value_n, rx.g_p + ry.g_q, rx.g_q + ry.g_p,
+            rx.gn_p + ry.gn_q, rx.gn_q + ry.gn_p)
+
+
+def _as_cloud(a, name: str):
+    """(n, 3) or (N, n, 3) -> ((N, n, 3) float64, was_2d)."""
+    try:
+        arr = np.asarray(a)
+    except Exception as exc:  # ragged input
+        raise ValueError(f"{name}: could not convert to an array ({exc})") from None
+    if arr.ndim == 2:
+        return as_array(arr, name, (None, 3))[None], True
+    if arr.ndim != 3 or arr.shape[-1] != 3:
+        raise ValueError(f"{name}: expected shape (n, 3) or (N, n, 3), got {arr.shape}")
+    return as_array(arr, name, (None, None, 3)), False
+
+
+def _as_lengths(lengths, name: str, N: int, P: int) -> np.ndarray:
+    if lengths is None:
+        return np.full(N, P, dtype=np.int64)
+    arr = as_array(lengths, name, (N,), np.int64)
+    if arr.size and (arr.min() < 0 or arr.max() > P):
+        raise ValueError(f"{name}: expected lengths in [0, {P}], got range "
+                         f"[{arr.min()}, {arr.max()}]")
+    return arr
+
+
+def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals):
+    check_choice(batch_reduction, "batch_reduction", _BATCH_REDUCTIONS)
+    check_choice(point_reduction, "point_reduction", _POINT_REDUCTIONS)
+    if isinstance(norm, bool) or norm not in (1, 2):
+        raise ValueError(f"norm: expected 1 or 2, got {norm!r}")
+    if point_reduction == "max" and (x_normals is not None or y_normals is not None):
+        raise ValueError("x_normals/y_normals: normals must be None if point_reduction is 'max'")
+    if (x_normals is None) != (y_normals is None):
+        raise ValueError("x_normals/y_normals: give both normals or neither "
+                         f"(got x_normals={'set' if x_normals is not None else None}, "
+                         f"y_normals={'set' if y_normals is not None else None})")
+
+
+def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_normals=None,
+                     weights=None, batch_reduction: str | None = "mean",
+                     point_reduction: str = "mean", norm: int = 2,
+                     single_directional: bool = False, abs_cosine: bool = True) -> ChamferResult:
+    """Chamfer distance between two point clouds (or padded batches), PyTorch3D's semantics.
+
+    Parameters
+    ----------
+    x : (n, 3) or (N, n, 3) float64
+        First cloud, or a padded batch of clouds.
+    y : (m, 3) or (N, m, 3) float64
+        Second cloud(s); the batch size must match ``x`` (a 2-D input is a batch of one).
+    x_lengths, y_lengths : (N,) int64, optional
+        Number of valid points of each batch member (the rest is padding and is ignored; its
+        gradient is 0). Default: all points.
+    x_normals, y_normals : float64 arrays shaped like ``x`` and ``y``, optional
+        Per-point normals; give both to get the normal term.
+    weights : (N,) float64, optional
+        Non-negative per-member weights multiplying each member's per-point terms. With
+        ``batch_reduction="mean"`` the batch is divided by ``weights.sum()`` instead of N. All
+        zeros gives a zero loss.
+    batch_reduction : {"mean", "sum", None}
+        How members are combined; None returns the (N,) per-member losses.
+    point_reduction : {"mean", "sum", "max"}
+        Per direction, the mean or sum of the nearest-neighbour distances over the valid points,
+        or their max (then the two directions are combined with max: the symmetric Hausdorff
+        distance, squared for ``norm=2``; normals not allowed).
+    norm : {2, 1}
+        2: squared Euclidean distances; 1: L1 distances (the neighbours are then L1-nearest).
+    single_directional : bool
+        Only the x -> y term.
+    abs_cosine : bool
+        Normal term ``1 - |cos|`` (orientation ignored) or ``1 - cos``.
+
+    Returns
+    -------
+    ChamferResult
+        ``(loss, loss_normals, grad_x, grad_y, grad_x_normals, grad_y_normals)``; the gradients
+        have the shapes of the inputs (2-D in, 2-D out). With ``batch_reduction=None`` the
+        gradients are those of ``loss.sum()`` (and ``loss_normals.sum()``).
+
+    Raises
+    ------
+    ValueError
+        On bad shapes, mismatched batch sizes, non-finite coordinates, lengths out of range,
+        negative weights, an unknown reduction or norm, normals with ``point_reduction="max"``
+        or only one of the two normals arrays.
+
+    Notes
+    -----
+    Semantics of PyTorch3D 0.7.9's ``chamfer_distance``: the two directions are **summed** (one
+    point at (0, 0) against one at (3, 0) gives 9 + 9 = 18), ``"mean"`` divides each member's
+    sum by its length clamped at 1, and the normal term uses ``cosine_similarity`` with eps
+    1e-6. A direction whose other cloud is empty contributes 0. Differences: PyTorch3D silently
+    drops the normal term when only one normals tensor is given (this raises), and it does not
+    offer ``point_reduction=None`` here (the per-point terms have no single gradient).
+    When the maxima of the two directions tie under ``"max"``, the gradient is split evenly
+    (``torch.maximum``'s convention).
+
+    Examples
+    --------
+    >>> from geofit.loss import chamfer_distance
+    >>> r = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])
+    >>> r.loss, r.grad_x.tolist(), r.grad_y.tolist()
+    (18.0, [[-12.0, 0.0, 0.0]], [[12.0, 0.0, 0.0]])
+    """
+    _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals)
+    X, x2d = _as_cloud(x, "x")
+    Y, y2d = _as_cloud(y, "y")
+    N, P1, _ = X.shape
+    if Y.shape[0] != N:
+        raise ValueError(f"y: expected batch size {N} like x, got shape {Y.shape}")
+    P2 = Y.shape[1]
+    lx = _as_lengths(x_lengths, "x_lengths", N, P1)
+    ly = _as_lengths(y_lengths, "y_lengths", N, P2)
+    with_n = x_normals is not None
+    if with_n:
+        XN = as_array(x_normals, "x_normals", X.shape if not x2d else (P1, 3))
+        YN = as_array(y_normals, "y_normals", Y.shape if not y2d else (P2, 3))
+        XN = XN.reshape(X.shape)
+        YN = YN.reshape(Y.shape)
+    if weights is not None:
+        w = as_array(weights, "weights", (N,))
+        if np.any(w < 0):
+            raise ValueError("weights: expected non-negative weights")
+    else:
+        w = np.ones(N)
+
+    gx = np.zeros_like(X)
+    gy = np.zeros_like(Y)
+    gxn = np.zeros_like(X) if with_n else None
+    gyn = np.zeros_like(Y) if with_n else None
+    loss = np.zeros(N)
+    loss_n = np.zeros(N) if with_n else None
+
+    if weights is not None and w.sum() == 0.0:
+        div = 1.0  # PyTorch3D returns zeros
+        active = np.zeros(N, bool)
+    else:
+        div = (w.sum() if weights is not None else float(max(N, 1))) if batch_reduction == "mean" \
+            else 1.0
+        active = np.ones(N, bool)
+
+    for b in range(N):  # loop over batch members
+        if not active[b]:
+            continue
+        nx, ny = lx[b], ly[b]
+        xb = X[b, :nx]
+        yb = Y[b, :ny]
+        out = _member(xb, yb, _make_tree(yb) if ny else None,
+                      XN[b, :nx] if with_n else None, YN[b, :ny] if with_n else None,
+                      w=w[b] / div, point_reduction=point_reduction, norm=norm,
+                      single_directional=single_directional, abs_cosine=abs_cosine)
+        loss[b] = out[0]
+        gx[b, :nx] = out[2]
+        gy[b, :ny] = out[3]
+        if with_n:
+            loss_n[b] = out[1]
+            gxn[b, :nx] = out[4]
+            gyn[b, :ny] = out[5]
+
+    if batch_reduction is None:  # per-member values (div == 1)
+        out_loss = loss
+        out_n = loss_n
+    else:
+        out_loss = float(loss.sum())
+        out_n = float(loss_n.sum()) if with_n else None
+    if x2d:
+        gx = gx[0]
+        gxn = gxn[0] if with_n else None
+    if y2d:
+        gy = gy[0]
+        gyn = gyn[0] if with_n else None
+    return ChamferResult(out_loss, out_n, gx, gy, gxn, gyn)
+
+
+class ChamferTarget:
+    """A fixed target cloud with a prebuilt KD-tree, for repeated chamfer distances to it.
+
+    Parameters
+    ----------
+    y : (m, 3) float64
+        Target points (at least one).
+    y_normals : (m, 3) float64, optional
+        Target normals, for the normal term of :meth:`chamfer`.
+
+    Notes
+    -----
+    The x -> y direction queries the tree built here once. The y -> x direction needs a tree
+    over ``x``, which moves between calls, so it is rebuilt on every call (as PyTorch3D's
+    ``knn_points`` does for both directions). Values equal ``chamfer_distance(x, y)`` with the
+    same options.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from geofit.loss import ChamferTarget, chamfer_distance
+    >>> rng = np.random.default_rng(0)
+    >>> y = rng.normal(size=(500, 3)); x = rng.normal(size=(400, 3))
+    >>> target = ChamferTarget(y)
+    >>> value, grad = target.loss(x)
+    >>> bool(np.isclose(value, chamfer_distance(x, y).loss))
+    True
+    """
+
+    def __init__(self, y, *, y_normals=None):
+        self.points = as_points(y, "y", allow_empty=False)
+        self.points.setflags(write=False)
+        self.normals = None
+        if y_normals is not None:
+            self.normals = as_array(y_normals, "y_normals", (len(self.points), 3))
+            self.normals.setflags(write=False)
+        self._tree = _make_tree(self.points)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def __repr__(self) -> str:
+        return f"ChamferTarget(n_points={len(self.points)}, normals={self.normals is not None})"
+
+    def chamfer(self, x, *, x_normals=None, point_reduction: str = "mean", norm: int = 2,
+                single_directional: bool = False, abs_cosine: bool = True) -> ChamferResult:
+        """Full result against the target: same semantics as :func:`chamfer_distance`.
+
+        Parameters
+        ----------
+        x : (n, 3) float64
+            Source points.
+        x_normals : (n, 3) float64, optional
+            Source normals (needs ``y_normals`` on the target).
+        point_reduction, norm, single_directional, abs_cosine
+            As in :func:`chamfer_distance` (batch reduction is moot for one cloud).
+
+        Returns
+        -------
+        ChamferResult
+            ``grad_x`` (n, 3) and ``grad_y`` (m, 3) (the latter for completeness: the target is
+            usually fixed).
+        """
+        y_normals = self.normals if x_normals is not None else None
+        if x_normals is not None and self.normals is None:
+            raise ValueError("x_normals: the target was built without y_normals")
+        _check_options("mean", point_reduction, norm, x_normals, y_normals)
+        xp = as_points(x, "x")
+        xn = as_array(x_normals, "x_normals", (len(xp), 3)) if x_normals is not None else None
+        out = _member(xp, self.points, self._tree, xn, y_normals, w=1.0,
+                      point_reduction=point_reduction, norm=norm,
+                      single_directional=single_directional, abs_cosine=abs_cosine)
+        loss_n = None if out[1] is None else float(out[1])
+        return ChamferResult(float(out[0]), loss_n, out[2], out[3], out[4], out[5])
+
+    def loss(self, x, *, point_reduction: str = "mean", norm: int = 2,
+             single_directional: bool = False):
+        """Chamfer distance from ``x`` to the target and its gradient with respect to ``x``.
+
+        Parameters
+        ----------
+        x : (n, 3) float64
+            Source points (e.g. samples of a moving mesh).
+        point_reduction : {"mean", "sum", "max"}
+        norm : {2, 1}
+        single_directional : bool
+            As in :func:`chamfer_distance`.
+
+        Returns
+        -------
+        value : float
+            Equal to ``chamfer_distance(x, y, ...).loss``.
+        grad_x : (n, 3) float64
+        """
+        r = self.chamfer(x, point_reduction=point_reduction, norm=norm,
+                         single_directional=single_directional)
+        return r.loss, r.grad_x
