@@ -1,1 +1,65 @@
-"""Rendering: meshes and point clouds."""
+"""Mesh rendering by Embree ray casting with PyTorch3D's renderer API and shading formulas.
+
+- :class:`MeshRenderer`, :class:`MeshRendererWithFragments`, :class:`MeshRasterizer`,
+  :class:`RasterizationSettings`, :class:`Fragments`: one ray per pixel centre, all views in one
+  threaded cast; face ids, barycentrics, depth and normals per pixel (K = 1).
+- Shaders: :class:`HardPhongShader`, :class:`SoftPhongShader`, :class:`HardGouraudShader`,
+  :class:`SoftGouraudShader`, :class:`HardFlatShader`; lights :class:`PointLights`,
+  :class:`DirectionalLights`, :class:`AmbientLights`; :class:`Materials`; :class:`BlendParams`.
+- Beyond PyTorch3D: supersampled antialiasing (``RasterizationSettings(supersample=s)``), hard
+  shadows (``shadows=True`` on Phong / flat shaders), :class:`TexturesFlat`.
+- Helpers: :func:`image_grid`, :func:`make_grid`, :func:`plot_texture_uv`; Open3D comparison in
+  :mod:`geofit.render.open3d`.
+"""
+from .blending import BlendParams, hard_rgb_blend, sigmoid_alpha, softmax_rgb_blend
+from .lighting import AmbientLights, DirectionalLights, PointLights
+from .materials import Materials
+from .mesh import (
+    Fragments,
+    MeshRasterizer,
+    MeshRenderer,
+    MeshRendererWithFragments,
+    RasterizationSettings,
+)
+from .shading import (
+    HardFlatShader,
+    HardGouraudShader,
+    HardPhongShader,
+    SoftGouraudShader,
+    SoftPhongShader,
+    apply_lighting,
+    flat_shading,
+    gouraud_shading,
+    phong_shading,
+    sample_textures,
+    shadow_visibility,
+)
+from .textures import TexturesFlat
+
+__all__ = [
+    "AmbientLights",
+    "BlendParams",
+    "DirectionalLights",
+    "Fragments",
+    "HardFlatShader",
+    "HardGouraudShader",
+    "HardPhongShader",
+    "Materials",
+    "MeshRasterizer",
+    "MeshRenderer",
+    "MeshRendererWithFragments",
+    "PointLights",
+    "RasterizationSettings",
+    "SoftGouraudShader",
+    "SoftPhongShader",
+    "TexturesFlat",
+    "apply_lighting",
+    "flat_shading",
+    "gouraud_shading",
+    "hard_rgb_blend",
+    "phong_shading",
+    "sample_textures",
+    "shadow_visibility",
+    "sigmoid_alpha",
+    "softmax_rgb_blend",
+]

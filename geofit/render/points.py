@@ -175,11 +175,14 @@ class PointFragments:
         return w
 
 
-def _pixel_hits(x, y, r, img, H, W):
+def _pixel_hits(x, y, r, img, H, W, full=None):
     """Candidate generation for entries already in front-to-back order.
 
     Returns the image-flat pixel index and entry position of every (entry, pixel) pair whose
     pixel centre lies strictly inside the entry's disc, in entry order then row-major pixel order.
+    ``full`` (N, H, W) bool marks pixels that already hold K points: entries whose box holds
+    only full pixels are skipped (a summed-area table counts the open pixels of each box), and
+    candidates at full pixels are dropped.
     """
     S = min(H, W)
     cx = (W - 1 - S * x) * 0.5         # continuous column of the projection
@@ -192,6 +195,12 @@ def _pixel_hits(x, y, r, img, H, W):
     nx = np.maximum(c1 - c0 + 1, 0)
     ny = np.maximum(r1 - r0 + 1, 0)
     count = nx * ny
+    if full is not None:
+        sat = np.zeros((full.shape[0], H + 1, W + 1), dtype=np.int64)
+        np.cumsum(np.cumsum(~full, axis=1), axis=2, out=sat[:, 1:, 1:])
+        n_open = (sat[img, r1 + 1, c1 + 1] - sat[img, r0, c1 + 1]
+                  - sat[img, r1 + 1, c0] + sat[img, r0, c0])
+        count[n_open <= 0] = 0
     total = int(count.sum())
     if total == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
@@ -202,9 +211,13 @@ def _pixel_hits(x, y, r, img, H, W):
     row, col = np.divmod(local, nxe)
     col += c0[ent]
     row += r0[ent]
+    pix = img[ent] * (H * W) + row * W + col
+    if full is not None:
+        keep = ~full.reshape(-1)[pix]
+        ent, row, col, pix = ent[keep], row[keep], col[keep], pix[keep]
     d2 = _dist2(x[ent], y[ent], row, col, H, W)
     hit = d2 < (r * r)[ent]
-    return (img[ent[hit]] * (H * W) + row[hit] * W + col[hit]), ent[hit]
+    return pix[hit], ent[hit]
 
 
 def _dist2(x, y, row, col, H, W):
@@ -264,7 +277,8 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
         bounds = np.unique(np.concatenate([[0], bounds, [M]]))
         filled = np.zeros(n_pix, dtype=np.int64)
         for a, b in itertools.pairwise(bounds):   # chunks of candidates, front to back
-            pix, ent = _pixel_hits(x[a:b], y[a:b], r[a:b], img[a:b], H, W)
+            full = None if a == 0 else (filled >= K).reshape(n_images, H, W)
+            pix, ent = _pixel_hits(x[a:b], y[a:b], r[a:b], img[a:b], H, W, full)
             if len(pix) == 0:
                 continue
             # One integer sort of the unique keys pixel * m + depth rank groups the hits by

@@ -1,0 +1,325 @@
+"""Lights with PyTorch3D's formulas and defaults: point, directional and ambient.
+
+A light object holds a *batch* of ``N`` lights, one per rendered view (every parameter has a
+leading axis of size 1 or ``N`` and broadcasts, as PyTorch3D's ``TensorProperties``). Shading
+works on flat arrays of surface points: ``points (k, 3)`` and ``normals (k, 3)`` with an optional
+``batch_idx (k,)`` saying which view (and therefore which light of the batch) each point belongs
+to.
+
+The formulas (``pytorch3d/renderer/lighting.py``), with ``normalize(x) = x / max(|x|, 1e-6)``:
+
+- ``diffuse = Ld * max(0, n . l)`` with ``n = normalize(normal)``, ``l = normalize(direction)``;
+- ``specular = Ls * max(0, r . v) ** shininess * [n . l > 0]`` with ``r = -l + 2 (n . l) n`` and
+  ``v = normalize(camera_position - point)``;
+- no attenuation with distance, no shadows, no two-sided lighting.
+
+The 1e-6 normalisation epsilon also covers a light placed exactly at a surface point (a zero
+light vector): that point gets the ambient term only, never NaN.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._validate import as_array, shape_str
+
+__all__ = ["PointLights", "DirectionalLights", "AmbientLights", "diffuse", "specular"]
+
+_EPS = 1e-6  # torch.nn.functional.normalize(eps=1e-6), as in pytorch3d.renderer.lighting
+
+
+def _batched(x, name: str, item: tuple) -> np.ndarray:
+    """``item``-shaped or ``(n, *item)`` input as a finite ``(n, *item)`` float64 array."""
+    a = as_array(x, name)
+    if a.shape == item:
+        a = a[None]
+    if a.ndim != len(item) + 1 or a.shape[1:] != item or a.shape[0] == 0:
+        raise ValueError(f"{name}: expected shape {shape_str((None,) + item)} or "
+                         f"{shape_str(item)}, got {a.shape}")
+    return a
+
+
+def _broadcast(**arrays: np.ndarray) -> dict:
+    """Broadcast the leading axes (1 or N) of every array to N."""
+    sizes = {k: v.shape[0] for k, v in arrays.items()}
+    n = max(sizes.values())
+    if any(s not in (1, n) for s in sizes.values()):
+        listing = ", ".join(f"{k} has {s}" for k, s in sizes.items())
+        raise ValueError(f"mismatched batch sizes: every parameter needs 1 or N = {n} entries, "
+                         f"got {listing}")
+    out = {}
+    for k, v in arrays.items():
+        v = np.array(np.broadcast_to(v, (n,) + v.shape[1:]), dtype=np.float64)
+        v.flags.writeable = False
+        out[k] = v
+    return out
+
+
+def per_point(param: np.ndarray, batch_idx: np.ndarray | None, dtype=np.float32) -> np.ndarray:
+    """Gather a batched ``(N, ...)`` parameter for points with batch indices ``batch_idx (k,)``.
+
+    With ``N == 1`` (or no ``batch_idx``) the single entry is returned with a leading axis of 1,
+    ready to broadcast against ``(k, ...)`` arrays; otherwise ``param[batch_idx]``.
+    """
+    if batch_idx is None or param.shape[0] == 1:
+        return param[:1].astype(dtype, copy=False)
+    return param.astype(dtype, copy=False)[batch_idx]
+
+
+def _normalize(x: np.ndarray) -> np.ndarray:
+    n = np.sqrt(np.einsum("...i,...i->...", x, x))
+    return x / np.maximum(n, _EPS)[..., None]
+
+
+def diffuse(normals: np.ndarray, color: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Lambert's term ``color * max(0, n . l)`` (PyTorch3D's ``diffuse``).
+
+    Parameters
+    ----------
+    normals : (k, 3) float
+        Surface normals (need not be unit length; normalised with eps 1e-6).
+    color : (k, 3) or (1, 3) float
+        Diffuse colour of the light at each point.
+    direction : (k, 3) or (1, 3) float
+        Direction from the surface towards the light (need not be unit length).
+
+    Returns
+    -------
+    (k, 3) float, same dtype as ``normals``.
+    """
+    n = _normalize(normals)
+    l = _normalize(direction)
+    cos = np.maximum(np.einsum("ki,ki->k", n, np.broadcast_to(l, n.shape)), 0.0)
+    return color * cos[:, None]
+
+
+def specular(points: np.ndarray, normals: np.ndarray, direction: np.ndarray,
+             camera_position: np.ndarray, shininess: np.ndarray, color: np.ndarray) -> np.ndarray:
+    """Phong's specular term (PyTorch3D's ``specular``).
+
+    ``color * max(0, r . v) ** shininess`` where ``n . l > 0`` (zero elsewhere), with
+    ``r = -l + 2 (n . l) n`` and ``v = normalize(camera_position - points)``.
+
+    Parameters
+    ----------
+    points : (k, 3) float
+        Surface points (world coordinates).
+    normals : (k, 3) float
+        Surface normals (normalised with eps 1e-6).
+    direction : (k, 3) or (1, 3) float
+        Direction from the surface towards the light.
+    camera_position : (k, 3) or (1, 3) float
+        Camera centre seen from each point.
+    shininess : (k,) or (1,) float
+        Phong exponent.
+    color : (k, 3) or (1, 3) float
+        Specular colour of the light.
+
+    Returns
+    -------
+    (k, 3) float
+    """
+    n = _normalize(normals)
+    l = np.broadcast_to(_normalize(direction), n.shape)
+    cos = np.einsum("ki,ki->k", n, l)
+    v = _normalize(camera_position - points)
+    r = 2.0 * cos[:, None] * n - l
+    alpha = np.maximum(np.einsum("ki,ki->k", np.broadcast_to(v, n.shape), r), 0.0)
+    alpha = np.where(cos > 0, alpha, 0.0).astype(n.dtype, copy=False)
+    return color * np.power(alpha, shininess)[:, None]
+
+
+class _Lights:
+    """Shared batch machinery of the light classes."""
+
+    _PARAMS: tuple[str, ...] = ()
+
+    def __len__(self) -> int:
+        return getattr(self, self._PARAMS[0]).shape[0]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(N={len(self)})"
+
+    def _with(self, **params):
+        new = type(self).__new__(type(self))
+        for k, v in _broadcast(**params).items():
+            setattr(new, k, v)
+        return new
+
+    def __getitem__(self, index) -> "_Lights":
+        """The lights at ``index`` (int, slice or index array), as a batch."""
+        if isinstance(index, (int, np.integer)):
+            index = [int(index)]
+        return self._with(**{k: getattr(self, k)[index] for k in self._PARAMS})
+
+    def extend(self, n: int) -> "_Lights":
+        """Repeat each light ``n`` times (as ``Meshes.extend``)."""
+        if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
+            raise ValueError(f"n: expected an integer >= 1, got {n!r}")
+        return self._with(**{k: np.repeat(getattr(self, k), int(n), axis=0)
+                             for k in self._PARAMS})
+
+    def clone(self) -> "_Lights":
+        return self._with(**{k: getattr(self, k) for k in self._PARAMS})
+
+    # Subclasses define the light direction seen from each point.
+    def light_vector(self, points: np.ndarray, batch_idx: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def diffuse(self, normals, points, batch_idx=None) -> np.ndarray:
+        """Diffuse light reflected at each point.
+
+        Parameters
+        ----------
+        normals : (k, 3) float
+            Surface normals.
+        points : (k, 3) float
+            Surface points, world coordinates.
+        batch_idx : (k,) int64, optional
+            View of each point; needed when the batch holds more than one light.
+
+        Returns
+        -------
+        (k, 3) float, the dtype of ``normals``.
+        """
+        direction, _ = self.light_vector(points, batch_idx)
+        color = per_point(self.diffuse_color, batch_idx, normals.dtype)
+        return diffuse(normals, color, direction)
+
+    def specular(self, normals, points, camera_position, shininess, batch_idx=None) -> np.ndarray:
+        """Specular light reflected towards the camera at each point.
+
+        Parameters
+        ----------
+        normals, points : (k, 3) float
+            Surface normals and points.
+        camera_position : (k, 3) or (1, 3) float
+            Camera centre for each point.
+        shininess : (k,) or (1,) float
+            Phong exponent for each point.
+        batch_idx : (k,) int64, optional
+            View of each point.
+
+        Returns
+        -------
+        (k, 3) float
+        """
+        direction, _ = self.light_vector(points, batch_idx)
+        color = per_point(self.specular_color, batch_idx, normals.dtype)
+        return specular(points, normals, direction, camera_position, shininess, color)
+
+
+class PointLights(_Lights):
+    """Point lights (PyTorch3D's ``PointLights``), one per view of the batch.
+
+    Parameters
+    ----------
+    ambient_color : (N, 3) or (3,) float64
+        Ambient colour; default (0.5, 0.5, 0.5).
+    diffuse_color : (N, 3) or (3,) float64
+        Diffuse colour; default (0.3, 0.3, 0.3).
+    specular_color : (N, 3) or (3,) float64
+        Specular colour; default (0.2, 0.2, 0.2).
+    location : (N, 3) or (3,) float64
+        Light positions in world coordinates; default (0, 1, 0).
+
+    Every parameter has 1 or ``N`` rows and broadcasts to ``N``.
+
+    Examples
+    --------
+    >>> lights = PointLights(location=[[0.0, 0.0, -3.0]])
+    >>> lights.diffuse(np.array([[0.0, 0.0, -1.0]]), np.zeros((1, 3))).round(6)
+    array([[0.3, 0.3, 0.3]])
+    """
+
+    _PARAMS = ("ambient_color", "diffuse_color", "specular_color", "location")
+
+    def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
+                 specular_color=((0.2, 0.2, 0.2),), location=((0.0, 1.0, 0.0),)):
+        b = _broadcast(ambient_color=_batched(ambient_color, "ambient_color", (3,)),
+                       diffuse_color=_batched(diffuse_color, "diffuse_color", (3,)),
+                       specular_color=_batched(specular_color, "specular_color", (3,)),
+                       location=_batched(location, "location", (3,)))
+        for k, v in b.items():
+            setattr(self, k, v)
+
+    def light_vector(self, points, batch_idx=None):
+        """Vector from each point to the light and its length (the shadow-ray extent).
+
+        Parameters
+        ----------
+        points : (k, 3) float
+        batch_idx : (k,) int64, optional
+
+        Returns
+        -------
+        direction : (k, 3) float
+            ``location - point`` (not normalised).
+        distance : (k,) float
+            ``|location - point|``.
+        """
+        d = per_point(self.location, batch_idx, points.dtype) - points
+        return d, np.sqrt(np.einsum("ki,ki->k", d, d))
+
+
+class DirectionalLights(_Lights):
+    """Directional lights (PyTorch3D's ``DirectionalLights``), one per view of the batch.
+
+    Parameters
+    ----------
+    ambient_color, diffuse_color, specular_color : (N, 3) or (3,) float64
+        As in :class:`PointLights` (defaults 0.5, 0.3, 0.2 grey).
+    direction : (N, 3) or (3,) float64
+        Direction *towards* the light (from the surface), world coordinates; default (0, 1, 0).
+    """
+
+    _PARAMS = ("ambient_color", "diffuse_color", "specular_color", "direction")
+
+    def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
+                 specular_color=((0.2, 0.2, 0.2),), direction=((0.0, 1.0, 0.0),)):
+        b = _broadcast(ambient_color=_batched(ambient_color, "ambient_color", (3,)),
+                       diffuse_color=_batched(diffuse_color, "diffuse_color", (3,)),
+                       specular_color=_batched(specular_color, "specular_color", (3,)),
+                       direction=_batched(direction, "direction", (3,)))
+        for k, v in b.items():
+            setattr(self, k, v)
+
+    def light_vector(self, points, batch_idx=None):
+        """The light direction at each point and an infinite distance.
+
+        Returns
+        -------
+        direction : (k, 3) or (1, 3) float
+        distance : (k,) float, all inf.
+        """
+        d = per_point(self.direction, batch_idx, points.dtype)
+        d = np.broadcast_to(d, points.shape) if d.shape[0] != len(points) else d
+        return d, np.full(len(points), np.inf, dtype=points.dtype)
+
+
+class AmbientLights(_Lights):
+    """Ambient light only (PyTorch3D's ``AmbientLights``): no diffuse or specular part.
+
+    Parameters
+    ----------
+    ambient_color : (N, 3) or (3,) float64
+        Default white (1, 1, 1), which with the default materials shows the raw texture.
+    """
+
+    _PARAMS = ("ambient_color", "diffuse_color", "specular_color")
+
+    def __init__(self, ambient_color=((1.0, 1.0, 1.0),)):
+        a = _batched(ambient_color, "ambient_color", (3,))
+        b = _broadcast(ambient_color=a, diffuse_color=np.zeros_like(a),
+                       specular_color=np.zeros_like(a))
+        for k, v in b.items():
+            setattr(self, k, v)
+
+    def light_vector(self, points, batch_idx=None):
+        return np.zeros_like(points), np.zeros(len(points), dtype=points.dtype)
+
+    def diffuse(self, normals, points, batch_idx=None):
+        return np.zeros_like(normals)
+
+    def specular(self, normals, points, camera_position, shininess, batch_idx=None):
+        return np.zeros_like(normals)

@@ -1,0 +1,633 @@
+"""Mesh rendering by Embree ray casting, with PyTorch3D's renderer API.
+
+``MeshRenderer(rasterizer=MeshRasterizer(cameras, RasterizationSettings(...)),
+shader=SoftPhongShader(cameras, lights))`` renders a mesh, a batch of meshes, or one mesh seen by
+``N`` cameras; ``renderer(mesh, cameras=..., lights=..., materials=...)`` overrides the stored
+objects for one call, as in PyTorch3D.
+
+The "rasterizer" casts one ray per pixel centre (PyTorch3D's pixel centres, NDC +X left, +Y up,
+row 0 at the top) from the camera through the scene, all rays of all views in one threaded
+Embree call, and keeps the first hit: the face PyTorch3D keeps with ``faces_per_pixel=1`` and
+``blur_radius=0``. A ray hit gives the *perspective-correct* barycentrics of the hit point
+exactly, and the view depth is the ray parameter (ray directions have view-space z = 1). Hits
+are refined in float64.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from .._validate import check_positive
+from ..cameras import CamerasBase, ndc_grid
+from ..structures import Mesh, Meshes
+from . import _raycast
+
+__all__ = [
+    "RasterizationSettings",
+    "Fragments",
+    "MeshRasterizer",
+    "MeshRenderer",
+    "MeshRendererWithFragments",
+]
+
+
+# ------------------------------------------------------------------------------------------
+# Settings
+# ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RasterizationSettings:
+    """How to turn meshes into per-pixel fragments (PyTorch3D's ``RasterizationSettings``).
+
+    Parameters
+    ----------
+    image_size : int or (H, W)
+        Output size in pixels; an int means square. For ``H != W`` the shorter side spans NDC
+        [-1, 1] (PyTorch3D's convention).
+    blur_radius : float
+        Must be 0: ray casting finds the face under each pixel centre (PyTorch3D's hard
+        rasterization). Soft silhouettes live elsewhere.
+    faces_per_pixel : int
+        Must be 1 (the first hit).
+    perspective_correct : bool or None
+        None (default) means True for perspective cameras, False for orthographic ones, as in
+        PyTorch3D. False converts the barycentrics to screen-space ones (``b_i`` proportional to
+        ``w_i z_i``) and sets ``zbuf`` to ``sum b_i z_i``, as PyTorch3D's rasterizer does.
+    z_clip_value : float or None
+        View depth below which geometry is clipped away. None (default) means ``znear / 2``
+        when perspective-correct (PyTorch3D's default) and 0 otherwise. Rays start at this
+        depth, which clips faces exactly as PyTorch3D's face clipping does.
+    cull_backfaces : bool
+        Skip faces whose front side (counter-clockwise winding) points away from the camera;
+        rays continue past them.
+    supersample : int
+        Beyond PyTorch3D: cast ``supersample**2`` rays per pixel on a regular sub-pixel grid and
+        average the shaded RGBA (box filter). Fragments are returned at the supersampled size.
+        Default 1 (no antialiasing, PyTorch3D's images).
+    n_threads : int or None
+        Threads for the ray casts (default: every CPU available).
+    bin_size, max_faces_per_bin, clip_barycentric_coords, cull_to_frustum
+        Accepted for compatibility with PyTorch3D and ignored: there are no bins, barycentrics
+        of a ray hit always lie in the face, and off-screen faces are never hit.
+
+    Raises
+    ------
+    ValueError
+        For ``blur_radius != 0``, ``faces_per_pixel != 1``, a non-positive size or factor.
+    """
+
+    image_size: Any = 256
+    blur_radius: float = 0.0
+    faces_per_pixel: int = 1
+    bin_size: Any = None
+    max_faces_per_bin: Any = None
+    perspective_correct: bool | None = None
+    clip_barycentric_coords: bool | None = None
+    cull_backfaces: bool = False
+    z_clip_value: float | None = None
+    cull_to_frustum: bool = False
+    supersample: int = 1
+    n_threads: int | None = None
+
+    def __post_init__(self):
+        size = self.image_size
+        if isinstance(size, (int, np.integer)) and not isinstance(size, bool):
+            size = (int(size), int(size))
+        try:
+            H, W = (int(v) for v in size)
+            bad = not all(float(v) == int(v) for v in size)
+        except (TypeError, ValueError):
+            raise ValueError(f"image_size: expected an int or (H, W), got {self.image_size!r}") \
+                from None
+        if bad or H < 1 or W < 1:
+            raise ValueError(f"image_size: expected positive integers, got {self.image_size!r}")
+        object.__setattr__(self, "image_size", (H, W))
+        if float(self.blur_radius) != 0.0:
+            raise ValueError(
+                f"blur_radius: ray casting renders hard fragments, expected 0.0, got "
+                f"{self.blur_radius!r}")
+        if self.faces_per_pixel != 1:
+            raise ValueError(f"faces_per_pixel: ray casting keeps the first hit, expected 1, "
+                             f"got {self.faces_per_pixel!r}")
+        s = self.supersample
+        if not isinstance(s, (int, np.integer)) or isinstance(s, bool) or s < 1:
+            raise ValueError(f"supersample: expected an integer >= 1, got {s!r}")
+        if self.z_clip_value is not None:
+            check_positive(self.z_clip_value, "z_clip_value", strict=False)
+        if self.perspective_correct not in (None, True, False):
+            raise ValueError(f"perspective_correct: expected None, True or False, got "
+                             f"{self.perspective_correct!r}")
+        n = self.n_threads
+        if n is not None and (not isinstance(n, (int, np.integer)) or n < 1):
+            raise ValueError(f"n_threads: expected None or an integer >= 1, got {n!r}")
+
+    @property
+    def raster_size(self) -> tuple[int, int]:
+        """(H, W) of the fragments: ``image_size`` times ``supersample``."""
+        H, W = self.image_size
+        return H * self.supersample, W * self.supersample
+
+
+# ------------------------------------------------------------------------------------------
+# Fragments
+# ------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class Fragments:
+    """Per-pixel results of ray casting a batch of ``N`` views (K = 1 face per pixel).
+
+    The covered pixels are stored compactly (``k`` of them, sorted by flat pixel index); the
+    PyTorch3D-shaped images (``pix_to_face``, ``zbuf``, ``bary_coords``, ``dists``, ``normals``)
+    are built from them on first access and cached.
+
+    Attributes
+    ----------
+    image_size : (H, W)
+        Size of the fragment images (the supersampled size when ``supersample > 1``).
+    n_views : int
+        ``N``.
+    pixel : (k,) int64
+        Flat index ``(b * H + row) * W + col`` of every covered pixel, increasing.
+    view : (k,) int64
+        View ``b`` of every covered pixel.
+    face : (k,) int64
+        *Packed* index of the face seen at every covered pixel: view ``b`` sees mesh ``b`` of
+        ``meshes`` and its face ``j`` has packed index ``meshes.mesh_to_faces_packed_first_idx()
+        [b] + j`` (``b * F + j`` for ``mesh.extend(N)``, as PyTorch3D).
+    bary : (k, 3) float64
+        Perspective-correct barycentrics ``(w0, w1, w2)`` of the hit point in the corners
+        ``(v0, v1, v2)`` of its face (PyTorch3D's order), or screen-space ones when
+        ``perspective_correct=False``.
+    depth : (k,) float64
+        View-space depth (PyTorch3D's zbuf) of the hit point.
+    meshes : Meshes
+        The ``N`` meshes rendered (one per view; a single mesh seen by ``N`` cameras appears
+        ``N`` times).
+    cameras : CamerasBase
+        The ``N`` cameras.
+    supersample : int
+        The antialiasing factor the fragments were cast with.
+    """
+
+    image_size: tuple
+    n_views: int
+    pixel: np.ndarray
+    view: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    depth: np.ndarray
+    meshes: Meshes
+    cameras: Any
+    supersample: int = 1
+    _ctx: dict = field(default_factory=dict, repr=False)
+
+    # -------------------------------------------------------------- compact extras
+    @property
+    def n_hits(self) -> int:
+        """``k``, the number of covered pixels."""
+        return len(self.pixel)
+
+    @cached_property
+    def _tri(self) -> np.ndarray:
+        """(k, 3) int64 packed vertex indices of the hit faces."""
+        return self._ctx["faces_packed"][self.face]
+
+    @cached_property
+    def hit_points(self) -> np.ndarray:
+        """(k, 3) float64 world position of every hit (interpolated vertex positions)."""
+        V = self._ctx["verts_packed"]
+        return np.einsum("kj,kjc->kc", self.bary, V[self._tri])
+
+    @cached_property
+    def hit_normals(self) -> np.ndarray:
+        """(k, 3) float64 unit world normal at every hit: the vertex normals (area-weighted,
+        PyTorch3D's) interpolated with the barycentrics, then normalised (eps 1e-6)."""
+        N = self._ctx["verts_normals_packed"]
+        n = np.einsum("kj,kjc->kc", self.bary, N[self._tri])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-6)
+
+    @cached_property
+    def hit_face_normals(self) -> np.ndarray:
+        """(k, 3) float64 unit geometric normal ``(v1 - v0) x (v2 - v0)`` of each hit face."""
+        return self._ctx["face_normals_packed"][self.face]
+
+    @cached_property
+    def hit_xy(self) -> np.ndarray:
+        """(k, 2) float64 NDC x, y of each covered pixel's centre."""
+        H, W = self.image_size
+        rem = self.pixel % (H * W)
+        row, col = np.divmod(rem, W)
+        xy = ndc_grid((H, W))
+        return np.stack([xy[0, col, 0], xy[row, 0, 1]], axis=1)
+
+    @cached_property
+    def hit_dists(self) -> np.ndarray:
+        """(k,) float64 signed squared NDC distance from each pixel centre to the nearest edge of
+        its face's projection (negative inside), PyTorch3D's ``dists``."""
+        P = self._ctx["verts_xy_packed"][self._tri]  # (k, 3, 2)
+        q = self.hit_xy
+        best = np.full(len(q), np.inf)
+        for e in range(3):  # the three edges
+            a, b = P[:, e], P[:, (e + 1) % 3]
+            ab = b - a
+            aq = q - a
+            den = np.einsum("ki,ki->k", ab, ab)
+            t = np.clip(np.einsum("ki,ki->k", aq, ab) / np.where(den > 0, den, 1.0), 0.0, 1.0)
+            r = aq - t[:, None] * ab
+            best = np.minimum(best, np.einsum("ki,ki->k", r, r))
+        # Inside test with 2-D edge functions of the projected triangle.
+        def edge(a, b):
+            return (q[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]) - (q[:, 1] - a[:, 1]) * (b[:, 0] - a[:, 0])
+        e0, e1, e2 = edge(P[:, 1], P[:, 2]), edge(P[:, 2], P[:, 0]), edge(P[:, 0], P[:, 1])
+        inside = ((e0 > 0) & (e1 > 0) & (e2 > 0)) | ((e0 < 0) & (e1 < 0) & (e2 < 0))
+        best = np.where(np.isfinite(best), best, 0.0)
+        return np.where(inside, -best, best)
+
+    # -------------------------------------------------------------- PyTorch3D images
+    def _image(self, values: np.ndarray, fill, dtype) -> np.ndarray:
+        H, W = self.image_size
+        tail = values.shape[1:]
+        out = np.full((self.n_views * H * W,) + tail, fill, dtype=dtype)
+        out[self.pixel] = values
+        return out.reshape((self.n_views, H, W, 1) + tail)
+
+    @cached_property
+    def pix_to_face(self) -> np.ndarray:
+        """(N, H, W, 1) int64 packed face index per pixel, -1 where no face is seen."""
+        return self._image(self.face, -1, np.int64)
+
+    @cached_property
+    def zbuf(self) -> np.ndarray:
+        """(N, H, W, 1) float64 view depth per pixel, -1 where empty."""
+        return self._image(self.depth, -1.0, np.float64)
+
+    @cached_property
+    def bary_coords(self) -> np.ndarray:
+        """(N, H, W, 1, 3) float64 barycentrics per pixel, -1 where empty."""
+        return self._image(self.bary, -1.0, np.float64)
+
+    @cached_property
+    def dists(self) -> np.ndarray:
+        """(N, H, W, 1) float64 signed squared NDC edge distance, -1 where empty."""
+        return self._image(self.hit_dists, -1.0, np.float64)
+
+    @cached_property
+    def normals(self) -> np.ndarray:
+        """(N, H, W, 1, 3) float64 unit interpolated world normals, 0 where empty."""
+        return self._image(self.hit_normals, 0.0, np.float64)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(N, H, W) bool: pixels that see a face."""
+        return self.pix_to_face[..., 0] >= 0
+
+    # -------------------------------------------------------------- images for free
+    def depth_image(self, background: float = 0.0) -> np.ndarray:
+        """(N, H, W) float64 view depth, ``background`` where empty."""
+        H, W = self.image_size
+        out = np.full(self.n_views * H * W, background, dtype=np.float64)
+        out[self.pixel] = self.depth
+        return out.reshape(self.n_views, H, W)
+
+    def normal_image(self, space: str = "world") -> np.ndarray:
+        """(N, H, W, 3) float32 unit normals mapped to colours ``(n + 1) / 2``, 0 where empty.
+
+        Parameters
+        ----------
+        space : {"world", "view"}
+            Express the normals in world or camera (view) coordinates.
+        """
+        if space not in ("world", "view"):
+            raise ValueError(f"space: expected 'world' or 'view', got {space!r}")
+        n = self.hit_normals
+        if space == "view":
+            R = self.cameras.R
+            n = np.einsum("ki,kij->kj", n, R[self.view]) if len(R) > 1 else n @ R[0]
+        H, W = self.image_size
+        out = np.zeros((self.n_views * H * W, 3), dtype=np.float32)
+        out[self.pixel] = 0.5 * (n + 1.0)
+        return out.reshape(self.n_views, H, W, 3)
+
+    def face_id_image(self, local: bool = True) -> np.ndarray:
+        """(N, H, W) int64 face index per pixel, -1 where empty.
+
+        Parameters
+        ----------
+        local : bool
+            Index into each view's own mesh's faces (default) instead of the packed index.
+        """
+        ids = self.face
+        if local:
+            ids = ids - self._ctx["face_first"][self.view]
+        H, W = self.image_size
+        out = np.full(self.n_views * H * W, -1, dtype=np.int64)
+        out[self.pixel] = ids
+        return out.reshape(self.n_views, H, W)
+
+
+# ------------------------------------------------------------------------------------------
+# Rasterizer
+# ------------------------------------------------------------------------------------------
+
+
+def _as_batch(meshes) -> Meshes:
+    if isinstance(meshes, Meshes):
+        return meshes
+    if isinstance(meshes, Mesh):
+        return Meshes([meshes])
+    if isinstance(meshes, (list, tuple)) and all(isinstance(m, Mesh) for m in meshes):
+        return Meshes(list(meshes))
+    raise TypeError(f"meshes: expected a Mesh or Meshes, got {type(meshes)!r}")
+
+
+def _check_cameras(cameras) -> CamerasBase:
+    if cameras is None:
+        raise ValueError("cameras: none given; pass cameras to the rasterizer (or renderer) "
+                         "at construction or as a keyword argument of the call")
+    if not isinstance(cameras, CamerasBase):
+        raise TypeError(f"cameras: expected a geofit.cameras camera batch, got {type(cameras)!r}")
+    return cameras
+
+
+class MeshRasterizer:
+    """Per-pixel fragments of meshes by Embree ray casting (PyTorch3D's ``MeshRasterizer``).
+
+    Parameters
+    ----------
+    cameras : FoVPerspectiveCameras or FoVOrthographicCameras, optional
+        ``N`` cameras (or one for every mesh); can be given at call time instead.
+    raster_settings : RasterizationSettings, optional
+        Default ``RasterizationSettings()`` (256 x 256).
+
+    Notes
+    -----
+    Batches: with ``N`` meshes and ``N`` cameras, view ``b`` shows mesh ``b``; one camera is
+    used for every mesh; one mesh with ``N`` cameras renders it ``N`` times (as
+    ``mesh.extend(N)``). Views are grouped by distinct mesh and every group's rays go to Embree in
+    one threaded call; the Embree scene of a mesh is cached (keyed by its vertex and face arrays,
+    which geofit meshes never modify in place).
+
+    *Which pixels a face covers.* A pixel sees the first face its centre ray meets at view depth
+    >= the clip depth. PyTorch3D's rasterizer tests pixel centres against projected triangles in
+    float32; the two agree except where a pixel centre lies within rounding of an edge
+    shared by two faces, where either face may be reported (never a gap: Embree's traversal is
+    watertight).
+
+    *Degenerate input.* Faces of zero area are never hit. An empty mesh (no faces) renders as
+    background (``pix_to_face == -1`` everywhere). A camera inside a closed mesh sees the inside
+    of the surface: the back faces, whose normals point away from the camera (so they get only
+    ambient light, as in PyTorch3D; set ``cull_backfaces=True`` to see through them).
+    """
+
+    _CACHE_SIZE = 8
+
+    def __init__(self, cameras=None, raster_settings: RasterizationSettings | None = None):
+        self.cameras = cameras
+        self.raster_settings = raster_settings or RasterizationSettings()
+        self._scenes: list[tuple[np.ndarray, np.ndarray, _raycast.Scene]] = []
+
+    def _scene(self, mesh: Mesh) -> _raycast.Scene:
+        for v, f, sc in self._scenes:
+            if v is mesh.verts and f is mesh.faces:
+                return sc
+        sc = _raycast.Scene(mesh.verts, mesh.faces)
+        self._scenes.insert(0, (mesh.verts, mesh.faces, sc))
+        del self._scenes[self._CACHE_SIZE:]
+        return sc
+
+    def __call__(self, meshes, **kwargs) -> Fragments:
+        """Cast the rays of every pixel of every view.
+
+        Parameters
+        ----------
+        meshes : Mesh, Meshes or list of Mesh
+            ``N`` meshes (or one mesh for ``N`` cameras).
+        **kwargs
+            ``cameras=`` and ``raster_settings=`` override the stored ones for this call; other
+            keywords (lights, materials, ...) are ignored here.
+
+        Returns
+        -------
+        Fragments
+
+        Raises
+        ------
+        ValueError
+            If no cameras are given or the batch sizes of meshes and cameras do not match
+            (each must be 1 or N).
+        TypeError
+            For objects of the wrong type.
+        """
+        cameras = _check_cameras(kwargs.get("cameras", self.cameras))
+        settings = kwargs.get("raster_settings", self.raster_settings)
+        if not isinstance(settings, RasterizationSettings):
+            raise TypeError(f"raster_settings: expected RasterizationSettings, got "
+                            f"{type(settings)!r}")
+        meshes = _as_batch(meshes)
+        nm, nc = len(meshes), len(cameras)
+        if nm == 0:
+            raise ValueError("meshes: expected at least one mesh, got an empty batch")
+        N = max(nm, nc)
+        if nm not in (1, N) or nc not in (1, N):
+            raise ValueError(f"meshes and cameras: batch sizes must be 1 or N, got {nm} meshes "
+                             f"and {nc} cameras")
+        if nm == 1 and N > 1:
+            meshes = meshes.extend(N)
+        if nc == 1 and N > 1:
+            cameras = cameras.extend(N)
+        return self._rasterize(meshes, cameras, settings)
+
+    def _rasterize(self, meshes: Meshes, cameras, settings: RasterizationSettings) -> Fragments:
+        N = len(meshes)
+        H, W = settings.raster_size
+        perspective = bool(cameras.is_perspective())
+        pc = settings.perspective_correct
+        pc = perspective if pc is None else bool(pc)
+        if settings.z_clip_value is not None:
+            tnear = np.full(N, float(settings.z_clip_value))
+        elif pc and perspective:
+            tnear = np.asarray(cameras.znear, dtype=np.float64) / 2.0
+        else:
+            tnear = np.zeros(N)
+        n_threads = settings.n_threads or _raycast.n_threads_default()
+        xy = ndc_grid((H, W))
+        xs, ys = xy[0, :, 0].copy(), xy[:, 0, 1].copy()
+        rays = _raycast.view_rays(cameras)
+
+        # Per-view projections of each view's own mesh (packed), for masks and dists.
+        v_first = meshes.mesh_to_verts_packed_first_idx()
+        f_first = meshes.mesh_to_faces_packed_first_idx()
+        nv = meshes.num_verts_per_mesh()
+        xy_packed = np.zeros((int(nv.sum()), 2))
+        z_packed = np.zeros(int(nv.sum()))
+        # Group views by distinct mesh geometry.
+        groups: dict[tuple[int, int], list[int]] = {}
+        for b, m in enumerate(meshes):  # loop over views
+            groups.setdefault((id(m.verts), id(m.faces)), []).append(b)
+        parts = []
+        view_scene: list = [None] * N
+        for views in groups.values():  # loop over distinct meshes
+            mesh = meshes[views[0]]
+            masks = []
+            for b in views:  # loop over views: project the mesh, mark candidate pixels
+                pxy, z = _raycast.project(mesh.verts, rays[b], perspective)
+                sl = slice(int(v_first[b]), int(v_first[b] + nv[b]))
+                xy_packed[sl], z_packed[sl] = pxy, z
+                if mesh.n_faces:
+                    masks.append((b, _raycast.coverage_mask(pxy, z, mesh.faces, H, W,
+                                                            float(tnear[b]))))
+            if not masks:
+                continue  # an empty mesh: nothing to hit
+            scene = self._scene(mesh)
+            for b in views:
+                view_scene[b] = scene
+            pixels = np.concatenate([b * H * W + np.flatnonzero(mk) for b, mk in masks])
+            hits = _raycast.cast_pixels(scene, pixels, rays, xs, ys, tnear, n_threads)
+            if settings.cull_backfaces:
+                hits = self._cull(hits, scene, mesh, rays, xs, ys, tnear, n_threads)
+            # Float64 refinement of the hits.
+            o, d, _ = _raycast.hit_rays(hits.pixel, rays, xs, ys)
+            tri = mesh.faces[hits.face]
+            V = mesh.verts
+            bary, depth = _raycast.refine(o, d, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]],
+                                          hits.bary, hits.depth)
+            view = hits.pixel // (H * W)
+            parts.append((hits.pixel, view, hits.face + f_first[view], bary, depth))
+
+        if parts:
+            pixel, view, face, bary, depth = (np.concatenate([p[i] for p in parts])
+                                              for i in range(5))
+            if len(parts) > 1:
+                order = np.argsort(pixel, kind="stable")
+                pixel, view, face, bary, depth = (a[order] for a in (pixel, view, face, bary,
+                                                                      depth))
+        else:
+            pixel = view = face = np.zeros(0, np.int64)
+            bary, depth = np.zeros((0, 3)), np.zeros(0)
+
+        faces_packed = meshes.faces_packed()
+        if not pc and len(pixel):
+            # Screen-space barycentrics: b_i proportional to w_i z_i (PyTorch3D's
+            # perspective_correct=False), and zbuf interpolated with them.
+            zc = z_packed[faces_packed[face]]
+            wz = bary * zc
+            bary = wz / np.maximum(wz.sum(axis=1, keepdims=True), 1e-300)
+            depth = np.einsum("kj,kj->k", bary, zc)
+
+        ctx = {
+            "faces_packed": faces_packed,
+            "verts_packed": meshes.verts_packed(),
+            "verts_xy_packed": xy_packed,
+            "verts_z_packed": z_packed,
+            "face_first": f_first,
+            "verts_normals_packed": (meshes.verts_normals_packed() if N else np.zeros((0, 3))),
+            "face_normals_packed": meshes.faces_normals_packed(),
+            "view_scene": view_scene,
+            "tnear": tnear,
+            "n_threads": n_threads,
+        }
+        return Fragments((H, W), N, pixel, view, face, bary, depth, meshes, cameras,
+                         settings.supersample, ctx)
+
+    @staticmethod
+    def _cull(hits, scene, mesh, rays, xs, ys, tnear, n_threads, max_rounds: int = 64):
+        """Continue rays that hit a back face until they hit a front face or nothing."""
+        fn = mesh.face_cross
+        H, W = len(ys), len(xs)
+        keep = [np.ones(len(hits.pixel), bool)]
+        cur = hits
+        out = [hits]
+        for _ in range(max_rounds):  # loop over layers of back faces
+            _, d, _ = _raycast.hit_rays(cur.pixel, rays, xs, ys)
+            back = np.einsum("ij,ij->i", fn[cur.face], d) > 0
+            keep[-1] = ~back
+            if not np.any(back):
+                break
+            p = cur.pixel[back]
+            # Restart just past the culled hit (a step well above float32 rounding).
+            t0 = cur.depth[back] * (1.0 + 1e-5) + 1e-7
+            cur = _raycast.cast_pixels(scene, p, rays, xs, ys, tnear, n_threads, tnear_pixel=t0)
+            out.append(cur)
+            keep.append(np.ones(len(cur.pixel), bool))
+        else:
+            keep[-1] = np.zeros(len(cur.pixel), bool)  # give up on pathological stacks
+        pix = np.concatenate([h.pixel[k] for h, k in zip(out, keep)])
+        order = np.argsort(pix, kind="stable")
+        cat = [np.concatenate([getattr(h, f)[k] for h, k in zip(out, keep)])[order]
+               for f in ("pixel", "face", "bary", "depth")]
+        return _raycast.PixelHits(*cat)
+
+
+# ------------------------------------------------------------------------------------------
+# Renderers
+# ------------------------------------------------------------------------------------------
+
+
+def downsample(images: np.ndarray, factor: int) -> np.ndarray:
+    """Box-filter (N, sH, sW, C) images down to (N, H, W, C)."""
+    if factor == 1:
+        return images
+    N, H, W, C = images.shape
+    s = factor
+    return images.reshape(N, H // s, s, W // s, s, C).mean(axis=(2, 4), dtype=np.float32)
+
+
+class MeshRenderer:
+    """Rasterizer plus shader: ``images = renderer(meshes, **kwargs)`` (PyTorch3D's class).
+
+    Parameters
+    ----------
+    rasterizer : MeshRasterizer
+    shader : a shader from :mod:`geofit.render.shading` (e.g. SoftPhongShader)
+
+    Notes
+    -----
+    Keyword arguments of the call go to both: ``cameras=`` and ``raster_settings=`` to the
+    rasterizer, ``cameras=``, ``lights=``, ``materials=`` and ``blend_params=`` to the shader,
+    overriding the stored objects for that call only.
+    """
+
+    def __init__(self, rasterizer: MeshRasterizer, shader):
+        if not isinstance(rasterizer, MeshRasterizer):
+            raise TypeError(f"rasterizer: expected a MeshRasterizer, got {type(rasterizer)!r}")
+        if not callable(shader):
+            raise TypeError(f"shader: expected a shader, got {type(shader)!r}")
+        self.rasterizer = rasterizer
+        self.shader = shader
+
+    def _render(self, meshes, **kwargs):
+        fragments = self.rasterizer(meshes, **kwargs)
+        images = self.shader(fragments, fragments.meshes, **kwargs)
+        return downsample(images, fragments.supersample), fragments
+
+    def __call__(self, meshes, **kwargs) -> np.ndarray:
+        """Render.
+
+        Parameters
+        ----------
+        meshes : Mesh, Meshes or list of Mesh
+        **kwargs
+            Overrides for this call (see the class notes).
+
+        Returns
+        -------
+        images : (N, H, W, 4) float32
+            RGBA in [0, 1]; row 0 is the top of the picture, column 0 its left.
+        """
+        return self._render(meshes, **kwargs)[0]
+
+
+class MeshRendererWithFragments(MeshRenderer):
+    """A MeshRenderer that also returns the fragments: ``images, fragments = renderer(mesh)``.
+
+    The fragments give face ids, depth and normal images for free (see :class:`Fragments`);
+    with ``supersample > 1`` they are at the supersampled size.
+    """
+
+    def __call__(self, meshes, **kwargs) -> tuple[np.ndarray, Fragments]:
+        return self._render(meshes, **kwargs)

@@ -1,0 +1,138 @@
+"""Surface colour at ray hits: UV maps, per-vertex colours and flat colours.
+
+:func:`sample_texels` is the renderer's texture lookup. It gives the same colours as
+``Mesh.sample_textures`` (PyTorch3D's convention for UV maps: ``grid = (2u - 1, 1 - 2v)``,
+bilinear, border padding, ``align_corners=True``, so ``x = u (W - 1)`` and
+``y = (1 - v)(H - 1)`` in pixels) but works in float32 on flat arrays of hits, which halves the
+memory traffic of the largest step of shading.
+
+:class:`TexturesFlat` colours a mesh with one colour, or one colour per face.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._validate import as_array
+from ..structures.textures import TexturesBase, TexturesUV, TexturesVertex
+
+__all__ = ["TexturesFlat", "sample_texels"]
+
+
+class TexturesFlat(TexturesBase):
+    """A flat colour: one for the whole mesh or one per face.
+
+    Parameters
+    ----------
+    colors : (C,) or (F, C) float64
+        One colour for every face, or one colour per face (``F`` must then equal the mesh's
+        number of faces; checked when rendering).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from geofit import Mesh
+    >>> m = Mesh(np.eye(3), [[0, 1, 2]], TexturesFlat([0.2, 0.4, 0.6]))
+    >>> m.sample_textures(np.array([0]), np.array([[1.0, 0.0, 0.0]]))
+    array([[0.2, 0.4, 0.6]])
+    """
+
+    def __init__(self, colors):
+        c = as_array(colors, "colors")
+        if c.ndim == 1:
+            c = c[None]
+            self.per_face = False
+        elif c.ndim == 2:
+            self.per_face = True
+        else:
+            raise ValueError(f"colors: expected shape (C,) or (F, C), got {c.shape}")
+        if c.shape[1] == 0 or c.shape[0] == 0:
+            raise ValueError(f"colors: expected at least one colour channel, got {c.shape}")
+        self.colors = c
+        self.n_channels = c.shape[1]
+
+    def __repr__(self) -> str:
+        kind = f"per_face={len(self.colors)}" if self.per_face else "uniform"
+        return f"TexturesFlat({kind}, channels={self.n_channels})"
+
+    def sample(self, face_idx: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """(k, C) float64 colours of points on faces ``face_idx (k,)`` (``bary`` is unused)."""
+        if self.per_face:
+            return self.colors[face_idx]
+        return np.repeat(self.colors, len(face_idx), axis=0)
+
+    def take_faces(self, face_ids: np.ndarray) -> "TexturesFlat":
+        return TexturesFlat(self.colors[face_ids] if self.per_face else self.colors[0])
+
+
+def _sample_uv32(tex: TexturesUV, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of (k, 2) float32 UVs in a TexturesUV map -> (k, C) float32."""
+    maps = tex.maps
+    H, W, C = maps.shape
+    u, v = uv[:, 0], uv[:, 1]
+    if tex.padding_mode == "repeat":
+        u = u - np.floor(u)
+        v = v - np.floor(v)
+    if tex.align_corners:
+        x = u * np.float32(W - 1)
+        y = (np.float32(1.0) - v) * np.float32(H - 1)
+    else:
+        x = u * np.float32(W) - np.float32(0.5)
+        y = (np.float32(1.0) - v) * np.float32(H) - np.float32(0.5)
+    np.clip(x, 0.0, W - 1, out=x)
+    np.clip(y, 0.0, H - 1, out=y)
+    x0 = np.minimum(x.astype(np.int64), max(W - 2, 0))  # x >= 0: truncation is floor
+    y0 = np.minimum(y.astype(np.int64), max(H - 2, 0))
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    flat = maps.reshape(H * W, C).astype(np.float32)
+    i00 = y0 * W + x0
+    dx = 1 if W > 1 else 0
+    dy = W if H > 1 else 0
+    top = flat[i00] * (1 - fx) + flat[i00 + dx] * fx
+    bot = flat[i00 + dy] * (1 - fx) + flat[i00 + dy + dx] * fx
+    return top * (1 - fy) + bot * fy
+
+
+def sample_texels(textures, faces: np.ndarray, face_idx: np.ndarray, bary: np.ndarray,
+                  default=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """Colours at surface points of one mesh, float32.
+
+    Parameters
+    ----------
+    textures : TexturesUV, TexturesVertex, TexturesFlat or None
+        The mesh's textures; ``None`` gives the ``default`` colour everywhere.
+    faces : (F, 3) int64
+        The mesh's faces (for per-vertex colours).
+    face_idx : (k,) int64
+        Face of each point (valid indices).
+    bary : (k, 3) float
+        Barycentrics of each point in its face, corner order ``(w0, w1, w2)``.
+    default : (C,) float
+        Colour of untextured meshes.
+
+    Returns
+    -------
+    texels : (k, C) float32
+
+    Raises
+    ------
+    ValueError
+        For a per-face TexturesFlat whose length differs from the number of faces.
+    """
+    k = len(face_idx)
+    if textures is None:
+        return np.broadcast_to(np.asarray(default, np.float32), (k, len(default))).copy()
+    if isinstance(textures, TexturesUV):
+        uvs = textures.verts_uvs.astype(np.float32)[textures.faces_uvs[face_idx]]  # (k, 3, 2)
+        uv = np.einsum("kj,kjc->kc", bary.astype(np.float32), uvs)
+        return _sample_uv32(textures, uv)
+    if isinstance(textures, TexturesVertex):
+        feats = textures.verts_features.astype(np.float32)[faces[face_idx]]  # (k, 3, C)
+        return np.einsum("kj,kjc->kc", bary.astype(np.float32), feats)
+    if isinstance(textures, TexturesFlat):
+        if textures.per_face and len(textures.colors) != len(faces):
+            raise ValueError(f"textures.colors: expected shape ({len(faces)}, "
+                             f"{textures.n_channels}) for a mesh with {len(faces)} faces, got "
+                             f"{textures.colors.shape}")
+        return textures.sample(face_idx, bary).astype(np.float32)
+    return np.asarray(textures.sample(face_idx, bary), dtype=np.float32)
