@@ -17,6 +17,15 @@ from .cameras import (
     ndc_grid,
     opencv_from_cameras_projection,
 )
+from . import data, io
+from .io import (
+    load_mesh,
+    load_obj,
+    load_objs_as_meshes,
+    load_pointcloud,
+    save_obj,
+    save_pointcloud,
+)
 from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
     Mesh,
@@ -53,6 +62,15 @@ __all__ = [
     "look_at_view_transform",
     "ndc_grid",
     "opencv_from_cameras_projection",
+    # io / data
+    "data",
+    "io",
+    "load_mesh",
+    "load_obj",
+    "load_objs_as_meshes",
+    "load_pointcloud",
+    "save_obj",
+    "save_pointcloud",
     # shapes
     "box",
     "ico_sphere",

@@ -283,3 +283,16 @@ def test_validate_helpers():
     g = np.random.default_rng(3)
     assert as_rng(g) is g
     assert_array_equal(as_rng(5).random(3), np.random.default_rng(5).random(3))
+
+
+def test_open3d_conversions_copy_read_only_arrays():
+    """to_open3d works on read-only arrays and keeps positions, faces, colours and normals."""
+    m = Mesh(np.eye(3), [[0, 1, 2]], TexturesVertex(np.full((3, 3), 0.5)))
+    o = m.to_open3d()
+    assert_allclose(np.asarray(o.vertices), m.verts)
+    assert_array_equal(np.asarray(o.triangles), m.faces)
+    assert_allclose(np.asarray(o.vertex_colors), 0.5)
+    pc = PointCloud(np.eye(3), np.full((3, 3), 0.25), normals=np.eye(3)).to_open3d()
+    assert_allclose(np.asarray(pc.points), np.eye(3))
+    assert_allclose(np.asarray(pc.colors), 0.25)
+    assert_allclose(np.asarray(pc.normals), np.eye(3))

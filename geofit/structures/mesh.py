@@ -335,9 +335,10 @@ class Mesh:
         """An ``open3d.geometry.TriangleMesh`` with vertex normals (and vertex colours if any)."""
         import open3d as o3d
 
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(self._verts),
+        # Open3D's Vector3dVector rejects read-only arrays: pass copies.
+        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.array(self._verts)),
                                       o3d.utility.Vector3iVector(self.faces.astype(np.int32)))
-        m.vertex_normals = o3d.utility.Vector3dVector(self.verts_normals)
+        m.vertex_normals = o3d.utility.Vector3dVector(np.array(self.verts_normals))
         if isinstance(self.textures, TexturesVertex) and self.textures.n_channels >= 3:
             m.vertex_colors = o3d.utility.Vector3dVector(
                 np.clip(self.textures.verts_features[:, :3], 0, 1))

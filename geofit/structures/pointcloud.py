@@ -81,11 +81,12 @@ class PointCloud:
         """An ``open3d.geometry.PointCloud`` with colours (first three feature channels) and normals."""
         import open3d as o3d
 
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+        # Open3D's Vector3dVector rejects read-only arrays: pass copies.
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(self.points)))
         if self.features is not None and self.features.shape[1] >= 3:
             pc.colors = o3d.utility.Vector3dVector(np.clip(self.features[:, :3], 0, 1))
         if self.normals is not None:
-            pc.normals = o3d.utility.Vector3dVector(self.normals)
+            pc.normals = o3d.utility.Vector3dVector(np.array(self.normals))
         return pc
 
 
