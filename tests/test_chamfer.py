@@ -329,3 +329,120 @@ def test_validation_errors():
         t.loss(x, norm=0)
     with pytest.raises(ValueError, match="x"):
         t.loss(np.zeros((4, 2)))
+
+
+# --------------------------------------------------------------------------- point to surface
+def _outside_points(mesh, n, seed, lo=0.2, hi=0.6):
+    """Points outside a convex mesh along random directions (no medial-axis ties outside)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d * (1.0 + rng.uniform(lo, hi, (n, 1)))
+
+
+def test_point_to_surface_closed_forms():
+    """Above a unit box face: (z - 0.5)^2, gradient 2 (p - c) / n; near a corner: the corner."""
+    from geofit import box
+    from geofit.loss import PointToSurface
+
+    t = PointToSurface(box())
+    P = np.array([[0.1, -0.2, 2.0], [1.5, 1.5, 1.5]])
+    v, g = t.loss(P)
+    d2 = np.array([1.5**2, 3 * 1.0**2])
+    assert_allclose(v, d2.mean(), rtol=1e-14)
+    assert_allclose(g, 2 * (P - [[0.1, -0.2, 0.5], [0.5, 0.5, 0.5]]) / 2, rtol=1e-14, atol=1e-15)
+    vs, gs = t.loss(P, reduction="sum")
+    assert_allclose(vs, d2.sum(), rtol=1e-14)
+    assert_allclose(gs, 2 * g, rtol=1e-14)
+    v0, g0 = t.loss(np.zeros((0, 3)))
+    assert v0 == 0.0 and g0.shape == (0, 3)
+    assert t.query(P).face_ids.shape == (2,) and "PointToSurface" in repr(t)
+
+
+def test_point_to_surface_finite_differences():
+    """Central differences of the exact distance equal 2 (p - c) / n (points off the medial axis)."""
+    from geofit import ico_sphere
+    from geofit.loss import PointToSurface
+
+    m = ico_sphere(1)
+    t = PointToSurface(m)
+    P = _outside_points(m, 12, seed=10)
+    v, g = t.loss(P)
+    fd = _fd(lambda a: t.loss(a)[0], P)
+    assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
+
+
+def test_point_to_surface_has_no_sampling_noise():
+    """Samples of the target are at distance ~0 from it, unlike chamfer against other samples."""
+    from geofit import ico_sphere
+    from geofit.loss import PointToSurface
+    from geofit.ops import sample_points_from_meshes
+
+    m = ico_sphere(2)
+    t = PointToSurface(m)
+    a = sample_points_from_meshes(m, 2000, seed=0).points
+    b = sample_points_from_meshes(m, 2000, seed=1).points
+    v, g = t.loss(a)
+    assert v < 1e-24 and np.abs(g).max() < 1e-11
+    assert chamfer_distance(a, b).loss > 1e-4
+
+
+def test_point_to_surface_chain_rule_through_sampling():
+    """d/dV loss(B V) = B^T grad: finite differences over the vertices of a source mesh."""
+    from geofit import ico_sphere
+    from geofit.loss import PointToSurface
+    from geofit.ops import sample_points_from_meshes
+
+    target = PointToSurface(ico_sphere(2))
+    src = ico_sphere(0).scale_verts(1.4)
+    s = sample_points_from_meshes(src, 60, seed=3)
+    v, g = target.loss(s.B @ src.verts)
+    gV = s.B.T @ g
+    fd = _fd(lambda V: target.loss(s.B @ V)[0], src.verts.copy())
+    assert_allclose(gV, fd, rtol=1e-6, atol=1e-9)
+
+
+def test_point_to_surface_symmetric_loss():
+    """symmetric_loss = loss + one-sided chamfer from target samples; FD-exact gradient."""
+    from geofit import ico_sphere
+    from geofit.loss import PointToSurface
+
+    m = ico_sphere(1)
+    t = PointToSurface(m)
+    P = _outside_points(m, 10, seed=11)
+    T = _outside_points(m, 8, seed=12, lo=0.0, hi=0.01)
+    v, g = t.symmetric_loss(P, T)
+    fwd = t.loss(P)
+    rev = chamfer_distance(T, P, single_directional=True)
+    assert_allclose(v, fwd[0] + rev.loss, rtol=1e-14)
+    assert_allclose(g, fwd[1] + rev.grad_y, rtol=1e-13, atol=1e-16)
+    fd = _fd(lambda a: t.symmetric_loss(a, T)[0], P)
+    assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
+    vs, _ = t.symmetric_loss(P, T, reduction="sum")
+    assert_allclose(vs, t.loss(P, reduction="sum")[0]
+                    + chamfer_distance(T, P, single_directional=True, point_reduction="sum").loss,
+                    rtol=1e-14)
+    assert t.symmetric_loss(P, np.zeros((0, 3)))[0] == fwd[0]
+
+
+def test_point_to_surface_validation():
+    from geofit import Mesh, ico_sphere
+    from geofit.loss import PointToSurface
+
+    with pytest.raises(TypeError, match="mesh"):
+        PointToSurface(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="face"):
+        PointToSurface(Mesh(np.zeros((3, 3)), np.zeros((0, 3), np.int64)))
+    t = PointToSurface(ico_sphere(0))
+    with pytest.raises(ValueError, match="reduction"):
+        t.loss(np.zeros((2, 3)), reduction="max")
+    with pytest.raises(ValueError, match="reduction"):
+        t.symmetric_loss(np.zeros((2, 3)), np.zeros((2, 3)), reduction=None)
+    with pytest.raises(ValueError, match="points"):
+        t.loss(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="points"):
+        t.loss(np.full((2, 3), np.nan))
+    with pytest.raises(ValueError, match="points"):
+        t.symmetric_loss(np.zeros((0, 3)), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="target_samples"):
+        t.symmetric_loss(np.zeros((2, 3)), np.zeros((2, 4)))

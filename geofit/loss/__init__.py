@@ -1,8 +1,9 @@
 """Losses with analytic gradients: each returns ``(value, grad)`` with ``grad`` shaped like its input.
 
 - :func:`chamfer_distance` and :class:`ChamferTarget` (a KD-tree over a fixed target);
+- :class:`PointToSurface`: exact squared distance to a fixed target surface (no sampling noise);
 - mesh regularisers (:mod:`geofit.loss.mesh`): :func:`mesh_edge_loss`,
-  :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`;
+  :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`.
 """
 from .chamfer import ChamferResult, ChamferTarget, chamfer_distance
 from .mesh import (
@@ -11,6 +12,7 @@ from .mesh import (
     mesh_normal_consistency,
     normal_consistency_pairs,
 )
+from .point_to_surface import PointToSurface
 
 __all__ = [
     "ChamferResult",
@@ -20,4 +22,5 @@ __all__ = [
     "mesh_laplacian_smoothing",
     "mesh_normal_consistency",
     "normal_consistency_pairs",
+    "PointToSurface",
 ]
