@@ -26,6 +26,7 @@ from .io import (
     save_obj,
     save_pointcloud,
 )
+from .raycast import ClosestPoints, PointToMeshDistance, RayCaster, RayHits
 from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
     Mesh,
@@ -71,6 +72,11 @@ __all__ = [
     "load_pointcloud",
     "save_obj",
     "save_pointcloud",
+    # ray casting
+    "ClosestPoints",
+    "PointToMeshDistance",
+    "RayCaster",
+    "RayHits",
     # shapes
     "box",
     "ico_sphere",
