@@ -337,6 +337,17 @@ def test_points_at_depth_zero_are_kept_by_orthographic_cameras():
     assert np.sum(f.idx >= 0) == 4
 
 
+def test_huge_coordinates_give_no_warning_or_nan():
+    """Points near the float64 limit overflow in the projection: they are dropped quietly."""
+    P = np.array([[1e308, 1e308, 1e308], [-1e308, 1e308, 1e308], [0.0, 0.0, 2.0]])
+    cloud = PointCloud(P, np.eye(3))
+    for cam in (FoVPerspectiveCameras(R=look_at_view_transform(2.7, 30, 40)[0]),
+                FoVOrthographicCameras()):
+        out = _renderer(cam).render(cloud)
+        assert np.all(np.isfinite(out.images))
+        assert set(np.unique(out.fragments.idx)) <= {-1, 2}
+
+
 def test_nan_points_raise():
     with pytest.raises(ValueError, match="points: expected finite values"):
         PointCloud([[0.0, np.nan, 1.0]], [[1.0, 0, 0]])
@@ -475,6 +486,29 @@ def test_cli_renders_an_npz_cloud(tmp_path, capsys):
     want = renderer.render(PointCloud(verts, rgb))
     assert np.max(np.abs(img / 255.0 - want.images[0])) <= 0.5 / 255 + 1e-9
     assert_array_equal(depth == 0, want.depth[0] < 0)
+
+
+def test_cli_renders_a_ply_cloud(tmp_path, capsys):
+    """A .ply cloud (read through Open3D) renders like the same points given directly."""
+    from PIL import Image
+
+    from geofit.cli import main
+    from geofit.io import save_pointcloud
+
+    rng = np.random.default_rng(8)
+    cloud = PointCloud(rng.uniform(-0.8, 0.8, (500, 3)), rng.integers(0, 256, (500, 3)) / 255)
+    save_pointcloud(tmp_path / "cloud.ply", cloud)
+    code = main(["render-points", str(tmp_path / "cloud.ply"), "--out", str(tmp_path / "o"),
+                 "--image-size", "32", "--radius", "0.1", "--compositor", "norm"])
+    assert code == 0
+    assert "500 points" in capsys.readouterr().out
+    img = np.asarray(Image.open(tmp_path / "o" / "render_points.png")) / 255.0
+    R, T = look_at_view_transform(20.0, 10.0, 0.0)
+    want = PointsRenderer(
+        PointsRasterizer(FoVOrthographicCameras(R=R, T=T, znear=0.01),
+                         PointsRasterizationSettings(32, 0.1, 10)),
+        NormWeightedCompositor())(cloud)[0]
+    assert np.max(np.abs(img - want)) <= 0.5 / 255 + 1e-9
 
 
 def test_cli_default_cloud_without_data(tmp_path, monkeypatch, capsys):

@@ -185,9 +185,10 @@ def _pixel_hits(x, y, r, img, H, W, full=None):
     candidates at full pixels are dropped.
     """
     S = min(H, W)
-    cx = (W - 1 - S * x) * 0.5         # continuous column of the projection
-    cy = (H - 1 - S * y) * 0.5         # continuous row
-    rp = r * (0.5 * S)                 # radius in pixels
+    with np.errstate(over="ignore"):   # far-off projections become +-inf, clipped below
+        cx = (W - 1 - S * x) * 0.5     # continuous column of the projection
+        cy = (H - 1 - S * y) * 0.5     # continuous row
+        rp = r * (0.5 * S)             # radius in pixels
     c0 = np.ceil(np.clip(cx - rp - _BOX_SLACK, 0, W)).astype(np.int64)
     c1 = np.floor(np.clip(cx + rp + _BOX_SLACK, -1, W - 1)).astype(np.int64)
     r0 = np.ceil(np.clip(cy - rp - _BOX_SLACK, 0, H)).astype(np.int64)
@@ -416,14 +417,18 @@ class PointsRasterizer:
             c = 0 if len(clouds) == 1 else n
             k = 0 if len(cameras) == 1 else n
             lo, hi = int(first[c]), int(first[c]) + int(n_pts[c])
-            view = packed[lo:hi] @ cameras.R[k] + cameras.T[k]
-            h = view @ proj[k, :3, :] + proj[k, 3, :]
-            w = h[:, 3]
-            z = view[:, 2].copy()
-            ok = (z >= 0) & (w > 0)          # w <= 0 only for perspective points at z == 0
+            with np.errstate(over="ignore", invalid="ignore"):
+                view = packed[lo:hi] @ cameras.R[k] + cameras.T[k]
+                h = view @ proj[k, :3, :] + proj[k, 3, :]
+                w = h[:, 3]
+                z = view[:, 2].copy()
+                # z < 0: behind the camera (PyTorch3D); w <= 0 only for perspective points at
+                # z == 0; non-finite values only for coordinates near the float64 limit.
+                ok = (z >= 0) & (w > 0) & np.isfinite(h).all(axis=1)
+                xy = h[:, :2] / np.where(ok, w, 1.0)[:, None]
+                ok &= np.isfinite(xy).all(axis=1)
             z[~ok] = -1.0
-            with np.errstate(divide="ignore", invalid="ignore"):
-                xy = np.where(ok[:, None], h[:, :2] / np.where(ok, w, 1.0)[:, None], 0.0)
+            xy[~ok] = 0.0
             rr = np.broadcast_to(r, (P,))[lo:hi] if r.ndim else np.full(hi - lo, float(r))
             if s.radius_units == "world":
                 rr = np.where(ok, rr * abs(proj[k, 0, 0]) / np.where(ok, w, 1.0), 0.0)
