@@ -165,7 +165,7 @@ def test_finite_differences_normals(abs_cosine):
     rng = np.random.default_rng(3)
     xn = rng.normal(size=x.shape)
     yn = rng.normal(size=y.shape) * rng.uniform(0.5, 2.0, (len(y), 1))
-    kw = dict(abs_cosine=abs_cosine)
+    kw = {"abs_cosine": abs_cosine}
     r = chamfer_distance(x, y, x_normals=xn, y_normals=yn, **kw)
     fxn = _fd(lambda a: chamfer_distance(x, y, x_normals=a, y_normals=yn, **kw).loss_normals, xn)
     fyn = _fd(lambda b: chamfer_distance(x, y, x_normals=xn, y_normals=b, **kw).loss_normals, yn)
@@ -286,22 +286,22 @@ def test_validation_errors():
     x = np.zeros((4, 3))
     y = np.ones((5, 3))
     cases = [
-        (dict(batch_reduction="avg"), "batch_reduction"),
-        (dict(point_reduction="median"), "point_reduction"),
-        (dict(point_reduction=None), "point_reduction"),
-        (dict(norm=3), "norm"),
-        (dict(norm="l2"), "norm"),
-        (dict(norm=True), "norm"),
-        (dict(point_reduction="max", x_normals=x, y_normals=y), "max"),
-        (dict(x_normals=x), "both"),
-        (dict(y_normals=y), "both"),
-        (dict(x_normals=np.zeros((3, 3)), y_normals=y), "x_normals"),
-        (dict(x_lengths=[2, 3]), "x_lengths"),
-        (dict(x_lengths=[5]), "x_lengths"),
-        (dict(y_lengths=[-1]), "y_lengths"),
-        (dict(y_lengths=[1.5]), "y_lengths"),
-        (dict(weights=[-1.0]), "weights"),
-        (dict(weights=[1.0, 2.0]), "weights"),
+        ({"batch_reduction": "avg"}, "batch_reduction"),
+        ({"point_reduction": "median"}, "point_reduction"),
+        ({"point_reduction": None}, "point_reduction"),
+        ({"norm": 3}, "norm"),
+        ({"norm": "l2"}, "norm"),
+        ({"norm": True}, "norm"),
+        ({"point_reduction": "max", "x_normals": x, "y_normals": y}, "max"),
+        ({"x_normals": x}, "both"),
+        ({"y_normals": y}, "both"),
+        ({"x_normals": np.zeros((3, 3)), "y_normals": y}, "x_normals"),
+        ({"x_lengths": [2, 3]}, "x_lengths"),
+        ({"x_lengths": [5]}, "x_lengths"),
+        ({"y_lengths": [-1]}, "y_lengths"),
+        ({"y_lengths": [1.5]}, "y_lengths"),
+        ({"weights": [-1.0]}, "weights"),
+        ({"weights": [1.0, 2.0]}, "weights"),
     ]
     for kw, msg in cases:
         with pytest.raises(ValueError, match=msg):
@@ -367,7 +367,7 @@ def test_point_to_surface_finite_differences():
     m = ico_sphere(1)
     t = PointToSurface(m)
     P = _outside_points(m, 12, seed=10)
-    v, g = t.loss(P)
+    _v, g = t.loss(P)
     fd = _fd(lambda a: t.loss(a)[0], P)
     assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
 
@@ -396,7 +396,7 @@ def test_point_to_surface_chain_rule_through_sampling():
     target = PointToSurface(ico_sphere(2))
     src = ico_sphere(0).scale_verts(1.4)
     s = sample_points_from_meshes(src, 60, seed=3)
-    v, g = target.loss(s.B @ src.verts)
+    _v, g = target.loss(s.B @ src.verts)
     gV = s.B.T @ g
     fd = _fd(lambda V: target.loss(s.B @ V)[0], src.verts.copy())
     assert_allclose(gV, fd, rtol=1e-6, atol=1e-9)

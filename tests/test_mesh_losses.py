@@ -129,7 +129,7 @@ def test_cow_cot_gradient_errors_sit_at_small_residuals(ref):
 @pytest.mark.parametrize("t", [0.0, 0.3])
 def test_edge_loss_finite_differences(t):
     m = _noisy(ico_sphere(1), seed=1)
-    v, g = mesh_edge_loss(m, t)
+    _v, g = mesh_edge_loss(m, t)
     fd = _fd_grad(lambda V: mesh_edge_loss(m.update_verts(V), t)[0], m.verts)
     assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
 
@@ -138,7 +138,7 @@ def test_edge_loss_finite_differences(t):
                                   _noisy(plane(n=3), sigma=0.1, seed=4)],
                          ids=["sphere", "nonmanifold", "open_plane"])
 def test_normal_consistency_finite_differences(mesh):
-    v, g = mesh_normal_consistency(mesh)
+    _v, g = mesh_normal_consistency(mesh)
     fd = _fd_grad(lambda V: mesh_normal_consistency(mesh.update_verts(V))[0], mesh.verts)
     assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
 
@@ -171,20 +171,35 @@ def test_laplacian_smoothing_finite_differences(method):
 
 
 def test_laplacian_zero_residual_gives_zero_gradient_not_nan():
-    """At a vertex sitting at its neighbours' centroid the kink takes the zero subgradient."""
-    p = plane(n=4)
-    m = p.update_verts(p.verts + [0, 0, 0.0])
-    for method in ("uniform", "cot", "cotcurv"):
-        v, g = mesh_laplacian_smoothing(m, method)
-        assert np.all(np.isfinite(g))
-    # a flat plane: every interior residual is exactly 0 in all three variants
+    """Where r_i = 0 the kink takes the zero subgradient: no NaN, no contribution from that row."""
+    m = plane(n=4)
+    # a flat regular grid: every interior residual is exactly 0 (uniform and cot)
     L = uniform_laplacian(m)
     interior = np.flatnonzero(m.topology.degrees == 6)
     assert len(interior) == 9
-    assert_allclose((L @ m.verts)[interior], 0.0, atol=1e-15)
-    Lc, inv_a = cot_laplacian(m.verts, m.faces)
+    r = L @ m.verts
+    assert_allclose(r[interior], 0.0, atol=1e-15)
+    Lc, _ = cot_laplacian(m.verts, m.faces)
     rs = np.asarray(Lc.sum(axis=1)).ravel()
     assert_allclose(((Lc @ m.verts) / rs[:, None] - m.verts)[interior], 0.0, atol=1e-14)
+    # a fan whose centre sits exactly at its neighbours' centroid (r_0 == 0 in floating point:
+    # weights 1/4, symmetric ring): the gradient is L^T u / V with u_0 = 0, u_i = r_i / |r_i|
+    ring = np.array([[1.0, 0, 0], [0, 1, 0.5], [-1, 0, 0], [0, -1, -0.5]])
+    fan = Mesh(np.vstack([[0.0, 0, 0], ring]), [[0, i, i % 4 + 1] for i in range(1, 5)])
+    Lf = uniform_laplacian(fan)
+    rf = Lf @ fan.verts
+    assert not rf[0].any()
+    u = np.zeros_like(rf)
+    u[1:] = rf[1:] / np.linalg.norm(rf[1:], axis=1, keepdims=True)
+    _v, g = mesh_laplacian_smoothing(fan, "uniform")
+    assert_allclose(g, Lf.T @ u / 5, rtol=1e-14, atol=1e-17)
+    assert np.abs(g).max() > 0.01
+    for method in ("cot", "cotcurv"):
+        assert np.all(np.isfinite(mesh_laplacian_smoothing(m, method)[1]))
+    # every vertex at one point: all residuals 0, value 0 and gradient exactly 0 (uniform)
+    collapsed = m.update_verts(np.zeros_like(m.verts))
+    v, g = mesh_laplacian_smoothing(collapsed, "uniform")
+    assert v == 0.0 and not g.any()
 
 
 def test_edge_loss_zero_length_edge_kink():

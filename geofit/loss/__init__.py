@@ -17,10 +17,10 @@ from .point_to_surface import PointToSurface
 __all__ = [
     "ChamferResult",
     "ChamferTarget",
+    "PointToSurface",
     "chamfer_distance",
     "mesh_edge_loss",
     "mesh_laplacian_smoothing",
     "mesh_normal_consistency",
     "normal_consistency_pairs",
-    "PointToSurface",
 ]

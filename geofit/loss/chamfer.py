@@ -203,7 +203,7 @@ def _as_cloud(a, name: str):
     """(n, 3) or (N, n, 3) -> ((N, n, 3) float64, was_2d)."""
     try:
         arr = np.asarray(a)
-    except Exception as exc:  # ragged input
+    except (TypeError, ValueError) as exc:  # ragged input
         raise ValueError(f"{name}: could not convert to an array ({exc})") from None
     if arr.ndim == 2:
         return as_array(arr, name, (None, 3))[None], True

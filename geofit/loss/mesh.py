@@ -19,8 +19,12 @@ from .._validate import check_choice
 from ..ops.laplacian import _cot_laplacian, _uniform_laplacian_topology, topology_cache
 from ..structures.mesh import Mesh, Meshes, Topology
 
-__all__ = ["mesh_edge_loss", "mesh_normal_consistency", "mesh_laplacian_smoothing",
-           "normal_consistency_pairs"]
+__all__ = [
+    "mesh_edge_loss",
+    "mesh_laplacian_smoothing",
+    "mesh_normal_consistency",
+    "normal_consistency_pairs",
+]
 
 _LAPLACIAN_METHODS = ("uniform", "cot", "cotcurv")
 

@@ -5,8 +5,8 @@ from .sampling import SampledPoints, barycentric_matrix, sample_points_from_mesh
 __all__ = [
     "SampledPoints",
     "barycentric_matrix",
-    "sample_points_from_meshes",
     "cot_laplacian",
     "norm_laplacian",
+    "sample_points_from_meshes",
     "uniform_laplacian",
 ]

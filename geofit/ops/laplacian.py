@@ -20,12 +20,12 @@ import scipy.sparse as sp
 from .._validate import as_array, as_faces, as_points, check_positive
 from ..structures.mesh import Mesh, Meshes, Topology
 
-__all__ = ["uniform_laplacian", "cot_laplacian", "norm_laplacian"]
+__all__ = ["cot_laplacian", "norm_laplacian", "uniform_laplacian"]
 
 # Per-topology caches (sparsity patterns, scatter matrices, normal-consistency pairs). Keyed by
 # the Topology object itself, held weakly, so a cache entry lives exactly as long as the meshes
 # that share that topology.
-_TOPOLOGY_CACHE: "weakref.WeakKeyDictionary[Topology, dict]" = weakref.WeakKeyDictionary()
+_TOPOLOGY_CACHE: weakref.WeakKeyDictionary[Topology, dict] = weakref.WeakKeyDictionary()
 
 
 def topology_cache(topology: Topology) -> dict:

@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from .._validate import as_rng
 from ..structures.mesh import Mesh, Meshes
 
-__all__ = ["SampledPoints", "sample_points_from_meshes", "barycentric_matrix"]
+__all__ = ["SampledPoints", "barycentric_matrix", "sample_points_from_meshes"]
 
 
 class SampledPoints(NamedTuple):
