@@ -380,6 +380,24 @@ def test_settings_type_errors(kwargs):
         PointsRasterizationSettings(**kwargs)
 
 
+def test_rasterize_points_validation():
+    xy, z, r, img = np.zeros((3, 2)), np.ones(3), np.full(3, 0.1), np.zeros(3, dtype=int)
+    cases = [
+        ((np.zeros((3, 3)), z, r, img, 1, (4, 4), 2), "xy"),
+        ((xy, np.ones(2), r, img, 1, (4, 4), 2), "z"),
+        ((xy, z, np.array([0.1, np.nan, 0.1]), img, 1, (4, 4), 2), "radius"),
+        ((xy, z, -r, img, 1, (4, 4), 2), "radius"),
+        ((xy, z, r, img + 1, 1, (4, 4), 2), "image_index"),
+        ((xy, z, r, img - 1, 1, (4, 4), 2), "image_index"),
+        ((xy, z, r, img, 0, (4, 4), 2), "n_images"),
+        ((xy, z, r, img, 1, (4, 0), 2), "image_size"),
+        ((xy, z, r, img, 1, (4, 4), 0), "K"),
+    ]
+    for args, match in cases:
+        with pytest.raises(ValueError, match=match):
+            rasterize_points(*args)
+
+
 def test_rasterizer_validation():
     cloud = PointCloud(np.ones((3, 3)), np.ones((3, 3)))
     cams2 = FoVOrthographicCameras(R=np.stack([np.eye(3)] * 2))

@@ -14,8 +14,9 @@ centres; the (point, pixel) candidates of every box are generated with ``np.repe
 inside the disc are kept, and one integer sort on ``pixel * M + depth_rank`` groups them by pixel
 in front-to-back order. The rank of a hit within its pixel is its position in the group; hits of
 rank ``< K`` are scattered into the output. Candidates are processed in chunks of bounded size
-in front-to-back order, so a pixel that already holds ``K`` points ignores later chunks and the
-memory stays bounded for any radius.
+in front-to-back order, so the memory stays bounded for any radius, and a pixel that already holds
+``K`` points ignores later chunks: a summed-area table of the open pixels lets a point whose whole
+box is full be skipped before any candidate is generated.
 
 Beyond PyTorch3D: ``radius_units="world"`` makes the radius a world-space size that shrinks with
 depth (``r_ndc = r * K00 / z`` for a perspective camera, ``r * K00`` for an orthographic one),
@@ -256,7 +257,30 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
         Index into the M entries (-1 where empty), front to back.
     zbuf, dists : (N, H, W, K) float64
         View depth and squared NDC distance (-1 where empty).
+
+    Raises
+    ------
+    ValueError
+        For mismatched lengths, non-finite values, negative radii, image indices outside
+        ``[0, n_images)``, or sizes / ``K`` below 1.
     """
+    xy = as_array(xy, "xy", (None, 2))
+    M = len(xy)
+    z = as_array(z, "z", (M,))
+    radius = as_array(radius, "radius", (M,))
+    if np.any(radius < 0):
+        raise ValueError(f"radius: expected values >= 0, got minimum {radius.min():g}")
+    n_images = _check_int(n_images, "n_images", 1)
+    image_index = as_array(image_index, "image_index", (M,), np.int64)
+    if M and (image_index.min() < 0 or image_index.max() >= n_images):
+        raise ValueError(f"image_index: expected values in [0, {n_images - 1}], got range "
+                         f"[{image_index.min()}, {image_index.max()}]")
+    return _rasterize(xy, z, radius, image_index, n_images, _image_hw(image_size),
+                      _check_int(K, "K", 1))
+
+
+def _rasterize(xy, z, radius, image_index, n_images, image_size, K):
+    """``rasterize_points`` on validated inputs."""
     H, W = image_size
     n_pix = n_images * H * W
     entry_out = np.full(n_pix * K, -1, dtype=np.int64)
@@ -462,7 +486,7 @@ class PointsRasterizer:
         s = self._settings(raster_settings)
         xy, z, r, img, pt, n_images = self.transform(point_clouds, cameras, raster_settings=s)
         K = s.points_per_pixel
-        entry, zbuf, dists = rasterize_points(xy, z, r, img, n_images, s.hw, K)
+        entry, zbuf, dists = _rasterize(xy, z, r, img, n_images, s.hw, K)
         valid = entry >= 0
         idx = np.full(entry.shape, -1, dtype=np.int64)
         idx[valid] = pt[entry[valid]]
