@@ -31,32 +31,51 @@ class BlendParams(NamedTuple):
     background_color: tuple = (1.0, 1.0, 1.0)
 
 
-def _background(blend_params: BlendParams) -> np.ndarray:
-    bg = as_array(blend_params.background_color, "blend_params.background_color", (3,))
-    return bg.astype(np.float32)
-
-
-def _check_blend(blend_params) -> BlendParams:
+def check_blend(blend_params) -> tuple[BlendParams, np.ndarray]:
+    """Validate a BlendParams; returns it and the (3,) float32 background colour."""
     if not isinstance(blend_params, BlendParams):
         raise TypeError(f"blend_params: expected a BlendParams, got {type(blend_params)!r}")
     check_positive(blend_params.sigma, "blend_params.sigma")
     check_positive(blend_params.gamma, "blend_params.gamma")
-    _background(blend_params)
-    return blend_params
+    bg = as_array(blend_params.background_color, "blend_params.background_color", (3,))
+    return blend_params, bg.astype(np.float32)
 
 
-def _scatter_rgba(fragments, rgb: np.ndarray, alpha: np.ndarray, bg: np.ndarray,
-                  clip: bool) -> np.ndarray:
+def new_images(fragments, bg: np.ndarray) -> np.ndarray:
+    """(N * H * W, 4) float32 filled with the background colour and alpha 0."""
     N = fragments.n_views
     H, W = fragments.image_size
     out = np.empty((N * H * W, 4), dtype=np.float32)
-    out[:, :3] = bg
-    out[:, 3] = 0.0
+    out[:] = np.append(bg, np.float32(0.0))
+    return out
+
+
+def scatter(out: np.ndarray, pixel: np.ndarray, rgb_t: np.ndarray, alpha, clip: bool) -> None:
+    """Write colours ``rgb_t (3, k)`` and ``alpha`` (scalar or (k,)) at flat ``pixel (k,)``."""
     if clip:
-        rgb = np.clip(rgb, 0.0, 1.0)
-    out[fragments.pixel, :3] = rgb
-    out[fragments.pixel, 3] = alpha
-    return out.reshape(N, H, W, 4)
+        rgb_t = np.clip(rgb_t, 0.0, 1.0)
+    for c in range(3):  # the three colour channels
+        out[pixel, c] = rgb_t[c]
+    out[pixel, 3] = alpha
+
+
+def soft_rgba_t(rgb_t: np.ndarray, dists: np.ndarray, depth: np.ndarray, bg: np.ndarray,
+                blend_params: BlendParams, znear, zfar):
+    """softmax_rgb_blend at K = 1 for a chunk: returns ``(rgb_t (3, k), alpha (k,))`` float32.
+
+    ``znear``, ``zfar`` are scalars or ``(k,)`` arrays.
+    """
+    sigma, gamma = float(blend_params.sigma), float(blend_params.gamma)
+    p = 1.0 / (1.0 + np.exp(np.minimum(dists / sigma, 80.0)))
+    z = (zfar - depth) / (zfar - znear)
+    zm = np.maximum(z, 1e-10)
+    delta = np.maximum(np.exp(np.minimum((1e-10 - zm) / gamma, 80.0)), 1e-10)
+    w = p * np.exp((z - zm) / gamma)  # = p unless the face lies beyond zfar
+    den = w + delta
+    a = (w / den).astype(np.float32)
+    b = (delta / den).astype(np.float32)
+    rgb = a * rgb_t + b * bg[:, None]
+    return rgb.astype(np.float32, copy=False), p.astype(np.float32)
 
 
 def hard_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams = BlendParams(),
@@ -79,13 +98,17 @@ def hard_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams = Bl
     images : (N, H, W, 4) float32
         Alpha is 1 on covered pixels, 0 on the background.
     """
-    bp = _check_blend(blend_params)
-    return _scatter_rgba(fragments, colors, np.float32(1.0), _background(bp), clip)
+    _, bg = check_blend(blend_params)
+    out = new_images(fragments, bg)
+    scatter(out, fragments.pixel, np.asarray(colors, np.float32).T, np.float32(1.0), clip)
+    H, W = fragments.image_size
+    return out.reshape(fragments.n_views, H, W, 4)
 
 
-def sigmoid_alpha(fragments, sigma: float) -> np.ndarray:
+def sigmoid_alpha(fragments, sigma: float = 1e-4) -> np.ndarray:
     """(k,) float32 soft coverage ``sigmoid(-dists / sigma)`` of the kept face at each hit."""
-    d = fragments.hit_dists.astype(np.float64)
+    sigma = check_positive(sigma, "sigma")
+    d = fragments.hit_dists
     return (1.0 / (1.0 + np.exp(np.minimum(d / sigma, 80.0)))).astype(np.float32)
 
 
@@ -118,15 +141,14 @@ def softmax_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams =
     -------
     images : (N, H, W, 4) float32
     """
-    bp = _check_blend(blend_params)
-    bg = _background(bp)
+    bp, bg = check_blend(blend_params)
     view = fragments.view
-    zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (fragments.n_views,))[view]
-    zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (fragments.n_views,))[view]
-    p = sigmoid_alpha(fragments, bp.sigma).astype(np.float64)
-    z = (zf - fragments.depth) / (zf - zn)
-    zm = np.maximum(z, 1e-10)
-    delta = np.maximum(np.exp(np.minimum((1e-10 - zm) / bp.gamma, 80.0)), 1e-10)
-    w = p * np.exp((z - zm) / bp.gamma)  # = p unless the face lies beyond zfar
-    rgb = (w[:, None] * colors + delta[:, None] * bg) / (w + delta)[:, None]
-    return _scatter_rgba(fragments, rgb.astype(np.float32), p.astype(np.float32), bg, clip)
+    n = fragments.n_views
+    zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (n,))[view]
+    zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (n,))[view]
+    rgb, alpha = soft_rgba_t(np.asarray(colors, np.float32).T, fragments.hit_dists,
+                             fragments.depth, bg, bp, zn, zf)
+    out = new_images(fragments, bg)
+    scatter(out, fragments.pixel, rgb, alpha, clip)
+    H, W = fragments.image_size
+    return out.reshape(n, H, W, 4)

@@ -55,19 +55,50 @@ def _broadcast(**arrays: np.ndarray) -> dict:
 
 
 def per_point(param: np.ndarray, batch_idx: np.ndarray | None, dtype=np.float32) -> np.ndarray:
-    """Gather a batched ``(N, ...)`` parameter for points with batch indices ``batch_idx (k,)``.
+    """Gather a batched ``(N, C)`` parameter for points with batch indices ``batch_idx (k,)``.
 
-    With ``N == 1`` (or no ``batch_idx``) the single entry is returned with a leading axis of 1,
-    ready to broadcast against ``(k, ...)`` arrays; otherwise ``param[batch_idx]``.
+    Returns a ``(1, C)`` array (ready to broadcast against ``(k, C)``) when ``N == 1`` or
+    ``batch_idx`` is None, else ``(k, C)``.
     """
     if batch_idx is None or param.shape[0] == 1:
         return param[:1].astype(dtype, copy=False)
     return param.astype(dtype, copy=False)[batch_idx]
 
 
+def per_point_t(param: np.ndarray, batch_idx: np.ndarray | None, dtype=np.float32) -> np.ndarray:
+    """:func:`per_point` in component-first layout: ``(C, 1)`` or ``(C, k)``."""
+    if batch_idx is None or param.shape[0] == 1:
+        return np.ascontiguousarray(param[:1].T, dtype=dtype)
+    return np.ascontiguousarray(param.T, dtype=dtype)[:, batch_idx]
+
+
+# The formulas work on component-first arrays ``(3, k)`` (fast contiguous rows); the public
+# functions and methods take and return ``(k, 3)``.
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
 def _normalize(x: np.ndarray) -> np.ndarray:
-    n = np.sqrt(np.einsum("...i,...i->...", x, x))
-    return x / np.maximum(n, _EPS)[..., None]
+    """``x / max(|x|, 1e-6)`` over axis 0."""
+    return x / np.maximum(np.sqrt(_dot(x, x)), x.dtype.type(_EPS))
+
+
+def _diffuse(n, color, direction):
+    n = _normalize(n)
+    l = _normalize(direction)
+    return color * np.maximum(_dot(n, l), 0)
+
+
+def _specular(points, n, direction, camera_position, shininess, color):
+    n = _normalize(n)
+    l = _normalize(direction)
+    cos = _dot(n, l)
+    v = _normalize(camera_position - points)
+    r = (2 * cos) * n - l
+    alpha = np.maximum(_dot(v, r), 0) * (cos > 0)
+    return color * np.power(alpha, shininess)
 
 
 def diffuse(normals: np.ndarray, color: np.ndarray, direction: np.ndarray) -> np.ndarray:
@@ -86,14 +117,12 @@ def diffuse(normals: np.ndarray, color: np.ndarray, direction: np.ndarray) -> np
     -------
     (k, 3) float, same dtype as ``normals``.
     """
-    n = _normalize(normals)
-    l = _normalize(direction)
-    cos = np.maximum(np.einsum("ki,ki->k", n, np.broadcast_to(l, n.shape)), 0.0)
-    return color * cos[:, None]
+    n = np.asarray(normals)
+    return _diffuse(n.T, np.asarray(color, n.dtype).T, np.asarray(direction, n.dtype).T).T
 
 
 def specular(points: np.ndarray, normals: np.ndarray, direction: np.ndarray,
-             camera_position: np.ndarray, shininess: np.ndarray, color: np.ndarray) -> np.ndarray:
+             camera_position: np.ndarray, shininess, color: np.ndarray) -> np.ndarray:
     """Phong's specular term (PyTorch3D's ``specular``).
 
     ``color * max(0, r . v) ** shininess`` where ``n . l > 0`` (zero elsewhere), with
@@ -109,7 +138,7 @@ def specular(points: np.ndarray, normals: np.ndarray, direction: np.ndarray,
         Direction from the surface towards the light.
     camera_position : (k, 3) or (1, 3) float
         Camera centre seen from each point.
-    shininess : (k,) or (1,) float
+    shininess : float, (k,) or (1,) float
         Phong exponent.
     color : (k, 3) or (1, 3) float
         Specular colour of the light.
@@ -118,14 +147,11 @@ def specular(points: np.ndarray, normals: np.ndarray, direction: np.ndarray,
     -------
     (k, 3) float
     """
-    n = _normalize(normals)
-    l = np.broadcast_to(_normalize(direction), n.shape)
-    cos = np.einsum("ki,ki->k", n, l)
-    v = _normalize(camera_position - points)
-    r = 2.0 * cos[:, None] * n - l
-    alpha = np.maximum(np.einsum("ki,ki->k", np.broadcast_to(v, n.shape), r), 0.0)
-    alpha = np.where(cos > 0, alpha, 0.0).astype(n.dtype, copy=False)
-    return color * np.power(alpha, shininess)[:, None]
+    n = np.asarray(normals)
+    dt = n.dtype
+    return _specular(np.asarray(points, dt).T, n.T, np.asarray(direction, dt).T,
+                     np.asarray(camera_position, dt).T, np.asarray(shininess, dt),
+                     np.asarray(color, dt).T).T
 
 
 class _Lights:
@@ -161,10 +187,40 @@ class _Lights:
     def clone(self) -> "_Lights":
         return self._with(**{k: getattr(self, k) for k in self._PARAMS})
 
-    # Subclasses define the light direction seen from each point.
-    def light_vector(self, points: np.ndarray, batch_idx: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - abstract
+    # Subclasses define the light direction seen from each point (component-first).
+    def _light_vector(self, p: np.ndarray, batch_idx):  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def light_vector(self, points, batch_idx=None) -> tuple[np.ndarray, np.ndarray]:
+        """Vector from each point towards the light and the distance to it.
+
+        Parameters
+        ----------
+        points : (k, 3) float
+            Surface points, world coordinates.
+        batch_idx : (k,) int64, optional
+            View of each point; needed when the batch holds more than one light.
+
+        Returns
+        -------
+        direction : (k, 3) float
+            Towards the light, not normalised (``location - point`` for point lights, the
+            light's direction for directional ones, zero for ambient light).
+        distance : (k,) float
+            Distance to the light (the shadow-ray extent): inf for directional lights.
+        """
+        p = np.asarray(points)
+        d, dist = self._light_vector(p.T, batch_idx)
+        return np.ascontiguousarray(np.broadcast_to(d, p.T.shape).T), dist
+
+    def _diffuse_t(self, n, p, batch_idx):
+        d, _ = self._light_vector(p, batch_idx)
+        return _diffuse(n, per_point_t(self.diffuse_color, batch_idx, n.dtype), d)
+
+    def _specular_t(self, n, p, camera_position, shininess, batch_idx):
+        d, _ = self._light_vector(p, batch_idx)
+        return _specular(p, n, d, camera_position, shininess,
+                         per_point_t(self.specular_color, batch_idx, n.dtype))
 
     def diffuse(self, normals, points, batch_idx=None) -> np.ndarray:
         """Diffuse light reflected at each point.
@@ -182,9 +238,8 @@ class _Lights:
         -------
         (k, 3) float, the dtype of ``normals``.
         """
-        direction, _ = self.light_vector(points, batch_idx)
-        color = per_point(self.diffuse_color, batch_idx, normals.dtype)
-        return diffuse(normals, color, direction)
+        n = np.asarray(normals)
+        return self._diffuse_t(n.T, np.asarray(points, n.dtype).T, batch_idx).T
 
     def specular(self, normals, points, camera_position, shininess, batch_idx=None) -> np.ndarray:
         """Specular light reflected towards the camera at each point.
@@ -195,7 +250,7 @@ class _Lights:
             Surface normals and points.
         camera_position : (k, 3) or (1, 3) float
             Camera centre for each point.
-        shininess : (k,) or (1,) float
+        shininess : float, (k,) or (1,) float
             Phong exponent for each point.
         batch_idx : (k,) int64, optional
             View of each point.
@@ -204,9 +259,11 @@ class _Lights:
         -------
         (k, 3) float
         """
-        direction, _ = self.light_vector(points, batch_idx)
-        color = per_point(self.specular_color, batch_idx, normals.dtype)
-        return specular(points, normals, direction, camera_position, shininess, color)
+        n = np.asarray(normals)
+        dt = n.dtype
+        return self._specular_t(n.T, np.asarray(points, dt).T,
+                                np.asarray(camera_position, dt).T,
+                                np.asarray(shininess, dt), batch_idx).T
 
 
 class PointLights(_Lights):
@@ -243,23 +300,9 @@ class PointLights(_Lights):
         for k, v in b.items():
             setattr(self, k, v)
 
-    def light_vector(self, points, batch_idx=None):
-        """Vector from each point to the light and its length (the shadow-ray extent).
-
-        Parameters
-        ----------
-        points : (k, 3) float
-        batch_idx : (k,) int64, optional
-
-        Returns
-        -------
-        direction : (k, 3) float
-            ``location - point`` (not normalised).
-        distance : (k,) float
-            ``|location - point|``.
-        """
-        d = per_point(self.location, batch_idx, points.dtype) - points
-        return d, np.sqrt(np.einsum("ki,ki->k", d, d))
+    def _light_vector(self, p, batch_idx):
+        d = per_point_t(self.location, batch_idx, p.dtype) - p
+        return d, np.sqrt(_dot(d, d))
 
 
 class DirectionalLights(_Lights):
@@ -284,17 +327,9 @@ class DirectionalLights(_Lights):
         for k, v in b.items():
             setattr(self, k, v)
 
-    def light_vector(self, points, batch_idx=None):
-        """The light direction at each point and an infinite distance.
-
-        Returns
-        -------
-        direction : (k, 3) or (1, 3) float
-        distance : (k,) float, all inf.
-        """
-        d = per_point(self.direction, batch_idx, points.dtype)
-        d = np.broadcast_to(d, points.shape) if d.shape[0] != len(points) else d
-        return d, np.full(len(points), np.inf, dtype=points.dtype)
+    def _light_vector(self, p, batch_idx):
+        d = per_point_t(self.direction, batch_idx, p.dtype)
+        return d, np.full(p.shape[1], np.inf, dtype=p.dtype)
 
 
 class AmbientLights(_Lights):
@@ -315,11 +350,11 @@ class AmbientLights(_Lights):
         for k, v in b.items():
             setattr(self, k, v)
 
-    def light_vector(self, points, batch_idx=None):
-        return np.zeros_like(points), np.zeros(len(points), dtype=points.dtype)
+    def _light_vector(self, p, batch_idx):
+        return np.zeros_like(p), np.zeros(p.shape[1], dtype=p.dtype)
 
-    def diffuse(self, normals, points, batch_idx=None):
-        return np.zeros_like(normals)
+    def _diffuse_t(self, n, p, batch_idx):
+        return np.zeros_like(n)
 
-    def specular(self, normals, points, camera_position, shininess, batch_idx=None):
-        return np.zeros_like(normals)
+    def _specular_t(self, n, p, camera_position, shininess, batch_idx):
+        return np.zeros_like(n)

@@ -14,6 +14,7 @@ are refined in float64.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -194,21 +195,104 @@ class Fragments:
 
     @cached_property
     def _tri(self) -> np.ndarray:
-        """(k, 3) int64 packed vertex indices of the hit faces."""
-        return self._ctx["faces_packed"][self.face]
+        """(3, k) int64 packed vertex index of each corner of each hit face."""
+        return np.ascontiguousarray(self._ctx["faces_packed"][self.face].T)
+
+    @cached_property
+    def _w32(self) -> np.ndarray:
+        """(3, k) float32 barycentrics."""
+        return np.ascontiguousarray(self.bary.T, dtype=np.float32)
+
+    def _chunks(self) -> list[slice]:
+        """Slices of the hits for the worker threads (a few per thread)."""
+        k = self.n_hits
+        n = self._ctx.get("n_threads", 1)
+        m = 1 if (n == 1 or k < 40_000) else min(4 * n, k // 20_000 + 1)
+        b = np.linspace(0, k, m + 1).astype(np.int64)
+        return [slice(int(b[i]), int(b[i + 1])) for i in range(m)]
+
+    def _parallel(self, fn) -> list:
+        """``[fn(sl) for sl in chunks]``, run on the worker threads."""
+        parts = self._chunks()
+        n = self._ctx.get("n_threads", 1)
+        if len(parts) == 1 or n == 1:
+            return [fn(p) for p in parts]
+        with ThreadPoolExecutor(n) as ex:
+            return list(ex.map(fn, parts))
+
+    def _interp(self, table: np.ndarray, sl: slice, bary: np.ndarray | None = None) -> np.ndarray:
+        """(C, len) barycentric interpolation of a (C, sum V) per-vertex table over hits ``sl``."""
+        t = self._tri[:, sl]
+        w = self._w32[:, sl] if bary is None else bary[:, sl]
+        out = np.empty((table.shape[0], t.shape[1]), dtype=np.result_type(table, w))
+        for c in range(table.shape[0]):  # loop over channels
+            tc = table[c]
+            out[c] = w[0] * tc[t[0]] + w[1] * tc[t[1]] + w[2] * tc[t[2]]
+        return out
+
+    def _table(self, name: str, dtype=np.float32) -> np.ndarray:
+        """Cached (C, sum V) component-first copy of a packed per-vertex array."""
+        key = (name, np.dtype(dtype).str)
+        cache = self._ctx.setdefault("tables", {})
+        if key not in cache:
+            cache[key] = np.ascontiguousarray(self._ctx[name].T, dtype=dtype)
+        return cache[key]
+
+    def _points32(self, sl: slice) -> np.ndarray:
+        """(3, len) float32 world positions of hits ``sl``."""
+        return self._interp(self._table("verts_packed"), sl)
+
+    def _normals32(self, sl: slice) -> np.ndarray:
+        """(3, len) float32 unit interpolated vertex normals of hits ``sl`` (eps 1e-6)."""
+        n = self._interp(self._table("verts_normals_packed"), sl)
+        norm = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        return n / np.maximum(norm, np.float32(1e-6))
+
+    def _dists(self, sl: slice) -> np.ndarray:
+        """(len,) float64 signed squared NDC edge distances of hits ``sl``."""
+        t = self._tri[:, sl]
+        X, Y = self._table("verts_xy_packed", np.float64)
+        px = [X[t[i]] for i in range(3)]
+        py = [Y[t[i]] for i in range(3)]
+        qx, qy = self._xy(sl)
+        best = None
+        e = []
+        for i in range(3):  # the three edges (v_i, v_i+1)
+            j = (i + 1) % 3
+            abx, aby = px[j] - px[i], py[j] - py[i]
+            aqx, aqy = qx - px[i], qy - py[i]
+            den = abx * abx + aby * aby
+            dot = aqx * abx + aqy * aby
+            tt = np.clip(dot / np.where(den > 0, den, 1.0), 0.0, 1.0)
+            rx, ry = aqx - tt * abx, aqy - tt * aby
+            d = rx * rx + ry * ry
+            best = d if best is None else np.minimum(best, d)
+            e.append(aqx * aby - aqy * abx)  # 2-D edge function
+        inside = (((e[0] > 0) & (e[1] > 0) & (e[2] > 0))
+                  | ((e[0] < 0) & (e[1] < 0) & (e[2] < 0)))
+        best = np.where(np.isfinite(best), best, 0.0)
+        return np.where(inside, -best, best)
+
+    def _xy(self, sl: slice) -> tuple[np.ndarray, np.ndarray]:
+        """NDC x and y (float64) of the pixel centres of hits ``sl``."""
+        H, W = self.image_size
+        rem = self.pixel[sl] % (H * W)
+        row, col = np.divmod(rem, W)
+        S = min(H, W)
+        return (W - 1 - 2.0 * col) / S, (H - 1 - 2.0 * row) / S
 
     @cached_property
     def hit_points(self) -> np.ndarray:
         """(k, 3) float64 world position of every hit (interpolated vertex positions)."""
-        V = self._ctx["verts_packed"]
-        return np.einsum("kj,kjc->kc", self.bary, V[self._tri])
+        w = np.ascontiguousarray(self.bary.T)
+        return self._interp(self._table("verts_packed", np.float64), slice(None), w).T
 
     @cached_property
     def hit_normals(self) -> np.ndarray:
-        """(k, 3) float64 unit world normal at every hit: the vertex normals (area-weighted,
+        """(k, 3) float64 unit normal at every hit: the vertex normals (area-weighted,
         PyTorch3D's) interpolated with the barycentrics, then normalised (eps 1e-6)."""
-        N = self._ctx["verts_normals_packed"]
-        n = np.einsum("kj,kjc->kc", self.bary, N[self._tri])
+        w = np.ascontiguousarray(self.bary.T)
+        n = self._interp(self._table("verts_normals_packed", np.float64), slice(None), w).T
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-6)
 
     @cached_property
@@ -219,34 +303,14 @@ class Fragments:
     @cached_property
     def hit_xy(self) -> np.ndarray:
         """(k, 2) float64 NDC x, y of each covered pixel's centre."""
-        H, W = self.image_size
-        rem = self.pixel % (H * W)
-        row, col = np.divmod(rem, W)
-        xy = ndc_grid((H, W))
-        return np.stack([xy[0, col, 0], xy[row, 0, 1]], axis=1)
+        return np.stack(self._xy(slice(None)), axis=1)
 
     @cached_property
     def hit_dists(self) -> np.ndarray:
         """(k,) float64 signed squared NDC distance from each pixel centre to the nearest edge of
         its face's projection (negative inside), PyTorch3D's ``dists``."""
-        P = self._ctx["verts_xy_packed"][self._tri]  # (k, 3, 2)
-        q = self.hit_xy
-        best = np.full(len(q), np.inf)
-        for e in range(3):  # the three edges
-            a, b = P[:, e], P[:, (e + 1) % 3]
-            ab = b - a
-            aq = q - a
-            den = np.einsum("ki,ki->k", ab, ab)
-            t = np.clip(np.einsum("ki,ki->k", aq, ab) / np.where(den > 0, den, 1.0), 0.0, 1.0)
-            r = aq - t[:, None] * ab
-            best = np.minimum(best, np.einsum("ki,ki->k", r, r))
-        # Inside test with 2-D edge functions of the projected triangle.
-        def edge(a, b):
-            return (q[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]) - (q[:, 1] - a[:, 1]) * (b[:, 0] - a[:, 0])
-        e0, e1, e2 = edge(P[:, 1], P[:, 2]), edge(P[:, 2], P[:, 0]), edge(P[:, 0], P[:, 1])
-        inside = ((e0 > 0) & (e1 > 0) & (e2 > 0)) | ((e0 < 0) & (e1 < 0) & (e2 < 0))
-        best = np.where(np.isfinite(best), best, 0.0)
-        return np.where(inside, -best, best)
+        parts = self._parallel(self._dists)
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     # -------------------------------------------------------------- PyTorch3D images
     def _image(self, values: np.ndarray, fill, dtype) -> np.ndarray:
@@ -490,13 +554,10 @@ class MeshRasterizer:
             hits = _raycast.cast_pixels(scene, pixels, rays, xs, ys, tnear, n_threads)
             if settings.cull_backfaces:
                 hits = self._cull(hits, scene, mesh, rays, xs, ys, tnear, n_threads)
-            # Float64 refinement of the hits.
-            o, d, _ = _raycast.hit_rays(hits.pixel, rays, xs, ys)
-            tri = mesh.faces[hits.face]
-            V = mesh.verts
-            bary, depth = _raycast.refine(o, d, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]],
-                                          hits.bary, hits.depth)
             view = hits.pixel // (H * W)
+            vtri = mesh.faces[hits.face] + v_first[view][:, None]  # packed vertex ids
+            bary, depth = _refine_threaded(hits, vtri, xy_packed, z_packed, perspective, pc,
+                                           rays, xs, ys, mesh, n_threads)
             parts.append((hits.pixel, view, hits.face + f_first[view], bary, depth))
 
         if parts:
@@ -511,14 +572,6 @@ class MeshRasterizer:
             bary, depth = np.zeros((0, 3)), np.zeros(0)
 
         faces_packed = meshes.faces_packed()
-        if not pc and len(pixel):
-            # Screen-space barycentrics: b_i proportional to w_i z_i (PyTorch3D's
-            # perspective_correct=False), and zbuf interpolated with them.
-            zc = z_packed[faces_packed[face]]
-            wz = bary * zc
-            bary = wz / np.maximum(wz.sum(axis=1, keepdims=True), 1e-300)
-            depth = np.einsum("kj,kj->k", bary, zc)
-
         ctx = {
             "faces_packed": faces_packed,
             "verts_packed": meshes.verts_packed(),
@@ -561,6 +614,84 @@ class MeshRasterizer:
         cat = [np.concatenate([getattr(h, f)[k] for h, k in zip(out, keep)])[order]
                for f in ("pixel", "face", "bary", "depth")]
         return _raycast.PixelHits(*cat)
+
+
+def _refine(hits, vtri, xy_packed, z_packed, perspective: bool, pc: bool, rays, xs, ys,
+            mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 barycentrics and depths of Embree's hits from the projected triangles.
+
+    The pixel centre's 2-D barycentrics ``b`` in the projected face (edge functions, float64)
+    are PyTorch3D's screen-space barycentrics; the perspective-correct ones are
+    ``w_i = (b_i / z_i) / sum_j (b_j / z_j)`` with view depth ``1 / sum_j (b_j / z_j)``, and for
+    screen-space interpolation (``perspective_correct=False``, or orthographic cameras) the
+    depth is ``sum b_i z_i``. Hits whose face touches the camera plane (a corner at depth <= 0,
+    possible only for clipped faces) or is seen edge-on fall back to a float64 ray/triangle
+    intersection.
+    """
+    X, Y = xy_packed[:, 0], xy_packed[:, 1]
+    H, W = len(ys), len(xs)
+    rem = hits.pixel % (H * W)
+    row, col = np.divmod(rem, W)
+    qx, qy = xs[col], ys[row]
+    t0, t1, t2 = vtri[:, 0], vtri[:, 1], vtri[:, 2]
+    x0, x1, x2 = X[t0], X[t1], X[t2]
+    y0, y1, y2 = Y[t0], Y[t1], Y[t2]
+    e0 = (qx - x1) * (y2 - y1) - (qy - y1) * (x2 - x1)
+    e1 = (qx - x2) * (y0 - y2) - (qy - y2) * (x0 - x2)
+    e2 = (qx - x0) * (y1 - y0) - (qy - y0) * (x1 - x0)
+    area = e0 + e1 + e2
+    Z = np.empty((len(t0), 3))
+    Z[:, 0], Z[:, 1], Z[:, 2] = z_packed[t0], z_packed[t1], z_packed[t2]
+    ok = np.abs(area) > 1e-14
+    if perspective:
+        ok &= np.minimum(np.minimum(Z[:, 0], Z[:, 1]), Z[:, 2]) > 1e-9
+    inv = np.where(ok, 1.0 / np.where(ok, area, 1.0), 0.0)
+    b = np.empty((len(t0), 3))
+    b[:, 0], b[:, 1], b[:, 2] = e0 * inv, e1 * inv, e2 * inv
+    if np.any(b < 0):  # the centre lies within rounding outside the face Embree chose
+        b = np.maximum(b, 0.0)
+        b /= np.maximum(b.sum(axis=1, keepdims=True), 1e-300)
+    if perspective and pc:
+        bz = b / np.where(ok[:, None], Z, 1.0)
+        sz = bz.sum(axis=1)
+        w = bz / np.where(ok, sz, 1.0)[:, None]
+        depth = 1.0 / np.where(ok, sz, 1.0)
+    else:
+        w = b
+        depth = np.einsum("kj,kj->k", b, Z)
+    bad = np.flatnonzero(~ok)
+    if len(bad):
+        p = hits.pixel[bad]
+        o, d, _ = _raycast.hit_rays(p, rays, xs, ys)
+        tri = mesh.faces[hits.face[bad]]
+        V = mesh.verts
+        wb, tb = _raycast.refine(o, d, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]],
+                                 hits.bary[bad], hits.depth[bad])
+        if not (perspective and pc):
+            wz = wb * Z[bad]
+            wb = wz / np.maximum(wz.sum(axis=1, keepdims=True), 1e-300)
+            tb = np.einsum("kj,kj->k", wb, Z[bad])
+        w[bad], depth[bad] = wb, tb
+    return w, depth
+
+
+def _refine_threaded(hits, vtri, xy_packed, z_packed, perspective, pc, rays, xs, ys, mesh,
+                     n_threads):
+    """:func:`_refine` over chunks of the hits on the worker threads."""
+    k = len(hits.pixel)
+    m = 1 if (n_threads == 1 or k < 40_000) else min(4 * n_threads, k // 20_000 + 1)
+    if m == 1:
+        return _refine(hits, vtri, xy_packed, z_packed, perspective, pc, rays, xs, ys, mesh)
+    bounds = np.linspace(0, k, m + 1).astype(np.int64)
+
+    def run(i):
+        sl = slice(int(bounds[i]), int(bounds[i + 1]))
+        sub = _raycast.PixelHits(hits.pixel[sl], hits.face[sl], hits.bary[sl], hits.depth[sl])
+        return _refine(sub, vtri[sl], xy_packed, z_packed, perspective, pc, rays, xs, ys, mesh)
+
+    with ThreadPoolExecutor(n_threads) as ex:
+        parts = list(ex.map(run, range(m)))
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 # ------------------------------------------------------------------------------------------

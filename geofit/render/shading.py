@@ -1,7 +1,8 @@
 """Phong, Gouraud and flat shading with PyTorch3D's formulas, and the shaders that use them.
 
 Every function here works on the covered pixels only (``k`` of them, in the order of
-``fragments.pixel``), vectorised over all pixels of all views at once, in float32.
+``fragments.pixel``), vectorised over all pixels of all views at once, in float32, split into
+chunks shaded on the worker threads (numpy releases the GIL in its array loops).
 
 The colour of a surface point (PyTorch3D's ``_apply_lighting`` and ``phong_shading``)::
 
@@ -22,11 +23,11 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .blending import BlendParams, hard_rgb_blend, softmax_rgb_blend
-from .lighting import AmbientLights, DirectionalLights, PointLights, per_point
+from .blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
+from .lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
 from .materials import Materials
 from .mesh import Fragments
-from .textures import sample_texels
+from .textures import sample_texels_t
 
 __all__ = [
     "apply_lighting",
@@ -62,15 +63,33 @@ def _camera_centers(cameras, n: int) -> np.ndarray:
     return c
 
 
+def _lighting_t(p, n, lights, centers, materials, bidx, visibility=None):
+    """Component-first ``_apply_lighting``: ``p, n (3, k)`` float32 -> ambient ``(3, 1 | k)``,
+    diffuse ``(3, k)``, specular ``(3, k)``."""
+    dt = p.dtype
+    cam = per_point_t(centers, bidx, dt)
+    shin = per_point_t(materials.shininess[:, None], bidx, dt)[0]
+    diffuse = lights._diffuse_t(n, p, bidx)
+    specular = lights._specular_t(n, p, cam, shin, bidx)
+    if visibility is not None:
+        diffuse = diffuse * visibility
+        specular = specular * visibility
+    ambient = per_point_t(materials.ambient_color, bidx, dt) * per_point_t(lights.ambient_color,
+                                                                           bidx, dt)
+    diffuse = per_point_t(materials.diffuse_color, bidx, dt) * diffuse
+    specular = per_point_t(materials.specular_color, bidx, dt) * specular
+    return ambient, diffuse, specular
+
+
 def apply_lighting(points, normals, lights, camera_position, materials, batch_idx=None,
                    visibility=None):
     """Ambient, diffuse and specular colours at surface points (PyTorch3D's ``_apply_lighting``).
 
     Parameters
     ----------
-    points : (k, 3) float32
+    points : (k, 3) float
         World positions.
-    normals : (k, 3) float32
+    normals : (k, 3) float
         Normals (normalised inside with eps 1e-6).
     lights : PointLights, DirectionalLights or AmbientLights
     camera_position : (N, 3) float
@@ -78,38 +97,63 @@ def apply_lighting(points, normals, lights, camera_position, materials, batch_id
     materials : Materials
     batch_idx : (k,) int64, optional
         View of every point (needed when lights, materials or cameras hold more than one entry).
-    visibility : (k,) float32, optional
+    visibility : (k,) float, optional
         1 where the light reaches the point, 0 in shadow; multiplies diffuse and specular.
 
     Returns
     -------
-    ambient : (k, 3) or (1, 3) float32
+    ambient : (k, 3) or (1, 3)
         ``Ma * La``.
-    diffuse : (k, 3) float32
+    diffuse : (k, 3)
         ``Md * Ld * max(0, n . l)``.
-    specular : (k, 3) float32
+    specular : (k, 3)
         ``Ms * Ls * max(0, r . v) ** shininess`` where ``n . l > 0``.
+        All in the dtype of ``normals``.
     """
-    dt = np.float32
-    cam = per_point(np.asarray(camera_position, np.float64), batch_idx, dt)
-    shin = per_point(materials.shininess, batch_idx, dt)
-    diffuse = lights.diffuse(normals, points, batch_idx)
-    specular = lights.specular(normals, points, cam, shin, batch_idx)
-    if visibility is not None:
-        diffuse = diffuse * visibility[:, None]
-        specular = specular * visibility[:, None]
-    ambient = (per_point(materials.ambient_color, batch_idx, dt)
-               * per_point(lights.ambient_color, batch_idx, dt))
-    diffuse = per_point(materials.diffuse_color, batch_idx, dt) * diffuse
-    specular = per_point(materials.specular_color, batch_idx, dt) * specular
-    return ambient, diffuse.astype(dt, copy=False), specular.astype(dt, copy=False)
+    n = np.asarray(normals)
+    p = np.asarray(points, n.dtype)
+    centers = np.atleast_2d(np.asarray(camera_position, np.float64))
+    vis = None if visibility is None else np.asarray(visibility, n.dtype)
+    a, d, s = _lighting_t(p.T, n.T, lights, centers, materials, batch_idx, vis)
+    return a.T, d.T, s.T
 
 
-def _view_or_none(fragments: Fragments, *objs) -> np.ndarray | None:
-    """Batch index per hit, or None when every object holds a single entry."""
-    if all(len(o) == 1 for o in objs):
-        return None
-    return fragments.view
+def _needs_index(fragments, *objs) -> bool:
+    return any(len(o) > 1 for o in objs)
+
+
+def _texels_t(fragments: Fragments, sl: slice, default=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """(C, len) float32 texture colour of hits ``sl``."""
+    meshes = fragments.meshes
+    first = fragments._ctx["face_first"]
+    view = fragments.view[sl]
+    local = fragments.face[sl] - first[view]
+    w = fragments._w32[:, sl]
+    groups = fragments._ctx.get("texture_groups")
+    if groups is None:
+        g: dict[int, list[int]] = {}
+        for b, m in enumerate(meshes):  # loop over views: group by shared mesh object
+            g.setdefault(id(m), []).append(b)
+        groups = fragments._ctx["texture_groups"] = list(g.values())
+    if len(groups) == 1:
+        m = meshes[0]
+        return sample_texels_t(m.textures, m.faces, local, w, default)
+    out = None
+    for views in groups:  # loop over distinct meshes
+        sel = np.flatnonzero(np.isin(view, views))
+        if len(sel) == 0:
+            continue
+        m = meshes[views[0]]
+        t = sample_texels_t(m.textures, m.faces, local[sel], w[:, sel], default)
+        if out is None:
+            out = np.zeros((t.shape[0], len(view)), np.float32)
+        elif t.shape[0] != out.shape[0]:
+            raise ValueError(f"textures: every mesh of the batch needs the same number of "
+                             f"channels, got {out.shape[0]} and {t.shape[0]}")
+        out[:, sel] = t
+    if out is None:
+        out = np.zeros((len(default), len(view)), np.float32)
+    return out
 
 
 def sample_textures(fragments: Fragments, default=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -132,30 +176,10 @@ def sample_textures(fragments: Fragments, default=(1.0, 1.0, 1.0)) -> np.ndarray
     ValueError
         If the meshes of the batch have textures with different numbers of channels.
     """
-    meshes = fragments.meshes
-    first = fragments._ctx["face_first"]
-    groups: dict[int, list[int]] = {}
-    for b, m in enumerate(meshes):  # loop over views: group by shared textures and faces
-        groups.setdefault(id(m), []).append(b)
-    if len(groups) == 1:
-        m = meshes[0]
-        local = fragments.face - first[fragments.view]
-        return sample_texels(m.textures, m.faces, local, fragments.bary, default)
-    out = None
-    for views in groups.values():  # loop over distinct meshes
-        sel = np.flatnonzero(np.isin(fragments.view, views))
-        m = meshes[views[0]]
-        local = fragments.face[sel] - first[fragments.view[sel]]
-        t = sample_texels(m.textures, m.faces, local, fragments.bary[sel], default)
-        if out is None:
-            out = np.zeros((fragments.n_hits, t.shape[1]), np.float32)
-        elif t.shape[1] != out.shape[1]:
-            raise ValueError(f"textures: every mesh of the batch needs the same number of "
-                             f"channels, got {out.shape[1]} and {t.shape[1]}")
-        out[sel] = t
-    if out is None:
-        out = np.zeros((0, len(default)), np.float32)
-    return out
+    parts = fragments._parallel(lambda sl: _texels_t(fragments, sl, default))
+    if not parts:
+        return np.zeros((0, len(default)), np.float32)
+    return np.ascontiguousarray(np.concatenate(parts, axis=1).T)
 
 
 def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
@@ -174,7 +198,7 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
     lights : PointLights, DirectionalLights or AmbientLights
     points, normals, face_normals : (k, 3) float, optional
         Shading points, shading normals and geometric normals (default: the fragments' hit
-        points, interpolated normals and face normals; flat shading passes face centroids).
+        points, interpolated normals and face normals).
 
     Returns
     -------
@@ -186,15 +210,14 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
         return vis
     p = fragments.hit_points if points is None else np.asarray(points, np.float64)
     n = fragments.hit_normals if normals is None else np.asarray(normals, np.float64)
-    ng = fragments.hit_face_normals if face_normals is None else face_normals
+    ng = fragments.hit_face_normals if face_normals is None else np.asarray(face_normals)
     bidx = None if len(lights) == 1 else fragments.view
     l, dist = lights.light_vector(p, bidx)
-    l = np.broadcast_to(l, p.shape)
     side = np.sign(np.einsum("ki,ki->k", ng, l))
     need = (np.einsum("ki,ki->k", n, l) > 0) & (side != 0) & (dist > 0)
     view_scene = fragments._ctx["view_scene"]
     n_threads = fragments._ctx["n_threads"]
-    scenes = {}
+    scenes: dict = {}
     for b, sc in enumerate(view_scene):  # loop over views
         if sc is not None:
             scenes.setdefault(id(sc), (sc, []))[1].append(b)
@@ -204,21 +227,21 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
             continue
         o = p[sel] + (1e-4 * sc.scale) * side[sel, None] * ng[sel]
         if isinstance(lights, PointLights):
-            loc = per_point(lights.location, None if bidx is None else bidx[sel], np.float64)
+            loc = lights.location if bidx is None else lights.location[bidx[sel]]
             d = loc - o
-            tfar = np.full(len(sel), 1.0)
+            tfar = np.full(len(sel), 1.0, np.float32)
         else:
-            d = np.array(l[sel])
-            tfar = np.full(len(sel), np.inf)
+            d = l[sel]
+            tfar = np.full(len(sel), 1e30, np.float32)
         on = ((o - sc.center) / sc.scale).astype(np.float32)
         dn = (d / sc.scale).astype(np.float32)
         ok = np.einsum("ki,ki->k", dn, dn) > 0
-        tf = np.minimum(tfar, 1e30).astype(np.float32)
-        chunks = np.array_split(np.arange(len(sel)), max(1, min(4 * n_threads, len(sel) // 50_000 + 1)))
+        n_chunks = max(1, min(4 * n_threads, len(sel) // 50_000 + 1))
+        chunks = np.array_split(np.arange(len(sel)), n_chunks)
 
         def run(c):
             return sc.occluded(np.ascontiguousarray(on[c]), np.ascontiguousarray(dn[c]),
-                               np.ascontiguousarray(tf[c]))
+                               np.ascontiguousarray(tfar[c]))
 
         if len(chunks) > 1 and n_threads > 1:
             with ThreadPoolExecutor(n_threads) as ex:
@@ -229,7 +252,70 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
     return vis
 
 
-def phong_shading(fragments: Fragments, lights, cameras, materials, texels,
+# ------------------------------------------------------------------------------------------
+# Per-chunk colour kernels (component-first, float32)
+# ------------------------------------------------------------------------------------------
+
+
+def _phong_chunk(fragments, sl, lights, centers, materials, idx, visibility, texels=None):
+    p = fragments._points32(sl)
+    n = fragments._normals32(sl)
+    bidx = fragments.view[sl] if idx else None
+    tex = _texels_t(fragments, sl) if texels is None else texels[sl].T
+    vis = None if visibility is None else visibility[sl]
+    amb, dif, spe = _lighting_t(p, n, lights, centers, materials, bidx, vis)
+    return (amb + dif) * tex + spe
+
+
+def _flat_tables(fragments):
+    ctx = fragments._ctx
+    if "face_centroids_t" not in ctx:
+        V = ctx["verts_packed"]
+        F = ctx["faces_packed"]
+        ctx["face_centroids_t"] = np.ascontiguousarray(V[F].mean(axis=1).T, dtype=np.float32)
+        ctx["face_normals_t"] = np.ascontiguousarray(ctx["face_normals_packed"].T,
+                                                     dtype=np.float32)
+    return ctx["face_centroids_t"], ctx["face_normals_t"]
+
+
+def _flat_chunk(fragments, sl, lights, centers, materials, idx, visibility, texels=None):
+    C, Nf = _flat_tables(fragments)
+    f = fragments.face[sl]
+    p = C[:, f]
+    n = Nf[:, f]
+    bidx = fragments.view[sl] if idx else None
+    tex = _texels_t(fragments, sl) if texels is None else texels[sl].T
+    vis = None if visibility is None else visibility[sl]
+    amb, dif, spe = _lighting_t(p, n, lights, centers, materials, bidx, vis)
+    return (amb + dif) * tex + spe
+
+
+def _gouraud_table(fragments, lights, centers, materials):
+    from ..structures import TexturesVertex
+
+    meshes = fragments.meshes
+    for i, m in enumerate(meshes):  # loop over views
+        if not isinstance(m.textures, TexturesVertex):
+            raise ValueError(f"meshes[{i}]: Gouraud shading needs TexturesVertex (per-vertex "
+                             f"colours), got {type(m.textures).__name__}")
+    ctx = fragments._ctx
+    verts = np.ascontiguousarray(ctx["verts_packed"].T, dtype=np.float32)
+    nrm = np.ascontiguousarray(ctx["verts_normals_packed"].T, dtype=np.float32)
+    colors = np.concatenate([m.textures.verts_features for m in meshes]).T.astype(np.float32)
+    idx = _needs_index(fragments, lights, materials, centers)
+    bidx = meshes.verts_packed_to_mesh_idx() if idx else None
+    amb, dif, spe = _lighting_t(verts, nrm, lights, centers, materials, bidx)
+    return np.ascontiguousarray(colors * (amb + dif) + spe)  # (C, sum V)
+
+
+def _run(fragments, kernel):
+    parts = fragments._parallel(kernel)
+    if not parts:
+        return np.zeros((0, 3), np.float32)
+    return np.ascontiguousarray(np.concatenate(parts, axis=1).T)
+
+
+def phong_shading(fragments: Fragments, lights, cameras, materials, texels=None,
                   visibility=None) -> np.ndarray:
     """Per-pixel Phong colour of every covered pixel (PyTorch3D's ``phong_shading``).
 
@@ -238,8 +324,8 @@ def phong_shading(fragments: Fragments, lights, cameras, materials, texels,
     fragments : Fragments
     lights, cameras, materials
         Batches of 1 or N.
-    texels : (k, 3) float32
-        Texture colour of every covered pixel (:func:`sample_textures`).
+    texels : (k, 3) float32, optional
+        Texture colour of every covered pixel (default: :func:`sample_textures`).
     visibility : (k,) float32, optional
         Shadow factor (:func:`shadow_visibility`).
 
@@ -247,28 +333,22 @@ def phong_shading(fragments: Fragments, lights, cameras, materials, texels,
     -------
     colors : (k, 3) float32
     """
-    pts = fragments.hit_points.astype(np.float32)
-    nrm = fragments.hit_normals.astype(np.float32)
     centers = _camera_centers(cameras, fragments.n_views)
-    bidx = _view_or_none(fragments, lights, materials, centers)
-    amb, dif, spe = apply_lighting(pts, nrm, lights, centers, materials, bidx, visibility)
-    return (amb + dif) * texels + spe
+    idx = _needs_index(fragments, lights, materials, centers)
+    return _run(fragments, lambda sl: _phong_chunk(fragments, sl, lights, centers, materials,
+                                                   idx, visibility, texels))
 
 
-def flat_shading(fragments: Fragments, lights, cameras, materials, texels,
+def flat_shading(fragments: Fragments, lights, cameras, materials, texels=None,
                  visibility=None) -> np.ndarray:
-    """Per-face lighting (face centroid and face normal), PyTorch3D's ``flat_shading``.
+    """Per-face lighting (face centroid and unit face normal), PyTorch3D's ``flat_shading``.
 
     Parameters and returns as :func:`phong_shading`.
     """
-    ctx = fragments._ctx
-    tri = fragments._tri
-    pts = ctx["verts_packed"][tri].mean(axis=1).astype(np.float32)
-    nrm = fragments.hit_face_normals.astype(np.float32)
     centers = _camera_centers(cameras, fragments.n_views)
-    bidx = _view_or_none(fragments, lights, materials, centers)
-    amb, dif, spe = apply_lighting(pts, nrm, lights, centers, materials, bidx, visibility)
-    return (amb + dif) * texels + spe
+    idx = _needs_index(fragments, lights, materials, centers)
+    return _run(fragments, lambda sl: _flat_chunk(fragments, sl, lights, centers, materials,
+                                                  idx, visibility, texels))
 
 
 def gouraud_shading(fragments: Fragments, lights, cameras, materials) -> np.ndarray:
@@ -287,24 +367,9 @@ def gouraud_shading(fragments: Fragments, lights, cameras, materials) -> np.ndar
     -------
     colors : (k, C) float32
     """
-    from ..structures import TexturesVertex
-
-    meshes = fragments.meshes
-    for i, m in enumerate(meshes):  # loop over views
-        if not isinstance(m.textures, TexturesVertex):
-            raise ValueError(f"meshes[{i}]: Gouraud shading needs TexturesVertex (per-vertex "
-                             f"colours), got {type(m.textures).__name__}")
-    ctx = fragments._ctx
-    verts = ctx["verts_packed"].astype(np.float32)
-    nrm = ctx["verts_normals_packed"].astype(np.float32)
-    colors = np.concatenate([m.textures.verts_features for m in meshes]).astype(np.float32)
-    vidx = meshes.verts_packed_to_mesh_idx()
     centers = _camera_centers(cameras, fragments.n_views)
-    bidx = None if (len(lights) == 1 and len(materials) == 1 and len(centers) == 1) else vidx
-    amb, dif, spe = apply_lighting(verts, nrm, lights, centers, materials, bidx)
-    shaded = colors * (amb + dif) + spe
-    tri = fragments._tri
-    return np.einsum("kj,kjc->kc", fragments.bary.astype(np.float32), shaded[tri])
+    table = _gouraud_table(fragments, lights, centers, materials)
+    return _run(fragments, lambda sl: fragments._interp(table, sl))
 
 
 # ------------------------------------------------------------------------------------------
@@ -338,17 +403,11 @@ class _Shader:
         lights = _check_batch(kwargs.get("lights", self.lights), "lights", _LIGHTS, n)
         materials = _check_batch(kwargs.get("materials", self.materials), "materials",
                                  Materials, n)
-        blend = kwargs.get("blend_params", self.blend_params)
-        return cameras, lights, materials, blend
+        blend, bg = check_blend(kwargs.get("blend_params", self.blend_params))
+        return cameras, lights, materials, blend, bg
 
-    def _blend(self, colors, fragments, cameras, blend):
-        if self._soft:
-            znear = getattr(cameras, "znear", 1.0)
-            zfar = getattr(cameras, "zfar", 100.0)
-            return softmax_rgb_blend(colors, fragments, blend, znear, zfar, clip=self.clip)
-        return hard_rgb_blend(colors, fragments, blend, clip=self.clip)
-
-    def _colors(self, fragments, cameras, lights, materials):  # pragma: no cover - abstract
+    def _kernel(self, fragments, cameras, lights, materials):  # pragma: no cover - abstract
+        """Returns ``fn(sl) -> (3, len) float32`` colours of hits ``sl``."""
         raise NotImplementedError
 
     def __call__(self, fragments: Fragments, meshes=None, **kwargs) -> np.ndarray:
@@ -368,9 +427,31 @@ class _Shader:
         -------
         images : (N, H, W, 4) float32 RGBA
         """
-        cameras, lights, materials, blend = self._setup(fragments, kwargs)
-        colors = self._colors(fragments, cameras, lights, materials)
-        return self._blend(colors, fragments, cameras, blend)
+        cameras, lights, materials, blend, bg = self._setup(fragments, kwargs)
+        kernel = self._kernel(fragments, cameras, lights, materials)
+        out = new_images(fragments, bg)
+        if self._soft:
+            n = fragments.n_views
+            zn = np.broadcast_to(np.asarray(getattr(cameras, "znear", 1.0),
+                                            np.float64).reshape(-1), (n,))
+            zf = np.broadcast_to(np.asarray(getattr(cameras, "zfar", 100.0),
+                                            np.float64).reshape(-1), (n,))
+            one = bool(np.all(zn == zn[0]) and np.all(zf == zf[0]))
+
+        def work(sl):
+            rgb = kernel(sl)
+            if self._soft:
+                v = fragments.view[sl]
+                znear, zfar = (zn[0], zf[0]) if one else (zn[v], zf[v])
+                rgb, alpha = soft_rgba_t(rgb, fragments._dists(sl), fragments.depth[sl], bg,
+                                         blend, znear, zfar)
+            else:
+                alpha = np.float32(1.0)
+            scatter(out, fragments.pixel[sl], rgb, alpha, self.clip)
+
+        fragments._parallel(work)
+        H, W = fragments.image_size
+        return out.reshape(fragments.n_views, H, W, 4)
 
 
 class HardPhongShader(_Shader):
@@ -392,10 +473,11 @@ class HardPhongShader(_Shader):
         Clip RGB to [0, 1] (default True).
     """
 
-    def _colors(self, fragments, cameras, lights, materials):
-        texels = sample_textures(fragments)
+    def _kernel(self, fragments, cameras, lights, materials):
+        centers = _camera_centers(cameras, fragments.n_views)
+        idx = _needs_index(fragments, lights, materials, centers)
         vis = shadow_visibility(fragments, lights) if self.shadows else None
-        return phong_shading(fragments, lights, cameras, materials, texels, vis)
+        return lambda sl: _phong_chunk(fragments, sl, lights, centers, materials, idx, vis)
 
 
 class SoftPhongShader(HardPhongShader):
@@ -422,8 +504,10 @@ class HardGouraudShader(_Shader):
                              "per-pixel lighting; use HardPhongShader or HardFlatShader")
         super().__init__(cameras, lights, materials, blend_params, clip=clip)
 
-    def _colors(self, fragments, cameras, lights, materials):
-        return gouraud_shading(fragments, lights, cameras, materials)
+    def _kernel(self, fragments, cameras, lights, materials):
+        centers = _camera_centers(cameras, fragments.n_views)
+        table = _gouraud_table(fragments, lights, centers, materials)
+        return lambda sl: fragments._interp(table, sl)
 
 
 class SoftGouraudShader(HardGouraudShader):
@@ -438,10 +522,11 @@ class HardFlatShader(_Shader):
     Parameters as :class:`HardPhongShader`.
     """
 
-    def _colors(self, fragments, cameras, lights, materials):
-        texels = sample_textures(fragments)
+    def _kernel(self, fragments, cameras, lights, materials):
+        centers = _camera_centers(cameras, fragments.n_views)
+        idx = _needs_index(fragments, lights, materials, centers)
         vis = None
         if self.shadows:  # shadow rays from the hit points, lit side given by the face normal
             fn = fragments.hit_face_normals
             vis = shadow_visibility(fragments, lights, normals=fn, face_normals=fn)
-        return flat_shading(fragments, lights, cameras, materials, texels, vis)
+        return lambda sl: _flat_chunk(fragments, sl, lights, centers, materials, idx, vis)

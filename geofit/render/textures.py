@@ -3,14 +3,15 @@
 :func:`sample_texels` is the renderer's texture lookup. It gives the same colours as
 ``Mesh.sample_textures`` (PyTorch3D's convention for UV maps: ``grid = (2u - 1, 1 - 2v)``,
 bilinear, border padding, ``align_corners=True``, so ``x = u (W - 1)`` and
-``y = (1 - v)(H - 1)`` in pixels) but works in float32 on flat arrays of hits, which halves the
-memory traffic of the largest step of shading.
+``y = (1 - v)(H - 1)`` in pixels) but works on flat arrays of hits in component-first layout,
+reading each pair of horizontally adjacent texels with one gather.
 
 :class:`TexturesFlat` colours a mesh with one colour, or one colour per face.
 """
 from __future__ import annotations
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 from .._validate import as_array
 from ..structures.textures import TexturesBase, TexturesUV, TexturesVertex
@@ -46,7 +47,7 @@ class TexturesFlat(TexturesBase):
         else:
             raise ValueError(f"colors: expected shape (C,) or (F, C), got {c.shape}")
         if c.shape[1] == 0 or c.shape[0] == 0:
-            raise ValueError(f"colors: expected at least one colour channel, got {c.shape}")
+            raise ValueError(f"colors: expected at least one colour and channel, got {c.shape}")
         self.colors = c
         self.n_channels = c.shape[1]
 
@@ -64,11 +65,10 @@ class TexturesFlat(TexturesBase):
         return TexturesFlat(self.colors[face_ids] if self.per_face else self.colors[0])
 
 
-def _sample_uv32(tex: TexturesUV, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of (k, 2) float32 UVs in a TexturesUV map -> (k, C) float32."""
+def _bilinear_t(tex: TexturesUV, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear lookup at float32 ``u, v (k,)`` in a TexturesUV map -> (C, k) float32."""
     maps = tex.maps
     H, W, C = maps.shape
-    u, v = uv[:, 0], uv[:, 1]
     if tex.padding_mode == "repeat":
         u = u - np.floor(u)
         v = v - np.floor(v)
@@ -78,19 +78,27 @@ def _sample_uv32(tex: TexturesUV, uv: np.ndarray) -> np.ndarray:
     else:
         x = u * np.float32(W) - np.float32(0.5)
         y = (np.float32(1.0) - v) * np.float32(H) - np.float32(0.5)
-    np.clip(x, 0.0, W - 1, out=x)
-    np.clip(y, 0.0, H - 1, out=y)
+    x = np.clip(x, 0.0, W - 1)
+    y = np.clip(y, 0.0, H - 1)
     x0 = np.minimum(x.astype(np.int64), max(W - 2, 0))  # x >= 0: truncation is floor
     y0 = np.minimum(y.astype(np.int64), max(H - 2, 0))
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    flat = maps.reshape(H * W, C).astype(np.float32)
+    fx = (x - x0).astype(np.float32)
+    fy = (y - y0).astype(np.float32)
+    flat = np.ascontiguousarray(maps).reshape(H * W, C)
+    if W > 1:
+        # Rows of 2C values: texel i and its right neighbour i + 1, read in one gather.
+        pairs = as_strided(flat, shape=(H * W - 1, 2 * C), strides=(flat.strides[0],
+                                                                   flat.strides[1]),
+                           writeable=False)
+    else:
+        pairs = np.concatenate([flat, flat], axis=1)
     i00 = y0 * W + x0
-    dx = 1 if W > 1 else 0
-    dy = W if H > 1 else 0
-    top = flat[i00] * (1 - fx) + flat[i00 + dx] * fx
-    bot = flat[i00 + dy] * (1 - fx) + flat[i00 + dy + dx] * fx
-    return top * (1 - fy) + bot * fy
+    top = pairs[i00].T.astype(np.float32)                       # (2C, k)
+    bot = pairs[i00 + (W if H > 1 else 0)].T.astype(np.float32)
+    gx = 1 - fx
+    t = top[:C] * gx + top[C:] * fx
+    b = bot[:C] * gx + bot[C:] * fx
+    return t * (1 - fy) + b * fy
 
 
 def sample_texels(textures, faces: np.ndarray, face_idx: np.ndarray, bary: np.ndarray,
@@ -119,20 +127,38 @@ def sample_texels(textures, faces: np.ndarray, face_idx: np.ndarray, bary: np.nd
     ValueError
         For a per-face TexturesFlat whose length differs from the number of faces.
     """
+    w = np.ascontiguousarray(np.asarray(bary).T, dtype=np.float32)
+    return np.ascontiguousarray(
+        sample_texels_t(textures, faces, np.asarray(face_idx), w, default).T)
+
+
+def sample_texels_t(textures, faces: np.ndarray, face_idx: np.ndarray, w: np.ndarray,
+                    default=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """:func:`sample_texels` in component-first layout: ``w (3, k)`` -> ``(C, k)`` float32."""
     k = len(face_idx)
     if textures is None:
-        return np.broadcast_to(np.asarray(default, np.float32), (k, len(default))).copy()
+        d = np.asarray(default, np.float32)
+        return np.ascontiguousarray(np.broadcast_to(d[:, None], (len(d), k)))
     if isinstance(textures, TexturesUV):
-        uvs = textures.verts_uvs.astype(np.float32)[textures.faces_uvs[face_idx]]  # (k, 3, 2)
-        uv = np.einsum("kj,kjc->kc", bary.astype(np.float32), uvs)
-        return _sample_uv32(textures, uv)
+        fuv = textures.faces_uvs[face_idx]                      # (k, 3)
+        uvs = textures.verts_uvs
+        U, V = uvs[:, 0].astype(np.float32), uvs[:, 1].astype(np.float32)
+        u = w[0] * U[fuv[:, 0]] + w[1] * U[fuv[:, 1]] + w[2] * U[fuv[:, 2]]
+        v = w[0] * V[fuv[:, 0]] + w[1] * V[fuv[:, 1]] + w[2] * V[fuv[:, 2]]
+        return _bilinear_t(textures, u, v)
     if isinstance(textures, TexturesVertex):
-        feats = textures.verts_features.astype(np.float32)[faces[face_idx]]  # (k, 3, C)
-        return np.einsum("kj,kjc->kc", bary.astype(np.float32), feats)
+        tri = faces[face_idx]
+        f = textures.verts_features.astype(np.float32)
+        return (w[0][:, None] * f[tri[:, 0]] + w[1][:, None] * f[tri[:, 1]]
+                + w[2][:, None] * f[tri[:, 2]]).T
     if isinstance(textures, TexturesFlat):
         if textures.per_face and len(textures.colors) != len(faces):
             raise ValueError(f"textures.colors: expected shape ({len(faces)}, "
                              f"{textures.n_channels}) for a mesh with {len(faces)} faces, got "
                              f"{textures.colors.shape}")
-        return textures.sample(face_idx, bary).astype(np.float32)
-    return np.asarray(textures.sample(face_idx, bary), dtype=np.float32)
+        c = textures.colors.astype(np.float32)
+        if textures.per_face:
+            return np.ascontiguousarray(c[face_idx].T)
+        return np.ascontiguousarray(np.broadcast_to(c[0][:, None], (c.shape[1], k)))
+    bary = np.ascontiguousarray(w.T, dtype=np.float64)
+    return np.asarray(textures.sample(face_idx, bary), dtype=np.float32).T
