@@ -310,6 +310,8 @@ def test_validation_errors():
         chamfer_distance(np.zeros((4, 2)), y)
     with pytest.raises(ValueError, match="x"):
         chamfer_distance(np.zeros((1, 2, 4, 3)), y)
+    with pytest.raises(ValueError, match="x"):
+        chamfer_distance([[0.0, 0, 0], [1.0, 2]], y)  # ragged
     bad = x.copy()
     bad[0, 0] = np.nan
     with pytest.raises(ValueError, match="x"):

@@ -420,3 +420,5 @@ def test_validation_errors():
         norm_laplacian(m.verts, m.faces)
     with pytest.raises(ValueError, match="eps"):
         norm_laplacian(m.verts, m.edges, eps=-1.0)
+    with pytest.raises(ValueError, match="verts"):
+        norm_laplacian(np.full((12, 3), np.nan), m.edges)
