@@ -1,4 +1,4 @@
-"""Mesh rendering by Embree ray casting with PyTorch3D's renderer API and shading formulas.
+"""Rendering. Meshes: Embree ray casting with PyTorch3D's renderer API and shading formulas.
 
 - :class:`MeshRenderer`, :class:`MeshRendererWithFragments`, :class:`MeshRasterizer`,
   :class:`RasterizationSettings`, :class:`Fragments`: one ray per pixel centre, all views in one
@@ -35,6 +35,7 @@ from .shading import (
     shadow_visibility,
 )
 from .textures import TexturesFlat
+from .utils import image_grid, make_grid, plot_texture_uv, texturesuv_image_matplotlib
 
 __all__ = [
     "AmbientLights",
@@ -56,6 +57,10 @@ __all__ = [
     "apply_lighting",
     "flat_shading",
     "gouraud_shading",
+    "image_grid",
+    "make_grid",
+    "plot_texture_uv",
+    "texturesuv_image_matplotlib",
     "hard_rgb_blend",
     "phong_shading",
     "sample_textures",

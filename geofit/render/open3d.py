@@ -1,0 +1,227 @@
+"""The same mesh and camera in Open3D: an offscreen render to compare with, and the viewer.
+
+:func:`render_open3d` renders meshes with Open3D's ``OffscreenRenderer`` (Filament; headless on
+software Vulkan with ``libvulkan1`` and ``mesa-vulkan-drivers``) from geofit cameras converted by
+:func:`geofit.cameras.to_open3d`, and returns colour, view depth and coverage. Open3D's lighting
+model is not Phong's, so compare silhouettes and depth, and colours only by eye.
+
+:func:`show_open3d` opens Open3D's interactive viewer at the same viewpoint.
+"""
+from __future__ import annotations
+
+import gc
+from typing import NamedTuple
+
+import numpy as np
+
+from ..cameras import FoVPerspectiveCameras, to_open3d
+from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex
+from .textures import TexturesFlat
+
+__all__ = ["Open3DRender", "render_open3d", "show_open3d", "mesh_to_open3d"]
+
+
+class Open3DRender(NamedTuple):
+    """Output of :func:`render_open3d`.
+
+    Attributes
+    ----------
+    images : (N, H, W, 3) float32
+        RGB in [0, 1] as Open3D renders it: its own lights, exposure and tone mapping (the
+        background colour is tone mapped too, so white comes out light grey).
+    depth : (N, H, W) float64
+        View-space depth (PyTorch3D's zbuf), ``inf`` where no surface is seen.
+    mask : (N, H, W) bool
+        Pixels that see the mesh (finite depth).
+    """
+
+    images: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+
+
+def mesh_to_open3d(mesh: Mesh):
+    """An ``open3d.geometry.TriangleMesh`` with the mesh's normals and colours.
+
+    TexturesUV become per-corner UVs plus the texture image (8-bit); TexturesVertex become vertex colours; a TexturesFlat colour is painted on every
+    vertex (per-face colours are written on a copy of the mesh with three vertices per face).
+
+    Returns
+    -------
+    (open3d.geometry.TriangleMesh, open3d.geometry.Image or None)
+        The mesh and its texture image (None without a UV texture).
+    """
+    import open3d as o3d
+
+    tex = mesh.textures
+    if isinstance(tex, TexturesFlat) and tex.per_face:
+        if len(tex.colors) != mesh.n_faces:
+            raise ValueError(f"textures.colors: expected shape ({mesh.n_faces}, "
+                             f"{tex.n_channels}), got {tex.colors.shape}")
+        V = mesh.verts[mesh.faces.ravel()]
+        F = np.arange(3 * mesh.n_faces).reshape(-1, 3)
+        soup = Mesh(V, F)
+        m = soup.to_open3d()
+        m.vertex_normals = o3d.utility.Vector3dVector(np.repeat(mesh.face_normals, 3, axis=0))
+        m.vertex_colors = o3d.utility.Vector3dVector(
+            np.clip(np.repeat(tex.colors[:, :3], 3, axis=0), 0, 1))
+        return m, None
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.array(mesh.verts)),
+                                  o3d.utility.Vector3iVector(mesh.faces.astype(np.int32)))
+    m.vertex_normals = o3d.utility.Vector3dVector(np.array(mesh.verts_normals))
+    image = None
+    if isinstance(tex, TexturesUV):
+        uv = tex.verts_uvs[tex.faces_uvs].reshape(-1, 2)  # same (u, v) convention as OBJ
+        m.triangle_uvs = o3d.utility.Vector2dVector(uv)
+        m.triangle_material_ids = o3d.utility.IntVector(np.zeros(mesh.n_faces, np.int32))
+        img = np.clip(tex.maps[..., :3] if tex.maps.shape[2] >= 3 else
+                      np.repeat(tex.maps[..., :1], 3, axis=2), 0, 1)
+        image = o3d.geometry.Image(np.ascontiguousarray((img * 255 + 0.5).astype(np.uint8)))
+        m.textures = [image]
+    elif isinstance(tex, TexturesVertex) and tex.n_channels >= 3:
+        m.vertex_colors = o3d.utility.Vector3dVector(np.clip(tex.verts_features[:, :3], 0, 1))
+    elif isinstance(tex, TexturesFlat):
+        m.paint_uniform_color(np.clip(np.resize(tex.colors[0], 3), 0, 1))
+    return m, image
+
+
+def _as_views(meshes, cameras):
+    if isinstance(meshes, Mesh):
+        meshes = Meshes([meshes])
+    if not isinstance(meshes, Meshes):
+        raise TypeError(f"meshes: expected a Mesh or Meshes, got {type(meshes)!r}")
+    if not isinstance(cameras, FoVPerspectiveCameras):
+        raise TypeError(f"cameras: expected FoVPerspectiveCameras (Open3D has pinhole cameras "
+                        f"only), got {type(cameras)!r}")
+    nm, nc = len(meshes), len(cameras)
+    N = max(nm, nc)
+    if nm == 0 or nm not in (1, N) or nc not in (1, N):
+        raise ValueError(f"meshes and cameras: batch sizes must be 1 or N, got {nm} meshes and "
+                         f"{nc} cameras")
+    return [meshes[b if nm > 1 else 0] for b in range(N)], [cameras[b if nc > 1 else 0]
+                                                             for b in range(N)]
+
+
+def _size(image_size) -> tuple[int, int]:
+    if isinstance(image_size, (int, np.integer)):
+        image_size = (int(image_size), int(image_size))
+    H, W = (int(v) for v in image_size)
+    if H < 1 or W < 1:
+        raise ValueError(f"image_size: expected positive (H, W), got {image_size!r}")
+    return H, W
+
+
+def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.0),
+                  lit: bool = True) -> Open3DRender:
+    """Render meshes from geofit cameras with Open3D's offscreen renderer.
+
+    Parameters
+    ----------
+    meshes : Mesh or Meshes
+        One mesh per view, or one mesh for every camera.
+    cameras : FoVPerspectiveCameras
+        ``N`` cameras (or one for every mesh), converted with :func:`geofit.cameras.to_open3d`.
+    image_size : int or (H, W)
+    background_color : (3,) float
+        RGB of the background.
+    lit : bool
+        Open3D's ``defaultLit`` shader (its default image-based light plus a sun) or
+        ``defaultUnlit`` (the raw texture / vertex colours).
+
+    Returns
+    -------
+    Open3DRender
+        ``images (N, H, W, 3)``, ``depth (N, H, W)`` (view z, inf on the background) and
+        ``mask (N, H, W)``.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For wrong inputs. Errors from Open3D (no rendering backend) propagate as RuntimeError.
+    """
+    import open3d as o3d
+
+    H, W = _size(image_size)
+    views, cams = _as_views(meshes, cameras)
+    rendering = o3d.visualization.rendering
+    renderer = rendering.OffscreenRenderer(W, H)
+    images = np.zeros((len(views), H, W, 3), np.float32)
+    depth = np.full((len(views), H, W), np.inf)
+    try:
+        renderer.scene.set_background(np.r_[np.asarray(background_color, float), 1.0])
+        current = None
+        for b, (mesh, cam) in enumerate(zip(views, cams)):  # loop over views
+            if mesh is not current:
+                renderer.scene.clear_geometry()
+                if mesh.n_faces:
+                    m, image = mesh_to_open3d(mesh)
+                    mat = rendering.MaterialRecord()
+                    mat.shader = "defaultLit" if lit else "defaultUnlit"
+                    if image is not None:
+                        mat.albedo_img = image
+                    renderer.scene.add_geometry("mesh", m, mat)
+                current = mesh
+            p = to_open3d(cam, (H, W))[0]
+            renderer.setup_camera(p.intrinsic, p.extrinsic)
+            images[b] = np.asarray(renderer.render_to_image(), np.float32)[..., :3] / 255.0
+            z = np.asarray(renderer.render_to_depth_image(z_in_view_space=True), np.float64)
+            depth[b] = np.where(np.isfinite(z), z, np.inf) if mesh.n_faces else np.inf
+        renderer.scene.clear_geometry()
+    finally:
+        del renderer
+        gc.collect()
+    return Open3DRender(images, depth, np.isfinite(depth))
+
+
+def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bool = True):
+    """Open Open3D's interactive viewer on ``mesh`` at the viewpoint of ``cameras[index]``.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    cameras : FoVPerspectiveCameras
+    image_size : int or (H, W)
+        Window size (the camera's field of view is kept).
+    index : int
+        Which camera of the batch.
+    run : bool
+        Run the viewer's event loop (blocks until the window is closed) and close it. With
+        False the ``open3d.visualization.Visualizer`` is returned, its window open and its view
+        set, for scripting (``capture_screen_float_buffer``) or tests; call
+        ``destroy_window()`` when done.
+
+    Returns
+    -------
+    open3d.visualization.Visualizer or None
+
+    Raises
+    ------
+    RuntimeError
+        If Open3D cannot create a window (no display and no offscreen fallback).
+    """
+    import open3d as o3d
+
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
+    if not isinstance(cameras, FoVPerspectiveCameras):
+        raise TypeError(f"cameras: expected FoVPerspectiveCameras, got {type(cameras)!r}")
+    if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
+        raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
+    H, W = _size(image_size)
+    m, _ = mesh_to_open3d(mesh)
+    vis = o3d.visualization.Visualizer()
+    if not vis.create_window(window_name="geofit", width=W, height=H):
+        raise RuntimeError("Open3D could not create a viewer window (no display?)")
+    vis.add_geometry(m)
+    ctr = vis.get_view_control()
+    params = to_open3d(cameras[int(index)], (H, W))[0]
+    if not ctr.convert_from_pinhole_camera_parameters(params, allow_arbitrary=True):
+        vis.destroy_window()
+        raise RuntimeError("Open3D rejected the camera parameters")
+    opt = vis.get_render_option()
+    opt.mesh_show_back_face = True
+    if not run:
+        return vis
+    vis.run()
+    vis.destroy_window()
+    return None
