@@ -134,9 +134,13 @@ def test_images_match_pytorch3d(ref, cam, rk, radius, name, compositor):
 
 # ------------------------------------------------------------------ naive loop reference
 
+@pytest.mark.parametrize("threads", [1, 2, 3])
 @pytest.mark.parametrize("H,W", [(9, 9), (7, 12), (11, 6)])
-def test_rasterize_points_matches_naive_loop(H, W):
-    """The vectorised core equals the heap-per-pixel loop, also for non-square images."""
+def test_rasterize_points_matches_naive_loop(H, W, threads, monkeypatch):
+    """The vectorised core equals the heap-per-pixel loop, also for non-square images and when
+    the rows are split into bands for threads."""
+    monkeypatch.setattr(points_mod, "_THREADS", threads)
+    monkeypatch.setattr(points_mod, "_THREAD_MIN_POINTS", 0)
     rng = np.random.default_rng(1)
     n = 60
     xy = rng.uniform(-1.3, 1.3, (n, 2))
@@ -167,6 +171,10 @@ def test_chunked_candidates_match_single_pass(monkeypatch):
     monkeypatch.setattr(points_mod, "_CHUNK_CANDIDATES", 50)
     many = rasterize_points(xy, z, radius, image, 1, (16, 16), 6)
     for a, b in zip(one, many):
+        assert_array_equal(a, b)
+    monkeypatch.setattr(points_mod, "_THREAD_MIN_POINTS", 0)   # two row bands, in threads
+    threaded = rasterize_points(xy, z, radius, image, 1, (16, 16), 6)
+    for a, b in zip(one, threaded):
         assert_array_equal(a, b)
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import numbers
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -50,6 +51,9 @@ __all__ = [
 _CHUNK_CANDIDATES = 1 << 22
 # Slack, in pixels, when bounding a disc by pixel centres: the exact distance test decides.
 _BOX_SLACK = 1e-7
+# Threads (row bands of the image) for large clouds; numpy releases the GIL in the heavy steps.
+_THREADS = 2
+_THREAD_MIN_POINTS = 50_000
 
 
 def _check_int(value, name: str, minimum: int) -> int:
@@ -176,15 +180,17 @@ class PointFragments:
         return w
 
 
-def _pixel_hits(x, y, r, img, H, W, full=None):
+def _pixel_hits(x, y, r, img, H, W, band, full=None):
     """Candidate generation for entries already in front-to-back order.
 
     Returns the image-flat pixel index and entry position of every (entry, pixel) pair whose
-    pixel centre lies strictly inside the entry's disc, in entry order then row-major pixel order.
-    ``full`` (N, H, W) bool marks pixels that already hold K points: entries whose box holds
-    only full pixels are skipped (a summed-area table counts the open pixels of each box), and
-    candidates at full pixels are dropped.
+    pixel centre lies strictly inside the entry's disc, in entry order then row-major pixel order,
+    for the pixel rows ``band = (lo, hi)`` only. ``full`` (N, hi - lo, W) bool marks the band's
+    pixels that already hold K points: entries whose box holds only full pixels are skipped (a
+    summed-area table counts the open pixels of each box), and candidates at full pixels are
+    dropped.
     """
+    lo, hi = band
     S = min(H, W)
     with np.errstate(over="ignore"):   # far-off projections become +-inf, clipped below
         cx = (W - 1 - S * x) * 0.5     # continuous column of the projection
@@ -192,16 +198,17 @@ def _pixel_hits(x, y, r, img, H, W, full=None):
         rp = r * (0.5 * S)             # radius in pixels
     c0 = np.ceil(np.clip(cx - rp - _BOX_SLACK, 0, W)).astype(np.int64)
     c1 = np.floor(np.clip(cx + rp + _BOX_SLACK, -1, W - 1)).astype(np.int64)
-    r0 = np.ceil(np.clip(cy - rp - _BOX_SLACK, 0, H)).astype(np.int64)
-    r1 = np.floor(np.clip(cy + rp + _BOX_SLACK, -1, H - 1)).astype(np.int64)
+    r0 = np.ceil(np.clip(cy - rp - _BOX_SLACK, lo, hi)).astype(np.int64)
+    r1 = np.floor(np.clip(cy + rp + _BOX_SLACK, lo - 1, hi - 1)).astype(np.int64)
     nx = np.maximum(c1 - c0 + 1, 0)
     ny = np.maximum(r1 - r0 + 1, 0)
     count = nx * ny
     if full is not None:
-        sat = np.zeros((full.shape[0], H + 1, W + 1), dtype=np.int64)
+        sat = np.zeros((full.shape[0], hi - lo + 1, W + 1), dtype=np.int64)
         np.cumsum(np.cumsum(~full, axis=1), axis=2, out=sat[:, 1:, 1:])
-        n_open = (sat[img, r1 + 1, c1 + 1] - sat[img, r0, c1 + 1]
-                  - sat[img, r1 + 1, c0] + sat[img, r0, c0])
+        b0, b1 = r0 - lo, r1 - lo + 1
+        n_open = (sat[img, b1, c1 + 1] - sat[img, b0, c1 + 1]
+                  - sat[img, b1, c0] + sat[img, b0, c0])
         count[n_open <= 0] = 0
     total = int(count.sum())
     if total == 0:
@@ -213,13 +220,13 @@ def _pixel_hits(x, y, r, img, H, W, full=None):
     row, col = np.divmod(local, nxe)
     col += c0[ent]
     row += r0[ent]
-    pix = img[ent] * (H * W) + row * W + col
     if full is not None:
-        keep = ~full.reshape(-1)[pix]
-        ent, row, col, pix = ent[keep], row[keep], col[keep], pix[keep]
+        keep = ~full[img[ent], row - lo, col]
+        ent, row, col = ent[keep], row[keep], col[keep]
     d2 = _dist2(x[ent], y[ent], row, col, H, W)
     hit = d2 < (r * r)[ent]
-    return pix[hit], ent[hit]
+    ent = ent[hit]
+    return img[ent] * (H * W) + row[hit] * W + col[hit], ent
 
 
 def _dist2(x, y, row, col, H, W):
@@ -285,51 +292,81 @@ def _rasterize(xy, z, radius, image_index, n_images, image_size, K):
     n_pix = n_images * H * W
     entry_out = np.full(n_pix * K, -1, dtype=np.int64)
     dist_out = np.full(n_pix * K, -1.0)
+    filled = np.zeros(n_pix, dtype=np.int64)
     keep = (z >= 0) & (radius > 0)
     sel = np.flatnonzero(keep)
     # Front-to-back order; the stable sort keeps the entry (point index) order on equal depths.
     sel = sel[np.argsort(z[sel], kind="stable")]
-    M = len(sel)
-    if M:
-        x, y, r, img = xy[sel, 0], xy[sel, 1], radius[sel], image_index[sel]
+    x, y, r, img = xy[sel, 0], xy[sel, 1], radius[sel], image_index[sel]
+
+    def band_job(band):
+        """Rasterize the pixel rows ``band``: chunks of candidates, front to back."""
+        lo, hi = band
         S = min(H, W)
-        rp = r * (0.5 * S)
+        with np.errstate(over="ignore"):
+            cy = (H - 1 - S * y) * 0.5
+            rp = r * (0.5 * S)
+        mine = np.flatnonzero((cy + rp + _BOX_SLACK >= lo) & (cy - rp - _BOX_SLACK <= hi - 1))
+        if len(mine) == 0:
+            return
+        bx, by, br, bimg = x[mine], y[mine], r[mine], img[mine]
         # Upper bound on each entry's candidate count, for chunking.
-        box = (np.minimum(2 * rp + 1, W + 1)) * (np.minimum(2 * rp + 1, H + 1))
+        box = np.minimum(2 * rp[mine] + 1, W + 1) * np.minimum(2 * rp[mine] + 1, hi - lo + 1)
         csum = np.cumsum(box)
-        bounds = np.searchsorted(csum, np.arange(1, int(csum[-1] // _CHUNK_CANDIDATES) + 1)
-                                 * float(_CHUNK_CANDIDATES))
-        bounds = np.unique(np.concatenate([[0], bounds, [M]]))
-        filled = np.zeros(n_pix, dtype=np.int64)
-        for a, b in itertools.pairwise(bounds):   # chunks of candidates, front to back
-            full = None if a == 0 else (filled >= K).reshape(n_images, H, W)
-            pix, ent = _pixel_hits(x[a:b], y[a:b], r[a:b], img[a:b], H, W, full)
+        cuts = np.searchsorted(csum, np.arange(1, int(csum[-1] // _CHUNK_CANDIDATES) + 1)
+                               * float(_CHUNK_CANDIDATES))
+        bounds = np.unique(np.concatenate([[0], cuts, [len(mine)]]))
+        view = filled.reshape(n_images, H, W)
+        for a, b in itertools.pairwise(bounds):
+            full = None if a == 0 else view[:, lo:hi] >= K
+            pix, ent = _pixel_hits(bx[a:b], by[a:b], br[a:b], bimg[a:b], H, W, band, full)
             if len(pix) == 0:
                 continue
             # One integer sort of the unique keys pixel * m + depth rank groups the hits by
             # pixel, front to back within a pixel.
             m = b - a
-            key = np.sort(pix * m + ent)
-            pix, ent = np.divmod(key, m)
+            pix, ent = np.divmod(np.sort(pix * m + ent), m)
             new = np.empty(len(pix), dtype=bool)
             new[0] = True
             np.not_equal(pix[1:], pix[:-1], out=new[1:])
             first = np.flatnonzero(new)
-            rank = np.arange(len(pix)) - np.repeat(first, np.diff(np.append(first, len(pix))))
-            rank += filled[pix]
+            size = np.diff(np.append(first, len(pix)))
+            group_pix = pix[first]
+            before = filled[group_pix]
+            rank = np.arange(len(pix)) - np.repeat(first - before, size)
             ok = rank < K
             pix, ent = pix[ok], ent[ok] + a
             slot = pix * K + rank[ok]
-            entry_out[slot] = sel[ent]
+            entry_out[slot] = sel[mine[ent]]
             rc = pix % (H * W)
-            dist_out[slot] = _dist2(x[ent], y[ent], rc // W, rc % W, H, W)
-            filled += np.bincount(pix, minlength=n_pix)
+            dist_out[slot] = _dist2(bx[ent], by[ent], rc // W, rc % W, H, W)
+            # Bands own disjoint pixels, so this update does not race with other threads.
+            filled[group_pix] = np.minimum(before + size, K)
+
+    if len(sel):
+        n_bands = _THREADS if len(sel) >= _THREAD_MIN_POINTS and H >= 2 * _THREADS else 1
+        edges = np.linspace(0, H, n_bands + 1).round().astype(int)
+        bands = list(itertools.pairwise(edges.tolist()))
+        if n_bands == 1:
+            band_job(bands[0])
+        else:
+            with ThreadPoolExecutor(n_bands) as pool:   # numpy releases the GIL
+                list(pool.map(band_job, bands))
     shape = (n_images, H, W, K)
     entry_out = entry_out.reshape(shape)
     valid = entry_out >= 0
     zbuf = np.full(shape, -1.0)
     zbuf[valid] = z[entry_out[valid]]
     return entry_out, zbuf, dist_out.reshape(shape)
+
+
+def _affine(P, A, b):
+    """``P @ A + b`` for ``P (k, 3)``, ``A (3, c)``, ``b (c,)`` without BLAS.
+
+    A (k, 3) x (3, c) product is memory-bound; written out it avoids waking BLAS threads, which
+    spin and compete with the rasterizer's own threads on a busy machine.
+    """
+    return P[:, 0:1] * A[0] + P[:, 1:2] * A[1] + P[:, 2:3] * A[2] + b
 
 
 def _batch(point_clouds, cameras) -> tuple[Pointclouds, CamerasBase, int]:
@@ -442,8 +479,8 @@ class PointsRasterizer:
             k = 0 if len(cameras) == 1 else n
             lo, hi = int(first[c]), int(first[c]) + int(n_pts[c])
             with np.errstate(over="ignore", invalid="ignore"):
-                view = packed[lo:hi] @ cameras.R[k] + cameras.T[k]
-                h = view @ proj[k, :3, :] + proj[k, 3, :]
+                view = _affine(packed[lo:hi], cameras.R[k], cameras.T[k])
+                h = _affine(view, proj[k, :3, :], proj[k, 3, :])
                 w = h[:, 3]
                 z = view[:, 2].copy()
                 # z < 0: behind the camera (PyTorch3D); w <= 0 only for perspective points at
