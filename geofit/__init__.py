@@ -26,6 +26,22 @@ from .io import (
     save_obj,
     save_pointcloud,
 )
+from .loss import (
+    ChamferResult,
+    ChamferTarget,
+    PointToSurface,
+    chamfer_distance,
+    mesh_edge_loss,
+    mesh_laplacian_smoothing,
+    mesh_normal_consistency,
+)
+from .ops import (
+    SampledPoints,
+    cot_laplacian,
+    norm_laplacian,
+    sample_points_from_meshes,
+    uniform_laplacian,
+)
 from .raycast import ClosestPoints, PointToMeshDistance, RayCaster, RayHits
 from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
@@ -72,6 +88,19 @@ __all__ = [
     "load_pointcloud",
     "save_obj",
     "save_pointcloud",
+    # sampling, operators and losses
+    "ChamferResult",
+    "ChamferTarget",
+    "PointToSurface",
+    "chamfer_distance",
+    "mesh_edge_loss",
+    "mesh_laplacian_smoothing",
+    "mesh_normal_consistency",
+    "SampledPoints",
+    "cot_laplacian",
+    "norm_laplacian",
+    "sample_points_from_meshes",
+    "uniform_laplacian",
     # ray casting
     "ClosestPoints",
     "PointToMeshDistance",
