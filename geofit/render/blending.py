@@ -41,12 +41,24 @@ def check_blend(blend_params) -> tuple[BlendParams, np.ndarray]:
     return blend_params, bg.astype(np.float32)
 
 
-def new_images(fragments, bg: np.ndarray) -> np.ndarray:
+def new_images(fragments, bg: np.ndarray, n_threads: int = 1) -> np.ndarray:
     """(N * H * W, 4) float32 filled with the background colour and alpha 0."""
     N = fragments.n_views
     H, W = fragments.image_size
     out = np.empty((N * H * W, 4), dtype=np.float32)
-    out[:] = np.append(bg, np.float32(0.0))
+    fill = np.append(bg, np.float32(0.0))
+    if n_threads > 1 and len(out) >= 1 << 20:
+        from concurrent.futures import ThreadPoolExecutor
+
+        bounds = np.linspace(0, len(out), n_threads + 1).astype(np.int64)
+
+        def run(i):
+            out[bounds[i]:bounds[i + 1]] = fill
+
+        with ThreadPoolExecutor(n_threads) as ex:
+            list(ex.map(run, range(n_threads)))
+    else:
+        out[:] = fill
     return out
 
 

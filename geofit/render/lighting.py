@@ -101,6 +101,19 @@ def _specular(points, n, direction, camera_position, shininess, color):
     return color * np.power(alpha, shininess)
 
 
+def _phong_terms(n, p, direction, camera_position, shininess, ld, ls, unit_normals=False):
+    """Diffuse and specular terms together (the light direction normalised once)."""
+    if not unit_normals:
+        n = _normalize(n)
+    l = _normalize(direction)
+    cos = _dot(n, l)
+    dif = ld * np.maximum(cos, 0)
+    v = _normalize(camera_position - p)
+    r = (2 * cos) * n - l
+    alpha = np.maximum(_dot(v, r), 0) * (cos > 0)
+    return dif, ls * np.power(alpha, shininess)
+
+
 def diffuse(normals: np.ndarray, color: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """Lambert's term ``color * max(0, n . l)`` (PyTorch3D's ``diffuse``).
 
@@ -216,6 +229,13 @@ class _Lights:
     def _diffuse_t(self, n, p, batch_idx):
         d, _ = self._light_vector(p, batch_idx)
         return _diffuse(n, per_point_t(self.diffuse_color, batch_idx, n.dtype), d)
+
+    def _terms_t(self, n, p, camera_position, shininess, batch_idx, unit_normals=False):
+        """Component-first (diffuse, specular), each ``(3, k)``."""
+        d, _ = self._light_vector(p, batch_idx)
+        return _phong_terms(n, p, d, camera_position, shininess,
+                            per_point_t(self.diffuse_color, batch_idx, n.dtype),
+                            per_point_t(self.specular_color, batch_idx, n.dtype), unit_normals)
 
     def _specular_t(self, n, p, camera_position, shininess, batch_idx):
         d, _ = self._light_vector(p, batch_idx)
@@ -355,6 +375,9 @@ class AmbientLights(_Lights):
 
     def _diffuse_t(self, n, p, batch_idx):
         return np.zeros_like(n)
+
+    def _terms_t(self, n, p, camera_position, shininess, batch_idx, unit_normals=False):
+        return np.zeros_like(n), np.zeros_like(n)
 
     def _specular_t(self, n, p, camera_position, shininess, batch_idx):
         return np.zeros_like(n)

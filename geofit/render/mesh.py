@@ -249,28 +249,32 @@ class Fragments:
         return n / np.maximum(norm, np.float32(1e-6))
 
     def _dists(self, sl: slice) -> np.ndarray:
-        """(len,) float64 signed squared NDC edge distances of hits ``sl``."""
+        """(len,) float64 signed squared NDC edge distances of hits ``sl``.
+
+        The corners are taken relative to the pixel centre in float64, then the (pixel-sized)
+        differences are processed in float32.
+        """
         t = self._tri[:, sl]
         X, Y = self._table("verts_xy_packed", np.float64)
-        px = [X[t[i]] for i in range(3)]
-        py = [Y[t[i]] for i in range(3)]
         qx, qy = self._xy(sl)
+        f32 = np.float32
+        ax = [(X[t[i]] - qx).astype(f32) for i in range(3)]
+        ay = [(Y[t[i]] - qy).astype(f32) for i in range(3)]
         best = None
         e = []
-        for i in range(3):  # the three edges (v_i, v_i+1)
+        for i in range(3):  # the three edges (v_i, v_i+1); q - a = -a
             j = (i + 1) % 3
-            abx, aby = px[j] - px[i], py[j] - py[i]
-            aqx, aqy = qx - px[i], qy - py[i]
+            abx, aby = ax[j] - ax[i], ay[j] - ay[i]
             den = abx * abx + aby * aby
-            dot = aqx * abx + aqy * aby
-            tt = np.clip(dot / np.where(den > 0, den, 1.0), 0.0, 1.0)
-            rx, ry = aqx - tt * abx, aqy - tt * aby
+            dot = -(ax[i] * abx + ay[i] * aby)
+            tt = np.clip(dot / np.where(den > 0, den, f32(1.0)), f32(0.0), f32(1.0))
+            rx, ry = ax[i] + tt * abx, ay[i] + tt * aby
             d = rx * rx + ry * ry
             best = d if best is None else np.minimum(best, d)
-            e.append(aqx * aby - aqy * abx)  # 2-D edge function
+            e.append(ay[i] * abx - ax[i] * aby)  # 2-D edge function at the pixel centre
         inside = (((e[0] > 0) & (e[1] > 0) & (e[2] > 0))
                   | ((e[0] < 0) & (e[1] < 0) & (e[2] < 0)))
-        best = np.where(np.isfinite(best), best, 0.0)
+        best = np.where(np.isfinite(best), best, f32(0.0)).astype(np.float64)
         return np.where(inside, -best, best)
 
     def _xy(self, sl: slice) -> tuple[np.ndarray, np.ndarray]:
@@ -634,31 +638,37 @@ def _refine(hits, vtri, xy_packed, z_packed, perspective: bool, pc: bool, rays, 
     row, col = np.divmod(rem, W)
     qx, qy = xs[col], ys[row]
     t0, t1, t2 = vtri[:, 0], vtri[:, 1], vtri[:, 2]
-    x0, x1, x2 = X[t0], X[t1], X[t2]
-    y0, y1, y2 = Y[t0], Y[t1], Y[t2]
-    e0 = (qx - x1) * (y2 - y1) - (qy - y1) * (x2 - x1)
-    e1 = (qx - x2) * (y0 - y2) - (qy - y2) * (x0 - x2)
-    e2 = (qx - x0) * (y1 - y0) - (qy - y0) * (x1 - x0)
+    # Corners relative to the pixel centre; e_i = cross(v_j - q, v_k - q) is the 2-D edge
+    # function opposite corner i, and b_i = e_i / (e0 + e1 + e2).
+    ax, ay = X[t0] - qx, Y[t0] - qy
+    bx, by = X[t1] - qx, Y[t1] - qy
+    cx, cy = X[t2] - qx, Y[t2] - qy
+    e0 = bx * cy - by * cx
+    e1 = cx * ay - cy * ax
+    e2 = ax * by - ay * bx
     area = e0 + e1 + e2
+    ok = np.abs(area) > 1e-14
+    sgn = np.sign(area)
+    for e in (e0, e1, e2):  # the pixel centre lies within rounding outside the chosen face:
+        np.maximum(e * sgn, 0.0, out=e)  # clip to the face (e_i now >= 0, area's sign dropped)
     Z = np.empty((len(t0), 3))
     Z[:, 0], Z[:, 1], Z[:, 2] = z_packed[t0], z_packed[t1], z_packed[t2]
-    ok = np.abs(area) > 1e-14
-    if perspective:
-        ok &= np.minimum(np.minimum(Z[:, 0], Z[:, 1]), Z[:, 2]) > 1e-9
-    inv = np.where(ok, 1.0 / np.where(ok, area, 1.0), 0.0)
-    b = np.empty((len(t0), 3))
-    b[:, 0], b[:, 1], b[:, 2] = e0 * inv, e1 * inv, e2 * inv
-    if np.any(b < 0):  # the centre lies within rounding outside the face Embree chose
-        b = np.maximum(b, 0.0)
-        b /= np.maximum(b.sum(axis=1, keepdims=True), 1e-300)
+    w = np.empty((len(t0), 3))
     if perspective and pc:
-        bz = b / np.where(ok[:, None], Z, 1.0)
-        sz = bz.sum(axis=1)
-        w = bz / np.where(ok, sz, 1.0)[:, None]
-        depth = 1.0 / np.where(ok, sz, 1.0)
+        ok &= (Z[:, 0] > 1e-9) & (Z[:, 1] > 1e-9) & (Z[:, 2] > 1e-9)
+        Zs = np.where(ok[:, None], Z, 1.0)
+        w[:, 0], w[:, 1], w[:, 2] = e0 / Zs[:, 0], e1 / Zs[:, 1], e2 / Zs[:, 2]
+        s = w[:, 0] + w[:, 1] + w[:, 2]
+        ok &= s > 0
+        s = np.where(ok, s, 1.0)
+        depth = (e0 + e1 + e2) / s
+        w /= s[:, None]
     else:
-        w = b
-        depth = np.einsum("kj,kj->k", b, Z)
+        s = e0 + e1 + e2
+        ok &= s > 0
+        s = np.where(ok, s, 1.0)
+        w[:, 0], w[:, 1], w[:, 2] = e0 / s, e1 / s, e2 / s
+        depth = np.einsum("kj,kj->k", w, Z)
     bad = np.flatnonzero(~ok)
     if len(bad):
         p = hits.pixel[bad]
@@ -667,7 +677,7 @@ def _refine(hits, vtri, xy_packed, z_packed, perspective: bool, pc: bool, rays, 
         V = mesh.verts
         wb, tb = _raycast.refine(o, d, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]],
                                  hits.bary[bad], hits.depth[bad])
-        if not (perspective and pc):
+        if perspective and not pc:  # screen-space barycentrics: proportional to w_i z_i
             wz = wb * Z[bad]
             wb = wz / np.maximum(wz.sum(axis=1, keepdims=True), 1e-300)
             tb = np.einsum("kj,kj->k", wb, Z[bad])

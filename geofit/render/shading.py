@@ -27,7 +27,8 @@ from .blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
 from .lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
 from .materials import Materials
 from .mesh import Fragments
-from .textures import sample_texels_t
+from ..structures import TexturesUV
+from .textures import UVTables, sample_texels_t
 
 __all__ = [
     "apply_lighting",
@@ -63,14 +64,13 @@ def _camera_centers(cameras, n: int) -> np.ndarray:
     return c
 
 
-def _lighting_t(p, n, lights, centers, materials, bidx, visibility=None):
+def _lighting_t(p, n, lights, centers, materials, bidx, visibility=None, unit_normals=False):
     """Component-first ``_apply_lighting``: ``p, n (3, k)`` float32 -> ambient ``(3, 1 | k)``,
     diffuse ``(3, k)``, specular ``(3, k)``."""
     dt = p.dtype
     cam = per_point_t(centers, bidx, dt)
     shin = per_point_t(materials.shininess[:, None], bidx, dt)[0]
-    diffuse = lights._diffuse_t(n, p, bidx)
-    specular = lights._specular_t(n, p, cam, shin, bidx)
+    diffuse, specular = lights._terms_t(n, p, cam, shin, bidx, unit_normals)
     if visibility is not None:
         diffuse = diffuse * visibility
         specular = specular * visibility
@@ -122,6 +122,26 @@ def _needs_index(fragments, *objs) -> bool:
     return any(len(o) > 1 for o in objs)
 
 
+def _prepare_texels(fragments: Fragments) -> list:
+    """Group the views by mesh and build each UV texture's lookup tables once (before the
+    worker threads start); cached in the fragments."""
+    ctx = fragments._ctx
+    if "texture_groups" not in ctx:
+        g: dict[int, list[int]] = {}
+        for b, m in enumerate(fragments.meshes):  # loop over views: group by mesh object
+            g.setdefault(id(m), []).append(b)
+        groups = list(g.values())
+        tables = {}
+        for views in groups:  # loop over distinct meshes
+            tex = fragments.meshes[views[0]].textures
+            if isinstance(tex, TexturesUV) and id(tex) not in tables:
+                H, W, _ = tex.maps.shape
+                # Many lookups: one float32 copy of the map pays for itself.
+                tables[id(tex)] = UVTables(tex, float32_map=fragments.n_hits > H * W // 8)
+        ctx["texture_groups"], ctx["uv_tables"] = groups, tables
+    return ctx["texture_groups"]
+
+
 def _texels_t(fragments: Fragments, sl: slice, default=(1.0, 1.0, 1.0)) -> np.ndarray:
     """(C, len) float32 texture colour of hits ``sl``."""
     meshes = fragments.meshes
@@ -129,22 +149,20 @@ def _texels_t(fragments: Fragments, sl: slice, default=(1.0, 1.0, 1.0)) -> np.nd
     view = fragments.view[sl]
     local = fragments.face[sl] - first[view]
     w = fragments._w32[:, sl]
-    groups = fragments._ctx.get("texture_groups")
-    if groups is None:
-        g: dict[int, list[int]] = {}
-        for b, m in enumerate(meshes):  # loop over views: group by shared mesh object
-            g.setdefault(id(m), []).append(b)
-        groups = fragments._ctx["texture_groups"] = list(g.values())
+    groups = _prepare_texels(fragments)
+    tables = fragments._ctx["uv_tables"]
     if len(groups) == 1:
         m = meshes[0]
-        return sample_texels_t(m.textures, m.faces, local, w, default)
+        return sample_texels_t(m.textures, m.faces, local, w, default,
+                               tables.get(id(m.textures)))
     out = None
     for views in groups:  # loop over distinct meshes
         sel = np.flatnonzero(np.isin(view, views))
         if len(sel) == 0:
             continue
         m = meshes[views[0]]
-        t = sample_texels_t(m.textures, m.faces, local[sel], w[:, sel], default)
+        t = sample_texels_t(m.textures, m.faces, local[sel], w[:, sel], default,
+                            tables.get(id(m.textures)))
         if out is None:
             out = np.zeros((t.shape[0], len(view)), np.float32)
         elif t.shape[0] != out.shape[0]:
@@ -176,6 +194,7 @@ def sample_textures(fragments: Fragments, default=(1.0, 1.0, 1.0)) -> np.ndarray
     ValueError
         If the meshes of the batch have textures with different numbers of channels.
     """
+    _prepare_texels(fragments)
     parts = fragments._parallel(lambda sl: _texels_t(fragments, sl, default))
     if not parts:
         return np.zeros((0, len(default)), np.float32)
@@ -263,7 +282,7 @@ def _phong_chunk(fragments, sl, lights, centers, materials, idx, visibility, tex
     bidx = fragments.view[sl] if idx else None
     tex = _texels_t(fragments, sl) if texels is None else texels[sl].T
     vis = None if visibility is None else visibility[sl]
-    amb, dif, spe = _lighting_t(p, n, lights, centers, materials, bidx, vis)
+    amb, dif, spe = _lighting_t(p, n, lights, centers, materials, bidx, vis, unit_normals=True)
     return (amb + dif) * tex + spe
 
 
@@ -286,7 +305,7 @@ def _flat_chunk(fragments, sl, lights, centers, materials, idx, visibility, texe
     bidx = fragments.view[sl] if idx else None
     tex = _texels_t(fragments, sl) if texels is None else texels[sl].T
     vis = None if visibility is None else visibility[sl]
-    amb, dif, spe = _lighting_t(p, n, lights, centers, materials, bidx, vis)
+    amb, dif, spe = _lighting_t(p, n, lights, centers, materials, bidx, vis, unit_normals=True)
     return (amb + dif) * tex + spe
 
 
@@ -335,6 +354,7 @@ def phong_shading(fragments: Fragments, lights, cameras, materials, texels=None,
     """
     centers = _camera_centers(cameras, fragments.n_views)
     idx = _needs_index(fragments, lights, materials, centers)
+    _prepare_texels(fragments)
     return _run(fragments, lambda sl: _phong_chunk(fragments, sl, lights, centers, materials,
                                                    idx, visibility, texels))
 
@@ -347,6 +367,7 @@ def flat_shading(fragments: Fragments, lights, cameras, materials, texels=None,
     """
     centers = _camera_centers(cameras, fragments.n_views)
     idx = _needs_index(fragments, lights, materials, centers)
+    _prepare_texels(fragments)
     return _run(fragments, lambda sl: _flat_chunk(fragments, sl, lights, centers, materials,
                                                   idx, visibility, texels))
 
@@ -429,7 +450,7 @@ class _Shader:
         """
         cameras, lights, materials, blend, bg = self._setup(fragments, kwargs)
         kernel = self._kernel(fragments, cameras, lights, materials)
-        out = new_images(fragments, bg)
+        out = new_images(fragments, bg, fragments._ctx.get("n_threads", 1))
         if self._soft:
             n = fragments.n_views
             zn = np.broadcast_to(np.asarray(getattr(cameras, "znear", 1.0),
@@ -477,6 +498,7 @@ class HardPhongShader(_Shader):
         centers = _camera_centers(cameras, fragments.n_views)
         idx = _needs_index(fragments, lights, materials, centers)
         vis = shadow_visibility(fragments, lights) if self.shadows else None
+        _prepare_texels(fragments)
         return lambda sl: _phong_chunk(fragments, sl, lights, centers, materials, idx, vis)
 
 
@@ -529,4 +551,5 @@ class HardFlatShader(_Shader):
         if self.shadows:  # shadow rays from the hit points, lit side given by the face normal
             fn = fragments.hit_face_normals
             vis = shadow_visibility(fragments, lights, normals=fn, face_normals=fn)
+        _prepare_texels(fragments)
         return lambda sl: _flat_chunk(fragments, sl, lights, centers, materials, idx, vis)

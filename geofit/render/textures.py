@@ -11,7 +11,6 @@ reading each pair of horizontally adjacent texels with one gather.
 from __future__ import annotations
 
 import numpy as np
-from numpy.lib.stride_tricks import as_strided
 
 from .._validate import as_array
 from ..structures.textures import TexturesBase, TexturesUV, TexturesVertex
@@ -65,14 +64,40 @@ class TexturesFlat(TexturesBase):
         return TexturesFlat(self.colors[face_ids] if self.per_face else self.colors[0])
 
 
-def _bilinear_t(tex: TexturesUV, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear lookup at float32 ``u, v (k,)`` in a TexturesUV map -> (C, k) float32."""
-    maps = tex.maps
-    H, W, C = maps.shape
-    if tex.padding_mode == "repeat":
+class UVTables:
+    """Per-render lookup tables of a TexturesUV: per-face corner UVs and the map as items.
+
+    Parameters
+    ----------
+    tex : TexturesUV
+    float32_map : bool
+        Copy the map to float32 (worth it when many texels are read: half the memory
+        traffic); otherwise read the float64 map in place.
+    """
+
+    def __init__(self, tex: TexturesUV, float32_map: bool = False):
+        uv = tex.verts_uvs[tex.faces_uvs]                            # (F, 3, 2)
+        self.FU = np.ascontiguousarray(uv[..., 0].T, dtype=np.float32)  # (3, F)
+        self.FV = np.ascontiguousarray(uv[..., 1].T, dtype=np.float32)
+        H, W, C = tex.maps.shape
+        self.H, self.W, self.C = H, W, C
+        flat = np.ascontiguousarray(tex.maps).reshape(H * W, C)
+        if float32_map:
+            flat = flat.astype(np.float32)
+        self.dtype = flat.dtype
+        # One item per texel: a gather copies C values at once.
+        self.items = flat.view(np.dtype((np.void, flat.itemsize * C))).reshape(-1)
+        self.repeat = tex.padding_mode == "repeat"
+        self.align_corners = tex.align_corners
+
+
+def _bilinear_t(tb: UVTables, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear lookup at float32 ``u, v (k,)`` -> (C, k) float32."""
+    H, W, C = tb.H, tb.W, tb.C
+    if tb.repeat:
         u = u - np.floor(u)
         v = v - np.floor(v)
-    if tex.align_corners:
+    if tb.align_corners:
         x = u * np.float32(W - 1)
         y = (np.float32(1.0) - v) * np.float32(H - 1)
     else:
@@ -84,21 +109,18 @@ def _bilinear_t(tex: TexturesUV, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     y0 = np.minimum(y.astype(np.int64), max(H - 2, 0))
     fx = (x - x0).astype(np.float32)
     fy = (y - y0).astype(np.float32)
-    flat = np.ascontiguousarray(maps).reshape(H * W, C)
-    if W > 1:
-        # Rows of 2C values: texel i and its right neighbour i + 1, read in one gather.
-        pairs = as_strided(flat, shape=(H * W - 1, 2 * C), strides=(flat.strides[0],
-                                                                   flat.strides[1]),
-                           writeable=False)
-    else:
-        pairs = np.concatenate([flat, flat], axis=1)
     i00 = y0 * W + x0
-    top = pairs[i00].T.astype(np.float32)                       # (2C, k)
-    bot = pairs[i00 + (W if H > 1 else 0)].T.astype(np.float32)
-    gx = 1 - fx
-    t = top[:C] * gx + top[C:] * fx
-    b = bot[:C] * gx + bot[C:] * fx
-    return t * (1 - fy) + b * fy
+    dx = 1 if W > 1 else 0
+    dy = W if H > 1 else 0
+
+    def texel(idx):
+        return np.take(tb.items, idx).view(tb.dtype).reshape(-1, C).T.astype(np.float32)
+
+    a, b = texel(i00), texel(i00 + dx)
+    top = a + (b - a) * fx
+    a, b = texel(i00 + dy), texel(i00 + dy + dx)
+    bot = a + (b - a) * fx
+    return top + (bot - top) * fy
 
 
 def sample_texels(textures, faces: np.ndarray, face_idx: np.ndarray, bary: np.ndarray,
@@ -133,19 +155,21 @@ def sample_texels(textures, faces: np.ndarray, face_idx: np.ndarray, bary: np.nd
 
 
 def sample_texels_t(textures, faces: np.ndarray, face_idx: np.ndarray, w: np.ndarray,
-                    default=(1.0, 1.0, 1.0)) -> np.ndarray:
-    """:func:`sample_texels` in component-first layout: ``w (3, k)`` -> ``(C, k)`` float32."""
+                    default=(1.0, 1.0, 1.0), tables: UVTables | None = None) -> np.ndarray:
+    """:func:`sample_texels` in component-first layout: ``w (3, k)`` -> ``(C, k)`` float32.
+
+    ``tables`` (for a TexturesUV) are built on the fly when not given.
+    """
     k = len(face_idx)
     if textures is None:
         d = np.asarray(default, np.float32)
         return np.ascontiguousarray(np.broadcast_to(d[:, None], (len(d), k)))
     if isinstance(textures, TexturesUV):
-        fuv = textures.faces_uvs[face_idx]                      # (k, 3)
-        uvs = textures.verts_uvs
-        U, V = uvs[:, 0].astype(np.float32), uvs[:, 1].astype(np.float32)
-        u = w[0] * U[fuv[:, 0]] + w[1] * U[fuv[:, 1]] + w[2] * U[fuv[:, 2]]
-        v = w[0] * V[fuv[:, 0]] + w[1] * V[fuv[:, 1]] + w[2] * V[fuv[:, 2]]
-        return _bilinear_t(textures, u, v)
+        tb = UVTables(textures) if tables is None else tables
+        FU, FV = tb.FU, tb.FV
+        u = w[0] * FU[0][face_idx] + w[1] * FU[1][face_idx] + w[2] * FU[2][face_idx]
+        v = w[0] * FV[0][face_idx] + w[1] * FV[1][face_idx] + w[2] * FV[2][face_idx]
+        return _bilinear_t(tb, u, v)
     if isinstance(textures, TexturesVertex):
         tri = faces[face_idx]
         f = textures.verts_features.astype(np.float32)
