@@ -42,7 +42,14 @@ from .ops import (
     sample_points_from_meshes,
     uniform_laplacian,
 )
-from .raycast import ClosestPoints, PointToMeshDistance, RayCaster, RayHits
+from .raycast import (
+    ClosestPoints,
+    PointToMeshDistance,
+    RayCaster,
+    RayHits,
+    closest_point_on_triangles,
+    intersect_rays_triangles,
+)
 from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
     Mesh,
@@ -106,6 +113,8 @@ __all__ = [
     "PointToMeshDistance",
     "RayCaster",
     "RayHits",
+    "closest_point_on_triangles",
+    "intersect_rays_triangles",
     # shapes
     "box",
     "ico_sphere",
