@@ -551,6 +551,21 @@ def test_cli_default_cloud_without_data(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "o" / "render_points.png").is_file()
 
 
+def test_cli_finds_the_bridge_cloud_in_the_data_folder(tmp_path, monkeypatch, capsys):
+    """Without CLOUD, PittsburghBridge/pointcloud.npz in $GEOFIT_DATA is rendered if present."""
+    from geofit.cli import main
+
+    (tmp_path / "data" / "PittsburghBridge").mkdir(parents=True)
+    rng = np.random.default_rng(9)
+    np.savez(tmp_path / "data" / "PittsburghBridge" / "pointcloud.npz",
+             verts=rng.uniform(-1, 1, (123, 3)), rgb=rng.uniform(0, 1, (123, 3)))
+    monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "data"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    assert main(["render-points", "--out", str(tmp_path / "o"), "--image-size", "16"]) == 0
+    text = capsys.readouterr().out
+    assert "pointcloud.npz (123 points" in text and "azim 0" in text
+
+
 def test_cli_errors(tmp_path, capsys):
     """A missing file or a cloud without colours is a clear error with exit code 1."""
     from geofit.cli import main

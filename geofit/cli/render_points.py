@@ -1,9 +1,11 @@
 """``geofit render-points [CLOUD]``: render a coloured point cloud (PyTorch3D's tutorial 3).
 
 With a ``.npz`` (``verts`` and ``rgb``, as the tutorial's PittsburghBridge file) or ``.ply`` file,
-that cloud is rendered; without one, geofit's default cloud: points sampled uniformly on the
-default textured mesh (the cow when the tutorial data is found, else the procedural stand-in),
-normalised as in the tutorials, each coloured by the texture at its surface point.
+that cloud is rendered. Without one: the tutorial's ``PittsburghBridge/pointcloud.npz`` if it is in
+the data folder (``$GEOFIT_DATA`` or the user cache), else geofit's default cloud: points sampled
+uniformly on the default textured mesh (the cow when the tutorial data is found, else the
+procedural stand-in), normalised as in the tutorials, each coloured by the texture at its
+surface point.
 Writes ``render_points.png`` (the composited image) and ``render_points_depth.png`` (the depth of
 the nearest point, near = bright, background black) into ``--out``.
 """
@@ -15,7 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["default_cloud", "register", "run"]
+__all__ = ["BRIDGE", "default_cloud", "register", "run"]
+
+#: The tutorial's cloud, relative to the data folder (``geofit.data.find``).
+BRIDGE = "PittsburghBridge/pointcloud.npz"
 
 
 def default_cloud(n_points: int = 300_000, seed=0):
@@ -65,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
+    from ..data import find
     from ..io import load_pointcloud
     from ..render.compositing import AlphaCompositor, NormWeightedCompositor
     from ..render.points import (
@@ -74,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
     )
 
     t0 = time.perf_counter()
+    if args.cloud is None:
+        args.cloud = find(BRIDGE)
     if args.cloud is None:
         cloud, source = default_cloud(args.n_points, args.seed)
         azim = 180.0 if args.azim is None else args.azim   # the cow faces -Z: look at its front
@@ -126,8 +134,9 @@ def register(subparsers) -> None:
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
     p.add_argument("cloud", nargs="?", type=Path, default=None,
-                   help=".npz (verts, rgb) or .ply point cloud; default: samples of the "
-                        "textured default mesh (the cow if found)")
+                   help=".npz (verts, rgb) or .ply point cloud; default: the tutorial's "
+                        f"{BRIDGE} if in the data folder, else samples of the textured "
+                        "default mesh (the cow if found)")
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--image-size", type=int, default=512)
     p.add_argument("--radius", type=float, default=0.003,
