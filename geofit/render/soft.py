@@ -78,20 +78,20 @@ from .blending import BlendParams
 
 __all__ = [
     "TUTORIAL_BLUR_RADIUS",
-    "SoftRasterizationSettings",
+    "PhongColors",
+    "SoftBlend",
     "SoftFragments",
+    "SoftGrads",
+    "SoftPhongRenderer",
+    "SoftRasterizationSettings",
+    "SoftRender",
+    "SoftSilhouetteRenderer",
+    "SoftSilhouetteShader",
+    "phong_vertex_colors",
     "rasterize_soft",
     "sigmoid_alpha_blend",
     "sigmoid_alpha_blend_vjp",
-    "PhongColors",
-    "phong_vertex_colors",
-    "SoftBlend",
     "softmax_rgb_blend_soft",
-    "SoftRender",
-    "SoftGrads",
-    "SoftSilhouetteShader",
-    "SoftSilhouetteRenderer",
-    "SoftPhongRenderer",
 ]
 
 #: The tutorial's blur radius ``log(1 / 1e-4 - 1) * 1e-4``: the squared NDC distance at which
@@ -181,7 +181,8 @@ class SoftRasterizationSettings:
             if v is not None and not isinstance(v, (bool, np.bool_)):
                 raise ValueError(f"{name}: expected None, True or False, got {v!r}")
         if not isinstance(self.cull_backfaces, (bool, np.bool_)):
-            raise ValueError(f"cull_backfaces: expected True or False, got {self.cull_backfaces!r}")
+            raise ValueError(  # noqa: TRY004 - a bad setting value, as RasterizationSettings
+                f"cull_backfaces: expected True or False, got {self.cull_backfaces!r}")
         if self.z_clip_value is not None:
             object.__setattr__(self, "z_clip_value",
                                check_positive(self.z_clip_value, "z_clip_value", strict=False))
@@ -194,7 +195,7 @@ class SoftRasterizationSettings:
             raise ValueError(f"n_threads: expected None or an integer >= 1, got {t!r}")
 
     @classmethod
-    def tutorial(cls, image_size=128, **kwargs) -> "SoftRasterizationSettings":
+    def tutorial(cls, image_size=128, **kwargs) -> SoftRasterizationSettings:
         """The fit_textured_mesh tutorial's soft settings: blur 9.21e-4, 50 faces per pixel."""
         kwargs.setdefault("blur_radius", TUTORIAL_BLUR_RADIUS)
         kwargs.setdefault("faces_per_pixel", 50)
@@ -792,7 +793,9 @@ def rasterize_soft(mesh: Mesh, cameras: CamerasBase,
     N = len(cameras)
     with np.errstate(invalid="ignore", divide="ignore"):
         proj = cameras.projection_jacobian(verts)
-    xy, J = proj.xy, proj.jacobian
+    xy = proj.xy
+    # a vertex on the camera plane has an infinite Jacobian; its faces are never kept
+    J = np.where(np.isfinite(proj.jacobian), proj.jacobian, 0.0)
     x = np.ascontiguousarray(xy[..., 0])
     y = np.ascontiguousarray(xy[..., 1])
     zview = np.einsum("va,na->nv", verts, cameras.R[:, :, 2]) + cameras.T[:, None, 2]
@@ -1062,6 +1065,11 @@ class PhongColors:
 
 
 def _light_params(lights, n_views):
+    from .lighting import AmbientLights, DirectionalLights, PointLights
+
+    if not isinstance(lights, (PointLights, DirectionalLights, AmbientLights)):
+        raise TypeError(f"lights: expected PointLights, DirectionalLights or AmbientLights, got "
+                        f"{type(lights)!r}")
     kind = type(lights).__name__
     amb = _per_view(lights.ambient_color, n_views, "lights.ambient_color")
     if kind == "AmbientLights":
