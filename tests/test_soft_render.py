@@ -359,7 +359,7 @@ def _smooth_pixels(fr: SoftFragments, mesh: Mesh, shading=None, margin=1e-6) -> 
     ds = np.sort(np.stack(ds, 1), 1)
     ok &= ds[:, 1] - ds[:, 0] > margin
     if shading is not None:
-        ok &= np.abs(shading._saved["cos"]) > 1e-4
+        ok[shading.entries] &= np.abs(shading.cos) > 1e-4
     bad = np.zeros(fr.n_views * H * W, bool)
     np.logical_or.at(bad, fr.global_pixel, ~ok)
     return ~bad.reshape(fr.n_views, H, W)

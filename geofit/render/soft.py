@@ -102,6 +102,7 @@ _EPS = 1e-8          # kEpsilon of PyTorch3D's geometry utilities
 _CLIP_SUM_EPS = 1e-5  # BarycentricClipForward's floor on the clipped sum
 _NORM_EPS = 1e-6     # F.normalize eps in lighting and vertex normals
 _BLEND_EPS = 1e-10   # softmax_rgb_blend's eps
+_NEGLIGIBLE = 1e-20  # softmax weight ratio below which an entry's colour is not computed
 
 
 # ------------------------------------------------------------------------------------------
@@ -932,46 +933,52 @@ def _check_blend(blend_params) -> BlendParams:
 # ------------------------------------------------------------------------------------------
 
 
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _normalize(x):
-    """x / max(|x|, 1e-6) and the clamped norm."""
-    nrm = np.sqrt(_dot(x, x))
+def _normalize3(x):
+    """x / max(|x|, 1e-6) for a vector given as three (m,) components; also |x| and the divisor."""
+    nrm = np.sqrt(_dot3(x, x))
     c = np.maximum(nrm, _NORM_EPS)
-    return x / c[:, None], nrm, c
+    inv = 1.0 / c
+    return [xi * inv for xi in x], nrm, c
 
 
-def _normalize_vjp(g, y, nrm, c):
-    """Backward of y = x / max(|x|, eps)."""
-    proj = np.where(nrm > _NORM_EPS, _dot(y, g), 0.0)
-    return (g - y * proj[:, None]) / c[:, None]
+def _normalize3_vjp(g, y, nrm, c):
+    """Backward of y = x / max(|x|, eps) (the clamp passes no gradient to |x|)."""
+    proj = np.where(nrm > _NORM_EPS, _dot3(y, g), 0.0)
+    inv = 1.0 / c
+    return [(g[i] - y[i] * proj) * inv for i in range(3)]
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray):
-    """PyTorch3D's vertex normals and what their vjp needs."""
+    """PyTorch3D's vertex normals (component arrays) and what their vjp needs."""
     V = len(verts)
-    a = verts[faces[:, 1]] - verts[faces[:, 0]]
-    b = verts[faces[:, 2]] - verts[faces[:, 0]]
-    cross = np.cross(a, b)
-    idx = faces.ravel()
-    cc = np.repeat(cross, 3, axis=0)
-    m = np.stack([np.bincount(idx, cc[:, d], V) for d in range(3)], 1)
-    n, nrm, c = _normalize(m)
-    return n, (a, b, nrm, c)
+    X = [np.ascontiguousarray(verts[:, c]) for c in range(3)]
+    f0, f1, f2 = (np.ascontiguousarray(faces[:, i]) for i in range(3))
+    a = [X[c][f1] - X[c][f0] for c in range(3)]
+    b = [X[c][f2] - X[c][f0] for c in range(3)]
+    cr = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    m = [np.bincount(f0, cr[c], V) + np.bincount(f1, cr[c], V) + np.bincount(f2, cr[c], V)
+         for c in range(3)]
+    n, nrm, cl = _normalize3(m)
+    return n, (a, b, nrm, cl, f0, f1, f2)
 
 
-def _vertex_normals_vjp(g_n, n, saved, faces, V):
-    a, b, nrm, c = saved
-    g_m = _normalize_vjp(g_n, n, nrm, c)
-    g_c = g_m[faces[:, 0]] + g_m[faces[:, 1]] + g_m[faces[:, 2]]
-    g_a = np.cross(b, g_c)
-    g_b = np.cross(g_c, a)
-    out = np.zeros((V, 3))
-    for d in range(3):  # coordinates
-        out[:, d] = (np.bincount(faces[:, 1], g_a[:, d], V) + np.bincount(faces[:, 2], g_b[:, d], V)
-                     - np.bincount(faces[:, 0], g_a[:, d] + g_b[:, d], V))
+def _vertex_normals_vjp(g_n, n, saved, V):
+    a, b, nrm, cl, f0, f1, f2 = saved
+    g_m = _normalize3_vjp(g_n, n, nrm, cl)
+    g_c = [g_m[c][f0] + g_m[c][f1] + g_m[c][f2] for c in range(3)]
+    # cross = a x b: d/da = b x g, d/db = g x a
+    g_a = [b[1] * g_c[2] - b[2] * g_c[1], b[2] * g_c[0] - b[0] * g_c[2],
+           b[0] * g_c[1] - b[1] * g_c[0]]
+    g_b = [g_c[1] * a[2] - g_c[2] * a[1], g_c[2] * a[0] - g_c[0] * a[2],
+           g_c[0] * a[1] - g_c[1] * a[0]]
+    out = np.empty((V, 3))
+    for c in range(3):  # coordinates
+        out[:, c] = (np.bincount(f1, g_a[c], V) + np.bincount(f2, g_b[c], V)
+                     - np.bincount(f0, g_a[c] + g_b[c], V))
     return out
 
 
@@ -983,85 +990,185 @@ def _per_view(param: np.ndarray, n_views: int, name: str) -> np.ndarray:
     return np.broadcast_to(p, (n_views,) + p.shape[1:])
 
 
+def _entry_param(p: np.ndarray, view: np.ndarray):
+    """Per-entry values of a per-view parameter (N,) or (N, 3): scalars when all views agree."""
+    if p.ndim == 1:
+        return float(p[0]) if np.all(p == p[0]) else p[view]
+    if np.all(p == p[0]):
+        return [float(v) for v in p[0]]
+    return [np.ascontiguousarray(p[view, c]) for c in range(p.shape[1])]
+
+
+def _interp(b, cols, i):
+    """sum_j b_j cols[c][i_j] for each component c."""
+    return [b[0] * col[i[0]] + b[1] * col[i[1]] + b[2] * col[i[2]] for col in cols]
+
+
+def _scatter(b, g, i, V):
+    """(V, 3): sum over entries of b_j g[c] onto vertex i_j (the transpose of _interp)."""
+    out = np.empty((V, len(g)))
+    for c in range(len(g)):  # components
+        out[:, c] = (np.bincount(i[0], b[0] * g[c], V) + np.bincount(i[1], b[1] * g[c], V)
+                     + np.bincount(i[2], b[2] * g[c], V))
+    return out
+
+
+_CHUNK = 65536  # entries per shading chunk (cache-sized arrays)
+
+
+def _chunks(n: int, size: int = _CHUNK) -> list:
+    return [slice(a, min(a + size, n)) for a in range(0, n, size)]
+
+
 @dataclass(eq=False)
 class PhongColors:
     """Per-entry Phong colours of :func:`phong_vertex_colors` and what their vjp needs.
 
     Attributes
     ----------
-    colors : (m, 3) float64
-        ``(Ma La + Md D) texel + Ms S`` per fragment entry.
-    shade : (m, 3) float64
+    entries : (k,) int64
+        The fragment entries shaded (all of them unless a subset was asked for).
+    colors : (k, 3) float64
+        ``(Ma La + Md D) texel + Ms S`` per shaded entry.
+    shade : (k, 3) float64
         ``Ma La + Md D``: the factor multiplying the interpolated vertex colour.
-    specular : (m, 3) float64
+    specular : (k, 3) float64
         ``Ms S``.
     """
 
+    entries: np.ndarray
     colors: np.ndarray
     shade: np.ndarray
     specular: np.ndarray
     _saved: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def cos(self) -> np.ndarray:
+        """(k,) float64 ``n . l`` (cosine between the shading normal and the light) per entry."""
+        parts = [c["cos"] for c in self._saved["chunk_saved"]]
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def vjp(self, grad_colors) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Backward of the shading.
 
         Parameters
         ----------
-        grad_colors : (m, 3) float64
+        grad_colors : (k, 3) float64
+            dL/d ``colors``.
 
         Returns
         -------
         grad_verts : (V, 3) float64
-            Through the interpolated world position and the vertex normals (not through the
+            Through the interpolated world positions and the vertex normals (not through the
             barycentrics: see ``grad_bary``).
         grad_vertex_colors : (V, 3) float64
-        grad_bary : (m, 3) float64
-            To be passed to :meth:`SoftFragments.vjp`.
+        grad_bary : (k, 3) float64
+            dL/d barycentrics of the shaded entries (for :meth:`SoftFragments.vjp`).
         """
         s = self._saved
-        g = np.asarray(grad_colors, dtype=np.float64)
-        fr = s["fragments"]
-        tri = s["tri"]
-        bc = fr.bary
+        k = len(self.entries)
+        g = as_array(grad_colors, "grad_colors", (k, 3))
         V = s["n_verts"]
-        # texel branch
-        g_tex = g * self.shade
-        g_bary = np.einsum("mc,mic->mi", g_tex, s["vcol"][tri])
-        gcol = np.zeros((V, 3))
-        flat = tri.ravel()
-        for c in range(3):  # colour channels
-            gcol[:, c] = np.bincount(flat, (bc * g_tex[:, c:c + 1]).ravel(), V)
-        # lighting branch
-        g_dif = g * s["Md"] * s["tex"]          # d/d diffuse colour term (m, 3)
-        g_cos = _dot(g_dif, s["Ld"]) * (s["cos"] > 0.0)
-        g_spec = g * s["Ms"]
-        a = s["alpha"]
-        sh = s["shininess"]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            da = np.where(a > 0.0, sh * np.power(a, sh - 1.0), 0.0)
-        g_a = _dot(g_spec, s["Ls"]) * da * s["mask"]
-        nn, ln, vn = s["nn"], s["l"], s["v"]
-        r = s["r"]
-        g_r = g_a[:, None] * vn
-        g_v = g_a[:, None] * r
-        g_l = -g_r
-        g_cos = g_cos + 2.0 * _dot(g_r, nn)
-        g_nn = 2.0 * s["cos"][:, None] * g_r + g_cos[:, None] * ln
-        g_l = g_l + g_cos[:, None] * nn
-        g_P = -_normalize_vjp(g_v, vn, *s["v_norm"])
-        if s["point"]:  # l = normalize(location - P)
-            g_P -= _normalize_vjp(g_l, ln, *s["l_norm"])
-        g_N = _normalize_vjp(g_nn, nn, *s["n_norm"])
-        # P = sum b_i V[tri_i], N = sum b_i n[tri_i]
-        g_bary += np.einsum("mc,mic->mi", g_P, s["verts"][tri])
-        g_bary += np.einsum("mc,mic->mi", g_N, s["vn"][tri])
+        g_bary = np.empty((k, 3))
+
+        def one(ci):
+            sl = s["chunks"][ci]
+            gP, gN, gT, gb, cs = _phong_chunk_vjp(s["chunk_saved"][ci], g[sl], self.shade[sl],
+                                                  s)
+            g_bary[sl] = gb
+            b, i = cs["b"], cs["i"]
+            return _scatter(b, gP, i, V), _scatter(b, gN, i, V), _scatter(b, gT, i, V)
+
+        parts = _map_views(one, len(s["chunks"]), s["n_threads"])
         gv = np.zeros((V, 3))
         gn = np.zeros((V, 3))
-        for c in range(3):  # coordinates
-            gv[:, c] = np.bincount(flat, (bc * g_P[:, c:c + 1]).ravel(), V)
-            gn[:, c] = np.bincount(flat, (bc * g_N[:, c:c + 1]).ravel(), V)
-        gv += _vertex_normals_vjp(gn, s["vn"], s["vn_saved"], s["faces"], V)
+        gcol = np.zeros((V, 3))
+        for a, b, c in parts:  # chunks
+            gv += a
+            gn += b
+            gcol += c
+        gv += _vertex_normals_vjp([np.ascontiguousarray(gn[:, c]) for c in range(3)], s["vn"],
+                                  s["vn_saved"], V)
         return gv, gcol, g_bary
+
+
+def _phong_chunk(b, i, v, s):
+    """Phong colours of one chunk of entries (barycentrics b, vertex ids i, views v)."""
+    P = _interp(b, s["verts"], i)
+    Nrm = _interp(b, s["vn"], i)
+    tex = _interp(b, s["vcol"], i)
+    nn, *n_norm = _normalize3(Nrm)
+    if s["loc"] is not None:
+        lp = _entry_param(s["loc"], v)
+        Lraw = [lp[c] - P[c] for c in range(3)]
+    elif s["direction"] is not None:
+        dp = _entry_param(s["direction"], v)
+        Lraw = [np.broadcast_to(np.asarray(dp[c], np.float64), P[0].shape) for c in range(3)]
+    else:
+        Lraw = [np.zeros_like(P[0]) for _ in range(3)]
+    ln, *l_norm = _normalize3(Lraw)
+    cos = _dot3(nn, ln)
+    cp = _entry_param(s["centres"], v)
+    vd, *v_norm = _normalize3([cp[c] - P[c] for c in range(3)])
+    r = [2.0 * cos * nn[c] - ln[c] for c in range(3)]
+    alpha = np.where(cos > 0.0, np.maximum(_dot3(vd, r), 0.0), 0.0)
+    sh = _entry_param(s["shininess"], v)
+    pw = np.power(alpha, sh)
+    Ld, Ls = _entry_param(s["Ld"], v), _entry_param(s["Ls"], v)
+    La, Ma, Md, Ms = (_entry_param(s[k], v) for k in ("La", "Ma", "Md", "Ms"))
+    relu = np.maximum(cos, 0.0)
+    n = len(cos)
+    shade = np.empty((n, 3))
+    spec = np.empty((n, 3))
+    colors = np.empty((n, 3))
+    for c in range(3):  # colour channels
+        shade[:, c] = Ma[c] * La[c] + Md[c] * (Ld[c] * relu)
+        spec[:, c] = Ms[c] * (Ls[c] * pw)
+        colors[:, c] = shade[:, c] * tex[c] + spec[:, c]
+    saved = {"b": b, "i": i, "Md": Md, "Ms": Ms, "Ld": Ld, "Ls": Ls, "tex": tex, "cos": cos,
+             "alpha": alpha, "shininess": sh, "nn": nn, "l": ln, "v": vd, "r": r,
+             "l_norm": l_norm, "v_norm": v_norm, "n_norm": n_norm}
+    return colors, shade, spec, saved
+
+
+def _phong_chunk_vjp(cs, g, shade, s):
+    """Gradients on the interpolated position, normal and texel, and on the barycentrics."""
+    g = [np.ascontiguousarray(g[:, c]) for c in range(3)]
+    b, i = cs["b"], cs["i"]
+    g_tex = [g[c] * shade[:, c] for c in range(3)]
+    vcol = s["vcol"]
+    g_bary = [g_tex[0] * vcol[0][i[j]] + g_tex[1] * vcol[1][i[j]] + g_tex[2] * vcol[2][i[j]]
+              for j in range(3)]
+    Md, Ld, Ms, Ls = cs["Md"], cs["Ld"], cs["Ms"], cs["Ls"]
+    tex, cos = cs["tex"], cs["cos"]
+    # diffuse = Ld max(0, cos): d colour_c / d cos = Md_c Ld_c texel_c [cos > 0]
+    g_cos = (g[0] * (Md[0] * Ld[0]) * tex[0] + g[1] * (Md[1] * Ld[1]) * tex[1]
+             + g[2] * (Md[2] * Ld[2]) * tex[2]) * (cos > 0.0)
+    # specular = Ls alpha^sh with alpha = max(r . v, 0) [cos > 0]
+    a, sh = cs["alpha"], cs["shininess"]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        da = np.where(a > 0.0, sh * np.power(a, sh - 1.0), 0.0)
+    g_a = (g[0] * (Ms[0] * Ls[0]) + g[1] * (Ms[1] * Ls[1]) + g[2] * (Ms[2] * Ls[2])) * da
+    nn, ln, vd, r = cs["nn"], cs["l"], cs["v"], cs["r"]
+    g_r = [g_a * vd[c] for c in range(3)]
+    g_v = [g_a * r[c] for c in range(3)]
+    # r = 2 cos nn - l with cos = nn . l
+    g_cos = g_cos + 2.0 * _dot3(g_r, nn)
+    g_nn = [2.0 * cos * g_r[c] + g_cos * ln[c] for c in range(3)]
+    g_l = [g_cos * nn[c] - g_r[c] for c in range(3)]
+    gv_raw = _normalize3_vjp(g_v, vd, *cs["v_norm"])
+    g_P = [-x for x in gv_raw]
+    if s["loc"] is not None:  # l = normalize(location - P)
+        gl_raw = _normalize3_vjp(g_l, ln, *cs["l_norm"])
+        g_P = [g_P[c] - gl_raw[c] for c in range(3)]
+    g_N = _normalize3_vjp(g_nn, nn, *cs["n_norm"])
+    # P = sum b_j V[i_j], N = sum b_j n[i_j]
+    Vc, Nc = s["verts"], s["vn"]
+    for j in range(3):  # corners
+        g_bary[j] = g_bary[j] + (g_P[0] * Vc[0][i[j]] + g_P[1] * Vc[1][i[j]]
+                                 + g_P[2] * Vc[2][i[j]] + g_N[0] * Nc[0][i[j]]
+                                 + g_N[1] * Nc[1][i[j]] + g_N[2] * Nc[2][i[j]])
+    return g_P, g_N, g_tex, np.stack(g_bary, 1), cs
 
 
 def _light_params(lights, n_views):
@@ -1070,23 +1177,19 @@ def _light_params(lights, n_views):
     if not isinstance(lights, (PointLights, DirectionalLights, AmbientLights)):
         raise TypeError(f"lights: expected PointLights, DirectionalLights or AmbientLights, got "
                         f"{type(lights)!r}")
-    kind = type(lights).__name__
     amb = _per_view(lights.ambient_color, n_views, "lights.ambient_color")
-    if kind == "AmbientLights":
+    if isinstance(lights, AmbientLights):
         zero = np.zeros((n_views, 3))
         return amb, zero, zero, None, None
     dif = _per_view(lights.diffuse_color, n_views, "lights.diffuse_color")
     spe = _per_view(lights.specular_color, n_views, "lights.specular_color")
-    if hasattr(lights, "location"):
+    if isinstance(lights, PointLights):
         return amb, dif, spe, _per_view(lights.location, n_views, "lights.location"), None
-    if hasattr(lights, "direction"):
-        return amb, dif, spe, None, _per_view(lights.direction, n_views, "lights.direction")
-    raise TypeError(f"lights: expected PointLights, DirectionalLights or AmbientLights, got "
-                    f"{type(lights)!r}")
+    return amb, dif, spe, None, _per_view(lights.direction, n_views, "lights.direction")
 
 
 def phong_vertex_colors(fragments: SoftFragments, mesh: Mesh, vertex_colors, lights, cameras,
-                        materials) -> PhongColors:
+                        materials, entries=None) -> PhongColors:
     """Per-entry Phong colours of a mesh with per-vertex colours (PyTorch3D's ``phong_shading``).
 
     For each fragment entry with (clipped) barycentrics ``b``: world point ``P = sum b_i v_i``,
@@ -1109,10 +1212,13 @@ def phong_vertex_colors(fragments: SoftFragments, mesh: Mesh, vertex_colors, lig
         The N cameras (their centres give the view directions).
     materials : Materials
         1 or N materials.
+    entries : (k,) int64, optional
+        Shade only these fragment entries (default: all).
 
     Returns
     -------
     PhongColors
+        Computed in cache-sized chunks on the fragments' thread count.
     """
     fr = _check_fragments(fragments)
     mesh = _check_mesh(mesh)
@@ -1125,47 +1231,46 @@ def phong_vertex_colors(fragments: SoftFragments, mesh: Mesh, vertex_colors, lig
     N = fr.n_views
     if len(cameras) not in (1, N):
         raise ValueError(f"cameras: expected 1 or {N} cameras, got {len(cameras)}")
-    amb, dif, spe, loc, direction = _light_params(lights, N)
-    Ma = _per_view(materials.ambient_color, N, "materials.ambient_color")
-    Md = _per_view(materials.diffuse_color, N, "materials.diffuse_color")
-    Ms = _per_view(materials.specular_color, N, "materials.specular_color")
-    shin = _per_view(materials.shininess, N, "materials.shininess")
-    centres = _per_view(cameras.get_camera_center(), N, "cameras")
-    verts = mesh.verts
-    faces = mesh.faces
-    vn, vn_saved = _vertex_normals(verts, faces)
-    tri = faces[fr.face]
-    bc = fr.bary
-    v = fr.view
-    P = np.einsum("mi,mic->mc", bc, verts[tri])
-    Nrm = np.einsum("mi,mic->mc", bc, vn[tri])
-    tex = np.einsum("mi,mic->mc", bc, vcol[tri])
-    nn, *n_norm = _normalize(Nrm)
-    if loc is not None:
-        Lraw = loc[v] - P
-    elif direction is not None:
-        Lraw = np.array(direction[v], dtype=np.float64)
+    if entries is None:
+        entries = np.arange(len(fr))
     else:
-        Lraw = np.zeros_like(P)
-    ln, *l_norm = _normalize(Lraw)
-    cos = _dot(nn, ln)
-    diffuse = dif[v] * np.maximum(cos, 0.0)[:, None]
-    vn_dir, *v_norm = _normalize(centres[v] - P)
-    r = 2.0 * cos[:, None] * nn - ln
-    rv = _dot(vn_dir, r)
-    mask = (cos > 0.0).astype(np.float64)
-    alpha = np.maximum(rv, 0.0) * mask
-    sh = shin[v]
-    specular = spe[v] * np.power(alpha, sh)[:, None]
-    shade = Ma[v] * amb[v] + Md[v] * diffuse
-    spec_term = Ms[v] * specular
-    colors = shade * tex + spec_term
-    saved = {"fragments": fr, "tri": tri, "n_verts": V, "vcol": vcol, "Md": Md[v], "Ms": Ms[v],
-             "tex": tex, "Ld": dif[v], "Ls": spe[v], "cos": cos, "alpha": alpha, "mask": mask,
-             "shininess": sh, "nn": nn, "l": ln, "v": vn_dir, "r": r, "l_norm": l_norm,
-             "v_norm": v_norm, "n_norm": n_norm, "verts": verts, "vn": vn,
-             "vn_saved": vn_saved, "faces": faces, "point": loc is not None}
-    return PhongColors(colors, shade, spec_term, saved)
+        entries = as_array(entries, "entries", (None,), np.int64)
+        if entries.size and (entries.min() < 0 or entries.max() >= len(fr)):
+            raise ValueError(f"entries: expected indices in [0, {len(fr)}), got range "
+                             f"[{entries.min()}, {entries.max()}]")
+    amb, dif, spe, loc, direction = _light_params(lights, N)
+    vn, vn_saved = _vertex_normals(mesh.verts, mesh.faces)
+    s = {"n_verts": V, "verts": [np.ascontiguousarray(mesh.verts[:, c]) for c in range(3)],
+         "vn": vn, "vn_saved": vn_saved,
+         "vcol": [np.ascontiguousarray(vcol[:, c]) for c in range(3)],
+         "loc": loc, "direction": direction, "La": amb, "Ld": dif, "Ls": spe,
+         "Ma": _per_view(materials.ambient_color, N, "materials.ambient_color"),
+         "Md": _per_view(materials.diffuse_color, N, "materials.diffuse_color"),
+         "Ms": _per_view(materials.specular_color, N, "materials.specular_color"),
+         "shininess": _per_view(materials.shininess, N, "materials.shininess"),
+         "centres": _per_view(cameras.get_camera_center(), N, "cameras"),
+         "n_threads": fr._ctx.get("n_threads", 1)}
+    k = len(entries)
+    chunks = _chunks(k)
+    colors = np.empty((k, 3))
+    shade = np.empty((k, 3))
+    spec = np.empty((k, 3))
+    faces = mesh.faces
+    bary = fr.bary
+
+    def one(ci):
+        e = entries[chunks[ci]]
+        tri = faces[fr.face[e]]
+        i = [np.ascontiguousarray(tri[:, j]) for j in range(3)]
+        bb = bary[e]
+        b = [np.ascontiguousarray(bb[:, j]) for j in range(3)]
+        c, sh, sp, saved = _phong_chunk(b, i, fr.view[e], s)
+        colors[chunks[ci]], shade[chunks[ci]], spec[chunks[ci]] = c, sh, sp
+        return saved
+
+    s["chunk_saved"] = _map_views(one, len(chunks), s["n_threads"])
+    s["chunks"] = chunks
+    return PhongColors(entries, colors, shade, spec, s)
 
 
 # ------------------------------------------------------------------------------------------
@@ -1212,31 +1317,65 @@ class SoftBlend:
         gp = fr.global_pixel
         out = self.images.reshape(-1, 4)
         D = s["D"]
-        g_rgb = g[:, :3]
-        g_num = g_rgb / D[:, None]
-        g_D = -_dot(g_rgb, out[:, :3]) / D
+        inv_D = 1.0 / D
+        g_num = [g[:, c] * inv_D for c in range(3)]           # per pixel
+        g_D = -(g[:, 0] * out[:, 0] + g[:, 1] * out[:, 1] + g[:, 2] * out[:, 2]) * inv_D
         w = s["w"]
-        g_col = w[:, None] * g_num[gp]
-        g_w = _dot(g_num[gp], s["colors"]) + g_D[gp]
-        g_delta = g_num @ s["bg"] + g_D
+        cols = s["colors"]
+        gn_e = [gn[gp] for gn in g_num]                        # per entry
+        g_col = np.empty((len(w), 3))
+        for c in range(3):  # colour channels
+            g_col[:, c] = w * gn_e[c]
+        g_w = gn_e[0] * cols[:, 0] + gn_e[1] * cols[:, 1] + gn_e[2] * cols[:, 2] + g_D[gp]
+        bg = s["bg"]
+        g_delta = g_num[0] * bg[0] + g_num[1] * bg[1] + g_num[2] * bg[2] + g_D
         p = s["p"]
-        E = s["E"]
         gamma = s["gamma"]
-        g_p = g_w * E
-        g_zinv = g_w * w / gamma
+        g_p = g_w * s["E"]
+        gww = g_w * w
+        g_zinv = gww / gamma
         G = len(D)
-        g_zm = -np.bincount(gp, g_w * w, G) / gamma
+        g_zm = -np.bincount(gp, gww, G) / gamma
         g_zm += np.where(s["delta_free"], -g_delta * s["delta"] / gamma, 0.0)
-        # zm = max(z_inv) (the first entry of each pixel), clamped at 1e-10
+        # zm = max(z_inv) (one entry per pixel holds it), clamped at 1e-10
         first = s["first"]
-        g_first = np.where(s["zm_free"], g_zm, 0.0)[gp[first]]
-        g_zinv[first] += g_first
+        g_zinv[first] += np.where(s["zm_free"], g_zm, 0.0)[gp[first]]
         g_zbuf = -g_zinv / s["zrange"]
         sigma = s["sigma"]
-        g_d = g_p * (-p * (1.0 - p) / sigma)
-        # alpha = 1 - prod(1 - p)
-        g_d += g[gp, 3] * (-p * (1.0 - out[gp, 3]) / sigma)
+        # p = sigmoid(-d / sigma); alpha = 1 - prod(1 - p): dA/dd_k = -(p_k / sigma)(1 - A)
+        g_d = (g_p * (1.0 - p) + g[gp, 3] * (1.0 - out[gp, 3])) * (-p / sigma)
         return g_col, g_d, g_zbuf
+
+
+def _softmax_weights(fr: SoftFragments, bp: BlendParams, znear, zfar) -> dict:
+    """The colour-independent part of softmax_rgb_blend: weights, normaliser, alpha."""
+    H, W = fr.image_size
+    G = fr.n_views * H * W
+    gp = fr.global_pixel
+    zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (fr.n_views,))[fr.view]
+    zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (fr.n_views,))[fr.view]
+    sigma, gamma = float(bp.sigma), float(bp.gamma)
+    p = expit(-fr.dist / sigma)
+    zrange = zf - zn
+    zinv = (zf - fr.depth) / zrange
+    zmax = np.full(G, -np.inf)
+    np.maximum.at(zmax, gp, zinv)
+    # the entry holding each pixel's maximum (torch.max sends the gradient to one of them)
+    cand = np.flatnonzero(zinv == zmax[gp])
+    _, first_idx = np.unique(gp[cand], return_index=True)
+    first = cand[first_idx]
+    zm = np.maximum(zmax, _BLEND_EPS)
+    zm_free = zmax > _BLEND_EPS
+    E = np.exp((zinv - zm[gp]) / gamma)
+    w = p * E
+    delta_raw = np.exp((_BLEND_EPS - zm) / gamma)
+    delta = np.maximum(delta_raw, _BLEND_EPS)
+    delta_free = delta_raw > _BLEND_EPS
+    D = np.bincount(gp, w, G) + delta
+    alpha = -np.expm1(np.bincount(gp, _log_one_minus_p(fr.dist, sigma), G))
+    return {"D": D, "w": w, "p": p, "E": E, "gamma": gamma, "sigma": sigma, "delta": delta,
+            "delta_free": delta_free, "first": first, "zm_free": zm_free, "zrange": zrange,
+            "alpha": alpha}
 
 
 def softmax_rgb_blend_soft(colors, fragments: SoftFragments,
@@ -1267,39 +1406,17 @@ def softmax_rgb_blend_soft(colors, fragments: SoftFragments,
     bp = _check_blend(blend_params)
     m = len(fr)
     col = as_array(colors, "colors", (m, 3))
+    pre = _softmax_weights(fr, bp, znear, zfar)
     H, W = fr.image_size
     G = fr.n_views * H * W
     gp = fr.global_pixel
-    zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (fr.n_views,))[fr.view]
-    zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (fr.n_views,))[fr.view]
-    sigma, gamma = float(bp.sigma), float(bp.gamma)
+    w, D, delta = pre["w"], pre["D"], pre["delta"]
     bg = np.asarray(bp.background_color, np.float64)
-    p = expit(-fr.dist / sigma)
-    zrange = zf - zn
-    zinv = (zf - fr.depth) / zrange
-    zmax = np.full(G, -np.inf)
-    np.maximum.at(zmax, gp, zinv)
-    # the entry holding each pixel's maximum (torch.max sends the gradient to one of them)
-    cand = np.flatnonzero(zinv == zmax[gp])
-    _, first_idx = np.unique(gp[cand], return_index=True)
-    first = cand[first_idx]
-    zm = np.maximum(zmax, _BLEND_EPS)
-    zm_free = zmax > _BLEND_EPS
-    E = np.exp((zinv - zm[gp]) / gamma)
-    w = p * E
-    delta_raw = np.exp((_BLEND_EPS - zm) / gamma)
-    delta = np.maximum(delta_raw, _BLEND_EPS)
-    delta_free = delta_raw > _BLEND_EPS
-    D = np.bincount(gp, w, G) + delta
-    num = np.stack([np.bincount(gp, w * col[:, c], G) for c in range(3)], 1)
-    num += delta[:, None] * bg[None, :]
     out = np.empty((G, 4))
-    out[:, :3] = num / D[:, None]
-    logq = np.bincount(gp, _log_one_minus_p(fr.dist, sigma), G)
-    out[:, 3] = -np.expm1(logq)
-    saved = {"fragments": fr, "D": D, "w": w, "colors": col, "bg": bg, "p": p, "E": E,
-             "gamma": gamma, "sigma": sigma, "delta": delta, "delta_free": delta_free,
-             "first": first, "zm_free": zm_free, "zrange": zrange}
+    for c in range(3):  # colour channels
+        out[:, c] = (np.bincount(gp, w * col[:, c], G) + delta * bg[c]) / D
+    out[:, 3] = pre["alpha"]
+    saved = dict(pre, fragments=fr, colors=col, bg=bg)
     return SoftBlend(out.reshape(fr.n_views, H, W, 4), w / D[gp], delta / D, saved)
 
 
@@ -1370,7 +1487,9 @@ class SoftRender:
         blend: SoftBlend = self._saved["blend"]
         shading: PhongColors = self._saved["shading"]
         g_col, g_d, g_z = blend.vjp(g)
-        gv, gcol, gbary = shading.vjp(g_col)
+        gv, gcol, gb = shading.vjp(g_col[shading.entries])
+        gbary = np.zeros((len(fr), 3))
+        gbary[shading.entries] = gb
         gv = gv + fr.vjp(grad_dists=g_d, grad_zbuf=g_z, grad_bary=gbary)
         return SoftGrads(gv, gcol)
 
@@ -1399,17 +1518,19 @@ class SoftRender:
         V = fr._ctx["n_verts"]
         H, W = fr.image_size
         G = fr.n_views * H * W
-        gp = fr.global_pixel
-        tri = fr._ctx["faces"][fr.face]
+        e = shading.entries
+        gp = fr.global_pixel[e]
+        tri = fr._ctx["faces"][fr.face[e]]
         rows = np.repeat(gp, 3)
         cols = tri.ravel()
+        wts = blend.weights[e]
+        bary = fr.bary[e]
         mats = []
         for c in range(3):  # colour channels
-            data = (blend.weights[:, None] * shading.shade[:, c:c + 1] * fr.bary).ravel()
+            data = (wts[:, None] * shading.shade[:, c:c + 1] * bary).ravel()
             mats.append(sp.csr_matrix((data, (rows, cols)), shape=(G, V)))
         bg = np.asarray(self._saved["bg"], np.float64)
-        b = np.stack([np.bincount(gp, blend.weights * shading.specular[:, c], G)
-                      for c in range(3)], 1)
+        b = np.stack([np.bincount(gp, wts * shading.specular[:, c], G) for c in range(3)], 1)
         b += blend.background_weight[:, None] * bg[None, :]
         return mats, b.reshape(fr.n_views, H, W, 3)
 
@@ -1488,10 +1609,18 @@ class SoftPhongRenderer:
         cameras = _check_cameras(cameras if cameras is not None else self.cameras)
         lights = lights if lights is not None else self.lights
         fr = rasterize_soft(mesh, cameras, self.raster_settings)
-        shading = phong_vertex_colors(fr, mesh, vertex_colors, lights, cameras, self.materials)
         znear = getattr(cameras, "znear", 1.0)
         zfar = getattr(cameras, "zfar", 100.0)
-        blend = softmax_rgb_blend_soft(shading.colors, fr, self.blend_params, znear, zfar)
+        # faces far behind the nearest one of their pixel get a softmax weight below
+        # _NEGLIGIBLE of its weight: their colour is not computed (it would change the pixel by
+        # less than that relative amount)
+        E = _softmax_weights(fr, self.blend_params, znear, zfar)["E"]
+        active = np.flatnonzero(E >= _NEGLIGIBLE)
+        shading = phong_vertex_colors(fr, mesh, vertex_colors, lights, cameras, self.materials,
+                                      entries=active)
+        colors = np.zeros((len(fr), 3))
+        colors[active] = shading.colors
+        blend = softmax_rgb_blend_soft(colors, fr, self.blend_params, znear, zfar)
         return SoftRender(blend.images, fr, "phong",
                           {"blend": blend, "shading": shading,
                            "bg": self.blend_params.background_color})
