@@ -1134,7 +1134,7 @@ def _phong_chunk(b, i, v, s):
 def _phong_chunk_vjp(cs, g, shade, s):
     """Gradients on the interpolated position, normal and texel, and on the barycentrics."""
     g = [np.ascontiguousarray(g[:, c]) for c in range(3)]
-    b, i = cs["b"], cs["i"]
+    i = cs["i"]
     g_tex = [g[c] * shade[:, c] for c in range(3)]
     vcol = s["vcol"]
     g_bary = [g_tex[0] * vcol[0][i[j]] + g_tex[1] * vcol[1][i[j]] + g_tex[2] * vcol[2][i[j]]
