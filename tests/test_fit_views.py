@@ -1,0 +1,365 @@
+"""Tests for geofit.fit.views (fit a mesh and its colours to multi-view images) and the
+``geofit fit-views`` command line.
+
+Objects are small procedural meshes (an ellipsoid with smooth vertex colours) rendered at
+24-32 px, so every fit runs in seconds.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
+from geofit.fit.views import (
+    SILHOUETTE_METHODS,
+    MultiViewData,
+    MultiViewDataset,
+    ViewsEvaluator,
+    _Identity,
+    _LargeSteps,
+    _lstsq_colors,
+    _Objective,
+    fit_mesh_to_views,
+    psnr,
+    render_multiview_dataset,
+    silhouette_iou,
+)
+from geofit.render.soft import SoftRasterizationSettings
+
+
+def _object(level=3):
+    """An ellipsoid (semi-axes 0.9, 0.6, 0.5) with smooth vertex colours."""
+    m = ico_sphere(level)
+    V = m.verts * np.array([0.9, 0.6, 0.5])
+    c = 0.5 + 0.4 * np.stack([np.sin(3 * V[:, 0]), np.cos(4 * V[:, 1]), V[:, 2]], 1)
+    return Mesh(V, m.faces, TexturesVertex(np.clip(c, 0, 1)))
+
+
+@pytest.fixture(scope="module")
+def data() -> MultiViewDataset:
+    return render_multiview_dataset(_object(), num_views=6, image_size=24, num_heldout=3)
+
+
+# ------------------------------------------------------------------------------------------
+# dataset and metrics
+# ------------------------------------------------------------------------------------------
+
+
+def test_dataset_follows_the_tutorial(data):
+    """20-view recipe geometry: elev linspace(0, 360), azim linspace(-180, 180), distance 2.7;
+    soft silhouettes in [0, 1] with a soft rim, binary held-out masks, white background."""
+    tr, ho = data.train, data.heldout
+    assert tr.silhouettes.shape == (6, 24, 24) and tr.images.shape == (6, 24, 24, 3)
+    np.testing.assert_allclose(data.config["elev"], np.linspace(0, 360, 6))
+    np.testing.assert_allclose(data.config["azim"], np.linspace(-180, 180, 6))
+    R, _ = look_at_view_transform(2.7, np.linspace(0, 360, 6), np.linspace(-180, 180, 6))
+    np.testing.assert_allclose(tr.cameras.R, R, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(tr.cameras.get_camera_center(), axis=1), 2.7)
+    s = tr.silhouettes
+    assert s.min() >= 0 and s.max() <= 1 and np.any((s > 0.01) & (s < 0.99))
+    assert set(np.unique(ho.silhouettes)) <= {0.0, 1.0}
+    bg = tr.silhouettes < 1e-6
+    np.testing.assert_allclose(tr.images[bg], 1.0)
+    # held-out directions differ from every training direction
+    ct, ch = tr.cameras.get_camera_center(), ho.cameras.get_camera_center()
+    d = np.linalg.norm(ct[:, None] - ch[None], axis=2)
+    assert d.min() > 0.05
+    np.testing.assert_allclose(data.train.lights.location, [[0.0, 0.0, -3.0]])
+
+
+def test_iou_and_psnr_closed_forms():
+    a = np.zeros((2, 4, 4))
+    b = np.zeros((2, 4, 4))
+    a[0, :2] = 1.0      # 8 pixels
+    b[0, :1] = 1.0      # 4 of them
+    np.testing.assert_allclose(silhouette_iou(a, b), [0.5, 1.0])   # empty view: 1
+    x = np.full((3, 3), 0.5)
+    assert psnr(x, x + 0.1) == pytest.approx(20.0)                  # 10 log10(1 / 0.01)
+    assert psnr(x, x) == math.inf
+    with pytest.raises(ValueError, match="pred, target"):
+        silhouette_iou(a, b[:1])
+    with pytest.raises(ValueError, match="pred, target"):
+        psnr(x, x[:2])
+
+
+def test_evaluator_scores_the_truth_perfectly(data):
+    """The true mesh gets IoU 1, chamfer 0, F-score 1 and a PSNR limited only by the vertex
+    colours' interpolation (here the truth *is* vertex-coloured: identical images)."""
+    ev = ViewsEvaluator(data.heldout, data.mesh, n_samples=2000)
+    m = ev(data.mesh, data.mesh.textures.verts_features)
+    assert m["iou"] == 1.0
+    assert m["chamfer_l2"] < 1e-12 and m["fscore@0.01"] == 1.0
+    assert m["psnr"] > 60.0
+    worse = ev(ico_sphere(2), np.full((162, 3), 0.5))
+    assert worse["iou"] < 0.9 and worse["chamfer_l2"] > 1e-3 and worse["psnr"] < m["psnr"]
+
+
+# ------------------------------------------------------------------------------------------
+# objective pieces
+# ------------------------------------------------------------------------------------------
+
+
+def test_large_steps_parameterisation_is_consistent():
+    """verts(to_params(V)) == V and pullback is the adjoint of verts (<g, J u> = <J^T g, u>)."""
+    m = ico_sphere(2)
+    p = _LargeSteps(m, 10.0)
+    np.testing.assert_allclose(p.verts(p.to_params(m.verts)), m.verts, atol=1e-12)
+    rng = np.random.default_rng(0)
+    u, g = rng.normal(size=3 * m.n_verts), rng.normal(size=(m.n_verts, 3))
+    assert np.sum(g * p.verts(u)) == pytest.approx(np.sum(p.pullback(g) * u), rel=1e-12)
+
+
+@pytest.mark.parametrize("textured,large", [(False, None), (True, None), (False, 5.0)])
+def test_objective_gradient_matches_finite_differences(data, textured, large):
+    """The composed objective (data terms, edge / normal / Laplacian terms, parameterisation):
+    a central difference along a random direction matches <grad, u>."""
+    m = ico_sphere(2)
+    m = m.update_verts(m.verts * 0.7)
+    param = _LargeSteps(m, large) if large else _Identity(m.n_verts)
+    weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
+    st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None)
+    obj = _Objective(m, data.train, weights, textured=textured, param=param, settings=st)
+    x = param.to_params(m.verts)
+    if textured:
+        x = np.concatenate([x, np.random.default_rng(1).uniform(0.2, 0.8, 3 * m.n_verts)])
+    f, g = obj(x)
+    assert np.all(np.isfinite(g)) and f > 0
+    u = np.random.default_rng(2).normal(size=x.shape)
+    h = 1e-7
+    fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
+    assert fd == pytest.approx(float(g @ u), rel=1e-4)
+    assert set(obj.last["terms"]) == ({"silhouette", "rgb", "edge", "normal", "laplacian"}
+                                      if textured else {"silhouette", "edge", "normal",
+                                                        "laplacian"})
+
+
+def test_lstsq_colours_recover_known_vertex_colours():
+    """With the true geometry the hard render is affine in the colours: one sparse solve
+    recovers the colours of every vertex the views see well."""
+    obj = _object(2)
+    ds = render_multiview_dataset(obj, num_views=8, image_size=48, num_heldout=1)
+    c = _lstsq_colors(Mesh(obj.verts, obj.faces), ds.train, 1e-6)
+    truth = obj.textures.verts_features
+    err = np.abs(c - truth).max(1)
+    assert np.median(err) < 0.02
+    ev = ViewsEvaluator(ds.train)
+    assert ev(Mesh(obj.verts, obj.faces), c)["psnr"] > 35.0
+
+
+# ------------------------------------------------------------------------------------------
+# fits
+# ------------------------------------------------------------------------------------------
+
+
+def _iou(data, mesh):
+    return ViewsEvaluator(data.heldout)(mesh)["iou"]
+
+
+@pytest.mark.parametrize("method,kw", [
+    ("tutorial", {"silhouette_iters": 60}),
+    ("scipy-lbfgs", {"silhouette_iters": 25}),
+    ("nlopt-lbfgs", {"silhouette_iters": 40}),
+    ("scipy-lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)]}),
+    ("contour", {"silhouette_iters": 60, "large_steps": 5.0, "adam_lr": 0.01}),
+])
+def test_silhouette_methods_improve_the_fit(data, method, kw):
+    """Every silhouette method ends with a status from STATUSES, a lower loss, and a better
+    held-out IoU than the starting sphere."""
+    init = ico_sphere(2)
+    res = fit_mesh_to_views(data.train, init=init, silhouette_method=method,
+                            textured_method="none", **kw)
+    h = res.history
+    assert res.ok and res.status in ("converged", "max_iter", "max_eval", "stalled")
+    assert len(h) > 3 and h.loss[-1] < h.loss[0]
+    assert np.all(np.isfinite(h.loss))
+    assert _iou(data, res.mesh) > _iou(data, init.update_verts(init.verts)) + 0.05
+    assert res.stages[0]["method"] == method and res.colors is None
+    if kw.get("levels"):
+        assert res.mesh.n_verts == ico_sphere(3).n_verts
+        assert len([e for e in h.events if "level" in e["message"]]) == 2
+
+
+def test_textured_fit_is_finite_at_every_step(data):
+    """The tutorial's textured recipe (SGD on positions and colours, perspective-correct
+    barycentrics, as the tutorial had before it switched them off for the NaN) and the joint
+    L-BFGS: every step's value, gradient and parameters are finite."""
+    seen = []
+
+    def check(rec):
+        seen.append(rec["stage"])
+        assert math.isfinite(rec["value"]) and math.isfinite(rec["grad_norm"])
+        assert np.all(np.isfinite(rec["x"]))
+        assert all(math.isfinite(v) for v in rec["terms"].values())
+
+    for method, init in (("tutorial", "sphere"), ("lbfgs", "silhouette")):
+        res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="tutorial",
+                                silhouette_iters=15, textured_method=method,
+                                textured_init=init, textured_iters=15, callback=check)
+        assert res.ok, res.message
+        assert np.all(np.isfinite(res.history.loss))
+        assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
+        assert res.colors.shape == (res.mesh.n_verts, 3)
+    assert 100 in seen and 0 in seen
+
+
+def test_textured_stage_improves_psnr(data):
+    """Least-squares colours beat uniform grey on held-out views; the joint L-BFGS (positions
+    and colours) then lowers its training loss without losing held-out PSNR."""
+    ev = ViewsEvaluator(data.heldout)
+    res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="scipy-lbfgs",
+                            silhouette_iters=25, textured_method="lbfgs", textured_iters=10)
+    sil = res.silhouette_mesh
+    grey = ev(sil, np.full((sil.n_verts, 3), 0.5))["psnr"]
+    lsq = fit_mesh_to_views(data.train, init=sil, silhouette_method="none",
+                            textured_method="lstsq")
+    assert lsq.stages[0]["name"] == "textured" and lsq.n_iterations == 0
+    p_lsq = ev(lsq.mesh, lsq.colors)["psnr"]
+    assert p_lsq > grey + 0.5
+    tex = res.history.as_arrays()
+    rows = tex["stage"] == 100
+    assert rows.sum() >= 2 and tex["loss"][rows][-1] < tex["loss"][rows][0]
+    assert ev(res.mesh, res.colors)["psnr"] > p_lsq - 0.2
+    assert [s["name"] for s in res.stages] == ["silhouette", "textured"]
+    assert isinstance(res.mesh.textures, TexturesVertex)
+
+
+def test_evaluate_and_callback_hooks(data):
+    """Checkpoints carry the evaluator's metrics with the clock paused; a callback returning
+    True stops the stage with status 'callback'."""
+    ev = ViewsEvaluator(data.heldout)
+    res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="scipy-lbfgs",
+                            silhouette_iters=10, textured_method="none",
+                            evaluate=lambda m, c: ev(m, c), eval_every=0.0)
+    assert len(res.history.checkpoints) == len(res.history)
+    assert res.history.metric_names == ("iou",)
+    res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="tutorial",
+                            silhouette_iters=50, textured_method="none",
+                            callback=lambda rec: rec["step"] >= 5)
+    assert res.status == "callback" and len(res.history) == 5
+
+
+# ------------------------------------------------------------------------------------------
+# stability
+# ------------------------------------------------------------------------------------------
+
+
+def _perturbed(data, kind, rng):
+    tr = data.train
+    if kind == "few_views":
+        return tr[np.arange(0, 6, 2)]
+    if kind == "noisy":
+        return MultiViewData(tr.cameras, np.clip(tr.silhouettes + rng.normal(0, 0.2, tr.silhouettes.shape), 0, 1),
+                             tr.images, tr.lights)
+    if kind == "hole":
+        s = tr.silhouettes.copy()
+        s[:, 10:14, 10:14] = 0.0
+        return MultiViewData(tr.cameras, s, tr.images, tr.lights)
+    if kind == "camera_1deg":
+        c = data.config
+        R, T = look_at_view_transform(2.7, np.asarray(c["elev"]) + 1.0,
+                                      np.asarray(c["azim"]) + 1.0)
+        return MultiViewData(FoVPerspectiveCameras(R=R, T=T), tr.silhouettes, tr.images,
+                             tr.lights)
+    return tr
+
+
+@pytest.mark.parametrize("kind", ["few_views", "noisy", "hole", "camera_1deg", "small",
+                                  "off_centre"])
+def test_stability_cases_end_with_a_clear_status(data, kind):
+    """Every perturbation: a status from STATUSES, finite results, no worse than the start."""
+    rng = np.random.default_rng(0)
+    views = _perturbed(data, kind, rng)
+    init = ico_sphere(2)
+    if kind == "small":
+        init = init.update_verts(init.verts * 0.2)
+    if kind == "off_centre":
+        init = init.update_verts(init.verts * 0.6 + [0.3, 0.2, 0.0])
+    for method in ("scipy-lbfgs", "tutorial"):
+        res = fit_mesh_to_views(views, init=init, silhouette_method=method, silhouette_iters=20,
+                                textured_method="lstsq")
+        assert res.status in ("converged", "max_iter", "max_eval", "stalled", "time_budget")
+        assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
+        assert _iou(data, res.mesh) >= _iou(data, init) - 1e-9
+
+
+# ------------------------------------------------------------------------------------------
+# validation and CLI
+# ------------------------------------------------------------------------------------------
+
+
+def test_validation(data):
+    tr = data.train
+    with pytest.raises(TypeError, match="views"):
+        fit_mesh_to_views(tr.silhouettes)
+    with pytest.raises(ValueError, match="silhouette_method"):
+        fit_mesh_to_views(tr, silhouette_method="adamw")
+    with pytest.raises(ValueError, match="textured_method"):
+        fit_mesh_to_views(tr, textured_method="sgd")
+    with pytest.raises(ValueError, match="textured_init"):
+        fit_mesh_to_views(tr, textured_init="cube")
+    with pytest.raises(ValueError, match="views"):
+        fit_mesh_to_views(MultiViewData(tr.cameras, tr.silhouettes), textured_method="lstsq")
+    with pytest.raises(ValueError, match="silhouette_weights"):
+        fit_mesh_to_views(tr, silhouette_weights={"chamfer": 1.0})
+    with pytest.raises(ValueError, match="textured_weights"):
+        fit_mesh_to_views(tr, textured_weights={"rgb": -1.0})
+    with pytest.raises(TypeError, match="silhouette_weights"):
+        fit_mesh_to_views(tr, silhouette_weights=[1.0])
+    with pytest.raises(ValueError, match="silhouette_iters"):
+        fit_mesh_to_views(tr, silhouette_iters=0)
+    with pytest.raises(ValueError, match="views_per_step"):
+        fit_mesh_to_views(tr, views_per_step=7)
+    with pytest.raises(ValueError, match="large_steps"):
+        fit_mesh_to_views(tr, large_steps=-1.0)
+    with pytest.raises(ValueError, match="levels"):
+        fit_mesh_to_views(tr, levels=[(0,)])
+    with pytest.raises(ValueError, match="levels"):
+        fit_mesh_to_views(tr, levels=[(-1, 1)])
+    with pytest.raises(ValueError, match="levels"):
+        fit_mesh_to_views(tr, levels=[(0, 5)])
+    with pytest.raises(TypeError, match="init"):
+        fit_mesh_to_views(tr, init=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="nothing to fit"):
+        fit_mesh_to_views(tr, silhouette_method="none", textured_method="none")
+    with pytest.raises(TypeError, match="cameras"):
+        MultiViewData(None, tr.silhouettes)
+    with pytest.raises(ValueError, match="silhouettes"):
+        MultiViewData(tr.cameras, tr.silhouettes[:2])
+    with pytest.raises(ValueError, match="silhouettes"):
+        MultiViewData(tr.cameras, np.zeros((6, 1, 5)))
+    with pytest.raises(ValueError, match="images"):
+        MultiViewData(tr.cameras, tr.silhouettes, tr.images[..., :2])
+    with pytest.raises(ValueError, match="factor"):
+        tr.downsample(5)
+    with pytest.raises(TypeError, match="mesh"):
+        render_multiview_dataset(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="textured"):
+        render_multiview_dataset(ico_sphere(1))
+    with pytest.raises(ValueError, match="num_views"):
+        render_multiview_dataset(_object(1), num_views=0)
+    with pytest.raises(ValueError, match="dist"):
+        render_multiview_dataset(_object(1), dist=0.0)
+    with pytest.raises(TypeError, match="heldout"):
+        ViewsEvaluator(tr.silhouettes)
+    assert SILHOUETTE_METHODS == ("tutorial", "scipy-lbfgs", "nlopt-lbfgs", "contour")
+
+
+def test_cli_fit_views(tmp_path, monkeypatch, capsys):
+    """``geofit fit-views`` at a tiny size writes the mesh, the history and a summary."""
+    from geofit.cli import main
+
+    monkeypatch.delenv("GEOFIT_DATA", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))   # no tutorial data: stand-in
+    code = main(["fit-views", "--out", str(tmp_path), "--views", "4", "--image-size", "24",
+                 "--heldout", "2", "--silhouette-iters", "5", "--textured-iters", "3",
+                 "--init-level", "1"])
+    assert code == 0
+    summary = json.loads((tmp_path / "fit_views.json").read_text())
+    assert summary["status"] in ("converged", "max_iter", "max_eval", "stalled")
+    assert 0.0 <= summary["heldout"]["iou"] <= 1.0 and summary["heldout"]["psnr"] > 0
+    assert (tmp_path / "fit_views.obj").stat().st_size > 0
+    assert "held-out IoU" in capsys.readouterr().out
+    assert main(["fit-views", "--out", str(tmp_path), "--views", "0"]) == 1
