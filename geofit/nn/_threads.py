@@ -80,12 +80,13 @@ def blas_threads(n: int) -> Iterator[None]:
 
 
 def run_parallel(fn: Callable[[Any], Any], items: Sequence[Any], n_threads: int) -> list[Any]:
-    """``[fn(item) for item in items]`` over ``n_threads`` Python threads (BLAS single-threaded).
-
-    With ``n_threads <= 1`` or a single item it runs in the calling thread with the default
-    BLAS threading.
+    """``[fn(item) for item in items]`` over ``n_threads`` Python threads, each with one BLAS
+    thread (numpy releases the GIL in matmul and ufunc loops, so the threads share the cores
+    without oversubscribing them; with ``n_threads <= 1`` it runs in the calling thread, also
+    with one BLAS thread).
     """
-    if n_threads <= 1 or len(items) <= 1:
-        return [fn(it) for it in items]  # chunks
-    with blas_threads(1), ThreadPoolExecutor(max_workers=n_threads) as pool:
-        return list(pool.map(fn, items))
+    with blas_threads(1):
+        if n_threads <= 1 or len(items) <= 1:
+            return [fn(it) for it in items]  # chunks
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            return list(pool.map(fn, items))

@@ -154,7 +154,7 @@ def step_decay(lr: float, n_steps: int, *, at: float | tuple[float, ...] = 0.75,
     lr = check_positive(lr, "lr")
     factor = check_positive(factor, "factor")
     fractions = (at,) if np.isscalar(at) else tuple(at)
-    steps = tuple(int(round(float(a) * int(n_steps))) for a in fractions)
+    steps = tuple(round(float(a) * int(n_steps)) for a in fractions)
     return _StepDecay(lr, steps, factor, bool(reset))
 
 

@@ -32,7 +32,6 @@ import scipy.sparse as sp
 from .._validate import as_array, as_rng, check_choice
 from ..nn.layers import Linear, ReLU, Sequential, Sigmoid, Softplus
 from .harmonic import HarmonicEmbedding
-from .raymarching import EmissionAbsorptionRaymarcher
 from .raysampling import RayBundle
 
 __all__ = [
@@ -469,6 +468,9 @@ class OccupancyGrid:
         volume layout).
     bounds : (2, 3) float64
         ``[min corner, max corner]`` of the box in world coordinates (x, y, z).
+    opacity : (D, H, W) float32, optional
+        An estimate of the per-sample opacity in each voxel (a coarse density grid); with it,
+        :class:`ImplicitRenderer` can skip samples hidden behind opaque voxels.
 
     Examples
     --------
@@ -477,7 +479,7 @@ class OccupancyGrid:
     [True, False]
     """
 
-    def __init__(self, occupied, bounds):
+    def __init__(self, occupied, bounds, opacity=None):
         occ = np.asarray(occupied)
         if occ.ndim != 3 or min(occ.shape) < 1:
             raise ValueError(f"occupied: expected shape (D, H, W), got {occ.shape}")
@@ -489,6 +491,11 @@ class OccupancyGrid:
         D, H, W = self.occupied.shape
         self.shape_xyz = np.array([W, H, D])
         self.voxel_size = (b[1] - b[0]) / self.shape_xyz
+        if opacity is not None:
+            opacity = as_array(opacity, "opacity", occ.shape, np.float32)
+            if np.any((opacity < 0) | (opacity > 1)):
+                raise ValueError("opacity: expected values in [0, 1]")
+        self.opacity = opacity
 
     def __repr__(self) -> str:
         return (f"OccupancyGrid(shape={self.occupied.shape}, "
@@ -509,12 +516,28 @@ class OccupancyGrid:
         return np.stack([X, Y, Z], axis=-1)
 
     def voxel_index(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat voxel index of each point and whether it is inside the box."""
-        q = np.floor((points - self.bounds[0]) / self.voxel_size)
-        inside = np.all((q >= 0) & (q < self.shape_xyz), axis=-1)
-        q = np.where(inside[..., None], q, 0).astype(np.int64)
-        W, H = self.shape_xyz[0], self.shape_xyz[1]
-        return (q[..., 2] * H + q[..., 1]) * W + q[..., 0], inside
+        """Flat voxel index ``(z H + y) W + x`` of each point ``(..., 3)`` (0 outside the box)
+        and whether it is inside the box."""
+        q = (points - self.bounds[0]) * (1.0 / self.voxel_size)
+        inside = np.all(q >= 0, axis=-1)
+        inside &= np.all(q < self.shape_xyz, axis=-1)
+        qi = q.astype(np.int64)
+        qi[~inside] = 0
+        W, H = int(self.shape_xyz[0]), int(self.shape_xyz[1])
+        return qi[..., 0] + W * (qi[..., 1] + H * qi[..., 2]), inside
+
+    def occupied_box(self) -> np.ndarray | None:
+        """``(2, 3)`` world box around the occupied voxels, or None when none is occupied."""
+        if not hasattr(self, "_box"):
+            zyx = np.nonzero(self.occupied)
+            if zyx[0].size == 0:
+                self._box = None
+            else:
+                lo = np.array([zyx[2].min(), zyx[1].min(), zyx[0].min()])
+                hi = np.array([zyx[2].max(), zyx[1].max(), zyx[0].max()]) + 1
+                self._box = np.stack([self.bounds[0] + lo * self.voxel_size,
+                                      self.bounds[0] + hi * self.voxel_size])
+        return self._box
 
     def contains(self, points) -> np.ndarray:
         """``(...,)`` bool: whether each point ``(..., 3)`` lies in an occupied voxel."""
@@ -529,10 +552,10 @@ class OccupancyGrid:
         from scipy.ndimage import binary_dilation
 
         if iterations < 1:
-            return OccupancyGrid(self.occupied.copy(), self.bounds)
+            return OccupancyGrid(self.occupied.copy(), self.bounds, self.opacity)
         occ = binary_dilation(self.occupied, structure=np.ones((3, 3, 3), bool),
                               iterations=int(iterations))
-        return OccupancyGrid(occ, self.bounds)
+        return OccupancyGrid(occ, self.bounds, self.opacity)
 
     @classmethod
     def from_silhouettes(cls, silhouettes, cameras, *, resolution: int = 96,
@@ -578,14 +601,18 @@ class OccupancyGrid:
         pts = grid.centers().reshape(-1, 3)
         alive = np.arange(len(pts))
         S = min(Hs, Ws)
+        M = cameras.get_full_projection_transform()      # (n, 4, 4), row vectors
         for v in range(n):  # views
             if alive.size == 0:
                 break
-            xy = cameras[v].transform_points(pts[alive])[0, :, :2]
+            h = pts[alive] @ M[v, :3] + M[v, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x = h[:, 0] / h[:, 3]
+                y = h[:, 1] / h[:, 3]
             # NDC -> pixel (column i has x = (Ws - 1 - 2 i) / S)
-            col = np.rint((Ws - 1 - xy[:, 0] * S) / 2.0)
-            row = np.rint((Hs - 1 - xy[:, 1] * S) / 2.0)
-            ok = (col >= 0) & (col < Ws) & (row >= 0) & (row < Hs) & np.isfinite(col)
+            col = np.rint((Ws - 1 - x * S) / 2.0)
+            row = np.rint((Hs - 1 - y * S) / 2.0)
+            ok = (col >= 0) & (col < Ws) & (row >= 0) & (row < Hs) & (h[:, 3] > 0)
             keep = np.zeros(alive.size, bool)
             ci, ri = col[ok].astype(np.int64), row[ok].astype(np.int64)
             keep[ok] = masks[v, ri, ci]
@@ -644,10 +671,19 @@ class ImplicitRenderer:
         Evaluate the field only at samples inside occupied voxels; the others have density 0
         (empty-space skipping). The render equals the full render of a field whose density is
         0 outside the grid.
+    min_transmittance : float
+        With a grid that carries an ``opacity`` estimate: skip the samples of a ray lying more
+        than ``occlusion_margin`` samples behind the first sample where the grid's
+        transmittance ``prod (1 - opacity)`` falls below this value (they would add less than
+        that to the pixel if the estimate were exact). 0 (default) disables it.
+    occlusion_margin : int
+        See ``min_transmittance``: samples kept behind the estimated surface, so that the
+        field can still move it back.
 
     Examples
     --------
     >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+    >>> from geofit.render.raymarching import EmissionAbsorptionRaymarcher
     >>> from geofit.render.raysampling import MonteCarloRaysampler
     >>> R, T = look_at_view_transform(2.7, 0.0, 180.0)
     >>> renderer = ImplicitRenderer(MonteCarloRaysampler(-1, 1, -1, 1, 8, 16, 0.1, 3.0),
@@ -658,7 +694,8 @@ class ImplicitRenderer:
     ((1, 8, 4), (1, 8, 2))
     """
 
-    def __init__(self, raysampler, raymarcher, *, occupancy: OccupancyGrid | None = None):
+    def __init__(self, raysampler, raymarcher, *, occupancy: OccupancyGrid | None = None,
+                 min_transmittance: float = 0.0, occlusion_margin: int = 3):
         if not callable(raysampler):
             raise TypeError(f"raysampler: expected a callable ray sampler, got "
                             f"{type(raysampler)!r}")
@@ -670,6 +707,11 @@ class ImplicitRenderer:
         self.raysampler = raysampler
         self.raymarcher = raymarcher
         self.occupancy = occupancy
+        self.min_transmittance = float(min_transmittance)
+        if not 0.0 <= self.min_transmittance < 1.0:
+            raise ValueError(f"min_transmittance: expected a number in [0, 1), got "
+                             f"{min_transmittance!r}")
+        self.occlusion_margin = _int_at_least(occlusion_margin, "occlusion_margin", 0)
 
     def __repr__(self) -> str:
         return (f"ImplicitRenderer(raysampler={self.raysampler!r}, raymarcher={self.raymarcher!r}, "
@@ -772,12 +814,52 @@ class ImplicitRenderer:
             ray_index = np.repeat(np.arange(r, dtype=np.int64), n)
             slot = np.tile(np.arange(n, dtype=np.int64), r)
             return pts.reshape(-1, 3), ray_index, slot, n
-        keep = self.occupancy.contains(pts)
-        counts = keep.sum(axis=1)
-        ray_index, sample = np.nonzero(keep)
-        slot = (np.cumsum(keep, axis=1) - 1)[ray_index, sample]
+        grid = self.occupancy
+        box = grid.occupied_box()
+        if box is None:
+            z = np.zeros(0, dtype=np.int64)
+            return np.zeros((0, 3)), z, z, 0
+        # only the samples inside the box around the occupied voxels (slab test)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / d
+            ta = (box[0] - o) * inv
+            tb = (box[1] - o) * inv
+        t_in = np.nanmax(np.fmin(ta, tb), axis=1)
+        t_out = np.nanmin(np.fmax(ta, tb), axis=1)
+        cand = (lengths >= t_in[:, None]) & (lengths <= t_out[:, None])
+        ri, si = np.nonzero(cand)
+        pts = o[ri] + lengths[ri, si][:, None] * d[ri]
+        flat, inside = grid.voxel_index(pts)
+        ok = inside & grid.occupied.reshape(-1)[flat]
+        if grid.opacity is not None and self.min_transmittance > 0:
+            keep = np.zeros((r, n), bool)
+            keep[ri[ok], si[ok]] = True
+            op = np.zeros((r, n), np.float32)
+            op[ri, si] = grid.opacity.reshape(-1)[flat]
+            ok &= self._visible(op, keep)[ri, si]
+        ri, pts = ri[ok].astype(np.int64), pts[ok]
+        counts = np.bincount(ri, minlength=r)
+        starts = np.cumsum(counts) - counts
+        slot = np.arange(ri.size, dtype=np.int64) - starts[ri]
         m = int(counts.max()) if r else 0
-        return pts[ray_index, sample], ray_index.astype(np.int64), slot.astype(np.int64), m
+        return pts, ri, slot, m
+
+    def _visible(self, opacity: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """(r, n) bool: samples not hidden behind the grid's estimated surface (with margin)."""
+        a = np.where(keep, np.minimum(opacity, 1.0 - 1e-7), 0.0)
+        L = np.log1p(-a)
+        logT = np.cumsum(L, axis=1) - L            # log transmittance before each sample
+        # the transmittance `occlusion_margin` kept samples earlier
+        rank = np.cumsum(keep, axis=1) - 1
+        m = self.occlusion_margin
+        if m > 0:
+            n = keep.shape[1]
+            order = np.argsort(~keep, axis=1, kind="stable")       # kept samples first
+            logT_kept = np.take_along_axis(logT, order, axis=1)
+            back = np.clip(rank - m, 0, n - 1)
+            earlier = np.take_along_axis(logT_kept, back, axis=1)
+            logT = np.where(rank - m >= 0, earlier, 0.0)
+        return logT > np.log(self.min_transmittance)
 
     def _render_flat(self, bundle: RayBundle, field: NeuralRadianceField, *, cache: bool):
         r = bundle.origins.shape[0]
