@@ -8,7 +8,7 @@ import numpy as np
 
 from .._validate import as_array, check_positive
 
-__all__ = ["BlendParams", "hard_rgb_blend", "softmax_rgb_blend", "sigmoid_alpha"]
+__all__ = ["BlendParams", "hard_rgb_blend", "sigmoid_alpha", "softmax_rgb_blend"]
 
 
 class BlendParams(NamedTuple):
@@ -90,7 +90,7 @@ def soft_rgba_t(rgb_t: np.ndarray, dists: np.ndarray, depth: np.ndarray, bg: np.
     return rgb.astype(np.float32, copy=False), p.astype(np.float32)
 
 
-def hard_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams = BlendParams(),
+def hard_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams | None = None,
                    *, clip: bool = True) -> np.ndarray:
     """RGBA images: the hit colour where a face covers the pixel, the background elsewhere.
 
@@ -99,8 +99,8 @@ def hard_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams = Bl
     colors : (k, 3) float
         Colour of each covered pixel, in the order of ``fragments.pixel``.
     fragments : Fragments
-    blend_params : BlendParams
-        Only ``background_color`` is used.
+    blend_params : BlendParams, optional
+        Only ``background_color`` is used (default ``BlendParams()``: white).
     clip : bool
         Clip RGB to [0, 1] (PyTorch3D does not; with its default lights and materials the
         colours never exceed 1).
@@ -110,7 +110,7 @@ def hard_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams = Bl
     images : (N, H, W, 4) float32
         Alpha is 1 on covered pixels, 0 on the background.
     """
-    _, bg = check_blend(blend_params)
+    _, bg = check_blend(BlendParams() if blend_params is None else blend_params)
     out = new_images(fragments, bg)
     scatter(out, fragments.pixel, np.asarray(colors, np.float32).T, np.float32(1.0), clip)
     H, W = fragments.image_size
@@ -124,7 +124,7 @@ def sigmoid_alpha(fragments, sigma: float = 1e-4) -> np.ndarray:
     return (1.0 / (1.0 + np.exp(np.minimum(d / sigma, 80.0)))).astype(np.float32)
 
 
-def softmax_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams = BlendParams(),
+def softmax_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams | None = None,
                       znear=1.0, zfar=100.0, *, clip: bool = True) -> np.ndarray:
     """PyTorch3D's ``softmax_rgb_blend`` for one face per pixel.
 
@@ -143,7 +143,8 @@ def softmax_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams =
     colors : (k, 3) float
         Colour of each covered pixel (order of ``fragments.pixel``).
     fragments : Fragments
-    blend_params : BlendParams
+    blend_params : BlendParams, optional
+        Default ``BlendParams()``.
     znear, zfar : float or (N,) float
         The cameras' clipping planes.
     clip : bool
@@ -153,7 +154,7 @@ def softmax_rgb_blend(colors: np.ndarray, fragments, blend_params: BlendParams =
     -------
     images : (N, H, W, 4) float32
     """
-    bp, bg = check_blend(blend_params)
+    bp, bg = check_blend(BlendParams() if blend_params is None else blend_params)
     view = fragments.view
     n = fragments.n_views
     zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (n,))[view]

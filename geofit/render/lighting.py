@@ -22,7 +22,7 @@ import numpy as np
 
 from .._validate import as_array, shape_str
 
-__all__ = ["PointLights", "DirectionalLights", "AmbientLights", "diffuse", "specular"]
+__all__ = ["AmbientLights", "DirectionalLights", "PointLights", "diffuse", "specular"]
 
 _EPS = 1e-6  # torch.nn.functional.normalize(eps=1e-6), as in pytorch3d.renderer.lighting
 
@@ -184,20 +184,20 @@ class _Lights:
             setattr(new, k, v)
         return new
 
-    def __getitem__(self, index) -> "_Lights":
+    def __getitem__(self, index) -> _Lights:
         """The lights at ``index`` (int, slice or index array), as a batch."""
         if isinstance(index, (int, np.integer)):
             index = [int(index)]
         return self._with(**{k: getattr(self, k)[index] for k in self._PARAMS})
 
-    def extend(self, n: int) -> "_Lights":
+    def extend(self, n: int) -> _Lights:
         """Repeat each light ``n`` times (as ``Meshes.extend``)."""
         if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
             raise ValueError(f"n: expected an integer >= 1, got {n!r}")
         return self._with(**{k: np.repeat(getattr(self, k), int(n), axis=0)
                              for k in self._PARAMS})
 
-    def clone(self) -> "_Lights":
+    def clone(self) -> _Lights:
         return self._with(**{k: getattr(self, k) for k in self._PARAMS})
 
     # Subclasses define the light direction seen from each point (component-first).

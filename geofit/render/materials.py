@@ -59,17 +59,17 @@ class Materials:
     def __repr__(self) -> str:
         return f"Materials(N={len(self)}, shininess={self.shininess.tolist()})"
 
-    def __getitem__(self, index) -> "Materials":
+    def __getitem__(self, index) -> Materials:
         if isinstance(index, (int, np.integer)):
             index = [int(index)]
         return Materials(**{k: getattr(self, k)[index] for k in self._PARAMS})
 
-    def extend(self, n: int) -> "Materials":
+    def extend(self, n: int) -> Materials:
         """Repeat each material ``n`` times."""
         if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
             raise ValueError(f"n: expected an integer >= 1, got {n!r}")
         return Materials(**{k: np.repeat(getattr(self, k), int(n), axis=0)
                             for k in self._PARAMS})
 
-    def clone(self) -> "Materials":
+    def clone(self) -> Materials:
         return Materials(**{k: getattr(self, k) for k in self._PARAMS})

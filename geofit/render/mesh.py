@@ -27,11 +27,11 @@ from ..structures import Mesh, Meshes
 from . import _raycast
 
 __all__ = [
-    "RasterizationSettings",
     "Fragments",
     "MeshRasterizer",
     "MeshRenderer",
     "MeshRendererWithFragments",
+    "RasterizationSettings",
 ]
 
 
@@ -192,6 +192,13 @@ class Fragments:
     def n_hits(self) -> int:
         """``k``, the number of covered pixels."""
         return len(self.pixel)
+
+    @property
+    def n_rays(self) -> int:
+        """Number of rays sent to Embree: pixels whose centre may see a face (the projected
+        bounding boxes of the faces, in 8 x 8 tiles; the others cannot hit and are not cast),
+        plus rays continued past culled back faces."""
+        return int(self._ctx.get("n_rays", 0))
 
     @cached_property
     def _tri(self) -> np.ndarray:
@@ -538,6 +545,7 @@ class MeshRasterizer:
         for b, m in enumerate(meshes):  # loop over views
             groups.setdefault((id(m.verts), id(m.faces)), []).append(b)
         parts = []
+        n_rays = 0
         view_scene: list = [None] * N
         for views in groups.values():  # loop over distinct meshes
             mesh = meshes[views[0]]
@@ -556,8 +564,10 @@ class MeshRasterizer:
                 view_scene[b] = scene
             pixels = np.concatenate([b * H * W + np.flatnonzero(mk) for b, mk in masks])
             hits = _raycast.cast_pixels(scene, pixels, rays, xs, ys, tnear, n_threads)
+            n_rays += len(pixels)
             if settings.cull_backfaces:
-                hits = self._cull(hits, scene, mesh, rays, xs, ys, tnear, n_threads)
+                hits, extra = self._cull(hits, scene, mesh, rays, xs, ys, tnear, n_threads)
+                n_rays += extra
             view = hits.pixel // (H * W)
             vtri = mesh.faces[hits.face] + v_first[view][:, None]  # packed vertex ids
             bary, depth = _refine_threaded(hits, vtri, xy_packed, z_packed, perspective, pc,
@@ -587,6 +597,7 @@ class MeshRasterizer:
             "view_scene": view_scene,
             "tnear": tnear,
             "n_threads": n_threads,
+            "n_rays": n_rays,
         }
         return Fragments((H, W), N, pixel, view, face, bary, depth, meshes, cameras,
                          settings.supersample, ctx)
@@ -595,10 +606,10 @@ class MeshRasterizer:
     def _cull(hits, scene, mesh, rays, xs, ys, tnear, n_threads, max_rounds: int = 64):
         """Continue rays that hit a back face until they hit a front face or nothing."""
         fn = mesh.face_cross
-        H, W = len(ys), len(xs)
         keep = [np.ones(len(hits.pixel), bool)]
         cur = hits
         out = [hits]
+        n_rays = 0
         for _ in range(max_rounds):  # loop over layers of back faces
             _, d, _ = _raycast.hit_rays(cur.pixel, rays, xs, ys)
             back = np.einsum("ij,ij->i", fn[cur.face], d) > 0
@@ -609,6 +620,7 @@ class MeshRasterizer:
             # Restart just past the culled hit (a step well above float32 rounding).
             t0 = cur.depth[back] * (1.0 + 1e-5) + 1e-7
             cur = _raycast.cast_pixels(scene, p, rays, xs, ys, tnear, n_threads, tnear_pixel=t0)
+            n_rays += len(p)
             out.append(cur)
             keep.append(np.ones(len(cur.pixel), bool))
         else:
@@ -617,7 +629,7 @@ class MeshRasterizer:
         order = np.argsort(pix, kind="stable")
         cat = [np.concatenate([getattr(h, f)[k] for h, k in zip(out, keep)])[order]
                for f in ("pixel", "face", "bary", "depth")]
-        return _raycast.PixelHits(*cat)
+        return _raycast.PixelHits(*cat), n_rays
 
 
 def _refine(hits, vtri, xy_packed, z_packed, perspective: bool, pc: bool, rays, xs, ys,

@@ -9,6 +9,7 @@ model is not Phong's, so compare silhouettes and depth, and colours only by eye.
 """
 from __future__ import annotations
 
+import atexit
 import gc
 from typing import NamedTuple
 
@@ -18,7 +19,7 @@ from ..cameras import FoVPerspectiveCameras, to_open3d
 from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex
 from .textures import TexturesFlat
 
-__all__ = ["Open3DRender", "render_open3d", "show_open3d", "mesh_to_open3d"]
+__all__ = ["Open3DRender", "mesh_to_open3d", "render_open3d", "show_open3d"]
 
 
 class Open3DRender(NamedTuple):
@@ -111,6 +112,33 @@ def _size(image_size) -> tuple[int, int]:
     return H, W
 
 
+_RENDERER: dict = {}  # at most one cached OffscreenRenderer: {"size": (W, H), "r": renderer}
+
+
+def _release_renderer() -> None:
+    """Free the cached renderer (emptied first: Filament aborts if a material is still used)."""
+    r = _RENDERER.pop("r", None)
+    _RENDERER.clear()
+    if r is not None:
+        r.scene.clear_geometry()
+        del r
+        gc.collect()
+
+
+atexit.register(_release_renderer)
+
+
+def _offscreen(W: int, H: int):
+    """The cached OffscreenRenderer of size W x H (starting Filament costs seconds)."""
+    import open3d as o3d
+
+    if _RENDERER.get("size") != (W, H):
+        _release_renderer()
+        _RENDERER["r"] = o3d.visualization.rendering.OffscreenRenderer(W, H)
+        _RENDERER["size"] = (W, H)
+    return _RENDERER["r"]
+
+
 def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.0),
                   lit: bool = True) -> Open3DRender:
     """Render meshes from geofit cameras with Open3D's offscreen renderer.
@@ -138,13 +166,19 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     ------
     TypeError, ValueError
         For wrong inputs. Errors from Open3D (no rendering backend) propagate as RuntimeError.
+
+    Notes
+    -----
+    The renderer is created once per image size and kept (Filament's start-up and shader
+    compilation take seconds on a software Vulkan device); it is released at exit or when
+    another size is asked for.
     """
     import open3d as o3d
 
     H, W = _size(image_size)
     views, cams = _as_views(meshes, cameras)
     rendering = o3d.visualization.rendering
-    renderer = rendering.OffscreenRenderer(W, H)
+    renderer = _offscreen(W, H)
     images = np.zeros((len(views), H, W, 3), np.float32)
     depth = np.full((len(views), H, W), np.inf)
     try:
@@ -166,10 +200,8 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
             images[b] = np.asarray(renderer.render_to_image(), np.float32)[..., :3] / 255.0
             z = np.asarray(renderer.render_to_depth_image(z_in_view_space=True), np.float64)
             depth[b] = np.where(np.isfinite(z), z, np.inf) if mesh.n_faces else np.inf
-        renderer.scene.clear_geometry()
     finally:
-        del renderer
-        gc.collect()
+        renderer.scene.clear_geometry()
     return Open3DRender(images, depth, np.isfinite(depth))
 
 

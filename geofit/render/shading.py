@@ -23,25 +23,25 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..structures import TexturesUV
 from .blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
 from .lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
 from .materials import Materials
 from .mesh import Fragments
-from ..structures import TexturesUV
 from .textures import UVTables, sample_texels_t
 
 __all__ = [
+    "HardFlatShader",
+    "HardGouraudShader",
+    "HardPhongShader",
+    "SoftGouraudShader",
+    "SoftPhongShader",
     "apply_lighting",
+    "flat_shading",
+    "gouraud_shading",
+    "phong_shading",
     "sample_textures",
     "shadow_visibility",
-    "phong_shading",
-    "gouraud_shading",
-    "flat_shading",
-    "HardPhongShader",
-    "SoftPhongShader",
-    "HardGouraudShader",
-    "SoftGouraudShader",
-    "HardFlatShader",
 ]
 
 _LIGHTS = (PointLights, DirectionalLights, AmbientLights)
@@ -258,7 +258,7 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
         n_chunks = max(1, min(4 * n_threads, len(sel) // 50_000 + 1))
         chunks = np.array_split(np.arange(len(sel)), n_chunks)
 
-        def run(c):
+        def run(c, sc=sc, on=on, dn=dn, tfar=tfar):
             return sc.occluded(np.ascontiguousarray(on[c]), np.ascontiguousarray(dn[c]),
                                np.ascontiguousarray(tfar[c]))
 
@@ -314,9 +314,10 @@ def _gouraud_table(fragments, lights, centers, materials):
 
     meshes = fragments.meshes
     for i, m in enumerate(meshes):  # loop over views
-        if not isinstance(m.textures, TexturesVertex):
-            raise ValueError(f"meshes[{i}]: Gouraud shading needs TexturesVertex (per-vertex "
-                             f"colours), got {type(m.textures).__name__}")
+        if not isinstance(m.textures, TexturesVertex):  # PyTorch3D raises ValueError too
+            raise ValueError(  # noqa: TRY004
+                f"meshes[{i}]: Gouraud shading needs TexturesVertex (per-vertex colours), got "
+                f"{type(m.textures).__name__}")
     ctx = fragments._ctx
     verts = np.ascontiguousarray(ctx["verts_packed"].T, dtype=np.float32)
     nrm = np.ascontiguousarray(ctx["verts_normals_packed"].T, dtype=np.float32)
@@ -410,7 +411,7 @@ class _Shader:
         self.materials = materials if materials is not None else Materials()
         self.blend_params = blend_params if blend_params is not None else BlendParams()
         if not isinstance(shadows, (bool, np.bool_)):
-            raise ValueError(f"shadows: expected True or False, got {shadows!r}")
+            raise TypeError(f"shadows: expected True or False, got {shadows!r}")
         self.shadows = bool(shadows)
         self.clip = bool(clip)
 

@@ -60,7 +60,7 @@ class TexturesFlat(TexturesBase):
             return self.colors[face_idx]
         return np.repeat(self.colors, len(face_idx), axis=0)
 
-    def take_faces(self, face_ids: np.ndarray) -> "TexturesFlat":
+    def take_faces(self, face_ids: np.ndarray) -> TexturesFlat:
         return TexturesFlat(self.colors[face_ids] if self.per_face else self.colors[0])
 
 

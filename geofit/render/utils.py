@@ -8,7 +8,7 @@ import numpy as np
 from .._validate import as_array
 from ..structures import TexturesUV
 
-__all__ = ["make_grid", "image_grid", "plot_texture_uv", "texturesuv_image_matplotlib"]
+__all__ = ["image_grid", "make_grid", "plot_texture_uv", "texturesuv_image_matplotlib"]
 
 
 def _grid_shape(n: int, rows, cols) -> tuple[int, int]:
