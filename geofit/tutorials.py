@@ -340,7 +340,7 @@ def _fit_mesh_settings(name: str, size: str) -> dict:
         if size == "tiny":
             kw.update(n_samples=500)
     else:
-        kw.update(n_iter=_pick(size, 8, 40, 100), n_stages=_pick(size, 1, 2, 3),
+        kw.update(n_iter=_pick(size, 8, 30, 100), n_stages=_pick(size, 1, 2, 3),
                   checkpoint_every=_pick(size, 4, 10, 10))
         if size == "tiny":
             kw.update(n_samples=500)
@@ -360,7 +360,7 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
     from .shapes import ico_sphere
     from .structures import Mesh
 
-    budget = _pick(size, 1.0, 3.0, 20.0)
+    budget = _pick(size, 0.5, 2.0, 20.0)
     n_metric = _pick(size, 1000, 5000, 20000)
     rng = np.random.default_rng(seed + 7)
     norm = target.normalize()
@@ -433,7 +433,7 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
         The run's output folder; the step writes into ``out/fit_mesh``.
     size : {"tiny", "default", "full"}
         ``"full"``: :data:`geofit.fit.RECIPES` as they are (SGD 2000 steps, L-BFGS 3 stages of
-        100 iterations); ``"default"``: SGD 300 steps, L-BFGS 2 stages of 40 iterations.
+        100 iterations); ``"default"``: SGD 300 steps, L-BFGS 2 stages of 30 iterations.
     progress : bool
         tqdm progress bars.
     seed : int
@@ -453,7 +453,7 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     d.mkdir(parents=True, exist_ok=True)
     data = load_target_mesh()
     target = data.mesh
-    n_metric = _pick(size, 2000, 20_000, 100_000)
+    n_metric = _pick(size, 2000, 10_000, 100_000)
     evaluator = MeshEvaluator(target, n_samples=n_metric, taus=0.01, normalize=True, seed=0)
     names = ["tutorial", "scipy-lbfgs", "large-steps", "coarse-to-fine"]
     if size == "tiny":
@@ -987,15 +987,20 @@ def _views_settings(size: str) -> dict:
         "num_views": _pick(size, 4, 20, 20),
         "image_size": _pick(size, 32, 64, 128),
         "num_heldout": _pick(size, 2, 8, 16),
+        # PyTorch3D's recipe (fit_textured_mesh): SGD on 2 random views, then the textured
+        # stage from the sphere
         "tutorial": {"silhouette_method": "tutorial", "textured_method": "tutorial",
-                         "textured_init": "sphere",
-                         "silhouette_iters": _pick(size, 4, 150, 2000),
-                         "textured_iters": _pick(size, 4, 150, 2000)},
-        "geofit": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
-                       "large_steps": 10.0,
-                       "levels": _pick(size, None, [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
-                       "silhouette_iters": _pick(size, 4, 60, 200),
-                       "textured_iters": _pick(size, 4, 60, 200)},
+                     "textured_init": "sphere",
+                     "silhouette_iters": _pick(size, 4, 150, 2000),
+                     "textured_iters": _pick(size, 4, 150, 2000)},
+        # geofit's best (benchmarks/fit_views.py "best"): L-BFGS on all views, large steps,
+        # coarse-to-fine; least-squares colours, then joint L-BFGS
+        "geofit": {"silhouette_method": "scipy-lbfgs", "textured_method": "lbfgs",
+                   "large_steps": 10.0,
+                   "levels": _pick(size, None, [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
+                   "silhouette_iters": _pick(size, 4, 60, 2000),
+                   "textured_iters": _pick(size, 4, 30, 200),
+                   "textured_time": _pick(size, None, 10.0, 120.0)},
         "init_level": _pick(size, 2, 4, 4),
         "eval_every": _pick(size, 1e9, 4.0, 20.0),
     }
@@ -1048,7 +1053,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
                         taus=(0.01,))
     labels = {"tutorial": "PyTorch3D recipe: SGD, 2 random views per step",
               "geofit": "geofit: L-BFGS on all views, large steps, coarse-to-fine; "
-                        "least-squares colours"}
+                        "least-squares then L-BFGS colours"}
 
     def evaluate(mesh, colors):
         # the silhouette stage has no colours yet: score its shape in a uniform grey, so that
@@ -1150,9 +1155,9 @@ def _views_stability(ds, size: str, seed: int) -> list[dict]:
     }
     rows = []
     for method, kw in (("tutorial", {"silhouette_method": "tutorial",
-                                         "textured_method": "none"}),
+                                     "textured_method": "none"}),
                        ("geofit", {"silhouette_method": "scipy-lbfgs", "textured_method": "none",
-                                       "large_steps": 10.0})):
+                                   "large_steps": 10.0})):
         for case, make in cases.items():  # failure cases
             def run(make=make, kw=kw):
                 views = make()
@@ -1182,9 +1187,9 @@ def _volume_settings(size: str) -> dict:
         "n_heldout": _pick(size, 2, 4, 8), "volume_size": _pick(size, 16, 64, 128),
         "n_pts_per_ray": _pick(size, 32, 75, 150),
         "tutorial": {"method": "tutorial", "n_iter": _pick(size, 4, 100, 300),
-                         "batch_size": _pick(size, 2, 10, 10)},
+                     "batch_size": _pick(size, 2, 10, 10)},
         "lbfgs": {"method": "lbfgs", "levels": _pick(size, (8, 16), (32, 64), (32, 64, 128)),
-                      "iterations": _pick(size, (4, 4), (60, 40), None)},
+                  "iterations": _pick(size, (4, 4), (60, 40), None)},
         "monitor_every": _pick(size, None, 3.0, 30.0),
     }
 
@@ -1320,9 +1325,9 @@ def _volume_stability(train: _Views, S: int, n_pts: int, size: str, seed: int) -
     }
     rows = []
     for method, kw in (("tutorial", {"method": "tutorial", "n_iter": _pick(size, 2, 10, 30),
-                                         "batch_size": 1}),
+                                     "batch_size": 1}),
                        ("lbfgs", {"method": "lbfgs", "levels": (small,),
-                                      "iterations": _pick(size, 2, 10, 30)})):
+                                  "iterations": _pick(size, 2, 10, 30)})):
         for case, (i_, s_, c_) in cases.items():  # failure cases
             fit, err = _try(fit_volume, i_, s_, c_, volume_size=small,
                             n_pts_per_ray=max(16, n_pts // 4), seed=seed, **kw)
@@ -1345,17 +1350,18 @@ def _volume_stability(train: _Views, S: int, n_pts: int, size: str, seed: int) -
 
 
 def _nerf_settings(size: str) -> dict:
-    budget = _pick(size, None, 25.0, None)
+    budget = _pick(size, None, 20.0, None)
+    scene = {"preset": "scene", "n_iter": _pick(size, 2, 20000, 20000),
+             "n_pts_per_ray": _pick(size, 8, 64, 128)}
+    if size == "tiny":
+        scene.update(n_rays_per_image=32, hull_resolution=24)
     return {
         "n_views": _pick(size, 4, 20, 40), "image_size": _pick(size, 24, 64, 128),
-        "n_heldout": _pick(size, 1, 2, 8),
+        "n_heldout": _pick(size, 1, 2, 8), "heldout_size": _pick(size, 24, 32, 128),
         "tutorial": {"preset": "tutorial", "n_iter": _pick(size, 2, 3000, 3000),
-                         "n_rays_per_image": _pick(size, 32, 750, 750),
-                         "n_pts_per_ray": _pick(size, 8, 64, 128)},
-        "scene": dict(preset="scene", n_iter=_pick(size, 2, 20000, 20000),
-                      n_pts_per_ray=_pick(size, 8, 64, 128),
-                      **({"n_rays_per_image": 32, "hull_resolution": 24}
-                         if size == "tiny" else {})),
+                     "n_rays_per_image": _pick(size, 32, 128, 750),
+                     "n_pts_per_ray": _pick(size, 8, 64, 128)},
+        "scene": scene,
         "time_budget": budget,
         "eval_every": _pick(size, 2, budget / 5 if budget else None, None),
     }
@@ -1371,8 +1377,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         The run's output folder; the step writes into ``out/nerf``.
     size : {"tiny", "default", "full"}
         ``"full"``: 40 views of 128 px, 3000 steps of the tutorial's recipe;
-        ``"default"``: 20 views of 64 px, 64 samples per ray, each method stopped after 25 s
-        of solver time.
+        ``"default"``: 20 views of 64 px, 64 samples per ray (the tutorial recipe with 128
+        rays per view instead of 750), each method stopped after 20 s of solver time, PSNR on
+        held-out renders of 32 px.
     progress : bool
         A progress bar over the fits.
     seed : int
@@ -1392,11 +1399,12 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     img = cfg["image_size"]
     train, name = _cow_renders(cfg["n_views"], img)
     step = 360.0 / max(cfg["n_views"] - 1, 1)
-    test, _ = _cow_renders(cfg["n_heldout"], img, azim_offset=0.5 * step)
+    test, _ = _cow_renders(cfg["n_heldout"], cfg["heldout_size"], azim_offset=0.5 * step)
     res = StepResult("nerf", "6. Fit a neural radiance field", "fit_simple_neural_radiance_field",
                      size=size)
     res.config = {"object": name, "training views": cfg["n_views"],
                   "held-out views": cfg["n_heldout"], "image size": img,
+                  "held-out image size": cfg["heldout_size"],
                   "PyTorch3D recipe": ", ".join(f"{k}={v}" for k, v in cfg["tutorial"].items()),
                   "geofit": ", ".join(f"{k}={v}" for k, v in cfg["scene"].items()),
                   "time budget per method (s)": cfg["time_budget"]}
@@ -1435,7 +1443,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     renders = {}
     for key, fit in fits.items():
         renders[key] = fit.images if fit.images is not None else render_nerf(
-            fit.field, test.cameras, img, n_pts_per_ray=fit.config.n_pts_per_ray,
+            fit.field, test.cameras, cfg["heldout_size"], n_pts_per_ray=fit.config.n_pts_per_ray,
             occupancy=fit.occupancy)
     k = min(3, len(test.images))
     res.targets["held-out views"] = save_png(np.concatenate(list(test.images[:k]), axis=1),
@@ -1483,7 +1491,8 @@ def _nerf_stability(train: _Views, size: str, seed: int) -> list[dict]:
     rows = []
     for method in ("tutorial", "scene"):
         for case, (i_, s_, c_, extra) in cases.items():  # failure cases
-            kw = {"preset": method, "n_iter": n_iter, "n_pts_per_ray": 16, "n_rays_per_image": 64}
+            kw = {"preset": method, "n_iter": n_iter, "n_pts_per_ray": 16,
+                  "n_rays_per_image": 64}
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
             fit, err = _try(fit_nerf, i_, s_, c_, seed=seed, **kw)

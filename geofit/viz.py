@@ -153,15 +153,27 @@ def plot_accuracy_vs_time(methods: Sequence[Any], panels: Sequence[Mapping[str, 
             for h, lab in zip(*ax.get_legend_handles_labels()):
                 if lab and lab not in seen:
                     seen[lab] = h
+        ncol = _legend_columns(list(seen), 5.2 * len(panels))
+        n_rows = -(-max(len(seen), 1) // ncol)
         if seen:
             fig.legend(list(seen.values()), list(seen.keys()), loc="lower center",
-                       ncol=min(4, len(seen)), bbox_to_anchor=(0.5, -0.01))
+                       ncol=ncol, bbox_to_anchor=(0.5, -0.01))
         if title:
             fig.suptitle(title)
-        fig.tight_layout(rect=(0, 0.1 + 0.03 * ((max(len(seen), 1) - 1) // 4), 1, 1))
+        height = 3.4 + 0.2 * n_rows  # room for the legend below the panels
+        fig.set_size_inches(5.2 * len(panels), height)
+        fig.tight_layout(rect=(0, (0.12 + 0.2 * n_rows) / height, 1, 1))
         fig.savefig(path)
         plt.close(fig)
     return path
+
+
+def _legend_columns(labels: Sequence[str], width_inches: float) -> int:
+    """Legend columns that fit the figure width (about 0.075 inch per character at 8 pt)."""
+    if not labels:
+        return 1
+    per_entry = 0.075 * max(len(s) for s in labels) + 0.5  # text plus the line sample
+    return int(max(1, min(4, len(labels), width_inches // per_entry)))
 
 
 def plot_model_sizes(sizes: Mapping[str, float], path: str | Path, *, title: str = "",
