@@ -43,6 +43,10 @@ __all__ = [
 ]
 
 
+#: Densities this far outside [0, 1] (rounding of interpolated values) do not warn.
+_RANGE_TOL = 1e-9
+
+
 class RaymarchGradients(NamedTuple):
     """Gradients of ``<grad_output, raymarch(densities, features)>``.
 
@@ -220,7 +224,7 @@ class EmissionAbsorptionRaymarcher:
             if np.any(dflat < 0):
                 raise ValueError("rays_densities: the physical raymarcher needs extinction "
                                  "coefficients >= 0")
-        elif dflat.size and (dflat.min() < 0.0 or dflat.max() > 1.0):
+        elif dflat.size and (dflat.min() < -_RANGE_TOL or dflat.max() > 1.0 + _RANGE_TOL):
             warnings.warn("EmissionAbsorptionRaymarcher: one or more rays_densities are "
                           "outside the valid range [0, 1]", UserWarning, stacklevel=3)
         return d, dflat, trailing, f, fflat, dl
@@ -362,7 +366,7 @@ class AbsorptionOnlyRaymarcher:
             if np.any(dl < 0) or np.any(dflat < 0):
                 raise ValueError("rays_densities/deltas: expected non-negative values for the "
                                  "physical raymarcher")
-        elif dflat.size and (dflat.min() < 0.0 or dflat.max() > 1.0):
+        elif dflat.size and (dflat.min() < -_RANGE_TOL or dflat.max() > 1.0 + _RANGE_TOL):
             warnings.warn("AbsorptionOnlyRaymarcher: one or more rays_densities are outside "
                           "the valid range [0, 1]", UserWarning, stacklevel=3)
         lead = (d.shape[:-2] if trailing else d.shape[:-1])
