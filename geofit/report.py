@@ -33,7 +33,7 @@ import numpy as np
 from .fit.history import _json_safe
 
 __all__ = ["SCHEMA", "ReportFiles", "format_value", "machine_summary", "markdown_table",
-           "write_report"]
+           "write_gallery", "write_report"]
 
 #: The JSON layout shared with ``benchmarks/_harness.py``.
 SCHEMA = "geofit-benchmark/1"
@@ -359,3 +359,64 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
     json_path = out / "report.json"
     json_path.write_text(json.dumps(_json_safe(data), indent=1) + "\n", encoding="utf-8")
     return ReportFiles(html=html_path, md=md_path, json=json_path)
+
+
+def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str = "",
+                  charts: Mapping[str, Any] | None = None, size: str = "",
+                  seconds: float | None = None) -> list[Path]:
+    """Copy the report's figures into ``dest`` under stable names, for the README.
+
+    Per workflow that ran: ``<step>_results.png`` (targets next to results) and
+    ``<step>_speed_accuracy.png`` (its first chart); plus each chart of ``charts`` (e.g.
+    ``model_sizes.png``, named after its file). ``dest/README.md`` lists them with the command
+    that made them, the size, the total time and the machine's load.
+
+    Parameters
+    ----------
+    steps : sequence of StepResult
+    dest : path
+        Folder (created); files already there with the same names are replaced.
+    command : str
+        The command line that made the figures.
+    charts : dict str -> path, optional
+        Charts over all workflows.
+    size : str
+        The run size.
+    seconds : float, optional
+        Total wall time of the run.
+
+    Returns
+    -------
+    list of Path
+        The images written, in the order listed in ``dest/README.md``.
+    """
+    import shutil
+
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    written: list[tuple[str, Path]] = []
+    for s in steps:  # workflows
+        if not s.ok:
+            continue
+        if s.comparison is not None:
+            p = dest / f"{s.name}_results.png"
+            shutil.copyfile(s.comparison, p)
+            written.append((f"{s.title}: {s.comparison_caption}", p))
+        if s.charts:
+            label, src = next(iter(s.charts.items()))
+            p = dest / f"{s.name}_speed_accuracy.png"
+            shutil.copyfile(src, p)
+            written.append((f"{s.title}: {label}", p))
+    for label, src in dict(charts or {}).items():
+        p = dest / Path(src).name
+        shutil.copyfile(src, p)
+        written.append((label, p))
+    load = machine_summary().get("load_average_1_5_15min")
+    lines = ["# geofit tutorials: gallery", "",
+             f"Made by `{command}` ({size} size"
+             + (f", {seconds:.0f} s in all" if seconds is not None else "")
+             + f"; {os.cpu_count()} CPUs, load average {load} when written).", ""]
+    for label, p in written:
+        lines += [f"![{label}]({p.name})", "", f"*{label}*", ""]
+    (dest / "README.md").write_text("\n".join(lines), encoding="utf-8")
+    return [p for _, p in written]

@@ -187,7 +187,8 @@ class TutorialsRun:
     out : Path
         The output folder.
     report : dict
-        ``{"html": Path, "md": Path, "json": Path}``.
+        ``{"html": Path, "md": Path, "json": Path}``, and ``"gallery"`` (list of Path) when
+        a gallery was written.
     charts : dict str -> Path
         Charts over all steps (parameter counts).
     """
@@ -741,6 +742,10 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
 # --------------------------------------------------------------------------------------------
 
 
+#: The point-cloud tutorial's own cloud, relative to the data folder (:func:`geofit.data.find`).
+_BRIDGE = "PittsburghBridge/pointcloud.npz"
+
+
 def _points_stability(cloud, cameras, size: str) -> list[dict]:
     from .render.compositing import AlphaCompositor
     from .render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
@@ -796,7 +801,8 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     -------
     StepResult
     """
-    from .data import load_textured_mesh
+    from .data import find, load_textured_mesh
+    from .io import load_pointcloud
     from .ops import sample_points_from_meshes
     from .render import (
         AmbientLights,
@@ -855,12 +861,34 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     for i, (k, v) in enumerate(imgs.items()):
         res.images[k] = save_png(v, d / f"points_{i}.png")
     res.targets["mesh, unlit (target)"] = save_png(target_rgb, d / "target_mesh.png")
-    res.comparison = image_panel([[target_rgb] + list(imgs.values())], d / "comparison.png",
+    rows = [[target_rgb] + list(imgs.values())]
+    row_labels = [f"{data.name}\n{N:,} points"]
+    bridge_path = find(_BRIDGE)
+    if bridge_path is not None:  # the tutorial's own cloud and camera, when it is available
+        bridge = load_pointcloud(bridge_path)
+        bcams = _cameras(20.0, 10.0, 0.0, ortho=True, znear=0.01)
+        brast = PointsRasterizer(bcams, settings)
+        row = [None]
+        for i, comp in enumerate((AlphaCompositor(), AlphaCompositor(background_color=(0, 0, 1)),
+                                  NormWeightedCompositor(background_color=(1, 0, 0)))):
+            t = time.perf_counter()
+            img_b = PointsRenderer(brast, comp)(bridge)[0, ..., :3]
+            timings[f"PittsburghBridge ({len(bridge):,} points), render {i + 1}"] = \
+                time.perf_counter() - t
+            res.images[f"PittsburghBridge render {i + 1}"] = save_png(img_b,
+                                                                      d / f"bridge_{i}.png")
+            row.append(img_b)
+        rows.append(row)
+        row_labels.append(f"PittsburghBridge\n{len(bridge):,} points")
+        res.notes.append(f"The tutorial's PittsburghBridge cloud was found ({bridge_path}) and "
+                         "rendered with the tutorial's camera (second row).")
+    res.comparison = image_panel(rows, d / "comparison.png",
                                  col_labels=["target: the mesh\n(unlit texture)", "alpha",
                                              "alpha\nblue background",
-                                             "norm. weighted\nred background"])
+                                             "norm. weighted\nred background"],
+                                 row_labels=row_labels)
     res.comparison_caption = (f"The mesh the cloud was sampled from, and the tutorial's three "
-                              f"point renders ({N:,} points, radius 0.003, {S} px).")
+                              f"point renders (radius 0.003, {S} px).")
 
     counts = _pick(size, (1_000, 5_000), (12_500, 25_000, 50_000, 100_000, 200_000),
                    (50_000, 100_000, 200_000, 500_000, 1_000_000))
@@ -904,13 +932,11 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
                                         f"{timings['alpha']:.3f} s",
                     "geofit (best)": f"IoU {max(max(m['curve']['iou']) for m in methods):.3f} "
                                      "vs the mesh"}
-    if data.path is None:
-        res.notes.append("The tutorial's cloud (PittsburghBridge) is not bundled; the cloud is "
-                         "sampled from geofit's procedural textured stand-in (set GEOFIT_DATA "
-                         "for the cow).")
-    else:
-        res.notes.append("The tutorial's cloud (PittsburghBridge) is not bundled; the cloud is "
-                         "sampled from the cow, so the cow's render is a target to compare with.")
+    res.notes.append(f"The measured cloud is sampled from the {data.name} with its texture "
+                     "colours, so the mesh's own render is a target to compare with"
+                     + ("." if bridge_path is not None else
+                        f"; the tutorial's {_BRIDGE} was not found in the data folder "
+                        "(GEOFIT_DATA)."))
     res.seconds = time.perf_counter() - t0
     return res
 
@@ -920,49 +946,21 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass
-class _Views:
-    cameras: Any
-    images: np.ndarray       # (N, H, W, 3)
-    silhouettes: np.ndarray  # (N, H, W)
+def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
+    """Training and held-out renders of the volume and NeRF tutorials (:mod:`geofit.datasets`).
 
-    @property
-    def held_out(self):
-        return (self.images, self.silhouettes, self.cameras)
-
-
-def _cow_renders(n_views: int, image_size: int, *, azim_offset: float = 0.0
-                 ) -> tuple[_Views, str]:
-    """The ``generate_cow_renders`` views of fit_textured_volume / the NeRF tutorial.
-
-    ``elev = 0``, ``azim = linspace(-180, 180, n) + 180 + azim_offset``, distance 2.7, FoV 60;
-    RGB by the Phong renderer (light at (0, 0, -3), black background), silhouettes = the soft
-    silhouette (sigma 1e-4, blur 9.21e-4, 50 faces per pixel) > 1e-4, as in the tutorial.
+    Training: ``generate_cow_renders`` (elevation 0, azimuths around the cow, black background,
+    0/1 silhouettes). Held out: views half-way between the training azimuths, at elevations 0
+    and 20 degrees (20 only when a single view is asked for).
     """
-    from .data import load_textured_mesh
-    from .render import (
-        BlendParams,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-    )
-    from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
+    from .datasets import generate_cow_renders, held_out_views
 
-    data = load_textured_mesh()
-    mesh = data.mesh.normalize().mesh
-    azim = np.linspace(-180.0, 180.0, n_views) + 180.0 + azim_offset
-    cams = _cameras(2.7, np.zeros(n_views), azim)
-    rgb = MeshRenderer(MeshRasterizer(cams, RasterizationSettings(image_size=image_size)),
-                       SoftPhongShader(lights=PointLights(location=[[0.0, 0.0, -3.0]]),
-                                       blend_params=BlendParams(background_color=(0.0, 0.0,
-                                                                                  0.0))))
-    images = np.asarray(rgb(mesh.extend(n_views))[..., :3], dtype=np.float64)
-    soft = sigmoid_alpha_blend(rasterize_soft(mesh, cams,
-                                              SoftRasterizationSettings.tutorial(image_size)),
-                               1e-4)
-    return _Views(cams, images, (soft > 1e-4).astype(np.float64)), data.name
+    train = generate_cow_renders(num_views=n_views, image_size=image_size)
+    elevations = (0.0, 20.0) if n_heldout >= 2 else (20.0,)
+    test = held_out_views(num_views=n_views, elevations=elevations,
+                          n_azimuths=max(1, n_heldout // len(elevations)),
+                          image_size=heldout_size)
+    return train, test, train.mesh_name
 
 
 def _render_volume(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
@@ -1222,9 +1220,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     d.mkdir(parents=True, exist_ok=True)
     cfg = _volume_settings(size)
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
-    train, name = _cow_renders(cfg["n_views"], img)
-    step = 360.0 / max(cfg["n_views"] - 1, 1)
-    test, _ = _cow_renders(cfg["n_heldout"], img, azim_offset=0.5 * step)
+    train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
     res = StepResult("fit_volume", "5. Fit a voxel volume", "fit_textured_volume", size=size)
     res.config = {"object": name, "training views": cfg["n_views"],
                   "held-out views": cfg["n_heldout"], "image size": img,
@@ -1234,7 +1230,8 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     res.description = (
         "A grid of densities and colours is fitted to the renders (black background) with "
         "the emission-absorption raymarcher. Accuracy: PSNR of the RGB and IoU of the "
-        "silhouette on held-out views (azimuths half-way between the training views). "
+        "silhouette on held-out views (azimuths half-way between the training views, elevations "
+        "0 and 20 degrees). "
         "Model size: the densities and colours the solver optimises.")
     labels = {"tutorial": "PyTorch3D recipe: dense grid, Adam, 10 random views per step",
               "lbfgs": "geofit: visual hull, coarse-to-fine, pruning, L-BFGS on all rays"}
@@ -1310,7 +1307,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     return res
 
 
-def _volume_stability(train: _Views, S: int, n_pts: int, size: str, seed: int) -> list[dict]:
+def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[dict]:
     from .fit.volume import fit_volume
 
     small = max(8, S // 4)
@@ -1397,9 +1394,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     d.mkdir(parents=True, exist_ok=True)
     cfg = _nerf_settings(size)
     img = cfg["image_size"]
-    train, name = _cow_renders(cfg["n_views"], img)
-    step = 360.0 / max(cfg["n_views"] - 1, 1)
-    test, _ = _cow_renders(cfg["n_heldout"], cfg["heldout_size"], azim_offset=0.5 * step)
+    train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
     res = StepResult("nerf", "6. Fit a neural radiance field", "fit_simple_neural_radiance_field",
                      size=size)
     res.config = {"object": name, "training views": cfg["n_views"],
@@ -1411,14 +1406,15 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     res.description = (
         "A radiance field (MLP on harmonic embeddings) is fitted to the renders with the "
         "emission-absorption raymarcher. Accuracy: PSNR of full renders of held-out views "
-        "(azimuths half-way between the training views). Model size: the network's weights.")
+        "(azimuths half-way between the training views, elevations 0 and 20 degrees). Model "
+        "size: the network's weights.")
     labels = {"tutorial": "PyTorch3D recipe: 60 frequencies, 2 x 256 Softplus, MC rays",
               "scene": "geofit: scene-sized network, visual hull, density grid"}
     bar = _bar(progress, len(labels), "nerf")
     fits = {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
-        fit = fit_nerf(train.images, train.silhouettes, train.cameras, held_out=test.held_out,
+        fit = fit_nerf(train.images, train.silhouettes, train.cameras, held_out=test,
                        time_budget=cfg["time_budget"], eval_every=cfg["eval_every"], seed=seed,
                        **kw)
         fits[key] = fit
@@ -1475,7 +1471,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     return res
 
 
-def _nerf_stability(train: _Views, size: str, seed: int) -> list[dict]:
+def _nerf_stability(train, size: str, seed: int) -> list[dict]:
     from .fit.nerf import fit_nerf
 
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
@@ -1585,7 +1581,8 @@ def _size_chart(steps: Sequence[StepResult], path: Path) -> Path | None:
 
 
 def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = None,
-                  progress: bool = True, seed: int = 0, command: str = "") -> TutorialsRun:
+                  progress: bool = True, seed: int = 0, command: str = "",
+                  gallery=None) -> TutorialsRun:
     """Run the workflows and write the report.
 
     Parameters
@@ -1603,6 +1600,9 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
         Seed of every random choice.
     command : str
         The command line, shown in the report.
+    gallery : path, optional
+        Also copy the figures into this folder under stable names, with a README.md (see
+        :func:`geofit.report.write_gallery`), e.g. ``docs/tutorials`` for the README.
 
     Returns
     -------
@@ -1647,9 +1647,14 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     failed = [s.name for s in steps if not s.ok]
     if failed:
         notes.append("Failed: " + ", ".join(failed) + " (see each section).")
-    report = write_report(steps, out, command=command, size=size, seconds=seconds,
-                          charts=charts, notes=notes)
-    return TutorialsRun(steps, seconds, out, dict(report), charts)
+    report = dict(write_report(steps, out, command=command, size=size, seconds=seconds,
+                               charts=charts, notes=notes))
+    if gallery is not None:
+        from .report import write_gallery
+
+        report["gallery"] = write_gallery(steps, gallery, command=command, charts=charts,
+                                          size=size, seconds=seconds)
+    return TutorialsRun(steps, seconds, out, report, charts)
 
 
 def _load_json(path) -> dict:  # pragma: no cover - convenience for notebooks

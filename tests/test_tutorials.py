@@ -97,11 +97,18 @@ def test_cli_render_steps_write_a_complete_report(tmp_path, procedural, capsys):
     """`geofit tutorials --only render_mesh,render_points` writes images, charts and a report
     whose every image exists and decodes."""
     out = tmp_path / "out"
+    gallery = tmp_path / "docs"
     rc = main(["tutorials", "--out", str(out), "--size", "tiny", "--no-progress",
-               "--only", "render_mesh,render_points"])
+               "--only", "render_mesh,render_points", "--gallery", str(gallery)])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "2 of 2 workflows ran" in text
+    assert "2 of 2 workflows ran" in text and "gallery of 4 images" in text
+    listed = (gallery / "README.md").read_text()
+    assert "geofit tutorials --out" in listed and "--gallery" in listed
+    for name in ("render_mesh_results", "render_mesh_speed_accuracy", "render_points_results",
+                 "render_points_speed_accuracy"):
+        assert f"]({name}.png)" in listed
+        _check_decodes(gallery / f"{name}.png")
     data = _check_report(out, ["render_mesh", "render_points"])
     steps = {s["name"]: s for s in data["tables"]["steps"]}
     for s in steps.values():
@@ -222,11 +229,28 @@ def test_fitting_steps_run_at_tiny_size(tmp_path, procedural, name):
                 assert np.isfinite(z["densities"]).all() and z["features"].shape[0] == 3
 
 
-def test_render_steps_report_scene_sizes(tmp_path, procedural):
-    res = run_step("render_points", tmp_path, "tiny", progress=False)
-    _check_step(res, tmp_path)
-    counts = {r["model"]: r["count"] for r in res.param_counts}
+def test_render_points_adds_the_tutorial_cloud_when_found(tmp_path, procedural):
+    """With PittsburghBridge/pointcloud.npz in the data folder, its three renders are added
+    as a second row of the comparison."""
+    res0 = run_step("render_points", tmp_path / "a", "tiny", progress=False)
+    _check_step(res0, tmp_path / "a")
+    counts = {r["model"]: r["count"] for r in res0.param_counts}
     assert counts["cloud: colour values"] == 3 * counts["cloud: points"]
+    bridge = tmp_path / "no-data-here" / "PittsburghBridge"
+    bridge.mkdir(parents=True)
+    rng = np.random.default_rng(1)
+    np.savez(bridge / "pointcloud.npz", verts=rng.uniform(-3, 3, (2000, 3)),
+             rgb=rng.random((2000, 3)))
+    res1 = run_step("render_points", tmp_path / "b", "tiny", progress=False)
+    _check_step(res1, tmp_path / "b")
+    assert [k for k in res1.images if k.startswith("PittsburghBridge")] == [
+        f"PittsburghBridge render {i}" for i in (1, 2, 3)]
+    blue = np.asarray(Image.open(res1.images["PittsburghBridge render 2"]))
+    assert (blue[..., 2] == 255).mean() > 0.2  # the tutorial's blue background shows
+    h0 = _check_decodes(res0.comparison)[1]
+    h1 = _check_decodes(res1.comparison)[1]
+    assert h1 - h0 >= 128 + 4  # one more row of tiles (tile >= 128 px, pad 4)
+    assert any("PittsburghBridge" in n for n in res1.notes)
 
 
 # ------------------------------------------------------------------------------ report

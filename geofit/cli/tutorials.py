@@ -45,15 +45,21 @@ def run(args: argparse.Namespace) -> int:
     command = " ".join(["geofit", "tutorials", "--out", shlex.quote(str(args.out))]
                        + (["--full"] if args.full else [])
                        + ([f"--size {args.size}"] if args.size != "default" else [])
-                       + ([f"--only {shlex.quote(args.only)}"] if args.only else []))
+                       + ([f"--only {shlex.quote(args.only)}"] if args.only else [])
+                       + ([f"--gallery {shlex.quote(str(args.gallery))}"] if args.gallery
+                          else []))
     t0 = time.perf_counter()
     run_ = run_tutorials(args.out, size=size, only=only, progress=not args.no_progress,
-                         seed=args.seed, command=command)
+                         seed=args.seed, command=command, gallery=args.gallery)
     for s in run_.steps:  # workflows
         print(f"{s.name:14s} {s.status if s.ok else s.status[:160]:>10s}  {s.seconds:7.1f} s")
     print(f"geofit tutorials: {sum(s.ok for s in run_.steps)} of {len(run_.steps)} workflows "
           f"ran in {time.perf_counter() - t0:.1f} s ({size} size)")
     print(f"geofit tutorials: wrote {run_.report['html']} and {run_.report['md']}")
+    if args.gallery:
+        files = run_.report["gallery"]
+        mb = sum(p.stat().st_size for p in files) / 2 ** 20
+        print(f"geofit tutorials: gallery of {len(files)} images ({mb:.2f} MB) in {args.gallery}")
     return 0 if run_.ok else 1
 
 
@@ -75,6 +81,9 @@ def register(subparsers) -> None:
                         "(same as --full)")
     p.add_argument("--only", default=None, metavar="STEP,...",
                    help=f"comma-separated steps to run (default all: {','.join(STEPS)})")
+    p.add_argument("--gallery", type=Path, default=None, metavar="DIR",
+                   help="also copy the figures into DIR under stable names with a README.md "
+                        "(e.g. docs/tutorials, for the project README)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
