@@ -77,11 +77,16 @@ def machine_info() -> dict[str, Any]:
     except (ValueError, OSError, AttributeError):
         mem = None
     affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        load = None
     return {
         "cpu": _cpu_model(),
         "cpu_count": os.cpu_count(),
         "cpu_affinity": affinity,
         "memory_gib": round(mem, 1) if mem else None,
+        "load_average_1_5_15min": load,  # other processes share the cores: read times with it
         "os": platform.platform(),
         "python": platform.python_version(),
         "versions": {

@@ -13,6 +13,7 @@ from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
 from .mesh import (
     FINE_WEIGHTS,
     METHODS,
+    RECIPES,
     TUTORIAL_WEIGHTS,
     CoarseToFine,
     LargeSteps,
@@ -26,6 +27,7 @@ __all__ = [
     "CONVERGED_STATUSES",
     "FINE_WEIGHTS",
     "METHODS",
+    "RECIPES",
     "SOLVERS",
     "STATUSES",
     "TUTORIAL_WEIGHTS",

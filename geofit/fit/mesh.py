@@ -70,6 +70,22 @@ TUTORIAL_WEIGHTS = {"chamfer": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 0.
 #: point-to-surface distances there is no sampling noise for the regularisers to smooth out.
 FINE_WEIGHTS = {"chamfer": 1.0, "edge": 0.03, "normal": 0.003, "laplacian": 0.01}
 
+#: Named settings of :func:`fit_mesh` used by the benchmark, the command line and the notebook:
+#: ``fit_mesh(source, target, **RECIPES[name])``.
+RECIPES: dict[str, dict] = {
+    # the tutorial exactly: SGD lr 1.0 momentum 0.9, 2000 steps, 5000 fresh samples a side
+    "tutorial": {"method": "sgd"},
+    # the same stochastic objective with Adam
+    "adam": {"method": "adam", "lr": 0.01},
+    # quasi-Newton, deterministic stages, exact point-to-surface distances
+    "scipy-lbfgs": {"method": "scipy-lbfgs"},
+    "nlopt-lbfgs": {"method": "nlopt-lbfgs"},
+    # the same with the large-steps parameterisation
+    "large-steps": {"method": "scipy-lbfgs", "large_steps": 10.0},
+    # ico 2 -> 3 -> 4, subdividing only while the accuracy asks for it
+    "coarse-to-fine": {"method": "scipy-lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
+}
+
 _TERMS = ("chamfer", "edge", "normal", "laplacian")
 _STOCHASTIC = ("sgd", "adam")
 
@@ -464,7 +480,8 @@ _FAILED = ("nonfinite", "diverged", "failed")
 
 def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
              weights: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
-             distance: str | None = None, n_samples: int = 5000, n_iter: int | None = None,
+             distance: str | None = None, n_samples: int | None = None,
+             n_iter: int | None = None,
              n_stages: int | None = None, lr: float | None = None, momentum: float = 0.9,
              large_steps: float | None = None, coarse_to_fine: CoarseToFine | bool | None = None,
              time_budget: float | None = None, seed=0, evaluator: Any = "default",
@@ -493,14 +510,16 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
         SGD/Adam; for L-BFGS the tutorial's in the first stage, then :data:`FINE_WEIGHTS`.
     distance : {"surface", "points"}, optional
         Data term. Default ``"points"`` for SGD/Adam (the tutorial), ``"surface"`` for L-BFGS.
-    n_samples : int
-        Samples per surface per step (SGD/Adam) or per stage (L-BFGS).
+    n_samples : int, optional
+        Samples per surface per step (SGD/Adam, default 5000 as the tutorial) or per stage
+        (L-BFGS, default ``min(5000, max(1000, 8 V))`` for a source of ``V`` vertices: 1296 on
+        ``ico_sphere(2)``, 5000 from ``ico_sphere(3)`` on).
     n_iter : int, optional
         Steps (SGD/Adam, default 2000) or maximum iterations per stage (L-BFGS, default 100).
     n_stages : int, optional
         L-BFGS stages, i.e. sample redraws (default 3; with coarse-to-fine, per level, default 2).
     lr : float, optional
-        Step size for SGD (default 1.0) or Adam (default 0.005).
+        Step size for SGD (default 1.0) or Adam (default 0.01).
     momentum : float
         SGD momentum.
     large_steps : float, optional
@@ -582,7 +601,8 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     source = _as_mesh(source, "source")
     distance = distance or ("points" if stochastic else "surface")
     check_choice(distance, "distance", ("surface", "points"))
-    n_samples = _check_int(n_samples, "n_samples")
+    if n_samples is not None:
+        n_samples = _check_int(n_samples, "n_samples")
     n_iter = _check_int(n_iter if n_iter is not None else (2000 if stochastic else 100), "n_iter")
     default_stages = 1 if stochastic else (2 if c2f is not None else 3)
     n_stages = _check_int(n_stages if n_stages is not None else default_stages, "n_stages")
@@ -595,7 +615,7 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     weights = [_check_weights(w, f"weights[{i}]") for i, w in enumerate(weights)]
     if not weights:
         raise ValueError("weights: expected at least one dict of weights")
-    lr = check_positive(lr if lr is not None else (1.0 if method == "sgd" else 0.005), "lr")
+    lr = check_positive(lr if lr is not None else (1.0 if method == "sgd" else 0.01), "lr")
     if time_budget is not None:
         time_budget = check_positive(time_budget, "time_budget")
     lam = check_positive(large_steps, "large_steps") if large_steps is not None else None
@@ -639,7 +659,8 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
                 status, message = "time_budget", f"time budget {time_budget:g} s used up"
                 done = True
                 break
-            obj = MeshObjective(mesh, tgt, w, distance=distance, n_samples=n_samples,
+            ns = n_samples or (5000 if stochastic else min(5000, max(1000, 8 * mesh.n_verts)))
+            obj = MeshObjective(mesh, tgt, w, distance=distance, n_samples=ns,
                                 resample="step" if stochastic else "stage", large_steps=ls,
                                 seed=rng, target_distance=p2s)
             remaining = None if time_budget is None else time_budget - clock.elapsed()
