@@ -461,13 +461,16 @@ class _Objective:
 
     ``x = [u (3V), colours (3V, textured only)]``; vertices come from the parameterisation.
     Data terms are the tutorial's: per view the mean over pixels of the squared error, averaged
-    over the views used (all of them, or ``views_per_step`` random ones per call).
+    over the views used (all of them, or ``views_per_step`` random ones per call). Views are
+    rendered in batches of at most ``max_views`` (bounded memory).
     """
 
     def __init__(self, base: Mesh, data: MultiViewData, weights: Mapping[str, float], *,
                  textured: bool, param, settings: SoftRasterizationSettings,
-                 views_per_step: int | None = None, rng=None, sigma: float = _SIGMA):
+                 views_per_step: int | None = None, rng=None, sigma: float = _SIGMA,
+                 max_views: int = 5):
         self.base = base
+        self.max_views = max_views
         self.data = data
         self.weights = dict(weights)
         self.textured = textured
@@ -497,35 +500,41 @@ class _Objective:
         idx = np.arange(len(self.data))
         if self.views_per_step is not None:
             idx = self.rng.permutation(len(self.data))[:self.views_per_step]
-        cams = self.data.cameras[idx]
-        tgt_s = self.data.silhouettes[idx]
         nv = len(idx)
         H, W = self.data.image_size
         terms, g_verts = _regularizers(mesh, self.weights)
-        g_colors = None
         w_s = float(self.weights.get("silhouette", 0.0))
-        if not self.textured:
-            fr = rasterize_soft(mesh, cams, self.settings)
-            S = sigmoid_alpha_blend(fr, self.sigma)
-            res = S - tgt_s
-            terms["silhouette"] = w_s * float(np.sum(res * res)) / (nv * H * W)
-            gS = (2.0 * w_s / (nv * H * W)) * res
-            gd = sigmoid_alpha_blend_vjp(fr, gS, self.sigma, S)
-            g_verts = g_verts + fr.vjp(grad_dists=gd)
-        else:
-            w_rgb = float(self.weights.get("rgb", 0.0))
-            out = self.renderer(mesh, colors, cameras=cams)
-            S = out.images[..., 3]
-            res_s = S - tgt_s
-            res_c = out.images[..., :3] - self.data.images[idx]
-            terms["silhouette"] = w_s * float(np.sum(res_s * res_s)) / (nv * H * W)
-            terms["rgb"] = w_rgb * float(np.sum(res_c * res_c)) / (nv * H * W * 3)
-            gi = np.empty(out.images.shape)
-            gi[..., 3] = (2.0 * w_s / (nv * H * W)) * res_s
-            gi[..., :3] = (2.0 * w_rgb / (nv * H * W * 3)) * res_c
-            grads = out.vjp(gi)
-            g_verts = g_verts + grads.verts
-            g_colors = grads.colors
+        w_rgb = float(self.weights.get("rgb", 0.0))
+        sil = 0.0
+        rgb = 0.0
+        g_colors = np.zeros((self.V, 3)) if self.textured else None
+        # views in batches of at most max_views: memory stays bounded, sums are the same
+        for b in np.array_split(idx, -(-nv // self.max_views)):  # view batches
+            cams = self.data.cameras[b]
+            tgt_s = self.data.silhouettes[b]
+            if not self.textured:
+                fr = rasterize_soft(mesh, cams, self.settings)
+                S = sigmoid_alpha_blend(fr, self.sigma)
+                res = S - tgt_s
+                sil += float(np.sum(res * res))
+                gS = (2.0 * w_s / (nv * H * W)) * res
+                gd = sigmoid_alpha_blend_vjp(fr, gS, self.sigma, S)
+                g_verts = g_verts + fr.vjp(grad_dists=gd)
+            else:
+                out = self.renderer(mesh, colors, cameras=cams)
+                res_s = out.images[..., 3] - tgt_s
+                res_c = out.images[..., :3] - self.data.images[b]
+                sil += float(np.sum(res_s * res_s))
+                rgb += float(np.sum(res_c * res_c))
+                gi = np.empty(out.images.shape)
+                gi[..., 3] = (2.0 * w_s / (nv * H * W)) * res_s
+                gi[..., :3] = (2.0 * w_rgb / (nv * H * W * 3)) * res_c
+                grads = out.vjp(gi)
+                g_verts = g_verts + grads.verts
+                g_colors += grads.colors
+        terms["silhouette"] = w_s * sil / (nv * H * W)
+        if self.textured:
+            terms["rgb"] = w_rgb * rgb / (nv * H * W * 3)
         value = float(sum(terms.values()))
         g = self.param.pullback(g_verts)
         if self.textured:
@@ -652,7 +661,7 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
                       large_steps: float | None = None, levels=None,
                       textured_init: str = "silhouette", views_per_step: int = 2,
                       lr: float = 1.0, momentum: float = 0.9, adam_lr: float = 0.01,
-                      faces_per_pixel: int = 50, color_reg: float = 1e-3,
+                      faces_per_pixel: int = 50, color_reg: float = 1e-4,
                       evaluate: Callable | None = None, eval_every: float = 5.0,
                       callback: Callable | None = None, seed=0) -> ViewsFitResult:
     """Deform a sphere to match multi-view silhouettes, then fit vertex colours (tutorial 4).
