@@ -34,8 +34,8 @@ import math
 import os
 import tempfile
 import time
-import tracemalloc
 import traceback
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -71,23 +71,23 @@ def settings(name: str, quick: bool, budget: float) -> dict:
     c2f = [(0, 2), (1, 1)]
     tut = 40 if quick else 2000
     out = {
-        "tutorial": dict(silhouette_method="tutorial", textured_method="tutorial",
-                         textured_init="sphere", silhouette_iters=tut, textured_iters=tut,
-                         init_level=4),
-        "scipy-lbfgs": dict(silhouette_method="scipy-lbfgs", textured_method="lstsq",
-                            silhouette_iters=2000, silhouette_time=budget, init_level=4),
-        "lbfgs-large-steps": dict(silhouette_method="scipy-lbfgs", textured_method="lstsq",
-                                  large_steps=10.0, silhouette_iters=2000,
-                                  silhouette_time=budget, init_level=4),
-        "best": dict(silhouette_method="scipy-lbfgs", textured_method="lstsq",
-                     large_steps=10.0, levels=c2f, silhouette_iters=2000,
-                     silhouette_time=budget, init_level=3),
-        "nlopt-lbfgs": dict(silhouette_method="nlopt-lbfgs", textured_method="lstsq",
-                            large_steps=10.0, levels=c2f, silhouette_iters=4000,
-                            silhouette_time=budget, init_level=3),
-        "contour": dict(silhouette_method="contour", textured_method="lstsq", large_steps=10.0,
-                        levels=c2f, silhouette_iters=4000, silhouette_time=budget,
-                        adam_lr=0.01, init_level=3),
+        "tutorial": {"silhouette_method": "tutorial", "textured_method": "tutorial",
+                         "textured_init": "sphere", "silhouette_iters": tut, "textured_iters": tut,
+                         "init_level": 4},
+        "scipy-lbfgs": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+                            "silhouette_iters": 2000, "silhouette_time": budget, "init_level": 4},
+        "lbfgs-large-steps": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+                                  "large_steps": 10.0, "silhouette_iters": 2000,
+                                  "silhouette_time": budget, "init_level": 4},
+        "best": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+                     "large_steps": 10.0, "levels": c2f, "silhouette_iters": 2000,
+                     "silhouette_time": budget, "init_level": 3},
+        "nlopt-lbfgs": {"silhouette_method": "nlopt-lbfgs", "textured_method": "lstsq",
+                            "large_steps": 10.0, "levels": c2f, "silhouette_iters": 4000,
+                            "silhouette_time": budget, "init_level": 3},
+        "contour": {"silhouette_method": "contour", "textured_method": "lstsq", "large_steps": 10.0,
+                        "levels": c2f, "silhouette_iters": 4000, "silhouette_time": budget,
+                        "adam_lr": 0.01, "init_level": 3},
     }[name]
     if quick:
         out["init_level"] = max(out["init_level"] - 2, 1)
@@ -195,11 +195,11 @@ def memory_report(ds) -> dict:
                      "seconds_forward_and_vjp": wall, "cpu_seconds_forward_and_vjp": cpu}
     # one objective evaluation as the fits run it (views in batches of 5)
     for name, kw in (("fit_silhouette_1_iteration",
-                      dict(silhouette_method="scipy-lbfgs", silhouette_iters=1,
-                           textured_method="none")),
+                      {"silhouette_method": "scipy-lbfgs", "silhouette_iters": 1,
+                           "textured_method": "none"}),
                      ("fit_textured_1_iteration",
-                      dict(silhouette_method="none", textured_method="lbfgs",
-                           textured_iters=1))):
+                      {"silhouette_method": "none", "textured_method": "lbfgs",
+                           "textured_iters": 1})):
         tracemalloc.start()
         fit_mesh_to_views(ds.train, init=m, **kw)
         out[name] = {"peak_traced_mb": tracemalloc.get_traced_memory()[1] / 2 ** 20}
@@ -284,22 +284,22 @@ def stability_markdown(rows, budget: float, load) -> str:
                 f"PSNR {r['psnr']:.1f}, {r['seconds']:.0f} s, {fin}")
 
     lines = ["# fit_views stability", "",
-             f"Each cell: final status, held-out IoU, chamfer-L2 against the true mesh, held-out "
+             (f"Each cell: final status, held-out IoU, chamfer-L2 against the true mesh, held-out "
              f"PSNR (least-squares colours), solver seconds, and whether every step's value, "
              f"gradient and parameters were finite. L-BFGS and contour methods: silhouette "
              f"budget {budget:g} s; the tutorial recipe: 500 SGD steps. Load average during "
-             f"the run: {load}.", ""]
+             f"the run: {load}."), ""]
     header = ["case"] + list(STAB_METHODS)
     body = []
     for case in CASES:
         body.append([case] + [cell(next(r for r in rows if r["case"] == case
                                         and r["method"] == m)) for m in STAB_METHODS])
     lines.append(markdown_table(header, body))
-    lines += ["", "Cases: `few_views` 4 of the 20 views; `noisy` Gaussian noise (sigma 0.1) on "
+    lines += ["", ("Cases: `few_views` 4 of the 20 views; `noisy` Gaussian noise (sigma 0.1) on "
               "every silhouette pixel; `camera_1deg` the targets rendered from cameras 1 degree "
               "(elevation and azimuth) away from those used to fit; `hole` a square hole "
               "(1/8 of the image side) in the middle of every silhouette; `small_start` a sphere "
-              "of radius 0.25; `off_centre` radius 0.6 centred at (0.5, 0.3, 0)."]
+              "of radius 0.25; `off_centre` radius 0.6 centred at (0.5, 0.3, 0).")]
     return "\n".join(lines) + "\n"
 
 
@@ -351,13 +351,13 @@ def main(argv=None) -> int:
                    "20000 samples a side)"})
     report.reference = {"pytorch3d_tutorial_cpu": PYTORCH3D}
     report.notes += [
-        "seconds: solver wall time with metric checkpoints excluded (clock paused); "
+        ("seconds: solver wall time with metric checkpoints excluded (clock paused); "
         "cpu_seconds in each curve: process CPU time (all threads) with checkpoints excluded. "
         "The machine (2 cores) is shared: load averages at the start and end of every method "
-        "are in its 'final'.",
+        "are in its 'final'."),
         "During the silhouette stage the PSNR curve is that of the mesh in uniform grey.",
-        "tutorial: the tutorial's textured stage restarts from the sphere (as the notebook); its "
-        "silhouette-stage result is final.silhouette_stage.",
+        ("tutorial: the tutorial's textured stage restarts from the sphere (as the notebook); its "
+        "silhouette-stage result is final.silhouette_stage."),
     ]
     report.tables["memory"] = memory_report(ds)
     print("memory:", report.tables["memory"], flush=True)
