@@ -277,7 +277,7 @@ class SoftFragments:
         return (f"SoftFragments(n_views={self.n_views}, image_size={self.image_size}, "
                 f"K={self.faces_per_pixel}, entries={len(self)})")
 
-    @property
+    @cached_property
     def global_pixel(self) -> np.ndarray:
         """(m,) int64 ``view * H * W + pixel``: the entry's pixel in the flattened batch."""
         H, W = self.image_size
@@ -386,6 +386,8 @@ class SoftFragments:
             s = slice(int(self.view_offsets[n]), int(self.view_offsets[n + 1]))
             if s.start == s.stop:
                 return None
+            if gz_all is None and gb_all is None:
+                return _dist_vjp(self, n, s, gd_all[s], V)
             g = _EntryGeometry(self, n, s)
             gx, gy, gz = g.vjp(None if gd_all is None else gd_all[s],
                                None if gz_all is None else gz_all[s],
@@ -405,6 +407,39 @@ class SoftFragments:
 
         parts = _map_views(one, self.n_views, ctx["n_threads"])
         return sum((p for p in parts if p is not None), np.zeros((V, 3)))
+
+
+_EDGE_ENDS = np.array([[0, 1], [0, 2], [1, 2]])
+
+
+def _dist_vjp(fr: SoftFragments, n: int, s: slice, gd: np.ndarray, V: int) -> np.ndarray:
+    """World-vertex gradient of one view from gradients on the signed distances only: only the
+    two ends of each entry's nearest edge move (``dD/da = 2 (1 - t)(c - q)``,
+    ``dD/db = 2 t (c - q)``, ``c = a + t (b - a)``; the sign flips inside)."""
+    ctx = fr._ctx
+    X, Y = ctx["x"][n], ctx["y"][n]
+    ends = _EDGE_ENDS[fr._edge[s]]
+    f = fr.face[s]
+    faces = ctx["faces"]
+    va = faces[f, ends[:, 0]]
+    vb = faces[f, ends[:, 1]]
+    W = fr.image_size[1]
+    pix = fr.pixel[s]
+    ax, ay = X[va], Y[va]
+    dx, dy = X[vb] - ax, Y[vb] - ay
+    rx, ry = ctx["px"][pix % W] - ax, ctx["py"][pix // W] - ay
+    l2 = dx * dx + dy * dy
+    degenerate = l2 <= _EPS
+    t = np.clip((rx * dx + ry * dy) / np.where(degenerate, 1.0, l2), 0.0, 1.0)
+    t[degenerate] = 1.0
+    g = np.where(fr._inside[s], 2.0 * gd, -2.0 * gd)   # 2 * sign * gd, and c - q = -(r - t d)
+    cx = (rx - t * dx) * g
+    cy = (ry - t * dy) * g
+    ta = 1.0 - t
+    gx = np.bincount(va, ta * cx, V) + np.bincount(vb, t * cx, V)
+    gy = np.bincount(va, ta * cy, V) + np.bincount(vb, t * cy, V)
+    J = ctx["J"][n]
+    return gx[:, None] * J[:, 0, :] + gy[:, None] * J[:, 1, :]
 
 
 class _EntryGeometry:
@@ -837,9 +872,24 @@ def _check_fragments(fragments) -> SoftFragments:
     return fragments
 
 
+def _sigmoid_terms(fr: SoftFragments, sigma: float):
+    """``p = sigmoid(-d / sigma)`` and ``log(1 - p)`` per entry, cached on the fragments.
+
+    With ``e = exp(-d / sigma)`` (exponent capped at 700): ``p = e / (1 + e)`` and
+    ``log(1 - p) = -log1p(e)``, finite for every distance (a cap only changes ``log(1 - p)``
+    below -700, where ``1 - S`` underflows to 0 either way).
+    """
+    cache = fr.__dict__.setdefault("_sigmoid_cache", {})
+    if sigma not in cache:
+        e = np.exp(np.minimum(fr.dist * (-1.0 / sigma), 700.0))
+        cache.clear()
+        cache[sigma] = (e / (1.0 + e), -np.log1p(e))
+    return cache[sigma]
+
+
 def _log_one_minus_p(dist: np.ndarray, sigma: float) -> np.ndarray:
     """log(1 - sigmoid(-d / sigma)) = log sigmoid(d / sigma), finite for every d."""
-    return -np.logaddexp(0.0, -dist / sigma)
+    return -np.log1p(np.exp(np.minimum(dist * (-1.0 / sigma), 700.0)))
 
 
 def sigmoid_alpha_blend(fragments: SoftFragments, sigma: float = 1e-4) -> np.ndarray:
@@ -861,7 +911,7 @@ def sigmoid_alpha_blend(fragments: SoftFragments, sigma: float = 1e-4) -> np.nda
     sigma = check_positive(sigma, "sigma")
     H, W = fr.image_size
     tot = fr.n_views * H * W
-    logq = np.bincount(fr.global_pixel, _log_one_minus_p(fr.dist, sigma), tot)
+    logq = np.bincount(fr.global_pixel, _sigmoid_terms(fr, sigma)[1], tot)
     return (-np.expm1(logq)).reshape(fr.n_views, H, W)
 
 
@@ -891,9 +941,8 @@ def sigmoid_alpha_blend_vjp(fragments: SoftFragments, grad_alpha, sigma: float =
     if alpha is None:
         alpha = sigmoid_alpha_blend(fr, sigma)
     gp = fr.global_pixel
-    one_minus_S = 1.0 - np.asarray(alpha).reshape(-1)[gp]
-    p = expit(-fr.dist / sigma)
-    return -g[gp] * p * one_minus_S / sigma
+    coef = g * (1.0 - np.asarray(alpha).reshape(-1)) * (-1.0 / sigma)   # per pixel
+    return coef[gp] * _sigmoid_terms(fr, sigma)[0]
 
 
 class SoftSilhouetteShader:
@@ -1355,7 +1404,7 @@ def _softmax_weights(fr: SoftFragments, bp: BlendParams, znear, zfar) -> dict:
     zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (fr.n_views,))[fr.view]
     zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (fr.n_views,))[fr.view]
     sigma, gamma = float(bp.sigma), float(bp.gamma)
-    p = expit(-fr.dist / sigma)
+    p, log1mp = _sigmoid_terms(fr, sigma)
     zrange = zf - zn
     zinv = (zf - fr.depth) / zrange
     zmax = np.full(G, -np.inf)
@@ -1372,7 +1421,7 @@ def _softmax_weights(fr: SoftFragments, bp: BlendParams, znear, zfar) -> dict:
     delta = np.maximum(delta_raw, _BLEND_EPS)
     delta_free = delta_raw > _BLEND_EPS
     D = np.bincount(gp, w, G) + delta
-    alpha = -np.expm1(np.bincount(gp, _log_one_minus_p(fr.dist, sigma), G))
+    alpha = -np.expm1(np.bincount(gp, log1mp, G))
     return {"D": D, "w": w, "p": p, "E": E, "gamma": gamma, "sigma": sigma, "delta": delta,
             "delta_free": delta_free, "first": first, "zm_free": zm_free, "zrange": zrange,
             "alpha": alpha}
