@@ -69,7 +69,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.special import expit
 
 from .._validate import as_array, check_positive
 from ..cameras import CamerasBase
