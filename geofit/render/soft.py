@@ -665,6 +665,7 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         deg = (l2 <= _EPS).astype(np.float64)
         segs.append((xa, ya, dx, dy, np.where(deg > 0, 0.0, 1.0 / np.where(deg > 0, 1.0, l2)),
                      deg))
+    degface = (segs[0][5] + segs[1][5] + segs[2][5]) > 0
     if not clip:
         Zc = zf[fids]
         if perspective_correct:
@@ -690,20 +691,36 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         qy = py[row]
         # stage 1: signed distances to the three edge lines; a pair whose pixel lies beyond
         # sqrt(blur) outside one of them is farther than sqrt(blur) from the triangle
-        s_min = None
-        for a, b, c in lines:
-            si = a[loc] * qx + b[loc] * qy + c[loc]
-            s_min = si if s_min is None else np.minimum(s_min, si)
+        sl = [a[loc] * qx + b[loc] * qy + c[loc] for a, b, c in lines]
+        s_min = np.minimum(np.minimum(sl[0], sl[1]), sl[2])
         live = np.flatnonzero(s_min > cut)
         loc, col, row, qx, qy, s_min = (v[live] for v in (loc, col, row, qx, qy, s_min))
-        # stage 2: exact squared distance to the triangle (nearest of the three segments)
-        d = []
-        for ax, ay, dx, dy, il, dg in segs:
-            d.append(_seg_sqdist(qx, qy, ax[loc], ay[loc], dx[loc], dy[loc], il[loc], dg[loc]))
-        use01 = (d[0] <= d[1]) & (d[0] <= d[2])
-        use02 = ~use01 & (d[1] <= d[2])
-        dist = np.where(use01, d[0], np.where(use02, d[1], d[2]))
+        sl = [v[live] for v in sl]
+        # stage 2: exact squared distance to the triangle (the nearest of the three segments,
+        # PyTorch3D's order e01, e02, e12 on ties). Inside a triangle the nearest segment point
+        # is the foot on the nearest edge line, so there it is (min_i s_i)^2 (faces with a
+        # degenerate edge, whose distance PyTorch3D takes to an end point, excepted).
         inside = s_min > 0.0
+        gen = np.flatnonzero(~inside | degface[loc])
+        fast = np.flatnonzero(inside & ~degface[loc])
+        n_live = len(loc)
+        dist = np.empty(n_live)
+        edge = np.empty(n_live, np.int8)
+        # edge e01 is line 2 (opposite corner 2), e02 line 1, e12 line 0
+        d0, d1, d2 = sl[2][fast], sl[1][fast], sl[0][fast]
+        use01 = (d0 <= d1) & (d0 <= d2)
+        use02 = ~use01 & (d1 <= d2)
+        dmin = np.where(use01, d0, np.where(use02, d1, d2))
+        dist[fast] = dmin * dmin
+        edge[fast] = np.where(use01, 0, np.where(use02, 1, 2))
+        if gen.size:
+            lg = loc[gen]
+            d = [_seg_sqdist(qx[gen], qy[gen], ax[lg], ay[lg], dx[lg], dy[lg], il[lg], dg[lg])
+                 for ax, ay, dx, dy, il, dg in segs]
+            use01 = (d[0] <= d[1]) & (d[0] <= d[2])
+            use02 = ~use01 & (d[1] <= d[2])
+            dist[gen] = np.where(use01, d[0], np.where(use02, d[1], d[2]))
+            edge[gen] = np.where(use01, 0, np.where(use02, 1, 2))
         keep = inside | (dist < blur)
         if not clip:  # unclipped barycentrics can put an outside pixel behind the camera
             raw = [_edge_function(i, qx, qy, X0[loc], Y0[loc], X1[loc], Y1[loc], X2[loc],
@@ -715,7 +732,6 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
             pz = raw[0] * Zc[loc, 0] + raw[1] * Zc[loc, 1] + raw[2] * Zc[loc, 2]
             keep &= pz >= 0.0
         sel = np.flatnonzero(keep)
-        edge = np.where(use01, 0, np.where(use02, 1, 2)).astype(np.int8)
         parts.append((fids[loc[sel]], row[sel] * W + col[sel],
                       np.where(inside[sel], -dist[sel], dist[sel]), edge[sel], inside[sel]))
         start = stop
