@@ -455,8 +455,9 @@ class MeshRasterizer:
 
     *Degenerate input.* Faces of zero area are never hit. An empty mesh (no faces) renders as
     background (``pix_to_face == -1`` everywhere). A camera inside a closed mesh sees the inside
-    of the surface: the back faces, whose normals point away from the camera (so they get only
-    ambient light, as in PyTorch3D; set ``cull_backfaces=True`` to see through them).
+    of the surface: its back faces, shaded as PyTorch3D shades them, with the outward normals
+    and no shadows (a light outside lights them through the surface, a light inside leaves them
+    the ambient term); set ``cull_backfaces=True`` to skip them (nothing is then seen).
     """
 
     _CACHE_SIZE = 8
