@@ -805,3 +805,20 @@ def test_cli_render_writes_images(tmp_path, monkeypatch, capsys):
     torus().to_trimesh().export(stl)
     assert main(["render", str(stl), "--out", str(out), "--image-size", "24", "--normalize",
                  "--shadows", "--supersample", "2"]) == 0
+
+
+def test_batch_of_differently_textured_meshes():
+    """Each view of a mixed batch is shaded with its own mesh's texture (UV, vertex, flat)."""
+    s = ico_sphere(2)
+    uv = Mesh(s.verts, s.faces, TexturesUV(np.tile([0.0, 0.0, 1.0], (4, 4, 1)),
+                                           np.zeros((s.n_faces, 3), np.int64), [[0.5, 0.5]]))
+    vt = Mesh(s.verts, s.faces, TexturesVertex(np.tile([1.0, 0.0, 0.0], (s.n_verts, 1))))
+    fl = Mesh(s.verts, s.faces, TexturesFlat([0.0, 1.0, 0.0]))
+    R, T = look_at_view_transform(3.0, 0.0, [0.0, 90.0, 180.0])
+    img = MeshRenderer(MeshRasterizer(FoVPerspectiveCameras(R=R, T=T),
+                                      RasterizationSettings(image_size=16)),
+                       HardPhongShader(lights=AmbientLights()))(Meshes([uv, vt, fl]))
+    for b, rgb in enumerate(([0, 0, 1], [1, 0, 0], [0, 1, 0])):
+        cov = img[b, ..., 3] == 1
+        assert cov.sum() > 20
+        assert_allclose(img[b][cov][:, :3], np.broadcast_to(rgb, (cov.sum(), 3)), atol=1e-6)
