@@ -1180,14 +1180,15 @@ def _views_stability(ds, size: str, seed: int) -> list[dict]:
 
 
 def _volume_settings(size: str) -> dict:
+    budget = _pick(size, None, 30.0, None)
     return {
         "n_views": _pick(size, 6, 20, 40), "image_size": _pick(size, 32, 64, 128),
         "n_heldout": _pick(size, 2, 4, 8), "volume_size": _pick(size, 16, 64, 128),
         "n_pts_per_ray": _pick(size, 32, 75, 150),
-        "tutorial": {"method": "tutorial", "n_iter": _pick(size, 4, 100, 300),
-                     "batch_size": _pick(size, 2, 10, 10)},
+        "tutorial": {"method": "tutorial", "n_iter": _pick(size, 4, 300, 300),
+                     "batch_size": _pick(size, 2, 10, 10), "time_budget": budget},
         "lbfgs": {"method": "lbfgs", "levels": _pick(size, (8, 16), (32, 64), (32, 64, 128)),
-                  "iterations": _pick(size, (4, 4), (60, 40), None)},
+                  "iterations": _pick(size, (4, 4), (60, 40), None), "time_budget": budget},
         "monitor_every": _pick(size, None, 3.0, 30.0),
     }
 
@@ -1202,7 +1203,8 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
         The run's output folder; the step writes into ``out/fit_volume``.
     size : {"tiny", "default", "full"}
         ``"full"``: 40 views of 128 px, a 128^3 grid, 150 samples per ray, 300 Adam steps as
-        the tutorial; ``"default"``: 20 views of 64 px, 64^3, 75 samples, 100 steps.
+        the tutorial; ``"default"``: 20 views of 64 px, 64^3, 75 samples, each method stopped
+        after 30 s of solver time.
     progress : bool
         A progress bar over the fits.
     seed : int
@@ -1477,7 +1479,7 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
     nan_i = imgs.copy()
     nan_i[0, 0, 0, 0] = np.nan
-    n_iter = _pick(size, 2, 10, 50)
+    n_iter = _pick(size, 2, 4, 50)
     cases = {
         "one view only": (imgs[:1], sils[:1], cams[[0]], {}),
         "black images, empty silhouettes": (np.zeros_like(imgs), np.zeros_like(sils), cams, {}),
