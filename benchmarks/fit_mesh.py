@@ -103,7 +103,8 @@ def run_method(name: str, target: Mesh, evaluator: MeshEvaluator, quick: bool) -
                                 // 3) for st in a["checkpoint_step"]]
     m = res.metrics
     reach = run.first_reaching(ACCURACY)
-    run.final = {"seconds": res.seconds, "wall_seconds_including_metrics": wall,
+    run.final = {"seconds": res.seconds, "cpu_seconds": res.cpu_seconds,
+                 "wall_seconds_including_metrics": wall,
                  "n_verts": res.n_verts, "n_iterations": res.n_iterations,
                  "n_evaluations": res.n_evaluations, "chamfer_l2": m.chamfer_l2,
                  "chamfer_l1": m.chamfer_l1, "fscore@0.01": m.fscore[0.01],
@@ -301,7 +302,8 @@ def main(argv=None) -> int:
             run = report.add(run_method(name, target, evaluator, args.quick))
             f = run.final
             reach = f["seconds_to_pytorch3d_accuracy"]
-            print(f"  {run.status:10s} solver {f['seconds']:7.2f} s  V {f['n_verts']:5d}  "
+            print(f"  {run.status:10s} solver {f['seconds']:7.2f} s (cpu {f['cpu_seconds']:.2f} s)  "
+                  f"V {f['n_verts']:5d}  "
                   f"cd {f['chamfer_l2']:.3e}  F@0.01 {f['fscore@0.01']:.4f}  "
                   f"NC {f['normal_consistency']:.4f}  reaches PyTorch3D accuracy at "
                   f"{'never' if reach is None else f'{reach:.2f} s'}", flush=True)

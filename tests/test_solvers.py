@@ -319,3 +319,18 @@ def test_clock_pause_is_reentrant():
         assert c.is_paused
     assert not c.is_paused
     assert c.elapsed() < 0.015
+
+
+def test_clock_cpu_time_excludes_paused_work():
+    """CPU time spent busy inside clock.paused() is not charged; outside it is."""
+    def burn(seconds):
+        t0 = time.process_time()
+        while time.process_time() - t0 < seconds:
+            pass
+
+    c = Clock()
+    with c.paused():
+        burn(0.05)
+    assert c.cpu_elapsed() < 0.02
+    burn(0.05)
+    assert c.cpu_elapsed() >= 0.05

@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
                    progress=not args.no_progress, **kwargs)
     m = evaluator.evaluate(res.mesh)
     print(f"status: {res.status} ({res.message})")
-    print(f"solver time {res.seconds:.2f} s, {res.n_iterations} iterations, "
+    print(f"solver time {res.seconds:.2f} s (CPU {res.cpu_seconds:.2f} s), "
+          f"{res.n_iterations} iterations, "
           f"{res.n_evaluations} evaluations")
     print(f"vertices: {res.n_verts} (faces {res.mesh.n_faces})")
     print(f"accuracy (normalised frame, {args.metric_samples} samples a side, exact distances): "

@@ -54,13 +54,22 @@ class Clock:
 
     def __init__(self) -> None:
         self._start = time.perf_counter()
+        self._cpu_start = time.process_time()
         self._paused_total = 0.0
+        self._cpu_paused_total = 0.0
         self._paused_at: float | None = None
+        self._cpu_paused_at: float | None = None
 
     def elapsed(self) -> float:
-        """Seconds since construction, minus the paused intervals."""
+        """Wall-clock seconds since construction, minus the paused intervals."""
         now = self._paused_at if self._paused_at is not None else time.perf_counter()
         return now - self._start - self._paused_total
+
+    def cpu_elapsed(self) -> float:
+        """CPU seconds of this process (all its threads) since construction, minus the paused
+        intervals: less sensitive than :meth:`elapsed` to other processes sharing the cores."""
+        now = self._cpu_paused_at if self._cpu_paused_at is not None else time.process_time()
+        return now - self._cpu_start - self._cpu_paused_total
 
     @property
     def is_paused(self) -> bool:
@@ -73,11 +82,13 @@ class Clock:
             yield
             return
         self._paused_at = time.perf_counter()
+        self._cpu_paused_at = time.process_time()
         try:
             yield
         finally:
             self._paused_total += time.perf_counter() - self._paused_at
-            self._paused_at = None
+            self._cpu_paused_total += time.process_time() - self._cpu_paused_at
+            self._paused_at = self._cpu_paused_at = None
 
 
 def _as_float(value, name: str) -> float:
@@ -297,7 +308,9 @@ class FitResult:
     n_params : int
         Number of free parameters at the end.
     seconds : float
-        Solver time (observer work such as metric checkpoints excluded).
+        Solver wall time (observer work such as metric checkpoints excluded).
+    cpu_seconds : float
+        Solver CPU time of the process over the same intervals (all threads).
     n_iterations : int
         Iterations (or SGD/Adam steps) over all stages.
     n_evaluations : int
@@ -309,6 +322,7 @@ class FitResult:
     history: FitHistory = field(default_factory=FitHistory)
     n_params: int = 0
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     n_iterations: int = 0
     n_evaluations: int = 0
 
@@ -330,7 +344,8 @@ class FitResult:
         """Status, message, sizes, time and the last metrics, JSON-ready."""
         return _json_safe({
             "status": self.status, "message": self.message, "n_params": self.n_params,
-            "seconds": self.seconds, "n_iterations": self.n_iterations,
+            "seconds": self.seconds, "cpu_seconds": self.cpu_seconds,
+            "n_iterations": self.n_iterations,
             "n_evaluations": self.n_evaluations,
             "final_loss": self.history.loss[-1] if self.history.loss else None,
             "metrics": self.history.last_metrics(),

@@ -112,6 +112,37 @@ def _as_mesh(m, name: str) -> Mesh:
     return mesh
 
 
+def _repair_degenerate(mesh: Mesh, max_rounds: int = 10) -> tuple[Mesh, int, int]:
+    """Move the vertices of zero-area triangles to their neighbours' centroid.
+
+    A collapsed triangle has no normal, and PyTorch3D's normal-consistency term (cosine with
+    norms clamped at 1e-8) then has gradients of order 1e8 there, which throw any solver off.
+    Each round replaces the vertices of the faces whose area is below ``1e-12`` of the mean
+    face area by the centroid of their edge neighbours (a uniform Laplacian step restricted to
+    them). Returns the mesh, the number of degenerate faces found and the number of vertices
+    moved.
+    """
+    areas = mesh.face_areas
+    tol = 1e-12 * float(areas.mean())
+    bad = areas <= tol
+    n_bad = int(bad.sum())
+    if n_bad == 0:
+        return mesh, 0, 0
+    A = mesh.topology.adjacency
+    deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
+    V = mesh.verts.copy()
+    moved = np.zeros(mesh.n_verts, dtype=bool)
+    for _ in range(max_rounds):  # repair rounds
+        idx = np.unique(mesh.faces[bad])
+        moved[idx] = True
+        V[idx] = (A @ V)[idx] / deg[idx, None]
+        mesh = mesh.update_verts(V)
+        bad = mesh.face_areas <= tol
+        if not bad.any():
+            break
+    return mesh, n_bad, int(moved.sum())
+
+
 def _check_weights(w, name="weights") -> dict[str, float]:
     if not isinstance(w, Mapping):
         raise TypeError(f"{name}: expected a dict of term weights, got {type(w)!r}")
@@ -517,7 +548,8 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     n_iter : int, optional
         Steps (SGD/Adam, default 2000) or maximum iterations per stage (L-BFGS, default 100).
     n_stages : int, optional
-        L-BFGS stages, i.e. sample redraws (default 3; with coarse-to-fine, per level, default 2).
+        L-BFGS stages, i.e. sample redraws (default 3; with coarse-to-fine, per level, default 1:
+        every level draws new samples anyway).
     lr : float, optional
         Step size for SGD (default 1.0) or Adam (default 0.01).
     momentum : float
@@ -562,6 +594,10 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
 
     Notes
     -----
+    A source with zero-area (collapsed) triangles is repaired first: their vertices are moved to
+    the centroid of their neighbours (the message and ``history.events`` say how many), because
+    the normal-consistency gradient is of order 1e8 at a collapsed triangle.
+
     Solver time is measured on a :class:`~geofit.fit.Clock` paused during metric checkpoints
     and progress-bar updates. The non-finite guard of :mod:`geofit.fit.solvers` makes every
     method end with finite vertices: a blow-up stops it with status ``"nonfinite"`` or
@@ -599,12 +635,13 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     elif isinstance(source, (int, np.integer)) and not isinstance(source, bool):
         source = ico_sphere(int(source))
     source = _as_mesh(source, "source")
+    source, n_degenerate, n_moved = _repair_degenerate(source)
     distance = distance or ("points" if stochastic else "surface")
     check_choice(distance, "distance", ("surface", "points"))
     if n_samples is not None:
         n_samples = _check_int(n_samples, "n_samples")
     n_iter = _check_int(n_iter if n_iter is not None else (2000 if stochastic else 100), "n_iter")
-    default_stages = 1 if stochastic else (2 if c2f is not None else 3)
+    default_stages = 1 if stochastic or c2f is not None else 3
     n_stages = _check_int(n_stages if n_stages is not None else default_stages, "n_stages")
     if stochastic and n_stages != 1:
         raise ValueError("n_stages: SGD/Adam redraw samples at every step; expected 1")
@@ -643,6 +680,10 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     n_levels = c2f.max_level - c2f.start_level + 1 if c2f is not None else 1
     run.bar = _progress(progress, n_iter * n_stages * n_levels, f"fit_mesh[{method}]")
 
+    if n_degenerate:
+        history.note(0, 0.0, f"source: {n_degenerate} zero-area triangles; moved {n_moved} "
+                             "vertices to their neighbours' centroid before fitting",
+                     n_degenerate=n_degenerate, n_moved=n_moved)
     mesh = source
     status, message = "max_iter", ""
     level = 0
@@ -706,9 +747,13 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     if not len(history):  # no iteration completed (e.g. a non-finite first evaluation)
         history.record(run.evals, clock.elapsed(), math.inf,
                        {k: math.inf for k in _TERMS}, n_params=3 * mesh.n_verts)
+    if n_degenerate:
+        message = (f"{message}; the source had {n_degenerate} zero-area triangles "
+                   f"({n_moved} vertices moved to their neighbours' centroid first)")
     return MeshFitResult(
         status=status, message=message, history=history, n_params=3 * mesh.n_verts,
-        seconds=clock.elapsed(), n_iterations=run.iters, n_evaluations=run.evals,
+        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=run.iters,
+        n_evaluations=run.evals,
         mesh=mesh.update_verts(norm.undo(mesh.verts)), mesh_normalized=mesh,
         center=norm.center.copy(), scale=float(norm.scale), method=method,
         metrics=run.metrics, stages=stages,
