@@ -17,7 +17,7 @@ from .cameras import (
     ndc_grid,
     opencv_from_cameras_projection,
 )
-from . import data, io
+from . import data, io, render
 from .io import (
     load_mesh,
     load_obj,
@@ -49,6 +49,30 @@ from .raycast import (
     RayHits,
     closest_point_on_triangles,
     intersect_rays_triangles,
+)
+from .render import (
+    AlphaCompositor,
+    AmbientLights,
+    BlendParams,
+    DirectionalLights,
+    Fragments,
+    HardFlatShader,
+    HardGouraudShader,
+    HardPhongShader,
+    Materials,
+    MeshRasterizer,
+    MeshRenderer,
+    MeshRendererWithFragments,
+    NormWeightedCompositor,
+    PointLights,
+    PointsRasterizationSettings,
+    PointsRasterizer,
+    PointsRenderer,
+    RasterizationSettings,
+    SoftGouraudShader,
+    SoftPhongShader,
+    TexturesFlat,
+    image_grid,
 )
 from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
@@ -115,6 +139,30 @@ __all__ = [
     "RayHits",
     "closest_point_on_triangles",
     "intersect_rays_triangles",
+    # rendering
+    "render",
+    "AlphaCompositor",
+    "AmbientLights",
+    "BlendParams",
+    "DirectionalLights",
+    "Fragments",
+    "HardFlatShader",
+    "HardGouraudShader",
+    "HardPhongShader",
+    "Materials",
+    "MeshRasterizer",
+    "MeshRenderer",
+    "MeshRendererWithFragments",
+    "NormWeightedCompositor",
+    "PointLights",
+    "PointsRasterizationSettings",
+    "PointsRasterizer",
+    "PointsRenderer",
+    "RasterizationSettings",
+    "SoftGouraudShader",
+    "SoftPhongShader",
+    "TexturesFlat",
+    "image_grid",
     # shapes
     "box",
     "ico_sphere",

@@ -8,9 +8,12 @@
   :class:`DirectionalLights`, :class:`AmbientLights`; :class:`Materials`; :class:`BlendParams`.
 - Beyond PyTorch3D: supersampled antialiasing (``RasterizationSettings(supersample=s)``), hard
   shadows (``shadows=True`` on Phong / flat shaders), :class:`TexturesFlat`.
+- Points: :class:`PointsRasterizer`, :class:`PointsRenderer`, :class:`AlphaCompositor`,
+  :class:`NormWeightedCompositor` (PyTorch3D semantics, vectorised).
 - Helpers: :func:`image_grid`, :func:`make_grid`, :func:`plot_texture_uv`; Open3D comparison in
   :mod:`geofit.render.open3d`.
 """
+from .compositing import AlphaCompositor, NormWeightedCompositor, add_background_color
 from .blending import BlendParams, hard_rgb_blend, sigmoid_alpha, softmax_rgb_blend
 from .lighting import AmbientLights, DirectionalLights, PointLights
 from .materials import Materials
@@ -20,6 +23,14 @@ from .mesh import (
     MeshRenderer,
     MeshRendererWithFragments,
     RasterizationSettings,
+)
+from .points import (
+    PointFragments,
+    PointsRasterizationSettings,
+    PointsRasterizer,
+    PointsRenderer,
+    PointsRendering,
+    rasterize_points,
 )
 from .shading import (
     HardFlatShader,
@@ -38,6 +49,15 @@ from .textures import TexturesFlat
 from .utils import image_grid, make_grid, plot_texture_uv, texturesuv_image_matplotlib
 
 __all__ = [
+    "AlphaCompositor",
+    "NormWeightedCompositor",
+    "add_background_color",
+    "PointFragments",
+    "PointsRasterizationSettings",
+    "PointsRasterizer",
+    "PointsRenderer",
+    "PointsRendering",
+    "rasterize_points",
     "AmbientLights",
     "BlendParams",
     "DirectionalLights",
