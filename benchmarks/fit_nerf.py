@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import (  # noqa: E402
+from _harness import (
     BenchmarkReport,
     MethodRun,
     markdown_table,
@@ -40,8 +40,8 @@ from _harness import (  # noqa: E402
     plot_accuracy_vs_time,
 )
 
-from geofit.datasets import generate_cow_renders, held_out_views  # noqa: E402
-from geofit.fit.nerf import NerfConfig, fit_nerf  # noqa: E402
+from geofit.datasets import generate_cow_renders, held_out_views
+from geofit.fit.nerf import NerfConfig, fit_nerf
 
 #: Acceptance criteria of the issue.
 TARGET_PSNR = 25.6          # dB, PyTorch3D's voxel volume of tutorial 5 on the same views
@@ -119,12 +119,12 @@ def main(argv=None) -> int:
             "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.mesh_name,
             "scene_budget_seconds": budget, "quick": quick})
         report.notes += [
-            "seconds are solver seconds: the held-out renders at checkpoints are excluded "
-            "(wall_seconds in each curve and in final include them)",
-            "PSNR is over full 128x128 RGB images of the 16 held-out views (black background "
-            "included), renders clipped to [0, 1]",
-            "tutorial: a short run of the tutorial-sized network; seconds per step are "
-            "extrapolated to its 3000 steps",
+            ("seconds are solver seconds: the held-out renders at checkpoints are excluded "
+             "(wall_seconds in each curve and in final include them)"),
+            ("PSNR is over full 128x128 RGB images of the 16 held-out views (black background "
+             "included), renders clipped to [0, 1]"),
+            ("tutorial: a short run of the tutorial-sized network; seconds per step are "
+             "extrapolated to its 3000 steps"),
             f"load average at start: {load_average()} (the 2 cores are shared with other work)",
         ]
         report.reference = {

@@ -189,6 +189,27 @@ def test_pipeline_pixels_to_weights_matches_finite_differences(use_grid):
     fd_check(lambda: float(np.sum(G * ren.render_bundle(bundle, f))), f, f.flatten_grads(grads))
 
 
+def test_extra_density_gradient_matches_finite_differences():
+    """backward(..., grad_densities=c) adds d(sum_k c_k alpha_k)/d weights (a regulariser on
+    the evaluated samples' opacities), checked by central differences."""
+    f = tiny_field()
+    ren = ImplicitRenderer(MonteCarloRaysampler(-0.5, 0.5, -0.5, 0.5, 5, 8, 1.5, 3.5),
+                           EmissionAbsorptionRaymarcher())
+    img, bundle, cache = ren.render(cameras(1), f, seed=2)
+    rng = np.random.default_rng(3)
+    G = rng.normal(size=img.shape)
+    c = rng.normal(size=cache.ray_index.size)
+    grads = ren.backward(f, cache, G, c)
+
+    def fun():
+        im, _, cc = ren.render(None, f, ray_bundle=bundle)
+        return float(np.sum(G * im) + np.sum(c * cc.sample_densities()))
+
+    fd_check(fun, f, f.flatten_grads(grads))
+    with pytest.raises(ValueError, match="grad_densities"):
+        ren.backward(f, cache, G, c[:-1])
+
+
 def test_skipping_equals_zero_density_outside_the_grid():
     """Rendering with an occupancy grid equals the full render of the field with its density
     set to 0 outside the grid (the raymarcher sees zeros there)."""
@@ -385,9 +406,9 @@ def test_fit_nonfinite_gradient_returns_last_finite(toy_scene, monkeypatch):
     calls = {"n": 0}
     orig = ImplicitRenderer.backward
 
-    def poisoned(self, field, cache, g):
+    def poisoned(self, field, cache, g, *extra):
         calls["n"] += 1
-        grads = orig(self, field, cache, g)
+        grads = orig(self, field, cache, g, *extra)
         if calls["n"] >= 3:
             grads["mlp.0.weight"][0, 0] = np.nan
         return grads

@@ -101,7 +101,10 @@ class NerfConfig:
     Optimisation: ``n_iter`` Adam steps at ``lr``; ``lr_schedule`` ``"step"`` (times
     ``lr_decay_factor`` at ``lr_decay_at`` of the run, Adam restarted as in the tutorial) or
     ``"exponential"`` (down to ``lr * lr_decay_factor`` at the end of the run, measured in steps
-    or in the time budget, whichever is further along); ``huber_scale`` of the losses.
+    or in the time budget, whichever is further along); ``huber_scale`` of the losses;
+    ``opacity_regularization`` weights a per-ray sum of ``alpha (1 - alpha)`` over the evaluated
+    samples (0 in the tutorial), which pushes each sample's opacity to 0 or 1: surfaces instead
+    of fog, which matters for views from elevations the training views do not cover.
 
     Execution: ``dtype`` of the network, ``n_threads`` (None: up to 2), ``chunk_rays`` for the
     full-image renders.
@@ -139,6 +142,7 @@ class NerfConfig:
     lr_decay_at: float = 0.75
     lr_decay_factor: float = 0.1
     huber_scale: float = 0.1
+    opacity_regularization: float = 0.0
     dtype: str = "float32"
     n_threads: int | None = None
     chunk_rays: int = 4096
@@ -187,6 +191,7 @@ class NerfConfig:
                 raise ValueError(f"{name}: expected an integer >= 0, got {v!r}")
         for name in ("lr", "huber_scale", "lr_decay_factor", "omega0", "beta"):
             check_positive(getattr(self, name), name)
+        check_positive(self.opacity_regularization, "opacity_regularization", strict=False)
         for name in ("density_threshold", "min_transmittance"):
             v = check_positive(getattr(self, name), name, strict=False)
             if v >= 1:
@@ -537,6 +542,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         if not isinstance(early_stopping, (int, np.integer)) or early_stopping < 1:
             raise ValueError(f"early_stopping: expected an integer >= 1, got {early_stopping!r}")
     rng = as_rng(seed)
+    clock = Clock()  # the set-up (hull, rays) is part of the method's time
     n_threads = min(2, cpu_count()) if cfg.n_threads is None else int(cfg.n_threads)
     field = cfg.network(seed=rng)
     batch = min(cfg.batch_size, data.N)
@@ -633,15 +639,22 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             G = np.empty_like(img)
             G[:, :3] = gc / (3 * R)
             G[:, 3] = gs / R
-            grads = renderer.backward(field, cache, G)
+            lo, gd = 0.0, None
+            if cfg.opacity_regularization > 0 and cache.ray_index.size:
+                a = cache.sample_densities()
+                w = cfg.opacity_regularization / R
+                lo = w * float(np.sum(a * (1.0 - a)))
+                gd = w * (1.0 - 2.0 * a)
+            grads = renderer.backward(field, cache, G, gd)
             k = cache.ray_index.size
-            return lc.sum() / (3 * R), ls.sum() / R, grads, k
+            return lc.sum() / (3 * R), ls.sum() / R, lo, grads, k
 
         outs = run_parallel(work, [p for p in parts if p.stop > p.start], n_threads)
-        lc = sum(o[0] for o in outs)
-        ls = sum(o[1] for o in outs)
-        grads = {k: sum(o[2][k] for o in outs) for k in outs[0][2]}
-        return lc, ls, grads, sum(o[3] for o in outs) / R
+        terms = {"color": sum(o[0] for o in outs), "silhouette": sum(o[1] for o in outs)}
+        if cfg.opacity_regularization > 0:
+            terms["opacity"] = sum(o[2] for o in outs)
+        grads = {k: sum(o[3][k] for o in outs) for k in outs[0][3]}
+        return terms, grads, sum(o[4] for o in outs) / R
 
     # ---- held-out evaluation -----------------------------------------------------------------
     size = None
@@ -661,7 +674,6 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
 
     # ---- loop -------------------------------------------------------------------------------
     history = FitHistory()
-    clock = Clock()
     n_params = field.n_params
     if eval_every is None:
         every = (time_budget / 20.0) if time_budget is not None else max(cfg.n_iter // 20, 1)
@@ -677,7 +689,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     if density is not None and cfg.density_grid_warmup == 0:
         renderer.occupancy = density.update(field, rng, n_threads)
 
-    def checkpoint(step: int, loss: float, terms: dict) -> bool:
+    def checkpoint(step: int, loss: float) -> bool:
         """Record metrics (clock paused); True to stop."""
         with clock.paused():
             info = {"step": step, "seconds": clock.elapsed(), "loss": loss}
@@ -711,8 +723,8 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
                 history.note(step, clock.elapsed(), "density grid: skipping empty and occluded "
                              "samples", occupied=renderer.occupancy.fraction_occupied)
         flat, tgt_rgb, tgt_sil = draw_batch()
-        lc, ls, grads, spr = loss_and_grads(flat, tgt_rgb, tgt_sil)
-        loss = lc + ls
+        terms, grads, spr = loss_and_grads(flat, tgt_rgb, tgt_sil)
+        loss = sum(terms.values())
         finite = math.isfinite(loss) and all(np.all(np.isfinite(g)) for g in grads.values())
         if not finite:
             field.set_params(last_good)
@@ -720,7 +732,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             message = (f"the loss or its gradient became NaN or inf at step {step}; returning "
                        "the last finite parameters")
             history.record(step, clock.elapsed(), loss if math.isfinite(loss) else math.nan,
-                           {"color": lc, "silhouette": ls}, n_params=n_params, stage=stage)
+                           terms, n_params=n_params, stage=stage)
             break
         for k, v in field.params.items():  # parameter arrays
             last_good[k][...] = v
@@ -733,13 +745,12 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             break
         spr_sum += spr
         seconds = clock.elapsed()
-        history.record(step, seconds, loss, {"color": lc, "silhouette": ls}, n_params=n_params,
-                       stage=stage)
+        history.record(step, seconds, loss, terms, n_params=n_params, stage=stage)
         out_of_time = time_budget is not None and seconds >= time_budget
         due = (seconds >= next_eval) if time_budget is not None else (step >= next_eval)
         if due or out_of_time or step == cfg.n_iter:
             next_eval += every
-            if checkpoint(step, loss, {"color": lc, "silhouette": ls}):
+            if checkpoint(step, loss):
                 status, message = "callback", f"the callback stopped the fit at step {step}"
                 break
             if early_stopping is not None and best["since"] >= early_stopping:

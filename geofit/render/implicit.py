@@ -656,6 +656,10 @@ class RenderCache(NamedTuple):
     lead_shape: tuple
     samples_per_ray: float
 
+    def sample_densities(self) -> np.ndarray:
+        """``(k,)`` densities of the evaluated samples, in packed order."""
+        return self.densities[self.ray_index, self.slot]
+
 
 class ImplicitRenderer:
     """Render an implicit field along sampled rays (PyTorch3D's ``ImplicitRenderer``), with a
@@ -673,11 +677,11 @@ class ImplicitRenderer:
         0 outside the grid.
     min_transmittance : float
         With a grid that carries an ``opacity`` estimate: skip the samples of a ray lying more
-        than ``occlusion_margin`` samples behind the first sample where the grid's
+        than ``occlusion_margin`` sample steps behind the first sample where the grid's
         transmittance ``prod (1 - opacity)`` falls below this value (they would add less than
         that to the pixel if the estimate were exact). 0 (default) disables it.
     occlusion_margin : int
-        See ``min_transmittance``: samples kept behind the estimated surface, so that the
+        See ``min_transmittance``: sample steps kept behind the estimated surface, so that the
         field can still move it back.
 
     Examples
@@ -775,8 +779,8 @@ class ImplicitRenderer:
         images, cache = self._render_flat(_flatten_bundle(bundle), field, cache=True)
         return images.reshape(*lead, 4), bundle, cache._replace(lead_shape=lead)
 
-    def backward(self, field: NeuralRadianceField, cache: RenderCache, grad_images
-                 ) -> dict[str, np.ndarray]:
+    def backward(self, field: NeuralRadianceField, cache: RenderCache, grad_images,
+                 grad_densities=None) -> dict[str, np.ndarray]:
         """Parameter gradients of ``<grad_images, images>`` for a render made by :meth:`render`.
 
         Parameters
@@ -786,6 +790,9 @@ class ImplicitRenderer:
         cache : RenderCache
         grad_images : (..., 4) float64
             Gradient of the loss with respect to the rendered RGB and opacity.
+        grad_densities : (k,) float64, optional
+            An extra gradient on the evaluated samples' densities
+            (:meth:`RenderCache.sample_densities` order), e.g. from a regulariser.
 
         Returns
         -------
@@ -801,7 +808,9 @@ class ImplicitRenderer:
         if not isinstance(cache, RenderCache):
             raise TypeError("cache: expected the RenderCache returned by render()")
         g = as_array(grad_images, "grad_images", cache.lead_shape + (4,)).reshape(-1, 4)
-        return self._backward_flat(field, cache, g)
+        if grad_densities is not None:
+            grad_densities = as_array(grad_densities, "grad_densities", (cache.ray_index.size,))
+        return self._backward_flat(field, cache, g, grad_densities)
 
     # ---- internals -------------------------------------------------------------------------
 
@@ -828,16 +837,30 @@ class ImplicitRenderer:
         t_out = np.nanmin(np.fmax(ta, tb), axis=1)
         cand = (lengths >= t_in[:, None]) & (lengths <= t_out[:, None])
         ri, si = np.nonzero(cand)
-        pts = o[ri] + lengths[ri, si][:, None] * d[ri]
-        flat, inside = grid.voxel_index(pts)
-        ok = inside & grid.occupied.reshape(-1)[flat]
+        lc = lengths[ri, si]
+        # voxel coordinates along each ray: q(t) = (o - lo) / vs + t d / vs, per component
+        inv_vs = 1.0 / grid.voxel_size
+        q0 = (o - grid.bounds[0]) * inv_vs
+        dq = d * inv_vs
+        flat = np.zeros(ri.size, dtype=np.intp)
+        for axis, stride in ((2, grid.shape_xyz[0] * grid.shape_xyz[1]),
+                             (1, grid.shape_xyz[0]), (0, 1)):  # z, y, x
+            qa = q0[:, axis][ri]
+            qa += lc * dq[:, axis][ri]
+            ia = qa.astype(np.intp)   # samples lie in the box: q >= 0 up to rounding
+            np.clip(ia, 0, grid.shape_xyz[axis] - 1, out=ia)
+            if stride != 1:
+                ia *= int(stride)
+            flat += ia
+        ok = grid.occupied.reshape(-1)[flat]
         if grid.opacity is not None and self.min_transmittance > 0:
             keep = np.zeros((r, n), bool)
             keep[ri[ok], si[ok]] = True
             op = np.zeros((r, n), np.float32)
             op[ri, si] = grid.opacity.reshape(-1)[flat]
             ok &= self._visible(op, keep)[ri, si]
-        ri, pts = ri[ok].astype(np.int64), pts[ok]
+        ri, lc = ri[ok].astype(np.int64), lc[ok]
+        pts = o[ri] + lc[:, None] * d[ri]
         counts = np.bincount(ri, minlength=r)
         starts = np.cumsum(counts) - counts
         slot = np.arange(ri.size, dtype=np.int64) - starts[ri]
@@ -845,20 +868,18 @@ class ImplicitRenderer:
         return pts, ri, slot, m
 
     def _visible(self, opacity: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """(r, n) bool: samples not hidden behind the grid's estimated surface (with margin)."""
-        a = np.where(keep, np.minimum(opacity, 1.0 - 1e-7), 0.0)
+        """(r, n) bool: samples at most ``occlusion_margin`` sample steps behind the point where
+        the grid's transmittance ``prod (1 - opacity)`` over the kept samples falls below
+        ``min_transmittance``."""
+        a = np.where(keep, np.minimum(opacity, np.float32(1.0 - 1e-6)), np.float32(0.0))
         L = np.log1p(-a)
-        logT = np.cumsum(L, axis=1) - L            # log transmittance before each sample
-        # the transmittance `occlusion_margin` kept samples earlier
-        rank = np.cumsum(keep, axis=1) - 1
+        logT = np.cumsum(L, axis=1)
+        logT -= L                                  # log transmittance before each sample
         m = self.occlusion_margin
         if m > 0:
-            n = keep.shape[1]
-            order = np.argsort(~keep, axis=1, kind="stable")       # kept samples first
-            logT_kept = np.take_along_axis(logT, order, axis=1)
-            back = np.clip(rank - m, 0, n - 1)
-            earlier = np.take_along_axis(logT_kept, back, axis=1)
-            logT = np.where(rank - m >= 0, earlier, 0.0)
+            shifted = np.zeros_like(logT)
+            shifted[:, m:] = logT[:, :-m]
+            logT = shifted
         return logT > np.log(self.min_transmittance)
 
     def _render_flat(self, bundle: RayBundle, field: NeuralRadianceField, *, cache: bool):
@@ -879,11 +900,13 @@ class ImplicitRenderer:
         c = RenderCache(fc, D, C, slot, ray_index, (r,), k / max(r, 1)) if cache else None
         return images, c
 
-    def _backward_flat(self, field, cache: RenderCache, g: np.ndarray):
+    def _backward_flat(self, field, cache: RenderCache, g: np.ndarray, extra=None):
         if cache.field_cache is None or cache.ray_index.size == 0:
             return {k: np.zeros_like(v) for k, v in field.params.items()}
         gr = self.raymarcher.vjp(g, cache.densities, cache.colors)
         gD = gr.densities[cache.ray_index, cache.slot][:, None]
+        if extra is not None:
+            gD += extra[:, None]
         gC = gr.features[cache.ray_index, cache.slot]
         return field.backward(cache.field_cache, gD, gC)
 
