@@ -740,6 +740,11 @@ def test_call_validation():
         ContourSilhouetteLoss(cams, np.ones((1, 8, 8)), samples_per_pixel=0)
     with pytest.raises(TypeError, match="mesh"):
         ContourSilhouetteLoss(cams, np.ones((1, 8, 8)))(m.verts)
+    with pytest.raises(ValueError, match="threshold"):
+        ContourSilhouetteLoss(cams, np.ones((1, 8, 8)), threshold=-0.5)
+    soft = np.linspace(0, 1, 64).reshape(1, 8, 8)
+    np.testing.assert_array_equal(
+        ContourSilhouetteLoss(cams, soft, threshold=0.9).targets, (soft >= 0.9) * 1.0)
 
 
 def test_tutorial_blur_radius_value():

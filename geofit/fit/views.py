@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -90,6 +90,8 @@ TUTORIAL_TEXTURED_WEIGHTS = {"rgb": 1.0, "silhouette": 1.0, "edge": 1.0, "normal
                              "laplacian": 1.0}
 
 _SIGMA = 1e-4
+_ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
+_ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 
 
 # =========================================================================================
@@ -662,6 +664,7 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
                       textured_init: str = "silhouette", views_per_step: int = 2,
                       lr: float = 1.0, momentum: float = 0.9, adam_lr: float = 0.01,
                       faces_per_pixel: int = 50, color_reg: float = 1e-4,
+                      contour_threshold: float | None = 0.9,
                       evaluate: Callable | None = None, eval_every: float = 5.0,
                       callback: Callable | None = None, seed=0) -> ViewsFitResult:
     """Deform a sphere to match multi-view silhouettes, then fit vertex colours (tutorial 4).
@@ -702,9 +705,17 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
     lr, momentum : float
         SGD settings of the tutorial recipe (1.0, 0.9).
     adam_lr : float
-        Step size of the contour method's Adam.
+        Step size of the contour method's Adam at the first level (each level ``l`` runs three
+        phases with step sizes ``a``, ``a * 0.3`` and ``a * 0.1``, ``a = adam_lr * 0.3**l``,
+        splitting its iterations and time).
     faces_per_pixel : int
         K of the soft rasterizer (50).
+    contour_threshold : float or None
+        The contour method compares the mesh's hard silhouette with the targets binarised at
+        this level (None: the targets as they are, compared at 0.5). The tutorial's soft
+        silhouettes exceed 0.5 up to a pixel outside the cow's outline; on its 20 views the 0.9
+        level misclassifies the fewest pixels against the true hard masks (3514 of 327680,
+        against 5478 at 0.5 and 3311 at 0.95, which loses interior pixels), hence the default.
     color_reg : float
         Weight of the Laplacian smoothness of the colours in the ``lstsq`` solve (fills vertices
         no view sees).
@@ -792,7 +803,8 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
             if silhouette_method == "contour":
                 from ..render.contour import ContourSilhouetteLoss
 
-                closs = ContourSilhouetteLoss(data.cameras, data.silhouettes)
+                closs = ContourSilhouetteLoss(data.cameras, data.silhouettes,
+                                              threshold=contour_threshold)
                 obj = _ContourObjective(mesh, closs, wl, param)
             else:
                 obj = _Objective(mesh, data, wl, textured=False, param=param,
@@ -818,8 +830,25 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
                 res = lbfgs_nlopt(obj, x0, max_eval=iters, time_budget=budget, callback=cb,
                                   clock=clock)
             else:
-                res = adam(obj, x0, lr=adam_lr, n_iter=iters, time_budget=budget,
-                           callback=cb, clock=clock)
+                # Adam with a step decay: three phases at lr, lr / 3 and lr / 10 (the contour
+                # gradient does not vanish at the optimum, pixel noise stays; smaller steps
+                # settle it)
+                x, n_it, n_ev = x0, 0, 0
+                t_level = clock.elapsed()
+                for k, factor in enumerate(_ADAM_PHASES):  # lr phases
+                    b = None
+                    if budget is not None:
+                        left = budget - (clock.elapsed() - t_level)
+                        b = max(left / (len(_ADAM_PHASES) - k), 1e-3)
+                    res = adam(obj, x, lr=adam_lr * factor * _ADAM_LEVEL_DECAY ** li,
+                               n_iter=max(1, iters // len(_ADAM_PHASES)), time_budget=b,
+                               callback=cb, clock=clock)
+                    x = res.x
+                    n_it += res.n_iterations
+                    n_ev += res.n_evaluations
+                    if res.status in ("nonfinite", "diverged", "callback"):
+                        break
+                res = replace(res, n_iterations=n_it, n_evaluations=n_ev)
             mesh = obj.base.update_verts(obj.split(res.x)[0])
             step += rec.steps
             n_iter_total += res.n_iterations
