@@ -57,12 +57,12 @@ PYTORCH3D = {"seconds_per_step": 9.0, "steps": 2000, "seconds": 18000.0,
                        "its 2000 steps take about 5 hours; not re-run by this script"}
 
 LABELS = {
-    "tutorial": "tutorial recipe (SGD, 2 views/step, 2000+2000 steps)",
+    "best": "L-BFGS + large steps + coarse-to-fine; least-squares colours",
+    "contour": "contour (edge sampling) + Adam + large steps + coarse-to-fine",
     "scipy-lbfgs": "scipy L-BFGS, all views",
     "lbfgs-large-steps": "scipy L-BFGS + large steps",
-    "best": "L-BFGS + large steps + coarse-to-fine; least-squares colours",
     "nlopt-lbfgs": "nlopt L-BFGS + large steps + coarse-to-fine",
-    "contour": "contour (edge sampling) + Adam + large steps + coarse-to-fine",
+    "tutorial": "tutorial recipe (SGD, 2 views/step, 2000+2000 steps)",
 }
 
 
@@ -80,10 +80,10 @@ def settings(name: str, quick: bool, budget: float) -> dict:
                                   "large_steps": 10.0, "silhouette_iters": 2000,
                                   "silhouette_time": budget, "init_level": 4},
         "best": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
-                     "large_steps": 10.0, "levels": c2f, "silhouette_iters": 2000,
+                     "large_steps": 10.0, "levels": c2f, "silhouette_iters": 400,
                      "silhouette_time": budget, "init_level": 3},
         "nlopt-lbfgs": {"silhouette_method": "nlopt-lbfgs", "textured_method": "lstsq",
-                            "large_steps": 10.0, "levels": c2f, "silhouette_iters": 4000,
+                            "large_steps": 10.0, "levels": c2f, "silhouette_iters": 600,
                             "silhouette_time": budget, "init_level": 3},
         "contour": {"silhouette_method": "contour", "textured_method": "lstsq", "large_steps": 10.0,
                         "levels": c2f, "silhouette_iters": 4000, "silhouette_time": budget,
