@@ -1654,7 +1654,24 @@ class SoftPhongRenderer:
     Notes
     -----
     ``znear`` and ``zfar`` of the blend come from the cameras (1 and 100 for cameras without
-    them), as PyTorch3D's ``SoftPhongShader``.
+    them), as PyTorch3D's ``SoftPhongShader``. Entries whose softmax factor
+    ``exp((z_k - zm) / gamma)`` is below 1e-20 (faces far behind the nearest one of their
+    pixel; about half of them for a closed mesh) are not shaded: their colour would move the
+    pixel by less than 1e-20 of its nearest face's share (1e-16 relative in the worst case of a
+    nearest face barely inside the blur radius). Their distances and depths still enter the
+    alpha channel and the blend's normaliser exactly.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from geofit import FoVPerspectiveCameras, ico_sphere, look_at_view_transform
+    >>> R, T = look_at_view_transform(2.7, 0.0, 0.0)
+    >>> r = SoftPhongRenderer(FoVPerspectiveCameras(R=R, T=T),
+    ...                       raster_settings=SoftRasterizationSettings.tutorial(16))
+    >>> out = r(ico_sphere(2), np.full((162, 3), 0.5))
+    >>> g = out.vjp(np.ones(out.images.shape))
+    >>> out.images.shape, g.verts.shape, g.colors.shape
+    ((1, 16, 16, 4), (162, 3), (162, 3))
     """
 
     def __init__(self, cameras=None, lights=None, materials=None,
