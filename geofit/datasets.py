@@ -82,7 +82,7 @@ class MultiViewDataset:
         return (f"MultiViewDataset({N} views of {self.mesh_name!r}, {H}x{W}, "
                 f"elev {sorted(set(np.round(self.elev, 3).tolist()))})")
 
-    def subset(self, index) -> "MultiViewDataset":
+    def subset(self, index) -> MultiViewDataset:
         """The views selected by ``index`` (int array, bool mask or slice)."""
         idx = np.arange(len(self))[index]
         idx = np.atleast_1d(idx)
@@ -162,8 +162,14 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     -------
     MultiViewDataset
     """
-    from .render import (BlendParams, MeshRasterizer, MeshRenderer, PointLights,
-                         RasterizationSettings, SoftPhongShader)
+    from .render import (
+        BlendParams,
+        MeshRasterizer,
+        MeshRenderer,
+        PointLights,
+        RasterizationSettings,
+        SoftPhongShader,
+    )
     from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
 
     if not isinstance(mesh, Mesh):

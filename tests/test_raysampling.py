@@ -9,8 +9,12 @@ import numpy as np
 import pytest
 
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-from geofit.render.raysampling import (MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle,
-                                       ray_bundle_to_ray_points)
+from geofit.render.raysampling import (
+    MonteCarloRaysampler,
+    NDCMultinomialRaysampler,
+    RayBundle,
+    ray_bundle_to_ray_points,
+)
 
 CAMERAS = Path(__file__).parent / "data" / "cameras.npz"
 
@@ -140,7 +144,8 @@ def test_monte_carlo_sampler():
 
 def test_raysampler_validation():
     """Invalid settings and inputs raise ValueError/TypeError naming the argument."""
-    kw = dict(image_width=4, image_height=4, n_pts_per_ray=3, min_depth=0.1, max_depth=3.0)
+    kw = {"image_width": 4, "image_height": 4, "n_pts_per_ray": 3, "min_depth": 0.1,
+          "max_depth": 3.0}
     with pytest.raises(ValueError, match="image_width"):
         NDCMultinomialRaysampler(**{**kw, "image_width": 0})
     with pytest.raises(ValueError, match="n_pts_per_ray"):

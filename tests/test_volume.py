@@ -10,8 +10,11 @@ import pytest
 import scipy.sparse as sp
 
 from geofit.cameras import FoVPerspectiveCameras
-from geofit.render.raymarching import (AbsorptionOnlyRaymarcher, EmissionAbsorptionRaymarcher,
-                                       sample_deltas)
+from geofit.render.raymarching import (
+    AbsorptionOnlyRaymarcher,
+    EmissionAbsorptionRaymarcher,
+    sample_deltas,
+)
 from geofit.render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
 from geofit.render.volume import VolumeRenderer
 from geofit.structures.volume import Volume, trilinear_matrix, voxel_footprint
@@ -174,7 +177,7 @@ def test_volume_validation():
         Volume(np.zeros((4, 4, 4)), voxel_size=(1.0, 2.0))
     with pytest.raises(ValueError, match="volume_translation"):
         Volume(np.zeros((4, 4, 4)), volume_translation=(0, 0))
-    with pytest.raises(ValueError, match="align_corners"):
+    with pytest.raises(TypeError, match="align_corners"):
         Volume(np.zeros((4, 4, 4)), align_corners="yes")
     with pytest.raises(ValueError, match="densities"):
         Volume(np.full((4, 4, 4), np.nan))
@@ -199,7 +202,7 @@ def _ea_loop(d, f, eps=1e-10, s=1):
     feats = np.zeros(f.shape[1])
     for i in range(n):  # reference loop
         T = 1.0
-        for j in range(0, i - s + 1):
+        for j in range(i - s + 1):
             T *= 1.0 + eps - d[j]
         feats += d[i] * T * f[i]
     return np.concatenate([feats, [1.0 - np.prod(1.0 - d)]])
@@ -322,7 +325,7 @@ def test_sample_deltas_and_raymarcher_validation():
         EmissionAbsorptionRaymarcher(0)
     with pytest.raises(ValueError, match="eps"):
         EmissionAbsorptionRaymarcher(eps=-1.0)
-    with pytest.raises(ValueError, match="physical"):
+    with pytest.raises(TypeError, match="physical"):
         EmissionAbsorptionRaymarcher(physical="no")
     with pytest.warns(UserWarning, match="outside the valid range"):
         m(np.full((1, 2), 1.5), np.zeros((1, 2, 1)))
@@ -429,7 +432,7 @@ def test_renderer_validation():
         VolumeRenderer(s, m, "cubic")
     with pytest.raises(ValueError, match="chunk_size"):
         VolumeRenderer(s, m, chunk_size=0)
-    with pytest.raises(ValueError, match="skip_empty"):
+    with pytest.raises(TypeError, match="skip_empty"):
         VolumeRenderer(s, m, skip_empty=1)
     r = VolumeRenderer(s, m)
     with pytest.raises(TypeError, match="cameras"):
@@ -443,6 +446,6 @@ def test_renderer_validation():
     with pytest.raises(ValueError, match="ray_bundle"):
         r.render_rays(Volume(np.zeros((2, 2, 2))), bundle)
     vol = Volume(np.zeros((2, 2, 2)), np.zeros((3, 2, 2, 2)))
-    img, b = r(FoVPerspectiveCameras(), vol)
+    _, b = r(FoVPerspectiveCameras(), vol)
     with pytest.raises(ValueError, match="grad_images"):
         r.vjp(np.zeros((1, 4, 4, 3)), vol, b)

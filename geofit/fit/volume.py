@@ -45,24 +45,38 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 from scipy import ndimage
 
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
-from ..render.raymarching import _exclusive_product, _shifted_cumprod, _suffix_from
+from ..render.raymarching import (
+    _exclusive_product,
+    _shifted_cumprod,
+    _suffix_from,
+    _through_transmittance,
+)
 from ..render.raysampling import NDCMultinomialRaysampler
-from ..render.volume import (_cell_table, _range_layout, _range_operator, _ray_pixel_affine,
-                             _sample_ranges)
-from ..structures.volume import Volume, trilinear_matrix
+from ..render.volume import (
+    _cell_table,
+    _range_layout,
+    _range_operator,
+    _ray_pixel_affine,
+    _sample_ranges,
+)
+from ..structures.volume import Volume
 from . import solvers
 from .history import Clock, FitHistory, FitResult
 
 __all__ = [
     "FIT_VOLUME_METHODS",
     "VolumeFitResult",
+    "VolumeMetrics",
     "fit_volume",
     "huber",
+    "render_volume",
     "visual_hull",
+    "volume_metrics",
 ]
 
 #: Methods accepted by :func:`fit_volume`.
@@ -113,6 +127,12 @@ def huber(x, target, scaling: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     return s * (q - 1.0), r / (s * q)
 
 
+def _huber(r: np.ndarray, s: float):
+    """:func:`huber` of residuals ``r`` without validation (inner loops)."""
+    q = np.sqrt(1.0 + (r / s) ** 2)
+    return s * (q - 1.0), r / (s * q)
+
+
 # --------------------------------------------------------------------------------------------
 # Visual hull
 # --------------------------------------------------------------------------------------------
@@ -145,8 +165,9 @@ def visual_hull(silhouettes, cameras: CamerasBase, volume_size, voxel_size: floa
     when the voxel's trilinear footprint (the ball of radius ``sqrt(3) * voxel_size`` around its
     centre, which contains every point whose sample reads it) projects entirely outside the
     silhouette: the distance in pixels from the projected centre to the nearest silhouette pixel
-    exceeds the ball's projected radius plus half a pixel diagonal plus ``margin``. Views in
-    which the voxel projects outside the image, or lies behind the camera, do not rule it out.
+    exceeds the ball's projected radius plus half a pixel diagonal plus ``margin``. The object is
+    assumed to be inside every image (as in the tutorials): a voxel whose centre projects outside
+    the image, or lies behind the camera, is ruled out too (no view could show what it holds).
 
     Parameters
     ----------
@@ -175,9 +196,9 @@ def visual_hull(silhouettes, cameras: CamerasBase, volume_size, voxel_size: floa
         True for voxels that may be occupied.
     """
     sil = as_array(silhouettes, "silhouettes", (None, None, None))
-    N, H, W = sil.shape
+    N = sil.shape[0]
     if N == 0:
-        raise ValueError("silhouettes: expected at least one view, got shape " f"{sil.shape}")
+        raise ValueError(f"silhouettes: expected at least one view, got shape {sil.shape}")
     cameras = _check_cameras(cameras, N)
     size = _grid_size3(volume_size)
     vs = check_positive(voxel_size, "voxel_size")
@@ -236,11 +257,112 @@ def _carve(dist: np.ndarray, cameras: CamerasBase, centres: np.ndarray, radius: 
         iy = np.rint(H / 2.0 - s * xy[:, 1] - 0.5)
         seen = ok & (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
         sidx = np.flatnonzero(seen)
-        out = np.zeros(idx.size, bool)
+        out = ~seen   # behind the camera or outside the image: outside the silhouette
         out[sidx] = dist[i, iy[sidx].astype(np.int64), ix[sidx].astype(np.int64)] > r_px[sidx]
         votes[idx[out]] += 1
         alive[idx[votes[idx] > tolerance]] = False
     return alive
+
+
+# --------------------------------------------------------------------------------------------
+# Rendering and metrics
+# --------------------------------------------------------------------------------------------
+
+
+def render_volume(volume: Volume, cameras: CamerasBase, image_size=128, *,
+                  n_pts_per_ray: int = 150, min_depth: float = 0.1,
+                  max_depth: float = 3.0) -> np.ndarray:
+    """Render a volume as the tutorial does (its raysampler and PyTorch3D's EA raymarcher).
+
+    Parameters
+    ----------
+    volume : Volume
+        Densities as per-sample opacities, RGB features.
+    cameras : CamerasBase
+        ``N`` cameras.
+    image_size : int or (H, W)
+        Image size in pixels.
+    n_pts_per_ray, min_depth, max_depth
+        The tutorial's ``NDCMultinomialRaysampler`` settings (150 samples over [0.1, 3.0]).
+
+    Returns
+    -------
+    images : (N, H, W, C + 1) float64
+        Colours and opacity (empty-space skipping makes this fast; the result is the full
+        ray march's).
+    """
+    from ..render.raymarching import EmissionAbsorptionRaymarcher
+    from ..render.volume import VolumeRenderer
+
+    if isinstance(image_size, (numbers.Integral, np.integer)):
+        image_size = (int(image_size), int(image_size))
+    H, W = (int(v) for v in image_size)
+    renderer = VolumeRenderer(NDCMultinomialRaysampler(
+        image_width=W, image_height=H, n_pts_per_ray=n_pts_per_ray, min_depth=min_depth,
+        max_depth=max_depth), EmissionAbsorptionRaymarcher(), chunk_size=1 << 19)
+    return renderer(cameras, volume)[0]
+
+
+@dataclass
+class VolumeMetrics:
+    """Held-out accuracy of a volume (see :func:`volume_metrics`).
+
+    Attributes
+    ----------
+    psnr : float
+        Mean over views of the per-view PSNR (dB) of the RGB render against the target,
+        ``10 log10(1 / MSE)`` over all pixels and channels (black background included).
+    iou : float
+        Mean over views of the IoU between ``opacity > 0.5`` and ``silhouette > 0.5``.
+    psnr_per_view, iou_per_view : (N,) float64
+    images : (N, H, W, 4) float64
+        The renders (RGB, opacity).
+    """
+
+    psnr: float
+    iou: float
+    psnr_per_view: np.ndarray
+    iou_per_view: np.ndarray
+    images: np.ndarray
+
+    def as_dict(self) -> dict:
+        return {"psnr": self.psnr, "iou": self.iou}
+
+
+def volume_metrics(volume: Volume, images, silhouettes, cameras: CamerasBase, *,
+                   n_pts_per_ray: int = 150, min_depth: float = 0.1,
+                   max_depth: float = 3.0) -> VolumeMetrics:
+    """PSNR and silhouette IoU of a volume's renders against target views.
+
+    Parameters
+    ----------
+    volume : Volume
+    images : (N, H, W, 3) float64
+        Target RGB.
+    silhouettes : (N, H, W) float64
+        Target silhouettes.
+    cameras : CamerasBase
+        The ``N`` cameras.
+    n_pts_per_ray, min_depth, max_depth
+        Ray sampling of the renders (the tutorial's by default).
+
+    Returns
+    -------
+    VolumeMetrics
+    """
+    imgs = as_array(images, "images", (None, None, None, 3))
+    N, H, W, _ = imgs.shape
+    sils = as_array(silhouettes, "silhouettes", (N, H, W))
+    cameras = _check_cameras(cameras, N)
+    out = render_volume(volume, cameras, (H, W), n_pts_per_ray=n_pts_per_ray,
+                        min_depth=min_depth, max_depth=max_depth)
+    mse = np.mean((out[..., :3] - imgs) ** 2, axis=(1, 2, 3))
+    psnr = 10.0 * np.log10(1.0 / np.maximum(mse, 1e-20))
+    pred = out[..., 3] > 0.5
+    gt = sils > 0.5
+    union = (pred | gt).sum(axis=(1, 2))
+    iou = np.where(union > 0, (pred & gt).sum(axis=(1, 2)) / np.maximum(union, 1), 1.0)
+    return VolumeMetrics(float(psnr.mean()), float(iou.mean()), psnr, iou, out)
 
 
 # --------------------------------------------------------------------------------------------
@@ -369,8 +491,10 @@ class _Problem:
 
     def __init__(self, grid: _Grid, origins, directions, lengths, rgb, sil, dens_grid,
                  allowed, *, termination: float | None, n_pixels: int, huber_scale: float,
-                 chunk_samples: int = 1 << 19):
+                 chunk_samples: int = 1 << 19, dtype=np.float64, smoothness=(0.0, 0.0)):
         self.grid = grid
+        self.dtype = np.dtype(dtype)
+        self.smoothness = (float(smoothness[0]), float(smoothness[1]))
         self.n_pts = n = len(lengths)
         self.huber_scale = huber_scale
         self.n_pixels = n_pixels
@@ -390,33 +514,43 @@ class _Problem:
             k_range = (np.clip(np.ceil(t0 - 1e-9), 0, n).astype(np.int64),
                        np.clip(np.floor(t1 + 1e-9), -1, n - 1).astype(np.int64))
         # 2. contiguous ranges: first sample reading an allowed voxel .. last one still visible
-        cell_any = _cell_table(allowed, "any")
-        cell_min = None
-        if termination is not None:
-            cell_min = _cell_table(np.where(allowed, dens_grid, 0.0), "min")
-        first, last = _sample_ranges(A, B, n, grid.size, cell_any, cell_min=cell_min,
-                                     termination=termination, k_range=k_range,
-                                     chunk_samples=2 * chunk_samples)
+        if termination is None and allowed.all():
+            # dense grid: the samples inside the box are exactly those that read a voxel
+            first = np.where(k_range[1] >= k_range[0], k_range[0], -1)
+            last = np.where(k_range[1] >= k_range[0], k_range[1], -1)
+        else:
+            cell_any = _cell_table(allowed, "any")
+            cell_min = None
+            if termination is not None:
+                cell_min = _cell_table(np.where(allowed, dens_grid, 0.0), "min")
+            first, last = _sample_ranges(A, B, n, grid.size, cell_any, cell_min=cell_min,
+                                         termination=termination, k_range=k_range,
+                                         chunk_samples=2 * chunk_samples)
         lay = _range_layout(first, last, chunk_samples)
         self.layout = lay
         self.ray_ids = lay.ray_ids
         self.n_samples = int(lay.count.sum())
         # 3. the sparse operator over the voxels the kept samples read
         self.W, self.columns = _range_operator(A, B, lay, grid.size)
+        if self.dtype != np.float64:
+            self.W.data = self.W.data.astype(self.dtype)
         # free densities: columns that are allowed; the others are fixed empty
         self.free_idx = np.flatnonzero(allowed.reshape(-1)[self.columns])
         self.n_free_density = int(self.free_idx.size)
         self.n_columns = int(self.columns.size)
         # targets of the kept rays, and the constant loss of the others (rendered as 0)
-        self.rgb = rgb[self.ray_ids]
-        self.sil = sil[self.ray_ids]
+        self.rgb = rgb[self.ray_ids].astype(self.dtype)
+        self.sil = sil[self.ray_ids].astype(self.dtype)
         miss = np.ones(len(origins), bool)
         miss[self.ray_ids] = False
         self.const_colour = float(huber(0.0 * rgb[miss], rgb[miss], huber_scale)[0].sum())
         self.const_sil = float(huber(0.0 * sil[miss], sil[miss], huber_scale)[0].sum())
         # (1 + eps)^first: the factor of the skipped empty samples in front of each ray
-        self.lead = (1.0 + _EPS) ** lay.first
+        self.lead = ((1.0 + _EPS) ** lay.first).astype(self.dtype)
         self._blocks = None
+        # smoothness: squared differences between face-neighbouring free voxels
+        self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
+        self.D_colour = _difference_operator(self.columns, grid.size)
 
     @property
     def n_params(self) -> int:
@@ -439,7 +573,7 @@ class _Problem:
 
     def _values(self, x: np.ndarray):
         nd = self.n_free_density
-        X = np.zeros((self.n_columns, 4))
+        X = np.zeros((self.n_columns, 4), dtype=self.dtype)
         sd = _sigmoid(x[:nd])
         X[self.free_idx, 0] = sd
         sc = _sigmoid(x[nd:].reshape(3, -1))
@@ -479,17 +613,18 @@ class _Problem:
             w = d * T
             rgb = np.einsum("rk,rkc->rc", w, f)
             op = 1.0 - np.prod(1.0 - d, axis=1)
-            hc, gc = huber(rgb, self.rgb[rays], s)
-            hs, gs = huber(op, self.sil[rays], s)
-            col_sum += float(hc.sum())
-            sil_sum += float(hs.sum())
+            hc, gc = _huber(rgb - self.rgb[rays], s)
+            hs, gs = _huber(op - self.sil[rays], s)
+            col_sum += float(hc.sum(dtype=np.float64))
+            sil_sum += float(hs.sum(dtype=np.float64))
             if G is not None:
                 g_rgb = gc / n_col
                 g_op = gs / n_sil
                 h = np.einsum("rkc,rc->rk", f, g_rgb)
                 S = _suffix_from(w * h, 1)
                 gblk = G[row:row + r * K].reshape(r, K, 4)
-                gblk[:, :, 0] = T * h - S / c + _exclusive_product(1.0 - d) * g_op[:, None]
+                gblk[:, :, 0] = (T * h - _through_transmittance(S, c, d, h * self.lead[rays, None], 1)
+                                 + _exclusive_product(1.0 - d) * g_op[:, None])
                 gblk[:, :, 1:] = w[:, :, None] * g_rgb[:, None, :]
         return col_sum, sil_sum
 
@@ -500,7 +635,7 @@ class _Problem:
         """
         X, sd, sc = self._values(x)
         blocks = self._split()
-        Y = np.empty((self.layout.n_rows, 4))
+        Y = np.empty((self.layout.n_rows, 4), dtype=self.dtype)
 
         def fwd(blk):
             r0, r1, Wb = blk
@@ -513,19 +648,118 @@ class _Problem:
         n_col = 3.0 * self.n_pixels
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
-        value = loss_c + loss_s
+        terms = {"colour": loss_c, "silhouette": loss_s}
+        lam_d, lam_c = self.smoothness
+        smooth = lam_d > 0 or lam_c > 0
+        if smooth:
+            dd = self.D_density @ sd
+            dc = self.D_colour @ sc.T
+            e_d = max(dd.size, 1)
+            e_c = max(dc.size, 1)
+            terms["smoothness"] = lam_d * float(dd @ dd) / e_d + lam_c * float(
+                np.sum(dc * dc)) / e_c
+        value = sum(terms.values())
         if not want_grad:
-            return value, {"colour": loss_c, "silhouette": loss_s}
+            return value, terms
         Zs = _map(lambda blk: blk[2].T @ G[blk[0]:blk[1]], blocks)
         Z = Zs[0] if len(Zs) == 1 else Zs[0] + Zs[1]
         nd = self.n_free_density
         grad = np.empty_like(x)
-        grad[:nd] = Z[self.free_idx, 0] * sd * (1.0 - sd)
-        grad[nd:] = (Z[:, 1:].T * sc * (1.0 - sc)).reshape(-1)
-        return value, grad, {"colour": loss_c, "silhouette": loss_s}
+        Z = Z.astype(np.float64, copy=False)
+        g_sd = Z[self.free_idx, 0]
+        g_sc = Z[:, 1:].T
+        if smooth:
+            g_sd = g_sd + (2.0 * lam_d / e_d) * (self.D_density.T @ dd)
+            g_sc = g_sc + (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T
+        grad[:nd] = g_sd * sd * (1.0 - sd)
+        grad[nd:] = (g_sc * sc * (1.0 - sc)).reshape(-1)
+        return value, grad, terms
+
+
+def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
+    """(E, n) forward differences between the voxels ``flat`` (sorted) that are face neighbours.
+
+    Row ``e`` of the result is ``+1`` at voxel ``i`` and ``-1`` at its neighbour ``j`` along x, y
+    or z, for every pair of listed voxels.
+    """
+    D, H, W = size
+    n = len(flat)
+    lookup = np.full(D * H * W, -1, np.int64)
+    lookup[flat] = np.arange(n)
+    z, rem = np.divmod(flat, H * W)
+    y, x = np.divmod(rem, W)
+    rows_i, rows_j = [], []
+    for coord, extent, off in ((x, W, 1), (y, H, W), (z, D, H * W)):  # axes
+        ok = coord + 1 < extent
+        j = np.full(n, -1, np.int64)
+        j[ok] = lookup[flat[ok] + off]
+        keep = np.flatnonzero(j >= 0)
+        rows_i.append(keep)
+        rows_j.append(j[keep])
+    i = np.concatenate(rows_i)
+    j = np.concatenate(rows_j)
+    e = len(i)
+    data = np.concatenate([np.ones(e), -np.ones(e)])
+    return sp.csr_matrix((data, (np.concatenate([np.arange(e), np.arange(e)]),
+                                 np.concatenate([i, j]))), shape=(e, n))
 
 
 _POOL = None
+_BLAS: list | None = None
+
+
+def _blas_apis() -> list:
+    """(setter, getter) of every OpenBLAS loaded in this process (numpy's and scipy's)."""
+    global _BLAS
+    if _BLAS is not None:
+        return _BLAS
+    import ctypes
+
+    _BLAS = []
+    try:
+        with open("/proc/self/maps", encoding="utf-8") as fh:
+            paths = sorted({line.split()[-1] for line in fh if "openblas" in line.lower()})
+    except OSError:
+        return _BLAS
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for prefix in ("scipy_openblas_", "openblas_"):
+            for suffix in ("64_", ""):
+                sname = f"{prefix}set_num_threads{suffix}"
+                gname = f"{prefix}get_num_threads{suffix}"
+                if hasattr(lib, sname) and hasattr(lib, gname):
+                    setter, getter = getattr(lib, sname), getattr(lib, gname)
+                    setter.argtypes, setter.restype = [ctypes.c_int], None
+                    getter.argtypes, getter.restype = [], ctypes.c_int
+                    _BLAS.append((setter, getter))
+                    break
+            else:
+                continue
+            break
+    return _BLAS
+
+
+class _OneBlasThread:
+    """Context manager: one OpenBLAS thread in every loaded OpenBLAS (restored on exit).
+
+    The fit's heavy work is sparse and elementwise; BLAS threads only appear in the solvers'
+    small dense updates (L-BFGS-B), where on two busy cores they spin against the fit's own
+    threads and slowed a solve five-fold in measurements.
+    """
+
+    def __enter__(self):
+        self._old = [(setter, getter()) for setter, getter in _blas_apis()]
+        for setter, _ in self._old:
+            setter(1)
+        return self
+
+    def __exit__(self, *exc):
+        for setter, old in self._old:
+            setter(old)
+        return False
 
 
 def _n_threads() -> int:
@@ -585,9 +819,9 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
                iterations=None, carve: bool = True, carve_tolerance: int | None = None,
                carve_margin: float = 2.0,
                prune_threshold: float = 1e-3, prune_dilation: int = 2,
-               termination: float | None = 1e-3, huber_scaling: float = 0.1,
+               termination: float | None = 1e-3, smoothness=0.0, huber_scaling: float = 0.1,
                lr: float = 0.1, batch_size: int = 10, n_iter: int = 300,
-               time_budget: float | None = None, seed=0,
+               time_budget: float | None = None, precision: str = "float32", seed=0,
                monitor: Callable[[Volume], dict] | None = None,
                monitor_every: float | None = None, verbose: bool = False) -> VolumeFitResult:
     """Fit a grid of densities and colours to posed images and silhouettes.
@@ -636,12 +870,21 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
     termination : float or None
         From the second level on, rays stop where the upsampled model's transmittance falls
         below this (None: march the whole range).
+    smoothness : float or (2,) float
+        Weights ``(lambda_density, lambda_colour)`` (one number: both) of a smoothness prior for
+        geofit's methods: ``lambda`` times the mean squared difference between face-neighbouring
+        free voxels of the densities and of the colours (0: none, the tutorial's objective). It
+        fills what the views do not constrain (e.g. the top of the cow, never seen from
+        elevation 0) smoothly instead of with stripes.
     huber_scaling : float
         Scale of the Huber losses (0.1 as the tutorial).
     lr, batch_size, n_iter
         Adam settings (``batch_size`` and ``n_iter`` for the tutorial recipe).
     time_budget : float, optional
         Seconds of solver time for the whole fit (set-up work included).
+    precision : {"float32", "float64"}
+        Arithmetic of the sampled values, the raymarching and the sparse products (float32
+        halves the memory traffic; the loss is summed and the parameters kept in float64).
     seed : int or numpy.random.Generator
         For the tutorial recipe's random view batches.
     monitor : callable, optional
@@ -686,6 +929,10 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         raise ValueError(f"max_depth: expected finite depths with max_depth > min_depth, got "
                          f"[{min_depth}, {max_depth}]")
     huber_scaling = check_positive(huber_scaling, "huber_scaling")
+    sm = np.atleast_1d(as_array(smoothness, "smoothness"))
+    if sm.shape not in ((1,), (2,)) or np.any(sm < 0):
+        raise ValueError(f"smoothness: expected one or two numbers >= 0, got {smoothness!r}")
+    smoothness = (float(sm[0]), float(sm[-1]))
     lr = check_positive(lr, "lr")
     prune_threshold = check_positive(prune_threshold, "prune_threshold", strict=False)
     if not isinstance(prune_dilation, (numbers.Integral, np.integer)) or prune_dilation < 0:
@@ -702,6 +949,8 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         carve_tolerance = 1 if N >= 10 else 0
     if not isinstance(carve_tolerance, (numbers.Integral, np.integer)) or carve_tolerance < 0:
         raise ValueError(f"carve_tolerance: expected an integer >= 0, got {carve_tolerance!r}")
+    check_choice(precision, "precision", ("float32", "float64"))
+    dtype = np.dtype(precision)
     if monitor is not None and not callable(monitor):
         raise TypeError(f"monitor: expected a callable, got {type(monitor)!r}")
     if monitor_every is not None:
@@ -714,9 +963,11 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
             raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         if not isinstance(n_iter, (numbers.Integral, np.integer)) or n_iter < 1:
             raise ValueError(f"n_iter: expected an integer >= 1, got {n_iter!r}")
-        return _fit_tutorial(imgs, sils, cameras, S, extent, int(n_pts_per_ray), min_depth,
-                             max_depth, huber_scaling, lr, int(batch_size), int(n_iter),
-                             time_budget, as_rng(seed), monitor, monitor_every, verbose)
+        with _OneBlasThread():
+            return _fit_tutorial(imgs, sils, cameras, S, extent, int(n_pts_per_ray), min_depth,
+                                 max_depth, huber_scaling, lr, int(batch_size), int(n_iter),
+                                 time_budget, as_rng(seed), monitor, monitor_every, verbose,
+                                 dtype)
 
     if levels is None:
         levels = [S]
@@ -738,10 +989,12 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         iterations += [iterations[-1]] * (len(levels) - len(iterations))
     if any(v < 1 for v in iterations):
         raise ValueError(f"iterations: expected integers >= 1, got {iterations}")
-    return _fit_levels(imgs, sils, cameras, S, extent, int(n_pts_per_ray), min_depth, max_depth,
-                       levels, iterations, method, bool(carve), int(carve_tolerance),
-                       carve_margin, prune_threshold, int(prune_dilation), termination, huber_scaling, lr,
-                       time_budget, monitor, monitor_every, verbose)
+    with _OneBlasThread():
+        return _fit_levels(imgs, sils, cameras, S, extent, int(n_pts_per_ray), min_depth,
+                           max_depth, levels, iterations, method, bool(carve),
+                           int(carve_tolerance), carve_margin, prune_threshold,
+                           int(prune_dilation), termination, smoothness, huber_scaling, lr,
+                           time_budget, monitor, monitor_every, verbose, dtype)
 
 
 def _level_image_factor(H: int, W: int, level: int, S: int) -> int:
@@ -753,8 +1006,9 @@ def _level_image_factor(H: int, W: int, level: int, S: int) -> int:
 
 
 def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_depth, levels,
-                iterations, method, carve, carve_tolerance, carve_margin, prune_threshold, prune_dilation,
-                termination, huber_scale, lr, time_budget, monitor, monitor_every, verbose):
+                iterations, method, carve, carve_tolerance, carve_margin, prune_threshold,
+                prune_dilation, termination, smoothness, huber_scale, lr, time_budget, monitor,
+                monitor_every, verbose, dtype):
     N, H, W, _ = imgs.shape
     clock = Clock()
     history = FitHistory()
@@ -828,7 +1082,8 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
         lc = _logit(colour_grid).reshape(3, -1)
         problem = _Problem(grid, o, d, lengths, rgb, sil, dens, allowed,
                            termination=termination if li > 0 else None,
-                           n_pixels=N * Rh * Rw, huber_scale=huber_scale)
+                           n_pixels=N * Rh * Rw, huber_scale=huber_scale, dtype=dtype,
+                           smoothness=smoothness)
         state.update(ld=ld, lc=lc, grid=grid, n_pts=n_pts, allowed=allowed)
         x0 = problem.pack(ld, lc)
         setup_seconds = clock.elapsed() - t_level
@@ -867,7 +1122,12 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
                 run_monitor(step_counter)
                 state["ld"], state["lc"] = state_ld, state_lc
 
-        if method == "adam":
+        if problem.n_params == 0:
+            value, _ = problem.evaluate(x0, want_grad=False)
+            res = solvers.SolveResult(x0, value, "converged", "nothing to fit at this level: no "
+                                      "voxel inside the visual hull is seen by any ray (empty "
+                                      "silhouettes?); the volume is empty", 0, 1, 0.0)
+        elif method == "adam":
             n1 = max(1, int(round(0.75 * n_iter_level)))
             res = solvers.adam(fun, x0, lr=lr, n_iter=n1, time_budget=remaining,
                                callback=callback, clock=clock)
@@ -928,5 +1188,83 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
 
 
 def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, huber_scale, lr,
-                  batch_size, n_iter, time_budget, rng, monitor, monitor_every, verbose):
-    raise NotImplementedError
+                  batch_size, n_iter, time_budget, rng, monitor, monitor_every, verbose, dtype):
+    """PyTorch3D's recipe: dense grid, Adam on random view batches, lr x 0.1 at 75%."""
+    N, H, W, _ = imgs.shape
+    clock = Clock()
+    history = FitHistory()
+    grid = _Grid((S,) * 3, extent / S, np.zeros(3))
+    allowed = np.ones(grid.size, bool)
+    o, d, lengths = _rays(cameras, H, W, n_pts, min_depth, max_depth)
+    o, d = o.reshape(N, H * W, 3), d.reshape(N, H * W, 3)
+    rgb = imgs.reshape(N, H * W, 3)
+    sil = sils.reshape(N, H * W)
+    nv = grid.n
+    x0 = np.concatenate([np.full(nv, -4.0), np.zeros(3 * nv)])   # the tutorial's init
+    batch = min(batch_size, N)
+    last_monitor = [0.0]
+    counters = {"step": 0, "samples": 0, "rays": 0}
+
+    def volume_of(x):
+        return grid.volume(_sigmoid(x[:nv]).reshape(grid.size),
+                           _sigmoid(x[nv:]).reshape((3,) + grid.size))
+
+    def fun(x):
+        views = rng.permutation(N)[:batch]
+        p = _Problem(grid, o[views].reshape(-1, 3), d[views].reshape(-1, 3), lengths,
+                     rgb[views].reshape(-1, 3), sil[views].reshape(-1), None, allowed,
+                     termination=None, n_pixels=batch * H * W, huber_scale=huber_scale,
+                     dtype=dtype)
+        ld = x[:nv]
+        lc = x[nv:].reshape(3, nv)
+        v, g_loc, terms = p.evaluate(p.pack(ld, lc))
+        grad = np.zeros_like(x)
+        cols = p.columns
+        grad[cols[p.free_idx]] = g_loc[:p.n_free_density]
+        grad[nv:].reshape(3, nv)[:, cols] = g_loc[p.n_free_density:].reshape(3, -1)
+        counters["samples"] += p.n_samples
+        counters["rays"] += p.n_rays_total
+        fun.terms = terms
+        return v, grad
+    fun.terms = {}
+
+    def callback(si):
+        counters["step"] += 1
+        history.record(counters["step"], si.seconds, si.value, fun.terms, n_params=x0.size)
+        if monitor is not None and monitor_every is not None and \
+                si.seconds - last_monitor[0] >= monitor_every:
+            with clock.paused():
+                history.checkpoint(counters["step"], clock.elapsed(),
+                                   monitor(volume_of(np.asarray(si.x))))
+            last_monitor[0] = clock.elapsed()
+        if verbose and counters["step"] % 10 == 0:
+            print(f"fit_volume[tutorial] step {counters['step']}: loss {si.value:.5f}, "
+                  f"{si.seconds:.1f} s", flush=True)
+
+    n1 = max(1, int(round(0.75 * n_iter)))
+    res = solvers.adam(fun, x0, lr=lr, n_iter=n1, time_budget=time_budget, callback=callback,
+                       clock=clock)
+    n_it, n_ev = res.n_iterations, res.n_evaluations
+    if res.status == "max_iter" and n_iter > n1:
+        rem = None if time_budget is None else time_budget - clock.elapsed()
+        if rem is None or rem > 0:
+            res2 = solvers.adam(fun, res.x, lr=lr * 0.1, n_iter=n_iter - n1, time_budget=rem,
+                                callback=callback, clock=clock)
+            n_it += res2.n_iterations
+            n_ev += res2.n_evaluations
+            res = res2
+    vol = volume_of(res.x)
+    if monitor is not None:
+        with clock.paused():
+            history.checkpoint(counters["step"], clock.elapsed(), monitor(vol))
+    spr = counters["samples"] / max(counters["rays"], 1)
+    stages = [{"level": S, "image_size": [H, W], "n_pts_per_ray": n_pts, "allowed_voxels": nv,
+               "free_density_voxels": nv, "colour_voxels": nv, "samples_per_ray": spr,
+               "status": res.status, "iterations": n_it, "evaluations": n_ev,
+               "seconds": clock.elapsed(), "final_loss": res.value}]
+    return VolumeFitResult(
+        status=res.status, message=res.message, history=history, n_params=x0.size,
+        seconds=clock.elapsed(), n_iterations=n_it, n_evaluations=n_ev, volume=vol,
+        n_active_voxels=nv, n_colour_voxels=nv,
+        n_occupied_voxels=int(np.count_nonzero(vol.densities)), samples_per_ray=spr,
+        n_pts_per_ray=n_pts, stages=stages, method="tutorial")

@@ -98,7 +98,7 @@ def sample_deltas(lengths, directions=None) -> np.ndarray:
 
 def _shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
     """``T[:, i] = prod_{j <= i - shift} c[:, j]`` (1 for ``i < shift``); ``c`` is (r, n)."""
-    r, n = c.shape
+    n = c.shape[1]
     T = np.ones_like(c)
     if shift < n:
         T[:, shift:] = np.cumprod(c[:, : n - shift], axis=1)
@@ -107,7 +107,7 @@ def _shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
 
 def _suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
     """``S[:, k] = sum_{i >= k + shift} q[:, i]`` for (r, n) ``q`` (reversed cumulative sum)."""
-    r, n = q.shape
+    n = q.shape[1]
     S = np.zeros_like(q)
     if shift < n:
         rev = np.cumsum(q[:, ::-1], axis=1)[:, ::-1]  # rev[:, k] = sum_{i >= k}
@@ -117,13 +117,41 @@ def _suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
 
 def _exclusive_product(c: np.ndarray) -> np.ndarray:
     """``E[:, k] = prod_{j != k} c[:, j]`` from prefix and suffix products (no division)."""
-    r, n = c.shape
+    n = c.shape[1]
     pre = np.ones_like(c)
     suf = np.ones_like(c)
     if n > 1:
         pre[:, 1:] = np.cumprod(c[:, :-1], axis=1)
         suf[:, :-1] = np.cumprod(c[:, :0:-1], axis=1)[:, ::-1]
     return pre * suf
+
+
+def _suffix_excluding(c: np.ndarray, alpha: np.ndarray, h: np.ndarray, where, shift: int
+                      ) -> np.ndarray:
+    """``sum_{i >= k+s} alpha_i h_i prod_{j <= i-s, j != k} c_j`` for (ray, k) pairs ``where``.
+
+    The derivative of the features through the transmittances where ``c_k`` is exactly 0 (so
+    the usual ``S_k / c_k`` is 0 / 0): the product is recomputed with ``c_k`` left out.
+    """
+    rows, ks = where
+    cc = c[rows].copy()
+    cc[np.arange(len(rows)), ks] = 1.0
+    T = _shifted_cumprod(cc, shift)
+    q = alpha[rows] * h[rows] * T
+    n = c.shape[1]
+    mask = np.arange(n)[None, :] >= (ks[:, None] + shift)
+    return np.sum(np.where(mask, q, 0.0), axis=1)
+
+
+def _through_transmittance(S: np.ndarray, c: np.ndarray, alpha: np.ndarray, h: np.ndarray,
+                           shift: int) -> np.ndarray:
+    """``S / c`` (the gradient through the transmittances), exact where ``c`` is 0."""
+    zero = c == 0.0
+    if not zero.any():
+        return S / c
+    out = np.divide(S, c, out=np.zeros_like(S), where=~zero)
+    out[zero] = _suffix_excluding(c, alpha, h, np.nonzero(zero), shift)
+    return out
 
 
 def _as_int_at_least(value, name: str, low: int) -> int:
@@ -192,7 +220,7 @@ class EmissionAbsorptionRaymarcher:
                  eps: float = 1e-10):
         self.surface_thickness = _as_int_at_least(surface_thickness, "surface_thickness", 1)
         if not isinstance(physical, (bool, np.bool_)):
-            raise ValueError(f"physical: expected True or False, got {physical!r}")
+            raise TypeError(f"physical: expected True or False, got {physical!r}")
         self.physical = bool(physical)
         eps = float(eps)
         if not np.isfinite(eps) or eps < 0:
@@ -256,26 +284,10 @@ class EmissionAbsorptionRaymarcher:
         if self.physical:
             gd = dl * (m.c * m.T * h - S) + (dl * (1.0 - m.opacity)[:, None]) * g_opac[:, None]
         else:
-            zero = m.c == 0.0
-            with np.errstate(divide="ignore", invalid="ignore"):
-                through_T = S / m.c
-            if np.any(zero):
-                through_T[zero] = self._suffix_without(m, h, np.nonzero(zero))
+            through_T = _through_transmittance(S, m.c, m.alpha, h, s)
             gd = m.T * h - through_T + _exclusive_product(1.0 - dflat) * g_opac[:, None]
         gf = m.w[:, :, None] * g_feat[:, None, :]
         return gd, gf
-
-    def _suffix_without(self, m: _Marched, h: np.ndarray, where) -> np.ndarray:
-        """``sum_{i >= k+s} alpha_i h_i prod_{j <= i-s, j != k} c_j`` for pairs (ray, k)."""
-        rows, ks = where
-        s = self.surface_thickness
-        c = m.c[rows].copy()
-        c[np.arange(len(rows)), ks] = 1.0
-        T = _shifted_cumprod(c, s)
-        q = m.alpha[rows] * h[rows] * T
-        n = c.shape[1]
-        mask = np.arange(n)[None, :] >= (ks[:, None] + s)
-        return np.sum(np.where(mask, q, 0.0), axis=1)
 
     # ---- public ----------------------------------------------------------------------------
 
@@ -298,7 +310,7 @@ class EmissionAbsorptionRaymarcher:
             The composited features followed by the opacity, as PyTorch3D's
             ``concat(features, opacities)``.
         """
-        d, dflat, trailing, f, fflat, dl = self._inputs(rays_densities, rays_features, deltas)
+        _, dflat, _, f, fflat, dl = self._inputs(rays_densities, rays_features, deltas)
         m = self._march(dflat, fflat, dl)
         out = np.concatenate([m.features, m.opacity[:, None]], axis=1)
         return out.reshape(f.shape[:-2] + (f.shape[-1] + 1,))
@@ -323,7 +335,7 @@ class EmissionAbsorptionRaymarcher:
         -----
         The map is smooth in the densities and features; all terms are differentiable.
         """
-        d, dflat, trailing, f, fflat, dl = self._inputs(rays_densities, rays_features, deltas)
+        d, dflat, _, f, fflat, dl = self._inputs(rays_densities, rays_features, deltas)
         C = f.shape[-1]
         g = as_array(grad_output, "grad_output", f.shape[:-2] + (C + 1,)).reshape(-1, C + 1)
         m = self._march(dflat, fflat, dl)
@@ -348,7 +360,7 @@ class AbsorptionOnlyRaymarcher:
 
     def __init__(self, *, physical: bool = False):
         if not isinstance(physical, (bool, np.bool_)):
-            raise ValueError(f"physical: expected True or False, got {physical!r}")
+            raise TypeError(f"physical: expected True or False, got {physical!r}")
         self.physical = bool(physical)
 
     def __repr__(self) -> str:
@@ -385,7 +397,7 @@ class AbsorptionOnlyRaymarcher:
         -------
         opacities : (..., 1) float64
         """
-        d, dflat, dl, lead = self._inputs(rays_densities, deltas)
+        _, dflat, dl, lead = self._inputs(rays_densities, deltas)
         if self.physical:
             op = -np.expm1(-(dflat * dl).sum(axis=1))
         else:

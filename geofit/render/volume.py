@@ -350,7 +350,7 @@ class VolumeRenderer:
         self.sample_mode = sample_mode
         self.chunk_size = int(chunk_size)
         if not isinstance(skip_empty, (bool, np.bool_)):
-            raise ValueError(f"skip_empty: expected True or False, got {skip_empty!r}")
+            raise TypeError(f"skip_empty: expected True or False, got {skip_empty!r}")
         self.skip_empty = bool(skip_empty)
 
     def __repr__(self) -> str:
@@ -475,7 +475,6 @@ class VolumeRenderer:
     def _chunks(self, bundle: RayBundle):
         """Yield (ray slice, world points (r*n, 3), deltas (r, n) or None) over ray chunks."""
         o, d, L = self._flat_bundle(bundle)
-        n = L.shape[1]
         for sl in self._ray_chunks(bundle):  # chunks of rays
             pts = o[sl, None, :] + L[sl, :, None] * d[sl, None, :]
             deltas = None

@@ -261,7 +261,7 @@ class Volume:
         self.voxel_size = vs
         self.volume_translation = as_array(volume_translation, "volume_translation", (3,))
         if not isinstance(align_corners, (bool, np.bool_)):
-            raise ValueError(f"align_corners: expected True or False, got {align_corners!r}")
+            raise TypeError(f"align_corners: expected True or False, got {align_corners!r}")
         self.align_corners = bool(align_corners)
         for a in (self.densities, self.features, self.voxel_size, self.volume_translation):
             if a is not None:
@@ -411,7 +411,7 @@ class Volume:
             feats = M @ self.features.reshape(self.n_features, -1).T
         return VolumeSamples(dens, feats)
 
-    def update(self, densities=None, features=None) -> "Volume":
+    def update(self, densities=None, features=None) -> Volume:
         """A new volume with the same placement and new values (None keeps the current ones)."""
         return Volume(self.densities if densities is None else densities,
                       self.features if features is None else features,

@@ -1,0 +1,299 @@
+"""fit_volume: the objective's gradient, the visual hull, the methods and their failure modes.
+
+The scenes are small procedural volumes rendered by geofit's own VolumeRenderer, so every test
+runs in seconds and needs no data files.
+"""
+import numpy as np
+import pytest
+
+import geofit.fit.volume as fv
+from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, huber, visual_hull
+from geofit.render.raymarching import EmissionAbsorptionRaymarcher
+from geofit.render.raysampling import NDCMultinomialRaysampler
+from geofit.render.volume import VolumeRenderer
+from geofit.structures.volume import Volume
+
+N_PTS = 60
+SIZE = 24
+
+
+def _scene(n_views=8, elev=0.0, size=SIZE, seed=0):
+    """A two-coloured ellipsoid in a 16^3 grid (voxel 3/16), seen from a ring of cameras."""
+    S = 16
+    g = Volume(np.zeros((S, S, S)), voxel_size=3.0 / S).get_coord_grid()
+    r = (g[..., 0] / 0.8) ** 2 + (g[..., 1] / 0.5) ** 2 + (g[..., 2] / 0.6) ** 2
+    dens = np.where(r < 1.0, 0.6, 0.0)
+    col = np.stack([np.where(g[..., 0] > 0, 0.9, 0.2), np.full(g.shape[:3], 0.5),
+                    np.where(g[..., 1] > 0, 0.1, 0.8)])
+    truth = Volume(dens, col, voxel_size=3.0 / S)
+    azim = np.linspace(0.0, 360.0, n_views, endpoint=False) + 10.0 * seed
+    R, T = look_at_view_transform(2.7, elev, azim)
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    renderer = VolumeRenderer(NDCMultinomialRaysampler(
+        image_width=size, image_height=size, n_pts_per_ray=N_PTS, min_depth=0.1, max_depth=3.0),
+        EmissionAbsorptionRaymarcher())
+    img, _ = renderer(cams, truth)
+    return img[..., :3], (img[..., 3] > 0.5).astype(float), cams, truth, renderer
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene()
+
+
+def _psnr_iou(result, images, sils, cams, renderer):
+    img, _ = renderer(cams, result.volume)
+    mse = np.mean((img[..., :3] - images) ** 2)
+    pred, gt = img[..., 3] > 0.5, sils > 0.5
+    return 10 * np.log10(1.0 / mse), (pred & gt).sum() / (pred | gt).sum()
+
+
+# ------------------------------------------------------------------------------- loss, gradient
+
+
+def test_huber_value_and_gradient():
+    """The tutorial's pseudo-Huber: closed form at 0 and s, exact derivative."""
+    v, g = huber(np.array([0.0, 0.1, -0.3]), 0.0, 0.1)
+    np.testing.assert_allclose(v, [0.0, 0.1 * (np.sqrt(2) - 1), 0.1 * (np.sqrt(10) - 1)])
+    x = np.random.default_rng(0).normal(size=20)
+    y = np.random.default_rng(1).normal(size=20)
+    _, g = huber(x, y, 0.3)
+    h = 1e-6
+    fd = (huber(x + h, y, 0.3)[0] - huber(x - h, y, 0.3)[0]) / (2 * h)
+    np.testing.assert_allclose(g, fd, atol=1e-8)
+    with pytest.raises(ValueError, match="scaling"):
+        huber(x, y, 0.0)
+
+
+@pytest.mark.parametrize("termination,smoothness", [(None, (0.0, 0.0)), (1e-2, (0.3, 0.2))])
+def test_objective_gradient_finite_differences(scene, termination, smoothness):
+    """The level objective's analytic gradient matches central differences (float64)."""
+    images, sils, cams, _, _ = scene
+    grid = fv._Grid((8, 8, 8), 3.0 / 8, np.zeros(3))
+    o, d, L = fv._rays(cams[:3], 12, 12, 30, 0.1, 3.0)
+    rgb = fv._downsample(images[:3], 2).reshape(-1, 3)
+    sil = fv._downsample(sils[:3], 2).reshape(-1)
+    allowed = np.zeros(grid.size, bool)
+    allowed[1:7, 2:6, 1:7] = True
+    dens = np.where(allowed, 0.3, 0.0)
+    p = fv._Problem(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
+                    n_pixels=3 * 144, huber_scale=0.1, smoothness=smoothness)
+    rng = np.random.default_rng(2)
+    x = p.pack(fv._logit(dens).reshape(-1) + rng.normal(0, 0.5, grid.n),
+               rng.normal(0, 1, (3, grid.n)))
+    value, grad, terms = p.evaluate(x)
+    assert value == pytest.approx(sum(terms.values()))
+    assert ("smoothness" in terms) == (smoothness[0] > 0)
+    idx = np.concatenate([rng.choice(p.n_free_density, 8, replace=False),
+                          p.n_free_density + rng.choice(3 * p.n_columns, 8, replace=False)])
+    h = 1e-6
+    for i in idx:
+        e = np.zeros_like(x)
+        e[i] = h
+        fd = (p.evaluate(x + e, want_grad=False)[0] - p.evaluate(x - e, want_grad=False)[0]) / (
+            2 * h)
+        assert abs(grad[i] - fd) <= 1e-6 * np.abs(grad).max() + 1e-12
+    # float32 arithmetic agrees to float32 precision
+    p32 = fv._Problem(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
+                      n_pixels=3 * 144, huber_scale=0.1, dtype=np.float32,
+                      smoothness=smoothness)
+    v32, g32, _ = p32.evaluate(x)
+    assert abs(v32 - value) < 1e-6 * value
+    assert np.abs(g32 - grad).max() < 1e-5 * np.abs(grad).max()
+
+
+def test_objective_matches_renderer(scene):
+    """Without termination the skipping objective renders exactly what VolumeRenderer does."""
+    images, sils, cams, truth, renderer = scene
+    grid = fv._Grid((16, 16, 16), 3.0 / 16, np.zeros(3))
+    o, d, L = fv._rays(cams[:2], SIZE, SIZE, N_PTS, 0.1, 3.0)
+    allowed = truth.densities > 0
+    p = fv._Problem(grid, o, d, L, images[:2].reshape(-1, 3), sils[:2].reshape(-1),
+                    truth.densities, allowed, termination=None, n_pixels=2 * SIZE * SIZE,
+                    huber_scale=0.1)
+    x = p.pack(fv._logit(truth.densities).reshape(-1), fv._logit(truth.features).reshape(3, -1))
+    value, _ = p.evaluate(x, want_grad=False)
+    # the same model through the public renderer (logits round-trip the values)
+    vol = Volume(np.where(allowed, fv._sigmoid(fv._logit(truth.densities)), 0.0),
+                 fv._sigmoid(fv._logit(truth.features)), voxel_size=3.0 / 16)
+    img, _ = renderer(cams[:2], vol)
+    hc, _ = huber(img[..., :3], images[:2], 0.1)
+    hs, _ = huber(img[..., 3], sils[:2], 0.1)
+    assert value == pytest.approx(hc.mean() + hs.mean(), rel=1e-10)
+    assert p.n_samples < 0.5 * len(o) * N_PTS       # empty space was skipped
+
+
+# ---------------------------------------------------------------------------------- visual hull
+
+
+def test_visual_hull_keeps_the_object_and_carves_outside(scene):
+    """Every occupied voxel survives carving; far voxels and voxels outside a view are carved."""
+    _, sils, cams, truth, _ = scene
+    hull = visual_hull(sils, cams, 16, 3.0 / 16)
+    occupied = truth.densities > 0
+    assert hull[occupied].all()
+    centres = Volume(np.zeros((16, 16, 16)), voxel_size=3.0 / 16).get_coord_grid()
+    # nothing survives in the top and bottom layers (|y| = 1.41; the object's half-height is
+    # 0.5 and the footprint bound adds at most ~0.7 at this coarse resolution)
+    assert not hull[np.abs(centres[..., 1]) > 1.3].any()
+    assert hull.sum() < 0.6 * hull.size
+    # a view whose silhouette is empty carves everything, unless tolerated
+    bad = sils.copy()
+    bad[0] = 0.0
+    assert not visual_hull(bad, cams, 16, 3.0 / 16).any()
+    tolerant = visual_hull(bad, cams, 16, 3.0 / 16, tolerance=1)
+    assert tolerant[occupied].all()
+    assert visual_hull(sils, cams, 16, 3.0 / 16, margin=3.0).sum() > hull.sum()
+
+
+def test_visual_hull_validation(scene):
+    _, sils, cams, _, _ = scene
+    with pytest.raises(ValueError, match="silhouettes"):
+        visual_hull(sils[0], cams, 16, 0.2)
+    with pytest.raises(ValueError, match="cameras"):
+        visual_hull(sils, cams[:3], 16, 0.2)
+    with pytest.raises(TypeError, match="cameras"):
+        visual_hull(sils, "cams", 16, 0.2)
+    with pytest.raises(ValueError, match="voxel_size"):
+        visual_hull(sils, cams, 16, -1.0)
+    with pytest.raises(ValueError, match="threshold"):
+        visual_hull(sils, cams, 16, 0.2, threshold=1.0)
+    with pytest.raises(ValueError, match="tolerance"):
+        visual_hull(sils, cams, 16, 0.2, tolerance=-1)
+    with pytest.raises(ValueError, match="volume_size"):
+        visual_hull(sils, cams, 1, 0.2)
+
+
+# -------------------------------------------------------------------------------------- fitting
+
+
+@pytest.mark.parametrize("method", ["lbfgs", "nlopt-lbfgs", "adam"])
+def test_fit_recovers_the_scene(scene, method):
+    """geofit's methods fit the training views well with fewer voxels and samples than dense."""
+    images, sils, cams, _, renderer = scene
+    res = fit_volume(images, sils, cams, method=method, volume_size=16, n_pts_per_ray=N_PTS,
+                     levels=(8, 16), iterations=(40, 40), precision="float64")
+    assert isinstance(res, VolumeFitResult) and res.ok
+    assert res.status in ("max_iter", "converged", "stalled", "max_eval")
+    assert res.volume.grid_size == (16, 16, 16)
+    assert np.all(np.isfinite(res.volume.densities)) and np.all(np.isfinite(res.volume.features))
+    psnr, iou = _psnr_iou(res, images, sils, cams, renderer)
+    assert psnr > 20.0 and iou > 0.9, (psnr, iou)
+    assert 0 < res.n_active_voxels < 16 ** 3
+    assert res.samples_per_ray < N_PTS
+    assert len(res.stages) == 2 and res.stages[-1]["level"] == 16
+    loss = res.history.as_arrays()["loss"]
+    assert loss[-1] < 0.5 * loss[0]
+    assert set(res.history.terms) == {"colour", "silhouette"}
+
+
+def test_tutorial_recipe_runs_dense(scene):
+    """The tutorial recipe optimises every voxel with Adam on random view batches."""
+    images, sils, cams, _, _ = scene
+    seen = []
+    res = fit_volume(images, sils, cams, method="tutorial", volume_size=16,
+                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=12, seed=0,
+                     monitor=lambda v: seen.append(v) or {"n": float(len(seen))},
+                     monitor_every=1e9)
+    assert res.status == "max_iter" and res.n_iterations == 12
+    assert res.n_active_voxels == 16 ** 3 and res.n_params == 4 * 16 ** 3
+    assert len(res.history) == 12 and len(seen) == 1
+    loss = res.history.as_arrays()["loss"]
+    assert np.mean(loss[-3:]) < np.mean(loss[:3])
+
+
+def test_monitor_and_time_budget(scene):
+    """The monitor sees finite volumes at checkpoints; a tiny budget ends with time_budget."""
+    images, sils, cams, _, _ = scene
+    calls = []
+
+    def monitor(vol):
+        calls.append(vol)
+        assert np.all(np.isfinite(vol.densities))
+        return {"mean_density": float(vol.densities.mean())}
+
+    res = fit_volume(images, sils, cams, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                     iterations=(5, 5), monitor=monitor)
+    assert len(calls) >= 2 and "mean_density" in res.history.metric_names
+    quick = fit_volume(images, sils, cams, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                       iterations=(500, 500), time_budget=0.05)
+    assert quick.status == "time_budget"
+    assert np.all(np.isfinite(quick.volume.densities))
+
+
+# ------------------------------------------------------------------------------ failure modes
+
+
+def test_all_black_target_is_empty_not_nan(scene):
+    """Black images and empty silhouettes: nothing is carved in, the volume stays finite."""
+    images, sils, cams, _, renderer = scene
+    res = fit_volume(np.zeros_like(images), np.zeros_like(sils), cams, volume_size=16,
+                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
+    assert res.ok and np.all(np.isfinite(res.volume.densities))
+    assert res.n_active_voxels == 0 and res.volume.densities.max() == 0.0
+    img, _ = renderer(cams, res.volume)
+    assert img.max() == 0.0
+
+
+def test_huge_learning_rate_stays_finite(scene):
+    """Adam with lr 1e6 saturates the sigmoids but never produces NaN."""
+    images, sils, cams, _, _ = scene
+    res = fit_volume(images, sils, cams, method="adam", lr=1e6, volume_size=16,
+                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
+    assert res.status in STATUSES_OK and res.message
+    assert np.all(np.isfinite(res.volume.densities)) and np.all(np.isfinite(res.volume.features))
+    assert np.all(np.isfinite(res.history.as_arrays()["loss"]))
+
+
+STATUSES_OK = ("max_iter", "converged", "stalled", "diverged", "nonfinite", "time_budget")
+
+
+def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
+    """Noisy images and one view with a wrong camera: the hull tolerates it, the fit is fine."""
+    images, sils, cams, _, renderer = scene
+    rng = np.random.default_rng(3)
+    noisy = np.clip(images + rng.normal(0, 0.05, images.shape), 0, 1)
+    R = cams.R.copy()
+    T = cams.T.copy()
+    R[2], T[2] = look_at_view_transform(2.7, 40.0, 123.0)[0][0], look_at_view_transform(
+        2.7, 40.0, 123.0)[1][0]
+    wrong = FoVPerspectiveCameras(R=R, T=T)
+    res = fit_volume(noisy, sils, wrong, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                     iterations=(30, 30), carve_tolerance=1)
+    assert res.ok
+    good = np.setdiff1d(np.arange(len(images)), [2])
+    psnr, iou = _psnr_iou(res, images[good], sils[good], cams[good], renderer)
+    assert iou > 0.8 and psnr > 15.0, (psnr, iou)
+
+
+def test_fit_validation(scene):
+    """Invalid inputs and settings raise ValueError/TypeError naming the argument."""
+    images, sils, cams, _, _ = scene
+    with pytest.raises(ValueError, match="images"):
+        fit_volume(images[..., :2], sils, cams)
+    with pytest.raises(ValueError, match="silhouettes"):
+        fit_volume(images, sils[:3], cams)
+    with pytest.raises(ValueError, match="cameras"):
+        fit_volume(images, sils, cams[:2])
+    with pytest.raises(ValueError, match="method"):
+        fit_volume(images, sils, cams, method="sgd")
+    with pytest.raises(ValueError, match="levels"):
+        fit_volume(images, sils, cams, volume_size=16, levels=(16, 8))
+    with pytest.raises(ValueError, match="volume_size"):
+        fit_volume(images, sils, cams, volume_size=1)
+    with pytest.raises(ValueError, match="iterations"):
+        fit_volume(images, sils, cams, volume_size=16, levels=(8, 16), iterations=(0, 1))
+    with pytest.raises(ValueError, match="termination"):
+        fit_volume(images, sils, cams, termination=2.0)
+    with pytest.raises(ValueError, match="precision"):
+        fit_volume(images, sils, cams, precision="float16")
+    with pytest.raises(ValueError, match="max_depth"):
+        fit_volume(images, sils, cams, min_depth=3.0, max_depth=1.0)
+    with pytest.raises(ValueError, match="images"):
+        fit_volume(np.full_like(images, np.nan), sils, cams)
+    with pytest.raises(ValueError, match="batch_size"):
+        fit_volume(images, sils, cams, method="tutorial", batch_size=0)
+    with pytest.raises(TypeError, match="monitor"):
+        fit_volume(images, sils, cams, monitor=3)
+    assert set(FIT_VOLUME_METHODS) == {"lbfgs", "nlopt-lbfgs", "adam", "tutorial"}
