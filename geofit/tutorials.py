@@ -7,16 +7,12 @@ mesh (OBJ), volume (npz), history (JSON) and chart into one folder, and then the
 function ``step_<name>(out, size="default", *, progress=True, seed=0) -> StepResult`` that calls
 the workflow's public API:
 
-==================  ===============================================  ==========================
-step                PyTorch3D tutorial                               geofit API
-==================  ===============================================  ==========================
-``fit_mesh``        deform_source_mesh_to_target_mesh                :func:`geofit.fit.fit_mesh`
-``render_mesh``     render_textured_meshes                           :class:`geofit.render.MeshRenderer`
-``render_points``   render_colored_points                            :class:`geofit.render.points.PointsRenderer`
-``fit_views``       fit_textured_mesh                                ``geofit.fit.views.fit_mesh_to_views``
-``fit_volume``      fit_textured_volume                              :func:`geofit.fit.volume.fit_volume`
-``nerf``            fit_simple_neural_radiance_field                 ``geofit.fit.nerf.fit_nerf``
-==================  ===============================================  ==========================
+* ``fit_mesh`` -- deform_source_mesh_to_target_mesh: :func:`geofit.fit.fit_mesh`;
+* ``render_mesh`` -- render_textured_meshes: :class:`geofit.render.MeshRenderer`;
+* ``render_points`` -- render_colored_points: :class:`geofit.render.points.PointsRenderer`;
+* ``fit_views`` -- fit_textured_mesh: :func:`geofit.fit.views.fit_mesh_to_views`;
+* ``fit_volume`` -- fit_textured_volume: :func:`geofit.fit.volume.fit_volume`;
+* ``nerf`` -- fit_simple_neural_radiance_field: :func:`geofit.fit.nerf.fit_nerf`.
 
 Sizes: ``"full"`` is the tutorials' own size (image sizes, views, iterations); ``"default"`` is
 reduced so that the whole run takes a few minutes on two cores; ``"tiny"`` is for tests (seconds
@@ -61,6 +57,10 @@ __all__ = [
 
 #: Run sizes: test-sized, the reduced default, the tutorials' own.
 SIZES = ("tiny", "default", "full")
+
+# the two columns of the report's summary table
+_P3D = "PyTorch3D's recipe (run by geofit)"
+_GF = "geofit's method"
 
 
 # --------------------------------------------------------------------------------------------
@@ -504,8 +504,8 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     img_size = _pick(size, 96, 256, 256)
     shots = {"target": _shade_mesh(norm.mesh, cams, img_size)}
     for name, fit in results.items():
-        shots[name] = _shade_mesh(fit.mesh.update_verts((fit.mesh.verts - norm.center) / norm.scale),
-                                  cams, img_size)
+        verts = (fit.mesh.verts - norm.center) / norm.scale  # the target's normalised frame
+        shots[name] = _shade_mesh(fit.mesh.update_verts(verts), cams, img_size)
     for k, imgs in shots.items():
         dest = res.targets if k == "target" else res.images
         dest[k] = save_png(np.concatenate(list(imgs), axis=1), d / f"{k}.png")
@@ -531,11 +531,11 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     res.stability = _fit_mesh_stability(target, ["tutorial", "large-steps"], size, seed,
                                         progress)
     res.headline = {
-        "PyTorch3D recipe": f"chamfer-L2 {pt.metrics.chamfer_l2:.3g}, F {pt.metrics.fscore[0.01]:.3f}"
-                            f" in {pt.seconds:.1f} s, {pt.n_params:,} params",
-        "geofit (best)": f"{best}: chamfer-L2 {results[best].metrics.chamfer_l2:.3g}, "
-                         f"F {results[best].metrics.fscore[0.01]:.3f} in "
-                         f"{results[best].seconds:.1f} s, {results[best].n_params:,} params",
+        _P3D: f"chamfer-L2 {pt.metrics.chamfer_l2:.3g}, F {pt.metrics.fscore[0.01]:.3f} in "
+              f"{pt.seconds:.1f} s, {pt.n_params:,} params",
+        _GF: f"{best}: chamfer-L2 {results[best].metrics.chamfer_l2:.3g}, "
+             f"F {results[best].metrics.fscore[0.01]:.3f} in "
+             f"{results[best].seconds:.1f} s, {results[best].n_params:,} params",
     }
     if data.path is None:
         res.notes.append("The tutorial's dolphin was not found (set GEOFIT_DATA): the target is "
@@ -712,8 +712,8 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
         reference, d / "reference.png")
     res.comparison = image_panel(
         [[reference, img1[0], img2[0], img3[0]]], d / "comparison.png",
-        col_labels=[f"reference\n{ref_factor}x{ref_factor} rays/pixel", "1 ray/pixel\n(PyTorch3D's)",
-                    "light behind", "second view\ngreen specular"])
+        col_labels=[f"reference\n{ref_factor}x{ref_factor} rays/pixel",
+                    "1 ray/pixel\n(PyTorch3D's)", "light behind", "second view\ngreen specular"])
     res.comparison_caption = ("The supersampled reference next to the tutorial's renders "
                               f"({data.name}).")
     res.charts["Speed and accuracy: antialiasing cost against the error to the reference"] = \
@@ -726,10 +726,9 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
                         {"model": "scene: faces", "count": mesh.n_faces},
                         {"model": "scene: texture texels", "count": tex_px}]
     res.stability = _render_stability(mesh, size)
-    res.headline = {"PyTorch3D recipe": f"{S} x {S}, 1 ray/pixel: "
-                                        f"{timings['front view']:.3f} s per view",
-                    "geofit (best)": f"batch of {NB} at {SB} px in "
-                                     f"{timings[f'batch of {NB} views']:.2f} s"}
+    res.headline = {_P3D: f"{S} x {S}, 1 ray/pixel: {timings['front view']:.3f} s per view",
+                    _GF: f"batch of {NB} at {SB} px in "
+                         f"{timings[f'batch of {NB} views']:.2f} s"}
     if data.path is None:
         res.notes.append("The tutorial's cow was not found (set GEOFIT_DATA): the mesh is "
                          "geofit's procedural textured stand-in.")
@@ -928,10 +927,10 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     res.stability = _points_stability(cloud, cams, size)
     bar.update(1)
     bar.close()
-    res.headline = {"PyTorch3D recipe": f"{N:,} points at {S} px, K=10: "
-                                        f"{timings['alpha']:.3f} s",
-                    "geofit (best)": f"IoU {max(max(m['curve']['iou']) for m in methods):.3f} "
-                                     "vs the mesh"}
+    res.headline = {_P3D: f"{N:,} points at {S} px, K=10: {timings['alpha']:.3f} s",
+                    _GF: f"{counts[-1]:,} points, radius {radii[-1]:g}: IoU "
+                         f"{methods[-1]['curve']['iou'][-1]:.3f} vs the mesh in "
+                         f"{methods[-1]['curve']['seconds'][-1]:.3f} s"}
     res.notes.append(f"The measured cloud is sampled from the {data.name} with its texture "
                      "colours, so the mesh's own render is a target to compare with"
                      + ("." if bridge_path is not None else
@@ -1124,10 +1123,10 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     res.stability = _views_stability(ds, size, seed)
     pt, gf = res.metrics[0], res.metrics[1]
     res.headline = {
-        "PyTorch3D recipe": f"IoU {pt.get('iou', float('nan')):.3f}, PSNR "
-                            f"{pt.get('psnr', float('nan')):.1f} dB in {pt['seconds']:.1f} s",
-        "geofit (best)": f"IoU {gf.get('iou', float('nan')):.3f}, PSNR "
-                         f"{gf.get('psnr', float('nan')):.1f} dB in {gf['seconds']:.1f} s"}
+        _P3D: f"IoU {pt.get('iou', float('nan')):.3f}, PSNR "
+              f"{pt.get('psnr', float('nan')):.1f} dB in {pt['seconds']:.1f} s",
+        _GF: f"IoU {gf.get('iou', float('nan')):.3f}, PSNR "
+             f"{gf.get('psnr', float('nan')):.1f} dB in {gf['seconds']:.1f} s"}
     res.seconds = time.perf_counter() - t0
     return res
 
@@ -1301,10 +1300,10 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     res.stability = _volume_stability(train, S, n_pts, size, seed)
     pt, gf = res.metrics
     res.headline = {
-        "PyTorch3D recipe": f"PSNR {pt['held-out PSNR (dB)']:.1f} dB in {pt['seconds']:.1f} s, "
-                            f"{res.param_counts[0]['free parameters']:,} params",
-        "geofit (best)": f"PSNR {gf['held-out PSNR (dB)']:.1f} dB in {gf['seconds']:.1f} s, "
-                         f"{res.param_counts[1]['free parameters']:,} params"}
+        _P3D: f"PSNR {pt['held-out PSNR (dB)']:.1f} dB in {pt['seconds']:.1f} s, "
+              f"{res.param_counts[0]['free parameters']:,} params",
+        _GF: f"PSNR {gf['held-out PSNR (dB)']:.1f} dB in {gf['seconds']:.1f} s, "
+             f"{res.param_counts[1]['free parameters']:,} params"}
     res.seconds = time.perf_counter() - t0
     return res
 
@@ -1463,12 +1462,10 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     res.stability = _nerf_stability(train, size, seed)
     pt, gf = res.metrics
     res.headline = {
-        "PyTorch3D recipe": f"PSNR {pt['held-out PSNR (dB)'] or float('nan'):.1f} dB in "
-                            f"{pt['seconds']:.1f} s, {res.param_counts[0]['network parameters']:,}"
-                            " params",
-        "geofit (best)": f"PSNR {gf['held-out PSNR (dB)'] or float('nan'):.1f} dB in "
-                         f"{gf['seconds']:.1f} s, {res.param_counts[1]['network parameters']:,}"
-                         " params"}
+        _P3D: f"PSNR {pt['held-out PSNR (dB)'] or float('nan'):.1f} dB in {pt['seconds']:.1f} s, "
+              f"{res.param_counts[0]['network parameters']:,} params",
+        _GF: f"PSNR {gf['held-out PSNR (dB)'] or float('nan'):.1f} dB in {gf['seconds']:.1f} s, "
+             f"{res.param_counts[1]['network parameters']:,} params"}
     res.seconds = time.perf_counter() - t0
     return res
 
@@ -1559,7 +1556,7 @@ def run_step(name: str, out, size: str = "default", *, progress: bool = True,
         res = StepResult(name, title, tutorial, status=_failure(exc), size=size,
                          seconds=time.perf_counter() - t0)
         res.files["traceback"] = d / "error.txt"
-        res.headline = {"PyTorch3D recipe": "", "geofit (best)": ""}
+        res.headline = {_P3D: "", _GF: ""}
         return res
 
 

@@ -144,8 +144,10 @@ def plot_accuracy_vs_time(methods: Sequence[Any], panels: Sequence[Mapping[str, 
                 ax.axvline(time_limit, color="crimson", lw=0.8, ls="--",
                            label=f"{time_limit:g} s")
             ax.set_xscale("log")
+            _plain_log_labels(ax.xaxis, ax.get_xlim())
             if logy and positive:  # (a log axis without positive data would warn)
                 ax.set_yscale("log")
+                _plain_log_labels(ax.yaxis, ax.get_ylim())
             ax.set_xlabel(xlabel)
             ax.set_ylabel(panel.get("label", key))
         seen: dict[str, Any] = {}
@@ -166,6 +168,20 @@ def plot_accuracy_vs_time(methods: Sequence[Any], panels: Sequence[Mapping[str, 
         fig.savefig(path)
         plt.close(fig)
     return path
+
+
+def _plain_log_labels(axis, limits) -> None:
+    """Log-axis tick labels as plain numbers (0.05, 2, 10); minor labels at 2x and 5x only when
+    the axis spans two decades or less (so they never crowd)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    fmt = FuncFormatter(lambda v, _pos: f"{v:g}")
+    axis.set_major_formatter(fmt)
+    lo, hi = (float(v) for v in limits)
+    few = lo > 0 and hi > lo and np.log10(hi / lo) <= 2.0
+    axis.set_minor_locator(LogLocator(subs=(2.0, 5.0) if few else (2.0, 3.0, 4.0, 5.0, 6.0,
+                                                                     7.0, 8.0, 9.0)))
+    axis.set_minor_formatter(fmt if few else NullFormatter())
 
 
 def _legend_columns(labels: Sequence[str], width_inches: float) -> int:

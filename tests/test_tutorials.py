@@ -1,4 +1,4 @@
-"""`geofit tutorials`: the six-step runner, its report (HTML, Markdown, JSON) and the figure helpers.
+"""`geofit tutorials`: the six-step runner, its report (HTML, Markdown, JSON), figure helpers.
 
 The fast tests run the two rendering steps at the tiny size through the command line and check
 the report's structure (every <img> exists and decodes); the fitting steps run at the tiny size
