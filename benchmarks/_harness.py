@@ -29,14 +29,19 @@ from typing import Any
 
 import numpy as np
 
+from geofit.viz import STYLE, chart_style
+from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
+
 SCHEMA = "geofit-benchmark/1"
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 __all__ = [
     "RESULTS_DIR",
     "SCHEMA",
+    "STYLE",
     "BenchmarkReport",
     "MethodRun",
+    "chart_style",
     "json_safe",
     "machine_info",
     "markdown_table",
@@ -226,13 +231,8 @@ class BenchmarkReport:
 
 
 # ---------------------------------------------------------------------------------------- chart
-_STYLE = {
-    "figure.dpi": 110, "savefig.dpi": 110, "font.size": 9, "axes.grid": True,
-    "grid.alpha": 0.3, "axes.spines.top": False, "axes.spines.right": False,
-    "legend.fontsize": 8, "legend.frameon": False,
-}
-
-
+# One chart style for every benchmark and for `geofit tutorials`: both draw with geofit.viz
+# (STYLE, chart_style() for other figures, the accuracy-vs-time chart below).
 def plot_accuracy_vs_time(methods: Sequence[MethodRun], panels: Sequence[Mapping[str, Any]],
                           path: str | Path, *, title: str = "",
                           time_limit: float | None = None,
@@ -260,53 +260,8 @@ def plot_accuracy_vs_time(methods: Sequence[MethodRun], panels: Sequence[Mapping
     -------
     Path
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    refs = list(reference_points)
-    with plt.rc_context(_STYLE):
-        fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.0), squeeze=False)
-        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-        for ax, panel in zip(axes[0], panels):
-            key = panel["metric"]
-            for i, m in enumerate(methods):
-                if key not in m.curve or not m.seconds:
-                    continue
-                t = np.maximum(np.asarray(m.seconds), 1e-3)
-                ax.plot(t, m.curve[key], marker="o", ms=2.5, lw=1.4,
-                        color=colors[i % len(colors)], label=m.label)
-            for r in refs:
-                if key in r:
-                    ax.plot([r["seconds"]], [r[key]], marker="*", ms=12, color="black",
-                            ls="none", label=r.get("label"))
-            if panel.get("target") is not None:
-                ax.axhline(panel["target"], color="black", lw=0.8, ls=":",
-                           label=panel.get("target_label"))
-            if time_limit is not None:
-                ax.axvline(time_limit, color="crimson", lw=0.8, ls="--",
-                           label=f"{time_limit:g} s")
-            ax.set_xscale("log")
-            if panel.get("logy"):
-                ax.set_yscale("log")
-            ax.set_xlabel("solver wall time (s, log)")
-            ax.set_ylabel(panel.get("label", key))
-        handles, labels = axes[0][0].get_legend_handles_labels()
-        seen = {}
-        for h, lab in zip(handles, labels):
-            if lab and lab not in seen:
-                seen[lab] = h
-        fig.legend(seen.values(), seen.keys(), loc="lower center",
-                   ncol=min(4, len(seen)), bbox_to_anchor=(0.5, -0.01))
-        if title:
-            fig.suptitle(title)
-        fig.tight_layout(rect=(0, 0.1 + 0.03 * ((len(seen) - 1) // 4), 1, 1))
-        fig.savefig(path)
-        plt.close(fig)
-    return path
+    return _plot_accuracy_vs_time(methods, panels, path, title=title, time_limit=time_limit,
+                                  reference_points=reference_points)
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
