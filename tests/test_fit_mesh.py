@@ -283,6 +283,24 @@ def test_coarse_to_fine_subdivides_only_when_needed():
     assert res.n_verts == 162 and "max_verts" in res.message
 
 
+def test_coarse_to_fine_stall_test_ends_a_level():
+    """The stall test stops a level whose data term no longer improves, status converged."""
+    from geofit.fit.mesh import _Stall
+
+    st = _Stall(3, 0.1)
+    assert [st.update(v) for v in (5.0, 4.0, 3.0, 2.9, 2.8, 2.75)] == [False] * 5 + [True]
+    s = ico_sphere(3)
+    target = s.update_verts(s.verts * [1.0, 0.9, 0.8])
+    c2f = CoarseToFine(start_level=1, max_level=1, stall_window=3, stall_rel=0.5)
+    res = fit_mesh(None, target, coarse_to_fine=c2f, n_samples=300, n_iter=200,
+                   evaluator=None, progress=False)
+    assert res.stages[0]["status"] == "converged"
+    assert "stall test" in res.stages[0]["message"]
+    assert res.stages[0]["n_iterations"] < 200
+    with pytest.raises(ValueError, match="stall_window"):
+        CoarseToFine(stall_window=0)
+
+
 def test_save_obj_round_trip(tmp_path):
     from geofit.io import load_mesh
 

@@ -423,6 +423,11 @@ class CoarseToFine:
         Weights for the first (coarsest) level, where the mesh travels far from the sphere and
         needs strong regularisation; later levels use the fit's ``weights``. Default: the
         tutorial's weights.
+    stall_window, stall_rel : int or None, float
+        Stall test ending a level early: stop when the lowest data term of the last
+        ``stall_window`` iterations is not ``stall_rel`` (relative) below the lowest before them.
+        A coarse mesh reaches its best accuracy long before L-BFGS stops polishing the
+        regularisers (default 10 iterations, 1%; None disables it).
 
     Notes
     -----
@@ -438,6 +443,8 @@ class CoarseToFine:
     tau: float = 0.01
     max_verts: int | None = None
     coarse_weights: dict | None = field(default_factory=lambda: dict(TUTORIAL_WEIGHTS))
+    stall_window: int | None = 10
+    stall_rel: float = 0.01
 
     def __post_init__(self) -> None:
         self.start_level = _check_int(self.start_level, "start_level", 0)
@@ -451,6 +458,24 @@ class CoarseToFine:
             self.max_verts = _check_int(self.max_verts, "max_verts", 4)
         if self.coarse_weights is not None:
             self.coarse_weights = _check_weights(self.coarse_weights, "coarse_weights")
+        if self.stall_window is not None:
+            self.stall_window = _check_int(self.stall_window, "stall_window")
+        self.stall_rel = check_positive(self.stall_rel, "stall_rel", strict=False)
+
+
+class _Stall:
+    """The coarse-to-fine stall test on the data term (see :class:`CoarseToFine`)."""
+
+    def __init__(self, window: int, rel: float):
+        self.window, self.rel = window, rel
+        self.values: list[float] = []
+
+    def update(self, value: float) -> bool:
+        self.values.append(value)
+        if len(self.values) <= self.window:
+            return False
+        before = min(self.values[:-self.window])
+        return min(self.values[-self.window:]) > (1.0 - self.rel) * before
 
 
 # ------------------------------------------------------------------------------------ result
@@ -538,7 +563,9 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     weights : dict or sequence of dict, optional
         Term weights (``"chamfer"``, ``"edge"``, ``"normal"``, ``"laplacian"``). A sequence gives
         the weights of stage 0, 1, ... (the last one repeats). Default: the tutorial's for
-        SGD/Adam; for L-BFGS the tutorial's in the first stage, then :data:`FINE_WEIGHTS`.
+        SGD/Adam; for L-BFGS the tutorial's in the first stage, then :data:`FINE_WEIGHTS`. With
+        coarse-to-fine, the coarsest level uses ``coarse_to_fine.coarse_weights`` (when set)
+        and every finer level the last entry (default :data:`FINE_WEIGHTS`).
     distance : {"surface", "points"}, optional
         Data term. Default ``"points"`` for SGD/Adam (the tutorial), ``"surface"`` for L-BFGS.
     n_samples : int, optional
@@ -705,9 +732,16 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
                                 resample="step" if stochastic else "stage", large_steps=ls,
                                 seed=rng, target_distance=p2s)
             remaining = None if time_budget is None else time_budget - clock.elapsed()
+            stall = (_Stall(c2f.stall_window, c2f.stall_rel)
+                     if c2f is not None and c2f.stall_window else None)
             res = _solve(method, obj, obj.params_from_verts(mesh.verts), n_iter=n_iter, lr=lr,
                          momentum=momentum, time_budget=remaining,
-                         callback=run.callback(obj, len(stages)), clock=clock, opts=opts)
+                         callback=run.callback(obj, len(stages), stall), clock=clock, opts=opts)
+            if res.status == "callback" and run.stalled:
+                res.status = "converged"
+                res.message = (f"the data term improved by less than {c2f.stall_rel:.0%} over "
+                               f"the last {c2f.stall_window} iterations (coarse-to-fine stall "
+                               f"test)")
             run.evals += res.n_evaluations
             mesh = mesh.update_verts(obj.verts_from_params(res.x))
             stages.append({"stage": len(stages), "level": level, "n_verts": mesh.n_verts,
@@ -770,6 +804,7 @@ class _Run:
         self.iters = 0
         self.last_ckpt = -1
         self.metrics = None
+        self.stalled = False
         self.bar = _NoBar()
 
     def _evaluate(self, mesh: Mesh) -> dict | None:
@@ -787,8 +822,9 @@ class _Run:
         if m is not None and len(self.history):
             self.history.checkpoint(self.history.steps[-1], self.history.seconds[-1], m)
 
-    def callback(self, obj: MeshObjective, stage: int):
+    def callback(self, obj: MeshObjective, stage: int, stall: _Stall | None = None):
         base = self.evals
+        self.stalled = False
 
         def cb(info: StepInfo):
             evals = base + info.n_evaluations
@@ -806,7 +842,12 @@ class _Run:
                 self.bar.update(1)
                 if info.iteration % 10 == 0:
                     self.bar.set_postfix(loss=f"{info.value:.3g}", verts=obj.n_verts)
-            return self.user_callback(info) if self.user_callback is not None else None
+            if self.user_callback is not None and self.user_callback(info):
+                return True
+            if stall is not None and stall.update(obj.last_terms["chamfer"]):
+                self.stalled = True
+                return True
+            return None
 
         return cb
 
