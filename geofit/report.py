@@ -363,7 +363,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
 
 def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str = "",
                   charts: Mapping[str, Any] | None = None, size: str = "",
-                  seconds: float | None = None) -> list[Path]:
+                  seconds: float | None = None, notes: Sequence[str] = ()) -> list[Path]:
     """Copy the report's figures into ``dest`` under stable names, for the README.
 
     Per workflow that ran: ``<step>_results.png`` (targets next to results) and
@@ -384,6 +384,8 @@ def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str
         The run size.
     seconds : float, optional
         Total wall time of the run.
+    notes : sequence of str
+        Sentences listed under the command (e.g. which data was used).
 
     Returns
     -------
@@ -416,6 +418,7 @@ def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str
              f"Made by `{command}` ({size} size"
              + (f", {seconds:.0f} s in all" if seconds is not None else "")
              + f"; {os.cpu_count()} CPUs, load average {load} when written).", ""]
+    lines += [f"{n}\n" for n in notes]
     for label, p in written:
         lines += [f"![{label}]({p.name})", "", f"*{label}*", ""]
     (dest / "README.md").write_text("\n".join(lines), encoding="utf-8")

@@ -1579,6 +1579,19 @@ def _size_chart(steps: Sequence[StepResult], path: Path) -> Path | None:
                                   "(orange: PyTorch3D's recipe)")
 
 
+def _data_note() -> str:
+    """Which tutorial files were found, and where (the data the run used)."""
+    from .data import data_dir, find
+
+    instead = {"dolphin/dolphin.obj": "the procedural target used instead",
+               "cow_mesh/cow.obj": "the procedural textured mesh used instead",
+               _BRIDGE: "the tutorial's cloud not rendered"}
+    found = {n: find(n) for n in instead}
+    parts = [f"{n} from {p.parent.parent}" if p is not None else f"{n} not found ({instead[n]})"
+             for n, p in found.items()]
+    return f"Data folder {data_dir()}: " + "; ".join(parts) + "."
+
+
 def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = None,
                   progress: bool = True, seed: int = 0, command: str = "",
                   gallery=None) -> TutorialsRun:
@@ -1642,7 +1655,7 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     if chart is not None:
         charts["Model size: free parameters of each method's fitted model (log scale)"] = chart
     seconds = time.perf_counter() - t0
-    notes = [f"{sum(s.ok for s in steps)} of {len(steps)} workflows ran."]
+    notes = [f"{sum(s.ok for s in steps)} of {len(steps)} workflows ran.", _data_note()]
     failed = [s.name for s in steps if not s.ok]
     if failed:
         notes.append("Failed: " + ", ".join(failed) + " (see each section).")
@@ -1652,7 +1665,7 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
         from .report import write_gallery
 
         report["gallery"] = write_gallery(steps, gallery, command=command, charts=charts,
-                                          size=size, seconds=seconds)
+                                          size=size, seconds=seconds, notes=notes[1:])
     return TutorialsRun(steps, seconds, out, report, charts)
 
 

@@ -105,6 +105,7 @@ def test_cli_render_steps_write_a_complete_report(tmp_path, procedural, capsys):
     assert "2 of 2 workflows ran" in text and "gallery of 4 images" in text
     listed = (gallery / "README.md").read_text()
     assert "geofit tutorials --out" in listed and "--gallery" in listed
+    assert "Data folder" in listed and "procedural" in listed  # says which data was used
     for name in ("render_mesh_results", "render_mesh_speed_accuracy", "render_points_results",
                  "render_points_speed_accuracy"):
         assert f"]({name}.png)" in listed
