@@ -872,10 +872,11 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         below this (None: march the whole range).
     smoothness : float or (2,) float
         Weights ``(lambda_density, lambda_colour)`` (one number: both) of a smoothness prior for
-        geofit's methods: ``lambda`` times the mean squared difference between face-neighbouring
-        free voxels of the densities and of the colours (0: none, the tutorial's objective). It
-        fills what the views do not constrain (e.g. the top of the cow, never seen from
-        elevation 0) smoothly instead of with stripes.
+        geofit's methods: ``lambda (level / 64)^2`` times the mean squared difference between
+        face-neighbouring free voxels of the densities and of the colours, so that it weighs the
+        same squared gradient in world units at every level (0: none, the tutorial's
+        objective). It fills what the views do not constrain (e.g. the top of the cow, never
+        seen from elevation 0) smoothly instead of with stripes.
     huber_scaling : float
         Scale of the Huber losses (0.1 as the tutorial).
     lr, batch_size, n_iter
@@ -1083,7 +1084,7 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
         problem = _Problem(grid, o, d, lengths, rgb, sil, dens, allowed,
                            termination=termination if li > 0 else None,
                            n_pixels=N * Rh * Rw, huber_scale=huber_scale, dtype=dtype,
-                           smoothness=smoothness)
+                           smoothness=tuple(v * (level / 64.0) ** 2 for v in smoothness))
         state.update(ld=ld, lc=lc, grid=grid, n_pts=n_pts, allowed=allowed)
         x0 = problem.pack(ld, lc)
         setup_seconds = clock.elapsed() - t_level
@@ -1107,8 +1108,14 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
         def fun(x, _p=problem):
             v, g, terms = _p.evaluate(x)
             fun.terms = terms
+            if fun.first is None:
+                fun.first = v
+            if v < fun.best[0]:
+                fun.best = (v, np.array(x, dtype=np.float64))
             return v, g
         fun.terms = {}
+        fun.first = None
+        fun.best = (np.inf, x0)
 
         def callback(si, _li=li, _p=problem):
             nonlocal step_counter
@@ -1139,6 +1146,18 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
                     res2.n_iterations += res.n_iterations
                     res2.n_evaluations += res.n_evaluations
                     res = res2
+            # Adam's last iterate can be worse than what it visited (a too large step size):
+            # keep the best one, and say so when the objective ended above where it started
+            best_v, best_x = fun.best
+            if res.status in ("max_iter", "time_budget") and np.isfinite(best_v):
+                last_v, _ = problem.evaluate(res.x, want_grad=False)
+                if best_v < last_v:
+                    res.x, res.value = best_x, best_v
+                if fun.first is not None and last_v > fun.first:
+                    res.status = "diverged"
+                    res.message = (f"Adam: the objective rose from {fun.first:.4g} to "
+                                   f"{last_v:.4g} (learning rate {lr:g} too large?); returning "
+                                   f"the best iterate ({best_v:.4g})")
         elif method == "lbfgs":
             res = solvers.lbfgs_scipy(fun, x0, max_iter=n_iter_level, time_budget=remaining,
                                       ftol=1e-12, gtol=1e-12, memory=20, callback=callback,
@@ -1168,6 +1187,9 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
         prev_grid = grid
         if res.status in ("time_budget", "nonfinite", "diverged", "failed", "callback"):
             break
+    if len(stages) > 1:
+        per_level = ", ".join(f"{st['level']}^3 {st['status']}" for st in stages)
+        message = f"levels: {per_level}; last level: {message}"
     result_volume = current_volume()
     if result_volume is None:  # no level ran: the initial model
         grid = _Grid((S,) * 3, extent / S, translation)
@@ -1253,6 +1275,15 @@ def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, h
             n_it += res2.n_iterations
             n_ev += res2.n_evaluations
             res = res2
+    # random batches make single losses noisy: compare the first and last few steps
+    losses = np.asarray(history.loss)
+    k = max(1, min(5, len(losses) // 4))
+    if res.status in ("max_iter", "time_budget") and len(losses) >= 2 and \
+            np.mean(losses[-k:]) > np.mean(losses[:k]):
+        res.status = "diverged"
+        res.message = (f"Adam: the batch loss rose from {np.mean(losses[:k]):.4g} (first {k} "
+                       f"steps) to {np.mean(losses[-k:]):.4g} (last {k}); learning rate {lr:g} "
+                       f"too large? The last iterate is returned")
     vol = volume_of(res.x)
     if monitor is not None:
         with clock.paused():

@@ -1,0 +1,356 @@
+"""Benchmark: fit a voxel volume to the cow by raymarching (PyTorch3D's fifth tutorial) on the CPU.
+
+Data: geofit's ``generate_cow_renders()`` (40 views at elevation 0, 128 px, black background,
+binary silhouettes) and ``held_out_views()`` (16 views between the training azimuths, at
+elevations 0 and 20; never trained on).
+
+Methods (all geofit, numpy, analytic gradients):
+
+* ``tutorial`` -- PyTorch3D's recipe: dense 128^3 grid (8.4 M parameters), 150 samples per ray,
+  Adam lr 0.1 on 10 random views per step, lr x 0.1 at 75%, 300 steps (or ``--tutorial-budget``
+  seconds, whichever ends first);
+* ``lbfgs`` -- geofit's best: visual hull, coarse to fine (32^3, 64^3, 128^3), pruning, empty-space
+  skipping, a smoothness prior, scipy L-BFGS over all rays of all views;
+* ``nlopt-lbfgs`` and ``adam`` -- the same reduced model with nlopt's L-BFGS and full-batch Adam.
+
+Each method records held-out PSNR (RGB, black background, mean of the per-view PSNRs) and
+silhouette IoU (rendered opacity > 0.5 against the silhouette) at checkpoints against solver time;
+the checkpoint renders run with the solver's clock paused. ``--stability`` runs the stress cases
+(noisy views, a view with a wrong camera, 5 views, an all-black target, a huge learning rate)
+and writes ``fit_volume_stability.{json,md}``.
+
+Run from the repository root: ``python benchmarks/fit_volume.py [--quick] [--stability]``.
+"""
+from __future__ import annotations
+
+import os
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
+
+from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import generate_cow_renders, held_out_views
+from geofit.fit.volume import fit_volume, volume_metrics
+
+#: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10
+#: views, 128^3 voxels, 150 samples per ray).
+PYTORCH3D = {"seconds": 1380.0, "psnr": 25.6, "iou": 0.962,
+             "source": "issue 7 (PyTorch3D 0.7.9 CPU run of fit_textured_volume, 2-core machine)"}
+TARGET_SECONDS = PYTORCH3D["seconds"] / 10.0
+
+
+def load_average() -> list[float]:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return []
+
+
+def cpu_seconds() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def run_method(name: str, label: str, train, test, *, verbose=True, monitor_every=10.0,
+               **kw) -> tuple[MethodRun, object]:
+    """Fit with ``fit_volume(**kw)``, checkpointing held-out PSNR and IoU against solver time."""
+    run = MethodRun(name, label, config={k: (list(v) if isinstance(v, tuple) else v)
+                                         for k, v in kw.items()})
+    t0 = time.perf_counter()
+    c0 = cpu_seconds()
+    wall, loads = [], []
+
+    def monitor(vol):
+        m = volume_metrics(vol, test.images, test.silhouettes, test.cameras)
+        half = len(test) // 2
+        out = {"psnr": m.psnr, "iou": m.iou,
+               "psnr_elev0": float(m.psnr_per_view[:half].mean()),
+               "psnr_elev20": float(m.psnr_per_view[half:].mean())}
+        wall.append(time.perf_counter() - t0)
+        loads.append(load_average()[:1])
+        if verbose:
+            print(f"  [{name}] wall {wall[-1]:7.1f} s  held-out PSNR {m.psnr:.2f} dB "
+                  f"(elev 0: {out['psnr_elev0']:.2f}, elev 20: {out['psnr_elev20']:.2f}), "
+                  f"IoU {m.iou:.4f}  (load {loads[-1]})", flush=True)
+        return out
+
+    res = fit_volume(train.images, train.silhouettes, train.cameras, monitor=monitor,
+                     monitor_every=monitor_every, verbose=verbose, **kw)
+    wall_total = time.perf_counter() - t0
+    cpu = cpu_seconds() - c0
+    h = res.history
+    for c in h.checkpoints:
+        run.add(c["seconds"], psnr=c["psnr"], iou=c["iou"], psnr_elev0=c["psnr_elev0"],
+                psnr_elev20=c["psnr_elev20"], step=c["step"])
+    run.curve["wall_seconds"] = wall
+    # active parameters along the way: the free parameters of the level each checkpoint is in
+    steps = np.asarray(h.steps)
+    n_params = np.asarray(h.n_params)
+    run.curve["n_params"] = [int(n_params[max(np.searchsorted(steps, c["step"], "right") - 1,
+                                               0)]) if len(steps) else 0
+                             for c in h.checkpoints]
+    run.status, run.message = res.status, res.message
+    final = h.last_metrics() or {}
+    reached = run.first_reaching({"psnr": (">=", PYTORCH3D["psnr"]),
+                                  "iou": (">=", PYTORCH3D["iou"])})
+    run.final = {
+        "psnr": final.get("psnr"), "iou": final.get("iou"),
+        "psnr_elev0": final.get("psnr_elev0"), "psnr_elev20": final.get("psnr_elev20"),
+        "solver_seconds": res.seconds, "wall_seconds_with_checkpoints": wall_total,
+        "cpu_seconds_with_checkpoints": cpu, "n_active_voxels": res.n_active_voxels,
+        "n_colour_voxels": res.n_colour_voxels, "n_occupied_voxels": res.n_occupied_voxels,
+        "n_params": res.n_params, "dense_voxels": res.volume.n_voxels,
+        "samples_per_ray": res.samples_per_ray, "n_pts_per_ray": res.n_pts_per_ray,
+        "iterations": res.n_iterations, "evaluations": res.n_evaluations,
+        "seconds_to_reach_pytorch3d": reached, "stages": res.stages,
+        "load_average_at_checkpoints": loads,
+    }
+    return run, res
+
+
+def plot_params(methods, path: Path) -> Path:
+    """Held-out PSNR and IoU against the number of free parameters (one point per checkpoint)."""
+    from geofit.viz import chart_style
+
+    with chart_style() as plt:
+        fig, axes = plt.subplots(1, 2, figsize=(10.4, 4.0))
+        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        for ax, key, lab, target in ((axes[0], "psnr", "held-out PSNR (dB)", PYTORCH3D["psnr"]),
+                                     (axes[1], "iou", "held-out silhouette IoU",
+                                      PYTORCH3D["iou"])):
+            for i, m in enumerate(methods):
+                if not m.seconds:
+                    continue
+                ax.plot(m.curve["n_params"], m.curve[key], marker="o", ms=3, lw=0.8,
+                        color=colors[i % len(colors)], label=m.label)
+            ax.plot([8 * 128 ** 3 // 2], [target], marker="*", ms=12, color="black",
+                    ls="none", label="PyTorch3D (dense 128^3, 8.4 M parameters)")
+            ax.axhline(target, color="black", lw=0.8, ls=":")
+            ax.set_xscale("log")
+            ax.set_xlabel("free parameters (log)")
+            ax.set_ylabel(lab)
+        h, lab = axes[0].get_legend_handles_labels()
+        fig.legend(h, lab, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.01))
+        fig.suptitle("fit_volume: held-out accuracy against model size")
+        fig.tight_layout(rect=(0, 0.12, 1, 1))
+        fig.savefig(path)
+        plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------------------------ stability
+
+
+def _wrong_camera(cameras, index: int, azim_error: float = 40.0, elev_error: float = 25.0):
+    """The cameras with view ``index`` replaced by one looking from another direction."""
+    R, T = cameras.R.copy(), cameras.T.copy()
+    C = cameras.get_camera_center()[index]
+    azim = np.degrees(np.arctan2(C[0], C[2])) + azim_error
+    elev = np.degrees(np.arcsin(C[1] / np.linalg.norm(C))) + elev_error
+    Rw, Tw = look_at_view_transform(float(np.linalg.norm(C)), elev, azim)
+    R[index], T[index] = Rw[0], Tw[0]
+    return FoVPerspectiveCameras(R=R, T=T)
+
+
+def stability(train, test, args) -> tuple[list, list]:
+    """Each stress case: status, message, finiteness and held-out accuracy."""
+    rng = np.random.default_rng(0)
+    size = args.stability_size
+    levels = tuple(s for s in (32, 64, 128) if s <= size)
+    common = {"volume_size": size, "levels": levels, "verbose": False}
+    if args.quick:
+        common["iterations"] = 10
+    cases = []
+    noisy = np.clip(train.images + rng.normal(0.0, 0.1, train.images.shape), 0.0, 1.0)
+    cases.append(("noise", "images + N(0, 0.1) noise, clipped to [0, 1]",
+                  dict(images=noisy), {}))
+    cases.append(("wrong camera", "view 7's camera replaced by one 40 deg off in azimuth and "
+                  "25 deg in elevation", dict(cameras=_wrong_camera(train.cameras, 7)), {}))
+    few = np.linspace(0, len(train) - 1, 6).astype(int)[:5]
+    cases.append(("5 views", f"training views {few.tolist()} only",
+                  dict(images=train.images[few], silhouettes=train.silhouettes[few],
+                       cameras=train.cameras[few]), {}))
+    cases.append(("all-black target", "images and silhouettes all zero",
+                  dict(images=np.zeros_like(train.images),
+                       silhouettes=np.zeros_like(train.silhouettes)), {}))
+    cases.append(("huge learning rate", "geofit's Adam with lr = 1e6",
+                  {}, {"method": "adam", "lr": 1e6}))
+    cases.append(("huge learning rate (tutorial recipe)", "the tutorial's dense Adam with "
+                  "lr = 1e6, 20 steps", {}, {"method": "tutorial", "lr": 1e6,
+                                              "n_iter": 4 if args.quick else 20}))
+    rows, records = [], []
+    for name, what, data, kw in cases:  # stress cases
+        inputs = {"images": train.images, "silhouettes": train.silhouettes,
+                  "cameras": train.cameras, **data}
+        opts = {**common, **kw}
+        if opts.get("method") == "tutorial":
+            opts.pop("levels", None)
+            opts.pop("iterations", None)
+        t0 = time.perf_counter()
+        try:
+            res = fit_volume(inputs["images"], inputs["silhouettes"], inputs["cameras"], **opts)
+            error = None
+        except Exception as exc:  # a stress case must end with a status, not a crash
+            res, error = None, f"{type(exc).__name__}: {exc}"
+        wall = time.perf_counter() - t0
+        if res is None:
+            rec = {"case": name, "what": what, "status": "exception", "message": error}
+        else:
+            finite = bool(np.all(np.isfinite(res.volume.densities))
+                          and np.all(np.isfinite(res.volume.features)))
+            hist = res.history.as_arrays()
+            loss_finite = bool(np.all(np.isfinite(hist["loss"]))) if len(hist["loss"]) else True
+            m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
+            rec = {"case": name, "what": what, "status": res.status, "message": res.message,
+                   "volume_finite": finite, "loss_history_finite": loss_finite,
+                   "psnr": m.psnr, "iou": m.iou, "active_voxels": res.n_active_voxels,
+                   "solver_seconds": res.seconds, "wall_seconds": wall}
+        records.append(rec)
+        rows.append([name, rec["status"], rec.get("volume_finite", "-"),
+                     f"{rec['psnr']:.2f}" if "psnr" in rec else "-",
+                     f"{rec['iou']:.4f}" if "iou" in rec else "-",
+                     rec.get("active_voxels", "-"),
+                     f"{rec['solver_seconds']:.1f}" if "solver_seconds" in rec else "-",
+                     rec["message"][:150]])
+        print(f"  stability [{name}]: {rec['status']} | {rec['message'][:120]}", flush=True)
+    return rows, records
+
+
+def main(argv=None) -> int:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--methods", default="tutorial,lbfgs,nlopt-lbfgs,adam",
+                   help="comma-separated methods (default: all)")
+    p.add_argument("--tutorial-budget", type=float, default=None,
+                   help="solver seconds for the tutorial recipe (default: its 300 steps)")
+    p.add_argument("--stability", action="store_true", help="also run the stress cases")
+    p.add_argument("--stability-only", action="store_true", help="only the stress cases")
+    p.add_argument("--stability-size", type=int, default=128,
+                   help="grid size of the stress cases (default 128)")
+    p.add_argument("--monitor-every", type=float, default=10.0,
+                   help="solver seconds between held-out checkpoints (default 10)")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    quick = args.quick
+    n_views = 8 if quick else 40
+    image_size = 32 if quick else 128
+    size = 32 if quick else 128
+    if quick:
+        args.stability_size = min(args.stability_size, 32)
+
+    print(f"uptime/load average at start: {load_average()}", flush=True)
+    t0 = time.perf_counter()
+    train = generate_cow_renders(num_views=n_views, image_size=image_size)
+    test = held_out_views(num_views=n_views, image_size=image_size,
+                          n_azimuths=3 if quick else 8)
+    t_data = time.perf_counter() - t0
+    print(f"data: {train!r}, held out {test!r}, rendered in {t_data:.1f} s", flush=True)
+
+    report = BenchmarkReport(
+        "fit_volume",
+        config={"quick": quick, "views": n_views, "image_size": image_size, "volume_size": size,
+                "held_out_views": len(test), "held_out_azim": test.azim, "held_out_elev":
+                test.elev, "dataset": train.mesh_name, "data_seconds": t_data},
+        notes=["seconds are solver time: the held-out checkpoints run with the clock paused; "
+               "wall_seconds_with_checkpoints includes them",
+               "PSNR: mean over held-out views of 10 log10(1 / MSE) on RGB (black background); "
+               "IoU: mean over views of IoU(rendered opacity > 0.5, silhouette > 0.5)",
+               "held-out views: 8 azimuths between the training azimuths at elevations 0 and 20",
+               "other engineers' jobs share the 2 cores: the load average at each checkpoint is "
+               "stored with the run"],
+        reference={"pytorch3d": PYTORCH3D, "target_seconds": TARGET_SECONDS})
+
+    methods = [] if args.stability_only else [m.strip() for m in args.methods.split(",") if
+                                              m.strip()]
+    labels = {"tutorial": "tutorial recipe (dense 128^3, Adam, 10 views/step)",
+              "lbfgs": "geofit L-BFGS (hull, 32-64-128, skipping)",
+              "nlopt-lbfgs": "geofit nlopt L-BFGS (same model)",
+              "adam": "geofit Adam (same model, full batch)"}
+    runs, results = [], {}
+    for name in methods:  # methods
+        kw = {"method": name, "volume_size": size}
+        if name == "tutorial":
+            kw.update(n_iter=4 if quick else 300, time_budget=args.tutorial_budget)
+            if quick:
+                kw.update(batch_size=4)
+        elif quick:
+            kw.update(levels=(16, 32), iterations=(10, 10))
+        print(f"== {name}: {kw}  (load {load_average()})", flush=True)
+        run, res = run_method(name, labels.get(name, name), train, test,
+                              monitor_every=(1.0 if quick else args.monitor_every), **kw)
+        report.add(run)
+        runs.append(run)
+        results[name] = res
+
+    if runs:
+        rows = []
+        for run in runs:  # methods
+            f = run.final
+            ok = (f["psnr"] is not None and f["psnr"] >= PYTORCH3D["psnr"]
+                  and f["iou"] >= PYTORCH3D["iou"] and f["solver_seconds"] <= TARGET_SECONDS
+                  and f["n_active_voxels"] < f["dense_voxels"])
+            rows.append([run.name, run.status, f"{f['solver_seconds']:.1f}",
+                         f"{f['cpu_seconds_with_checkpoints']:.1f}",
+                         f"{f['n_active_voxels']:,}", f"{f['n_params']:,}",
+                         f"{f['samples_per_ray']:.1f}", f"{f['psnr']:.2f}",
+                         f"{f['psnr_elev0']:.2f}", f"{f['psnr_elev20']:.2f}", f"{f['iou']:.4f}",
+                         "yes" if ok else "no"])
+        header = ["method", "status", "solver s", "CPU s (incl. checkpoints)", "active voxels",
+                  "free params", "samples/ray", "PSNR", "PSNR el 0", "PSNR el 20", "IoU",
+                  f"PSNR >= {PYTORCH3D['psnr']}, IoU >= {PYTORCH3D['iou']}, <= "
+                  f"{TARGET_SECONDS:g} s, < 128^3 voxels"]
+        rows.append(["PyTorch3D (issue)", "-", f"{PYTORCH3D['seconds']:g}", "-",
+                     f"{128 ** 3:,}", f"{4 * 128 ** 3:,}", "150", f"{PYTORCH3D['psnr']}", "-",
+                     "-", f"{PYTORCH3D['iou']}", "-"])
+        table = markdown_table(header, rows)
+        report.tables["summary"] = table
+        print("\n" + table, flush=True)
+        plot_accuracy_vs_time(
+            runs, [{"metric": "psnr", "label": "held-out PSNR (dB)",
+                    "target": PYTORCH3D["psnr"], "target_label": "PyTorch3D 25.6 dB"},
+                   {"metric": "iou", "label": "held-out silhouette IoU",
+                    "target": PYTORCH3D["iou"], "target_label": "PyTorch3D 0.962"}],
+            out / "fit_volume.png", title="fit_volume: cow, 40 views, held-out elev 0 and 20",
+            time_limit=TARGET_SECONDS,
+            reference_points=[{"seconds": PYTORCH3D["seconds"], "label": "PyTorch3D CPU",
+                               "psnr": PYTORCH3D["psnr"], "iou": PYTORCH3D["iou"]}])
+        plot_params(runs, out / "fit_volume_params.png")
+        report.notes.append(f"load average at the end: {load_average()}")
+        path = report.write(out / "fit_volume.json")
+        print(f"wrote {path}, {out / 'fit_volume.png'}, {out / 'fit_volume_params.png'}")
+
+    if args.stability or args.stability_only:
+        print(f"== stability (grid {args.stability_size}^3)  (load {load_average()})",
+              flush=True)
+        rows, records = stability(train, test, args)
+        srep = BenchmarkReport("fit_volume_stability",
+                               config={"quick": quick, "volume_size": args.stability_size},
+                               notes=["each case runs fit_volume (geofit's L-BFGS unless "
+                                      "stated) and reports its status; PSNR/IoU on the "
+                                      "held-out views"])
+        header = ["case", "status", "volume finite", "PSNR", "IoU", "active voxels",
+                  "solver s", "message"]
+        table = markdown_table(header, rows)
+        srep.tables["stability"] = table
+        srep.tables["records"] = records
+        srep.write(out / "fit_volume_stability.json")
+        md = ("# fit_volume stability\n\n"
+              f"Grid {args.stability_size}^3, training data as the benchmark "
+              f"({n_views} views, {image_size} px); held-out views at elevations 0 and 20. "
+              "Every case must end with a status from `geofit.fit.STATUSES` and a finite "
+              "volume.\n\n" + table)
+        (out / "fit_volume_stability.md").write_text(md, encoding="utf-8")
+        print("\n" + table)
+        print(f"wrote {out / 'fit_volume_stability.json'}, {out / 'fit_volume_stability.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
