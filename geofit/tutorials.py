@@ -1575,8 +1575,8 @@ def _size_chart(steps: Sequence[StepResult], path: Path) -> Path | None:
     if not sizes:
         return None
     return plot_model_sizes(sizes, path, highlight=tutorial_labels,
-                            title="Free parameters of each fitted model "
-                                  "(orange: PyTorch3D's recipe)")
+                            title="Free parameters of each fitted model\n"
+                                  "(orange: PyTorch3D's recipe, blue: geofit's methods)")
 
 
 def _data_note() -> str:

@@ -70,7 +70,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "tutorials",
         help="run the six tutorial workflows end to end and write report.html / report.md",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        description=__doc__.split("\n\n", 1)[1].replace("``", "") if __doc__ else None,
     )
     p.add_argument("--out", type=Path, default=Path("out/tutorials"),
                    help="output folder (default: out/tutorials)")
