@@ -43,6 +43,7 @@ __all__ = [
     "MethodRun",
     "chart_style",
     "json_safe",
+    "load_runs",
     "machine_info",
     "markdown_table",
     "parser",
@@ -262,6 +263,19 @@ def plot_accuracy_vs_time(methods: Sequence[MethodRun], panels: Sequence[Mapping
     """
     return _plot_accuracy_vs_time(methods, panels, path, title=title, time_limit=time_limit,
                                   reference_points=reference_points)
+
+
+def load_runs(path: str | Path) -> tuple[dict, list[MethodRun]]:
+    """Read a benchmark JSON back: the dict and its methods as :class:`MethodRun` (to re-plot)."""
+    d = json.loads(Path(path).read_text(encoding="utf-8"))
+    runs = []
+    for m in d["methods"]:
+        curve = dict(m["curve"])
+        seconds = curve.pop("seconds")
+        runs.append(MethodRun(name=m["name"], label=m["label"], seconds=seconds, curve=curve,
+                              final=m["final"], status=m["status"], message=m["message"],
+                              config=m["config"]))
+    return d, runs
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:

@@ -29,6 +29,7 @@ import numpy as np
 from _harness import (
     BenchmarkReport,
     MethodRun,
+    load_runs,
     markdown_table,
     parser,
     plot_accuracy_vs_time,
@@ -254,6 +255,24 @@ def stability_markdown(rows, names, budget: float) -> str:
     return "\n".join(text)
 
 
+def chart(methods, tname: str, path: Path) -> Path:
+    """The speed-accuracy chart: chamfer-L2 and F-score@0.01 against solver seconds."""
+    import os
+
+    return plot_accuracy_vs_time(
+        methods,
+        [{"metric": "chamfer_l2", "label": "chamfer-L2 (normalised frame, log)",
+          "logy": True, "target": PYTORCH3D["chamfer_l2"],
+          "target_label": "PyTorch3D tutorial accuracy"},
+         {"metric": "fscore@0.01", "label": "F-score @ 0.01", "logy": False,
+          "target": PYTORCH3D["fscore@0.01"]}],
+        path,
+        title=f"fit_mesh on the {tname}: accuracy vs solver time ({os.cpu_count()} cores)",
+        time_limit=TIME_LIMIT,
+        reference_points=[{k: PYTORCH3D[k] for k in ("seconds", "chamfer_l2", "fscore@0.01",
+                                                     "label")}])
+
+
 # ------------------------------------------------------------------------------ main
 def main(argv=None) -> int:
     p = parser(__doc__.split("\n\n")[0])
@@ -263,7 +282,13 @@ def main(argv=None) -> int:
     p.add_argument("--stability-only", action="store_true", help="only the stability table")
     p.add_argument("--stability-budget", type=float, default=None,
                    help="seconds per stability run (default 60, quick 5)")
+    p.add_argument("--replot", action="store_true",
+                   help="only redraw fit_mesh.png from the fit_mesh.json in --out")
     args = p.parse_args(argv)
+    if args.replot:
+        d, runs = load_runs(Path(args.out) / "fit_mesh.json")
+        print(f"wrote {chart(runs, d['config']['target'], Path(args.out) / 'fit_mesh.png')}")
+        return 0
     names = [n.strip() for n in args.methods.split(",") if n.strip()]
     for n in names:
         if n not in LABELS:
@@ -323,19 +348,7 @@ def main(argv=None) -> int:
         }
         report.tables["acceptance"] = acceptance
         path = report.write(Path(out) / "fit_mesh.json")
-        png = plot_accuracy_vs_time(
-            report.methods,
-            [{"metric": "chamfer_l2", "label": "chamfer-L2 (normalised frame, log)",
-              "logy": True, "target": PYTORCH3D["chamfer_l2"],
-              "target_label": "PyTorch3D tutorial accuracy"},
-             {"metric": "fscore@0.01", "label": "F-score @ 0.01", "logy": False,
-              "target": PYTORCH3D["fscore@0.01"]}],
-            Path(out) / "fit_mesh.png",
-            title=f"fit_mesh on the {tname}: accuracy vs solver time "
-                  f"({report.to_dict()['machine']['cpu_count']} cores)",
-            time_limit=TIME_LIMIT,
-            reference_points=[{k: PYTORCH3D[k] for k in ("seconds", "chamfer_l2",
-                                                         "fscore@0.01", "label")}])
+        png = chart(report.methods, tname, Path(out) / "fit_mesh.png")
         print(f"acceptance: {acceptance}")
         print(f"wrote {path} and {png}")
 
