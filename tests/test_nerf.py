@@ -390,14 +390,17 @@ def test_fit_tutorial_preset_runs_montecarlo_recipe(toy_scene):
     assert len(res.history.loss) == 8
 
 
-def test_fit_huge_learning_rate_never_nan(toy_scene):
-    """A learning rate 1000x too large: finite parameters and a status from the list."""
+@pytest.mark.parametrize("lr", [5.0, 50.0])
+def test_fit_huge_learning_rate_never_nan(toy_scene, lr):
+    """A learning rate 250x / 2500x too large: no NaN anywhere, and status 'diverged' with a
+    message saying the held-out loss got worse than the untrained network's."""
     imgs, sils, cams = toy_scene
-    res = fit_nerf(imgs[:8], sils[:8], cams[:8], config=small_config(lr=5.0, n_iter=30),
+    res = fit_nerf(imgs[:8], sils[:8], cams[:8], config=small_config(lr=lr, n_iter=40),
                    held_out=(imgs[8:], sils[8:], cams[8:]), seed=0)
     assert np.all(np.isfinite(res.field.get_flat()))
-    assert res.status in ("max_iter", "diverged", "nonfinite") and res.message
-    assert np.all(np.isfinite(res.images))
+    assert res.status == "diverged" and "no progress" in res.message
+    assert np.all(np.isfinite(res.images)) and np.isfinite(res.psnr)
+    assert not np.isnan(res.history.loss).any()
 
 
 def test_fit_nonfinite_gradient_returns_last_finite(toy_scene, monkeypatch):

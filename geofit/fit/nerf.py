@@ -12,7 +12,11 @@ geofit's scene-sized recipe (``preset="scene"``) fits the same kind of field but
 than the scene needs:
 
 * **a smaller network**: 8 frequencies from ``omega0 = 1``, ReLU layers of 96, a colour head of
-  48 with 4 direction frequencies (the cow at 128 px needs nothing finer);
+  48 with one direction frequency (the cow at 128 px needs nothing finer; the lighting is
+  nearly view-independent, and a smooth dependence on the direction extrapolates better to
+  elevations the training views do not cover);
+* **small steps**: 8 views x 128 rays per step (1024 rays): on a CPU many cheap steps beat few
+  large ones (measured: the same held-out PSNR in about half the time of 4096-ray steps);
 * **visual hull**: samples outside the voxels whose centre projects into every (dilated)
   training silhouette are skipped (their density is exactly 0), and so are the rays that miss the
   hull: their render is exactly the black background, so they carry no gradient. Training rays
@@ -103,8 +107,9 @@ class NerfConfig:
     ``"exponential"`` (down to ``lr * lr_decay_factor`` at the end of the run, measured in steps
     or in the time budget, whichever is further along); ``huber_scale`` of the losses;
     ``opacity_regularization`` weights a per-ray sum of ``alpha (1 - alpha)`` over the evaluated
-    samples (0 in the tutorial), which pushes each sample's opacity to 0 or 1: surfaces instead
-    of fog, which matters for views from elevations the training views do not cover.
+    samples (0 in the tutorial; with a density grid it starts after the grid's warm-up), which
+    pushes each sample's opacity to 0 or 1: surfaces instead of fog, which matters for views
+    from elevations the training views do not cover.
 
     Execution: ``dtype`` of the network, ``n_threads`` (None: up to 2), ``chunk_rays`` for the
     full-image renders.
@@ -157,10 +162,11 @@ class NerfConfig:
         """geofit's scene-sized recipe, with ``overrides``."""
         base = cls(
             n_harmonic_functions=8, omega0=1.0, append_input=True, n_hidden_neurons=96,
-            n_hidden_layers=2, n_harmonic_functions_dir=4, omega0_dir=1.0, n_hidden_color=48,
-            activation="relu", ray_sampling="pixels", batch_size=8, n_rays_per_image=512,
-            n_pts_per_ray=128, stratified=True, occupancy="density", n_iter=20000, lr=5e-3,
-            lr_schedule="exponential", lr_decay_factor=0.1)
+            n_hidden_layers=2, n_harmonic_functions_dir=1, omega0_dir=1.0, n_hidden_color=48,
+            activation="relu", ray_sampling="pixels", batch_size=8, n_rays_per_image=128,
+            n_pts_per_ray=128, stratified=True, occupancy="density", density_grid_every=64,
+            density_grid_warmup=400, n_iter=100000, lr=5e-3, lr_schedule="exponential",
+            lr_decay_factor=0.1)
         return replace(base, **overrides)
 
     def network(self, seed=0) -> NeuralRadianceField:
@@ -440,6 +446,10 @@ def _held_out(held_out) -> _Data | None:
 class _DensityGrid:
     """The coarse density grid: the network's opacity at a random point of each hull voxel."""
 
+    #: Per update, a voxel's opacity estimate keeps this fraction of its previous value (a
+    #: voxel is dropped only after several updates find it empty).
+    decay = 0.7
+
     def __init__(self, hull: OccupancyGrid, cfg: NerfConfig):
         self.hull = hull
         self.cfg = cfg
@@ -465,7 +475,7 @@ class _DensityGrid:
         new = np.concatenate(run_parallel(work, chunks, n_threads)) if len(pts) else \
             np.zeros(0, np.float32)
         old = self.opacity[self.cells]
-        self.opacity[self.cells] = np.maximum(new, 0.5 * np.minimum(old, 1.0))
+        self.opacity[self.cells] = np.maximum(new, self.decay * np.minimum(old, 1.0))
         grid = self.opacity.reshape(hull.occupied.shape)
         occ = OccupancyGrid(grid > self.cfg.density_threshold, hull.bounds).dilate(1)
         return OccupancyGrid(occ.occupied & hull.occupied, hull.bounds, grid)
@@ -474,7 +484,7 @@ class _DensityGrid:
 def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene",
              config: NerfConfig | None = None, held_out=None, time_budget: float | None = None,
              eval_every: float | None = None, early_stopping: int | None = None,
-             render_size: int | None = None, seed=0,
+             render_size: int | None = None, init: NeuralRadianceField | None = None, seed=0,
              callback: Callable[[dict], bool | None] | None = None, verbose: bool = False,
              **overrides) -> NerfFitResult:
     """Fit a neural radiance field to posed RGB images and silhouettes.
@@ -505,6 +515,9 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         checkpoints, and return the best checkpoint's field.
     render_size : int, optional
         Size of the final held-out renders (default: the held-out images' size).
+    init : NeuralRadianceField, optional
+        Start from a copy of this network (its architecture replaces the configuration's);
+        the density grid starts from the visual hull as usual.
     seed : int or numpy.random.Generator
         Initialisation, view and ray choices.
     callback : callable, optional
@@ -519,8 +532,10 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     -------
     NerfFitResult
         Status ``"max_iter"``, ``"time_budget"``, ``"converged"`` (early stopping),
-        ``"callback"``, or ``"nonfinite"`` when a loss or gradient became NaN or inf (the last
-        finite parameters are returned, never NaN).
+        ``"callback"``, ``"nonfinite"`` when a loss or gradient became NaN or inf (the last
+        finite parameters are returned, never NaN), or ``"diverged"`` when, with held-out views,
+        the final held-out loss is no better than the untrained network's (a learning rate far
+        too large kills the network rather than making it NaN).
     """
     t_wall = time.perf_counter()
     check_choice(preset, "preset", NERF_PRESETS)
@@ -544,7 +559,17 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     rng = as_rng(seed)
     clock = Clock()  # the set-up (hull, rays) is part of the method's time
     n_threads = min(2, cpu_count()) if cfg.n_threads is None else int(cfg.n_threads)
-    field = cfg.network(seed=rng)
+    if init is None:
+        field = cfg.network(seed=rng)
+    elif isinstance(init, NeuralRadianceField):
+        field = init.astype(cfg.dtype)
+        c = field.config
+        cfg = replace(cfg, **{k: c[k] for k in (
+            "n_harmonic_functions", "omega0", "append_input", "n_hidden_neurons",
+            "n_hidden_layers", "n_harmonic_functions_dir", "omega0_dir", "n_hidden_color",
+            "activation", "beta")})
+    else:
+        raise TypeError(f"init: expected a NeuralRadianceField, got {type(init)!r}")
     batch = min(cfg.batch_size, data.N)
 
     # ---- occupancy and rays ----------------------------------------------------------------
@@ -574,10 +599,15 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         pixel_rays = RayBundle(full.origins.reshape(data.N, -1, 3),
                                full.directions.reshape(data.N, -1, 3), None,
                                full.xys.reshape(data.N, -1, 2))
-        hit_pixels = []
-        for i in range(data.N):  # views: pixels whose ray meets the hull
-            one = RayBundle(*(np.asarray(a[i]).reshape(-1, a.shape[-1]) for a in full))
-            hit_pixels.append(np.unique(renderer._select(one)[1]))
+        # every ray that meets the hull passes through the view's dilated silhouette (the hull
+        # was carved from it, then grown by one voxel: allow two more pixels for that)
+        from scipy.ndimage import binary_dilation
+
+        grow = cfg.hull_dilate_pixels + 2
+        hit_pixels = [np.flatnonzero(binary_dilation(data.silhouettes[i] > 0.5,
+                                                     structure=np.ones((3, 3), bool),
+                                                     iterations=grow))
+                      for i in range(data.N)]  # views
         if any(h.size == 0 for h in hit_pixels):
             empty = [i for i, h in enumerate(hit_pixels) if h.size == 0]
             raise ValueError(f"silhouettes: no ray of view(s) {empty} meets the visual hull; "
@@ -627,6 +657,11 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         return (flat, img_flat[views[:, None], pix].reshape(-1, 3),
                 sil_flat[views[:, None], pix].reshape(-1))
 
+    # the opacity regulariser starts with the density grid (after the warm-up), once the
+    # network has found the object: from the start it would empty the hull before that
+    reg_on = [cfg.opacity_regularization > 0 and (density is None
+                                                  or cfg.density_grid_warmup == 0)]
+
     def loss_and_grads(flat: RayBundle, tgt_rgb, tgt_sil):
         R = flat.origins.shape[0]
         parts = [slice(i * R // n_threads, (i + 1) * R // n_threads) for i in range(n_threads)]
@@ -640,7 +675,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             G[:, :3] = gc / (3 * R)
             G[:, 3] = gs / R
             lo, gd = 0.0, None
-            if cfg.opacity_regularization > 0 and cache.ray_index.size:
+            if reg_on[0] and cache.ray_index.size:
                 a = cache.sample_densities()
                 w = cfg.opacity_regularization / R
                 lo = w * float(np.sum(a * (1.0 - a)))
@@ -688,6 +723,10 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     stage = 0
     if density is not None and cfg.density_grid_warmup == 0:
         renderer.occupancy = density.update(field, rng, n_threads)
+    initial = None
+    if test is not None:
+        with clock.paused():  # the untrained network's held-out loss: the reference for progress
+            initial = evaluate()[2]
 
     def checkpoint(step: int, loss: float) -> bool:
         """Record metrics (clock paused); True to stop."""
@@ -718,6 +757,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         if density is not None and step > cfg.density_grid_warmup and \
                 (step - cfg.density_grid_warmup - 1) % cfg.density_grid_every == 0:
             renderer.occupancy = density.update(field, rng, n_threads)
+            reg_on[0] = cfg.opacity_regularization > 0
             if stage == 0:
                 stage = 1
                 history.note(step, clock.elapsed(), "density grid: skipping empty and occluded "
@@ -768,13 +808,13 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     images_out = p_final = None
     if test is not None:
         images_out, p_final, _ = evaluate()
-    if test is not None and status == "max_iter" and best["params"] is not None and \
-            len(history.checkpoints) >= 2:
-        first = history.checkpoints[0]["held_out_loss"]
-        if history.checkpoints[-1]["held_out_loss"] > 2.0 * first:
+    if test is not None and status in ("max_iter", "time_budget") and initial is not None \
+            and len(history.checkpoints) >= 1:
+        last = history.checkpoints[-1]["held_out_loss"]
+        if last >= initial:
             status = "diverged"
-            message = (f"the held-out loss grew from {first:.4g} to "
-                       f"{history.checkpoints[-1]['held_out_loss']:.4g}; learning rate "
+            message = (f"no progress: the held-out loss went from {initial:.4g} (initial "
+                       f"network) to {last:.4g} after {n_steps} steps; learning rate "
                        f"{cfg.lr:g} too large?")
     return NerfFitResult(
         status=status, message=message, history=history, n_params=n_params,

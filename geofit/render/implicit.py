@@ -602,7 +602,9 @@ class OccupancyGrid:
         alive = np.arange(len(pts))
         S = min(Hs, Ws)
         M = cameras.get_full_projection_transform()      # (n, 4, 4), row vectors
-        for v in range(n):  # views
+        # visit the views in a spread order (0, n/2, n/4, 3n/4, ...): the first few carve most
+        order = sorted(range(n), key=lambda i: (_bit_reverse_rank(i, n), i))
+        for v in order:  # views
             if alive.size == 0:
                 break
             h = pts[alive] @ M[v, :3] + M[v, 3]
@@ -620,6 +622,17 @@ class OccupancyGrid:
         occ = np.zeros(len(pts), bool)
         occ[alive] = True
         return cls(occ.reshape(res, res, res), bounds)
+
+
+def _bit_reverse_rank(i: int, n: int) -> float:
+    """A low-discrepancy position of ``i / n`` (van der Corput order) for spreading views."""
+    x, f, k = 0.0, 0.5, i
+    bits = max(int(n - 1).bit_length(), 1)
+    for _ in range(bits):  # bits of i
+        x += f * (k & 1)
+        k >>= 1
+        f *= 0.5
+    return x
 
 
 # --------------------------------------------------------------------------------------------
