@@ -235,6 +235,8 @@ def main(argv=None) -> int:
                    help="grid size of the stress cases (default 128)")
     p.add_argument("--monitor-every", type=float, default=10.0,
                    help="solver seconds between held-out checkpoints (default 10)")
+    p.add_argument("--tutorial-monitor-every", type=float, default=120.0,
+                   help="the same for the tutorial recipe (default 120)")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -283,8 +285,9 @@ def main(argv=None) -> int:
         elif quick:
             kw.update(levels=(16, 32), iterations=(10, 10))
         print(f"== {name}: {kw}  (load {load_average()})", flush=True)
+        every = args.tutorial_monitor_every if name == "tutorial" else args.monitor_every
         run, res = run_method(name, labels.get(name, name), train, test,
-                              monitor_every=(1.0 if quick else args.monitor_every), **kw)
+                              monitor_every=(1.0 if quick else every), **kw)
         report.add(run)
         runs.append(run)
         results[name] = res

@@ -531,9 +531,9 @@ class _Problem:
         self.ray_ids = lay.ray_ids
         self.n_samples = int(lay.count.sum())
         # 3. the sparse operator over the voxels the kept samples read
-        self.W, self.columns = _range_operator(A, B, lay, grid.size)
-        if self.dtype != np.float64:
-            self.W.data = self.W.data.astype(self.dtype)
+        self.W, self.columns = _range_operator(A, B, lay, grid.size, dtype=self.dtype,
+                                               all_columns=bool(termination is None
+                                                                and allowed.all()))
         # free densities: columns that are allowed; the others are fixed empty
         self.free_idx = np.flatnonzero(allowed.reshape(-1)[self.columns])
         self.n_free_density = int(self.free_idx.size)
@@ -819,7 +819,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
                iterations=None, carve: bool = True, carve_tolerance: int | None = None,
                carve_margin: float = 2.0,
                prune_threshold: float = 1e-3, prune_dilation: int = 2,
-               termination: float | None = 1e-3, smoothness=0.0, huber_scaling: float = 0.1,
+               termination: float | None = 1e-3, smoothness=0.03, huber_scaling: float = 0.1,
                lr: float = 0.1, batch_size: int = 10, n_iter: int = 300,
                time_budget: float | None = None, precision: str = "float32", seed=0,
                monitor: Callable[[Volume], dict] | None = None,
@@ -852,8 +852,8 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         ``n_pts_per_ray * level / volume_size``.
     iterations : int or sequence of int, optional
         Iteration budget per level (solver iterations for L-BFGS, steps for Adam); default
-        (150, 100, 50, ...) for L-BFGS and (200, 150, 100, ...) for Adam, with the last
-        entry repeated for any further level.
+        (30, 30, 40) for L-BFGS and (50, 50, 50) for Adam, the last entry repeated for any
+        further level.
     carve : bool
         Carve the visual hull (geofit's methods; the tutorial recipe never carves).
     carve_tolerance : int, optional
@@ -875,8 +875,9 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         geofit's methods: ``lambda (level / 64)^2`` times the mean squared difference between
         face-neighbouring free voxels of the densities and of the colours, so that it weighs the
         same squared gradient in world units at every level (0: none, the tutorial's
-        objective). It fills what the views do not constrain (e.g. the top of the cow, never
-        seen from elevation 0) smoothly instead of with stripes.
+        objective; default 0.03). It fills what the views do not constrain (e.g. the top of
+        the cow, never seen from elevation 0) smoothly instead of with stripes. Ignored by
+        ``"tutorial"``.
     huber_scaling : float
         Scale of the Huber losses (0.1 as the tutorial).
     lr, batch_size, n_iter
@@ -979,7 +980,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
             any(b <= a for a, b in zip(levels, levels[1:])):
         raise ValueError(f"levels: expected increasing grid sizes >= 2 ending with volume_size "
                          f"= {S}, got {levels}")
-    default_iters = (150, 100, 50) if method != "adam" else (200, 150, 100)
+    default_iters = (30, 30, 40) if method != "adam" else (50, 50, 50)
     if iterations is None:
         iterations = default_iters[:len(levels)] if len(levels) <= 3 else \
             tuple(default_iters) + (default_iters[-1],) * (len(levels) - 3)

@@ -245,8 +245,13 @@ def _range_samples(A, B, layout: _RangeLayout, a: int, b: int, lengths=None):
 
 
 def _range_operator(A, B, layout: _RangeLayout, grid_size, *, lengths=None,
-                    chunk_samples: int = 1 << 18):
+                    chunk_samples: int = 1 << 18, all_columns: bool = False,
+                    dtype=np.float64):
     """The trilinear operator of a range layout over the voxels its samples read.
+
+    With ``all_columns`` the columns are all the voxels of the grid and every sample row holds
+    8 entries (explicit zeros for corners outside the grid), which skips the bookkeeping of
+    the sparse case (for dense grids).
 
     Returns
     -------
@@ -258,6 +263,8 @@ def _range_operator(A, B, layout: _RangeLayout, grid_size, *, lengths=None,
     """
     D, H, W = grid_size
     n_vox = D * H * W
+    if all_columns:
+        return _dense_range_operator(A, B, layout, grid_size, lengths, chunk_samples, dtype)
     # pass 1: which cells are read -> which voxels are read (the 8 corners of every cell)
     cells = np.zeros((D + 4) * (H + 4) * (W + 4), bool)
     for row, a, b, K in layout.chunks:  # chunks of rays
@@ -293,9 +300,36 @@ def _range_operator(A, B, layout: _RangeLayout, grid_size, *, lengths=None,
     ind = np.concatenate(ind_l) if ind_l else np.zeros(0, idx)
     if indptr[-1] >= 2 ** 31 - 1:
         idx = np.int64
-    Wm = sp.csr_matrix((data, ind.astype(idx, copy=False), indptr.astype(idx)),
-                       shape=(layout.n_rows, columns.size))
+    Wm = sp.csr_matrix((data.astype(dtype, copy=False), ind.astype(idx, copy=False),
+                        indptr.astype(idx)), shape=(layout.n_rows, columns.size))
     return Wm, columns
+
+
+def _dense_range_operator(A, B, layout: _RangeLayout, grid_size, lengths, chunk_samples, dtype):
+    """:func:`_range_operator` over all voxels: 8 entries per sample row, no compression."""
+    D, H, W = grid_size
+    n_vox = D * H * W
+    idx = np.int32 if max(8 * layout.n_rows, n_vox) < 2 ** 31 - 1 else np.int64
+    n_s = int(layout.count.sum())
+    indices = np.empty(8 * n_s, idx)
+    data = np.empty(8 * n_s, dtype)
+    counts = np.zeros(layout.n_rows, np.int64)
+    pos = 0
+    for row, a, b, K in layout.chunks:  # chunks of rays
+        pix, local, j = _range_samples(A, B, layout, a, b, lengths)
+        rows = row + local * K + j
+        counts[rows] = 8
+        for s0 in range(0, len(rows), chunk_samples):  # sub-chunks of samples
+            sl = slice(s0, s0 + chunk_samples)
+            flat, w, valid = _pix_corners(pix[sl], grid_size)
+            m = flat.shape[0] * 8
+            indices[pos:pos + m] = flat.ravel()
+            data[pos:pos + m] = np.where(valid, w, 0.0).ravel()
+            pos += m
+    indptr = np.zeros(layout.n_rows + 1, np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    Wm = sp.csr_matrix((data, indices, indptr.astype(idx)), shape=(layout.n_rows, n_vox))
+    return Wm, np.arange(n_vox)
 
 
 class VolumeRenderer:
