@@ -185,7 +185,7 @@ def test_fit_recovers_the_scene(scene, method):
     assert len(res.stages) == 2 and res.stages[-1]["level"] == 16
     loss = res.history.as_arrays()["loss"]
     assert loss[-1] < 0.5 * loss[0]
-    assert set(res.history.terms) == {"colour", "silhouette"}
+    assert set(res.history.terms) == {"colour", "silhouette", "smoothness"}
 
 
 def test_tutorial_recipe_runs_dense(scene):
