@@ -297,3 +297,35 @@ def test_fit_validation(scene):
     with pytest.raises(TypeError, match="monitor"):
         fit_volume(images, sils, cams, monitor=3)
     assert set(FIT_VOLUME_METHODS) == {"lbfgs", "nlopt-lbfgs", "adam", "tutorial"}
+
+
+# ------------------------------------------------------------------------------------- datasets
+
+
+def test_cow_renders_and_held_out_views():
+    """generate_cow_renders follows the tutorial's cameras; held-out views sit between them."""
+    from geofit.datasets import generate_cow_renders, held_out_views, training_azimuths
+
+    data = generate_cow_renders(num_views=3, image_size=24)
+    assert data.images.shape == (3, 24, 24, 3) and data.silhouettes.shape == (3, 24, 24)
+    np.testing.assert_allclose(data.azim, [0.0, 180.0, 360.0])
+    np.testing.assert_allclose(data.elev, 0.0)
+    assert set(np.unique(data.silhouettes)) <= {0.0, 1.0}
+    lit = data.images.max(axis=-1) > 0.0
+    assert lit.any() and np.all(data.silhouettes[lit] == 1.0)   # colour only inside
+    assert data.images[data.silhouettes == 0].max() == 0.0        # black background
+    R, T = look_at_view_transform(2.7, 0.0, data.azim)
+    np.testing.assert_allclose(data.cameras.R, R, atol=1e-12)
+    np.testing.assert_allclose(data.cameras.T, T, atol=1e-12)
+    sub = data.subset([0, 2])
+    assert len(sub) == 2 and sub.azim.tolist() == [0.0, 360.0]
+    test = held_out_views(num_views=5, elevations=(0.0, 20.0), n_azimuths=2, image_size=16)
+    mids = 0.5 * (training_azimuths(5)[1:] + training_azimuths(5)[:-1])
+    assert len(test) == 4 and set(test.azim.tolist()) <= set(mids.tolist())
+    np.testing.assert_allclose(test.elev, [0, 0, 20, 20])
+    with pytest.raises(ValueError, match="num_views"):
+        generate_cow_renders(num_views=0)
+    with pytest.raises(ValueError, match="n_azimuths"):
+        held_out_views(num_views=5, n_azimuths=9)
+    with pytest.raises(ValueError, match="background"):
+        generate_cow_renders(num_views=1, image_size=8, background=(2.0, 0, 0))
