@@ -56,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     train = generate_cow_renders(num_views=args.views, image_size=args.image_size)
-    test = held_out_views(num_views=args.views, image_size=args.image_size)
+    test = held_out_views(num_views=args.views, image_size=args.image_size,
+                          n_azimuths=min(8, max(1, args.views - 1)))
     t_data = time.perf_counter() - t0
     kw = {}
     if args.levels is not None:

@@ -26,7 +26,14 @@ renderer, but keep the problem as small as the scene allows:
   less than that to the pixel); voxels that no remaining sample reads keep their values and are
   not optimised;
 * **full-batch solves**: all rays of all views form one deterministic objective, so L-BFGS can
-  run its line search; the sparse sampling operator of a level is built once and reused.
+  run its line search; the sparse sampling operator of a level is built once and reused;
+* **a smoothness prior** (``smoothness``): the mean squared difference between neighbouring free
+  voxels, which fills what no training view constrains (the top of the cow: the tutorial's
+  cameras are all at elevation 0) smoothly; it raised the held-out PSNR at elevation 20 by about
+  1 dB in the measurements behind the default.
+
+Sampled values, ray marching and sparse products run in float32 by default (``precision``), on
+two threads; the loss is accumulated and the parameters kept in float64.
 
 Every result reports the number of free voxels (``n_active_voxels``) and the mean number of
 samples marched per ray (``samples_per_ray``).
