@@ -245,8 +245,9 @@ def run_stability(ds, ev, quick: bool, budget: float) -> list[dict]:
         views, scale, shift = perturb(ds, case, rng)
         for name in STAB_METHODS:  # methods
             kw = settings(name, quick, budget)
-            if name == "tutorial":
-                kw.update(silhouette_iters=60 if quick else 500, textured_method="lstsq")
+            if name == "tutorial":  # the silhouette recipe; colours by least squares on its mesh
+                kw.update(silhouette_iters=60 if quick else 500, textured_method="lstsq",
+                          textured_init="silhouette")
             init = ico_sphere(kw.pop("init_level"))
             init = init.update_verts(init.verts * scale + shift)
             finite = []
