@@ -1,7 +1,7 @@
 """Neural radiance fields and the implicit renderer that marches them, with backward passes.
 
-* :class:`NeuralRadianceField` -- the NeRF tutorial's network (``fit_simple_neural_radiance_field``):
-  a harmonic embedding of the sample points, an MLP trunk, a density head
+* :class:`NeuralRadianceField` -- the NeRF tutorial's network
+  (``fit_simple_neural_radiance_field``): a harmonic embedding of the sample points, an MLP trunk, a density head
   ``density = 1 - exp(-softplus(Linear(features)))`` whose bias starts at -1.5, and a colour head
   on ``[features, embedding(normalised ray direction)]`` ending in a sigmoid. Width, depth, number
   of frequencies and activation are configurable; ``forward``/``backward`` run on packed samples
