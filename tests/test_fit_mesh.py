@@ -185,6 +185,8 @@ def test_history_time_monotone_and_checkpoints():
     assert res.n_evaluations >= a["step"][-1]
     assert len(res.stages) == 2 and res.stages[0]["weights"] == TUTORIAL_WEIGHTS
     assert res.stages[1]["weights"] == FINE_WEIGHTS
+    assert res.stages[0]["large_steps"] == 10.0  # "auto" for L-BFGS
+    assert res.stages[0]["n_samples"] == 300  # given
 
 
 def test_sgd_is_the_tutorial_update():
@@ -204,6 +206,7 @@ def test_sgd_is_the_tutorial_update():
         x = x - 1.0 * buf
     np.testing.assert_allclose(res.mesh_normalized.verts.ravel(), x, atol=1e-12)
     assert res.status == "max_iter" and res.n_iterations == 3
+    assert res.stages[0]["large_steps"] is None and res.stages[0]["n_samples"] == 200
 
 
 def test_adam_reduces_loss():
@@ -278,9 +281,11 @@ def test_coarse_to_fine_subdivides_only_when_needed():
     assert [s["n_verts"] for s in res.stages] == [42, 162]
     assert "estimate" in res.stages[0] and res.stages[0]["estimate"]["chamfer_l2"] > 0
     capped = CoarseToFine(start_level=1, max_level=4, chamfer_l2=0.0, fscore=1.0, max_verts=200)
-    res = fit_mesh(None, target, coarse_to_fine=capped, n_samples=300, n_iter=10,
-                   evaluator=None, progress=False)
+    res = fit_mesh(None, target, coarse_to_fine=capped, n_iter=10, evaluator=None,
+                   progress=False)
     assert res.n_verts == 162 and "max_verts" in res.message
+    # default samples per L-BFGS stage: min(5000, max(1000, 8 V))
+    assert [s["n_samples"] for s in res.stages] == [1000, 8 * 162]
 
 
 def test_coarse_to_fine_stall_test_ends_a_level():
@@ -333,6 +338,10 @@ def test_validation():
         fit_mesh(1, tgt, method="adam", n_stages=2)
     with pytest.raises(ValueError, match="distance"):
         fit_mesh(1, tgt, distance="l1")
+    with pytest.raises(ValueError, match="large_steps"):
+        fit_mesh(1, tgt, large_steps="big")
+    with pytest.raises(ValueError, match="large_steps"):
+        fit_mesh(1, tgt, large_steps=-1.0)
     with pytest.raises(ValueError, match="n_samples"):
         fit_mesh(1, tgt, n_samples=0)
     with pytest.raises(ValueError, match="lr"):

@@ -78,8 +78,8 @@ RECIPES: dict[str, dict] = {
     # the same stochastic objective with Adam
     "adam": {"method": "adam", "lr": 0.01},
     # quasi-Newton, deterministic stages, exact point-to-surface distances
-    "scipy-lbfgs": {"method": "scipy-lbfgs"},
-    "nlopt-lbfgs": {"method": "nlopt-lbfgs"},
+    "scipy-lbfgs": {"method": "scipy-lbfgs", "large_steps": None},
+    "nlopt-lbfgs": {"method": "nlopt-lbfgs", "large_steps": None},
     # the same with the large-steps parameterisation
     "large-steps": {"method": "scipy-lbfgs", "large_steps": 10.0},
     # ico 2 -> 3 -> 4, subdividing only while the accuracy asks for it
@@ -539,7 +539,8 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
              distance: str | None = None, n_samples: int | None = None,
              n_iter: int | None = None,
              n_stages: int | None = None, lr: float | None = None, momentum: float = 0.9,
-             large_steps: float | None = None, coarse_to_fine: CoarseToFine | bool | None = None,
+             large_steps: float | str | None = "auto",
+             coarse_to_fine: CoarseToFine | bool | None = None,
              time_budget: float | None = None, seed=0, evaluator: Any = "default",
              checkpoint_every: int | None = None, progress: bool = True,
              callback: Callable[[StepInfo], bool | None] | None = None,
@@ -581,8 +582,11 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
         Step size for SGD (default 1.0) or Adam (default 0.01).
     momentum : float
         SGD momentum.
-    large_steps : float, optional
-        ``lambda`` of the large-steps parameterisation (None: optimise the vertices directly).
+    large_steps : float, "auto" or None
+        ``lambda`` of the large-steps parameterisation; None optimises the vertices directly.
+        ``"auto"`` (default): 10 for the L-BFGS methods (in vertex space they stall in folded
+        local minima on the dolphin, see ``benchmarks/fit_mesh.py``), None for SGD/Adam (the
+        tutorial).
     coarse_to_fine : CoarseToFine or bool, optional
         Coarse-to-fine schedule (True: the defaults of :class:`CoarseToFine`). Needs a
         deterministic method (L-BFGS).
@@ -682,6 +686,9 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     lr = check_positive(lr if lr is not None else (1.0 if method == "sgd" else 0.01), "lr")
     if time_budget is not None:
         time_budget = check_positive(time_budget, "time_budget")
+    if isinstance(large_steps, str):
+        check_choice(large_steps, "large_steps", ("auto",))
+        large_steps = None if stochastic else 10.0
     lam = check_positive(large_steps, "large_steps") if large_steps is not None else None
     if checkpoint_every is not None:
         checkpoint_every = _check_int(checkpoint_every, "checkpoint_every")
@@ -748,7 +755,7 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
                            "status": res.status, "message": res.message,
                            "n_iterations": res.n_iterations,
                            "n_evaluations": res.n_evaluations, "seconds": res.seconds,
-                           "weights": dict(w)})
+                           "n_samples": ns, "large_steps": lam, "weights": dict(w)})
             history.note(run.evals, clock.elapsed(),
                          f"stage {len(stages) - 1} ended: {res.status}", n_verts=mesh.n_verts)
             status, message = res.status, res.message
