@@ -209,7 +209,7 @@ def main(argv=None) -> int:
         print(f"wrote {out / 'fit_nerf.json'} and {out / 'fit_nerf.png'}", flush=True)
 
     if args.stability or args.only_stability:
-        stability(train, test, out, quick=quick, budget=60.0 if not quick else 5.0)
+        stability(train, test, out, quick=quick, budget=90.0 if not quick else 5.0)
     print(f"load average at end: {load_average()}", flush=True)
     return 0
 
@@ -273,23 +273,32 @@ def stability(train, test, out: Path, *, quick: bool, budget: float) -> None:
     rng = np.random.default_rng(0)
     noisy = np.clip(train.images + rng.normal(0.0, 0.1, train.images.shape), 0.0, 1.0)
     few = np.array([0, 10, 20, 30])
+
+    def with_lr(factor):
+        return NerfConfig(**{**asdict(base), "lr": base.lr * factor})
+
+    full = (train.images, train.silhouettes, train.cameras)
+    few_views = (train.images[few], train.silhouettes[few], train.cameras[few])
+    noisy_views = (noisy, train.silhouettes, train.cameras)
     cases = [
-        ("baseline", "scene preset", base, train.images, train.silhouettes, train.cameras, {}),
-        ("lr_x10", "learning rate x10 (5e-2)", NerfConfig(**{**asdict(base), "lr": base.lr * 10}),
-         train.images, train.silhouettes, train.cameras, {}),
-        ("few_views", "4 training views", base, train.images[few], train.silhouettes[few],
-         train.cameras[few], {}),
-        ("noisy", "images + N(0, 0.1) noise", base, noisy, train.silhouettes, train.cameras, {}),
-        ("early_stop", "early stopping (patience 3)", base, train.images, train.silhouettes,
-         train.cameras, {"early_stopping": 3}),
+        ("baseline", "scene preset (lr 5e-3)", base, full, {}),
+        ("lr_x10", "learning rate x10 (5e-2)", with_lr(10), full, {}),
+        ("lr_x100", "learning rate x100 (0.5)", with_lr(100), full, {}),
+        ("few_views", "4 training views", base, few_views, {}),
+        ("few_views_early_stop", "4 training views, early stopping (patience 2)", base,
+         few_views, {"early_stopping": 2}),
+        ("noisy", "images + N(0, 0.1) noise", base, noisy_views, {}),
+        ("noisy_early_stop", "images + noise, early stopping (patience 2)", base, noisy_views,
+         {"early_stopping": 2}),
     ]
     report = BenchmarkReport("fit_nerf_stability", config={"budget_seconds": budget,
                                                            "quick": quick})
     rows = []
-    for name, label, cfg, im, sil, cams, extra in cases:  # cases
+    for name, label, cfg, (im, sil, cams), extra in cases:  # cases
+        print(f"stability case {name} ...", flush=True)
         res = fit_nerf(im, sil, cams, config=cfg, held_out=(test.images, test.silhouettes,
                                                              test.cameras),
-                       time_budget=budget, eval_every=budget / 10, seed=0, **extra)
+                       time_budget=budget, eval_every=budget / 5, seed=0, **extra)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)

@@ -80,6 +80,9 @@ __all__ = [
 #: Presets of :func:`fit_nerf`.
 NERF_PRESETS = ("scene", "tutorial")
 
+#: Candidate samples per chunk of a training step (bounds the memory of the caches).
+_CHUNK_SAMPLES = 1 << 17
+
 
 # --------------------------------------------------------------------------------------------
 # Configuration
@@ -690,7 +693,11 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
 
     def loss_and_grads(flat: RayBundle, tgt_rgb, tgt_sil, sil_w):
         R = flat.origins.shape[0]
-        parts = [slice(i * R // n_threads, (i + 1) * R // n_threads) for i in range(n_threads)]
+        # chunks of at most _CHUNK_SAMPLES candidate samples (bounded memory), a multiple of
+        # the thread count; every chunk's gradients are summed
+        n_parts = max(n_threads, -(-R * cfg.n_pts_per_ray // _CHUNK_SAMPLES))
+        n_parts = -(-n_parts // n_threads) * n_threads
+        parts = [slice(i * R // n_parts, (i + 1) * R // n_parts) for i in range(n_parts)]
 
         def work(sl):
             sub = RayBundle(*(a[sl] for a in flat))
