@@ -12,8 +12,9 @@ during the silhouette stage the PSNR is that of a uniform grey mesh). One curve 
   sphere as the tutorial does). Parity tests make it the same computation as PyTorch3D's.
 - ``scipy-lbfgs``: the tutorial's objective over all 20 views, scipy L-BFGS.
 - ``lbfgs-large-steps``: the same in the large-steps parameterisation (lambda 10).
-- ``best``: + coarse-to-fine (64 px and ico3, then 128 px and ico4); colours by one sparse
-  least-squares solve on the hard render (the image model of the targets).
+- ``best``: + coarse-to-fine (64 px and ico3, then 128 px and ico4), edge and Laplacian
+  weights 0.3 instead of 1 (normal 0.01), 170 s budget; colours by one sparse least-squares
+  solve on the hard render (the image model of the targets).
 - ``nlopt-lbfgs``: nlopt's L-BFGS, large steps, coarse-to-fine.
 - ``contour``: geometry-first: the hard silhouette's contour (edge-sampling) gradient, Adam in
   the large-steps parameterisation, coarse-to-fine.
@@ -50,6 +51,10 @@ from geofit.fit.views import (
 )
 
 TIME_LIMIT = 180.0  # the acceptance's 3 minutes
+# geofit's best method: the tutorial's regularisers with lighter edge and Laplacian weights
+# (L-BFGS in the large-steps parameterisation needs less smoothing than SGD; the budget is
+# 10 s under the limit because a solver stops at the first iteration past its budget)
+BEST_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3}
 IOU_TARGET = 0.95
 PYTORCH3D = {"seconds_per_step": 9.0, "steps": 2000, "seconds": 18000.0,
              "source": "issue 6 acceptance text: one step of PyTorch3D's silhouette stage (two "
@@ -57,7 +62,7 @@ PYTORCH3D = {"seconds_per_step": 9.0, "steps": 2000, "seconds": 18000.0,
                        "its 2000 steps take about 5 hours; not re-run by this script"}
 
 LABELS = {
-    "best": "L-BFGS + large steps + coarse-to-fine; least-squares colours",
+    "best": "L-BFGS + large steps + coarse-to-fine, edge/Laplacian 0.3; lstsq colours",
     "contour": "contour (edge sampling) + Adam + large steps + coarse-to-fine",
     "scipy-lbfgs": "scipy L-BFGS, all views",
     "lbfgs-large-steps": "scipy L-BFGS + large steps",
@@ -81,7 +86,8 @@ def settings(name: str, quick: bool, budget: float) -> dict:
                                   "silhouette_time": budget, "init_level": 4},
         "best": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
                      "large_steps": 10.0, "levels": c2f, "silhouette_iters": 400,
-                     "silhouette_time": budget, "init_level": 3},
+                     "silhouette_time": budget - 10.0 if not quick else budget,
+                     "silhouette_weights": BEST_WEIGHTS, "init_level": 3},
         "nlopt-lbfgs": {"silhouette_method": "nlopt-lbfgs", "textured_method": "lstsq",
                             "large_steps": 10.0, "levels": c2f, "silhouette_iters": 600,
                             "silhouette_time": budget, "init_level": 3},
@@ -391,6 +397,9 @@ def main(argv=None) -> int:
             "best_chamfer_at_most_tutorial": bs["chamfer_l2"] <= t["silhouette_stage"][
                 "chamfer_l2"],
             "best_within_time_limit": bs["seconds"] <= TIME_LIMIT,
+            "best_seconds_to_meet_all": by["best"].first_reaching({
+                "iou": (">=", max(IOU_TARGET, t["silhouette_stage"]["iou"])),
+                "chamfer_l2": ("<=", t["silhouette_stage"]["chamfer_l2"])}),
             "best_psnr": b["psnr"], "tutorial_psnr": t["psnr"],
             "best_psnr_higher": b["psnr"] > t["psnr"],
             "no_nan": all(m.final["history_finite"] for m in report.methods),
