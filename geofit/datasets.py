@@ -236,9 +236,9 @@ def generate_cow_renders(num_views: int = 40, azimuth_range: float = 180.0,
 
     Examples
     --------
-    >>> data = generate_cow_renders(num_views=4, image_size=32)  # doctest: +SKIP
-    >>> data.images.shape, data.silhouettes.shape
-    ((4, 32, 32, 3), (4, 32, 32))
+    >>> data = generate_cow_renders(num_views=4, image_size=32)
+    >>> data.images.shape, data.silhouettes.shape, data.azim.tolist()
+    ((4, 32, 32, 3), (4, 32, 32), [0.0, 120.0, 240.0, 360.0])
     """
     az = training_azimuths(num_views, azimuth_range)
     e = float(elev)

@@ -449,3 +449,20 @@ def test_renderer_validation():
     _, b = r(FoVPerspectiveCameras(), vol)
     with pytest.raises(ValueError, match="grad_images"):
         r.vjp(np.zeros((1, 4, 4, 3)), vol, b)
+
+
+def test_docstring_examples():
+    """The Examples sections of the volume modules run as doctests."""
+    import doctest
+
+    import geofit.datasets as gd
+    import geofit.fit.volume as gfv
+    import geofit.render.raymarching as grm
+    import geofit.render.raysampling as grs
+    import geofit.render.volume as grv
+    import geofit.structures.volume as gsv
+
+    for mod in (gsv, grm, grs, grv, gfv, gd):
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0, mod.__name__
+        assert result.attempted > 0, mod.__name__
