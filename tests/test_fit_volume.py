@@ -262,6 +262,8 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
     res = fit_volume(noisy, sils, wrong, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
                      iterations=(30, 30), carve_tolerance=1)
     assert res.ok
+    assert res.view_losses.shape == (len(images),) and np.argmax(res.view_losses) == 2
+    assert "views [2] fit much worse" in res.message
     good = np.setdiff1d(np.arange(len(images)), [2])
     psnr, iou = _psnr_iou(res, images[good], sils[good], cams[good], renderer)
     assert iou > 0.8 and psnr > 15.0, (psnr, iou)

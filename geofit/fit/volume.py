@@ -403,6 +403,10 @@ class VolumeFitResult(FitResult):
         solver status, iterations, seconds.
     method : str
         The method used.
+    view_losses : (N,) float64 or None
+        geofit's methods: each training view's mean loss (colour + silhouette Huber) at the
+        end; a view far above the others (reported in ``message``) disagrees with the rest:
+        a wrong camera or a bad image.
     """
 
     volume: Volume | None = None
@@ -413,9 +417,12 @@ class VolumeFitResult(FitResult):
     n_pts_per_ray: int = 0
     stages: list = field(default_factory=list)
     method: str = ""
+    view_losses: np.ndarray | None = None
 
     def summary(self) -> dict[str, Any]:
         d = super().summary()
+        d.update({"view_losses": None if self.view_losses is None else
+                  [float(v) for v in self.view_losses]})
         d.update({"method": self.method, "n_active_voxels": self.n_active_voxels,
                   "n_colour_voxels": self.n_colour_voxels,
                   "n_occupied_voxels": self.n_occupied_voxels,
@@ -550,8 +557,11 @@ class _Problem:
         self.sil = sil[self.ray_ids].astype(self.dtype)
         miss = np.ones(len(origins), bool)
         miss[self.ray_ids] = False
-        self.const_colour = float(huber(0.0 * rgb[miss], rgb[miss], huber_scale)[0].sum())
-        self.const_sil = float(huber(0.0 * sil[miss], sil[miss], huber_scale)[0].sum())
+        miss_c = huber(0.0 * rgb[miss], rgb[miss], huber_scale)[0]
+        miss_s = huber(0.0 * sil[miss], sil[miss], huber_scale)[0]
+        self.const_colour = float(miss_c.sum())
+        self.const_sil = float(miss_s.sum())
+        self._miss = (np.flatnonzero(miss), miss_c.mean(axis=1) + miss_s)
         # (1 + eps)^first: the factor of the skipped empty samples in front of each ray
         self.lead = ((1.0 + _EPS) ** lay.first).astype(self.dtype)
         self._blocks = None
@@ -603,8 +613,12 @@ class _Problem:
                 self._blocks = [(0, r, self.W[:r]), (r, self.layout.n_rows, self.W[r:])]
         return self._blocks
 
-    def _march_chunks(self, Y, G, lo: int, hi: int):
-        """Loss sums over chunks lo:hi; writes their sample gradients into G (if given)."""
+    def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
+        """Loss sums over chunks lo:hi; writes their sample gradients into G (if given).
+
+        With ``per_ray`` (n_kept,), each kept ray's colour mean plus silhouette loss is stored
+        there (for per-view diagnostics).
+        """
         s = self.huber_scale
         n_col = 3.0 * self.n_pixels
         n_sil = float(self.n_pixels)
@@ -624,16 +638,29 @@ class _Problem:
             hs, gs = _huber(op - self.sil[rays], s)
             col_sum += float(hc.sum(dtype=np.float64))
             sil_sum += float(hs.sum(dtype=np.float64))
+            if per_ray is not None:
+                per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
             if G is not None:
                 g_rgb = gc / n_col
                 g_op = gs / n_sil
                 h = np.einsum("rkc,rc->rk", f, g_rgb)
                 S = _suffix_from(w * h, 1)
                 gblk = G[row:row + r * K].reshape(r, K, 4)
-                gblk[:, :, 0] = (T * h - _through_transmittance(S, c, d, h * self.lead[rays, None], 1)
-                                 + _exclusive_product(1.0 - d) * g_op[:, None])
+                through = _through_transmittance(S, c, d, h * self.lead[rays, None], 1)
+                gblk[:, :, 0] = T * h - through + _exclusive_product(1.0 - d) * g_op[:, None]
                 gblk[:, :, 1:] = w[:, :, None] * g_rgb[:, None, :]
         return col_sum, sil_sum
+
+    def ray_losses(self, x: np.ndarray) -> np.ndarray:
+        """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
+        X, _, _ = self._values(x)
+        Y = self.W @ X
+        kept = np.zeros(len(self.ray_ids))
+        self._march_chunks(Y, None, 0, len(self.layout.chunks), kept)
+        out = np.empty(self.n_rays_total)
+        out[self.ray_ids] = kept
+        out[self._miss[0]] = self._miss[1]
+        return out
 
     def evaluate(self, x: np.ndarray, *, want_grad: bool = True):
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
@@ -1198,6 +1225,17 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
     if len(stages) > 1:
         per_level = ", ".join(f"{st['level']}^3 {st['status']}" for st in stages)
         message = f"levels: {per_level}; last level: {message}"
+    view_losses = None
+    if problem is not None and state["ld"] is not None:
+        with clock.paused():  # a diagnostic, not part of the fit
+            rl = problem.ray_losses(problem.pack(state["ld"], state["lc"]))
+            view_losses = rl.reshape(N, -1).mean(axis=1)
+        med = float(np.median(view_losses))
+        bad = np.flatnonzero(view_losses > max(3.0 * med, med + 0.01))
+        if bad.size and N >= 3:
+            message += (f"; views {bad.tolist()} fit much worse than the others (loss "
+                        f"{', '.join(f'{view_losses[i] / max(med, 1e-12):.1f}x' for i in bad)} "
+                        f"the median): wrong camera or inconsistent image?")
     result_volume = current_volume()
     if result_volume is None:  # no level ran: the initial model
         grid = _Grid((S,) * 3, extent / S, translation)
@@ -1214,7 +1252,7 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
         n_active_voxels=int(last.get("free_density_voxels", 0)),
         n_colour_voxels=int(last.get("colour_voxels", 0)), n_occupied_voxels=n_occ,
         samples_per_ray=float(last.get("samples_per_ray", 0.0)), n_pts_per_ray=n_pts_final,
-        stages=stages, method=method)
+        stages=stages, method=method, view_losses=view_losses)
 
 
 def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, huber_scale, lr,
