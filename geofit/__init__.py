@@ -17,7 +17,8 @@ from .cameras import (
     ndc_grid,
     opencv_from_cameras_projection,
 )
-from . import data, io, render
+from . import data, fit, io, metrics, render
+from .fit import fit_mesh
 from .io import (
     load_mesh,
     load_obj,
@@ -110,6 +111,10 @@ __all__ = [
     "look_at_view_transform",
     "ndc_grid",
     "opencv_from_cameras_projection",
+    # fitting and metrics
+    "fit",
+    "fit_mesh",
+    "metrics",
     # io / data
     "data",
     "io",
