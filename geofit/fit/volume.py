@@ -939,7 +939,9 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         search could not improve: usually converged to float precision), ``"diverged"`` or
         ``"nonfinite"`` (both return the best finite parameters), with the fitted volume, the
         history (loss, colour and silhouette terms), and the model size. The volume never holds
-        NaN.
+        NaN. A level that ends with ``"time_budget"``, ``"diverged"``, ``"nonfinite"`` or
+        ``"failed"`` ends the fit: the volume is then that level's (coarser) grid, in the same
+        world box.
 
     Raises
     ------
