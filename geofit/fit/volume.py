@@ -134,6 +134,19 @@ def huber(x, target, scaling: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     return s * (q - 1.0), r / (s * q)
 
 
+#: Logits beyond this are saturated: sigmoid' < 2e-22, no gradient can bring them back.
+_SATURATED = 50.0
+
+
+def _saturation_check(x: np.ndarray, lr: float) -> str | None:
+    """A message when Adam's steps left most parameters saturated (a too large step size)."""
+    frac = float(np.mean(np.abs(x) > _SATURATED)) if x.size else 0.0
+    if frac > 0.2:
+        return (f"Adam: {100 * frac:.0f} % of the parameters were driven into saturation "
+                f"(|logit| > {_SATURATED:g}, zero gradient): learning rate {lr:g} too large")
+    return None
+
+
 def _huber(r: np.ndarray, s: float):
     """:func:`huber` of residuals ``r`` without validation (inner loops)."""
     q = np.sqrt(1.0 + (r / s) ** 2)
@@ -1183,6 +1196,9 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
                     res2.n_iterations += res.n_iterations
                     res2.n_evaluations += res.n_evaluations
                     res = res2
+            if res.status == "max_iter":
+                res.message = (f"Adam: {res.n_iterations} steps ({min(n1, res.n_iterations)} at "
+                               f"lr {lr:g}, the rest at {0.1 * lr:g})")
             # Adam's last iterate can be worse than what it visited (a too large step size):
             # keep the best one, and say so when the objective ended above where it started
             best_v, best_x = fun.best
@@ -1190,7 +1206,11 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
                 last_v, _ = problem.evaluate(res.x, want_grad=False)
                 if best_v < last_v:
                     res.x, res.value = best_x, best_v
-                if fun.first is not None and last_v > fun.first:
+                sat = _saturation_check(res.x, lr)
+                if sat is not None:
+                    res.status = "diverged"
+                    res.message = f"{sat}; returning the best iterate ({best_v:.4g})"
+                elif fun.first is not None and last_v > fun.first:
                     res.status = "diverged"
                     res.message = (f"Adam: the objective rose from {fun.first:.4g} to "
                                    f"{last_v:.4g} (learning rate {lr:g} too large?); returning "
@@ -1323,15 +1343,25 @@ def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, h
             n_it += res2.n_iterations
             n_ev += res2.n_evaluations
             res = res2
-    # random batches make single losses noisy: compare the first and last few steps
+    # random batches make single losses noisy: compare the last few steps with the loss of
+    # the initial model (the first step's)
     losses = np.asarray(history.loss)
     k = max(1, min(5, len(losses) // 4))
-    if res.status in ("max_iter", "time_budget") and len(losses) >= 2 and \
-            np.mean(losses[-k:]) > np.mean(losses[:k]):
+    if res.status in ("max_iter", "time_budget") and len(losses) >= 2:
+        if np.mean(losses[-k:]) >= losses[0]:
+            res.status = "diverged"
+            res.message = (f"Adam: the batch loss did not fall below the initial model's "
+                           f"{losses[0]:.4g} (last {k} steps: {np.mean(losses[-k:]):.4g}); "
+                           f"learning rate {lr:g} too large? The last iterate is returned")
+        else:
+            res.message = (f"Adam: {n_it} steps ({min(n1, n_it)} at lr {lr:g}, the rest at "
+                           f"{0.1 * lr:g}); batch loss {losses[0]:.4g} -> "
+                           f"{np.mean(losses[-k:]):.4g} (mean of the last {k})"
+                           + ("" if res.status == "max_iter" else f"; {res.message}"))
+    sat = _saturation_check(res.x, lr)
+    if sat is not None and res.status in ("max_iter", "time_budget", "diverged"):
         res.status = "diverged"
-        res.message = (f"Adam: the batch loss rose from {np.mean(losses[:k]):.4g} (first {k} "
-                       f"steps) to {np.mean(losses[-k:]):.4g} (last {k}); learning rate {lr:g} "
-                       f"too large? The last iterate is returned")
+        res.message = f"{sat}; {res.message}"
     vol = volume_of(res.x)
     if monitor is not None:
         with clock.paused():
