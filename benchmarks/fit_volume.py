@@ -103,7 +103,8 @@ def run_method(name: str, label: str, train, test, *, verbose=True, monitor_ever
     run.final = {
         "psnr": final.get("psnr"), "iou": final.get("iou"),
         "psnr_elev0": final.get("psnr_elev0"), "psnr_elev20": final.get("psnr_elev20"),
-        "solver_seconds": res.seconds, "wall_seconds_with_checkpoints": wall_total,
+        "solver_seconds": res.seconds, "solver_cpu_seconds": res.cpu_seconds,
+        "wall_seconds_with_checkpoints": wall_total,
         "cpu_seconds_with_checkpoints": cpu, "n_active_voxels": res.n_active_voxels,
         "n_colour_voxels": res.n_colour_voxels, "n_occupied_voxels": res.n_occupied_voxels,
         "n_params": res.n_params, "dense_voxels": res.volume.n_voxels,
@@ -211,7 +212,8 @@ def stability(train, test, args) -> tuple[list, list]:
             rec = {"case": name, "what": what, "status": res.status, "message": res.message,
                    "volume_finite": finite, "loss_history_finite": loss_finite,
                    "psnr": m.psnr, "iou": m.iou, "active_voxels": res.n_active_voxels,
-                   "solver_seconds": res.seconds, "wall_seconds": wall}
+                   "solver_seconds": res.seconds, "solver_cpu_seconds": res.cpu_seconds,
+                   "wall_seconds": wall}
         records.append(rec)
         rows.append([name, rec["status"], rec.get("volume_finite", "-"),
                      f"{rec['psnr']:.2f}" if "psnr" in rec else "-",
@@ -304,12 +306,12 @@ def main(argv=None) -> int:
                   and f["iou"] >= PYTORCH3D["iou"] and f["solver_seconds"] <= TARGET_SECONDS
                   and f["n_active_voxels"] < f["dense_voxels"])
             rows.append([run.name, run.status, f"{f['solver_seconds']:.1f}",
-                         f"{f['cpu_seconds_with_checkpoints']:.1f}",
+                         f"{f['solver_cpu_seconds']:.1f}",
                          f"{f['n_active_voxels']:,}", f"{f['n_params']:,}",
                          f"{f['samples_per_ray']:.1f}", f"{f['psnr']:.2f}",
                          f"{f['psnr_elev0']:.2f}", f"{f['psnr_elev20']:.2f}", f"{f['iou']:.4f}",
                          "yes" if ok else "no"])
-        header = ["method", "status", "solver s", "CPU s (incl. checkpoints)", "active voxels",
+        header = ["method", "status", "solver s", "solver CPU s", "active voxels",
                   "free params", "samples/ray", "PSNR", "PSNR el 0", "PSNR el 20", "IoU",
                   f"PSNR >= {PYTORCH3D['psnr']}, IoU >= {PYTORCH3D['iou']}, <= "
                   f"{TARGET_SECONDS:g} s, < 128^3 voxels"]

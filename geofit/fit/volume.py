@@ -1270,6 +1270,7 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
     return VolumeFitResult(
         status=status, message=message, history=history,
         n_params=problem.n_params if problem is not None else 0, seconds=clock.elapsed(),
+        cpu_seconds=clock.cpu_elapsed(),
         n_iterations=total_iter, n_evaluations=total_eval, volume=result_volume,
         n_active_voxels=int(last.get("free_density_voxels", 0)),
         n_colour_voxels=int(last.get("colour_voxels", 0)), n_occupied_voxels=n_occ,
@@ -1373,7 +1374,8 @@ def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, h
                "seconds": clock.elapsed(), "final_loss": res.value}]
     return VolumeFitResult(
         status=res.status, message=res.message, history=history, n_params=x0.size,
-        seconds=clock.elapsed(), n_iterations=n_it, n_evaluations=n_ev, volume=vol,
+        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_it,
+        n_evaluations=n_ev, volume=vol,
         n_active_voxels=nv, n_colour_voxels=nv,
         n_occupied_voxels=int(np.count_nonzero(vol.densities)), samples_per_ray=spr,
         n_pts_per_ray=n_pts, stages=stages, method="tutorial")
