@@ -425,6 +425,19 @@ def test_fit_huge_learning_rate_never_nan(toy_scene, lr):
     assert not np.isnan(res.history.loss).any()
 
 
+@pytest.mark.parametrize("lr, status", [(2e-2, "max_iter"), (0.2, "diverged"),
+                                        (5.0, "diverged")])
+def test_fit_without_held_out_flags_a_stuck_training_loss(toy_scene, lr, status):
+    """Without held-out views, a training loss that does not fall (a dead network) is
+    reported as 'diverged'; a healthy run is not."""
+    imgs, sils, cams = toy_scene
+    res = fit_nerf(imgs, sils, cams, config=small_config(lr=lr, n_iter=60), seed=0)
+    assert res.status == status
+    if status == "diverged":
+        assert "training loss" in res.message
+    assert np.all(np.isfinite(res.field.get_flat()))
+
+
 def test_fit_nonfinite_gradient_returns_last_finite(toy_scene, monkeypatch):
     """A NaN gradient stops the fit with status 'nonfinite' and finite parameters."""
     imgs, sils, cams = toy_scene

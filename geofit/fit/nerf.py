@@ -843,19 +843,33 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
                                               f"{time_budget:g} s) at step {step}")
             break
     n_steps = len(history.steps)
+    if status in ("max_iter", "time_budget"):
+        # no progress (a learning rate far too large kills the network rather than making it
+        # NaN): the held-out loss no better than the untrained network's, or the training
+        # loss of the last tenth of the steps above 80 % of that of the first ten steps
+        L = np.asarray(history.loss)
+        tail = L[-max(n_steps // 10, 1):].mean() if n_steps else math.nan
+        head = L[:10].mean() if n_steps else math.nan
+        last = history.checkpoints[-1].get("held_out_loss") if history.checkpoints else None
+        if initial is not None and last is not None and last >= initial:
+            status = "diverged"
+            message = (f"no progress: the held-out loss went from {initial:.4g} (initial "
+                       f"network) to {last:.4g} after {n_steps} steps; learning rate "
+                       f"{cfg.lr:g} too large?")
+        elif n_steps >= 50 and tail > 0.8 * head:
+            status = "diverged"
+            message = (f"no progress: the training loss went from {head:.4g} (first 10 steps) "
+                       f"to {tail:.4g} (last {max(n_steps // 10, 1)} steps); learning rate "
+                       f"{cfg.lr:g} too large?")
+        if status == "diverged" and best["params"] is not None and last is not None and \
+                best["loss"] < last:
+            field.set_params(best["params"])
+            message += f"; returning the best checkpoint (step {best['step']})"
     if early_stopping is not None and best["params"] is not None:
         field.set_params(best["params"])
     images_out = p_final = None
     if test is not None:
         images_out, p_final, _ = evaluate()
-    if test is not None and status in ("max_iter", "time_budget") and initial is not None \
-            and len(history.checkpoints) >= 1:
-        last = history.checkpoints[-1]["held_out_loss"]
-        if last >= initial:
-            status = "diverged"
-            message = (f"no progress: the held-out loss went from {initial:.4g} (initial "
-                       f"network) to {last:.4g} after {n_steps} steps; learning rate "
-                       f"{cfg.lr:g} too large?")
     return NerfFitResult(
         status=status, message=message, history=history, n_params=n_params,
         seconds=clock.elapsed(), n_iterations=n_steps, n_evaluations=n_steps, field=field,
