@@ -316,6 +316,72 @@ def _accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list
     return a["checkpoint_seconds"].tolist(), curve
 
 
+def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
+    """Check ``size``, start the clock, create ``out/<name>``: the empty result, folder, start."""
+    check_choice(size, "size", SIZES)
+    t0 = time.perf_counter()
+    d = Path(out) / name
+    d.mkdir(parents=True, exist_ok=True)
+    _, title, tutorial = STEPS[name]
+    return StepResult(name, title, tutorial, size=size), d, t0
+
+
+def _settings_text(settings: Mapping) -> str:
+    """``"k=v, k=v"`` of a settings dict (the report's config cells)."""
+    return ", ".join(f"{k}={v}" for k, v in settings.items())
+
+
+def _record_fit(res: StepResult, d: Path, key: str, label: str, fit, metrics: Sequence[str], *,
+                final: dict, config: Mapping) -> None:
+    """Add one fit's method record (curves of ``metrics`` from its history) and its history."""
+    seconds, curve = _accuracy_curve(fit.history, {k: k for k in metrics})
+    res.methods.append(_method(key, label, seconds=seconds, curve=curve, final=final,
+                               status=fit.status, message=fit.message, config=config))
+    res.histories[key] = fit.history
+    res.files[f"{key} history"] = _write_history(fit.history, d / f"{key}_history.json")
+
+
+def _heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: Mapping,
+                        fits: Mapping, caption: str) -> None:
+    """Save the held-out targets and each method's renders of them, and the comparison panel.
+
+    ``targets`` (k, H, W, 3) are the views shown; ``renders`` map a method to at least k renders
+    (k, H, W, 3 or 4) of the same views; ``fits`` map it to its result (``.seconds``).
+    """
+    k = len(targets)
+    res.targets["held-out views"] = save_png(np.concatenate(list(targets), axis=1),
+                                             d / "target.png")
+    for key, r in renders.items():
+        res.images[key] = save_png(np.concatenate(list(r[:k, ..., :3]), axis=1), d / f"{key}.png")
+    res.comparison = image_panel(
+        [[targets[i]] + [renders[key][i, ..., :3] for key in renders] for i in range(k)],
+        d / "comparison.png",
+        col_labels=["held-out target"] + [f"{key}\n{fits[key].seconds:.1f} s" for key in fits],
+        row_labels=[f"view {i + 1}" for i in range(k)])
+    res.comparison_caption = caption
+
+
+def _run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
+    """One stability row per case: ``str`` of what it returned, or how it failed."""
+    rows = []
+    for case, fn in cases.items():  # failure cases
+        r, err = _try(fn)
+        rows.append({"case": case, "outcome": err if err is not None else str(r)})
+    return rows
+
+
+def _fit_row(method: str, case: str, fit, err: str | None,
+             measure: Callable[[Any], dict]) -> dict:
+    """A fit's stability row: how it failed, or how it stopped and ``measure(fit)``."""
+    row = {"method": method, "case": case}
+    if err is not None:
+        row["outcome"] = err
+    else:
+        row.update(outcome="converged" if fit.converged else f"stopped: {fit.status}",
+                   **measure(fit))
+    return row
+
+
 # --------------------------------------------------------------------------------------------
 # 1. fit a mesh to a mesh
 # --------------------------------------------------------------------------------------------
@@ -380,6 +446,13 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
         "step 100x too large": {"x100": True},
     }
     evaluator = MeshEvaluator(target, n_samples=n_metric, taus=0.01, normalize=True, seed=0)
+
+    def measure(res):
+        m = evaluator.evaluate(res.mesh)
+        return {"chamfer-L2": m.chamfer_l2, "F@0.01": m.fscore[0.01],
+                "NaN vertices": bool(np.isnan(res.mesh.verts).any()),
+                "seconds": round(res.seconds, 2)}
+
     rows = []
     bar = _bar(progress, len(cases) * len(methods), "fit_mesh stability")
     for name in methods:  # methods
@@ -409,16 +482,7 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
                         kw["coarse_to_fine"].coarse_weights = x100
             res, err = _try(fit_mesh, source, spec.get("target", target), evaluator=None,
                             progress=False, time_budget=budget, seed=seed, **kw)
-            row = {"method": name, "case": case}
-            if err is not None:
-                row.update(outcome=err)
-            else:
-                m = evaluator.evaluate(res.mesh)
-                row.update(outcome="converged" if res.converged else f"stopped: {res.status}",
-                           **{"chamfer-L2": m.chamfer_l2, "F@0.01": m.fscore[0.01],
-                              "NaN vertices": bool(np.isnan(res.mesh.verts).any()),
-                              "seconds": round(res.seconds, 2)})
-            rows.append(row)
+            rows.append(_fit_row(name, case, res, err, measure))
             bar.update(1)
     bar.close()
     return rows
@@ -448,10 +512,7 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     from .fit import fit_mesh
     from .metrics import MeshEvaluator
 
-    check_choice(size, "size", SIZES)
-    t0 = time.perf_counter()
-    d = Path(out) / "fit_mesh"
-    d.mkdir(parents=True, exist_ok=True)
+    res, d, t0 = _begin(out, "fit_mesh", size)
     data = load_target_mesh()
     target = data.mesh
     n_metric = _pick(size, 2000, 10_000, 100_000)
@@ -459,8 +520,6 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     names = ["tutorial", "scipy-lbfgs", "large-steps", "coarse-to-fine"]
     if size == "tiny":
         names = ["tutorial", "large-steps"]
-    res = StepResult("fit_mesh", "1. Fit a mesh to a mesh", "deform_source_mesh_to_target_mesh",
-                     size=size)
     res.config = {"target": data.name, "target vertices": target.n_verts,
                   "metric samples a side": n_metric}
     res.description = (
@@ -474,28 +533,22 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
         source = kw.pop("source", None)
         fit = fit_mesh(source, target, evaluator=evaluator, progress=progress, seed=seed, **kw)
         results[name] = fit
-        seconds, curve = _accuracy_curve(fit.history, {"chamfer_l2": "chamfer_l2",
-                                                       "fscore@0.01": "fscore@0.01"})
         m = fit.metrics
         final = {"seconds": fit.seconds, "n_verts": fit.n_verts, "n_params": fit.n_params,
                  "chamfer_l2": m.chamfer_l2, "fscore@0.01": m.fscore[0.01],
                  "normal_consistency": m.normal_consistency}
-        res.methods.append(_method(name, _FIT_MESH_LABELS[name], seconds=seconds, curve=curve,
-                                   final=final, status=fit.status, message=fit.message,
-                                   config={k: repr(v) if not isinstance(v, (int, float, str))
-                                           else v for k, v in kw.items()}))
-        res.histories[name] = fit.history
         res.files[f"{name} mesh"] = d / f"{name}.obj"
         fit.save_obj(res.files[f"{name} mesh"])
-        res.files[f"{name} history"] = _write_history(fit.history, d / f"{name}_history.json")
+        _record_fit(res, d, name, _FIT_MESH_LABELS[name], fit, ("chamfer_l2", "fscore@0.01"),
+                    final=final, config={k: repr(v) if not isinstance(v, (int, float, str))
+                                         else v for k, v in kw.items()})
         res.metrics.append({"method": _FIT_MESH_LABELS[name], "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
                             "chamfer-L2": m.chamfer_l2, "F@0.01": m.fscore[0.01],
                             "normal consistency": m.normal_consistency})
         res.param_counts.append({"method": _FIT_MESH_LABELS[name], "vertices": fit.n_verts,
                                  "free parameters": fit.n_params})
-    res.config.update({f"{n} settings": ", ".join(f"{k}={v}" for k, v in
-                                                    res.methods[i]["config"].items())
+    res.config.update({f"{n} settings": _settings_text(res.methods[i]["config"])
                        for i, n in enumerate(names)})
 
     # images: the target and every result from two views, in the normalised frame
@@ -587,11 +640,7 @@ def _render_stability(mesh, size: str) -> list[dict]:
         "NaN vertex": lambda: render(Mesh(nan_v, mesh.faces, mesh.textures), front),
         "blur_radius > 0 (soft rasterization)": lambda: render(mesh, front, blur_radius=1e-4),
     }
-    rows = []
-    for case, fn in cases.items():  # failure cases
-        r, err = _try(fn)
-        rows.append({"case": case, "outcome": err if err is not None else str(r)})
-    return rows
+    return _run_cases(cases)
 
 
 def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed: int = 0
@@ -625,17 +674,12 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
         make_grid,
     )
 
-    check_choice(size, "size", SIZES)
-    t0 = time.perf_counter()
-    d = Path(out) / "render_mesh"
-    d.mkdir(parents=True, exist_ok=True)
+    res, d, t0 = _begin(out, "render_mesh", size)
     data = load_textured_mesh()
     mesh = data.mesh.normalize().mesh
     S = _pick(size, 64, 512, 512)
     SB = _pick(size, 64, 256, 512)
     NB = _pick(size, 4, 20, 20)
-    res = StepResult("render_mesh", "2. Render textured meshes", "render_textured_meshes",
-                     size=size)
     res.config = {"mesh": data.name, "faces": mesh.n_faces, "image size": S,
                   "batch": f"{NB} views at {SB} px"}
     res.description = (
@@ -771,11 +815,7 @@ def _points_stability(cloud, cameras, size: str) -> list[dict]:
         "radius 0.5 (huge splats)": lambda: render(cloud, radius=0.5, K=2),
         "points_per_pixel 0": lambda: render(cloud, K=0),
     }
-    rows = []
-    for case, fn in cases.items():  # failure cases
-        r, err = _try(fn)
-        rows.append({"case": case, "outcome": err if err is not None else str(r)})
-    return rows
+    return _run_cases(cases)
 
 
 def step_render_points(out, size: str = "default", *, progress: bool = True, seed: int = 0
@@ -815,16 +855,11 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     from .render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
     from .structures import PointCloud
 
-    check_choice(size, "size", SIZES)
-    t0 = time.perf_counter()
-    d = Path(out) / "render_points"
-    d.mkdir(parents=True, exist_ok=True)
+    res, d, t0 = _begin(out, "render_points", size)
     data = load_textured_mesh()
     mesh = data.mesh.normalize().mesh
     N = _pick(size, 5_000, 100_000, 500_000)
     S = _pick(size, 64, 256, 512)
-    res = StepResult("render_points", "3. Render coloured point clouds", "render_colored_points",
-                     size=size)
     res.config = {"cloud": f"{N} samples of the {data.name} with texture colours",
                   "image size": S, "radius (NDC)": 0.003, "points per pixel": 10,
                   "camera": "FoVOrthographicCameras(znear=0.01), look_at(20, 10, 180)"}
@@ -1024,23 +1059,19 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     StepResult
     """
     from .fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
+    from .io import save_obj
     from .render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from .shapes import ico_sphere
     from .structures import Mesh, TexturesVertex
 
-    check_choice(size, "size", SIZES)
-    t0 = time.perf_counter()
-    d = Path(out) / "fit_views"
-    d.mkdir(parents=True, exist_ok=True)
+    res, d, t0 = _begin(out, "fit_views", size)
     cfg = _views_settings(size)
     ds = cow_multiview_dataset(num_views=cfg["num_views"], image_size=cfg["image_size"],
                                num_heldout=cfg["num_heldout"])
-    res = StepResult("fit_views", "4. Fit a mesh to multi-view images", "fit_textured_mesh",
-                     size=size)
     res.config = {"object": ds.name, "training views": cfg["num_views"],
                   "held-out views": cfg["num_heldout"], "image size": cfg["image_size"],
-                  "PyTorch3D recipe": ", ".join(f"{k}={v}" for k, v in cfg["tutorial"].items()),
-                  "geofit": ", ".join(f"{k}={v}" for k, v in cfg["geofit"].items())}
+                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
+                  "geofit": _settings_text(cfg["geofit"])}
     res.description = (
         "A sphere is deformed to match the soft silhouettes of the training views, then its "
         "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "
@@ -1068,21 +1099,12 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
                                 eval_every=cfg["eval_every"], seed=seed, **kw)
         fits[name] = fit
         final = ev(fit.mesh, fit.colors)
-        a = fit.history.as_arrays()
-        curve = {k: a["metrics"][k].tolist() for k in ("iou", "chamfer_l2", "psnr")
-                 if k in a["metrics"]}
         n_colors = 0 if fit.colors is None else int(np.size(fit.colors))
-        res.methods.append(_method(name, label, seconds=a["checkpoint_seconds"].tolist(),
-                                   curve=curve, final={"seconds": fit.seconds, **final,
-                                                       "n_params": 3 * fit.mesh.n_verts
-                                                       + n_colors},
-                                   status=fit.status, message=fit.message, config=kw))
-        res.histories[name] = fit.history
         res.files[f"{name} mesh"] = d / f"{name}.obj"
-        from .io import save_obj
-
         save_obj(res.files[f"{name} mesh"], fit.mesh)
-        res.files[f"{name} history"] = _write_history(fit.history, d / f"{name}_history.json")
+        _record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
+                    final={"seconds": fit.seconds, **final,
+                           "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
         res.metrics.append({"method": label, "status": fit.status,
                             "seconds": round(fit.seconds, 2), **final})
         res.param_counts.append({"method": label, "vertices": fit.mesh.n_verts,
@@ -1097,22 +1119,16 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     k = min(3, len(h))
     cams = h.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
-    cols = [h.images[:k]]
+    renders = {}
     for name, fit in fits.items():
         colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
         m = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-        img = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=h.lights))(
+        renders[name] = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams,
+                                                                     lights=h.lights))(
             m.extend(k))[..., :3], dtype=np.float64)
-        cols.append(img)
-        res.images[name] = save_png(np.concatenate(list(img), axis=1), d / f"{name}.png")
-    res.targets["held-out views"] = save_png(np.concatenate(list(h.images[:k]), axis=1),
-                                             d / "target.png")
-    res.comparison = image_panel(
-        [[c[i] for c in cols] for i in range(k)], d / "comparison.png",
-        col_labels=["held-out target"] + [f"{n}\n{fits[n].seconds:.1f} s" for n in fits],
-        row_labels=[f"view {i + 1}" for i in range(k)])
-    res.comparison_caption = (f"Held-out views of the {ds.name} (never trained on) and the "
-                              "fitted meshes rendered from them.")
+    _heldout_comparison(res, d, h.images[:k], renders, fits,
+                        f"Held-out views of the {ds.name} (never trained on) and the fitted "
+                        "meshes rendered from them.")
     panels = [{"metric": "iou", "label": "held-out silhouette IoU"}]
     if any("chamfer_l2" in m["curve"] for m in res.methods):
         panels.append({"metric": "chamfer_l2", "label": "chamfer-L2 vs true mesh (log)",
@@ -1162,14 +1178,9 @@ def _views_stability(ds, size: str, seed: int) -> list[dict]:
                 return fit_mesh_to_views(views, init=ico_sphere(2), silhouette_iters=iters,
                                          views_per_step=vps, seed=seed, **kw)
             fit, err = _try(run)
-            row = {"method": method, "case": case}
-            if err is not None:
-                row["outcome"] = err
-            else:
-                row.update(outcome="converged" if fit.converged else f"stopped: {fit.status}",
-                           **{"NaN vertices": bool(np.isnan(fit.mesh.verts).any()),
-                              "seconds": round(fit.seconds, 2)})
-            rows.append(row)
+            rows.append(_fit_row(method, case, fit, err, lambda f: {
+                "NaN vertices": bool(np.isnan(f.mesh.verts).any()),
+                "seconds": round(f.seconds, 2)}))
     return rows
 
 
@@ -1215,19 +1226,15 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     """
     from .fit.volume import fit_volume
 
-    check_choice(size, "size", SIZES)
-    t0 = time.perf_counter()
-    d = Path(out) / "fit_volume"
-    d.mkdir(parents=True, exist_ok=True)
+    res, d, t0 = _begin(out, "fit_volume", size)
     cfg = _volume_settings(size)
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
     train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
-    res = StepResult("fit_volume", "5. Fit a voxel volume", "fit_textured_volume", size=size)
     res.config = {"object": name, "training views": cfg["n_views"],
                   "held-out views": cfg["n_heldout"], "image size": img,
                   "grid": f"{S}^3", "samples per ray": n_pts,
-                  "PyTorch3D recipe": ", ".join(f"{k}={v}" for k, v in cfg["tutorial"].items()),
-                  "geofit": ", ".join(f"{k}={v}" for k, v in cfg["lbfgs"].items())}
+                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
+                  "geofit": _settings_text(cfg["lbfgs"])}
     res.description = (
         "A grid of densities and colours is fitted to the renders (black background) with "
         "the emission-absorption raymarcher. Accuracy: PSNR of the RGB and IoU of the "
@@ -1253,16 +1260,9 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
         fits[key] = fit
         renders[key] = _render_volume(fit.volume, test.cameras, img, n_pts)
         final = monitor(fit.volume)
-        a = fit.history.as_arrays()
-        res.methods.append(_method(key, label, seconds=a["checkpoint_seconds"].tolist(),
-                                   curve={k: a["metrics"][k].tolist() for k in ("psnr", "iou")
-                                          if k in a["metrics"]},
-                                   final={"seconds": fit.seconds, **final,
-                                          "n_params": fit.n_params},
-                                   status=fit.status, message=fit.message,
-                                   config={k: repr(v) for k, v in kw.items()}))
-        res.histories[key] = fit.history
-        res.files[f"{key} history"] = _write_history(fit.history, d / f"{key}_history.json")
+        _record_fit(res, d, key, label, fit, ("psnr", "iou"),
+                    final={"seconds": fit.seconds, **final, "n_params": fit.n_params},
+                    config={k: repr(v) for k, v in kw.items()})
         vol = fit.volume
         np.savez_compressed(d / f"{key}_volume.npz", densities=vol.densities,
                             features=vol.features, voxel_size=vol.voxel_size,
@@ -1279,18 +1279,8 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                                  "free parameters": fit.n_params})
         bar.update(1)
     bar.close()
-    k = min(3, len(test.images))
-    res.targets["held-out views"] = save_png(np.concatenate(list(test.images[:k]), axis=1),
-                                             d / "target.png")
-    for key, r in renders.items():
-        res.images[key] = save_png(np.concatenate(list(r[:k, ..., :3]), axis=1), d / f"{key}.png")
-    res.comparison = image_panel(
-        [[test.images[i]] + [renders[key][i, ..., :3] for key in renders] for i in range(k)],
-        d / "comparison.png",
-        col_labels=["held-out target"] + [f"{key}\n{fits[key].seconds:.1f} s" for key in fits],
-        row_labels=[f"view {i + 1}" for i in range(k)])
-    res.comparison_caption = (f"Held-out views of the {name} and the fitted volumes rendered "
-                              "from them.")
+    _heldout_comparison(res, d, test.images[:3], renders, fits,
+                        f"Held-out views of the {name} and the fitted volumes rendered from them.")
     res.charts["Speed and accuracy: held-out PSNR and IoU against solver time"] = \
         plot_accuracy_vs_time(_series(res.methods),
                               [{"metric": "psnr", "label": "held-out PSNR (dB)"},
@@ -1329,16 +1319,10 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
         for case, (i_, s_, c_) in cases.items():  # failure cases
             fit, err = _try(fit_volume, i_, s_, c_, volume_size=small,
                             n_pts_per_ray=max(16, n_pts // 4), seed=seed, **kw)
-            row = {"method": method, "case": case}
-            if err is not None:
-                row["outcome"] = err
-            else:
-                dens = fit.volume.densities
-                row.update(outcome="converged" if fit.converged else f"stopped: {fit.status}",
-                           **{"NaN in volume": bool(np.isnan(dens).any()),
-                              "occupied voxels": int(fit.n_occupied_voxels),
-                              "seconds": round(fit.seconds, 2)})
-            rows.append(row)
+            rows.append(_fit_row(method, case, fit, err, lambda f: {
+                "NaN in volume": bool(np.isnan(f.volume.densities).any()),
+                "occupied voxels": int(f.n_occupied_voxels),
+                "seconds": round(f.seconds, 2)}))
     return rows
 
 
@@ -1389,20 +1373,15 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     """
     from .fit.nerf import fit_nerf, render_nerf
 
-    check_choice(size, "size", SIZES)
-    t0 = time.perf_counter()
-    d = Path(out) / "nerf"
-    d.mkdir(parents=True, exist_ok=True)
+    res, d, t0 = _begin(out, "nerf", size)
     cfg = _nerf_settings(size)
     img = cfg["image_size"]
     train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
-    res = StepResult("nerf", "6. Fit a neural radiance field", "fit_simple_neural_radiance_field",
-                     size=size)
     res.config = {"object": name, "training views": cfg["n_views"],
                   "held-out views": cfg["n_heldout"], "image size": img,
                   "held-out image size": cfg["heldout_size"],
-                  "PyTorch3D recipe": ", ".join(f"{k}={v}" for k, v in cfg["tutorial"].items()),
-                  "geofit": ", ".join(f"{k}={v}" for k, v in cfg["scene"].items()),
+                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
+                  "geofit": _settings_text(cfg["scene"]),
                   "time budget per method (s)": cfg["time_budget"]}
     res.description = (
         "A radiance field (MLP on harmonic embeddings) is fitted to the renders with the "
@@ -1419,15 +1398,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
                        time_budget=cfg["time_budget"], eval_every=cfg["eval_every"], seed=seed,
                        **kw)
         fits[key] = fit
-        a = fit.history.as_arrays()
-        curve = {k: a["metrics"][k].tolist() for k in ("psnr",) if k in a["metrics"]}
-        res.methods.append(_method(key, label, seconds=a["checkpoint_seconds"].tolist(),
-                                   curve=curve, final={"seconds": fit.seconds, "psnr": fit.psnr,
-                                                       "n_params": fit.n_params},
-                                   status=fit.status, message=fit.message,
-                                   config={k: repr(v) for k, v in kw.items()}))
-        res.histories[key] = fit.history
-        res.files[f"{key} history"] = _write_history(fit.history, d / f"{key}_history.json")
+        _record_fit(res, d, key, label, fit, ("psnr",),
+                    final={"seconds": fit.seconds, "psnr": fit.psnr, "n_params": fit.n_params},
+                    config={k: repr(v) for k, v in kw.items()})
         np.savez_compressed(d / f"{key}_weights.npz", **fit.field.params)
         res.files[f"{key} weights"] = d / f"{key}_weights.npz"
         res.metrics.append({"method": label, "status": fit.status,
@@ -1442,18 +1415,8 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         renders[key] = fit.images if fit.images is not None else render_nerf(
             fit.field, test.cameras, cfg["heldout_size"], n_pts_per_ray=fit.config.n_pts_per_ray,
             occupancy=fit.occupancy)
-    k = min(3, len(test.images))
-    res.targets["held-out views"] = save_png(np.concatenate(list(test.images[:k]), axis=1),
-                                             d / "target.png")
-    for key, r in renders.items():
-        res.images[key] = save_png(np.concatenate(list(r[:k, ..., :3]), axis=1), d / f"{key}.png")
-    res.comparison = image_panel(
-        [[test.images[i]] + [renders[key][i, ..., :3] for key in renders] for i in range(k)],
-        d / "comparison.png",
-        col_labels=["held-out target"] + [f"{key}\n{fits[key].seconds:.1f} s" for key in fits],
-        row_labels=[f"view {i + 1}" for i in range(k)])
-    res.comparison_caption = (f"Held-out views of the {name} and the fitted fields rendered "
-                              "from them.")
+    _heldout_comparison(res, d, test.images[:3], renders, fits,
+                        f"Held-out views of the {name} and the fitted fields rendered from them.")
     res.charts["Speed and accuracy: held-out PSNR against solver time"] = \
         plot_accuracy_vs_time(_series(res.methods),
                               [{"metric": "psnr", "label": "held-out PSNR (dB)"}],
@@ -1491,15 +1454,9 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
             fit, err = _try(fit_nerf, i_, s_, c_, seed=seed, **kw)
-            row = {"method": method, "case": case}
-            if err is not None:
-                row["outcome"] = err
-            else:
-                w = fit.field.get_flat()
-                row.update(outcome="converged" if fit.converged else f"stopped: {fit.status}",
-                           **{"NaN weights": bool(np.isnan(w).any()),
-                              "seconds": round(fit.seconds, 2)})
-            rows.append(row)
+            rows.append(_fit_row(method, case, fit, err, lambda f: {
+                "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
+                "seconds": round(f.seconds, 2)}))
     return rows
 
 
