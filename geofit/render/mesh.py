@@ -25,6 +25,7 @@ from .._validate import check_positive
 from ..cameras import CamerasBase, ndc_grid
 from ..structures import Mesh, Meshes
 from . import _raycast
+from ._settings import image_hw
 
 __all__ = [
     "Fragments",
@@ -95,18 +96,7 @@ class RasterizationSettings:
     n_threads: int | None = None
 
     def __post_init__(self):
-        size = self.image_size
-        if isinstance(size, (int, np.integer)) and not isinstance(size, bool):
-            size = (int(size), int(size))
-        try:
-            H, W = (int(v) for v in size)
-            bad = not all(float(v) == int(v) for v in size)
-        except (TypeError, ValueError):
-            raise ValueError(f"image_size: expected an int or (H, W), got {self.image_size!r}") \
-                from None
-        if bad or H < 1 or W < 1:
-            raise ValueError(f"image_size: expected positive integers, got {self.image_size!r}")
-        object.__setattr__(self, "image_size", (H, W))
+        object.__setattr__(self, "image_size", image_hw(self.image_size))
         if float(self.blur_radius) != 0.0:
             raise ValueError(
                 f"blur_radius: ray casting renders hard fragments, expected 0.0, got "

@@ -73,6 +73,7 @@ import scipy.sparse as sp
 from .._validate import as_array, check_positive
 from ..cameras import CamerasBase
 from ..structures import Mesh
+from ._settings import image_hw
 from .blending import BlendParams
 
 __all__ = [
@@ -159,18 +160,7 @@ class SoftRasterizationSettings:
     n_threads: int | None = None
 
     def __post_init__(self):
-        size = self.image_size
-        if isinstance(size, (int, np.integer)) and not isinstance(size, (bool, np.bool_)):
-            size = (int(size), int(size))
-        try:
-            H, W = (int(v) for v in size)
-            bad = not all(float(v) == int(v) for v in size)
-        except (TypeError, ValueError):
-            raise ValueError(f"image_size: expected an int or (H, W), got {self.image_size!r}") \
-                from None
-        if bad or H < 1 or W < 1:
-            raise ValueError(f"image_size: expected positive integers, got {self.image_size!r}")
-        object.__setattr__(self, "image_size", (H, W))
+        object.__setattr__(self, "image_size", image_hw(self.image_size))
         object.__setattr__(self, "blur_radius",
                            check_positive(self.blur_radius, "blur_radius", strict=False))
         k = self.faces_per_pixel
