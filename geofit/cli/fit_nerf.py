@@ -21,30 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ._common import add_output_args, add_view_args, cow_views, save_gif, save_png
+
 __all__ = ["register", "run"]
-
-
-def _dataset(args):
-    from ..datasets import generate_cow_renders, held_out_views
-
-    train = generate_cow_renders(num_views=args.views, image_size=args.image_size)
-    test = held_out_views(num_views=args.views, image_size=args.image_size,
-                          n_azimuths=min(8, max(args.views - 1, 1)))
-    return train, test
-
-
-def _save_png(path: Path, rows: list[np.ndarray]) -> None:
-    from PIL import Image
-
-    grid = np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0)
-    Image.fromarray((np.clip(grid, 0, 1) * 255).round().astype(np.uint8)).save(path)
-
-
-def _save_gif(path: Path, frames: np.ndarray, ms: int = 80) -> None:
-    from PIL import Image
-
-    ims = [Image.fromarray((np.clip(f, 0, 1) * 255).round().astype(np.uint8)) for f in frames]
-    ims[0].save(path, save_all=True, append_images=ims[1:], duration=ms, loop=0)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    train, test = _dataset(args)
+    train, test = cow_views(args)
     overrides = {}
     for key in ("lr", "n_hidden_neurons", "n_harmonic_functions", "n_iter"):
         v = getattr(args, key)
@@ -72,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     np.savez_compressed(out / "nerf_field.npz", **res.field.params,
                         config=json.dumps(asdict(res.config)))
     if res.images is not None:
-        _save_png(out / "nerf_heldout.png", [test.images, res.images[..., :3]])
+        save_png(out / "nerf_heldout.png", [test.images, res.images[..., :3]])
     if args.frames > 0:
         azim = np.linspace(-180.0, 180.0, args.frames, endpoint=False) + 180.0
         R, T = look_at_view_transform(2.7, 10.0, azim)
@@ -80,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
                              n_pts_per_ray=res.config.n_pts_per_ray,
                              min_depth=res.config.min_depth, max_depth=res.config.max_depth,
                              occupancy=res.occupancy)
-        _save_gif(out / "nerf_rotation.gif", frames[..., :3])
+        save_gif(out / "nerf_rotation.gif", frames[..., :3])
     psnr = "n/a" if res.psnr is None else f"{res.psnr:.2f} dB"
     print(f"geofit fit-nerf: {res.status} ({res.message}); {res.n_params} parameters, "
           f"{res.samples_per_ray:.1f} samples/ray, {res.n_iterations} steps in "
@@ -107,12 +86,8 @@ def register(subparsers) -> None:
                    help="harmonic frequencies of the point embedding (default: preset)")
     p.add_argument("--early-stopping", type=int, default=None,
                    help="stop when the held-out loss has not improved for this many checkpoints")
-    p.add_argument("--views", type=int, default=40, help="training views (default 40)")
-    p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
-    p.add_argument("--frames", type=int, default=24,
-                   help="frames of the rotating render (0: none; default 24)")
+    add_view_args(p)
     p.add_argument("--threads", type=int, default=None, help="threads (default: up to 2)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    add_output_args(p)
     p.set_defaults(func=run)

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._common import add_output_args, add_view_args, cow_views, save_gif, save_png
+
 __all__ = ["register", "run"]
 
 
@@ -32,32 +34,15 @@ def _ints(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
 
 
-def _save_png(path: Path, rows: list) -> None:
-    from PIL import Image
-
-    grid = np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0)
-    Image.fromarray((np.clip(grid, 0, 1) * 255).round().astype(np.uint8)).save(path)
-
-
-def _save_gif(path: Path, frames: np.ndarray, ms: int = 80) -> None:
-    from PIL import Image
-
-    ims = [Image.fromarray((np.clip(f, 0, 1) * 255).round().astype(np.uint8)) for f in frames]
-    ims[0].save(path, save_all=True, append_images=ims[1:], duration=ms, loop=0)
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
     from ..cameras import FoVPerspectiveCameras, look_at_view_transform
-    from ..datasets import generate_cow_renders, held_out_views
     from ..fit.volume import fit_volume, render_volume, volume_metrics
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    train = generate_cow_renders(num_views=args.views, image_size=args.image_size)
-    test = held_out_views(num_views=args.views, image_size=args.image_size,
-                          n_azimuths=min(8, max(1, args.views - 1)))
+    train, test = cow_views(args)
     t_data = time.perf_counter() - t0
     kw = {}
     if args.levels is not None:
@@ -84,12 +69,12 @@ def run(args: argparse.Namespace) -> int:
     vol = res.volume
     np.savez_compressed(out / "volume.npz", densities=vol.densities, features=vol.features,
                         voxel_size=vol.voxel_size, volume_translation=vol.volume_translation)
-    _save_png(out / "volume_heldout.png", [test.images, m.images[..., :3]])
+    save_png(out / "volume_heldout.png", [test.images, m.images[..., :3]])
     if args.frames > 0:
         azim = np.linspace(0.0, 360.0, args.frames, endpoint=False) + 180.0
         R, T = look_at_view_transform(2.7, 15.0, azim)
         frames = render_volume(vol, FoVPerspectiveCameras(R=R, T=T), args.image_size)
-        _save_gif(out / "volume_rotation.gif", frames[..., :3])
+        save_gif(out / "volume_rotation.gif", frames[..., :3])
     print(f"geofit fit-volume: {res.status} ({res.message}); {res.n_active_voxels} active "
           f"voxels of {vol.n_voxels}, {res.samples_per_ray:.1f} samples/ray of "
           f"{res.n_pts_per_ray}, {res.n_iterations} iterations in {res.seconds:.1f} s; held-out "
@@ -119,10 +104,6 @@ def register(subparsers) -> None:
     p.add_argument("--time", type=float, default=None, help="solver time budget in seconds")
     p.add_argument("--precision", choices=("float32", "float64"), default="float32",
                    help="arithmetic of the ray marching (default float32)")
-    p.add_argument("--views", type=int, default=40, help="training views (default 40)")
-    p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
-    p.add_argument("--frames", type=int, default=24,
-                   help="frames of the rotating render (0: none; default 24)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    add_view_args(p)
+    add_output_args(p)
     p.set_defaults(func=run)
