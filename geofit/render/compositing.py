@@ -75,6 +75,15 @@ def _covered(idx, weights, C):
     return out, (idx[covered], weights[covered]), covered
 
 
+def _slots(idx, weights, features):
+    """For each of the K slots of the ``(n, K)`` rows: the weights (0 where the slot is empty)
+    ``(n,)`` and the features of the point in it ``(n, C)``."""
+    for k in range(idx.shape[1]):   # loop over the K slots (layers), vectorised over pixels
+        ik = idx[:, k]
+        valid = ik >= 0
+        yield np.where(valid, weights[:, k], 0.0), features[np.where(valid, ik, 0)]
+
+
 class _Compositor:
     def __init__(self, background_color=None):
         self.background_color = _background(background_color)
@@ -125,6 +134,12 @@ class _Compositor:
         return images
 
     def _composite(self, idx, weights, features):
+        out, (idx, weights), covered = _covered(idx, weights, features.shape[1])
+        out[covered] = self._accumulate(idx, weights, features)
+        return out
+
+    def _accumulate(self, idx, weights, features):
+        """``(n, C)`` colours of the covered pixels from their ``(n, K)`` slots."""
         raise NotImplementedError
 
 
@@ -146,18 +161,13 @@ class AlphaCompositor(_Compositor):
     array([2.])
     """
 
-    def _composite(self, idx, weights, features):
-        out, (idx, weights), covered = _covered(idx, weights, features.shape[1])
+    def _accumulate(self, idx, weights, features):
         T = np.ones(len(idx))
         acc = np.zeros((len(idx), features.shape[1]))
-        for k in range(idx.shape[1]):   # loop over the K slots (layers), vectorised over pixels
-            ik = idx[:, k]
-            valid = ik >= 0
-            a = np.where(valid, weights[:, k], 0.0)
-            acc += (a * T)[:, None] * features[np.where(valid, ik, 0)]
+        for a, f in _slots(idx, weights, features):
+            acc += (a * T)[:, None] * f
             T *= 1.0 - a
-        out[covered] = acc
-        return out
+        return acc
 
 
 class NormWeightedCompositor(_Compositor):
@@ -178,15 +188,10 @@ class NormWeightedCompositor(_Compositor):
     array([3.])
     """
 
-    def _composite(self, idx, weights, features):
-        out, (idx, weights), covered = _covered(idx, weights, features.shape[1])
+    def _accumulate(self, idx, weights, features):
         total = np.zeros(len(idx))
         acc = np.zeros((len(idx), features.shape[1]))
-        for k in range(idx.shape[1]):   # loop over the K slots (layers), vectorised over pixels
-            ik = idx[:, k]
-            valid = ik >= 0
-            a = np.where(valid, weights[:, k], 0.0)
-            acc += a[:, None] * features[np.where(valid, ik, 0)]
+        for a, f in _slots(idx, weights, features):
+            acc += a[:, None] * f
             total += a
-        out[covered] = acc / np.maximum(total, _NORM_EPS)[:, None]
-        return out
+        return acc / np.maximum(total, _NORM_EPS)[:, None]
