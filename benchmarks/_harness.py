@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from geofit.report import _cpu_affinity, _cpu_model, _load_average, _version
 from geofit.viz import STYLE, chart_style
 from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
 
@@ -48,51 +49,32 @@ __all__ = [
     "markdown_table",
     "parser",
     "plot_accuracy_vs_time",
+    "print_machine",
+    "print_parity",
+    "record_load",
+    "result_paths",
     "time_call",
 ]
 
 
 # ---------------------------------------------------------------------------------------- facts
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
-def _version(*dists: str) -> str | None:
-    """Installed version of the first distribution found among ``dists``, else None."""
-    from importlib import metadata
-
-    for d in dists:
-        try:
-            return metadata.version(d)
-        except metadata.PackageNotFoundError:
-            continue
-    return None
-
-
 def machine_info() -> dict[str, Any]:
-    """CPU, core count, memory, OS, Python and the versions of the numerical stack."""
+    """CPU, core count, memory, OS, Python and the versions of the numerical stack.
+
+    The facts :func:`geofit.report.machine_summary` gives, plus the memory and trimesh; the
+    probes are the report's.
+    """
     try:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
     except (ValueError, OSError, AttributeError):
         mem = None
-    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-    try:
-        load = [round(x, 2) for x in os.getloadavg()]
-    except OSError:
-        load = None
     return {
         "cpu": _cpu_model(),
         "cpu_count": os.cpu_count(),
-        "cpu_affinity": affinity,
+        "cpu_affinity": _cpu_affinity(),
         "memory_gib": round(mem, 1) if mem else None,
-        "load_average_1_5_15min": load,  # other processes share the cores: read times with it
+        # other processes share the cores: read times with it
+        "load_average_1_5_15min": _load_average(),
         "os": platform.platform(),
         "python": platform.python_version(),
         "versions": {
@@ -102,6 +84,36 @@ def machine_info() -> dict[str, Any]:
             "embreex": _version("embreex"), "matplotlib": _version("matplotlib"),
         },
     }
+
+
+def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
+    """Store the load averages before (given) and after (now) the timings in ``report.config``
+    (``loadavg_before``, ``loadavg_after``); returns the one after."""
+    load_after = os.getloadavg()
+    report.config["loadavg_before"] = list(load_before)
+    report.config["loadavg_after"] = list(load_after)
+    return load_after
+
+
+def result_paths(out: str | Path, name: str, quick: bool) -> tuple[Path, Path]:
+    """``out/<name>[_quick].json`` and ``.png``."""
+    stem = f"{name}_quick" if quick else name
+    return Path(out) / f"{stem}.json", Path(out) / f"{stem}.png"
+
+
+def print_machine(load_before: Sequence[float], load_after: Sequence[float]) -> None:
+    """One line: the CPU, the usable cores and the 1-minute load before and after."""
+    mi = machine_info()
+    print(f"machine: {mi['cpu']} ({mi['cpu_affinity']} cores usable); load average before "
+          f"{load_before[0]:.2f}, after {load_after[0]:.2f}")
+
+
+def print_parity(report: BenchmarkReport, title: str) -> None:
+    """Print ``report.tables["parity"]`` and ``["parity_worst"]`` under ``title``, if present."""
+    if "parity" in report.tables:
+        print(title)
+        print(report.tables["parity"], end="")
+        print("worst:", report.tables["parity_worst"])
 
 
 def time_call(fn: Callable[[], Any], *, repeat: int = 1) -> tuple[Any, float]:

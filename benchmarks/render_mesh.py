@@ -35,7 +35,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _harness import BenchmarkReport, MethodRun, machine_info, markdown_table, parser
+from _harness import (
+    BenchmarkReport,
+    MethodRun,
+    markdown_table,
+    parser,
+    print_machine,
+    print_parity,
+    record_load,
+    result_paths,
+)
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.data import load_textured_mesh
@@ -222,9 +231,7 @@ def main() -> None:
     report.add(MethodRun("one_view_shadows", "geofit one view + shadows", status="ok",
                          final={"render_seconds": best}))
     rows.append(["one_view_shadows", 1, f"{best:.3f}", "-", "-", "-", "-", "-", "-"])
-    load_after = os.getloadavg()
-    report.config["loadavg_before"] = list(load_before)
-    report.config["loadavg_after"] = list(load_after)
+    load_after = record_load(report, load_before)
     header = ["run", "views", "total s", "ray cast s", "shading s", "shading / cast",
               "pixels/s", "Embree rays/s", "vs PyTorch3D"]
     report.tables["speed"] = markdown_table(header, rows)
@@ -240,21 +247,15 @@ def main() -> None:
     iou = open3d_iou(mesh, size)
     report.tables["open3d_silhouette_iou_base_view"] = iou
 
-    out_dir = Path(args.out)
-    suffix = "_quick" if args.quick else ""
-    json_path = report.write(out_dir / f"render_mesh{suffix}.json")
-    png_path = _plot(report, images, out_dir / f"render_mesh{suffix}.png")
-    mi = machine_info()
-    print(f"machine: {mi['cpu']} ({mi['cpu_affinity']} cores usable); load average before "
-          f"{load_before[0]:.2f}, after {load_after[0]:.2f}")
+    json_path, png_path = result_paths(args.out, "render_mesh", args.quick)
+    report.write(json_path)
+    _plot(report, images, png_path)
+    print_machine(load_before, load_after)
     print(f"mesh: {data.name} ({mesh.n_faces} faces); {size}x{size}, best of {repeat}")
     print(report.tables["speed"], end="")
     print(f"targets: one view < {TARGET_SECONDS['one_view']:.3f} s, batch < "
           f"{TARGET_SECONDS['batch20']:.2f} s (1/50 of PyTorch3D's quoted 5.2 s / 79 s)")
-    if "parity" in report.tables:
-        print("parity with PyTorch3D (render_mesh.npz):")
-        print(report.tables["parity"], end="")
-        print("worst:", report.tables["parity_worst"])
+    print_parity(report, "parity with PyTorch3D (render_mesh.npz):")
     print(f"Open3D silhouette IoU (base view, {size} px): {iou}")
     print(f"wrote {json_path} and {png_path}")
 

@@ -28,7 +28,17 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _harness import BenchmarkReport, MethodRun, machine_info, markdown_table, parser, time_call
+from _harness import (
+    BenchmarkReport,
+    MethodRun,
+    markdown_table,
+    parser,
+    print_machine,
+    print_parity,
+    record_load,
+    result_paths,
+    time_call,
+)
 
 from geofit import PointCloud
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
@@ -96,8 +106,8 @@ def main() -> None:
         config={"points": n_points, "image_size": size, "radius": 0.003, "points_per_pixel": 10,
                 "repeat": repeat, "mesh": data.name, "sampling_seconds": t_sample,
                 "quick": bool(args.quick)},
-        notes=["seconds: best of `repeat` runs, wall time, whole render (projection, "
-               "rasterization, alpha compositing) unless the method says rasterizer only",
+        notes=[("seconds: best of `repeat` runs, wall time, whole render (projection, "
+                "rasterization, alpha compositing) unless the method says rasterizer only"),
                "the PyTorch3D time is quoted from the issue, not measured by this script"],
         reference={"pytorch3d_cpu_seconds": PYTORCH3D_SECONDS,
                    "source": "issue 5 (PyTorch3D 0.7.9 CPU PointsRenderer, same setting)",
@@ -121,9 +131,7 @@ def main() -> None:
                      "speedup_vs_pytorch3d": PYTORCH3D_SECONDS / t_render}
         rows.append([name, f"{t_render:.3f}", f"{t_raster:.3f}", f"{100 * covered:.1f}%",
                      f"{PYTORCH3D_SECONDS / t_render:.0f}x"])
-    load_after = os.getloadavg()
-    report.config["loadavg_before"] = list(load_before)
-    report.config["loadavg_after"] = list(load_after)
+    load_after = record_load(report, load_before)
 
     header = ["camera", "render s", "rasterize s", "covered", "vs PyTorch3D 174 s"]
     report.tables["speed"] = markdown_table(header, rows)
@@ -136,21 +144,15 @@ def main() -> None:
     else:
         report.notes.append(f"parity skipped: {args.reference} not found")
 
-    out_dir = Path(args.out)
-    suffix = "_quick" if args.quick else ""
-    json_path = report.write(out_dir / f"render_points{suffix}.json")
-    png_path = _plot(report, images, out_dir / f"render_points{suffix}.png")
-    m = machine_info()
-    print(f"machine: {m['cpu']} ({m['cpu_affinity']} cores usable); load average before "
-          f"{load_before[0]:.2f}, after {load_after[0]:.2f}")
+    json_path, png_path = result_paths(args.out, "render_points", args.quick)
+    report.write(json_path)
+    _plot(report, images, png_path)
+    print_machine(load_before, load_after)
     print(f"cloud: {n_points} points sampled from {data.name} in {t_sample:.2f} s; "
           f"{size}x{size}, radius 0.003, 10 points per pixel, best of {repeat}")
     print(report.tables["speed"], end="")
     print(f"target: < {TARGET_SECONDS:.2f} s (1/50 of PyTorch3D's quoted {PYTORCH3D_SECONDS:g} s)")
-    if "parity" in report.tables:
-        print("parity with PyTorch3D (128x128, 20000 points, K = 10):")
-        print(report.tables["parity"], end="")
-        print("worst:", report.tables["parity_worst"])
+    print_parity(report, "parity with PyTorch3D (128x128, 20000 points, K = 10):")
     print(f"wrote {json_path} and {png_path}")
 
 

@@ -156,39 +156,53 @@ def _html_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str] | None
     return "\n".join(out)
 
 
-def machine_summary() -> dict[str, Any]:
-    """CPU count and model, load average, OS, Python and the numerical stack's versions."""
-    from importlib import metadata
-
-    def version(*names):
-        for n in names:
-            try:
-                return metadata.version(n)
-            except metadata.PackageNotFoundError:
-                continue
-        return None
-
-    cpu = platform.processor() or "unknown"
+def _cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), else ``platform.processor()`` or "unknown"."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:
             for line in fh:
                 if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
+                    return line.split(":", 1)[1].strip()
     except OSError:
         pass
+    return platform.processor() or "unknown"
+
+
+def _version(*dists: str) -> str | None:
+    """Installed version of the first distribution found among ``dists``, else None."""
+    from importlib import metadata
+
+    for d in dists:
+        try:
+            return metadata.version(d)
+        except metadata.PackageNotFoundError:
+            continue
+    return None
+
+
+def _load_average() -> list[float] | None:
+    """The 1, 5 and 15 minute load averages (2 decimals), None where the OS has none."""
     try:
-        load = [round(x, 2) for x in os.getloadavg()]
+        return [round(x, 2) for x in os.getloadavg()]
     except OSError:
-        load = None
+        return None
+
+
+def _cpu_affinity() -> int | None:
+    """Cores this process may run on, None where the OS does not say."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+
+
+def machine_summary() -> dict[str, Any]:
+    """CPU count and model, load average, OS, Python and the numerical stack's versions."""
     return {
-        "cpu": cpu,
+        "cpu": _cpu_model(),
         "cpu_count": os.cpu_count(),
-        "cpu_affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        "load_average_1_5_15min": load,
+        "cpu_affinity": _cpu_affinity(),
+        "load_average_1_5_15min": _load_average(),
         "os": platform.platform(),
         "python": platform.python_version(),
-        "versions": {k: version(*v) for k, v in {
+        "versions": {k: _version(*v) for k, v in {
             "geofit": ("geofit",), "numpy": ("numpy",), "scipy": ("scipy",),
             "open3d": ("open3d-cpu", "open3d"), "embreex": ("embreex",), "nlopt": ("nlopt",),
             "matplotlib": ("matplotlib",), "pillow": ("pillow",)}.items()},
