@@ -35,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser
 
 from geofit.datasets import generate_cow_renders, held_out_views
-from geofit.fit.nerf import NerfConfig, fit_nerf, psnr, render_nerf
+from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
+from geofit.metrics import psnr
 from geofit.render.implicit import OccupancyGrid
 
 #: Acceptance criteria of the issue.

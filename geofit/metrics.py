@@ -1,4 +1,5 @@
-"""Accuracy of a reconstructed surface against a reference: chamfer, F-score, normal consistency.
+"""Accuracy against a reference: chamfer, F-score and normal consistency of surfaces; PSNR and
+silhouette IoU of images.
 
 Every benchmark in geofit reports these, computed the same way:
 
@@ -28,9 +29,13 @@ Distances are in the units of the meshes as given; pass ``normalize=True`` to ev
 target's normalised frame (PyTorch3D's tutorial normalisation, :meth:`geofit.Mesh.normalize`,
 applied to both meshes with the *target's* centre and scale), which is the frame in which the
 benchmarks report.
+
+Images: :func:`psnr` (``10 log10(max^2 / MSE)`` over every pixel and channel, inf for identical
+images) and :func:`silhouette_iou` (per view, 1 where both silhouettes are empty).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
@@ -49,6 +54,8 @@ __all__ = [
     "evaluate_mesh",
     "fscore",
     "normal_consistency",
+    "psnr",
+    "silhouette_iou",
 ]
 
 
@@ -317,3 +324,80 @@ def normal_consistency(pred: Mesh, target: Mesh, *, n_samples: int = 100_000, se
     """Mean absolute cosine between corresponding face normals, both directions (see module)."""
     return evaluate_mesh(pred, target, n_samples=n_samples, seed=seed,
                          normalize=normalize).normal_consistency
+
+
+# --------------------------------------------------------------------------------------------
+# Images
+# --------------------------------------------------------------------------------------------
+
+
+def psnr(pred, target, max_value: float = 1.0) -> float:
+    """Peak signal-to-noise ratio ``10 log10(max_value^2 / MSE)`` in dB over all pixels and channels.
+
+    Parameters
+    ----------
+    pred : (...) float64
+        Prediction.
+    target : (...) float64
+        Reference, of ``pred``'s shape.
+    max_value : float
+        The largest possible value (1 for images in [0, 1]).
+
+    Returns
+    -------
+    float
+        inf when the images are identical.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ.
+
+    Examples
+    --------
+    >>> round(psnr(np.full(4, 0.1), np.zeros(4)), 6)
+    20.0
+    """
+    p = np.asarray(pred, np.float64)
+    t = np.asarray(target, np.float64)
+    if p.shape != t.shape:
+        raise ValueError(f"pred, target: expected equal shapes, got {p.shape} and {t.shape}")
+    mse = float(np.mean((p - t) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(max_value ** 2 / mse)
+
+
+def silhouette_iou(pred, target, threshold: float = 0.5) -> np.ndarray:
+    """Intersection over union of silhouettes, per view.
+
+    Parameters
+    ----------
+    pred : (N, H, W) float64 or bool
+        Predicted silhouettes; values above ``threshold`` count as inside.
+    target : (N, H, W) float64 or bool
+        Reference silhouettes.
+    threshold : float
+
+    Returns
+    -------
+    iou : (N,) float64
+        1.0 for a view where both are empty.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ or are not (N, H, W).
+
+    Examples
+    --------
+    >>> a = np.zeros((1, 2, 2)); a[0, 0] = 1
+    >>> silhouette_iou(a, np.ones((1, 2, 2))).tolist()
+    [0.5]
+    """
+    p = np.asarray(pred) > threshold
+    t = np.asarray(target) > threshold
+    if p.shape != t.shape or p.ndim != 3:
+        raise ValueError(f"pred, target: expected equal shapes (N, H, W), got {p.shape} and "
+                         f"{t.shape}")
+    inter = np.count_nonzero(p & t, axis=(1, 2))
+    union = np.count_nonzero(p | t, axis=(1, 2))
+    return np.where(union > 0, inter / np.maximum(union, 1), 1.0)

@@ -16,17 +16,16 @@ from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look
 from geofit.fit.views import (
     SILHOUETTE_METHODS,
     MultiViewData,
-    MultiViewDataset,
+    MultiViewSplit,
     ViewsEvaluator,
     _Identity,
     _LargeSteps,
     _lstsq_colors,
     _Objective,
     fit_mesh_to_views,
-    psnr,
     render_multiview_dataset,
-    silhouette_iou,
 )
+from geofit.metrics import psnr, silhouette_iou
 from geofit.render.soft import SoftRasterizationSettings
 
 
@@ -39,7 +38,7 @@ def _object(level=3):
 
 
 @pytest.fixture(scope="module")
-def data() -> MultiViewDataset:
+def data() -> MultiViewSplit:
     return render_multiview_dataset(_object(), num_views=6, image_size=24, num_heldout=3)
 
 

@@ -8,7 +8,8 @@ import pytest
 
 import geofit.fit.volume as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, huber, visual_hull
+from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
+from geofit.loss import huber
 from geofit.render.raymarching import EmissionAbsorptionRaymarcher
 from geofit.render.raysampling import NDCMultinomialRaysampler
 from geofit.render.volume import VolumeRenderer

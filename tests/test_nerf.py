@@ -13,11 +13,11 @@ from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.fit.nerf import (
     NerfConfig,
     fit_nerf,
-    huber,
-    psnr,
     render_nerf,
     sample_images_at_xys,
 )
+from geofit.loss import huber
+from geofit.metrics import psnr
 from geofit.render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
 from geofit.render.raymarching import EmissionAbsorptionRaymarcher
 from geofit.render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle

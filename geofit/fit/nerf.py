@@ -59,6 +59,8 @@ import numpy as np
 
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
+from ..loss.huber import huber
+from ..metrics import psnr
 from ..nn._threads import cpu_count, run_parallel
 from ..nn.optim import Adam, exponential_decay, step_decay
 from ..render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
@@ -71,8 +73,6 @@ __all__ = [
     "NerfConfig",
     "NerfFitResult",
     "fit_nerf",
-    "huber",
-    "psnr",
     "render_nerf",
     "sample_images_at_xys",
 ]
@@ -233,54 +233,8 @@ class NerfConfig:
 
 
 # --------------------------------------------------------------------------------------------
-# Losses, metrics, target sampling
+# Target sampling (the tutorial's sample_images_at_mc_locs)
 # --------------------------------------------------------------------------------------------
-
-
-def huber(x, target, scaling: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """The tutorials' pseudo-Huber loss per element and its derivative.
-
-    ``h = s (sqrt(1 + (x - y)^2 / s^2) - 1)``, ``dh/dx = (x - y) / (s sqrt(1 + (x - y)^2 / s^2))``.
-
-    Parameters
-    ----------
-    x : (...) float64
-        Prediction.
-    target : (...) float64
-        Target (broadcast to ``x``).
-    scaling : float
-        ``s`` (> 0); the tutorials use 0.1.
-
-    Returns
-    -------
-    values, grad : (...) float64
-
-    Examples
-    --------
-    >>> v, g = huber(np.array([0.0, 0.1]), 0.0)
-    >>> v.round(6).tolist(), g.round(6).tolist()
-    ([0.0, 0.041421], [0.0, 0.707107])
-    """
-    s = check_positive(scaling, "scaling")
-    r = np.asarray(x, dtype=np.float64) - np.asarray(target, dtype=np.float64)
-    q = np.sqrt(1.0 + (r / s) ** 2)
-    return s * (q - 1.0), r / (s * q)
-
-
-def psnr(pred, target, max_value: float = 1.0) -> float:
-    """Peak signal-to-noise ratio ``10 log10(max^2 / mse)`` in dB (inf when identical).
-
-    Examples
-    --------
-    >>> round(psnr(np.full(4, 0.1), np.zeros(4)), 6)
-    20.0
-    """
-    p = np.asarray(pred, dtype=np.float64)
-    t = np.asarray(target, dtype=np.float64)
-    if p.shape != t.shape:
-        raise ValueError(f"pred: expected the shape of target {t.shape}, got {p.shape}")
-    mse = float(np.mean((p - t) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(max_value ** 2 / mse)
 
 
 def sample_images_at_xys(images, xys) -> np.ndarray:

@@ -7,7 +7,7 @@ Here every gradient is analytic (:mod:`geofit.render.soft`), and the chain rule 
 plain sight in :class:`_Objective`.
 
 * :func:`render_multiview_dataset`, :func:`cow_multiview_dataset` -- the tutorial's dataset,
-  rendered by geofit, plus held-out views for evaluation (:class:`MultiViewDataset`).
+  rendered by geofit, plus held-out views for evaluation (:class:`MultiViewSplit`).
 * :func:`fit_mesh_to_views` -- a silhouette stage, then a textured stage. Silhouette methods
   (:data:`SILHOUETTE_METHODS`):
 
@@ -28,8 +28,8 @@ plain sight in :class:`_Objective`.
   joint refinement lowers the held-out PSNR (24.3 -> 23.3 dB in 120 s, measured): the soft
   Phong image (blur, 50 faces blended) is not the hard image the targets are, and the
   least-squares colours already fit the hard image optimally for the geometry.
-* :func:`silhouette_iou`, :func:`psnr`, :class:`ViewsEvaluator` -- held-out metrics
-  (silhouette IoU, RGB PSNR; chamfer-L2 and F-score against the true mesh via
+* :class:`ViewsEvaluator` -- held-out metrics (:func:`geofit.metrics.silhouette_iou`,
+  :func:`geofit.metrics.psnr`; chamfer-L2 and F-score against the true mesh via
   :mod:`geofit.metrics`).
 
 No NaN: every map is evaluated in float64 with PyTorch3D's clamps (and the additional guards of
@@ -51,6 +51,7 @@ import scipy.sparse.linalg as spla
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
 from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
+from ..metrics import psnr, silhouette_iou
 from ..render.blending import BlendParams
 from ..render.soft import (
     TUTORIAL_BLUR_RADIUS,
@@ -71,14 +72,12 @@ __all__ = [
     "TUTORIAL_SILHOUETTE_WEIGHTS",
     "TUTORIAL_TEXTURED_WEIGHTS",
     "MultiViewData",
-    "MultiViewDataset",
+    "MultiViewSplit",
     "ViewsEvaluator",
     "ViewsFitResult",
     "cow_multiview_dataset",
     "fit_mesh_to_views",
-    "psnr",
     "render_multiview_dataset",
-    "silhouette_iou",
 ]
 
 #: Silhouette-stage methods of :func:`fit_mesh_to_views`.
@@ -171,7 +170,7 @@ class MultiViewData:
 
 
 @dataclass
-class MultiViewDataset:
+class MultiViewSplit:
     """The tutorial's training views, held-out views and the true mesh.
 
     Attributes
@@ -206,7 +205,7 @@ def _fibonacci_directions(n: int, offset: float = 0.5):
 
 def render_multiview_dataset(mesh: Mesh, *, num_views: int = 20, image_size: int = 128,
                              num_heldout: int = 16, dist: float = 2.7,
-                             light_location=(0.0, 0.0, -3.0), name: str = "") -> MultiViewDataset:
+                             light_location=(0.0, 0.0, -3.0), name: str = "") -> MultiViewSplit:
     """Render the fit_textured_mesh tutorial's dataset of a (normalised, textured) mesh.
 
     Training views: ``elev = linspace(0, 360, num_views)``, ``azim = linspace(-180, 180,
@@ -229,7 +228,7 @@ def render_multiview_dataset(mesh: Mesh, *, num_views: int = 20, image_size: int
 
     Returns
     -------
-    MultiViewDataset
+    MultiViewSplit
     """
     from ..render import (
         MeshRasterizer,
@@ -273,12 +272,12 @@ def render_multiview_dataset(mesh: Mesh, *, num_views: int = 20, image_size: int
            "heldout_elev": he.tolist(), "heldout_azim": ha.tolist(),
            "light_location": loc.tolist(), "sigma": _SIGMA, "blur_radius": TUTORIAL_BLUR_RADIUS,
            "faces_per_pixel": 50}
-    return MultiViewDataset(MultiViewData(cams, sil, img, lights),
+    return MultiViewSplit(MultiViewData(cams, sil, img, lights),
                             MultiViewData(cams_h, mask_h, img_h, lights), mesh, name, cfg)
 
 
 def cow_multiview_dataset(*, num_views: int = 20, image_size: int = 128,
-                          num_heldout: int = 16) -> MultiViewDataset:
+                          num_heldout: int = 16) -> MultiViewSplit:
     """The tutorial's dataset of the cow (or of the textured stand-in when the cow is absent).
 
     The mesh comes from :func:`geofit.data.load_textured_mesh` and is normalised as in the
@@ -286,7 +285,7 @@ def cow_multiview_dataset(*, num_views: int = 20, image_size: int = 128,
 
     Returns
     -------
-    MultiViewDataset
+    MultiViewSplit
         ``name`` says which mesh was used.
     """
     from ..data import load_textured_mesh
@@ -298,45 +297,8 @@ def cow_multiview_dataset(*, num_views: int = 20, image_size: int = 128,
 
 
 # =========================================================================================
-# Metrics
+# Held-out evaluation (image metrics: geofit.metrics)
 # =========================================================================================
-
-
-def silhouette_iou(pred, target, threshold: float = 0.5) -> np.ndarray:
-    """Intersection over union of silhouettes, per view.
-
-    Parameters
-    ----------
-    pred, target : (N, H, W) float64 or bool
-        Silhouettes; values above ``threshold`` count as inside.
-    threshold : float
-
-    Returns
-    -------
-    iou : (N,) float64
-        1.0 for a view where both are empty.
-    """
-    p = np.asarray(pred) > threshold
-    t = np.asarray(target) > threshold
-    if p.shape != t.shape or p.ndim != 3:
-        raise ValueError(f"pred, target: expected equal shapes (N, H, W), got {p.shape} and "
-                         f"{t.shape}")
-    inter = np.count_nonzero(p & t, axis=(1, 2))
-    union = np.count_nonzero(p | t, axis=(1, 2))
-    return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
-
-
-def psnr(pred, target, max_value: float = 1.0) -> float:
-    """Peak signal-to-noise ratio ``10 log10(max^2 / MSE)`` over all pixels and channels.
-
-    Returns inf for identical images.
-    """
-    p = np.asarray(pred, np.float64)
-    t = np.asarray(target, np.float64)
-    if p.shape != t.shape:
-        raise ValueError(f"pred, target: expected equal shapes, got {p.shape} and {t.shape}")
-    mse = float(np.mean((p - t) ** 2))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(max_value ** 2 / mse)
 
 
 class ViewsEvaluator:

@@ -57,6 +57,7 @@ from scipy import ndimage
 
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
+from ..loss.huber import huber, huber_residual
 from ..render.raymarching import (
     _exclusive_product,
     _shifted_cumprod,
@@ -80,7 +81,6 @@ __all__ = [
     "VolumeFitResult",
     "VolumeMetrics",
     "fit_volume",
-    "huber",
     "render_volume",
     "visual_hull",
     "volume_metrics",
@@ -94,44 +94,8 @@ _LOGIT_CLIP = 1e-6    # opacities/colours are kept in [clip, 1 - clip] when conv
 
 
 # --------------------------------------------------------------------------------------------
-# Loss
+# Adam's step-size check
 # --------------------------------------------------------------------------------------------
-
-
-def huber(x, target, scaling: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """The tutorial's pseudo-Huber loss, elementwise, and its derivative.
-
-    ``h(x, y) = s * (sqrt(max(1 + (x - y)^2 / s^2, 1e-4)) - 1)``; the clamp never binds since
-    the argument is at least 1.
-
-    Parameters
-    ----------
-    x : (...) float64
-        Prediction.
-    target : (...) float64
-        Target, broadcastable to ``x``.
-    scaling : float
-        ``s`` (0.1 in the tutorial), > 0.
-
-    Returns
-    -------
-    values : (...) float64
-        The loss of every element (take the mean as the tutorial does).
-    grad : (...) float64
-        ``d values / d x = (x - y) / (s sqrt(1 + (x - y)^2 / s^2))``.
-
-    Examples
-    --------
-    >>> v, g = huber(np.array([0.0, 0.1]), 0.0)
-    >>> v.round(6), g.round(6)
-    (array([0.      , 0.041421]), array([0.      , 0.707107]))
-    """
-    s = check_positive(scaling, "scaling")
-    x = as_array(x, "x")
-    y = as_array(target, "target")
-    r = x - y
-    q = np.sqrt(1.0 + (r / s) ** 2)
-    return s * (q - 1.0), r / (s * q)
 
 
 #: Logits beyond this are saturated: sigmoid' < 2e-22, no gradient can bring them back.
@@ -145,12 +109,6 @@ def _saturation_check(x: np.ndarray, lr: float) -> str | None:
         return (f"Adam: {100 * frac:.0f} % of the parameters were driven into saturation "
                 f"(|logit| > {_SATURATED:g}, zero gradient): learning rate {lr:g} too large")
     return None
-
-
-def _huber(r: np.ndarray, s: float):
-    """:func:`huber` of residuals ``r`` without validation (inner loops)."""
-    q = np.sqrt(1.0 + (r / s) ** 2)
-    return s * (q - 1.0), r / (s * q)
 
 
 # --------------------------------------------------------------------------------------------
@@ -647,8 +605,8 @@ class _Problem:
             w = d * T
             rgb = np.einsum("rk,rkc->rc", w, f)
             op = 1.0 - np.prod(1.0 - d, axis=1)
-            hc, gc = _huber(rgb - self.rgb[rays], s)
-            hs, gs = _huber(op - self.sil[rays], s)
+            hc, gc = huber_residual(rgb - self.rgb[rays], s)
+            hs, gs = huber_residual(op - self.sil[rays], s)
             col_sum += float(hc.sum(dtype=np.float64))
             sil_sum += float(hs.sum(dtype=np.float64))
             if per_ray is not None:

@@ -2,10 +2,12 @@
 
 - :func:`chamfer_distance` and :class:`ChamferTarget` (a KD-tree over a fixed target);
 - :class:`PointToSurface`: exact squared distance to a fixed target surface (no sampling noise);
+- :func:`huber`: the volume and NeRF tutorials' pseudo-Huber image loss;
 - mesh regularisers (:mod:`geofit.loss.mesh`): :func:`mesh_edge_loss`,
   :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`.
 """
 from .chamfer import ChamferResult, ChamferTarget, chamfer_distance
+from .huber import huber, huber_residual
 from .mesh import (
     mesh_edge_loss,
     mesh_laplacian_smoothing,
@@ -19,6 +21,8 @@ __all__ = [
     "ChamferTarget",
     "PointToSurface",
     "chamfer_distance",
+    "huber",
+    "huber_residual",
     "mesh_edge_loss",
     "mesh_laplacian_smoothing",
     "mesh_normal_consistency",
