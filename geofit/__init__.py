@@ -5,6 +5,7 @@ casting, Open3D KD-trees and scipy.sparse operators with analytic gradients.
 """
 from __future__ import annotations
 
+from . import data, fit, io, metrics, render
 from .cameras import (
     CamerasBase,
     FoVOrthographicCameras,
@@ -17,8 +18,7 @@ from .cameras import (
     ndc_grid,
     opencv_from_cameras_projection,
 )
-from . import data, fit, io, metrics, render
-from .fit import fit_mesh
+from .fit import fit_mesh, fit_mesh_to_views, fit_nerf, fit_volume
 from .io import (
     load_mesh,
     load_obj,
@@ -114,6 +114,9 @@ __all__ = [
     # fitting and metrics
     "fit",
     "fit_mesh",
+    "fit_mesh_to_views",
+    "fit_nerf",
+    "fit_volume",
     "metrics",
     # io / data
     "data",

@@ -6,6 +6,11 @@
   flat float64 vector, with budgets, statuses and non-finite guards.
 * :mod:`geofit.fit.mesh` -- :func:`fit_mesh` (PyTorch3D's deform tutorial and faster solvers),
   the large-steps parameterisation and coarse-to-fine.
+* :mod:`geofit.fit.views` -- :func:`fit_mesh_to_views`: a mesh and its colours fitted to
+  multi-view silhouettes and images (tutorial 4).
+* :mod:`geofit.fit.volume` -- :func:`fit_volume`: a voxel grid of densities and colours fitted by
+  emission-absorption raymarching (tutorial 5).
+* :mod:`geofit.fit.nerf` -- :func:`fit_nerf`: a neural radiance field (tutorial 6).
 """
 from __future__ import annotations
 
@@ -21,7 +26,10 @@ from .mesh import (
     MeshObjective,
     fit_mesh,
 )
+from .nerf import NerfConfig, NerfFitResult, fit_nerf
 from .solvers import SOLVERS, SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, minimize, sgd
+from .views import MultiViewData, ViewsFitResult, fit_mesh_to_views
+from .volume import VolumeFitResult, fit_volume
 
 __all__ = [
     "CONVERGED_STATUSES",
@@ -38,10 +46,18 @@ __all__ = [
     "LargeSteps",
     "MeshFitResult",
     "MeshObjective",
+    "MultiViewData",
+    "NerfConfig",
+    "NerfFitResult",
     "SolveResult",
     "StepInfo",
+    "ViewsFitResult",
+    "VolumeFitResult",
     "adam",
     "fit_mesh",
+    "fit_mesh_to_views",
+    "fit_nerf",
+    "fit_volume",
     "lbfgs_nlopt",
     "lbfgs_scipy",
     "minimize",
