@@ -139,3 +139,16 @@ def test_validation():
         fscore(m, m, tau=0.0)
     with pytest.raises(ValueError, match="at least one face"):
         evaluate_mesh(m, Mesh(m.verts, np.zeros((0, 3), np.int64)))
+
+
+def test_image_metric_and_huber_docstring_examples():
+    """The Examples of geofit.metrics (psnr, silhouette_iou) and geofit.loss.huber run."""
+    import doctest
+
+    import geofit.loss.huber as gh
+    import geofit.metrics as gm
+
+    for mod in (gm, gh):
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0, mod.__name__
+        assert result.attempted > 0, mod.__name__

@@ -172,6 +172,18 @@ def visual_hull(silhouettes, cameras: CamerasBase, volume_size, voxel_size: floa
     -------
     hull : (D, H, W) bool
         True for voxels that may be occupied.
+
+    Examples
+    --------
+    Two views (front and side) of a centred disc carve a cylinder-like hull out of a 16^3 grid:
+
+    >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+    >>> R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
+    >>> yy, xx = np.mgrid[:32, :32]
+    >>> disc = ((xx - 15.5) ** 2 + (yy - 15.5) ** 2 < 8 ** 2).astype(float)
+    >>> hull = visual_hull(np.stack([disc, disc]), FoVPerspectiveCameras(R=R, T=T), 16, 0.15)
+    >>> hull.shape, bool(hull[8, 8, 8]), bool(hull[0, 0, 0]), int(hull.sum()) < 16 ** 3
+    ((16, 16, 16), True, False, True)
     """
     sil = as_array(silhouettes, "silhouettes", (None, None, None))
     N = sil.shape[0]
