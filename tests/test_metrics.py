@@ -142,10 +142,10 @@ def test_validation():
 
 
 def test_image_metric_and_huber_docstring_examples():
-    """The Examples of geofit.metrics (psnr, silhouette_iou) and geofit.loss.huber run."""
+    """The Examples of geofit.metrics (psnr, silhouette_iou) and geofit.loss.robust (huber) run."""
     import doctest
 
-    import geofit.loss.huber as gh
+    import geofit.loss.robust as gh
     import geofit.metrics as gm
 
     for mod in (gm, gh):

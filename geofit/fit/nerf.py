@@ -59,7 +59,7 @@ import numpy as np
 
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
-from ..loss.huber import huber
+from ..loss.robust import huber
 from ..metrics import psnr
 from ..nn._threads import cpu_count, run_parallel
 from ..nn.optim import Adam, exponential_decay, step_decay

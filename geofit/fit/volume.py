@@ -57,7 +57,7 @@ from scipy import ndimage
 
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
-from ..loss.huber import huber, huber_residual
+from ..loss.robust import huber, huber_residual
 from ..render.raymarching import (
     _exclusive_product,
     _shifted_cumprod,

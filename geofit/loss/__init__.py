@@ -7,7 +7,7 @@
   :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`.
 """
 from .chamfer import ChamferResult, ChamferTarget, chamfer_distance
-from .huber import huber, huber_residual
+from .robust import huber, huber_residual
 from .mesh import (
     mesh_edge_loss,
     mesh_laplacian_smoothing,

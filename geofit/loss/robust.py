@@ -1,4 +1,4 @@
-"""The pseudo-Huber loss of PyTorch3D's volume and NeRF tutorials, with its derivative.
+"""The pseudo-Huber (robust) loss of PyTorch3D's volume and NeRF tutorials, with its derivative.
 
 ``h(x, y) = s (sqrt(1 + (x - y)^2 / s^2) - 1)`` elementwise (the tutorials' ``huber`` clamps the
 square root's argument at 1e-4, which never binds since the argument is at least 1); it is
