@@ -272,9 +272,15 @@ def _plot(report: BenchmarkReport, path: Path) -> None:
                label=f"{TARGET_PSNR} dB (tutorial 5's voxel volume)")
     ax.set_xscale("log")
     lo, hi = ax.get_ylim()
-    for t, text, c in vlines:
+    # the two extrapolations can nearly coincide: label the left line on its left and the
+    # right one on its right, with room on the axis for the latter
+    vlines.sort(key=lambda v: v[0])
+    for j, (t, text, c) in enumerate(vlines):
+        right = j == len(vlines) - 1 and len(vlines) > 1
         ax.annotate(text, (t, lo + 0.35 * (hi - lo)), color=c, fontsize=7, rotation=90,
-                    ha="right", va="bottom")
+                    ha="left" if right else "right", va="bottom")
+    if vlines:
+        ax.set_xlim(right=vlines[-1][0] * 4.0)
     ax.set_xlabel("solver wall time (s, log)")
     ax.set_ylabel("held-out PSNR (dB)")
     ax.set_title("held-out PSNR against time")
