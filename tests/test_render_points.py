@@ -139,7 +139,7 @@ def test_images_match_pytorch3d(ref, cam, rk, radius, name, compositor):
 def test_rasterize_points_matches_naive_loop(H, W, threads, monkeypatch):
     """The vectorised core equals the heap-per-pixel loop, also for non-square images and when
     the rows are split into bands for threads."""
-    monkeypatch.setattr(points_mod, "_THREADS", threads)
+    monkeypatch.setattr(points_mod, "get_num_threads", lambda: threads)
     monkeypatch.setattr(points_mod, "_THREAD_MIN_POINTS", 0)
     rng = np.random.default_rng(1)
     n = 60

@@ -57,11 +57,11 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
 from ..metrics import psnr
-from ..nn._threads import cpu_count, run_parallel
 from ..nn.optim import Adam, exponential_decay, step_decay
 from ..render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
 from ..render.raymarching import EmissionAbsorptionRaymarcher
@@ -122,7 +122,7 @@ class NerfConfig:
     2 px wider than the object's coverage in the RGB images, and fitting both makes an opaque
     black shell around the object, invisible from the training elevation but dark from above.
 
-    Execution: ``dtype`` of the network, ``n_threads`` (None: up to 2), ``chunk_rays`` for the
+    Execution: ``dtype`` of the network, ``n_threads`` (None: :func:`geofit.get_num_threads`), ``chunk_rays`` for the
     full-image renders.
     """
 
@@ -343,7 +343,7 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
     chunk_rays : int
         Rays per chunk (bounds memory).
     n_threads : int, optional
-        Threads over chunks (None: up to 2).
+        Threads over chunks (None: :func:`geofit.get_num_threads`).
 
     Returns
     -------
@@ -362,13 +362,13 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
     bundle = sampler(cameras)
     flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
     r = flat.origins.shape[0]
-    n_threads = min(2, cpu_count()) if n_threads is None else max(int(n_threads), 1)
+    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
     chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]
 
     def work(sl):
         return renderer._render_flat(RayBundle(*(a[sl] for a in flat)), field, cache=False)[0]
 
-    out = np.concatenate(run_parallel(work, chunks, n_threads), axis=0)
+    out = np.concatenate(parallel_map(work, chunks, n_threads), axis=0)
     return out.reshape(len(cameras), int(H), int(W), 4)
 
 
@@ -450,7 +450,7 @@ class _DensityGrid:
             idx = np.zeros(len(p), dtype=np.int64)
             return field._forward(p, dirs, idx, None, False)[0][:, 0]
 
-        new = np.concatenate(run_parallel(work, chunks, n_threads)) if len(pts) else \
+        new = np.concatenate(parallel_map(work, chunks, n_threads)) if len(pts) else \
             np.zeros(0, np.float32)
         old = self.opacity[self.cells]
         self.opacity[self.cells] = np.maximum(new, self.decay * np.minimum(old, 1.0))
@@ -536,7 +536,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             raise ValueError(f"early_stopping: expected an integer >= 1, got {early_stopping!r}")
     rng = as_rng(seed)
     clock = Clock()  # the set-up (hull, rays) is part of the method's time
-    n_threads = min(2, cpu_count()) if cfg.n_threads is None else int(cfg.n_threads)
+    n_threads = get_num_threads() if cfg.n_threads is None else int(cfg.n_threads)
     if init is None:
         field = cfg.network(seed=rng)
     elif isinstance(init, NeuralRadianceField):
@@ -673,7 +673,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             k = cache.ray_index.size
             return lc.sum() / (3 * R), ls.sum() / R, lo, grads, k
 
-        outs = run_parallel(work, [p for p in parts if p.stop > p.start], n_threads)
+        outs = parallel_map(work, [p for p in parts if p.stop > p.start], n_threads)
         terms = {"color": sum(o[0] for o in outs), "silhouette": sum(o[1] for o in outs)}
         if cfg.opacity_regularization > 0:
             terms["opacity"] = sum(o[2] for o in outs)

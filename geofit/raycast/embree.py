@@ -14,12 +14,11 @@ the three things that keep its answers accurate are (as in trimesh):
 from __future__ import annotations
 
 import itertools
-import os
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
 
+from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_points
 from ..structures import Meshes, as_meshes
 
@@ -127,9 +126,11 @@ class RayCaster:
     meshes : Mesh or Meshes or sequence of Mesh
         The geometry. Mesh ``i`` of the batch is reported as ``mesh_id == i``.
     n_threads : int, optional
-        Threads used for large ray batches (default: the CPUs available to this process). The
-        rays are split into ``n_threads`` contiguous chunks, each cast and refined on its own
-        thread (embreex releases the GIL); results do not depend on the thread count.
+        Threads used for large ray batches (default: :func:`geofit.get_num_threads`, read at
+        each call: the CPUs available to this process unless overridden). The rays are split
+        into ``n_threads`` contiguous chunks, each cast and refined on its own thread of
+        geofit's shared pool (embreex releases the GIL); results do not depend on the thread
+        count.
     parallel_min : int, optional
         Ray counts below this are cast in one call on the calling thread (default 50 000).
     robust : bool, optional
@@ -160,9 +161,9 @@ class RayCaster:
     4.3 ms for 5,120 faces and 75-225 ms for 100,000 faces; ``benchmarks/raycast.py`` records
     the current figures.
 
-    *Threads.* Large batches are split into ``n_threads`` chunks on a
-    ``concurrent.futures.ThreadPoolExecutor``; each chunk runs Embree (which releases the GIL)
-    and its own float64 refinement.
+    *Threads.* Large batches are split into ``n_threads`` chunks on geofit's shared thread pool
+    (:mod:`geofit._threads`); each chunk is one Embree call (which releases the GIL) and its own
+    float64 refinement, so a batch of rays costs ``n_threads`` Embree calls, not one per ray.
 
     Examples
     --------
@@ -177,16 +178,12 @@ class RayCaster:
     def __init__(self, meshes, *, n_threads: int | None = None,
                  parallel_min: int = _DEFAULT_PARALLEL_MIN, robust: bool = True):
         self._meshes = as_meshes(meshes)
-        if n_threads is None:
-            try:
-                n_threads = len(os.sched_getaffinity(0))
-            except AttributeError:  # not on Linux
-                n_threads = os.cpu_count() or 1
-        if not isinstance(n_threads, (int, np.integer)) or n_threads < 1:
+        if n_threads is not None and (not isinstance(n_threads, (int, np.integer))
+                                      or n_threads < 1):
             raise ValueError(f"n_threads: expected an integer >= 1, got {n_threads!r}")
         if not isinstance(parallel_min, (int, np.integer)) or parallel_min < 1:
             raise ValueError(f"parallel_min: expected an integer >= 1, got {parallel_min!r}")
-        self.n_threads = int(n_threads)
+        self._n_threads = None if n_threads is None else int(n_threads)
         self.parallel_min = int(parallel_min)
         self._robust = bool(robust)
         self._build()
@@ -220,6 +217,11 @@ class RayCaster:
         # One tiny query commits the scene before any threads share it.
         scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self._scene = scene
+
+    @property
+    def n_threads(self) -> int:
+        """Threads (and chunks) used for a large batch of rays."""
+        return get_num_threads() if self._n_threads is None else self._n_threads
 
     @property
     def meshes(self) -> Meshes:
@@ -354,18 +356,15 @@ class RayCaster:
         return (np.asarray(res) >= 0) & ~empty
 
     def _chunks(self, r: int) -> list[slice]:
-        if r < self.parallel_min or self.n_threads == 1:
+        n = self.n_threads
+        if r < self.parallel_min or n == 1:
             return [slice(0, r)]
-        bounds = np.linspace(0, r, self.n_threads + 1).astype(int)
+        bounds = np.linspace(0, r, n + 1).astype(int)
         return [slice(a, b) for a, b in itertools.pairwise(bounds)]
 
     def _map(self, fn, o, d, tn, tf) -> list:
-        parts = self._chunks(len(o))
-        if len(parts) == 1:
-            return [fn(o, d, tn, tf)]
-        with ThreadPoolExecutor(len(parts)) as ex:
-            futures = [ex.submit(fn, o[p], d[p], tn[p], tf[p]) for p in parts]
-            return [f.result() for f in futures]
+        return parallel_map(lambda p: fn(o[p], d[p], tn[p], tf[p]), self._chunks(len(o)),
+                            self.n_threads)
 
     def cast(self, origins, directions, *, tnear=0.0, tfar=np.inf) -> RayHits:
         """First hit of each ray ``origins + t * directions`` with ``tnear <= t <= tfar``.

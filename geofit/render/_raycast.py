@@ -9,21 +9,18 @@ way as RayCaster's: vertices mapped into ``[-1, 1]^3`` and robust (watertight) t
 """
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
+
+from .._threads import get_num_threads, parallel_map
 
 # Rays per task handed to a worker thread (a few tasks per thread balance the load).
 _TASK_RAYS = 65_536
 
 
 def n_threads_default() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+    return get_num_threads()
 
 
 class Scene:
@@ -223,11 +220,8 @@ def cast_pixels(scene: Scene, pixels: np.ndarray, rays: list[ViewRays], xs: np.n
 
     if len(pixels) == 0:
         parts = []
-    elif n_threads > 1 and n_tasks > 1:
-        with ThreadPoolExecutor(n_threads) as ex:
-            parts = list(ex.map(run, range(n_tasks)))
     else:
-        parts = [run(k) for k in range(n_tasks)]
+        parts = parallel_map(run, range(n_tasks), n_threads)
     if not parts:
         return PixelHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
                          np.zeros(0))

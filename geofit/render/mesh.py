@@ -14,13 +14,13 @@ are refined in float64.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 
+from .._threads import parallel_map
 from .._validate import check_positive
 from ..cameras import CamerasBase, ndc_grid
 from ..structures import Mesh, Meshes
@@ -212,10 +212,7 @@ class Fragments:
         """``[fn(sl) for sl in chunks]``, run on the worker threads."""
         parts = self._chunks()
         n = self._ctx.get("n_threads", 1)
-        if len(parts) == 1 or n == 1:
-            return [fn(p) for p in parts]
-        with ThreadPoolExecutor(n) as ex:
-            return list(ex.map(fn, parts))
+        return parallel_map(fn, parts, n)
 
     def _interp(self, table: np.ndarray, sl: slice, bary: np.ndarray | None = None) -> np.ndarray:
         """(C, len) barycentric interpolation of a (C, sum V) per-vertex table over hits ``sl``."""
@@ -702,8 +699,7 @@ def _refine_threaded(hits, vtri, xy_packed, z_packed, perspective, pc, rays, xs,
         sub = _raycast.PixelHits(hits.pixel[sl], hits.face[sl], hits.bary[sl], hits.depth[sl])
         return _refine(sub, vtri[sl], xy_packed, z_packed, perspective, pc, rays, xs, ys, mesh)
 
-    with ThreadPoolExecutor(n_threads) as ex:
-        parts = list(ex.map(run, range(m)))
+    parts = parallel_map(run, range(m), n_threads)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 

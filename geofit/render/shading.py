@@ -19,10 +19,10 @@ the diffuse and specular terms where it is blocked (hard shadows; off by default
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..structures import TexturesUV
 from .blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
 from .lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
@@ -262,11 +262,7 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
             return sc.occluded(np.ascontiguousarray(on[c]), np.ascontiguousarray(dn[c]),
                                np.ascontiguousarray(tfar[c]))
 
-        if len(chunks) > 1 and n_threads > 1:
-            with ThreadPoolExecutor(n_threads) as ex:
-                occ = np.concatenate(list(ex.map(run, chunks)))
-        else:
-            occ = run(chunks[0])
+        occ = np.concatenate(parallel_map(run, chunks, n_threads))
         vis[sel[occ & ok]] = 0.0
     return vis
 

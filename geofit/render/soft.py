@@ -61,8 +61,6 @@ Reasoning", ICCV 2019. PyTorch3D v0.7.9: ``renderer/mesh/rasterizer.py``, ``rend
 from __future__ import annotations
 
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, NamedTuple
@@ -70,6 +68,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
+from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, check_positive
 from ..cameras import CamerasBase
 from ..structures import Mesh
@@ -140,7 +139,7 @@ class SoftRasterizationSettings:
         Largest number of (face, pixel) candidate pairs tested at once per thread; bounds the
         memory (about 0.2 kB per pair in flight).
     n_threads : int or None
-        Threads over views (default: the CPU count, at most 8).
+        Threads over views (default: :func:`geofit.get_num_threads`).
 
     Examples
     --------
@@ -199,17 +198,14 @@ class SoftRasterizationSettings:
 
 def _n_threads(n) -> int:
     if n is None:
-        return max(1, min(os.cpu_count() or 1, 8))
+        return get_num_threads()
     return int(n)
 
 
 def _map_views(fn, n_views: int, n_threads: int) -> list:
     """``[fn(v) for v in range(n_views)]``, on a thread pool when it helps (numpy releases the
     GIL in its array loops)."""
-    if n_threads <= 1 or n_views <= 1:
-        return [fn(v) for v in range(n_views)]  # loop over views
-    with ThreadPoolExecutor(max_workers=min(n_threads, n_views)) as ex:
-        return list(ex.map(fn, range(n_views)))
+    return parallel_map(fn, range(n_views), n_threads)
 
 
 @dataclass(eq=False)
