@@ -256,8 +256,9 @@ _THREAD_RULES = [
     (re.compile(r"openblas", re.I), "talks to OpenBLAS"),
 ]
 _EMBREE_RULES = [
-    (re.compile(r"\bembreex\b"), "imports embreex"),
-    (re.compile(r"\bEmbreeScene\b|\brtcore_scene\b|\bmesh_construction\b"),
+    (re.compile(r"^\s*(import|from)\s+embreex\b|import_module\(\s*.embreex", re.M),
+     "imports embreex"),
+    (re.compile(r"\brtcore_scene\b|\bmesh_construction\b|\bTriangleMesh\(scene"),
      "builds an Embree scene"),
 ]
 

@@ -23,6 +23,7 @@ import numpy as np
 from .._threads import parallel_map
 from .._validate import check_positive
 from ..cameras import CamerasBase, ndc_grid
+from ..raycast.embree import EmbreeScene
 from ..structures import Mesh, Meshes
 from . import _raycast
 from ._settings import image_hw
@@ -452,13 +453,13 @@ class MeshRasterizer:
     def __init__(self, cameras=None, raster_settings: RasterizationSettings | None = None):
         self.cameras = cameras
         self.raster_settings = raster_settings or RasterizationSettings()
-        self._scenes: list[tuple[np.ndarray, np.ndarray, _raycast.Scene]] = []
+        self._scenes: list[tuple[np.ndarray, np.ndarray, EmbreeScene]] = []
 
-    def _scene(self, mesh: Mesh) -> _raycast.Scene:
+    def _scene(self, mesh: Mesh) -> EmbreeScene:
         for v, f, sc in self._scenes:
             if v is mesh.verts and f is mesh.faces:
                 return sc
-        sc = _raycast.Scene(mesh.verts, mesh.faces)
+        sc = EmbreeScene([(mesh.verts, mesh.faces)])
         self._scenes.insert(0, (mesh.verts, mesh.faces, sc))
         del self._scenes[self._CACHE_SIZE:]
         return sc
