@@ -44,7 +44,7 @@ from geofit import PointCloud
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
 from geofit.data import load_textured_mesh
 from geofit.ops import sample_points_from_meshes
-from geofit.render.compositing import AlphaCompositor, NormWeightedCompositor
+from geofit.render.points.compositing import AlphaCompositor, NormWeightedCompositor
 from geofit.render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
 
 REPO = Path(__file__).resolve().parent.parent

@@ -790,7 +790,7 @@ _BRIDGE = "PittsburghBridge/pointcloud.npz"
 
 
 def _points_stability(cloud, cameras, size: str) -> list[dict]:
-    from .render.compositing import AlphaCompositor
+    from .render.points.compositing import AlphaCompositor
     from .render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
     from .structures import PointCloud
 
@@ -851,7 +851,7 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
         MeshRenderer,
         RasterizationSettings,
     )
-    from .render.compositing import AlphaCompositor, NormWeightedCompositor
+    from .render.points.compositing import AlphaCompositor, NormWeightedCompositor
     from .render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
     from .structures import PointCloud
 
@@ -998,8 +998,8 @@ def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int)
 
 
 def _render_volume(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
-    from .render.raymarching import EmissionAbsorptionRaymarcher
-    from .render.raysampling import NDCMultinomialRaysampler
+    from .render.volume.raymarching import EmissionAbsorptionRaymarcher
+    from .render.volume.raysampling import NDCMultinomialRaysampler
     from .render.volume import VolumeRenderer
 
     r = VolumeRenderer(NDCMultinomialRaysampler(image_width=image_size, image_height=image_size,

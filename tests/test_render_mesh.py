@@ -33,7 +33,7 @@ from geofit.render import (
     sample_textures,
 )
 from geofit.render.lighting import diffuse, specular
-from geofit.render.textures import sample_texels
+from geofit.render.mesh.textures import sample_texels
 
 DATA = Path(__file__).parent / "data"
 REF = np.load(DATA / "render_mesh.npz")

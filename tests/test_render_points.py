@@ -8,8 +8,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from geofit import PointCloud, Pointclouds
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-from geofit.render import points as points_mod
-from geofit.render.compositing import (
+from geofit.render.points import rasterizer as points_mod
+from geofit.render.points.compositing import (
     AlphaCompositor,
     NormWeightedCompositor,
     add_background_color,
@@ -476,7 +476,7 @@ def test_docstring_examples():
     """The Examples sections of the points and compositing modules run as doctests."""
     import doctest
 
-    from geofit.render import compositing
+    from geofit.render.points import compositing
 
     for mod in (points_mod, compositing):
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)

@@ -1,5 +1,5 @@
 """Tests for geofit.render.soft (soft rasterizer, silhouette and Phong blends, vjps) and
-geofit.render.contour (the contour gradient of the hard silhouette loss).
+geofit.render.soft.contour (the contour gradient of the hard silhouette loss).
 
 Non-differentiable terms (tested away from them): which faces a pixel keeps (blur cut-off,
 top-K, z >= 0), the choice of the nearest edge, barycentric clipping, relu of the diffuse term,
@@ -33,7 +33,7 @@ from geofit.render import (
     RasterizationSettings,
     SoftPhongShader,
 )
-from geofit.render.contour import ContourSilhouetteLoss, contour_edges
+from geofit.render.soft.contour import ContourSilhouetteLoss, contour_edges
 from geofit.render.soft import (
     TUTORIAL_BLUR_RADIUS,
     SoftFragments,

@@ -26,9 +26,9 @@ ROOT = Path(__file__).resolve().parents[1]
 # Every module that runs work on geofit's pool, by component.
 COMPONENTS = {
     "raycaster": "geofit.raycast.embree",
-    "mesh": "geofit.render._raycast",
-    "soft": "geofit.render.soft",
-    "points": "geofit.render.points",
+    "mesh": "geofit.render.mesh._raycast",
+    "soft": "geofit.render.soft.rasterizer",
+    "points": "geofit.render.points.rasterizer",
     "volume": "geofit.fit.volume",
     "nerf": "geofit.fit.nerf",
 }
@@ -45,7 +45,7 @@ def _workloads() -> dict:
         PointsRasterizer,
         RasterizationSettings,
     )
-    from geofit.render.implicit import NeuralRadianceField
+    from geofit.render.volume.implicit import NeuralRadianceField
     from geofit.render.soft import SoftRasterizationSettings, rasterize_soft
 
     mesh = ico_sphere(2)

@@ -10,12 +10,12 @@ import pytest
 import scipy.sparse as sp
 
 from geofit.cameras import FoVPerspectiveCameras
-from geofit.render.raymarching import (
+from geofit.render.volume.raymarching import (
     AbsorptionOnlyRaymarcher,
     EmissionAbsorptionRaymarcher,
     sample_deltas,
 )
-from geofit.render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from geofit.render.volume import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
 from geofit.render.volume import VolumeRenderer
 from geofit.structures.volume import Volume, trilinear_matrix, voxel_footprint
 
@@ -457,9 +457,9 @@ def test_docstring_examples():
 
     import geofit.datasets as gd
     import geofit.fit.volume as gfv
-    import geofit.render.raymarching as grm
-    import geofit.render.raysampling as grs
-    import geofit.render.volume as grv
+    import geofit.render.volume.raymarching as grm
+    import geofit.render.volume.raysampling as grs
+    import geofit.render.volume.renderer as grv
     import geofit.structures.volume as gsv
 
     for mod in (gsv, grm, grs, grv, gfv, gd):

@@ -6,7 +6,7 @@ the cow: per step 6 random views, 750 Monte Carlo rays per view with 128 samples
 depths [0.1, 3.0], Huber losses (scale 0.1) on the colours and the silhouettes (targets sampled
 bilinearly at the rays' xy), Adam with lr 1e-3 for 3000 steps and a new Adam at lr 1e-4 from 75 %.
 :func:`fit_nerf` with ``preset="tutorial"`` runs exactly that recipe, with the gradients of
-:mod:`geofit.render.implicit` (pixels -> raymarcher vjp -> density and colour heads -> trunk).
+:mod:`geofit.render.volume` (pixels -> raymarcher vjp -> density and colour heads -> trunk).
 
 geofit's scene-sized recipe (``preset="scene"``) fits the same kind of field but models no more
 than the scene needs:
@@ -63,9 +63,15 @@ from ..cameras import CamerasBase
 from ..loss.robust import huber
 from ..metrics import psnr
 from ..nn.optim import Adam, exponential_decay, step_decay
-from ..render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
-from ..render.raymarching import EmissionAbsorptionRaymarcher
-from ..render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from ..render.volume import (
+    EmissionAbsorptionRaymarcher,
+    ImplicitRenderer,
+    MonteCarloRaysampler,
+    NDCMultinomialRaysampler,
+    NeuralRadianceField,
+    OccupancyGrid,
+    RayBundle,
+)
 from .history import Clock, FitHistory, FitResult
 
 __all__ = [
@@ -93,7 +99,7 @@ _CHUNK_SAMPLES = 1 << 17
 class NerfConfig:
     """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the presets.
 
-    Network (see :class:`~geofit.render.implicit.NeuralRadianceField`): ``n_harmonic_functions``,
+    Network (see :class:`~geofit.render.NeuralRadianceField`): ``n_harmonic_functions``,
     ``omega0``, ``append_input``, ``n_hidden_neurons``, ``n_hidden_layers``,
     ``n_harmonic_functions_dir``, ``omega0_dir``, ``n_hidden_color``, ``activation``, ``beta``.
 

@@ -60,14 +60,14 @@ from .._threads import get_num_threads, one_blas_thread, parallel_map
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
-from ..render.raymarching import (
+from ..render.volume.raymarching import (
     _exclusive_product,
     _shifted_cumprod,
     _suffix_from,
     _through_transmittance,
 )
-from ..render.raysampling import NDCMultinomialRaysampler
-from ..render.volume import (
+from ..render.volume.raysampling import NDCMultinomialRaysampler
+from ..render.volume.renderer import (
     _cell_table,
     _range_layout,
     _range_operator,
@@ -283,7 +283,7 @@ def render_volume(volume: Volume, cameras: CamerasBase, image_size=128, *,
         Colours and opacity (empty-space skipping makes this fast; the result is the full
         ray march's).
     """
-    from ..render.raymarching import EmissionAbsorptionRaymarcher
+    from ..render.volume.raymarching import EmissionAbsorptionRaymarcher
     from ..render.volume import VolumeRenderer
 
     if isinstance(image_size, (numbers.Integral, np.integer)):

@@ -68,12 +68,12 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .._threads import get_num_threads, parallel_map
-from .._validate import as_array, check_positive
-from ..cameras import CamerasBase
-from ..structures import Mesh
-from ._settings import image_hw
-from .blending import BlendParams
+from ..._threads import get_num_threads, parallel_map
+from ..._validate import as_array, check_positive
+from ...cameras import CamerasBase
+from ...structures import Mesh
+from .._settings import image_hw
+from ..blending import BlendParams
 
 __all__ = [
     "TUTORIAL_BLUR_RADIUS",
@@ -1222,7 +1222,7 @@ def _phong_chunk_vjp(cs, g, shade, s):
 
 
 def _light_params(lights, n_views):
-    from .lighting import AmbientLights, DirectionalLights, PointLights
+    from ..lighting import AmbientLights, DirectionalLights, PointLights
 
     if not isinstance(lights, (PointLights, DirectionalLights, AmbientLights)):
         raise TypeError(f"lights: expected PointLights, DirectionalLights or AmbientLights, got "
@@ -1663,8 +1663,8 @@ class SoftPhongRenderer:
     def __init__(self, cameras=None, lights=None, materials=None,
                  raster_settings: SoftRasterizationSettings | None = None,
                  blend_params: BlendParams | None = None):
-        from .lighting import PointLights
-        from .materials import Materials
+        from ..lighting import PointLights
+        from ..materials import Materials
 
         self.cameras = cameras
         self.lights = lights if lights is not None else PointLights()

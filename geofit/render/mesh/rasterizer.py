@@ -20,13 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from .._threads import parallel_map
-from .._validate import check_positive
-from ..cameras import CamerasBase, ndc_grid
-from ..raycast.embree import EmbreeScene
-from ..structures import Mesh, Meshes
+from ..._threads import parallel_map
+from ..._validate import check_positive
+from ...cameras import CamerasBase, ndc_grid
+from ...raycast.embree import EmbreeScene
+from ...structures import Mesh, Meshes
 from . import _raycast
-from ._settings import image_hw
+from .._settings import image_hw
 
 __all__ = [
     "Fragments",
@@ -724,7 +724,7 @@ class MeshRenderer:
     Parameters
     ----------
     rasterizer : MeshRasterizer
-    shader : a shader from :mod:`geofit.render.shading` (e.g. SoftPhongShader)
+    shader : a shader from :mod:`geofit.render.mesh.shading` (e.g. SoftPhongShader)
 
     Notes
     -----

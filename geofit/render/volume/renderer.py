@@ -1,7 +1,7 @@
 """Volume rendering: sample a :class:`~geofit.structures.volume.Volume` along rays and raymarch.
 
 :class:`VolumeRenderer` is PyTorch3D's ``VolumeRenderer``: a ray sampler gives a
-:class:`~geofit.render.raysampling.RayBundle`, the volume is sampled at every ray point with
+:class:`~geofit.render.volume.raysampling.RayBundle`, the volume is sampled at every ray point with
 ``grid_sample`` semantics (trilinear, zero padding, the volume's ``align_corners``) and a raymarcher
 composites each ray. The sampling step is the sparse matrix of
 :func:`~geofit.structures.volume.trilinear_matrix`, so :meth:`VolumeRenderer.vjp` carries an image
@@ -16,9 +16,9 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_array, check_choice
-from ..cameras import CamerasBase
-from ..structures.volume import Volume, trilinear_matrix
+from ..._validate import as_array, check_choice
+from ...cameras import CamerasBase
+from ...structures.volume import Volume, trilinear_matrix
 from .raymarching import AbsorptionOnlyRaymarcher, EmissionAbsorptionRaymarcher, sample_deltas
 from .raysampling import RayBundle
 
@@ -339,7 +339,7 @@ class VolumeRenderer:
     ----------
     raysampler : callable
         ``raysampler(cameras, **kwargs) -> RayBundle`` (e.g.
-        :class:`~geofit.render.raysampling.NDCMultinomialRaysampler`).
+        :class:`~geofit.render.volume.raysampling.NDCMultinomialRaysampler`).
     raymarcher : EmissionAbsorptionRaymarcher or AbsorptionOnlyRaymarcher
         Composites each ray (it needs a ``vjp`` method for :meth:`vjp`).
     sample_mode : {"bilinear", "nearest"}
@@ -358,7 +358,7 @@ class VolumeRenderer:
     Examples
     --------
     >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-    >>> from geofit.render.raysampling import NDCMultinomialRaysampler
+    >>> from geofit.render.volume.raysampling import NDCMultinomialRaysampler
     >>> R, T = look_at_view_transform(2.7, 0.0, 0.0)
     >>> vol = Volume(np.full((8, 8, 8), 0.1), np.ones((3, 8, 8, 8)), voxel_size=0.2)
     >>> renderer = VolumeRenderer(NDCMultinomialRaysampler(image_width=16, image_height=16,

@@ -13,8 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._threads import get_num_threads, parallel_map
-from ..raycast.embree import EmbreeScene, _moller_trumbore
+from ..._threads import get_num_threads, parallel_map
+from ...raycast.embree import EmbreeScene, _moller_trumbore
 
 # Rays per task handed to a worker thread (a few tasks per thread balance the load).
 _TASK_RAYS = 65_536

@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._threads import parallel_map
-from ..structures import TexturesUV
-from .blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
-from .lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
-from .materials import Materials
-from .mesh import Fragments
+from ..._threads import parallel_map
+from ...structures import TexturesUV
+from ..blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
+from ..lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
+from ..materials import Materials
+from .rasterizer import Fragments
 from .textures import UVTables, sample_texels_t
 
 __all__ = [
@@ -187,7 +187,7 @@ def sample_textures(fragments: Fragments, default=(1.0, 1.0, 1.0)) -> np.ndarray
     -------
     texels : (k, C) float32
         UV maps are sampled bilinearly with PyTorch3D's convention (see
-        :mod:`geofit.render.textures`), per-vertex colours interpolated, flat colours copied.
+        :mod:`geofit.render.mesh.textures`), per-vertex colours interpolated, flat colours copied.
 
     Raises
     ------
@@ -306,7 +306,7 @@ def _flat_chunk(fragments, sl, lights, centers, materials, idx, visibility, texe
 
 
 def _gouraud_table(fragments, lights, centers, materials):
-    from ..structures import TexturesVertex
+    from ...structures import TexturesVertex
 
     meshes = fragments.meshes
     for i, m in enumerate(meshes):  # loop over views

@@ -31,10 +31,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._threads import get_num_threads, parallel_map
-from .._validate import as_array, check_choice
-from ..cameras import CamerasBase
-from ..structures.pointcloud import Pointclouds, as_pointclouds
+from ..._threads import get_num_threads, parallel_map
+from ..._validate import as_array, check_choice
+from ...cameras import CamerasBase
+from ...structures.pointcloud import Pointclouds, as_pointclouds
 from .compositing import AlphaCompositor, NormWeightedCompositor
 
 __all__ = [

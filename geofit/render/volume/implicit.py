@@ -29,8 +29,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_array, as_rng, check_choice
-from ..nn.layers import Linear, ReLU, Sequential, Sigmoid, Softplus
+from ..._validate import as_array, as_rng, check_choice
+from ...nn.layers import Linear, ReLU, Sequential, Sigmoid, Softplus
 from .harmonic import HarmonicEmbedding
 from .raysampling import RayBundle
 
@@ -700,8 +700,8 @@ class ImplicitRenderer:
     Examples
     --------
     >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-    >>> from geofit.render.raymarching import EmissionAbsorptionRaymarcher
-    >>> from geofit.render.raysampling import MonteCarloRaysampler
+    >>> from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher
+    >>> from geofit.render.volume.raysampling import MonteCarloRaysampler
     >>> R, T = look_at_view_transform(2.7, 0.0, 180.0)
     >>> renderer = ImplicitRenderer(MonteCarloRaysampler(-1, 1, -1, 1, 8, 16, 0.1, 3.0),
     ...                             EmissionAbsorptionRaymarcher())
