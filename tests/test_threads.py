@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 COMPONENTS = {
     "raycaster": "geofit.raycast.embree",
     "mesh": "geofit.render.mesh._raycast",
-    "soft": "geofit.render.soft.rasterizer",
+    "soft": "geofit.render.soft.fragments",
     "points": "geofit.render.points.rasterizer",
     "volume": "geofit.fit.volume",
     "nerf": "geofit.fit.nerf",
@@ -313,3 +313,11 @@ def test_source_scan_catches_a_violation():
     assert sum(bool(rx.search(code)) for rx, _ in _EMBREE_RULES) == 2
     assert not any(rx.search(_code_only('"""uses ThreadPoolExecutor, embreex"""\nx = 1\n'))
                    for rx, _ in _THREAD_RULES + _EMBREE_RULES)
+
+
+def test_docstring_examples_run(clean_policy):
+    """The Examples of geofit._threads run (set_num_threads, then the default again)."""
+    import doctest
+
+    result = doctest.testmod(_threads, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0

@@ -466,3 +466,15 @@ def test_docstring_examples():
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0, mod.__name__
         assert result.attempted > 0, mod.__name__
+
+
+def test_implicit_docstring_examples():
+    """The Examples of the implicit renderer and the radiance field run as doctests."""
+    import doctest
+
+    import geofit.render.volume.implicit as gvi
+    import geofit.render.volume.radiance_field as gvf
+
+    for mod in (gvi, gvf):
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.attempted > 0 and result.failed == 0, mod.__name__

@@ -500,13 +500,43 @@ class HardPhongShader(_Shader):
 
 
 class SoftPhongShader(HardPhongShader):
-    """Per-pixel Phong shading with PyTorch3D's soft blending (``softmax_rgb_blend``, K = 1).
+    """Phong shading with PyTorch3D's soft blending (``softmax_rgb_blend``) of the fragments.
 
-    RGB equals HardPhongShader's on covered pixels; alpha is ``sigmoid(-dists / sigma)``, the
-    soft coverage of the kept face (0.5 to 1 inside it). Parameters as :class:`HardPhongShader`.
+    As in PyTorch3D, what it blends is what the rasterizer kept:
+
+    - on :class:`Fragments` of the (hard, ray-cast) :class:`MeshRasterizer`, K = 1: RGB equals
+      HardPhongShader's on covered pixels and alpha is ``sigmoid(-dists / sigma)``, the soft
+      coverage of the kept face (0.5 to 1 inside it) -- the render tutorial's setting;
+    - on :class:`~geofit.render.soft.SoftFragments` of :func:`~geofit.render.rasterize_soft`
+      (blur radius, K faces per pixel): the differentiable blend of the K faces of each pixel,
+      with ``TexturesVertex`` colours (float64 images; for the gradient use
+      :class:`~geofit.render.SoftPhongRenderer`, whose result has ``vjp``).
+
+    Parameters as :class:`HardPhongShader` (``shadows`` only on hard fragments).
     """
 
     _soft = True
+
+    def __call__(self, fragments, meshes=None, **kwargs) -> np.ndarray:
+        from ..soft.fragments import SoftFragments
+
+        if not isinstance(fragments, SoftFragments):
+            return super().__call__(fragments, meshes, **kwargs)
+        from ...structures import Mesh, TexturesVertex
+        from ..soft.renderer import shade_soft_phong
+
+        if self.shadows:
+            raise ValueError("shadows: shadow rays need the hard rasterizer's fragments")
+        if not isinstance(meshes, Mesh) or not isinstance(meshes.textures, TexturesVertex):
+            raise TypeError("meshes: expected the rasterized Mesh with TexturesVertex colours, "
+                            f"got {type(meshes)!r}")
+        cameras = kwargs.get("cameras", self.cameras)
+        if cameras is None:
+            raise ValueError("cameras: the soft fragments do not carry them; pass cameras=")
+        return shade_soft_phong(fragments, meshes, meshes.textures.verts_features,
+                                kwargs.get("lights", self.lights), cameras,
+                                kwargs.get("materials", self.materials),
+                                kwargs.get("blend_params", self.blend_params)).images
 
 
 class HardGouraudShader(_Shader):

@@ -5,18 +5,13 @@
 - :mod:`.raymarching`: :class:`EmissionAbsorptionRaymarcher`,
   :class:`AbsorptionOnlyRaymarcher` (each with its vector-Jacobian product).
 - :mod:`.renderer`: :class:`VolumeRenderer` (a voxel grid, trilinear sampling).
-- :mod:`.implicit`: :class:`ImplicitRenderer`, :class:`NeuralRadianceField`,
-  :class:`OccupancyGrid`.
+- :mod:`.implicit`: :class:`ImplicitRenderer`, :class:`OccupancyGrid`;
+  :mod:`.radiance_field`: :class:`NeuralRadianceField` (the NeRF tutorial's network).
 - :mod:`.harmonic`: :class:`HarmonicEmbedding` (and the tutorial's variant).
 """
 from .harmonic import HALF_PI_F32, HarmonicEmbedding, TutorialHarmonicEmbedding
-from .implicit import (
-    ACTIVATIONS,
-    ImplicitRenderer,
-    NeuralRadianceField,
-    OccupancyGrid,
-    RenderCache,
-)
+from .implicit import ImplicitRenderer, OccupancyGrid, RenderCache
+from .radiance_field import ACTIVATIONS, NeuralRadianceField
 from .raymarching import (
     AbsorptionOnlyRaymarcher,
     EmissionAbsorptionRaymarcher,
