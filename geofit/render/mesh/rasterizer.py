@@ -6,8 +6,8 @@ shader=SoftPhongShader(cameras, lights))`` renders a mesh, a batch of meshes, or
 objects for one call, as in PyTorch3D.
 
 The "rasterizer" casts one ray per pixel centre (PyTorch3D's pixel centres, NDC +X left, +Y up,
-row 0 at the top) from the camera through the scene, all rays of all views in one threaded
-Embree call, and keeps the first hit: the face PyTorch3D keeps with ``faces_per_pixel=1`` and
+row 0 at the top) from the camera through the scene, all rays of all views together, in
+chunks spread over geofit's threads (a few Embree calls per thread), and keeps the first hit: the face PyTorch3D keeps with ``faces_per_pixel=1`` and
 ``blur_radius=0``. A ray hit gives the *perspective-correct* barycentrics of the hit point
 exactly, and the view depth is the ray parameter (ray directions have view-space z = 1). Hits
 are refined in float64.
