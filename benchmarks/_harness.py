@@ -19,7 +19,6 @@ import argparse
 import datetime as _dt
 import json
 import os
-import platform
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -29,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from geofit.report import _cpu_affinity, _cpu_model, _load_average, _version
+from geofit.report import _version, machine_summary
 from geofit.viz import STYLE, chart_style
 from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
 
@@ -61,29 +60,17 @@ __all__ = [
 def machine_info() -> dict[str, Any]:
     """CPU, core count, memory, OS, Python and the versions of the numerical stack.
 
-    The facts :func:`geofit.report.machine_summary` gives, plus the memory and trimesh; the
-    probes are the report's.
+    :func:`geofit.report.machine_summary` (CPU model and count, affinity, geofit's thread
+    count, load, OS, Python, versions) plus the memory and trimesh's version.
     """
     try:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
     except (ValueError, OSError, AttributeError):
         mem = None
-    return {
-        "cpu": _cpu_model(),
-        "cpu_count": os.cpu_count(),
-        "cpu_affinity": _cpu_affinity(),
-        "memory_gib": round(mem, 1) if mem else None,
-        # other processes share the cores: read times with it
-        "load_average_1_5_15min": _load_average(),
-        "os": platform.platform(),
-        "python": platform.python_version(),
-        "versions": {
-            "geofit": _version("geofit"), "numpy": _version("numpy"),
-            "scipy": _version("scipy"), "open3d": _version("open3d-cpu", "open3d"),
-            "nlopt": _version("nlopt"), "trimesh": _version("trimesh"),
-            "embreex": _version("embreex"), "matplotlib": _version("matplotlib"),
-        },
-    }
+    info = machine_summary()  # other processes share the cores: read times with its load
+    info["memory_gib"] = round(mem, 1) if mem else None
+    info["versions"]["trimesh"] = _version("trimesh")
+    return info
 
 
 def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
