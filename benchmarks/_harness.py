@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from geofit.fit.history import _json_safe
 from geofit.report import _version, machine_summary
 from geofit.viz import STYLE, chart_style
 from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
@@ -115,25 +116,15 @@ def time_call(fn: Callable[[], Any], *, repeat: int = 1) -> tuple[Any, float]:
 
 
 def json_safe(obj):
-    """Plain-JSON version of ``obj``: numpy scalars/arrays converted, NaN/inf as strings."""
+    """Plain-JSON version of ``obj``: :func:`geofit.fit.history._json_safe` (numpy scalars and
+    arrays converted, NaN/inf as strings), and paths as strings."""
+    if isinstance(obj, Path):
+        return str(obj)
     if isinstance(obj, Mapping):
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        if np.isfinite(v):
-            return v
-        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
+    return _json_safe(obj)
 
 
 # ---------------------------------------------------------------------------------------- data
@@ -145,12 +136,8 @@ class MethodRun:
     ----------
     name : str
         Short key (``"sgd"``, ``"lbfgs"``).
-    label : str
-        Legend text.
-    seconds : list of float
-        Solver time at each checkpoint.
-    curve : dict str -> list of float
-        Metric values at each checkpoint (same length as ``seconds``).
+    label, seconds, curve
+        As :class:`geofit.viz.Series` (``seconds``: solver time at each checkpoint).
     final : dict
         Final metrics and sizes (``n_verts``, ...).
     status, message : str

@@ -118,6 +118,24 @@ def _as_ray_limit(x, name: str, r: int) -> np.ndarray:
     return arr
 
 
+def _check_rays(origins, directions, tnear, tfar):
+    """Validated rays: ``o, d (r, 3)`` float64 (non-zero directions), ``tnear, tfar (r,)``."""
+    o = as_points(origins, "origins")
+    r = len(o)
+    d = as_array(directions, "directions", (r, 3))
+    L2 = _dot(d, d)
+    if np.any(L2 == 0):
+        raise ValueError(f"directions: expected non-zero vectors, got "
+                         f"{int(np.count_nonzero(L2 == 0))} zero-length rows")
+    tn = _as_ray_limit(tnear, "tnear", r)
+    tf = _as_ray_limit(tfar, "tfar", r)
+    if np.any(~np.isfinite(tn)) or np.any(tn < 0):
+        raise ValueError("tnear: expected finite values >= 0")
+    if np.any(tf < tn):
+        raise ValueError("tfar: expected tfar >= tnear for every ray")
+    return o, d, tn, tf
+
+
 class EmbreeScene:
     """One Embree scene (``embreex``) over triangle meshes, in a normalised frame.
 
@@ -352,20 +370,7 @@ class RayCaster:
 
     # ------------------------------------------------------------------ rays
     def _validate_rays(self, origins, directions, tnear, tfar):
-        o = as_points(origins, "origins")
-        r = len(o)
-        d = as_array(directions, "directions", (r, 3))
-        L2 = _dot(d, d)
-        if np.any(L2 == 0):
-            raise ValueError(f"directions: expected non-zero vectors, got "
-                             f"{int(np.count_nonzero(L2 == 0))} zero-length rows")
-        tn = _as_ray_limit(tnear, "tnear", r)
-        tf = _as_ray_limit(tfar, "tfar", r)
-        if np.any(~np.isfinite(tn)) or np.any(tn < 0):
-            raise ValueError("tnear: expected finite values >= 0")
-        if np.any(tf < tn):
-            raise ValueError("tfar: expected tfar >= tnear for every ray")
-        return o, d, tn, tf
+        return _check_rays(origins, directions, tnear, tfar)
 
     def _prepare(self, o, d, tn, tf):
         """Rays in the normalised frame, advanced to the scene: float32 start, unit direction and

@@ -40,134 +40,20 @@ import importlib.util
 import sys
 import warnings
 
+from . import mesh, points, soft, volume
 from .blending import BlendParams, hard_rgb_blend, sigmoid_alpha, softmax_rgb_blend
 from .lighting import AmbientLights, DirectionalLights, PointLights
 from .materials import Materials
-from .mesh import (
-    Fragments,
-    HardFlatShader,
-    HardGouraudShader,
-    HardPhongShader,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    RasterizationSettings,
-    SoftGouraudShader,
-    SoftPhongShader,
-    TexturesFlat,
-    apply_lighting,
-    flat_shading,
-    gouraud_shading,
-    phong_shading,
-    sample_textures,
-    shadow_visibility,
-)
-from .points import (
-    AlphaCompositor,
-    NormWeightedCompositor,
-    PointFragments,
-    PointsRasterizationSettings,
-    PointsRasterizer,
-    PointsRenderer,
-    PointsRendering,
-    add_background_color,
-    rasterize_points,
-)
-from .soft import (
-    ContourSilhouetteLoss,
-    SoftFragments,
-    SoftPhongRenderer,
-    SoftRasterizationSettings,
-    SoftRender,
-    SoftSilhouetteRenderer,
-    SoftSilhouetteShader,
-    phong_vertex_colors,
-    rasterize_soft,
-    sigmoid_alpha_blend,
-    softmax_rgb_blend_soft,
-)
+from .mesh import *  # noqa: F403 - the renderers of each primitive, listed in its __all__
+from .points import *  # noqa: F403
+from .soft import *  # noqa: F403
 from .utils import image_grid, make_grid, plot_texture_uv, texturesuv_image_matplotlib
-from .volume import (
-    AbsorptionOnlyRaymarcher,
-    EmissionAbsorptionRaymarcher,
-    HarmonicEmbedding,
-    ImplicitRenderer,
-    MonteCarloRaysampler,
-    NDCMultinomialRaysampler,
-    NeuralRadianceField,
-    OccupancyGrid,
-    RayBundle,
-    VolumeRenderer,
-    ray_bundle_to_ray_points,
-)
+from .volume import *  # noqa: F403
 
-__all__ = [
-    # shared
-    "AmbientLights",
-    "BlendParams",
-    "DirectionalLights",
-    "Materials",
-    "PointLights",
-    "hard_rgb_blend",
-    "image_grid",
-    "make_grid",
-    "plot_texture_uv",
-    "sigmoid_alpha",
-    "softmax_rgb_blend",
-    "texturesuv_image_matplotlib",
-    # meshes (hard)
-    "Fragments",
-    "HardFlatShader",
-    "HardGouraudShader",
-    "HardPhongShader",
-    "MeshRasterizer",
-    "MeshRenderer",
-    "MeshRendererWithFragments",
-    "RasterizationSettings",
-    "SoftGouraudShader",
-    "SoftPhongShader",
-    "TexturesFlat",
-    "apply_lighting",
-    "flat_shading",
-    "gouraud_shading",
-    "phong_shading",
-    "sample_textures",
-    "shadow_visibility",
-    # meshes (soft, differentiable)
-    "ContourSilhouetteLoss",
-    "SoftFragments",
-    "SoftPhongRenderer",
-    "SoftRasterizationSettings",
-    "SoftRender",
-    "SoftSilhouetteRenderer",
-    "SoftSilhouetteShader",
-    "phong_vertex_colors",
-    "rasterize_soft",
-    "sigmoid_alpha_blend",
-    "softmax_rgb_blend_soft",
-    # points
-    "AlphaCompositor",
-    "NormWeightedCompositor",
-    "PointFragments",
-    "PointsRasterizationSettings",
-    "PointsRasterizer",
-    "PointsRenderer",
-    "PointsRendering",
-    "add_background_color",
-    "rasterize_points",
-    # volumes and implicit functions
-    "AbsorptionOnlyRaymarcher",
-    "EmissionAbsorptionRaymarcher",
-    "HarmonicEmbedding",
-    "ImplicitRenderer",
-    "MonteCarloRaysampler",
-    "NDCMultinomialRaysampler",
-    "NeuralRadianceField",
-    "OccupancyGrid",
-    "RayBundle",
-    "VolumeRenderer",
-    "ray_bundle_to_ray_points",
-]
+_SHARED = ["AmbientLights", "BlendParams", "DirectionalLights", "Materials", "PointLights",
+           "hard_rgb_blend", "image_grid", "make_grid", "plot_texture_uv", "sigmoid_alpha",
+           "softmax_rgb_blend", "texturesuv_image_matplotlib"]
+__all__ = _SHARED + mesh.__all__ + soft.__all__ + points.__all__ + volume.__all__
 
 # Modules of the flat layout (geofit 0.1) -> their new homes.
 MOVED_MODULES = {

@@ -235,13 +235,8 @@ def _shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), ligh
                 background=(1.0, 1.0, 1.0)) -> np.ndarray:
     """(N, H, W, 3) Phong render of an untextured mesh in a flat colour (one per camera)."""
     from ..render import (
-        BlendParams,
-        HardPhongShader,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        TexturesFlat,
+        BlendParams, HardPhongShader, MeshRasterizer, MeshRenderer, PointLights,
+        RasterizationSettings, TexturesFlat,
     )
     from ..structures import Mesh
 
@@ -369,8 +364,7 @@ def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int)
 
 
 def _render_volume(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
-    from ..render.volume.raymarching import EmissionAbsorptionRaymarcher
-    from ..render.volume.raysampling import NDCMultinomialRaysampler
+    from ..render import EmissionAbsorptionRaymarcher, NDCMultinomialRaysampler
     from ..render.volume import VolumeRenderer
 
     r = VolumeRenderer(NDCMultinomialRaysampler(image_width=image_size, image_height=image_size,

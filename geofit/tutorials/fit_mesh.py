@@ -8,19 +8,8 @@ import numpy as np
 
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
-    _GF,
-    _P3D,
-    StepResult,
-    _bar,
-    _begin,
-    _cameras,
-    _fit_row,
-    _pick,
-    _record_fit,
-    _series,
-    _settings_text,
-    _shade_mesh,
-    _try,
+    _GF, _P3D, StepResult, _bar, _begin, _cameras, _fit_row, _pick, _record_fit, _series,
+    _settings_text, _shade_mesh, _try,
 )
 from .stability import fit_mesh_scenario
 

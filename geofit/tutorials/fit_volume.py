@@ -8,22 +8,8 @@ import numpy as np
 
 from ..viz import plot_accuracy_vs_time
 from ._common import (
-    _GF,
-    _P3D,
-    StepResult,
-    _bar,
-    _begin,
-    _cow_views,
-    _fit_row,
-    _heldout_comparison,
-    _iou,
-    _pick,
-    _psnr,
-    _record_fit,
-    _render_volume,
-    _series,
-    _settings_text,
-    _try,
+    _GF, _P3D, StepResult, _bar, _begin, _cow_views, _fit_row, _heldout_comparison, _iou, _pick,
+    _psnr, _record_fit, _render_volume, _series, _settings_text, _try,
 )
 
 __all__ = ["step_fit_volume"]

@@ -8,16 +8,7 @@ import numpy as np
 
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
-    _GF,
-    _P3D,
-    StepResult,
-    _bar,
-    _begin,
-    _cameras,
-    _method,
-    _pick,
-    _run_cases,
-    _series,
+    _GF, _P3D, StepResult, _bar, _begin, _cameras, _method, _pick, _run_cases, _series,
 )
 
 __all__ = ["step_render_mesh"]
@@ -31,11 +22,7 @@ __all__ = ["step_render_mesh"]
 def _render_stability(mesh, size: str) -> list[dict]:
     """The mesh renderer on awkward input: where does it break, and how."""
     from ..render import (
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
+        MeshRasterizer, MeshRenderer, PointLights, RasterizationSettings, SoftPhongShader,
     )
     from ..structures import Mesh
 
@@ -91,13 +78,8 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
     """
     from ..data import load_textured_mesh
     from ..render import (
-        Materials,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-        make_grid,
+        Materials, MeshRasterizer, MeshRenderer, PointLights, RasterizationSettings,
+        SoftPhongShader, make_grid,
     )
 
     res, d, t0 = _begin(out, "render_mesh", size)

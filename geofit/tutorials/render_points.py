@@ -8,17 +8,7 @@ import numpy as np
 
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
-    _GF,
-    _P3D,
-    StepResult,
-    _bar,
-    _begin,
-    _cameras,
-    _iou,
-    _method,
-    _pick,
-    _run_cases,
-    _series,
+    _GF, _P3D, StepResult, _bar, _begin, _cameras, _iou, _method, _pick, _run_cases, _series,
 )
 
 __all__ = ["step_render_points"]
@@ -34,7 +24,7 @@ _BRIDGE = "PittsburghBridge/pointcloud.npz"
 
 
 def _points_stability(cloud, cameras, size: str) -> list[dict]:
-    from ..render.points.compositing import AlphaCompositor
+    from ..render import AlphaCompositor
     from ..render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
     from ..structures import PointCloud
 
@@ -88,15 +78,10 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     from ..io import load_pointcloud
     from ..ops import sample_points_from_meshes
     from ..render import (
-        AmbientLights,
-        BlendParams,
-        HardPhongShader,
-        MeshRasterizer,
-        MeshRenderer,
-        RasterizationSettings,
+        AlphaCompositor, AmbientLights, BlendParams, HardPhongShader, MeshRasterizer,
+        MeshRenderer, NormWeightedCompositor, PointsRasterizationSettings, PointsRasterizer,
+        PointsRenderer, RasterizationSettings,
     )
-    from ..render.points.compositing import AlphaCompositor, NormWeightedCompositor
-    from ..render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
     from ..structures import PointCloud
 
     res, d, t0 = _begin(out, "render_points", size)

@@ -503,12 +503,8 @@ class PointsRasterizer:
 
         Parameters
         ----------
-        point_clouds : PointCloud or Pointclouds
-            The clouds (their points must be finite; ``PointCloud`` checks this).
-        cameras : CamerasBase, optional
-            Overrides the rasterizer's cameras.
-        raster_settings : PointsRasterizationSettings, optional
-            Overrides the rasterizer's settings.
+        point_clouds, cameras, raster_settings
+            As :meth:`transform` (the points must be finite; ``PointCloud`` checks this).
 
         Returns
         -------

@@ -44,8 +44,7 @@ class SoftRasterizationSettings:
     Parameters
     ----------
     image_size : int or (H, W)
-        Output size in pixels; an int means square. For ``H != W`` the shorter side spans NDC
-        [-1, 1] (PyTorch3D's convention).
+        As :class:`geofit.render.RasterizationSettings` (square for an int).
     blur_radius : float
         Squared NDC distance: a face is kept for a pixel outside it when the squared distance
         from the pixel centre to the projected triangle is below this. 0 keeps only faces whose

@@ -15,11 +15,7 @@ from ..._validate import as_array
 from ...structures import Mesh
 from ..blending import BlendParams
 from .blending import (
-    SoftBlend,
-    _check_blend,
-    _softmax_weights,
-    sigmoid_alpha_blend,
-    sigmoid_alpha_blend_vjp,
+    SoftBlend, _check_blend, _softmax_weights, sigmoid_alpha_blend, sigmoid_alpha_blend_vjp,
     softmax_rgb_blend_soft,
 )
 from .fragments import SoftFragments, _NEGLIGIBLE
