@@ -100,21 +100,10 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
                   ) -> StepResult:
     """Deform an ico-sphere into the target mesh: the tutorial's SGD recipe and geofit's solvers.
 
-    Parameters
-    ----------
-    out : path
-        The run's output folder; the step writes into ``out/fit_mesh``.
-    size : {"tiny", "default", "full"}
-        ``"full"``: :data:`geofit.fit.RECIPES` as they are (SGD 2000 steps, L-BFGS 3 stages of
-        100 iterations); ``"default"``: SGD 300 steps, L-BFGS 2 stages of 30 iterations.
-    progress : bool
-        tqdm progress bars.
-    seed : int
-        Sampling seed.
-
-    Returns
-    -------
-    StepResult
+    Sizes: ``"full"``: :data:`geofit.fit.RECIPES` as they are (SGD 2000 steps, L-BFGS 3 stages
+    of 100 iterations); ``"default"``: SGD 300 steps, L-BFGS 2 stages of 30 iterations.
+    Progress: tqdm progress bars; seed: sampling seed. Writes into ``out/fit_mesh``; the
+    signature and the StepResult are :func:`run_step`'s.
     """
     from ..data import load_target_mesh
     from ..fit import fit_mesh

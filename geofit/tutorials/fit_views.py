@@ -48,21 +48,10 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
                    ) -> StepResult:
     """Fit a mesh and vertex colours to multi-view images: the tutorial's SGD and geofit's solvers.
 
-    Parameters
-    ----------
-    out : path
-        The run's output folder; the step writes into ``out/fit_views``.
-    size : {"tiny", "default", "full"}
-        ``"full"``: 20 views of 128 px, 2000 SGD steps per stage as the tutorial;
-        ``"default"``: 20 views of 64 px, 150 SGD steps per stage.
-    progress : bool
-        A progress bar over the stages.
-    seed : int
-        Random view choices of the SGD recipe.
-
-    Returns
-    -------
-    StepResult
+    Sizes: ``"full"``: 20 views of 128 px, 2000 SGD steps per stage as the tutorial;
+    ``"default"``: 20 views of 64 px, 150 SGD steps per stage. Progress: a progress bar over the
+    stages; seed: random view choices of the SGD recipe. Writes into ``out/fit_views``; the
+    signature and the StepResult are :func:`run_step`'s.
     """
     from ..fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
     from ..io import save_obj

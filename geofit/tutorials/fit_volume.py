@@ -38,22 +38,11 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                     ) -> StepResult:
     """Fit a voxel volume to posed renders: the tutorial's dense Adam and geofit's sparse L-BFGS.
 
-    Parameters
-    ----------
-    out : path
-        The run's output folder; the step writes into ``out/fit_volume``.
-    size : {"tiny", "default", "full"}
-        ``"full"``: 40 views of 128 px, a 128^3 grid, 150 samples per ray, 300 Adam steps as
-        the tutorial; ``"default"``: 20 views of 64 px, 64^3, 75 samples, each method stopped
-        after 30 s of solver time.
-    progress : bool
-        A progress bar over the fits.
-    seed : int
-        The tutorial recipe's random view batches.
-
-    Returns
-    -------
-    StepResult
+    Sizes: ``"full"``: 40 views of 128 px, a 128^3 grid, 150 samples per ray, 300 Adam steps as
+    the tutorial; ``"default"``: 20 views of 64 px, 64^3, 75 samples, each method stopped after
+    30 s of solver time. Progress: a progress bar over the fits; seed: the tutorial recipe's
+    random view batches. Writes into ``out/fit_volume``; the signature and the StepResult are
+    :func:`run_step`'s.
     """
     from ..fit.volume import fit_volume
 

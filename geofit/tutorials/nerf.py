@@ -42,23 +42,11 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
               ) -> StepResult:
     """Fit a neural radiance field: the tutorial's network and recipe, and geofit's scene-sized one.
 
-    Parameters
-    ----------
-    out : path
-        The run's output folder; the step writes into ``out/nerf``.
-    size : {"tiny", "default", "full"}
-        ``"full"``: 40 views of 128 px, 3000 steps of the tutorial's recipe;
-        ``"default"``: 20 views of 64 px, 64 samples per ray (the tutorial recipe with 128
-        rays per view instead of 750), each method stopped after 20 s of solver time, PSNR on
-        held-out renders of 32 px.
-    progress : bool
-        A progress bar over the fits.
-    seed : int
-        Initialisation, view and ray choices.
-
-    Returns
-    -------
-    StepResult
+    Sizes: ``"full"``: 40 views of 128 px, 3000 steps of the tutorial's recipe; ``"default"``:
+    20 views of 64 px, 64 samples per ray (the tutorial recipe with 128 rays per view instead of
+    750), each method stopped after 20 s of solver time, PSNR on held-out renders of 32 px.
+    Progress: a progress bar over the fits; seed: initialisation, view and ray choices. Writes
+    into ``out/nerf``; the signature and the StepResult are :func:`run_step`'s.
     """
     from ..fit.nerf import fit_nerf, render_nerf
 

@@ -60,21 +60,10 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
                      ) -> StepResult:
     """Render the textured mesh as the tutorial does; antialiasing cost against accuracy.
 
-    Parameters
-    ----------
-    out : path
-        The run's output folder; the step writes into ``out/render_mesh``.
-    size : {"tiny", "default", "full"}
-        Image size of the tutorial's views (64 / 512 / 512) and of the batch of views
-        (64 / 256 / 512 with 4 / 20 / 20 views).
-    progress : bool
-        A progress bar over the renders.
-    seed : int
-        Unused (rendering is deterministic); kept for a common signature.
-
-    Returns
-    -------
-    StepResult
+    Sizes: Image size of the tutorial's views (64 / 512 / 512) and of the batch of views (64 /
+    256 / 512 with 4 / 20 / 20 views). Progress: a progress bar over the renders; seed: unused
+    (rendering is deterministic); kept for a common signature. Writes into ``out/render_mesh``;
+    the signature and the StepResult are :func:`run_step`'s.
     """
     from ..data import load_textured_mesh
     from ..render import (

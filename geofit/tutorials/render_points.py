@@ -59,20 +59,9 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     The cloud is sampled from the textured mesh with its texture colours, so the mesh's own
     (unlit) render from the same camera is the target the point renders should reproduce.
 
-    Parameters
-    ----------
-    out : path
-        The run's output folder; the step writes into ``out/render_points``.
-    size : {"tiny", "default", "full"}
-        Cloud of 5 000 / 100 000 / 500 000 points, images of 64 / 256 / 512 pixels.
-    progress : bool
-        A progress bar over the renders.
-    seed : int
-        Sampling seed.
-
-    Returns
-    -------
-    StepResult
+    Sizes: Cloud of 5 000 / 100 000 / 500 000 points, images of 64 / 256 / 512 pixels. Progress:
+    a progress bar over the renders; seed: sampling seed. Writes into ``out/render_points``; the
+    signature and the StepResult are :func:`run_step`'s.
     """
     from ..data import find, load_textured_mesh
     from ..io import load_pointcloud
