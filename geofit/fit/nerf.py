@@ -31,8 +31,9 @@ than the scene needs:
   skipped too, and samples lying more than ``occlusion_margin`` samples behind the point where
   the grid's transmittance falls below ``min_transmittance`` are not evaluated (they would add
   less than that to the pixel);
-* **two threads**: each step's rays are split in halves that run forward and backward in two
-  Python threads with one BLAS thread each (numpy releases the GIL), and float32 arithmetic;
+* **threads**: each step's rays are split into chunks that run forward and backward on
+  geofit's thread pool (:func:`geofit.get_num_threads` threads, one BLAS thread each; numpy
+  releases the GIL), in float32 arithmetic;
 * **a time-aware schedule**: with a time budget the learning rate decays exponentially with the
   elapsed fraction of the budget.
 
