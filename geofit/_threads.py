@@ -14,9 +14,10 @@ counts, builds a thread pool or talks to BLAS:
   ``open3d.utility.set_max_threads`` (its CPU kernels use oneTBB, not OpenMP, so
   threadpoolctl does not see them). By default neither is touched: OpenBLAS, OpenMP and TBB
   already size themselves by the CPU affinity.
-- Embree's own threads (used when a scene is committed) cannot be set: ``embreex`` creates its
-  device with ``rtcNewDevice(NULL)`` and exposes no configuration string; its TBB scheduler
-  follows the CPU affinity. Ray queries run on geofit's pool (below), one chunk per thread.
+- Embree's own threads (used only while a scene is committed) cannot be set: ``embreex``
+  creates its device with ``rtcNewDevice(NULL)`` and exposes no configuration string; its TBB
+  scheduler follows the CPU affinity (so ``taskset`` reaches it, :func:`set_num_threads` does
+  not). Ray queries run on geofit's pool (below), one chunk per thread.
 - :func:`one_blas_thread` is the "one BLAS thread per worker thread" context: while geofit's own
   threads each run numpy, BLAS must not add threads of its own, or the threads spin against
   each other. It is reference-counted, so overlapping uses from several threads restore the
