@@ -129,8 +129,8 @@ class NerfConfig:
     2 px wider than the object's coverage in the RGB images, and fitting both makes an opaque
     black shell around the object, invisible from the training elevation but dark from above.
 
-    Execution: ``dtype`` of the network, ``n_threads`` (None: :func:`geofit.get_num_threads`), ``chunk_rays`` for the
-    full-image renders.
+    Execution: ``dtype`` of the network, ``n_threads`` (None: :func:`geofit.get_num_threads`),
+    ``chunk_rays`` for the full-image renders.
     """
 
     n_harmonic_functions: int = 60

@@ -1,8 +1,8 @@
 """Meshes: hard rendering by Embree ray casting with PyTorch3D's rasterizer and shader API.
 
 - :mod:`.rasterizer`: :class:`MeshRasterizer` (one ray per pixel centre, every view in one
-  threaded cast; K = 1), :class:`Fragments`, :class:`RasterizationSettings`,
-  :class:`MeshRenderer`, :class:`MeshRendererWithFragments`.
+  threaded cast; K = 1), :class:`Fragments`, :class:`RasterizationSettings`.
+- :mod:`.renderer`: :class:`MeshRenderer`, :class:`MeshRendererWithFragments`.
 - :mod:`.shading`: the shaders (:class:`HardPhongShader`, :class:`SoftPhongShader`, Gouraud,
   flat) and PyTorch3D's shading functions; hard shadows by shadow rays.
 - :mod:`.textures`: texture sampling at the hits (:class:`TexturesFlat`, :func:`sample_texels`).
@@ -10,13 +10,8 @@
 
 The differentiable (soft) mesh renderer is :mod:`geofit.render.soft`.
 """
-from .rasterizer import (
-    Fragments,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    RasterizationSettings,
-)
+from .rasterizer import Fragments, MeshRasterizer, RasterizationSettings
+from .renderer import MeshRenderer, MeshRendererWithFragments
 from .shading import (
     HardFlatShader,
     HardGouraudShader,
