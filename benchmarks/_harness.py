@@ -275,11 +275,16 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def parser(description: str) -> argparse.ArgumentParser:
-    """The common command line: ``--quick`` (CI-sized) and ``--out DIR``."""
+def parser(description: str, *, reference: Path | None = None) -> argparse.ArgumentParser:
+    """The common command line: ``--quick`` (CI-sized) and ``--out DIR``; with a default
+    ``reference`` file also the renderers' ``--image-size``, ``--repeat`` and ``--reference``."""
     p = argparse.ArgumentParser(description=description)
     p.add_argument("--quick", action="store_true",
                    help="reduced sizes for CI (numbers not comparable to the full run)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR,
                    help=f"directory for the JSON and PNG (default {RESULTS_DIR})")
+    if reference is not None:
+        p.add_argument("--image-size", type=int, default=512)
+        p.add_argument("--repeat", type=int, default=5)
+        p.add_argument("--reference", type=Path, default=reference)
     return p
