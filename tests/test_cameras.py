@@ -615,6 +615,15 @@ def test_degenerate_look_at_warns_and_cannot_make_a_camera():
 
 
 def test_docstring_examples():
-    """The Examples sections of geofit.cameras run as doctests."""
-    result = doctest.testmod(gc, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted > 5 and result.failed == 0
+    """The Examples sections of every geofit.cameras module run as doctests."""
+    import importlib
+    import pkgutil
+
+    attempted = 0
+    for info in pkgutil.iter_modules(gc.__path__):
+        mod = importlib.import_module(f"geofit.cameras.{info.name}")
+        result = doctest.testmod(mod, extraglobs=vars(gc),
+                                 optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0, mod.__name__
+        attempted += result.attempted
+    assert attempted > 5

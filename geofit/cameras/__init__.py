@@ -1,0 +1,43 @@
+"""Cameras with PyTorch3D's conventions, in numpy float64.
+
+World to view uses **row vectors**: ``X_view = X_world @ R + T`` with ``R (N, 3, 3)`` whose
+*columns* are the camera axes and ``T (N, 3)``. View space has +X left, +Y up and +Z into the
+scene (right-handed). NDC (normalised device coordinates) has (+1, +1) at the **top-left** corner
+of the image; for a non-square image the shorter side spans [-1, 1] and the longer side
+[-long/short, +long/short]. Screen space is in pixels with (0, 0) at the top-left corner of the
+top-left pixel, x to the right and y down.
+
+Every 4x4 matrix returned here is a row-vector matrix, as PyTorch3D's ``Transform3d.get_matrix()``:
+a homogeneous row ``[x, y, z, 1] @ M[n] = [X, Y, Z, W]`` maps to ``[X, Y, Z] / W``.
+
+The camera classes mirror ``pytorch3d.renderer.FoVPerspectiveCameras`` and
+``FoVOrthographicCameras`` (batched over ``N`` cameras, every parameter broadcast from 1 to ``N``),
+add the projection Jacobian needed to carry image-space gradients back to world points, per-pixel
+rays with ``NDCMultinomialRaysampler``'s conventions, and conversions to and from OpenCV's and
+Open3D's pinhole cameras.
+"""
+from .base import CamerasBase, ProjectedPoints, Rays, ndc_grid
+from .conversions import (
+    cameras_from_opencv_projection,
+    from_open3d,
+    opencv_from_cameras_projection,
+    to_open3d,
+)
+from .look_at import camera_position_from_spherical_angles, look_at_rotation, look_at_view_transform
+from .perspective import FoVOrthographicCameras, FoVPerspectiveCameras
+
+__all__ = [
+    "CamerasBase",
+    "FoVOrthographicCameras",
+    "FoVPerspectiveCameras",
+    "ProjectedPoints",
+    "Rays",
+    "camera_position_from_spherical_angles",
+    "cameras_from_opencv_projection",
+    "from_open3d",
+    "look_at_rotation",
+    "look_at_view_transform",
+    "ndc_grid",
+    "opencv_from_cameras_projection",
+    "to_open3d",
+]
