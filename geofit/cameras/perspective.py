@@ -9,9 +9,45 @@ import numpy as np
 from ._util import _batch_items, _batch_scalar, _check_bool
 from .base import CamerasBase
 
-__all__ = ["FoVOrthographicCameras", "FoVPerspectiveCameras"]
+__all__ = ["FoVOrthographicCameras", "FoVPerspectiveCameras", "PerspectiveCameras"]
 
-class FoVPerspectiveCameras(CamerasBase):
+
+def _check_depth_range(b: dict) -> None:
+    if np.any(b["znear"] <= 0):
+        raise ValueError(f"znear: expected > 0 for a perspective camera, got minimum "
+                         f"{b['znear'].min():g}")
+    if np.any(b["zfar"] <= b["znear"]):
+        raise ValueError("zfar: expected zfar > znear for every camera, got "
+                         f"{int(np.sum(b['zfar'] <= b['znear']))} cameras with zfar <= znear")
+
+
+class _PinholeCameras(CamerasBase):
+    """Perspective cameras whose projection is ``x_ndc = K00 x / z + K02``, ``y_ndc = K11 y / z
+    + K12`` and NDC z ``K22 + K23 / z`` (0 at znear, 1 at zfar)."""
+
+    def is_perspective(self) -> bool:
+        return True
+
+    def _K_depth(self, K: np.ndarray) -> np.ndarray:
+        znear, zfar = self.znear, self.zfar
+        K[:, 3, 2] = 1.0
+        K[:, 2, 2] = zfar / (zfar - znear)
+        K[:, 2, 3] = -(zfar * znear) / (zfar - znear)
+        return K
+
+    def _ndc_to_view(self, xy, z):
+        K = self._K()
+        x = (xy[..., 0] - K[:, None, 0, 2]) * z / K[:, None, 0, 0]
+        y = (xy[..., 1] - K[:, None, 1, 2]) * z / K[:, None, 1, 1]
+        return np.stack([x, y, np.broadcast_to(z, x.shape)], axis=-1)
+
+    def _view_z_from_scaled(self, sdepth):
+        # sdepth = K22 + K23 / z
+        K = self._K()
+        return K[:, None, 2, 3] / (sdepth - K[:, None, 2, 2])
+
+
+class FoVPerspectiveCameras(_PinholeCameras):
     """A batch of OpenGL-style perspective cameras given by field of view (PyTorch3D's class).
 
     The column-vector projection matrix is, with ``t = tan(fov / 2)``::
@@ -62,12 +98,7 @@ class FoVPerspectiveCameras(CamerasBase):
                           zfar=_batch_scalar(zfar, "zfar"),
                           aspect_ratio=_batch_scalar(aspect_ratio, "aspect_ratio"),
                           fov=_batch_scalar(fov, "fov"))
-        if np.any(b["znear"] <= 0):
-            raise ValueError(f"znear: expected > 0 for a perspective camera, got minimum "
-                             f"{b['znear'].min():g}")
-        if np.any(b["zfar"] <= b["znear"]):
-            raise ValueError("zfar: expected zfar > znear for every camera, got "
-                             f"{int(np.sum(b['zfar'] <= b['znear']))} cameras with zfar <= znear")
+        _check_depth_range(b)
         if np.any(b["aspect_ratio"] <= 0):
             raise ValueError(f"aspect_ratio: expected > 0, got minimum {b['aspect_ratio'].min():g}")
         limit = 180.0 if self.degrees else math.pi
@@ -80,12 +111,9 @@ class FoVPerspectiveCameras(CamerasBase):
     def _shared(self) -> dict:
         return {"degrees": self.degrees}
 
-    def is_perspective(self) -> bool:
-        return True
-
     def _K(self) -> np.ndarray:
         fov = self.fov * (math.pi / 180.0) if self.degrees else self.fov
-        znear, zfar = self.znear, self.zfar
+        znear = self.znear
         max_y = np.tan(fov / 2.0) * znear
         min_y = -max_y
         max_x = max_y * self.aspect_ratio
@@ -95,21 +123,71 @@ class FoVPerspectiveCameras(CamerasBase):
         K[:, 1, 1] = 2.0 * znear / (max_y - min_y)
         K[:, 0, 2] = (max_x + min_x) / (max_x - min_x)
         K[:, 1, 2] = (max_y + min_y) / (max_y - min_y)
-        K[:, 3, 2] = 1.0
-        K[:, 2, 2] = zfar / (zfar - znear)
-        K[:, 2, 3] = -(zfar * znear) / (zfar - znear)
-        return K
+        return self._K_depth(K)
 
-    def _ndc_to_view(self, xy, z):
-        K = self._K()
-        x = (xy[..., 0] - K[:, None, 0, 2]) * z / K[:, None, 0, 0]
-        y = (xy[..., 1] - K[:, None, 1, 2]) * z / K[:, None, 1, 1]
-        return np.stack([x, y, np.broadcast_to(z, x.shape)], axis=-1)
 
-    def _view_z_from_scaled(self, sdepth):
-        # sdepth = K22 + K23 / z
-        K = self._K()
-        return K[:, None, 2, 3] / (sdepth - K[:, None, 2, 2])
+class PerspectiveCameras(_PinholeCameras):
+    """A batch of pinhole cameras given by focal length and principal point in NDC units.
+
+    PyTorch3D's ``PerspectiveCameras`` with ``in_ndc=True``: ``x_ndc = fx x / z + px`` and
+    ``y_ndc = fy y / z + py`` (view coordinates, +X left, +Y up), so an off-centre principal
+    point and unequal focal lengths are represented exactly. NDC units are those of
+    ``transform_points_screen``: ``s = min(H, W) / 2`` pixels per unit, the principal point at
+    pixel ``(W/2 - s px, H/2 - s py)`` and focal lengths ``s fx``, ``s fy`` pixels (see
+    :func:`cameras_from_opencv_projection`). Unlike PyTorch3D's class it has clipping planes:
+    NDC z runs from 0 at ``znear`` to 1 at ``zfar`` as for :class:`FoVPerspectiveCameras`
+    (PyTorch3D's gives ``1 / z``), and the renderers use them the same way.
+
+    Parameters
+    ----------
+    focal_length : float, (N,) or (N, 2) float64
+        ``(fx, fy)`` in NDC units, > 0; a scalar (or one value per camera) sets both.
+    principal_point : (N, 2) or (2,) float64
+        ``(px, py)`` in NDC units (0, 0 is the image centre).
+    znear : float or (N,) float64
+        Near plane distance, > 0.
+    zfar : float or (N,) float64
+        Far plane distance, > znear.
+    R : (N, 3, 3) or (3, 3) float64, optional
+        World-to-view rotations (default identity); must be rotations.
+    T : (N, 3) or (3,) float64, optional
+        World-to-view translations (default zeros).
+
+    All per-camera arguments broadcast to the largest batch size ``N``; they are stored as
+    read-only arrays ``focal_length (N, 2)``, ``principal_point (N, 2)``, ``znear``, ``zfar``.
+
+    Examples
+    --------
+    >>> cam = PerspectiveCameras(focal_length=2.0, principal_point=(0.25, 0.0))
+    >>> cam.transform_points([[0.5, 0.5, 2.0]])[0, 0, :2]
+    array([0.75, 0.5 ])
+    """
+
+    _FIELDS = ("focal_length", "principal_point", "znear", "zfar")
+
+    def __init__(self, focal_length=1.0, principal_point=((0.0, 0.0),), znear=1.0, zfar=100.0,
+                 R=None, T=None):
+        if np.ndim(focal_length) <= 1:
+            f = _batch_scalar(focal_length, "focal_length")
+            f = np.stack([f, f], axis=1)
+        else:
+            f = _batch_items(focal_length, "focal_length", (2,))
+        b = self._prepare(R, T, focal_length=f,
+                          principal_point=_batch_items(principal_point, "principal_point", (2,)),
+                          znear=_batch_scalar(znear, "znear"), zfar=_batch_scalar(zfar, "zfar"))
+        _check_depth_range(b)
+        if np.any(b["focal_length"] <= 0):
+            raise ValueError("focal_length: expected positive focal lengths, got minimum "
+                             f"{b['focal_length'].min():g}")
+        self._set(b)
+
+    def _K(self) -> np.ndarray:
+        K = np.zeros((len(self), 4, 4))
+        K[:, 0, 0] = self.focal_length[:, 0]
+        K[:, 1, 1] = self.focal_length[:, 1]
+        K[:, 0, 2] = self.principal_point[:, 0]
+        K[:, 1, 2] = self.principal_point[:, 1]
+        return self._K_depth(K)
 
 
 class FoVOrthographicCameras(CamerasBase):
