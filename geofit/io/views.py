@@ -349,14 +349,17 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
     if not isinstance(allow_outside, bool):
         raise TypeError(f"allow_outside: expected True or False, got {allow_outside!r}")
     reader = {"transforms": _load_transforms, "colmap": _load_colmap, "opencv": _load_opencv}
-    views, K, R, t, root = reader[fmt](file, allow_outside)
+    views, K, pose, root = reader[fmt](file, allow_outside)
     images, sils = _gather(views, str(file), background)
     H, W = images.shape[1:3]
-    from ..cameras.conversions import cameras_from_opencv_projection
+    from ..cameras import conversions
 
     if fmt == "transforms":
         K = np.stack([_intrinsics_nerf(v["intrinsics"], H, W, v["where"]) for v in views])
-    cameras = cameras_from_opencv_projection(R, t, K, (H, W), znear=znear, zfar=zfar)
+    convert = {"transforms": conversions.cameras_from_opengl,
+               "colmap": conversions.cameras_from_colmap,
+               "opencv": conversions.cameras_from_opencv_projection}[fmt]
+    cameras = convert(*pose, K, (H, W), znear=znear, zfar=zfar)
     folder = file.parent if fmt != "colmap" else root
     return _make_dataset(images, sils, cameras, name or folder.resolve().name)
 
@@ -397,10 +400,6 @@ def _intrinsics_nerf(d: dict, H: int, W: int, where: str) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-# OpenGL camera (x right, y up, z back) <-> OpenCV camera (x right, y down, z forward).
-_GL_FLIP = np.array([1.0, -1.0, -1.0])
-
-
 def _load_transforms(file: Path, allow_outside: bool):
     data = _read_json(file)
     root = file.parent
@@ -408,7 +407,7 @@ def _load_transforms(file: Path, allow_outside: bool):
     if not isinstance(frames, list) or not frames:
         raise ValueError(f"{file}: frames: expected a non-empty list of frames")
     top = {k: data[k] for k in _NERF_KEYS if k in data}
-    views, R, t = [], [], []
+    views, c2w = [], []
     for i, fr in enumerate(frames):  # one entry per view
         where = f"{file}: frames[{i}]"
         if not isinstance(fr, dict):
@@ -426,13 +425,12 @@ def _load_transforms(file: Path, allow_outside: bool):
         if np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max() > _ROTATION_TOL:
             raise ValueError(f"{where}.transform_matrix: expected a bottom row (0, 0, 0, 1), "
                              f"got {M[3].tolist()}")
-        Rc2w = _rotation(M[:3, :3], f"{where}.transform_matrix")
-        R_cv = (Rc2w * _GL_FLIP[None, :]).T
-        R.append(R_cv)
-        t.append(-R_cv @ M[:3, 3])
+        M[:3, :3] = _rotation(M[:3, :3], f"{where}.transform_matrix")
+        M[3] = [0.0, 0.0, 0.0, 1.0]
+        c2w.append(M)
         views.append({"image": image, "mask": mask, "where": where,
                       "intrinsics": {**top, **{k: fr[k] for k in _NERF_KEYS if k in fr}}})
-    return views, None, np.stack(R), np.stack(t), root
+    return views, None, (np.stack(c2w),), root
 
 
 def _colmap_lines(path: Path):
@@ -549,9 +547,7 @@ def _load_colmap(cameras_txt: Path, allow_outside: bool):
         views.append({"image": image, "mask": mask, "where": where, "size": cams[cid][1]})
     if not views:
         raise ValueError(f"{images_txt}: no images")
-    from ..cameras.conversions import quaternion_to_matrix
-
-    return views, np.stack(K), quaternion_to_matrix(np.stack(q)), np.array(t), root
+    return views, np.stack(K), (np.stack(q), np.array(t)), root
 
 
 def _load_opencv(file: Path, allow_outside: bool):
@@ -583,7 +579,7 @@ def _load_opencv(file: Path, allow_outside: bool):
         R.append(_rotation(_matrix(e["R"], (3, 3), f"{where}.R"), f"{where}.R"))
         t.append(_matrix(e["t"], (3,), f"{where}.t"))
         views.append({"image": image, "mask": mask, "where": where})
-    return views, np.stack(K), np.stack(R), np.stack(t), root
+    return views, np.stack(K), (np.stack(R), np.stack(t)), root
 
 
 # --------------------------------------------------------------------------------------------
