@@ -415,3 +415,64 @@ def test_cli_capture_errors_are_reported(tmp_path, capsys):
 
     assert main(["fit-volume", str(tmp_path / "none"), "--out", str(tmp_path)]) == 1
     assert "no such file or folder" in capsys.readouterr().err
+
+
+def _write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+_BOTTOM = np.eye(4)
+_BOTTOM[3, 0] = 0.5
+
+
+@pytest.mark.parametrize("files, match", [
+    ({"transforms.json": {"frames": [{"file_path": "a.png", "transform_matrix": _EYE}]}},
+     r"frames\[0\]: no focal length \(expected fl_x or camera_angle_x\)"),
+    ({"transforms.json": {"camera_angle_x": 3.5,
+                          "frames": [{"file_path": "a.png", "transform_matrix": _EYE}]}},
+     r"frames\[0\]\.camera_angle_x: expected radians in \(0, pi\)"),
+    ({"transforms.json": {"camera_angle_x": 0.7,
+                          "frames": [{"file_path": "a.png", "transform_matrix": _BOTTOM.tolist()}]}},
+     r"frames\[0\]\.transform_matrix: expected a bottom row"),
+    ({"transforms.json": {"camera_angle_x": 0.7, "frames": ["a.png"]}},
+     r"frames\[0\]: expected an object, got str"),
+    ({"transforms.json": {"camera_angle_x": 0.7,
+                          "frames": [{"file_path": "", "transform_matrix": _EYE}]}},
+     r"frames\[0\]\.file_path: expected a non-empty relative path"),
+    ({"transforms.json": {"camera_angle_x": 0.7,
+                          "frames": [{"file_path": "a.png", "mask_path": "m.png",
+                                      "transform_matrix": _EYE}]}},
+     r"frames\[0\]: mask .*m\.png.* is 3x3, its image 12x20"),
+    ({"transforms.json": [1, 2]}, "expected a JSON object at the top level, got list"),
+    ({"cameras.json": {"views": []}}, r"cameras\.json: views: expected a non-empty list"),
+    ({"cameras.json": {"views": [{"image": "a.png", "K": np.eye(3).tolist(),
+                                  "R": np.eye(3).tolist()}]}}, r"views\[0\]\.t: missing"),
+    ({"cameras.json": {"views": [{"image": "a.png", "K": [[1, 0.5, 0], [0, 1, 0], [0, 0, 1]],
+                                  "R": np.eye(3).tolist(), "t": [0, 0, 1]}]}},
+     r"views\[0\]\.K: expected \[\[fx, 0, cx\]"),
+    ({"cameras.txt": "# nothing\n", "images.txt": ""}, r"cameras\.txt: no cameras"),
+    ({"cameras.txt": "1 PINHOLE 20 12 25 25 10 6\n", "images.txt": "# none\n"},
+     r"images\.txt: no images"),
+    ({"cameras.txt": "1 PINHOLE 20 12 25 25 10 6\n"}, r"images\.txt: missing"),
+    ({"cameras.txt": "1 PINHOLE\n", "images.txt": ""}, r"cameras\.txt:1: expected CAMERA_ID"),
+    ({"cameras.txt": "x PINHOLE 20 12 25 25 10 6\n", "images.txt": ""},
+     r"cameras\.txt:1: CAMERA_ID: expected an integer"),
+    ({"cameras.txt": "1 PINHOLE 20 12 -25 25 10 6\n", "images.txt": ""},
+     r"cameras\.txt:1: expected positive focal lengths"),
+])
+def test_more_bad_captures(tmp_path, files, match):
+    """Each malformed capture file gets a ValueError naming the file and the field or line."""
+    _png(tmp_path / "a.png", np.ones((H, W, 3)))
+    _png(tmp_path / "m.png", np.ones((3, 3)))
+    for name, content in files.items():
+        _write(tmp_path / name, content if isinstance(content, str) else json.dumps(content))
+    with pytest.raises(ValueError, match=match):
+        load_views(tmp_path)
+
+
+def test_a_file_that_is_no_capture(tmp_path):
+    with pytest.raises(ValueError, match=r"a\.png: not a capture file"):
+        _png(tmp_path / "a.png", np.ones((H, W, 3)))
+        load_views(tmp_path / "a.png")

@@ -367,30 +367,28 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
 _NERF_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
 
 
+def _focal(d: dict, focal_key: str, angle_key: str, size: int, where: str) -> float | None:
+    """A focal length in pixels from ``fl_*`` or a field of view ``camera_angle_*`` (radians)
+    across ``size`` pixels; None when neither is given."""
+    if focal_key in d:
+        return _number(d, focal_key, where)
+    if angle_key not in d:
+        return None
+    angle = _number(d, angle_key, where)
+    if angle >= math.pi:
+        raise ValueError(f"{where}.{angle_key}: expected radians in (0, pi), got {angle!r}")
+    return 0.5 * size / math.tan(0.5 * angle)
+
+
 def _intrinsics_nerf(d: dict, H: int, W: int, where: str) -> np.ndarray:
     """Pixel ``K`` from NeRF/instant-ngp intrinsics ``d`` for an ``H x W`` image."""
     for key, size in (("w", W), ("h", H)):
         if key in d and _number(d, key, where) != size:
             raise ValueError(f"{where}.{key}: {d[key]!r} does not match the image ({H}x{W}, "
                              "HxW)")
-    if "fl_x" in d:
-        fx = _number(d, "fl_x", where)
-    elif "camera_angle_x" in d:
-        ax = _number(d, "camera_angle_x", where)
-        if ax >= math.pi:
-            raise ValueError(f"{where}.camera_angle_x: expected radians in (0, pi), got {ax!r}")
-        fx = 0.5 * W / math.tan(0.5 * ax)
-    else:
-        fx = None
-    if "fl_y" in d:
-        fy = _number(d, "fl_y", where)
-    elif "camera_angle_y" in d:
-        ay = _number(d, "camera_angle_y", where)
-        if ay >= math.pi:
-            raise ValueError(f"{where}.camera_angle_y: expected radians in (0, pi), got {ay!r}")
-        fy = 0.5 * H / math.tan(0.5 * ay)
-    else:
-        fy = fx
+    fx = _focal(d, "fl_x", "camera_angle_x", W, where)
+    fy = _focal(d, "fl_y", "camera_angle_y", H, where)
+    fy = fx if fy is None else fy
     if fx is None:
         if fy is None:
             raise ValueError(f"{where}: no focal length (expected fl_x or camera_angle_x)")
