@@ -20,7 +20,8 @@ import time
 import numpy as np
 from _harness import BenchmarkReport, MethodRun, parser, print_machine, record_load, result_paths
 
-from geofit.datasets import generate_cow_renders, held_out_views
+import geofit.datasets
+from geofit.datasets import held_out_views
 from geofit.fit.volume import fit_volume, volume_metrics
 from geofit.io import load_views, save_views
 
@@ -36,11 +37,15 @@ def main() -> None:
     args = parser(__doc__.splitlines()[0]).parse_args()
     views, size, volume = (10, 64, 64) if args.quick else (40, 128, 128)
     load_before = os.getloadavg()
-    train = generate_cow_renders(num_views=views, image_size=size)
+    if hasattr(geofit.datasets, "tutorial_views"):  # the unified dataset
+        train = geofit.datasets.tutorial_views(5, num_views=views, image_size=size,
+                                               num_held_out=0)
+    else:
+        train = geofit.datasets.generate_cow_renders(num_views=views, image_size=size)
     test = held_out_views(num_views=views, image_size=size)
     report = BenchmarkReport("views_capture", config={
         "views": views, "image_size": size, "volume_size": volume, "method": "lbfgs",
-        "held_out_views": len(test), "dataset": train.mesh_name})
+        "held_out_views": len(test), "dataset": getattr(train, "name", None) or train.mesh_name})
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         save_views(tmp, train, format="transforms")

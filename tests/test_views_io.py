@@ -32,6 +32,14 @@ class _Views:
         self.images, self.silhouettes, self.cameras = images, silhouettes, cameras
 
 
+def _cow_renders(num_views: int, image_size: int):
+    """The volume tutorial's training renders (tutorial_views(5) once the unified dataset lands)."""
+    if hasattr(geofit.datasets, "tutorial_views"):
+        return geofit.datasets.tutorial_views(5, num_views=num_views, image_size=image_size,
+                                              num_held_out=0)
+    return geofit.datasets.generate_cow_renders(num_views=num_views, image_size=image_size)
+
+
 def _dataset(off_centre: bool, n: int = 3, seed: int = 0) -> _Views:
     rng = np.random.default_rng(seed)
     R, T = look_at_view_transform(dist=3.0, elev=[10.0, -20.0, 35.0][:n],
@@ -171,6 +179,16 @@ def test_colmap_text_model_with_masks(tmp_path):
     expect = x[:, :2] / x[:, 2:] * 25.0 + [9.5, 6.25]
     assert_allclose(_pixels(data.cameras)[0], expect, atol=1e-6, rtol=0)
     assert isinstance(data.cameras, PerspectiveCameras)  # cx 9.5 is off-centre (W/2 = 10)
+
+
+def test_docstring_examples():
+    """The Examples section of geofit.io.views runs as a doctest."""
+    import doctest
+
+    import geofit.io.views as mod
+
+    result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted >= 3 and result.failed == 0
 
 
 def test_load_views_is_reexported():
@@ -350,7 +368,7 @@ def test_fit_volume_on_a_written_capture_matches_the_direct_fit(tmp_path):
     from geofit.fit.volume import volume_metrics
 
     t0 = time.perf_counter()
-    train = geofit.datasets.generate_cow_renders(num_views=8, image_size=32)
+    train = _cow_renders(8, 32)
     test = geofit.datasets.held_out_views(num_views=8, image_size=32, n_azimuths=3,
                                           elevations=(0.0,))
     save_views(tmp_path / "cap", train, format="transforms")
@@ -377,7 +395,7 @@ def test_fit_volume_on_a_written_capture_matches_the_direct_fit(tmp_path):
 def cow_capture(tmp_path_factory):
     """9 views of the cow at 16 px written as a transforms.json capture (view 0 is held out)."""
     path = tmp_path_factory.mktemp("capture")
-    save_views(path, geofit.datasets.generate_cow_renders(num_views=9, image_size=16))
+    save_views(path, _cow_renders(9, 16))
     return path
 
 

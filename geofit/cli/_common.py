@@ -37,23 +37,27 @@ def add_capture_arg(p: argparse.ArgumentParser) -> None:
 
 
 def capture_views(path: str):
-    """``(train, test)`` datasets of a capture folder (see :func:`add_capture_arg`)."""
+    """``(train, test)`` datasets of a capture folder (see :func:`add_capture_arg`);
+    ``train.held_out`` is ``test``."""
     from ..io.views import _make_dataset, load_views
 
     folder = Path(path)
     if (folder / "transforms_train.json").is_file() and not (folder / "transforms.json").exists():
         train = load_views(folder / "transforms_train.json")
         test_file = folder / "transforms_test.json"
-        return train, (load_views(test_file) if test_file.is_file() else train)
+        train.held_out = load_views(test_file) if test_file.is_file() else train
+        return train, train.held_out
     data = load_views(folder)
     n = len(data.cameras)
     if n < 2:
         raise ValueError(f"CAPTURE: {path} has {n} view; at least 2 are needed (every 8th "
                          "is held out)")
     held = np.arange(n) % 8 == 0
-    name = data.mesh_name
-    return tuple(_make_dataset(data.images[m], data.silhouettes[m], data.cameras[m], name)
-                 for m in (~held, held))
+    name = getattr(data, "name", None) or data.mesh_name
+    train, test = (_make_dataset(data.images[m], data.silhouettes[m], data.cameras[m], name)
+                   for m in (~held, held))
+    train.held_out = test
+    return train, test
 
 
 def save_png(path: Path, rows: list) -> None:

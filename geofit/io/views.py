@@ -60,9 +60,10 @@ _COLMAP_MODELS = {"PINHOLE": 4, "SIMPLE_PINHOLE": 3}
 def _make_dataset(images: np.ndarray, silhouettes: np.ndarray, cameras, name: str):
     """The one place a loaded capture becomes a :class:`geofit.datasets.MultiViewDataset`.
 
-    Unified dataset contract: ``MultiViewDataset(images=, silhouettes=, cameras=, name=)``.
-    Until that type lands, today's dataclass also takes the cameras' azimuth and elevation
-    (degrees, about the origin) and distance, computed here from the camera centres.
+    The unified dataset's contract is ``MultiViewDataset(images=, silhouettes=, cameras=,
+    name=)`` (plus the optional ``azim``, ``elev``); the former dataclass takes ``mesh_name``
+    and requires the angles and distance. Both get the cameras' azimuth and elevation (degrees,
+    about the origin) computed from the camera centres.
     """
     from ..datasets import MultiViewDataset
 
@@ -70,6 +71,9 @@ def _make_dataset(images: np.ndarray, silhouettes: np.ndarray, cameras, name: st
     r = np.linalg.norm(C, axis=1)
     elev = np.degrees(np.arcsin(np.clip(C[:, 1] / np.maximum(r, 1e-300), -1.0, 1.0)))
     azim = np.degrees(np.arctan2(C[:, 0], C[:, 2]))
+    if "name" in getattr(MultiViewDataset, "__dataclass_fields__", {}):
+        return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras,
+                                name=name, azim=azim, elev=elev)
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras, azim=azim,
                             elev=elev, dist=float(np.median(r)), mesh_name=name)
 
@@ -330,8 +334,8 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
     Examples
     --------
     >>> import tempfile
-    >>> from geofit.datasets import generate_cow_renders
-    >>> data = generate_cow_renders(num_views=3, image_size=16)
+    >>> from geofit.datasets import held_out_views
+    >>> data = held_out_views(num_views=4, image_size=16, n_azimuths=3, elevations=(0.0,))
     >>> with tempfile.TemporaryDirectory() as tmp:
     ...     _ = save_views(tmp, data, format="transforms")
     ...     back = load_views(tmp)
