@@ -267,6 +267,18 @@ def _read_json(path: Path) -> dict:
     return data
 
 
+def _json_entries(file: Path, key: str):
+    """The JSON object of ``file`` and ``(where, entry)`` for each object in its list ``key``."""
+    data = _read_json(file)
+    entries = data.get(key)
+    if not isinstance(entries, list) or not entries:
+        raise ValueError(f"{file}: {key}: expected a non-empty list of {key}")
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict):
+            raise ValueError(f"{file}: {key}[{i}]: expected an object, got {type(e).__name__}")
+    return data, [(f"{file}: {key}[{i}]", e) for i, e in enumerate(entries)]
+
+
 # --------------------------------------------------------------------------------------------
 # Loading
 # --------------------------------------------------------------------------------------------
@@ -403,17 +415,11 @@ def _intrinsics_nerf(d: dict, H: int, W: int, where: str) -> np.ndarray:
 
 
 def _load_transforms(file: Path, allow_outside: bool):
-    data = _read_json(file)
+    data, entries = _json_entries(file, "frames")
     root = file.parent
-    frames = data.get("frames")
-    if not isinstance(frames, list) or not frames:
-        raise ValueError(f"{file}: frames: expected a non-empty list of frames")
     top = {k: data[k] for k in _NERF_KEYS if k in data}
     views, c2w = [], []
-    for i, fr in enumerate(frames):  # one entry per view
-        where = f"{file}: frames[{i}]"
-        if not isinstance(fr, dict):
-            raise ValueError(f"{where}: expected an object, got {type(fr).__name__}")
+    for where, fr in entries:  # one entry per view
         for key in ("file_path", "transform_matrix"):
             if key not in fr:
                 raise ValueError(f"{where}.{key}: missing")
@@ -435,13 +441,27 @@ def _load_transforms(file: Path, allow_outside: bool):
     return views, None, (np.stack(c2w),), root
 
 
-def _colmap_lines(path: Path):
-    """The lines of a COLMAP text file (all of them: images.txt has empty POINTS2D lines)."""
+def _colmap_records(path: Path, min_fields: int, layout: str, *, points_lines: bool = False):
+    """``(where, fields)`` of each data line of a COLMAP text file (comments and blank lines
+    skipped; with ``points_lines`` the POINTS2D line after each image line, possibly empty, too).
+    ``where`` is ``"path:line"``; a line with fewer than ``min_fields`` fields is refused."""
     try:
-        text = path.read_text(encoding="utf-8")
+        lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: cannot read: {exc}") from None
-    return text.splitlines()
+    n = 0
+    while n < len(lines):
+        s = lines[n].strip()
+        n += 1
+        if not s or s.startswith("#"):
+            continue
+        where = f"{path}:{n}"
+        fields = s.split()
+        if len(fields) < min_fields:
+            raise ValueError(f"{where}: expected {layout}, got {s[:80]!r}")
+        yield where, fields
+        if points_lines:
+            n += 1
 
 
 def _floats(fields: list, where: str, names: tuple) -> list:
@@ -476,15 +496,7 @@ def _load_colmap(cameras_txt: Path, allow_outside: bool):
     elif model_dir.parent.name == "sparse":
         root = model_dir.parent.parent
     cams = {}
-    for n, line in enumerate(_colmap_lines(cameras_txt), start=1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        where = f"{cameras_txt}:{n}"
-        f = s.split()
-        if len(f) < 4:
-            raise ValueError(f"{where}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[], got "
-                             f"{s[:80]!r}")
+    for where, f in _colmap_records(cameras_txt, 4, "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"):
         cid = _int(f[0], where, "CAMERA_ID")
         model = f[1]
         if model not in _COLMAP_MODELS:
@@ -506,20 +518,11 @@ def _load_colmap(cameras_txt: Path, allow_outside: bool):
         cams[cid] = (np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), (h, w))
     if not cams:
         raise ValueError(f"{cameras_txt}: no cameras")
-    lines = _colmap_lines(images_txt)
     images_dir, masks_dir = root / "images", root / "masks"
     views, K, q, t = [], [], [], []
-    n = 0
-    while n < len(lines):
-        s = lines[n].strip()
-        n += 1
-        if not s or s.startswith("#"):
-            continue
-        where = f"{images_txt}:{n}"
-        f = s.split()
-        if len(f) < 10:
-            raise ValueError(f"{where}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, "
-                             f"got {s[:80]!r}")
+    for where, f in _colmap_records(images_txt, 10,
+                                    "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME",
+                                    points_lines=True):
         _int(f[0], where, "IMAGE_ID")
         vals = _floats(f[1:8], where, ("QW", "QX", "QY", "QZ", "TX", "TY", "TZ"))
         qv = np.array(vals[:4])
@@ -530,7 +533,6 @@ def _load_colmap(cameras_txt: Path, allow_outside: bool):
         if cid not in cams:
             raise ValueError(f"{where}: CAMERA_ID: camera {cid} is not in {cameras_txt.name}")
         name = " ".join(f[9:])
-        n += 1  # the POINTS2D line that follows every image line
         image = _find_image(_resolve(images_dir, name, f"{where}: NAME", allow_outside),
                             f"{where}: NAME")
         mask = None
@@ -553,16 +555,10 @@ def _load_colmap(cameras_txt: Path, allow_outside: bool):
 
 
 def _load_opencv(file: Path, allow_outside: bool):
-    data = _read_json(file)
+    _, entries = _json_entries(file, "views")
     root = file.parent
-    entries = data.get("views")
-    if not isinstance(entries, list) or not entries:
-        raise ValueError(f"{file}: views: expected a non-empty list of views")
     views, K, R, t = [], [], [], []
-    for i, e in enumerate(entries):  # one entry per view
-        where = f"{file}: views[{i}]"
-        if not isinstance(e, dict):
-            raise ValueError(f"{where}: expected an object, got {type(e).__name__}")
+    for where, e in entries:  # one entry per view
         for key in ("image", "K", "R", "t"):
             if key not in e:
                 raise ValueError(f"{where}.{key}: missing")
