@@ -1,4 +1,5 @@
-"""Pieces shared by the sub-commands that fit the cow's renders (``fit-volume``, ``fit-nerf``).
+"""Pieces shared by the sub-commands: parser set-up, the cow's renders or a capture as data,
+option overrides and the files they write (JSON summaries, PNG grids, rotating GIFs).
 
 A private module: the command line skips modules whose name starts with ``_`` when it looks for
 ``register(subparsers)``.
@@ -6,6 +7,7 @@ A private module: the command line skips modules whose name starts with ``_`` wh
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -87,4 +89,45 @@ def add_view_args(p: argparse.ArgumentParser) -> None:
 def add_output_args(p: argparse.ArgumentParser) -> None:
     """``--quiet`` and ``--out``."""
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_out_arg(p)
+
+
+def add_out_arg(p: argparse.ArgumentParser) -> None:
+    """``--out``: the output folder."""
     p.add_argument("--out", default="out", help="output folder (default: out)")
+
+
+def add_command(subparsers, name: str, help: str, doc: str | None, func,
+                ) -> argparse.ArgumentParser:
+    """A sub-command's parser: ``help`` in the command list, the module docstring ``doc``
+    (without its first paragraph, the title) as its description, ``func(args)`` to run."""
+    p = subparsers.add_parser(name, help=help,
+                              description=doc.split("\n\n", 1)[-1] if doc else None,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.set_defaults(func=func)
+    return p
+
+
+def options(args: argparse.Namespace, names: dict[str, str]) -> dict:
+    """``{keyword: getattr(args, attribute)}`` for each ``attribute: keyword`` of ``names``
+    whose value was given (is not None): the options a sub-command passes on as overrides."""
+    return {kw: getattr(args, a) for a, kw in names.items() if getattr(args, a) is not None}
+
+
+def write_json(path: Path, obj) -> None:
+    """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain)."""
+    from ..fit.history import _json_safe
+
+    path.write_text(json.dumps(_json_safe(obj), indent=1) + "\n", encoding="utf-8")
+
+
+def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float = 180.0) -> None:
+    """Write a GIF of ``n_frames`` views around the origin (distance 2.7, elevation ``elev``,
+    azimuths from ``azim0``); ``render(cameras)`` returns their ``(n, H, W, >=3)`` images."""
+    if n_frames <= 0:
+        return
+    from ..cameras import FoVPerspectiveCameras, look_at_view_transform
+
+    azim = np.linspace(0.0, 360.0, n_frames, endpoint=False) + azim0
+    R, T = look_at_view_transform(2.7, elev, azim)
+    save_gif(path, render(FoVPerspectiveCameras(R=R, T=T))[..., :3])

@@ -16,11 +16,19 @@ targets above the fitted mesh's renders).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from ._common import (
+    add_capture_arg,
+    add_command,
+    add_out_arg,
+    capture_views,
+    save_png,
+    write_json,
+)
 
 __all__ = ["register", "run"]
 
@@ -33,8 +41,6 @@ def _int(v: int, name: str, lo: int = 1) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from PIL import Image
-
     from ..fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
     from ..io import save_obj
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
@@ -84,8 +90,7 @@ def run(args: argparse.Namespace) -> int:
                                                "init_level": args.init_level},
                **fit.summary(), "stages": fit.stages, "heldout": metrics,
                "dataset_seconds": t_data}
-    (dest / "fit_views.json").write_text(json.dumps(summary, indent=1, default=float) + "\n",
-                                         encoding="utf-8")
+    write_json(dest / "fit_views.json", summary)
     h = ds.heldout
     k = min(4, len(h))
     cams = h.cameras[np.arange(k)]
@@ -93,10 +98,7 @@ def run(args: argparse.Namespace) -> int:
     tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
     pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=h.lights))(tm)
                       [..., :3], np.float64)
-    grid = np.concatenate([np.concatenate(list(h.images[:k]), 1), np.concatenate(list(pred), 1)],
-                          0)
-    Image.fromarray((np.clip(grid, 0, 1) * 255 + 0.5).astype(np.uint8)).save(
-        dest / "fit_views.png")
+    save_png(dest / "fit_views.png", [h.images[:k], pred])
     print(f"object: {ds.name}; {args.views} views of {args.image_size} px, "
           f"{args.heldout} held-out views (dataset rendered in {t_data:.1f} s)")
     for s in fit.stages:
@@ -116,8 +118,6 @@ def run(args: argparse.Namespace) -> int:
 def _capture_split(path: str):
     """A capture folder as the tutorial's split (no true mesh, the default light)."""
     from ..fit.views import MultiViewData, MultiViewSplit
-    from ._common import capture_views
-
     train, test = capture_views(path)
     return MultiViewSplit(MultiViewData(train.cameras, train.silhouettes, train.images),
                           MultiViewData(test.cameras, test.silhouettes, test.images),
@@ -128,15 +128,11 @@ def register(subparsers) -> None:
     """Add the ``fit-views`` sub-command."""
     from ..fit.views import SILHOUETTE_METHODS, TEXTURED_METHODS
 
-    p = subparsers.add_parser(
-        "fit-views",
-        help="fit a mesh and its colours to multi-view images (PyTorch3D's fit_textured_mesh)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
-    from ._common import add_capture_arg
-
+    p = add_command(subparsers, "fit-views",
+                    "fit a mesh and its colours to multi-view images (PyTorch3D's "
+                    "fit_textured_mesh)", __doc__, run)
     add_capture_arg(p)
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    add_out_arg(p)
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
     p.add_argument("--heldout", type=int, default=16, help="held-out views (default 16)")
@@ -156,4 +152,3 @@ def register(subparsers) -> None:
     p.add_argument("--init-level", type=int, default=4,
                    help="ico-sphere level of the final mesh (default 4)")
     p.add_argument("--seed", type=int, default=0, help="random views of the SGD recipe")
-    p.set_defaults(func=run)

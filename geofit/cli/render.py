@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._common import add_command, add_out_arg
+
 __all__ = ["register", "run"]
 
 
@@ -117,15 +119,13 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``render`` sub-command."""
-    p = subparsers.add_parser(
-        "render",
-        help="render a textured mesh by ray casting (PyTorch3D's render_textured_meshes)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
+    p = add_command(subparsers, "render",
+                    "render a textured mesh by ray casting (PyTorch3D's render_textured_meshes)",
+                    __doc__, run)
     p.add_argument("mesh", nargs="?", type=Path, default=None,
                    help=".obj (with MTL and texture), .ply, .stl or .off; default: the textured "
                         "default mesh (the cow if found)")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    add_out_arg(p)
     p.add_argument("--image-size", type=int, default=512, help="pixels per side (default 512)")
     p.add_argument("--views", type=int, default=1,
                    help="number of views; >1 renders the tutorial's batch (default 1)")
@@ -144,4 +144,3 @@ def register(subparsers) -> None:
                    help="centre the mesh and scale its largest coordinate to 1 first")
     p.add_argument("--open3d", action="store_true",
                    help="also render with Open3D and write the two side by side")
-    p.set_defaults(func=run)

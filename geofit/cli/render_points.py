@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._common import add_command, add_out_arg
+
 __all__ = ["BRIDGE", "default_cloud", "register", "run"]
 
 #: The tutorial's cloud, relative to the data folder (``geofit.data.find``).
@@ -128,16 +130,14 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``render-points`` sub-command."""
-    p = subparsers.add_parser(
-        "render-points",
-        help="render a coloured point cloud (PyTorch3D's render_colored_points tutorial)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
+    p = add_command(subparsers, "render-points",
+                    "render a coloured point cloud (PyTorch3D's render_colored_points tutorial)",
+                    __doc__, run)
     p.add_argument("cloud", nargs="?", type=Path, default=None,
                    help=".npz (verts, rgb) or .ply point cloud; default: the tutorial's "
                         f"{BRIDGE} if in the data folder, else samples of the textured "
                         "default mesh (the cow if found)")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    add_out_arg(p)
     p.add_argument("--image-size", type=int, default=512)
     p.add_argument("--radius", type=float, default=0.003,
                    help="point radius (NDC units unless --radius-units world; default 0.003)")
@@ -157,4 +157,3 @@ def register(subparsers) -> None:
     p.add_argument("--n-points", type=int, default=300_000,
                    help="samples in the default cloud (default 300000)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed of the default cloud")
-    p.set_defaults(func=run)
