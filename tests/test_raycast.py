@@ -4,14 +4,8 @@ import numpy as np
 import pytest
 
 from geofit import Mesh, Meshes, ico_sphere, plane, torus
-from geofit.raycast import (
-    ClosestPoints,
-    PointToMeshDistance,
-    RayCaster,
-    RayHits,
-    closest_point_on_triangles,
-    intersect_rays_triangles,
-)
+from geofit.raycast import (ClosestPoints, PointToMeshDistance, RayCaster, RayHits,
+                            closest_point_on_triangles, intersect_rays_triangles)
 
 
 # ---------------------------------------------------------------------------- helpers

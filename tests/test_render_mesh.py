@@ -8,30 +8,12 @@ from numpy.testing import assert_allclose, assert_array_equal
 from geofit import Mesh, Meshes, TexturesUV, TexturesVertex, ico_sphere, plane, torus
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
 from geofit.raycast import RayCaster
-from geofit.render import (
-    AmbientLights,
-    BlendParams,
-    DirectionalLights,
-    Fragments,
-    HardFlatShader,
-    HardGouraudShader,
-    HardPhongShader,
-    Materials,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    PointLights,
-    RasterizationSettings,
-    SoftGouraudShader,
-    SoftPhongShader,
-    TexturesFlat,
-    apply_lighting,
-    flat_shading,
-    gouraud_shading,
-    make_grid,
-    phong_shading,
-    sample_textures,
-)
+from geofit.render import (AmbientLights, BlendParams, DirectionalLights, Fragments,
+                           HardFlatShader, HardGouraudShader, HardPhongShader, Materials,
+                           MeshRasterizer, MeshRenderer, MeshRendererWithFragments, PointLights,
+                           RasterizationSettings, SoftGouraudShader, SoftPhongShader, TexturesFlat,
+                           apply_lighting, flat_shading, gouraud_shading, make_grid, phong_shading,
+                           sample_textures)
 from geofit.render.lighting import diffuse, specular
 from geofit.render.mesh.textures import sample_texels
 
