@@ -86,25 +86,26 @@ def add_view_args(p: argparse.ArgumentParser) -> None:
                    help="frames of the rotating render (0: none; default 24)")
 
 
-def add_output_args(p: argparse.ArgumentParser) -> None:
-    """``--quiet`` and ``--out``."""
+def add_quiet_arg(p: argparse.ArgumentParser) -> None:
+    """``--quiet``: no progress lines."""
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    add_out_arg(p)
-
-
-def add_out_arg(p: argparse.ArgumentParser) -> None:
-    """``--out``: the output folder."""
-    p.add_argument("--out", default="out", help="output folder (default: out)")
 
 
 def add_command(subparsers, name: str, help: str, doc: str | None, func,
-                ) -> argparse.ArgumentParser:
-    """A sub-command's parser: ``help`` in the command list, the module docstring ``doc``
-    (without its first paragraph, the title) as its description, ``func(args)`` to run."""
+                input: tuple[str, str] | None = None) -> argparse.ArgumentParser:
+    """A sub-command's parser with its ``--out`` folder option.
+
+    ``help`` is its line in the command list, the module docstring ``doc`` (without its first
+    paragraph, the title) its description, ``func(args)`` runs it; ``input = (name, help)``
+    adds an optional positional input file (``None`` when not given).
+    """
     p = subparsers.add_parser(name, help=help,
                               description=doc.split("\n\n", 1)[-1] if doc else None,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.set_defaults(func=func)
+    if input is not None:
+        p.add_argument(input[0], nargs="?", type=Path, default=None, help=input[1])
+    p.add_argument("--out", default="out", help="output folder (default: out)")
     return p
 
 
@@ -112,6 +113,26 @@ def options(args: argparse.Namespace, names: dict[str, str]) -> dict:
     """``{keyword: getattr(args, attribute)}`` for each ``attribute: keyword`` of ``names``
     whose value was given (is not None): the options a sub-command passes on as overrides."""
     return {kw: getattr(args, a) for a, kw in names.items() if getattr(args, a) is not None}
+
+
+def out_dir(args: argparse.Namespace) -> Path:
+    """The ``--out`` folder, created if missing."""
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def wrote(*paths) -> int:
+    """Print ``wrote PATH, PATH...``; the exit code 0."""
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def finish(command: str, res, details: str, out: Path) -> int:
+    """Print ``geofit COMMAND: status (message); details; wrote OUT``; the exit code: 0 when
+    the fit ``res`` succeeded, else 1."""
+    print(f"geofit {command}: {res.status} ({res.message}); {details}; wrote {out}")
+    return 0 if res.ok else 1
 
 
 def write_json(path: Path, obj) -> None:

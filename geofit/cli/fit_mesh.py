@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_command, add_out_arg, options, write_json
+from ._common import add_command, options, out_dir, write_json, wrote
 
 __all__ = ["register", "run"]
 
@@ -62,15 +62,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"accuracy (normalised frame, {args.metric_samples} samples a side, exact distances): "
           f"chamfer-L2 {m.chamfer_l2:.3e}, chamfer-L1 {m.chamfer_l1:.4f}, "
           f"F@0.01 {m.fscore[0.01]:.4f}, normal consistency {m.normal_consistency:.4f}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir(args)
     obj_path = out / "fit_mesh.obj"
     _save(obj_path, res.mesh)
     hist = res.to_dict()
     hist["final_metrics"] = m.to_dict()
     write_json(out / "fit_mesh_history.json", hist)
-    print(f"wrote {obj_path} and {out / 'fit_mesh_history.json'}")
-    return 0
+    return wrote(obj_path, out / "fit_mesh_history.json")
 
 
 def register(subparsers) -> None:
@@ -79,10 +77,8 @@ def register(subparsers) -> None:
 
     p = add_command(subparsers, "fit-mesh",
                     "deform a sphere into a target mesh (PyTorch3D's deform_source_mesh tutorial)",
-                    __doc__, run)
-    p.add_argument("target", nargs="?", type=Path, default=None,
-                   help="target mesh (.obj); default: the tutorial dolphin if found, else the "
-                        "procedural stand-in")
+                    __doc__, run, input=("target", "target mesh (.obj); default: the tutorial "
+                                         "dolphin if found, else the procedural stand-in"))
     p.add_argument("--recipe", choices=tuple(RECIPES), default="coarse-to-fine",
                    help="preset (default coarse-to-fine: L-BFGS, large steps, ico 2 -> 3 -> 4 "
                         "as needed; tutorial: the tutorial's SGD exactly)")
@@ -97,4 +93,3 @@ def register(subparsers) -> None:
                    help="samples a side for the final accuracy (default 100000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_out_arg(p)

@@ -17,22 +17,11 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    add_capture_arg,
-    add_command,
-    add_output_args,
-    add_view_args,
-    capture_views,
-    cow_views,
-    options,
-    save_png,
-    save_rotation,
-    write_json,
-)
+from ._common import (add_capture_arg, add_command, add_quiet_arg, add_view_args, capture_views,
+                      cow_views, finish, options, out_dir, save_png, save_rotation, write_json)
 
 __all__ = ["register", "run"]
 
@@ -40,8 +29,7 @@ __all__ = ["register", "run"]
 def run(args: argparse.Namespace) -> int:
     from ..fit.nerf import fit_nerf, render_nerf
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir(args)
     train, test = capture_views(args.capture) if args.capture else cow_views(args)
     overrides = options(args, {"lr": "lr", "n_hidden_neurons": "n_hidden_neurons",
                                "n_harmonic_functions": "n_harmonic_functions",
@@ -62,11 +50,9 @@ def run(args: argparse.Namespace) -> int:
         min_depth=res.config.min_depth, max_depth=res.config.max_depth,
         occupancy=res.occupancy), args.frames, elev=10.0, azim0=0.0)
     psnr = "n/a" if res.psnr is None else f"{res.psnr:.2f} dB"
-    print(f"geofit fit-nerf: {res.status} ({res.message}); {res.n_params} parameters, "
-          f"{res.samples_per_ray:.1f} samples/ray, {res.n_iterations} steps in "
-          f"{res.seconds:.1f} s (wall {res.wall_seconds:.1f} s); held-out PSNR {psnr}; "
-          f"wrote {out}")
-    return 0 if res.ok else 1
+    return finish("fit-nerf", res, f"{res.n_params} parameters, {res.samples_per_ray:.1f} "
+                  f"samples/ray, {res.n_iterations} steps in {res.seconds:.1f} s (wall "
+                  f"{res.wall_seconds:.1f} s); held-out PSNR {psnr}", out)
 
 
 def register(subparsers) -> None:
@@ -90,4 +76,4 @@ def register(subparsers) -> None:
     add_view_args(p)
     p.add_argument("--threads", type=int, default=None, help="threads (default: up to 2)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    add_output_args(p)
+    add_quiet_arg(p)

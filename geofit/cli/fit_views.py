@@ -17,18 +17,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    add_capture_arg,
-    add_command,
-    add_out_arg,
-    capture_views,
-    save_png,
-    write_json,
-)
+from ._common import add_capture_arg, add_command, capture_views, out_dir, save_png, write_json
 
 __all__ = ["register", "run"]
 
@@ -78,8 +70,7 @@ def run(args: argparse.Namespace) -> int:
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
     metrics = ev(fit.mesh, colors)
 
-    dest = Path(args.out)
-    dest.mkdir(parents=True, exist_ok=True)
+    dest = out_dir(args)
     save_obj(dest / "fit_views.obj", Mesh(fit.mesh.verts, fit.mesh.faces))
     np.savez_compressed(dest / "fit_views_colors.npz", verts=fit.mesh.verts,
                         faces=fit.mesh.faces, colors=colors)
@@ -132,7 +123,6 @@ def register(subparsers) -> None:
                     "fit a mesh and its colours to multi-view images (PyTorch3D's "
                     "fit_textured_mesh)", __doc__, run)
     add_capture_arg(p)
-    add_out_arg(p)
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
     p.add_argument("--heldout", type=int, default=16, help="held-out views (default 16)")

@@ -17,22 +17,11 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    add_capture_arg,
-    add_command,
-    add_output_args,
-    add_view_args,
-    capture_views,
-    cow_views,
-    options,
-    save_png,
-    save_rotation,
-    write_json,
-)
+from ._common import (add_capture_arg, add_command, add_quiet_arg, add_view_args, capture_views,
+                      cow_views, finish, options, out_dir, save_png, save_rotation, write_json)
 
 __all__ = ["register", "run"]
 
@@ -48,8 +37,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
     from ..fit.volume import fit_volume, render_volume, volume_metrics
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir(args)
     t0 = time.perf_counter()
     train, test = capture_views(args.capture) if args.capture else cow_views(args)
     t_data = time.perf_counter() - t0
@@ -73,11 +61,10 @@ def run(args: argparse.Namespace) -> int:
     save_rotation(out / "volume_rotation.gif",
                   lambda cameras: render_volume(vol, cameras, args.image_size), args.frames,
                   elev=15.0)
-    print(f"geofit fit-volume: {res.status} ({res.message}); {res.n_active_voxels} active "
-          f"voxels of {vol.n_voxels}, {res.samples_per_ray:.1f} samples/ray of "
-          f"{res.n_pts_per_ray}, {res.n_iterations} iterations in {res.seconds:.1f} s; held-out "
-          f"PSNR {m.psnr:.2f} dB, IoU {m.iou:.4f}; wrote {out}")
-    return 0 if res.ok else 1
+    return finish("fit-volume", res, f"{res.n_active_voxels} active voxels of {vol.n_voxels}, "
+                  f"{res.samples_per_ray:.1f} samples/ray of {res.n_pts_per_ray}, "
+                  f"{res.n_iterations} iterations in {res.seconds:.1f} s; held-out PSNR "
+                  f"{m.psnr:.2f} dB, IoU {m.iou:.4f}", out)
 
 
 def register(subparsers) -> None:
@@ -104,4 +91,4 @@ def register(subparsers) -> None:
                    help="arithmetic of the ray marching (default float32)")
     add_capture_arg(p)
     add_view_args(p)
-    add_output_args(p)
+    add_quiet_arg(p)

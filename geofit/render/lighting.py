@@ -256,12 +256,10 @@ class _Lights:
 
         Parameters
         ----------
-        normals : (k, 3) float
-            Surface normals.
-        points : (k, 3) float
-            Surface points, world coordinates.
+        normals, points : (k, 3) float
+            Surface normals and points (world coordinates).
         batch_idx : (k,) int64, optional
-            View of each point; needed when the batch holds more than one light.
+            View of each point, as in :meth:`light_vector`.
 
         Returns
         -------
