@@ -320,6 +320,22 @@ def _heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: 
     res.comparison_caption = caption
 
 
+def _close_comparison(res: StepResult, d: Path, t0: float, *, chart: str, panels: list,
+                      title: str, stability: list, headline: Callable[[dict, int], str]
+                      ) -> StepResult:
+    """Finish a recipe-against-method step: the speed/accuracy chart of ``res.methods``
+    (``chart`` its heading, ``panels`` as :func:`geofit.viz.plot_accuracy_vs_time`), the
+    stability rows, one headline per recipe (``headline(metrics, index)``) and the seconds."""
+    from ..viz import plot_accuracy_vs_time
+
+    res.charts[f"Speed and accuracy: {chart} against solver time"] = plot_accuracy_vs_time(
+        _series(res.methods), panels, d / "speed_accuracy.png", title=title)
+    res.stability = stability
+    res.headline = {_P3D: headline(res.metrics[0], 0), _GF: headline(res.metrics[1], 1)}
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
 def _run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
     """One stability row per case: ``str`` of what it returned, or how it failed."""
     rows = []
