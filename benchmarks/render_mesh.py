@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport, MethodRun, markdown_table, parser, print_machine, print_parity, record_load,
+    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parser, print_machine, print_parity, record_load,
     result_paths,
 )
 
@@ -246,46 +246,34 @@ def main() -> None:
 
 
 def _plot(report: BenchmarkReport, images: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from geofit.render import make_grid
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4), gridspec_kw={"width_ratios": [1.4, 1, 1]})
     ms = [m for m in report.methods if "raycast_seconds" in m.final]
     labels = [m.name for m in ms]
     cast = np.array([m.final["raycast_seconds"] for m in ms])
     shade = np.array([m.final["shading_seconds"] for m in ms])
-    ax = axes[0]
-    y = np.arange(len(ms))
-    ax.barh(y, cast, color="tab:blue", label="ray cast")
-    ax.barh(y, shade, left=cast, color="tab:orange", label="shading")
-    for i, m in enumerate(ms):
-        ax.text(cast[i] + shade[i], i, f" {m.final['render_seconds']:.3f} s", va="center",
-                fontsize=8)
-    for k, tgt in TARGET_SECONDS.items():
-        if k in labels:
-            i = labels.index(k)
-            ax.plot([tgt, tgt], [i - 0.4, i + 0.4], color="crimson", lw=1.2)
-    ax.set_yticks(y, labels)
-    ax.set_xlabel("wall time (s); red tick: 1/50 of PyTorch3D's time")
-    ax.legend(fontsize=8, frameon=False)
     cfg = report.config
-    ax.set_title(f"{cfg['mesh']}, {cfg['image_size']}^2, load {cfg['loadavg_before'][0]:.1f}",
-                 fontsize=9)
-    axes[1].imshow(np.clip(images["one_view"][0, ..., :3], 0, 1))
-    axes[1].set_title("one view", fontsize=9)
-    axes[2].imshow(make_grid(images["batch20"]))
-    axes[2].set_title(f"{cfg['views']}-view batch", fontsize=9)
-    for a in axes[1:]:
-        a.axis("off")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+
+    def chart(ax):
+        y = np.arange(len(ms))
+        ax.barh(y, cast, color="tab:blue", label="ray cast")
+        ax.barh(y, shade, left=cast, color="tab:orange", label="shading")
+        for i, m in enumerate(ms):
+            ax.text(cast[i] + shade[i], i, f" {m.final['render_seconds']:.3f} s", va="center",
+                    fontsize=8)
+        for k, tgt in TARGET_SECONDS.items():
+            if k in labels:
+                i = labels.index(k)
+                ax.plot([tgt, tgt], [i - 0.4, i + 0.4], color="crimson", lw=1.2)
+        ax.set_yticks(y, labels)
+        ax.set_xlabel("wall time (s); red tick: 1/50 of PyTorch3D's time")
+        ax.legend(fontsize=8, frameon=False)
+        ax.set_title(f"{cfg['mesh']}, {cfg['image_size']}^2, load "
+                     f"{cfg['loadavg_before'][0]:.1f}", fontsize=9)
+
+    return chart_with_images(path, chart, {
+        "one view": images["one_view"][0, ..., :3],
+        f"{cfg['views']}-view batch": make_grid(images["batch20"])}, chart_width=1.4)
 
 
 if __name__ == "__main__":
