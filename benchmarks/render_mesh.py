@@ -30,6 +30,7 @@ Writes ``benchmarks/results/render_mesh.json`` and ``render_mesh.png``.
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -83,20 +84,12 @@ def timed_render(mesh, cameras, size, repeat, lights, **settings):
 def parity(reference: Path, mesh) -> tuple[list, dict]:
     """Every stored variant of render_mesh.npz against geofit."""
     d = np.load(reference)
-    green = Materials(specular_color=[[0.0, 1.0, 0.0]], shininess=10.0)
-    variants = {  # name: (view, size, light, materials, batch, fragments key, soft)
-        "soft_128": ("base", 128, (0, 0, -3), None, 1, "base_128", True),
-        "hard_128": ("base", 128, (0, 0, -3), None, 1, "base_128", False),
-        "light2_128": ("base", 128, (0, 0, 1), None, 1, "base_128", True),
-        "view2_128": ("view2", 128, (2, 2, -2), green, 1, "view2_128", True),
-        "batch_128": ("batch", 128, (0, 0, -3), None, 4, "batch_128", True),
-        "soft_256": ("base", 256, (0, 0, -3), None, 1, "base_256", True),
-        "hard_256": ("base", 256, (0, 0, -3), None, 1, "base_256", False),
-        "light2_256": ("base", 256, (0, 0, 1), None, 1, "base_256", True),
-        "view2_256": ("view2", 256, (2, 2, -2), green, 1, "view2_256", True),
-        "batch_256": ("batch", 256, (0, 0, -3), None, 4, "batch_256", True),
-        "nonsquare": ("base", (96, 128), (0, 0, -3), None, 1, "nonsquare", True),
-    }
+    table = json.loads((REPO / "tests" / "data" / "render_mesh_variants.json").read_text())
+    materials = {k: Materials(**v) for k, v in table["materials"].items()}
+    variants = {name: (v["view"], v["image_size"] if isinstance(v["image_size"], int)
+                       else tuple(v["image_size"]), v["light"], materials.get(v["materials"]),
+                       v["batch"], v["fragments"], v["soft"])
+                for name, v in table["variants"].items()}
     rows = []
     worst = {"face_agree_min": 1.0, "rgb_mean_abs_max": 0.0, "rgb_max_abs_max": 0.0,
              "alpha_max_abs_max": 0.0}

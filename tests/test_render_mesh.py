@@ -1,4 +1,5 @@
 """Mesh rendering by ray casting: PyTorch3D parity, analytic cases, shading, batches, bad input."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -21,21 +22,14 @@ DATA = Path(__file__).parent / "data"
 REF = np.load(DATA / "render_mesh.npz")
 F_COW = 5856
 
-# The stored variants: name -> (R key, T key, image size, light, material, batch, p2f key)
-GREEN = {"specular_color": [[0.0, 1.0, 0.0]], "shininess": 10.0}
-VARIANTS = {
-    "soft_128": ("base", 128, (0, 0, -3), None, 1, "base_128", True),
-    "hard_128": ("base", 128, (0, 0, -3), None, 1, "base_128", False),
-    "light2_128": ("base", 128, (0, 0, 1), None, 1, "base_128", True),
-    "view2_128": ("view2", 128, (2, 2, -2), GREEN, 1, "view2_128", True),
-    "batch_128": ("batch", 128, (0, 0, -3), None, 4, "batch_128", True),
-    "soft_256": ("base", 256, (0, 0, -3), None, 1, "base_256", True),
-    "hard_256": ("base", 256, (0, 0, -3), None, 1, "base_256", False),
-    "light2_256": ("base", 256, (0, 0, 1), None, 1, "base_256", True),
-    "view2_256": ("view2", 256, (2, 2, -2), GREEN, 1, "view2_256", True),
-    "batch_256": ("batch", 256, (0, 0, -3), None, 4, "batch_256", True),
-    "nonsquare": ("base", (96, 128), (0, 0, -3), None, 1, "nonsquare", True),
-}
+# The stored variants (tests/data/render_mesh_variants.json): name -> (view, image size, light,
+# materials, batch, pix_to_face key, soft)
+_TABLE = json.loads((DATA / "render_mesh_variants.json").read_text(encoding="utf-8"))
+VARIANTS = {name: (v["view"], v["image_size"] if isinstance(v["image_size"], int)
+                   else tuple(v["image_size"]), tuple(v["light"]),
+                   v["materials"] and _TABLE["materials"][v["materials"]], v["batch"],
+                   v["fragments"], v["soft"])
+            for name, v in _TABLE["variants"].items()}
 
 
 def _cow(textures=None) -> Mesh:
