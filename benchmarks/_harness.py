@@ -313,3 +313,13 @@ def parser(description: str, *, reference: Path | None = None) -> argparse.Argum
         p.add_argument("--repeat", type=int, default=5)
         p.add_argument("--reference", type=Path, default=reference)
     return p
+
+
+def parse_args(p: argparse.ArgumentParser, **quick) -> argparse.Namespace:
+    """``p.parse_args()``, with the ``quick`` values (option name -> value) replacing the
+    given ones under ``--quick``."""
+    args = p.parse_args()
+    if args.quick:
+        for name, value in quick.items():
+            setattr(args, name, value)
+    return args

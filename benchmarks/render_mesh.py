@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parser, print_machine, print_parity, record_load,
-    result_paths,
+    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parse_args, parser,
+    print_machine, print_parity, record_load, result_paths,
 )
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
@@ -142,10 +142,8 @@ def open3d_iou(mesh, size: int) -> float | None:
 def main() -> None:
     p = parser(__doc__.split("\n\n")[0], reference=DEFAULT_REFERENCE)
     p.add_argument("--views", type=int, default=20)
-    args = p.parse_args()
+    args = parse_args(p, image_size=128, views=4, repeat=2)
     size, n_views, repeat = args.image_size, args.views, args.repeat
-    if args.quick:
-        size, n_views, repeat = 128, 4, 2
     load_before = os.getloadavg()
 
     data = load_textured_mesh()

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parser, print_machine, print_parity, record_load,
-    result_paths, time_call,
+    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parse_args, parser,
+    print_machine, print_parity, record_load, result_paths, time_call,
 )
 
 from geofit import PointCloud
@@ -77,10 +77,8 @@ def parity(reference: Path) -> tuple[list, dict]:
 def main() -> None:
     p = parser(__doc__.split("\n\n")[0], reference=DEFAULT_REFERENCE)
     p.add_argument("--points", type=int, default=500_000, help="cloud size (default 500000)")
-    args = p.parse_args()
+    args = parse_args(p, points=50_000, image_size=128, repeat=2)
     n_points, size, repeat = args.points, args.image_size, args.repeat
-    if args.quick:
-        n_points, size, repeat = 50_000, 128, 2
     load_before = os.getloadavg()
 
     data = load_textured_mesh()
