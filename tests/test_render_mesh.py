@@ -669,38 +669,48 @@ def test_rasterization_settings_validation(kw, match):
         RasterizationSettings(**kw)
 
 
-def test_rasterizer_and_shader_validation():
+# Each row: the error, the text naming the bad argument, and the call given the sphere ``mesh``
+# and its fragments ``fr``.
+_BAD_RENDER_CALLS = [
+    (ValueError, "cameras", lambda mesh, fr: MeshRasterizer()(mesh)),
+    (TypeError, "cameras", lambda mesh, fr: MeshRasterizer(cameras="cam")(mesh)),
+    (TypeError, "meshes", lambda mesh, fr: MeshRasterizer(_look())(np.zeros((3, 3)))),
+    (TypeError, "raster_settings",
+     lambda mesh, fr: MeshRasterizer(_look(), raster_settings={"image_size": 8})(mesh)),
+    (ValueError, "at least one mesh", lambda mesh, fr: MeshRasterizer(_look())(Meshes([]))),
+    (TypeError, "fragments", lambda mesh, fr: HardPhongShader()(np.zeros(3), mesh)),
+    (ValueError, "lights",
+     lambda mesh, fr: HardPhongShader(lights=PointLights(location=np.zeros((2, 3))))(fr, mesh)),
+    (TypeError, "lights", lambda mesh, fr: HardPhongShader(lights="sun")(fr, mesh)),
+    (ValueError, "materials",
+     lambda mesh, fr: HardPhongShader(materials=Materials(shininess=[1.0, 2.0]))(fr, mesh)),
+    (ValueError, "sigma",
+     lambda mesh, fr: SoftPhongShader(blend_params=BlendParams(sigma=0.0))(fr, mesh)),
+    (ValueError, "background_color",
+     lambda mesh, fr: HardPhongShader(blend_params=BlendParams(background_color=(1, 1)))(
+         fr, mesh)),
+    (TypeError, "shadows", lambda mesh, fr: HardPhongShader(shadows="yes")),
+    (TypeError, "rasterizer", lambda mesh, fr: MeshRenderer("r", HardPhongShader())),
+    (TypeError, "shader", lambda mesh, fr: MeshRenderer(MeshRasterizer(), None)),
+]
+
+
+@pytest.fixture(scope="module")
+def sphere_fragments():
     mesh = ico_sphere(1)
-    with pytest.raises(ValueError, match="cameras"):
-        MeshRasterizer()(mesh)
-    with pytest.raises(TypeError, match="cameras"):
-        MeshRasterizer(cameras="cam")(mesh)
-    with pytest.raises(TypeError, match="meshes"):
-        MeshRasterizer(_look())(np.zeros((3, 3)))
-    with pytest.raises(TypeError, match="raster_settings"):
-        MeshRasterizer(_look(), raster_settings={"image_size": 8})(mesh)
-    with pytest.raises(ValueError, match="at least one mesh"):
-        MeshRasterizer(_look())(Meshes([]))
-    fr = MeshRasterizer(_look(), RasterizationSettings(image_size=8))(mesh)
-    with pytest.raises(TypeError, match="fragments"):
-        HardPhongShader()(np.zeros(3), mesh)
-    with pytest.raises(ValueError, match="lights"):
-        HardPhongShader(lights=PointLights(location=np.zeros((2, 3))))(fr, mesh)
-    with pytest.raises(TypeError, match="lights"):
-        HardPhongShader(lights="sun")(fr, mesh)
-    with pytest.raises(ValueError, match="materials"):
-        HardPhongShader(materials=Materials(shininess=[1.0, 2.0]))(fr, mesh)
-    with pytest.raises(ValueError, match="sigma"):
-        SoftPhongShader(blend_params=BlendParams(sigma=0.0))(fr, mesh)
-    with pytest.raises(ValueError, match="background_color"):
-        HardPhongShader(blend_params=BlendParams(background_color=(1, 1)))(fr, mesh)
-    with pytest.raises(TypeError, match="shadows"):
-        HardPhongShader(shadows="yes")
-    with pytest.raises(TypeError, match="rasterizer"):
-        MeshRenderer("r", HardPhongShader())
-    with pytest.raises(TypeError, match="shader"):
-        MeshRenderer(MeshRasterizer(), None)
-    assert isinstance(fr, Fragments)
+    return mesh, MeshRasterizer(_look(), RasterizationSettings(image_size=8))(mesh)
+
+
+def test_sphere_fragments(sphere_fragments):
+    assert isinstance(sphere_fragments[1], Fragments)
+
+
+@pytest.mark.parametrize("error, match, call", _BAD_RENDER_CALLS,
+                         ids=[f"{i}-{r[1]}" for i, r in enumerate(_BAD_RENDER_CALLS)])
+def test_rasterizer_and_shader_validation(sphere_fragments, error, match, call):
+    """Each invalid rasterizer, shader or renderer argument raises, naming the argument."""
+    with pytest.raises(error, match=match):
+        call(*sphere_fragments)
 
 
 def test_lights_and_materials_validation():
