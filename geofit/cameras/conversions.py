@@ -104,8 +104,7 @@ def cameras_from_opencv_projection(R, tvec, camera_matrix, image_size, *, znear=
 
     * if every principal point is the image centre ``(W/2, H/2)`` (to 1e-6 W, 1e-6 H), the
       result is a :class:`FoVPerspectiveCameras` with ``fov = 2 atan(s / fy)`` degrees and
-      ``aspect_ratio = fy / fx`` (the cameras that every geofit renderer, Open3D's included,
-      accepts);
+      ``aspect_ratio = fy / fx`` (the cameras that every geofit renderer accepts);
     * otherwise a :class:`PerspectiveCameras` with ``focal_length = (fx, fy) / s`` and
       ``principal_point = ((W/2 - cx) / s, (H/2 - cy) / s)``, as PyTorch3D's function does.
 
