@@ -273,6 +273,16 @@ def _accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list
     return a["checkpoint_seconds"].tolist(), curve
 
 
+def _begin_textured(out, name: str, size: str):
+    """:func:`_begin` for the rendering steps, plus the textured default mesh (the cow when
+    found): ``(res, folder, t0, data, mesh)``, ``mesh`` normalised as the tutorials do."""
+    from ..data import load_textured_mesh
+
+    res, d, t0 = _begin(out, name, size)
+    data = load_textured_mesh()
+    return res, d, t0, data, data.mesh.normalize().mesh
+
+
 def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
     """Check ``size``, start the clock, create ``out/<name>``: the empty result, folder, start."""
     check_choice(size, "size", SIZES)
@@ -288,6 +298,15 @@ def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
 def _settings_text(settings: Mapping) -> str:
     """``"k=v, k=v"`` of a settings dict (the report's config cells)."""
     return ", ".join(f"{k}={v}" for k, v in settings.items())
+
+
+def _views_config(name: str, n_train: int, n_heldout: int, image_size, tutorial: Mapping,
+                  geofit: Mapping, **extra) -> dict:
+    """The configuration table of a multi-view step: the object, the views, the image size,
+    both recipes' settings and ``extra`` rows (label -> value), in that order."""
+    return {"object": name, "training views": n_train, "held-out views": n_heldout,
+            "image size": image_size, **extra, "PyTorch3D recipe": _settings_text(tutorial),
+            "geofit": _settings_text(geofit)}
 
 
 def _record_fit(res: StepResult, d: Path, key: str, label: str, fit, metrics: Sequence[str], *,

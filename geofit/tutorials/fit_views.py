@@ -7,7 +7,7 @@ import numpy as np
 
 from ._common import (
     StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _record_fit,
-    _settings_text, _try,
+    _try, _views_config,
 )
 
 __all__ = ["step_fit_views"]
@@ -61,10 +61,8 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     cfg = _views_settings(size)
     ds = cow_multiview_dataset(num_views=cfg["num_views"], image_size=cfg["image_size"],
                                num_heldout=cfg["num_heldout"])
-    res.config = {"object": ds.name, "training views": cfg["num_views"],
-                  "held-out views": cfg["num_heldout"], "image size": cfg["image_size"],
-                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
-                  "geofit": _settings_text(cfg["geofit"])}
+    res.config = _views_config(ds.name, cfg["num_views"], cfg["num_heldout"], cfg["image_size"],
+                               cfg["tutorial"], cfg["geofit"])
     res.description = (
         "A sphere is deformed to match the soft silhouettes of the training views, then its "
         "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "

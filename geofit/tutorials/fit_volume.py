@@ -8,7 +8,7 @@ import numpy as np
 
 from ._common import (
     StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _iou,
-    _pick, _psnr, _record_fit, _render_volume, _settings_text, _try,
+    _pick, _psnr, _record_fit, _render_volume, _try, _views_config,
 )
 
 __all__ = ["step_fit_volume"]
@@ -49,11 +49,8 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     cfg = _volume_settings(size)
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
     train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
-    res.config = {"object": name, "training views": cfg["n_views"],
-                  "held-out views": cfg["n_heldout"], "image size": img,
-                  "grid": f"{S}^3", "samples per ray": n_pts,
-                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
-                  "geofit": _settings_text(cfg["lbfgs"])}
+    res.config = _views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+                               cfg["lbfgs"], grid=f"{S}^3", **{"samples per ray": n_pts})
     res.description = (
         "A grid of densities and colours is fitted to the renders (black background) with "
         "the emission-absorption raymarcher. Accuracy: PSNR of the RGB and IoU of the "

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._common import (
     StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _pick,
-    _record_fit, _settings_text, _try,
+    _record_fit, _try, _views_config,
 )
 
 __all__ = ["step_nerf"]
@@ -53,12 +53,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     cfg = _nerf_settings(size)
     img = cfg["image_size"]
     train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
-    res.config = {"object": name, "training views": cfg["n_views"],
-                  "held-out views": cfg["n_heldout"], "image size": img,
-                  "held-out image size": cfg["heldout_size"],
-                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
-                  "geofit": _settings_text(cfg["scene"]),
-                  "time budget per method (s)": cfg["time_budget"]}
+    res.config = _views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+                               cfg["scene"], **{"held-out image size": cfg["heldout_size"],
+                                                "time budget per method (s)": cfg["time_budget"]})
     res.description = (
         "A radiance field (MLP on harmonic embeddings) is fitted to the renders with the "
         "emission-absorption raymarcher. Accuracy: PSNR of full renders of held-out views "
