@@ -8,7 +8,8 @@ import numpy as np
 
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin_textured, _cameras, _iou, _method, _pick, _run_cases, _series,
+    _GF, _P3D, StepResult, _bar, _begin_textured, _cameras, _iou, _method, _pick, _run_cases,
+    _series,
 )
 
 __all__ = ["step_render_points"]
