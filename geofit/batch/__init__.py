@@ -77,16 +77,22 @@ def _recipes() -> tuple:
     return tuple(RECIPES)
 
 
+def _volume_methods() -> tuple:
+    from ..fit.volume import FIT_VOLUME_METHODS
+
+    return tuple(FIT_VOLUME_METHODS)
+
+
 _SEED = Option(int, 0, "random seed")
-_VIEWS_TIME = Option(float, None, "seconds of solver time per target (default: the fit's own)")
+_VIEWS_TIME = Option(float, None, "seconds of solver time per target")
 
 #: Every task's options, with defaults. ``fit_many(..., **fit_kwargs)`` accepts exactly these.
 TASK_OPTIONS: dict[str, dict[str, Option]] = {
     "fit-mesh": {
-        "recipe": Option(str, None, "a fit_mesh recipe (default: fit_mesh's own default)",
+        "recipe": Option(str, None, "a fit_mesh recipe",
                          _recipes()),
         "time_budget": Option(float, None, "seconds of solver time per target"),
-        "n_iter": Option(int, None, "iterations per stage (default: fit_mesh's)"),
+        "n_iter": Option(int, None, "iterations per stage"),
         "metric_samples": Option(int, 100_000, "samples a side for the accuracy"),
         "seed": _SEED,
     },
@@ -101,7 +107,7 @@ TASK_OPTIONS: dict[str, dict[str, Option]] = {
         "image_size": Option(int, 128, "image size of those views"),
         "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
         "time_budget": _VIEWS_TIME,
-        "iterations": Option(int, None, "silhouette iterations (default: the fit's)"),
+        "iterations": Option(int, None, "silhouette iterations"),
         "metric_samples": Option(int, 20_000, "samples a side for the surface accuracy"),
         "seed": _SEED,
     },
@@ -110,8 +116,8 @@ TASK_OPTIONS: dict[str, dict[str, Option]] = {
         "image_size": Option(int, 128, "image size of those views"),
         "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
         "time_budget": _VIEWS_TIME,
-        "size": Option(int, None, "final grid size (default: fit_volume's)"),
-        "method": Option(str, None, "fit_volume method (default: fit_volume's)"),
+        "size": Option(int, None, "final grid size"),
+        "method": Option(str, None, "fit_volume method", _volume_methods()),
         "seed": _SEED,
     },
     "fit-nerf": {
@@ -119,9 +125,9 @@ TASK_OPTIONS: dict[str, dict[str, Option]] = {
         "image_size": Option(int, 128, "image size of those views"),
         "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
         "time_budget": _VIEWS_TIME,
-        "preset": Option(str, None, "fit_nerf preset (default: fit_nerf's)",
+        "preset": Option(str, None, "fit_nerf preset",
                          ("scene", "tutorial")),
-        "n_iter": Option(int, None, "maximum steps (default: the preset's)"),
+        "n_iter": Option(int, None, "maximum steps"),
         "seed": _SEED,
     },
 }
