@@ -50,7 +50,7 @@ from _harness import (
 )
 
 from geofit import box, ico_sphere, save_obj, torus
-from geofit.batch import fit_many
+from geofit.batch import LOCAL_CLUSTER, fit_many
 
 SHAPES = ("fandisk", "ogre", "suzanne", "teapot", "woody")
 
@@ -137,7 +137,7 @@ def overheads(n_queue: int) -> dict:
 
     t0 = time.perf_counter()
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None)
+                           **LOCAL_CLUSTER)
     client = Client(cluster)
     client.wait_for_workers(2)
     start = time.perf_counter() - t0

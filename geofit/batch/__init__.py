@@ -45,6 +45,7 @@ from ._tasks import (
 
 __all__ = [
     "ACCURACY",
+    "LOCAL_CLUSTER",
     "CAPTURE_MARKERS",
     "MESH_SUFFIXES",
     "TASKS",
@@ -56,6 +57,7 @@ __all__ = [
     "fit_many",
     "settings_hash",
     "task_settings",
+    "thread_env",
 ]
 
 
@@ -477,11 +479,17 @@ def thread_env(threads: int) -> dict[str, str]:
             "MKL_NUM_THREADS": t}
 
 
+#: Keyword arguments of every ``LocalCluster`` geofit starts: no dashboard, and the scheduler's
+#: remaining HTTP endpoint (health, metrics) on a free port of 127.0.0.1 rather than 8787.
+LOCAL_CLUSTER = {"dashboard_address": None,
+                 "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"}}
+
+
 def _start_local(n_workers: int, threads: int):
     from distributed import Client, LocalCluster
 
     cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                           host="127.0.0.1", dashboard_address=None, env=thread_env(threads))
+                           host="127.0.0.1", env=thread_env(threads), **LOCAL_CLUSTER)
     return cluster, Client(cluster)
 
 
