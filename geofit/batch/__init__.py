@@ -6,9 +6,9 @@ process boundary), runs geofit's workflow, and writes ``OUT/<name>/result.json``
 message, metrics, seconds, parameter count, history, the settings and their hash) and its
 outputs (mesh, volume, weights, pictures), each atomically (a temporary file, then
 ``os.replace``). A failing target is recorded as ``"failed"`` (error type and message) and the
-batch goes on. A rerun into the same ``OUT`` skips every target whose ``result.json`` is ``"ok"``
-with the same settings hash (the hash covers the task, the settings and the input files' sizes
-and modification times). Results stream in as they finish (``distributed.as_completed``) with a
+batch goes on. A rerun into the same ``OUT`` skips every target whose ``result.json`` holds the same
+settings hash (the hash covers the task, the settings and the input files' sizes and
+modification times); ``retry_failed=True`` recomputes the failed ones, ``force=True`` all. Results stream in as they finish (``distributed.as_completed``) with a
 tqdm progress bar.
 
 Without ``client`` or ``scheduler``, :func:`fit_many` starts a ``distributed.LocalCluster`` of
@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from ..nn._threads import cpu_count
 from ._tasks import (
     CAPTURE_MARKERS,
     MESH_SUFFIXES,
@@ -434,30 +435,26 @@ class BatchResult(Sequence):
                 f"{self.n_failed} failed, {self.n_reused} reused, {self.seconds:.1f} s)")
 
 
-def _previous(dest: Path, digest: str) -> dict | None:
-    """The earlier ``result.json`` of a target when it is ``"ok"`` with the same hash."""
+def _previous(dest: Path, digest: str, retry_failed: bool) -> dict | None:
+    """The earlier ``result.json`` of a target when it holds the same settings hash and is
+    ``"ok"``, or ``"failed"`` by the target itself (not a lost task) and ``retry_failed`` is
+    off."""
     try:
         rec = json.loads((dest / RESULT_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    if rec.get("schema") == RESULT_SCHEMA and rec.get("settings_hash") == digest \
-            and rec.get("status") == "ok":
+    if rec.get("schema") != RESULT_SCHEMA or rec.get("settings_hash") != digest:
+        return None
+    if rec.get("status") == "ok" or (not retry_failed and not rec.get("lost")):
         rec.pop("history", None)
         return rec
     return None
 
 
 # ------------------------------------------------------------------------------ cluster
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return os.cpu_count() or 1
-
-
 def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]:
     """(workers, threads per worker) of the embedded cluster, with workers x threads <= cores."""
-    cores = _cores()
+    cores = cpu_count()
     for v, nm in ((n_workers, "n_workers"), (threads, "threads_per_worker")):
         if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
             raise ValueError(f"{nm}: expected an integer >= 1, got {v!r}")
@@ -504,7 +501,7 @@ def _remote_threads(client, threads: int | None) -> int:
         slots[w["host"]] = slots.get(w["host"], 0) + int(w["nthreads"])
     if not slots:
         return 1
-    cores = client.run(_cores)
+    cores = client.run(cpu_count)
     per_host: dict[str, int] = {}
     for addr, c in cores.items():
         host = info[addr]["host"] if addr in info else addr
@@ -526,7 +523,8 @@ def _workers(client) -> dict:
 def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_out", *,
              client=None, scheduler: str | None = None, n_workers: int | None = None,
              threads_per_worker: int | None = None, progress: bool = True,
-             force: bool = False, summary: bool = True, **fit_kwargs) -> BatchResult:
+             force: bool = False, retry_failed: bool = False, summary: bool = True,
+             **fit_kwargs) -> BatchResult:
     """Fit (or render) many targets, one Dask task each, and write a result per target.
 
     Parameters
@@ -553,7 +551,11 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     progress : bool
         A tqdm progress bar on stderr.
     force : bool
-        Recompute targets whose earlier result has the same settings hash.
+        Recompute every target, even those whose earlier result has the same settings hash.
+    retry_failed : bool
+        Recompute the targets that failed earlier with the same settings hash (by default a
+        rerun keeps them: the same input and settings fail the same way). Tasks that were lost
+        (a worker died) are always retried.
     summary : bool
         Write the summary files into ``out``.
     **fit_kwargs
@@ -594,7 +596,7 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     todo = []
     for name, path in items:
         digest = settings_hash(task, path, settings)
-        prev = None if force else _previous(out / name, digest)
+        prev = None if force else _previous(out / name, digest, retry_failed)
         if prev is not None:
             rows[name] = TargetResult.from_record(prev, reused=True)
         else:
@@ -672,7 +674,7 @@ def _lost(spec: dict, exc: BaseException) -> dict:
            "settings_hash": spec["settings_hash"], "status": "failed",
            "message": f"{type(exc).__name__}: {exc}",
            "error": {"type": type(exc).__name__, "message": str(exc)}, "metrics": {},
-           "accuracy": -1.0, "seconds": 0.0, "n_params": 0, "picture": None}
+           "accuracy": -1.0, "seconds": 0.0, "n_params": 0, "picture": None, "lost": True}
     dest = Path(spec["out"]) / spec["name"]
     dest.mkdir(parents=True, exist_ok=True)
     write_json(dest / RESULT_FILE, {**rec, "history": None})

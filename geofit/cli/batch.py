@@ -8,7 +8,7 @@ file is rendered into synthetic views first). Each target writes ``DIR/<name>/re
 batch writes ``DIR/summary.json``, ``summary.csv``, ``summary.png`` (accuracy against seconds, a
 point per target) and ``index.html`` (each target's picture). A failing target is recorded and
 the batch goes on; running again with the same DIR skips the targets already done with the same
-settings (``--force`` recomputes them).
+settings and input (``--retry-failed`` recomputes the failed ones, ``--force`` all).
 
 By default a Dask LocalCluster of ``--workers`` processes on 127.0.0.1 runs the targets and is
 torn down afterwards; ``--scheduler tcp://HOST:PORT`` runs them on an existing Dask cluster
@@ -36,15 +36,18 @@ def run(args: argparse.Namespace) -> int:
     opts = {k: getattr(args, k) for k in TASK_OPTIONS[args.task]}
     result = fit_many(args.targets, args.task, args.out, scheduler=args.scheduler,
                       n_workers=args.workers, threads_per_worker=args.threads_per_worker,
-                      progress=not args.no_progress, force=args.force, **opts)
+                      progress=not args.no_progress, force=args.force,
+                      retry_failed=args.retry_failed, **opts)
     for r in result:
         acc = f"{r.accuracy:.4g}" if r.accuracy >= 0 else "-"
         note = " (reused)" if r.reused else ""
         print(f"{r.name}: {r.status}{note}, accuracy {acc}, {r.seconds:.1f} s"
               + ("" if r.ok else f" - {r.message}"))
+    where = (f"on {result.n_workers} worker(s) x {result.threads_per_worker} thread(s)"
+             if result.n_workers else "(nothing to compute)")
     print(f"{len(result)} targets: {result.n_ok} ok, {result.n_failed} failed, "
-          f"{result.n_reused} reused; {result.seconds:.1f} s on {result.n_workers} worker(s) x "
-          f"{result.threads_per_worker} thread(s); wrote {Path(result.out) / 'index.html'}")
+          f"{result.n_reused} reused; {result.seconds:.1f} s {where}; wrote "
+          f"{Path(result.out) / 'index.html'}")
     return result.exit_code
 
 
@@ -78,6 +81,8 @@ def register(subparsers) -> None:
                             "instead of a local one")
         t.add_argument("--force", action="store_true",
                        help="recompute targets already done with the same settings")
+        t.add_argument("--retry-failed", action="store_true",
+                       help="recompute the targets that failed with the same settings")
         t.add_argument("--no-progress", action="store_true", help="no progress bar")
         g = t.add_argument_group(f"{task} options")
         for name, opt in options.items():
