@@ -305,6 +305,7 @@ def test_every_task_has_options_and_an_accuracy():
     ({"recipe": "magic"}, "recipe"),
     ({"learning_rate": 0.1}, "learning_rate"),
     ({"n_workers": 0}, "n_workers"),
+    ({"threads_per_worker": 1.5, "scheduler": "tcp://127.0.0.1:1"}, "threads_per_worker"),
     ({"n_workers": 1, "threads_per_worker": 1024}, "exceeds"),
     ({"client": object(), "scheduler": "tcp://127.0.0.1:1"}, "client, scheduler"),
 ])
@@ -328,3 +329,30 @@ def test_cli_help_documents_exit_codes(capsys):
     text = capsys.readouterr().out
     assert "--scheduler" in text and "--time-budget" in text and "--recipe" in text
     assert "1  at least one target failed" in text
+
+
+def test_readme_commands_parse():
+    """The README's batch commands use only flags that exist: geofit's parse, dask's are in its
+    --help."""
+    import re
+    import shlex
+
+    from geofit.cli import build_parser
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = readme.split("## Many scenes, many machines", 1)[1].split("\n## ", 1)[0]
+    lines = [ln.rstrip(" &") for ln in re.findall(r"^(?:\S+=\S+ )*(?:geofit|dask) .*$", section,
+                                                  flags=re.M)]
+    geofit_lines = [ln for ln in lines if ln.startswith("geofit batch")]
+    dask_lines = [ln for ln in lines if "dask " in ln]
+    assert len(geofit_lines) == 2 and len(dask_lines) == 2
+    for ln in geofit_lines:
+        args = build_parser().parse_args(shlex.split(ln)[1:])
+        assert args.task == "fit-mesh" and args.time_budget == 5.0
+    for ln in dask_lines:
+        words = shlex.split(ln)
+        words = words[next(i for i, w in enumerate(words) if w == "dask"):]
+        help_text = subprocess.run(_dask(words[1], "--help"), capture_output=True, text=True,
+                                   check=True).stdout
+        for flag in (w for w in words if w.startswith("--")):
+            assert flag in help_text, f"{flag} is not a flag of dask {words[1]}"

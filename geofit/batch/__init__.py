@@ -455,9 +455,6 @@ def _previous(dest: Path, digest: str, retry_failed: bool) -> dict | None:
 def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]:
     """(workers, threads per worker) of the embedded cluster, with workers x threads <= cores."""
     cores = cpu_count()
-    for v, nm in ((n_workers, "n_workers"), (threads, "threads_per_worker")):
-        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
-            raise ValueError(f"{nm}: expected an integer >= 1, got {v!r}")
     if n_workers is None:
         n_workers = max(1, cores // (threads or 1))
     if threads is None:
@@ -588,6 +585,9 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     out = Path(out).resolve()
     if client is not None and scheduler is not None:
         raise ValueError("client, scheduler: give at most one of them")
+    for v, nm in ((n_workers, "n_workers"), (threads_per_worker, "threads_per_worker")):
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
+            raise ValueError(f"{nm}: expected an integer >= 1, got {v!r}")
     if client is None and scheduler is None:
         n_workers, threads_per_worker = _plan_threads(n_workers, threads_per_worker)
     out.mkdir(parents=True, exist_ok=True)
