@@ -258,6 +258,32 @@ def test_capture_folder_without_loader_fails_cleanly(tmp_path, monkeypatch):
     assert rec["status"] == "failed" and "no frames" in rec["error"]["message"]
 
 
+def test_capture_folder_through_load_views(tmp_path, monkeypatch):
+    """fit-volume on a capture folder: the views come from geofit.datasets.load_views (here a
+    stand-in returning renders of a sphere), every 8th view is held out."""
+    import geofit.datasets
+    from geofit.batch._tasks import _coloured
+
+    seen = []
+
+    def loader(folder):
+        seen.append(Path(folder))
+        mesh = _coloured(ico_sphere(2))
+        return geofit.datasets.render_views(mesh, np.linspace(0, 360, 9)[:-1], 10.0,
+                                            image_size=24)
+
+    monkeypatch.setattr(geofit.datasets, "load_views", loader, raising=False)
+    cap = tmp_path / "scan"
+    cap.mkdir()
+    (cap / "transforms.json").write_text("{}", encoding="utf-8")
+    s = task_settings("fit-volume", time_budget=0.5, size=24)
+    rec = run_target({"task": "fit-volume", "path": str(cap), "name": "scan",
+                      "out": str(tmp_path / "o"), "settings": s, "settings_hash": "h",
+                      "threads": 1, "accuracy_key": "psnr"})
+    assert seen == [cap] and rec["status"] == "ok", rec["message"]
+    assert rec["metrics"]["psnr"] > 5.0 and (tmp_path / "o" / "scan" / "volume.npz").exists()
+
+
 # ----------------------------------------------------------------------------- helpers
 def test_expand_targets_names_and_order(tmp_path):
     """Folders expand to mesh files in name order; equal stems get distinct names."""
