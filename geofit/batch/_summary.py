@@ -40,8 +40,9 @@ def _plot(result, path: Path) -> Path:
         ax.set_xlabel("seconds per target (load, fit, evaluation, writing)")
         ax.set_ylabel(label)
         ax.set_xlim(left=0.0)
-        ax.set_title(f"geofit batch {result.task}: {result.n_ok} ok, {result.n_failed} failed, "
-                     f"{result.seconds:.1f} s wall", fontsize=10)
+        reused = f", {result.n_reused} from earlier runs" if result.n_reused else ""
+        ax.set_title(f"geofit batch {result.task}: {result.n_ok} ok, {result.n_failed} failed"
+                     f"{reused}; this run {result.seconds:.1f} s wall", fontsize=10)
         failed = [r.name for r in result.rows if not r.ok]
         if failed:
             ax.text(0.01, 0.01, "failed: " + ", ".join(failed[:12])
