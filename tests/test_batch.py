@@ -104,7 +104,8 @@ def test_summary_files_written(local_run):
     lines = (out / "summary.csv").read_text().splitlines()
     assert lines[0].startswith("name,target,task,status") and len(lines) == 4
     html = (out / "index.html").read_text()
-    assert 'src="sphere/picture.png"' in html and "broken" in html
+    assert 'src="sphere/picture.png"' in html and 'href="torus/fit.obj"' in html
+    assert "broken" in html and res[1].outputs == {"mesh": "sphere/fit.obj"}
 
 
 def test_rerun_skips_finished_targets(local_run):

@@ -297,6 +297,9 @@ class TargetResult:
         True when an earlier run's ``result.json`` (same settings hash) was kept.
     picture : str or None
         Path of the target's picture relative to ``out``.
+    outputs : dict
+        The target's output files (``"mesh"``, ``"volume"``, ``"weights"``, views), relative
+        to ``out``.
     """
 
     name: str
@@ -316,6 +319,7 @@ class TargetResult:
     settings_hash: str = ""
     reused: bool = False
     picture: str | None = None
+    outputs: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -336,10 +340,12 @@ class TargetResult:
                    n_params=int(rec.get("n_params", 0)), fit_status=rec.get("fit_status"),
                    metrics=dict(rec.get("metrics") or {}),
                    settings_hash=rec.get("settings_hash", ""), reused=reused,
-                   picture=None if pic is None else f"{rec['name']}/{pic}")
+                   picture=None if pic is None else f"{rec['name']}/{pic}",
+                   outputs={k: f"{rec['name']}/{v}" for k, v in
+                            (rec.get("outputs") or {}).items()})
 
 
-_CSV_FIELDS = [f.name for f in fields(TargetResult) if f.name != "metrics"]
+_CSV_FIELDS = [f.name for f in fields(TargetResult) if f.name not in ("metrics", "outputs")]
 
 
 @dataclass
@@ -572,6 +578,12 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
         no targets. A failing *target* never raises: it is recorded as ``"failed"``.
     FileNotFoundError
         For a target path that does not exist.
+
+    Notes
+    -----
+    The embedded cluster's workers are new processes (multiprocessing's "spawn"), which import
+    the calling script again: in a script, call :func:`fit_many` under
+    ``if __name__ == "__main__":``.
 
     Examples
     --------

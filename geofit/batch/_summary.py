@@ -64,11 +64,14 @@ def _html(result, path: Path) -> Path:
                if r.picture else "")
         acc = f"{r.accuracy:.4g}" if r.accuracy >= 0 else "&ndash;"
         cls = "ok" if r.ok else "failed"
+        files = "".join(f'<div><a href="{e(v)}">{e(k)}</a></div>' for k, v in r.outputs.items()
+                        if not k.startswith("view_"))
         rows.append(
             f'<tr class="{cls}"><td><a href="{e(r.name)}/result.json">{e(r.name)}</a>'
             f'<div class="path">{e(r.target)}</div></td><td>{e(r.status)}'
             f'{" (reused)" if r.reused else ""}</td><td>{acc}</td><td>{r.seconds:.2f}</td>'
-            f'<td>{r.n_params}</td><td class="msg">{e(r.message)}</td><td>{pic}</td></tr>')
+            f'<td>{r.n_params}</td><td class="msg">{e(r.message)}{files}</td><td>{pic}</td>'
+            f'</tr>')
     doc = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <title>geofit batch {e(result.task)}</title>
