@@ -31,7 +31,7 @@ EPILOG = """exit status:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code (0: all succeeded, 1: some failed)."""
-    from ..batch import TASK_OPTIONS, fit_many
+    from ..batch import ACCURACY, TASK_OPTIONS, fit_many
 
     opts = {k: getattr(args, k) for k in TASK_OPTIONS[args.task]}
     result = fit_many(args.targets, args.task, args.out, scheduler=args.scheduler,
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     for r in result:
         acc = f"{r.accuracy:.4g}" if r.accuracy >= 0 else "-"
         note = " (reused)" if r.reused else ""
-        print(f"{r.name}: {r.status}{note}, accuracy {acc}, {r.seconds:.1f} s"
+        print(f"{r.name}: {r.status}{note}, {ACCURACY[args.task][0]} {acc}, {r.seconds:.1f} s"
               + ("" if r.ok else f" - {r.message}"))
     where = (f"on {result.n_workers} worker(s) x {result.threads_per_worker} thread(s)"
              if result.n_workers else "(nothing to compute)")
