@@ -233,16 +233,16 @@ def main(argv=None) -> int:
             "budget_seconds": kw["time_budget"], "metric_samples": kw["metric_samples"],
             "quick": args.quick, "uptime_before": uptime()})
         report.notes += [
-            "throughput = targets / wall time of the whole fit_many call (LocalCluster start, "
-            "worker imports, tear-down, summary files included), with fit_mesh's default and "
-            "a fixed solver budget per target.",
-            "The machine is shared with other work: read the times with uptime_before/after "
-            "and the load averages; a 2-worker speed-up below 2 on 2 cores under load is the "
-            "other processes' share.",
-            "projection: X(N) = 1 / (1 / (N * X_2) + c) targets/s, X_2 measured with 2 workers "
-            "here, c = the scheduler's cost per task measured with 200 queued no-ops; assumes "
-            "machines like this one, tasks of the same size and a shared output folder that "
-            "keeps up.",
+            ("throughput = targets / wall time of the whole fit_many call (LocalCluster start, "
+             "worker imports, tear-down, summary files included), with fit_mesh's default and "
+             "a fixed solver budget per target."),
+            ("The machine is shared with other work: read the times with uptime_before/after "
+             "and the load averages; a 2-worker speed-up below 2 on 2 cores under load is the "
+             "other processes' share."),
+            ("projection: X(N) = 1 / (1 / (N * X_2) + c) targets/s, X_2 measured with 2 workers "
+             "here, c = the scheduler's cost per task measured with 200 queued no-ops; assumes "
+             "machines like this one, tasks of the same size and a shared output folder that "
+             "keeps up."),
         ]
         load0 = os.getloadavg()
         print(f"{len(names)} targets: {', '.join(names)}; {uptime()}", flush=True)

@@ -149,7 +149,7 @@ def dask_cluster(tmp_path_factory):
     address = f"tcp://127.0.0.1:{port}"
     scratch = tmp_path_factory.mktemp("dask")
     env = {**os.environ, **thread_env(1)}
-    log = open(scratch / "dask.log", "wb")
+    log = open(scratch / "dask.log", "wb")  # noqa: SIM115 - closed in the finally below
     procs: list[subprocess.Popen] = []
     try:
         procs.append(subprocess.Popen(
@@ -329,7 +329,6 @@ def test_every_task_has_options_and_an_accuracy():
 
 @pytest.mark.parametrize("kw, match", [
     ({"task": "fit-everything"}, "task"),
-    ({"time_budget": "5"}, "time_budget"),
     ({"time_budget": -1.0}, "time_budget"),
     ({"recipe": "magic"}, "recipe"),
     ({"learning_rate": 0.1}, "learning_rate"),
@@ -342,6 +341,12 @@ def test_fit_many_validation(kw, match, tmp_path):
     _make_meshes(tmp_path / "m", broken=False)
     with pytest.raises(ValueError, match=match):
         fit_many(tmp_path / "m", out=tmp_path / "o", progress=False, **kw)
+
+
+def test_fit_many_option_of_the_wrong_type(tmp_path):
+    _make_meshes(tmp_path / "m", broken=False)
+    with pytest.raises(TypeError, match="time_budget: expected float"):
+        fit_many(tmp_path / "m", out=tmp_path / "o", time_budget="5")
 
 
 def test_fit_many_missing_or_empty_targets(tmp_path):
@@ -371,7 +376,7 @@ def test_readme_commands_parse():
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
     section = readme.split("## Many scenes, many machines", 1)[1].split("\n## ", 1)[0]
     lines = [ln.rstrip(" &") for ln in re.findall(r"^(?:\S+=\S+ )*(?:geofit|dask) .*$", section,
-                                                  flags=re.M)]
+                                                  flags=re.MULTILINE)]
     geofit_lines = [ln for ln in lines if ln.startswith("geofit batch")]
     dask_lines = [ln for ln in lines if "dask " in ln]
     assert len(geofit_lines) == 2 and len(dask_lines) == 2

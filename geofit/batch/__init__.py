@@ -46,8 +46,8 @@ from ._tasks import (
 
 __all__ = [
     "ACCURACY",
-    "LOCAL_CLUSTER",
     "CAPTURE_MARKERS",
+    "LOCAL_CLUSTER",
     "MESH_SUFFIXES",
     "TASKS",
     "TASK_OPTIONS",
@@ -163,8 +163,10 @@ def task_settings(task: str, **kwargs) -> dict[str, Any]:
     Raises
     ------
     ValueError
-        For an unknown task, an option the task does not have, a value of the wrong type, a
-        value outside the choices, or a count or budget that is not positive.
+        For an unknown task, an option the task does not have, a value outside the choices,
+        or a count or budget that is not positive.
+    TypeError
+        For a value of the wrong type.
     """
     opts = TASK_OPTIONS[_check_task(task)]
     unknown = sorted(set(kwargs) - set(opts))
@@ -180,7 +182,7 @@ def task_settings(task: str, **kwargs) -> dict[str, Any]:
         if opt.type is float and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
         if not isinstance(v, opt.type) or isinstance(v, bool):
-            raise ValueError(f"{name}: expected {opt.type.__name__}, got {v!r}")
+            raise TypeError(f"{name}: expected {opt.type.__name__}, got {v!r}")
         if opt.choices is not None and v not in opt.choices:
             raise ValueError(f"{name}: expected one of {opt.choices}, got {v!r}")
         if opt.type in (int, float) and name not in ("seed", "elev") and not v > 0:
@@ -215,16 +217,12 @@ def expand_targets(targets: str | os.PathLike | Iterable[str | os.PathLike],
         p = Path(t)
         if not p.exists():
             raise FileNotFoundError(f"targets: {p} does not exist")
-        if p.is_file():
-            paths.append(p)
-        elif multiview and is_capture(p):
+        if p.is_file() or (multiview and is_capture(p)):
             paths.append(p)
         else:
-            for c in sorted(p.iterdir()):
-                if c.is_file() and c.suffix.lower() in MESH_SUFFIXES:
-                    paths.append(c)
-                elif multiview and is_capture(c):
-                    paths.append(c)
+            paths += [c for c in sorted(p.iterdir())
+                      if (c.is_file() and c.suffix.lower() in MESH_SUFFIXES)
+                      or (multiview and is_capture(c))]
     seen: set[Path] = set()
     unique = []
     for p in paths:
