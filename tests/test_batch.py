@@ -59,13 +59,29 @@ def local_run(tmp_path_factory):
     inputs = _make_meshes(base / "meshes")
     out = base / "out"
     workers = 2 if _cores() >= 2 else 1
+    before = {c.pid for c in psutil.Process().children(recursive=True)}
     res = fit_many(inputs, "fit-mesh", out, n_workers=workers, progress=False, **FAST)
-    return inputs, out, res, _mtimes(out)
+    return inputs, out, res, _mtimes(out), before
+
+
+def _new_children(before: set[int], wait: float = 10.0) -> list[int]:
+    """Child processes of this test process started since ``before`` and still running
+    (except multiprocessing's resource tracker, which lives as long as this process)."""
+    deadline = time.monotonic() + wait
+    while True:
+        alive = [c.pid for c in psutil.Process().children(recursive=True)
+                 if c.pid not in before and c.status() != psutil.STATUS_ZOMBIE
+                 and "resource_tracker" not in " ".join(c.cmdline())]
+        if not alive or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.2)
 
 
 def test_local_cluster_fits_every_good_mesh(local_run):
-    """2 worker processes: each good mesh gets status ok, a fitted mesh, metrics and history."""
-    _, out, res, _ = local_run
+    """2 worker processes: each good mesh gets status ok, a fitted mesh, metrics and history;
+    the cluster's processes are gone afterwards."""
+    _, out, res, _, before = local_run
+    assert not _new_children(before), "LocalCluster processes left behind"
     assert isinstance(res, BatchResult) and [r.name for r in res] == ["broken", "sphere", "torus"]
     assert res.n_workers == min(2, _cores())
     for name in GOOD:
@@ -85,7 +101,7 @@ def test_local_cluster_fits_every_good_mesh(local_run):
 
 def test_broken_input_recorded_as_failed(local_run):
     """The broken file fails with its error type and message; the batch went on."""
-    _, out, res, _ = local_run
+    _, out, res, _, _ = local_run
     row = res[0]
     assert row.status == "failed" and row.error_type == "ValueError"
     assert "out of range" in row.message and row.accuracy == -1.0
@@ -96,7 +112,7 @@ def test_broken_input_recorded_as_failed(local_run):
 
 
 def test_summary_files_written(local_run):
-    _, out, res, _ = local_run
+    _, out, res, _, _ = local_run
     for f in SUMMARY_FILES:
         assert (out / f).stat().st_size > 0
     summary = json.loads((out / "summary.json").read_text())
@@ -112,7 +128,7 @@ def test_rerun_skips_finished_targets(local_run):
     """Same settings: nothing is recomputed and no cluster is started (result.json files
     untouched); retry_failed recomputes only the failed target; a changed setting changes the
     hash."""
-    inputs, out, first, mtimes = local_run
+    inputs, out, first, mtimes, _ = local_run
     res = fit_many(inputs, "fit-mesh", out, n_workers=1, progress=False, **FAST)
     assert res.n_reused == 3 and res.n_workers == 0 and _mtimes(out) == mtimes
     assert [r.status for r in res] == [r.status for r in first]
