@@ -6,17 +6,23 @@ casting, Open3D KD-trees and scipy.sparse operators with analytic gradients.
 from __future__ import annotations
 
 from . import data, fit, io, metrics, render
+from ._threads import get_num_threads, set_num_threads
 from .cameras import (
     CamerasBase,
     FoVOrthographicCameras,
     FoVPerspectiveCameras,
+    PerspectiveCameras,
     Rays,
     camera_position_from_spherical_angles,
+    cameras_from_colmap,
     cameras_from_opencv_projection,
+    cameras_from_opengl,
+    colmap_from_cameras,
     look_at_rotation,
     look_at_view_transform,
     ndc_grid,
     opencv_from_cameras_projection,
+    opengl_from_cameras,
 )
 from .fit import fit_mesh, fit_mesh_to_views, fit_nerf, fit_volume
 from .io import (
@@ -91,6 +97,9 @@ __version__ = "0.1.0"
 
 __all__ = [
     "__version__",
+    # threads
+    "get_num_threads",
+    "set_num_threads",
     # structures
     "Mesh",
     "Meshes",
@@ -104,13 +113,18 @@ __all__ = [
     "CamerasBase",
     "FoVOrthographicCameras",
     "FoVPerspectiveCameras",
+    "PerspectiveCameras",
     "Rays",
     "camera_position_from_spherical_angles",
+    "cameras_from_colmap",
     "cameras_from_opencv_projection",
+    "cameras_from_opengl",
+    "colmap_from_cameras",
     "look_at_rotation",
     "look_at_view_transform",
     "ndc_grid",
     "opencv_from_cameras_projection",
+    "opengl_from_cameras",
     # fitting and metrics
     "fit",
     "fit_mesh",
