@@ -257,50 +257,49 @@ def test_task_on_a_mesh_file(task, kw, tmp_path):
     assert lo < rec["accuracy"] <= hi and rec["accuracy"] == rec["metrics"][key]
 
 
-def test_capture_folder_without_loader_fails_cleanly(tmp_path, monkeypatch):
-    """A capture folder goes through geofit.datasets.load_views; its error is recorded."""
-    import geofit.datasets
+def _capture(folder: Path, fmt: str = "transforms") -> Path:
+    """A capture written by geofit.io.save_views from renders of a coloured sphere."""
+    from geofit.batch._tasks import _coloured
+    from geofit.datasets import render_views
+    from geofit.io import save_views
 
+    views = render_views(_coloured(ico_sphere(2)), np.linspace(0.0, 360.0, 9)[:-1], 10.0,
+                         image_size=24)
+    save_views(folder, views, format=fmt)
+    return folder
+
+
+def test_capture_folder_through_load_views(tmp_path):
+    """fit-volume and fit-views on capture folders (transforms.json, COLMAP) found in a folder
+    next to a mesh file: read by geofit.datasets.load_views, every 8th view held out."""
+    _capture(tmp_path / "scans" / "a")
+    _capture(tmp_path / "scans" / "b", "colmap")
+    save_obj(tmp_path / "scans" / "m.obj", ico_sphere(1))
+    assert [n for n, _ in expand_targets(tmp_path / "scans", "fit-volume")] == ["a", "b", "m"]
+    assert [n for n, _ in expand_targets(tmp_path / "scans", "fit-mesh")] == ["m"]
+    for task, name, kw in (("fit-volume", "a", {"time_budget": 0.5, "size": 24}),
+                           ("fit-views", "b", {"time_budget": 0.5, "iterations": 3,
+                                               "metric_samples": 500})):
+        s = task_settings(task, **kw)
+        rec = run_target({"task": task, "path": str(tmp_path / "scans" / name), "name": name,
+                          "out": str(tmp_path / "o"), "settings": s, "settings_hash": "h",
+                          "threads": 1, "accuracy_key": ACCURACY[task][0]})
+        assert rec["status"] == "ok", rec["message"]
+        assert 0.0 < rec["accuracy"] and (tmp_path / "o" / name / "picture.png").exists()
+
+
+def test_broken_capture_recorded_as_failed(tmp_path):
+    """A capture whose transforms.json has no frames fails with load_views' ValueError."""
     cap = tmp_path / "scan"
     cap.mkdir()
     (cap / "transforms.json").write_text("{}", encoding="utf-8")
     assert expand_targets(tmp_path, "fit-volume") == [("scan", cap.resolve())]
-
-    def fake(folder):
-        raise ValueError(f"{folder}/transforms.json: no frames")
-
-    monkeypatch.setattr(geofit.datasets, "load_views", fake, raising=False)
     s = task_settings("fit-volume")
     rec = run_target({"task": "fit-volume", "path": str(cap), "name": "scan",
                       "out": str(tmp_path / "o"), "settings": s, "settings_hash": "h",
                       "threads": 1, "accuracy_key": "psnr"})
-    assert rec["status"] == "failed" and "no frames" in rec["error"]["message"]
-
-
-def test_capture_folder_through_load_views(tmp_path, monkeypatch):
-    """fit-volume on a capture folder: the views come from geofit.datasets.load_views (here a
-    stand-in returning renders of a sphere), every 8th view is held out."""
-    import geofit.datasets
-    from geofit.batch._tasks import _coloured
-
-    seen = []
-
-    def loader(folder):
-        seen.append(Path(folder))
-        mesh = _coloured(ico_sphere(2))
-        return geofit.datasets.render_views(mesh, np.linspace(0, 360, 9)[:-1], 10.0,
-                                            image_size=24)
-
-    monkeypatch.setattr(geofit.datasets, "load_views", loader, raising=False)
-    cap = tmp_path / "scan"
-    cap.mkdir()
-    (cap / "transforms.json").write_text("{}", encoding="utf-8")
-    s = task_settings("fit-volume", time_budget=0.5, size=24)
-    rec = run_target({"task": "fit-volume", "path": str(cap), "name": "scan",
-                      "out": str(tmp_path / "o"), "settings": s, "settings_hash": "h",
-                      "threads": 1, "accuracy_key": "psnr"})
-    assert seen == [cap] and rec["status"] == "ok", rec["message"]
-    assert rec["metrics"]["psnr"] > 5.0 and (tmp_path / "o" / "scan" / "volume.npz").exists()
+    assert rec["status"] == "failed" and rec["error"]["type"] == "ValueError"
+    assert "transforms.json" in rec["error"]["message"]
 
 
 # ----------------------------------------------------------------------------- helpers

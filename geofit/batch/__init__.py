@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ..nn._threads import cpu_count
+from .._threads import cpu_count
 from ._tasks import (
     CAPTURE_MARKERS,
     MESH_SUFFIXES,

@@ -27,11 +27,11 @@ PICTURE_FILE = "picture.png"
 #: Suffixes of the mesh files a folder target expands to.
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
-#: Files or folders whose presence makes a folder a multi-view capture (read by
-#: ``geofit.datasets.load_views``): the NeRF/Blender convention, a COLMAP text model, OpenCV
-#: K/R/t per view.
-CAPTURE_MARKERS = ("transforms.json", "transforms_train.json", "cameras.txt", "sparse",
-                   "cameras.npz", "cameras.json")
+#: Files whose presence makes a folder a multi-view capture (the layouts
+#: ``geofit.datasets.load_views`` reads): the NeRF/Blender ``transforms.json``, a COLMAP text
+#: model (also under ``sparse/0``), OpenCV K/R/t per view in ``cameras.json``.
+CAPTURE_MARKERS = ("transforms.json", "cameras.txt", "sparse/0/cameras.txt",
+                   "sparse/cameras.txt", "cameras.json")
 
 #: Held-out share of a capture without a split of its own: every ``HOLDOUT_EVERY``-th view.
 HOLDOUT_EVERY = 8
@@ -39,7 +39,7 @@ HOLDOUT_EVERY = 8
 
 def is_capture(path: Path) -> bool:
     """True for a folder holding a multi-view capture (one of :data:`CAPTURE_MARKERS`)."""
-    return path.is_dir() and any((path / m).exists() for m in CAPTURE_MARKERS)
+    return path.is_dir() and any((path / m).is_file() for m in CAPTURE_MARKERS)
 
 
 # ------------------------------------------------------------------------------ small helpers
@@ -128,19 +128,16 @@ def _coloured(mesh):
     return m
 
 
-def _load_capture(folder: Path):
-    """A capture folder -> (images (N, H, W, 3), silhouettes (N, H, W), cameras).
+def _load_capture(folder: Path, background: tuple):
+    """A capture folder -> (images (N, H, W, 3), silhouettes (N, H, W), cameras), RGBA images
+    composited over ``background`` (black for the volume and NeRF fits, white for the mesh).
 
     The one place that knows ``geofit.datasets.load_views``' contract (a dataset with
     ``images``, ``silhouettes`` and ``cameras``).
     """
-    from .. import datasets
+    from ..datasets import load_views
 
-    loader = getattr(datasets, "load_views", None)
-    if loader is None:
-        raise RuntimeError("reading capture folders needs geofit.datasets.load_views, which "
-                           "this geofit does not have; pass mesh files instead")
-    ds = loader(folder)
+    ds = load_views(folder, background=background)
     return (np.asarray(ds.images, np.float64)[..., :3], np.asarray(ds.silhouettes, np.float64),
             ds.cameras)
 
@@ -164,7 +161,7 @@ def _tutorial5_views(path: Path, s: dict):
     capture folder, or renders of a mesh file as the tutorial renders the cow (azimuths around
     it at elevation 0, black background; held out: the azimuths half-way, elevation 20)."""
     if path.is_dir():
-        return _split(*_load_capture(path)) + (None,)
+        return _split(*_load_capture(path, (0.0, 0.0, 0.0))) + (None,)
     from ..datasets import render_views, training_azimuths
 
     mesh = _coloured(_load_mesh(path, textures=True))
@@ -291,7 +288,7 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
     t = time.perf_counter()
     if path.is_dir():
-        (tr, te) = _split(*_load_capture(path))
+        (tr, te) = _split(*_load_capture(path, (1.0, 1.0, 1.0)))
         train, heldout, truth = MultiViewData(tr[2], tr[1], tr[0]), \
             MultiViewData(te[2], te[1], te[0]), None
     else:
