@@ -94,8 +94,9 @@ def _rows(*rows: np.ndarray) -> np.ndarray:
 
 def limit_threads(n: int) -> int:
     """Limit this worker's compute threads to ``n``: ``geofit.set_num_threads`` when geofit
-    has it (BLAS through threadpoolctl, Embree, Open3D), and ``GEOFIT_NUM_THREADS`` /
-    ``OMP_NUM_THREADS`` for anything that reads them later. Returns ``n``."""
+    has it (geofit's pool for ray casting and rendering, BLAS through threadpoolctl, Open3D),
+    and ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` for anything that reads them later.
+    Returns ``n``."""
     import geofit
 
     os.environ["GEOFIT_NUM_THREADS"] = str(n)
