@@ -18,9 +18,9 @@ cluster, e.g. ``dask scheduler`` plus ``dask worker`` processes, dask-jobqueue, 
 SSH. ``OUT`` must then be a folder every worker can write (a shared file system).
 
 Threads: each Dask worker runs one target at a time, and each target limits its compute
-threads (ray casting, rendering, BLAS, Open3D) to ``threads_per_worker`` through ``geofit.set_num_threads`` when
-geofit has it and the ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` environment variables, so
-that ``n_workers * threads_per_worker`` never exceeds the cores.
+threads (ray casting, rendering, BLAS, Open3D) to ``threads_per_worker`` through
+``geofit.set_num_threads`` and the ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` environment
+variables, so that ``n_workers * threads_per_worker`` never exceeds the cores.
 """
 from __future__ import annotations
 
@@ -546,9 +546,9 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     n_workers : int, optional
         Worker processes of the embedded ``LocalCluster`` (default: cores // threads).
     threads_per_worker : int, optional
-        Compute threads per target (ray casting, rendering, BLAS, Open3D). Default: the cores divided by the
-        workers (on an existing cluster: by the task slots on each host). The embedded
-        cluster refuses ``n_workers * threads_per_worker`` above the cores.
+        Compute threads per target (ray casting, rendering, BLAS, Open3D). Default: the cores
+        divided by the workers (on an existing cluster: by the task slots on each host). The
+        embedded cluster refuses ``n_workers * threads_per_worker`` above the cores.
     progress : bool
         A tqdm progress bar on stderr.
     force : bool
