@@ -96,7 +96,7 @@ def limit_threads(n: int) -> int:
     """Limit this worker's compute threads to ``n``: ``geofit.set_num_threads`` when geofit
     has it (geofit's pool for ray casting and rendering, BLAS through threadpoolctl, Open3D),
     and ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` for anything that reads them later.
-    Returns ``n``."""
+    Returns the count geofit reports back (``geofit.get_num_threads()``), else ``n``."""
     import geofit
 
     os.environ["GEOFIT_NUM_THREADS"] = str(n)
@@ -104,7 +104,8 @@ def limit_threads(n: int) -> int:
     setter = getattr(geofit, "set_num_threads", None)
     if setter is not None:
         setter(n)
-    return n
+    getter = getattr(geofit, "get_num_threads", None)
+    return int(getter()) if getter is not None else n
 
 
 # ------------------------------------------------------------------------------ inputs
@@ -386,7 +387,7 @@ def run_target(spec: dict) -> dict:
     """
     t0 = time.perf_counter()
     started = time.time()
-    threads = limit_threads(int(spec["threads"]))
+    threads = limit_threads(int(spec["threads"]))  # as read back from geofit
     dest = Path(spec["out"]) / spec["name"]
     dest.mkdir(parents=True, exist_ok=True)
     clock = {"load_seconds": 0.0, "fit_seconds": 0.0, "eval_seconds": 0.0}
