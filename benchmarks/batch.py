@@ -40,13 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport,
-    MethodRun,
-    chart_style,
-    markdown_table,
-    parser,
-    record_load,
-    result_paths,
+    BenchmarkReport, MethodRun, chart_style, markdown_table, parser, record_load, result_paths,
 )
 
 from geofit import box, ico_sphere, save_obj, torus
