@@ -470,11 +470,11 @@ def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]
 
 
 def thread_env(threads: int) -> dict[str, str]:
-    """Environment of a worker process limited to ``threads`` compute threads (set before the
-    process starts, so that OpenMP and BLAS read it when they load)."""
+    """Environment of a worker process limited to ``threads`` compute threads, set before the
+    process starts: ``GEOFIT_NUM_THREADS`` (geofit's thread policy, :mod:`geofit._threads`,
+    which also limits BLAS and Open3D) and ``OMP_NUM_THREADS`` (read when OpenMP loads)."""
     t = str(int(threads))
-    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t,
-            "MKL_NUM_THREADS": t}
+    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t}
 
 
 #: Keyword arguments of every ``LocalCluster`` geofit starts: no dashboard, and the scheduler's
