@@ -203,23 +203,11 @@ def _try(fn: Callable[..., Any], *args, **kwargs) -> tuple[Any, str | None]:
         return None, _failure(exc)
 
 
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def set_postfix_str(self, s="", refresh=True):
-        pass
-
-    def close(self):
-        pass
-
-
 def _bar(progress: bool, total: int, desc: str):
-    if not progress:
-        return _NoBar()
+    """A tqdm progress bar over ``total`` steps; a disabled one (no output) without ``progress``."""
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True)
+    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True, disable=not progress)
 
 
 def _cameras(dist, elev, azim, *, ortho: bool = False, **kw):
