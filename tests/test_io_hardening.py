@@ -366,3 +366,83 @@ def test_png_bomb_refused_by_estimate_before_decoding(tmp_path, monkeypatch):
     assert isinstance(err, ValueError), err
     assert "bomb.png" in str(err) and "12000x12000" in str(err) and "memory limit" in str(err)
     assert peak < 50 * 2**20
+
+
+# --------------------------------------------------------------------------- path policy
+SECRET = "Kd secret line of an outside file\n"
+
+
+@pytest.fixture
+def outside(tmp_path):
+    """A folder ``mesh/`` holding the OBJ, and files outside it (a texture and a 'secret')."""
+    (tmp_path / "mesh").mkdir()
+    rng = np.random.default_rng(0)
+    Image.fromarray(rng.integers(0, 256, (4, 4, 3), dtype=np.uint8)).save(tmp_path / "out.png")
+    write(tmp_path / "secret.txt", "newmtl a\n" + SECRET)
+    return tmp_path
+
+
+def _obj(folder: Path, mtllib: str) -> Path:
+    return write(folder / "m.obj", f"mtllib {mtllib}\nusemtl a\n" + TRI + UV + "f 1/1 2/2 3/3\n")
+
+
+@pytest.mark.parametrize("how", ["absolute", "dotdot", "symlink"])
+def test_texture_path_outside_folder_refused(outside, how):
+    """map_Kd naming a file outside the MTL's folder (absolute, ../, or a symlink pointing out)
+    is refused with ValueError naming the MTL and line, and followed with allow_outside=True."""
+    mesh = outside / "mesh"
+    ref = {"absolute": str(outside / "out.png"), "dotdot": "../out.png", "symlink": "link.png"}[how]
+    if how == "symlink":
+        (mesh / "link.png").symlink_to(outside / "out.png")
+    write(mesh / "m.mtl", f"newmtl a\nmap_Kd {ref}\n")
+    p = _obj(mesh, "m.mtl")
+    why = "is an absolute path" if how == "absolute" else "resolves outside that folder"
+    with pytest.raises(ValueError, match=rf"m\.mtl: line 2: the map_Kd texture path .* {why}.*"
+                                         r"allow_outside=True"):
+        load_obj(p)
+    for loader in (load_objs_as_meshes, load_mesh):
+        with pytest.raises(ValueError, match="allow_outside=True"):
+            loader(p)
+    want = np.asarray(Image.open(outside / "out.png")) / 255.0
+    np.testing.assert_array_equal(load_obj(p, allow_outside=True).texture_images["a"], want)
+    np.testing.assert_array_equal(load_mesh(p, allow_outside=True).textures.maps, want)
+    assert load_objs_as_meshes([p], allow_outside=True)[0].textures is not None
+    assert load_obj(p, load_textures=False).materials == {}  # nothing is read without textures
+
+
+@pytest.mark.parametrize("how", ["absolute", "dotdot", "symlink"])
+def test_mtllib_outside_folder_refused_without_echo(outside, how):
+    """mtllib naming a file outside the OBJ's folder is refused before it is opened, so no line
+    of it can appear in a message; with allow_outside=True its errors still do not echo it."""
+    mesh = outside / "mesh"
+    ref = {"absolute": str(outside / "secret.txt"), "dotdot": "../secret.txt",
+           "symlink": "link.mtl"}[how]
+    if how == "symlink":
+        (mesh / "link.mtl").symlink_to(outside / "secret.txt")
+    p = _obj(mesh, ref)
+    with pytest.raises(ValueError, match=r"m\.obj: line 1: the mtllib path") as info:
+        load_obj(p)
+    assert "secret line" not in str(info.value)
+    with pytest.raises(ValueError, match=r"line 2: Kd has a non-numeric value$") as info:
+        load_obj(p, allow_outside=True)
+    assert "secret line" not in str(info.value)
+
+
+def test_paths_inside_folder_and_subfolders_allowed(outside):
+    """Relative paths into the folder or its subfolders (also through a symlink that stays
+    inside, and with Windows separators) are followed by default."""
+    mesh = outside / "mesh"
+    (mesh / "sub").mkdir()
+    Image.fromarray(np.full((2, 2, 3), 128, np.uint8)).save(mesh / "sub" / "t.png")
+    (mesh / "in.png").symlink_to(mesh / "sub" / "t.png")
+    write(mesh / "sub" / "m.mtl", "newmtl a\nmap_Kd t.png\n")
+    for ref in ("sub/m.mtl", "sub\\m.mtl", "./sub/../sub/m.mtl"):
+        d = load_obj(_obj(mesh, ref))
+        np.testing.assert_array_equal(d.texture_images["a"], np.full((2, 2, 3), 128 / 255))
+    write(mesh / "m2.mtl", "newmtl a\nmap_Kd in.png\n")
+    assert "a" in load_obj(_obj(mesh, "m2.mtl")).texture_images
+    # a texture path resolving from the MTL's subfolder up into the OBJ's folder: outside the
+    # MTL's own folder, so refused (the rule is the folder of the file that names it)
+    write(mesh / "sub" / "up.mtl", "newmtl a\nmap_Kd ../in.png\n")
+    with pytest.raises(ValueError, match=r"up\.mtl: line 2: .*resolves outside"):
+        load_obj(_obj(mesh, "sub/up.mtl"))

@@ -353,8 +353,9 @@ def _check_inside(ref: str, target: Path, source: Path, ln: int, what: str,
             real = target.resolve()
         except (OSError, RuntimeError):  # symlink loops
             why = "cannot be resolved"
-        else:
-            if not real.is_relative_to(folder):
+        else:  # both the written path ('..' in it) and the real one (symlinks) must stay in
+            written = os.path.normpath(ref.replace("\\", "/"))
+            if written == ".." or written.startswith("../") or not real.is_relative_to(folder):
                 why = "resolves outside that folder ('..' or a symlink)"
     if why is not None:
         raise ValueError(f"{source}: line {ln}: the {what} path {ref!r} {why}; referenced files "
