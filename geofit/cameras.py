@@ -338,12 +338,12 @@ def look_at_view_transform(dist=1.0, elev=0.0, azim=0.0, degrees=True, eye=None,
     Raises
     ------
     ValueError
-        On bad shapes, non-finite values or mismatched batch sizes.
+        On bad shapes, non-finite values, mismatched batch sizes or ``dist == 0``.
 
     Warns
     -----
     RuntimeWarning
-        For a degenerate frame (zero distance, or ``up`` parallel to the view direction away
+        For a degenerate frame (``eye == at``, or ``up`` parallel to the view direction away
         from the special-cased poles), where ``R`` is singular as in PyTorch3D.
 
     Notes
@@ -377,6 +377,8 @@ def look_at_view_transform(dist=1.0, elev=0.0, azim=0.0, degrees=True, eye=None,
     else:
         b = _broadcast_batch(dist=_batch_scalar(dist, "dist"), elev=_batch_scalar(elev, "elev"),
                              azim=_batch_scalar(azim, "azim"), at=at, up=up)
+        if np.any(b["dist"] == 0):  # the camera would sit on the point it looks at
+            raise ValueError(f"dist: expected non-zero distances, got {b['dist'].tolist()[:8]}")
         C = _spherical_position(b["dist"], b["elev"], b["azim"], degrees) + b["at"]
     R = _look_at_rotation(C, b["at"], b["up"])
     T = -np.einsum("nji,nj->ni", R, C)

@@ -607,9 +607,13 @@ def test_open3d_invalid_inputs():
 
 
 def test_degenerate_look_at_warns_and_cannot_make_a_camera():
-    """A zero-distance look-at gives PyTorch3D's singular R with a warning; cameras reject it."""
+    """dist=0 raises; eye == at gives PyTorch3D's singular R with a warning; cameras reject it."""
+    with pytest.raises(ValueError, match=r"dist: expected non-zero distances, got \[0.0\]"):
+        look_at_view_transform(dist=0.0)
+    with pytest.raises(ValueError, match="dist: expected non-zero"):
+        look_at_view_transform(dist=[2.7, 0.0], azim=[0.0, 90.0])
     with pytest.warns(RuntimeWarning, match="look-at frame undefined"):
-        R, T = look_at_view_transform(dist=0.0)
+        R, T = look_at_view_transform(eye=[[0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match="R: expected rotation matrices"):
         FoVPerspectiveCameras(R=R, T=T)
 

@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import as_array, as_rng, check_choice, check_positive
+from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
 from ..metrics import psnr
@@ -386,7 +386,7 @@ class _Data:
     """Validated training / held-out data."""
 
     def __init__(self, images, silhouettes, cameras, name: str):
-        self.images = as_array(images, f"{name}images", (None, None, None, 3))
+        self.images = as_unit_images(images, f"{name}images", (None, None, None, 3))
         N, H, W, _ = self.images.shape
         if N == 0:
             raise ValueError(f"{name}images: expected at least one view, got shape "

@@ -55,7 +55,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import ndimage
 
-from .._validate import as_array, as_rng, check_choice, check_positive
+from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
 from ..render.raymarching import (
@@ -931,7 +931,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
     ValueError
         On inconsistent shapes, non-finite inputs or invalid settings.
     """
-    imgs = as_array(images, "images", (None, None, None, 3))
+    imgs = as_unit_images(images, "images", (None, None, None, 3))
     N, H, W, _ = imgs.shape
     if N == 0:
         raise ValueError("images: expected at least one view, got shape (0, H, W, 3)")
