@@ -308,8 +308,16 @@ def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud
         else:
             pts, col, nrm = _read_ply(path, memory_limit)
             pk, ck = "points", "colors"
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: unreadable file ({str(exc)[:200]})") from None
     except OSError as exc:  # permission denied, I/O errors
         raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    except Exception as exc:  # noqa: BLE001 - zipfile and numpy raise NotImplementedError,
+        # RuntimeError (encrypted entries), zlib.error, EOFError, ... for damaged archives
+        raise ValueError(f"{path}: unreadable file ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
     if pts.dtype.kind not in "biuf":
         raise ValueError(f"{path}: {pk}: expected a numeric array, got dtype {pts.dtype}")
     pts = as_array(pts, f"{path}: {pk}", (None, 3))
