@@ -387,13 +387,14 @@ def _image_to_float(im, path) -> np.ndarray:
 
 def _read_image(path: str, memory_limit=None) -> np.ndarray:
     """A texture image as (H, W, 3) float64; its decoded size is checked from the header first."""
-    import warnings
 
     from PIL import Image
 
     try:
         with warnings.catch_warnings():
-            # geofit's own memory estimate replaces PIL's pixel-count warning
+            # PIL's warnings (corrupt EXIF, truncated data) refuse the image; geofit's own
+            # memory estimate replaces PIL's pixel-count warning
+            warnings.simplefilter("error")
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(path) as im:
                 w, h = im.size

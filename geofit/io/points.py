@@ -140,9 +140,10 @@ def _read_ply(path: Path, limit):
             fh.seek(offset)
             raw = np.frombuffer(fh.read(n * dt.itemsize), dtype=dt, count=n)
         data = {p[0]: raw[f"f{i}"] for i, p in enumerate(props)}
-    pts = np.stack([data[c].astype(np.float64) for c in "xyz"], axis=1)
-    nrm = (np.stack([data[c].astype(np.float64) for c in ("nx", "ny", "nz")], axis=1)
-           if all(c in data for c in ("nx", "ny", "nz")) else None)
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN / inf are refused by the caller
+        pts = np.stack([data[c].astype(np.float64) for c in "xyz"], axis=1)
+        nrm = (np.stack([data[c].astype(np.float64) for c in ("nx", "ny", "nz")], axis=1)
+               if all(c in data for c in ("nx", "ny", "nz")) else None)
     col = None
     for cn in _PLY_COLOURS:
         if all(c in data for c in cn):
