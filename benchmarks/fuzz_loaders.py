@@ -203,6 +203,16 @@ _CONTROL = [bytes([c]) for c in list(range(0, 9)) + list(range(14, 32)) + [127]]
     b"\x0b", b"\x0c", b"\r", "\u2028".encode(), "\x85".encode(), b"\x85", b"\xa0", b"\xc2\xa0"]
 
 
+def _flip(b: bytes, r: random.Random, most: int = 12, bits: bool = False) -> bytes:
+    """1 to ``most`` random bytes replaced (or single bits flipped)."""
+    ba = bytearray(b)
+    for _ in range(r.randint(1, most)):
+        if ba:
+            i = r.randrange(len(ba))
+            ba[i] = ba[i] ^ (1 << r.randrange(8)) if bits else r.randrange(256)
+    return bytes(ba)
+
+
 def _line_bounds(b: bytes, r: random.Random) -> int:
     """A random position at the start of a line."""
     pos = r.randrange(len(b) + 1) if b else 0
@@ -237,18 +247,8 @@ def _mutate_obj(b: bytes, r: random.Random) -> tuple[str, bytes]:
                      "combo"])
     if kind == "truncate":
         return kind, b[: r.randrange(len(b) + 1)]
-    if kind == "flip_bytes":
-        ba = bytearray(b)
-        for _ in range(r.randint(1, 12)):
-            if ba:
-                ba[r.randrange(len(ba))] = r.randrange(256)
-        return kind, bytes(ba)
-    if kind == "flip_bits":
-        ba = bytearray(b)
-        for _ in range(r.randint(1, 12)):
-            if ba:
-                ba[r.randrange(len(ba))] ^= 1 << r.randrange(8)
-        return kind, bytes(ba)
+    if kind in ("flip_bytes", "flip_bits"):
+        return kind, _flip(b, r, bits=kind == "flip_bits")
     if kind == "special_line":
         out = b
         for _ in range(r.randint(1, 3)):
@@ -462,10 +462,7 @@ class Inputs:
                 [b"", b"hello", bytes(r.randrange(256) for _ in range(r.randint(1, 300))),
                  self.tiny_obj, mtl, b"\x89PNG\r\n\x1a\n"])
         elif kind == "texture_mutated":
-            ba = bytearray(tex)
-            for _ in range(r.randint(1, 20)):
-                ba[r.randrange(len(ba))] = r.randrange(256)
-            files["mesh/cow_texture.png"] = bytes(ba)
+            files["mesh/cow_texture.png"] = _flip(tex, r, 20)
         elif kind == "texture_truncated":
             files["mesh/cow_texture.png"] = tex[: r.randrange(len(tex))]
         elif kind == "mtl_values":
@@ -499,10 +496,7 @@ class Inputs:
             if mut == "truncate":
                 data = data[: r.randrange(len(data))]
             else:
-                ba = bytearray(data)
-                for _ in range(r.randint(1, 10)):
-                    ba[r.randrange(len(ba))] = r.randrange(256)
-                data = bytes(ba)
+                data = _flip(data, r, 10)
         files = {"mesh/m.obj": self.tiny_obj, "mesh/m.mtl": b"newmtl a\nmap_Kd t.img\n",
                  "mesh/t.img": data}
         loader = r.choice(["load_obj", "load_mesh"])
@@ -551,10 +545,7 @@ class Inputs:
         elif kind == "truncate_header":
             data = data[: r.randrange(len(head))]
         elif kind == "flip_bytes":
-            ba = bytearray(data)
-            for _ in range(r.randint(1, 12)):
-                ba[r.randrange(len(ba))] = r.randrange(256)
-            data = bytes(ba)
+            data = _flip(data, r)
         elif kind == "count":
             new = r.choice([0, 1, n - 1, n + 1, 10**8, 2**31, 2**63, 10**30, -1, "abc", "1.5",
                             ""])
@@ -654,10 +645,7 @@ class Inputs:
             if kind == "truncate":
                 data = data[: r.randrange(len(data))]
             elif kind == "flip_bytes":
-                ba = bytearray(data)
-                for _ in range(r.randint(1, 12)):
-                    ba[r.randrange(len(ba))] = r.randrange(256)
-                data = bytes(ba)
+                data = _flip(data, r)
         files = {"c.npz": None if kind == "directory" else data}
         return {"family": "npz", "mutator": kind, "files": files, "entry": "c.npz",
                 "loader": "load_pointcloud"}

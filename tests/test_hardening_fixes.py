@@ -76,3 +76,34 @@ def test_show_open3d_without_display_raises_at_once(monkeypatch):
     with pytest.raises(RuntimeError, match="show_open3d: no display .* render_open3d"):
         show_open3d(ico_sphere(1), _cameras(1), (32, 32))
     assert time.perf_counter() - t < 5.0
+
+
+def test_light_and_material_assignment_validated_like_the_constructor():
+    """`lights.location = [[0, 0, 1]]` (a list) becomes a checked, broadcast, read-only array;
+    wrong shapes, non-finite values, mismatched batch sizes and negative shininess raise."""
+    from geofit.render import DirectionalLights, Materials, PointLights
+
+    lights = PointLights(location=[[0.0, 0.0, -3.0]])
+    lights.location = [[0, 0, 1]]
+    assert isinstance(lights.location, np.ndarray) and not lights.location.flags.writeable
+    np.testing.assert_array_equal(lights.location, [[0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(lights.diffuse(np.array([[0.0, 0.0, 1.0]]), np.zeros((1, 3))),
+                               [[0.3, 0.3, 0.3]])
+    with pytest.raises(ValueError, match=r"location: expected shape \(n, 3\) or \(3,\)"):
+        lights.location = [[0, 0]]
+    with pytest.raises(ValueError, match="location: expected finite values"):
+        lights.location = [[np.nan, 0, 0]]
+    lights.location = np.zeros((3, 3))  # a batch of 3: the others broadcast to it
+    assert len(lights) == 3 and lights.ambient_color.shape == (3, 3)
+    with pytest.raises(ValueError, match="mismatched batch sizes"):
+        lights.diffuse_color = np.zeros((2, 3))
+    d = DirectionalLights()
+    with pytest.raises(ValueError, match="direction: expected real numbers"):
+        d.direction = "up"
+    m = Materials()
+    m.shininess = 5
+    np.testing.assert_array_equal(m.shininess, [5.0])
+    with pytest.raises(ValueError, match="shininess: expected values >= 0"):
+        m.shininess = -1
+    with pytest.raises(ValueError, match=r"specular_color: expected shape"):
+        m.specular_color = [1, 2]

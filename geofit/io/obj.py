@@ -80,8 +80,12 @@ class ObjData(NamedTuple):
     face_materials : (F,) int64
         Index of each face's material in ``material_names``; -1 before any ``usemtl``.
     texture_images : dict of str to (H, W, 3) float64
-        Diffuse texture (``map_Kd``) of each used material that has one, RGB in [0, 1] (8-bit
-        value / 255), row 0 at the top of the image; in order of first use.
+        Diffuse texture (``map_Kd``) of each used material that has one, RGB, row 0 at the
+        top of the image; in order of first use. Values are scaled by the pixel type: 8-bit
+        images (any mode PIL converts to RGB, as PyTorch3D does) / 255, 16-bit greyscale
+        / 65535, 32-bit integer (PIL mode ``I``) / 65535 when the values fit in 16 bits (or
+        the file is a PNG) and / (2^32 - 1) otherwise; float (TIFF) pixels are kept as they
+        are.
     material_names : list of str
         Material names in order of first ``usemtl`` (what ``face_materials`` indexes).
     """
