@@ -86,7 +86,7 @@ _MTL_LINE = st.one_of(
         lambda t: t[0] + " " + " ".join(t[1])),
     st.sampled_from(["newmtl a", "newmtl b", "newmtl", "map_Kd t.png", "map_Kd missing.png",
                      "map_Kd ../t.png", "map_Kd /etc/hostname", "map_Kd m.obj", "map_Kd sub",
-                     "map_Kd -s 1 1 1 t.png", "map_Kd"]),
+                     "map_Kd -s 1 1 1 t.png", "map_Kd", "map_Kd t\x00.png"]),
     st.text(max_size=20),
 )
 

@@ -446,3 +446,17 @@ def test_paths_inside_folder_and_subfolders_allowed(outside):
     write(mesh / "sub" / "up.mtl", "newmtl a\nmap_Kd ../in.png\n")
     with pytest.raises(ValueError, match=r"up\.mtl: line 2: .*resolves outside"):
         load_obj(_obj(mesh, "sub/up.mtl"))
+
+
+@pytest.mark.parametrize("allow_outside", [False, True])
+def test_referenced_path_with_control_character(tmp_path, allow_outside):
+    """A NUL or other control character in a map_Kd / mtllib path (found by the long fuzz run:
+    'embedded null byte' named no file): ValueError naming the file and line."""
+    write(tmp_path / "m.mtl", "newmtl a\nmap_Kd t\x00.png\n")
+    p = _obj(tmp_path, "m.mtl")
+    with pytest.raises(ValueError, match=r"m\.mtl: line 2: the map_Kd texture path has a "
+                                         r"control character"):
+        load_obj(p, allow_outside=allow_outside)
+    p = write(tmp_path / "n.obj", "mtllib m\x01.mtl\n" + TRI + "f 1 2 3\n")
+    with pytest.raises(ValueError, match=r"n\.obj: line 1: the mtllib path has a control"):
+        load_obj(p, allow_outside=allow_outside)

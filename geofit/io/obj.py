@@ -346,6 +346,8 @@ def _check_inside(ref: str, target: Path, source: Path, ln: int, what: str,
                   allow_outside: bool) -> None:
     """The path policy: ``target`` (named as ``ref`` on line ``ln`` of ``source``) must lie in
     the folder of ``source`` after resolving ``..`` and symlinks, unless ``allow_outside``."""
+    if any(ord(c) < 32 or c == "\x7f" for c in ref):  # NUL makes the OS calls raise
+        raise ValueError(f"{source}: line {ln}: the {what} path has a control character")
     if allow_outside:
         return
     folder = source.parent.resolve()
