@@ -14,6 +14,7 @@ import warnings
 import zipfile
 from pathlib import Path
 
+import hypothesis.configuration
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -23,7 +24,9 @@ from PIL import Image
 from geofit import Mesh
 from geofit.io import ObjData, load_mesh, load_obj, load_pointcloud
 
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
+# hypothesis keeps caches in ./.hypothesis by default: keep them out of the working tree
+hypothesis.configuration.set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "geofit-hypothesis")
+FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 
