@@ -18,10 +18,15 @@ from geofit.render import (
     PointsRasterizationSettings,
     PointsRasterizer,
     RasterizationSettings,
+    SoftPhongRenderer,
+    SoftRasterizationSettings,
+    SoftSilhouetteRenderer,
 )
-from geofit.render.raymarching import EmissionAbsorptionRaymarcher
-from geofit.render.raysampling import NDCMultinomialRaysampler
-from geofit.render.volume import VolumeRenderer
+from geofit.render.volume import (
+    EmissionAbsorptionRaymarcher,
+    NDCMultinomialRaysampler,
+    VolumeRenderer,
+)
 
 GB = 2**30
 
@@ -90,6 +95,21 @@ def test_mesh_rasterizer_respects_env_limit(monkeypatch):
     monkeypatch.setenv("GEOFIT_MEMORY_LIMIT", "1M")
     with pytest.raises(ValueError, match=r"image_size: .* over the memory limit of 1 MiB"):
         MeshRasterizer(cameras(), RasterizationSettings(image_size=256))(ico_sphere(1))
+
+
+def test_soft_renderer_huge_image_size_refused():
+    """The soft rasterizer at image_size=100000 (1e10 pixels x K=50): refused naming
+    image_size before any per-view buffer; a 16 px silhouette still renders."""
+    mesh = ico_sphere(1)
+    settings = SoftRasterizationSettings.tutorial(100000)
+    err, peak = refused(SoftSilhouetteRenderer(cameras(), settings), mesh)
+    assert str(err).startswith("image_size and faces_per_pixel: soft fragments of 1 view(s) at "
+                               "(100000, 100000) with K=50") and peak < GB
+    err, peak = refused(SoftPhongRenderer(cameras(), raster_settings=settings), mesh,
+                        np.ones((mesh.n_verts, 3)))
+    assert str(err).startswith("image_size and faces_per_pixel") and peak < GB
+    small = SoftSilhouetteRenderer(cameras(), SoftRasterizationSettings.tutorial(16))(mesh)
+    assert small.images.shape[:3] == (1, 16, 16)
 
 
 def test_points_rasterizer_huge_points_per_pixel_refused():
