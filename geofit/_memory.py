@@ -145,12 +145,12 @@ def check_allocation(nbytes, setting: str = "settings", what: str = "buffers",
     >>> check_allocation(2**40, "image_size", "the fragments", limit="1G")
     Traceback (most recent call last):
     ...
-    ValueError: image_size: the fragments would need about 1 TiB, over the memory limit of 1 GiB (set memory_limit= or GEOFIT_MEMORY_LIMIT to change it, or reduce image_size)
+    ValueError: image_size: the fragments would need about 1 TiB, over the memory limit of 1 GiB (reduce image_size, or raise the limit with GEOFIT_MEMORY_LIMIT, e.g. GEOFIT_MEMORY_LIMIT=32G)
     """
     lim = memory_limit(limit)
     if not nbytes <= lim:  # also catches NaN
         raise ValueError(
             f"{setting}: {what} would need about {_fmt(float(nbytes))}, over the memory limit of "
-            f"{_fmt(lim)} (set memory_limit= or GEOFIT_MEMORY_LIMIT to change it, or reduce "
-            f"{setting})")
+            f"{_fmt(lim)} (reduce {setting}, or raise the limit with GEOFIT_MEMORY_LIMIT, e.g. "
+            f"GEOFIT_MEMORY_LIMIT=32G)")
     return lim

@@ -444,3 +444,13 @@ def test_referenced_path_with_control_character(tmp_path, allow_outside):
     p = write(tmp_path / "n.obj", "mtllib m\x01.mtl\n" + TRI + "f 1 2 3\n")
     with pytest.raises(ValueError, match=r"n\.obj: line 1: the mtllib path has a control"):
         load_obj(p, allow_outside=allow_outside)
+
+
+def test_docstring_examples():
+    """The Examples of geofit.io.obj run as doctests."""
+    import doctest
+
+    import geofit.io.obj
+
+    result = doctest.testmod(geofit.io.obj)
+    assert result.attempted >= 1 and result.failed == 0

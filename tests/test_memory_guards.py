@@ -162,3 +162,13 @@ def test_render_nerf_huge_chunk_refused():
                         chunk_rays=10**6)
     assert str(err).startswith("chunk_rays and n_pts_per_ray: the network activations")
     assert peak < GB
+
+
+def test_docstring_examples():
+    """The Examples of geofit._memory run as doctests."""
+    import doctest
+
+    import geofit._memory
+
+    result = doctest.testmod(geofit._memory)
+    assert result.attempted >= 3 and result.failed == 0
