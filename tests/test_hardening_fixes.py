@@ -107,3 +107,31 @@ def test_light_and_material_assignment_validated_like_the_constructor():
         m.shininess = -1
     with pytest.raises(ValueError, match=r"specular_color: expected shape"):
         m.specular_color = [1, 2]
+
+
+def test_camera_assignment_validated_like_the_constructor():
+    """`cameras.T = [0, 0, 3]` is checked and broadcast as in the constructor (read-only copy,
+    inverse rotation refreshed); a non-rotation R, fov >= 180, znear < 0, a wrong shape and a
+    mismatched batch size raise ValueError naming the argument."""
+    from geofit.cameras import FoVOrthographicCameras, PerspectiveCameras
+
+    cams = _cameras(2)
+    cams.T = [0, 0, 3]
+    np.testing.assert_array_equal(cams.T, [[0.0, 0.0, 3.0]] * 2)
+    assert not cams.T.flags.writeable
+    cams.R = cams.R[:1]  # one rotation for both cameras; the centres follow (-T R^T)
+    assert cams.R.shape == (2, 3, 3)
+    np.testing.assert_allclose(cams.get_camera_center(), -cams.T @ cams.R[0].T, atol=1e-12)
+    for name, bad, match in (("R", np.ones((3, 3)), "R: expected rotation matrices"),
+                             ("fov", 200.0, r"fov: expected values in \(0, 180\)"),
+                             ("znear", -1.0, "znear: expected > 0"),
+                             ("T", [[0.0, 0.0]], r"T: expected shape \(n, 3\)"),
+                             ("T", np.zeros((3, 3)), "mismatched batch sizes")):
+        with pytest.raises(ValueError, match=match):
+            setattr(cams, name, bad)
+    p = PerspectiveCameras()
+    p.focal_length = 2.0
+    np.testing.assert_array_equal(p.focal_length, [[2.0, 2.0]])
+    o = FoVOrthographicCameras()
+    with pytest.raises(ValueError, match="scale_xyz"):
+        o.scale_xyz = [[1.0, 2.0]]
