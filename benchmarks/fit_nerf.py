@@ -1,6 +1,7 @@
 """Benchmark: fit a neural radiance field to the cow (PyTorch3D's sixth tutorial) on the CPU.
 
-Data: geofit's ``generate_cow_renders()`` (40 views at elevation 0, 128 px, black background) and
+Data: geofit's ``tutorial_views(6)`` (PyTorch3D's ``generate_cow_renders``: 40 views at
+elevation 0, 128 px, black background) and
 ``held_out_views()`` (16 views between the training azimuths, at elevations 0 and 20).
 
 Methods (all geofit, numpy, float32 networks, gradients by hand):
@@ -34,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser
 
-from geofit.datasets import generate_cow_renders, held_out_views
+from geofit.datasets import held_out_views, tutorial_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.metrics import psnr
 from geofit.render.implicit import OccupancyGrid
@@ -113,17 +114,17 @@ def main(argv=None) -> int:
     out = Path(args.out)
     print(f"load average at start: {load_average()}", flush=True)
     t = time.perf_counter()
-    train = generate_cow_renders(image_size=size)
+    train = tutorial_views(6, image_size=size, num_held_out=0)
     test = held_out_views(image_size=size)
     print(f"data: {train!r} and {test!r} rendered in {time.perf_counter() - t:.1f} s",
           flush=True)
-    if train.mesh_name != "cow":
+    if train.name != "cow":
         print("warning: the cow was not found (set GEOFIT_DATA); using the stand-in", flush=True)
 
     if not args.only_stability:
         report = BenchmarkReport("fit_nerf", config={
             "train_views": len(train), "held_out_views": len(test), "image_size": size,
-            "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.mesh_name,
+            "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.name,
             "scene_budget_seconds": budget, "quick": quick})
         report.notes += [
             ("seconds are solver seconds: the held-out renders at checkpoints are excluded "

@@ -1,7 +1,7 @@
 """Benchmark: fit a voxel volume to the cow by raymarching (PyTorch3D's fifth tutorial) on the CPU.
 
-Data: geofit's ``generate_cow_renders()`` (40 views at elevation 0, 128 px, black background,
-binary silhouettes) and ``held_out_views()`` (16 views between the training azimuths, at
+Data: geofit's ``tutorial_views(5)`` (PyTorch3D's ``generate_cow_renders``: 40 views at
+elevation 0, 128 px, black background, binary silhouettes) and ``held_out_views()`` (16 views between the training azimuths, at
 elevations 0 and 20; never trained on).
 
 Methods (all geofit, numpy, analytic gradients):
@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import generate_cow_renders, held_out_views
+from geofit.datasets import held_out_views, tutorial_views
 from geofit.fit.volume import fit_volume, volume_metrics
 
 #: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10
@@ -251,21 +251,21 @@ def main(argv=None) -> int:
 
     print(f"uptime/load average at start: {load_average()}", flush=True)
     t0 = time.perf_counter()
-    train = generate_cow_renders(num_views=n_views, image_size=image_size)
+    train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     test = held_out_views(num_views=n_views, image_size=image_size,
                           n_azimuths=3 if quick else 8)
     t_data = time.perf_counter() - t0
     print(f"data: {train!r}, held out {test!r}, rendered in {t_data:.1f} s", flush=True)
-    if train.mesh_name != "cow":
+    if train.name != "cow":
         print("WARNING: the cow was not found (set GEOFIT_DATA to the tutorial data folder); "
-              f"this run uses geofit's stand-in {train.mesh_name!r}, so its numbers do not "
+              f"this run uses geofit's stand-in {train.name!r}, so its numbers do not "
               "compare with PyTorch3D's", flush=True)
 
     report = BenchmarkReport(
         "fit_volume",
         config={"quick": quick, "views": n_views, "image_size": image_size, "volume_size": size,
                 "held_out_views": len(test), "held_out_azim": test.azim, "held_out_elev":
-                test.elev, "dataset": train.mesh_name, "data_seconds": t_data},
+                test.elev, "dataset": train.name, "data_seconds": t_data},
         notes=["seconds are solver time: the held-out checkpoints run with the clock paused; "
                "wall_seconds_with_checkpoints includes them",
                "PSNR: mean over held-out views of 10 log10(1 / MSE) on RGB (black background); "

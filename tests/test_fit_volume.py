@@ -308,10 +308,12 @@ def test_fit_validation(scene):
 
 
 def test_cow_renders_and_held_out_views():
-    """generate_cow_renders follows the tutorial's cameras; held-out views sit between them."""
-    from geofit.datasets import generate_cow_renders, held_out_views, training_azimuths
+    """tutorial_views(5) follows generate_cow_renders' cameras; held-out views sit between
+    them."""
+    from geofit.datasets import held_out_views, training_azimuths, tutorial_views
 
-    data = generate_cow_renders(num_views=3, image_size=24)
+    data = tutorial_views(5, num_views=3, image_size=24, num_held_out=0)
+    assert data.held_out is None
     assert data.images.shape == (3, 24, 24, 3) and data.silhouettes.shape == (3, 24, 24)
     np.testing.assert_allclose(data.azim, [0.0, 180.0, 360.0])
     np.testing.assert_allclose(data.elev, 0.0)
@@ -329,11 +331,11 @@ def test_cow_renders_and_held_out_views():
     assert len(test) == 4 and set(test.azim.tolist()) <= set(mids.tolist())
     np.testing.assert_allclose(test.elev, [0, 0, 20, 20])
     with pytest.raises(ValueError, match="num_views"):
-        generate_cow_renders(num_views=0)
+        tutorial_views(5, num_views=0)
     with pytest.raises(ValueError, match="n_azimuths"):
         held_out_views(num_views=5, n_azimuths=9)
     with pytest.raises(ValueError, match="background"):
-        generate_cow_renders(num_views=1, image_size=8, background=(2.0, 0, 0))
+        tutorial_views(5, num_views=1, image_size=8, background=(2.0, 0, 0))
 
 
 def test_cli_fit_volume(tmp_path):

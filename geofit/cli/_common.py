@@ -15,14 +15,15 @@ def cow_views(args: argparse.Namespace):
     """The tutorial's training renders of the cow and held-out views between them.
 
     ``args.views`` training views of ``args.image_size`` pixels; held out: up to 8 azimuths
-    half-way between them (:func:`geofit.datasets.held_out_views`). Returns ``(train, test)``.
+    half-way between them (:func:`geofit.datasets.held_out_views`). Returns ``(train, test)``;
+    ``train.held_out`` is ``test``.
     """
-    from ..datasets import generate_cow_renders, held_out_views
+    from ..datasets import held_out_views, tutorial_views
 
-    train = generate_cow_renders(num_views=args.views, image_size=args.image_size)
-    test = held_out_views(num_views=args.views, image_size=args.image_size,
-                          n_azimuths=min(8, max(1, args.views - 1)))
-    return train, test
+    train = tutorial_views(5, num_views=args.views, image_size=args.image_size, num_held_out=0)
+    train.held_out = held_out_views(num_views=args.views, image_size=args.image_size,
+                                    n_azimuths=min(8, max(1, args.views - 1)))
+    return train, train.held_out
 
 
 def save_png(path: Path, rows: list) -> None:

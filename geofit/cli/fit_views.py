@@ -35,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
     from PIL import Image
 
-    from ..fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
+    from ..datasets import tutorial_views
+    from ..fit.views import ViewsEvaluator, fit_mesh_to_views
     from ..io import save_obj
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
@@ -46,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
     _int(args.heldout, "--heldout")
     _int(args.init_level, "--init-level", 0)
     t0 = time.perf_counter()
-    ds = cow_multiview_dataset(num_views=args.views, image_size=args.image_size,
-                               num_heldout=args.heldout)
+    ds = tutorial_views(4, num_views=args.views, image_size=args.image_size,
+                        num_held_out=args.heldout)
     t_data = time.perf_counter() - t0
     levels = None
     init_level = args.init_level
@@ -61,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
                                                         else args.large_steps),
           "levels": levels, "seed": args.seed,
           "textured_init": "sphere" if args.textured == "tutorial" else "silhouette"}
-    fit = fit_mesh_to_views(ds.train, init=ico_sphere(init_level), **kw)
-    ev = ViewsEvaluator(ds.heldout, ds.mesh, n_samples=20000)
+    fit = fit_mesh_to_views(ds, init=ico_sphere(init_level), **kw)
+    ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=20000)
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
     metrics = ev(fit.mesh, colors)
 
@@ -80,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
                "dataset_seconds": t_data}
     (dest / "fit_views.json").write_text(json.dumps(summary, indent=1, default=float) + "\n",
                                          encoding="utf-8")
-    h = ds.heldout
+    h = ds.held_out
     k = min(4, len(h))
     cams = h.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
                      precision=args.precision, verbose=not args.quiet, **kw)
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
     summary = res.summary()
-    summary.update({"dataset": train.mesh_name, "views": len(train),
+    summary.update({"dataset": train.name, "views": len(train),
                     "image_size": args.image_size, "data_seconds": t_data,
                     "held_out": {"psnr": m.psnr, "iou": m.iou,
                                  "psnr_per_view": m.psnr_per_view, "iou_per_view":

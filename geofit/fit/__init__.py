@@ -28,7 +28,7 @@ from .mesh import (
 )
 from .nerf import NerfConfig, NerfFitResult, fit_nerf
 from .solvers import SOLVERS, SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, minimize, sgd
-from .views import MultiViewData, ViewsFitResult, fit_mesh_to_views
+from .views import MultiViewData, ViewsFitResult, fit_mesh_to_views  # MultiViewData: deprecated
 from .volume import VolumeFitResult, fit_volume
 
 __all__ = [

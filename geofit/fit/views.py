@@ -6,8 +6,8 @@ Laplacian regularisers), then fits vertex positions and per-vertex colours to th
 Here every gradient is analytic (:mod:`geofit.render.soft`), and the chain rule is composed in
 plain sight in :class:`_Objective`.
 
-* :func:`render_multiview_dataset`, :func:`cow_multiview_dataset` -- the tutorial's dataset,
-  rendered by geofit, plus held-out views for evaluation (:class:`MultiViewSplit`).
+* The data: a :class:`geofit.datasets.MultiViewDataset` (``geofit.datasets.tutorial_views(4)``
+  renders the tutorial's, with held-out views for evaluation).
 * :func:`fit_mesh_to_views` -- a silhouette stage, then a textured stage. Silhouette methods
   (:data:`SILHOUETTE_METHODS`):
 
@@ -49,12 +49,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .._validate import as_array, as_rng, check_choice, check_positive
-from ..cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
+from ..datasets import MultiViewDataset
 from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
 from ..metrics import psnr, silhouette_iou
 from ..render.blending import BlendParams
 from ..render.soft import (
-    TUTORIAL_BLUR_RADIUS,
     SoftPhongRenderer,
     SoftRasterizationSettings,
     rasterize_soft,
@@ -80,6 +79,14 @@ __all__ = [
     "render_multiview_dataset",
 ]
 
+# deprecated names of the former dataset stack (one release)
+from ._deprecated import (  # noqa: E402
+    MultiViewData,
+    MultiViewSplit,
+    cow_multiview_dataset,
+    render_multiview_dataset,
+)
+
 #: Silhouette-stage methods of :func:`fit_mesh_to_views`.
 SILHOUETTE_METHODS = ("tutorial", "scipy-lbfgs", "nlopt-lbfgs", "contour")
 #: Textured-stage methods of :func:`fit_mesh_to_views`.
@@ -99,201 +106,13 @@ _STATUS_ORDER = ("nonfinite", "failed", "diverged", "callback", "stalled", "time
                  "max_eval", "max_iter", "converged")
 
 
-# =========================================================================================
-# Data
-# =========================================================================================
+def _lights(data: MultiViewDataset):
+    """The dataset's lights, or the tutorial's point light at (0, 0, -3)."""
+    if data.lights is not None:
+        return data.lights
+    from ..render import PointLights
 
-
-@dataclass
-class MultiViewData:
-    """Images of one object from ``N`` cameras.
-
-    Attributes
-    ----------
-    cameras : FoVPerspectiveCameras
-        ``N`` cameras.
-    silhouettes : (N, H, W) float64
-        Silhouettes in [0, 1] (soft or binary).
-    images : (N, H, W, 3) float64 or None
-        RGB images in [0, 1] (white background in the tutorial).
-    lights : PointLights, DirectionalLights or AmbientLights, optional
-        The lights the RGB images were rendered with (default: point light at (0, 0, -3)).
-    """
-
-    cameras: CamerasBase
-    silhouettes: np.ndarray
-    images: np.ndarray | None = None
-    lights: Any = None
-
-    def __post_init__(self):
-        if not isinstance(self.cameras, CamerasBase):
-            raise TypeError(f"cameras: expected a geofit camera batch, got {type(self.cameras)!r}")
-        n = len(self.cameras)
-        self.silhouettes = as_array(self.silhouettes, "silhouettes", (n, None, None))
-        H, W = self.silhouettes.shape[1:]
-        if H < 2 or W < 2:
-            raise ValueError(f"silhouettes: expected images of at least 2 x 2 pixels, got "
-                             f"{(H, W)}")
-        if self.images is not None:
-            self.images = as_array(self.images, "images", (n, H, W, 3))
-        if self.lights is None:
-            from ..render import PointLights
-
-            self.lights = PointLights(location=[[0.0, 0.0, -3.0]])
-
-    def __len__(self) -> int:
-        return len(self.cameras)
-
-    @property
-    def image_size(self) -> tuple[int, int]:
-        return tuple(self.silhouettes.shape[1:])
-
-    def __getitem__(self, index) -> MultiViewData:
-        idx = np.arange(len(self))[index]
-        idx = np.atleast_1d(idx)
-        return MultiViewData(self.cameras[idx], self.silhouettes[idx],
-                             None if self.images is None else self.images[idx], self.lights)
-
-    def downsample(self, factor: int) -> MultiViewData:
-        """Average ``factor x factor`` pixel blocks (a coarser level of the same views)."""
-        if factor == 1:
-            return self
-        n, H, W = self.silhouettes.shape
-        if H % factor or W % factor:
-            raise ValueError(f"factor: {factor} does not divide the image size {(H, W)}")
-        h, w = H // factor, W // factor
-        sil = self.silhouettes.reshape(n, h, factor, w, factor).mean(axis=(2, 4))
-        img = None
-        if self.images is not None:
-            img = self.images.reshape(n, h, factor, w, factor, 3).mean(axis=(2, 4))
-        return MultiViewData(self.cameras, sil, img, self.lights)
-
-
-@dataclass
-class MultiViewSplit:
-    """The tutorial's training views, held-out views and the true mesh.
-
-    Attributes
-    ----------
-    train : MultiViewData
-        Views to fit (soft silhouettes and RGB).
-    heldout : MultiViewData
-        Views for evaluation only: *binary* silhouettes (hard coverage masks) and RGB.
-    mesh : Mesh
-        The true (normalised) mesh, for chamfer / F-score.
-    name : str
-        ``"cow"`` or the stand-in's name.
-    config : dict
-        How it was rendered.
-    """
-
-    train: MultiViewData
-    heldout: MultiViewData
-    mesh: Mesh
-    name: str = ""
-    config: dict = field(default_factory=dict)
-
-
-def _fibonacci_directions(n: int, offset: float = 0.5):
-    """(elev, azim) in degrees of ``n`` nearly uniform directions (Fibonacci sphere)."""
-    i = np.arange(n) + offset
-    y = 1.0 - 2.0 * i / n
-    elev = np.degrees(np.arcsin(np.clip(y, -1.0, 1.0)))
-    azim = np.degrees((i * math.pi * (3.0 - math.sqrt(5.0))) % (2 * math.pi)) - 180.0
-    return elev, azim
-
-
-def render_multiview_dataset(mesh: Mesh, *, num_views: int = 20, image_size: int = 128,
-                             num_heldout: int = 16, dist: float = 2.7,
-                             light_location=(0.0, 0.0, -3.0), name: str = "") -> MultiViewSplit:
-    """Render the fit_textured_mesh tutorial's dataset of a (normalised, textured) mesh.
-
-    Training views: ``elev = linspace(0, 360, num_views)``, ``azim = linspace(-180, 180,
-    num_views)``, distance ``dist``, FoV 60 cameras, point light at ``light_location``. RGB is
-    PyTorch3D's hard ``SoftPhongShader`` render (one face per pixel, blur 0, white background;
-    :class:`geofit.render.MeshRenderer`); silhouettes are the soft silhouettes (sigma 1e-4,
-    blur 9.21e-4, 50 faces per pixel; :func:`geofit.render.soft.rasterize_soft`). Held-out
-    views: ``num_heldout`` directions on a Fibonacci sphere (none coincides with a training view)
-    with binary coverage masks and RGB.
-
-    Parameters
-    ----------
-    mesh : Mesh
-        Textured (``TexturesUV`` or ``TexturesVertex``) mesh, already normalised.
-    num_views, image_size, num_heldout : int
-    dist : float
-        Camera distance.
-    light_location : (3,) float
-    name : str
-
-    Returns
-    -------
-    MultiViewSplit
-    """
-    from ..render import (
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-    )
-
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
-    if mesh.textures is None:
-        raise ValueError("mesh: expected a textured mesh (TexturesUV or TexturesVertex)")
-    for nm, v in (("num_views", num_views), ("image_size", image_size),
-                  ("num_heldout", num_heldout)):
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-            raise ValueError(f"{nm}: expected an integer >= 1, got {v!r}")
-    dist = check_positive(dist, "dist")
-    loc = as_array(light_location, "light_location", (3,))
-    lights = PointLights(location=loc[None])
-    elev = np.linspace(0.0, 360.0, num_views)
-    azim = np.linspace(-180.0, 180.0, num_views)
-    R, T = look_at_view_transform(dist, elev, azim)
-    cams = FoVPerspectiveCameras(R=R, T=T)
-    he, ha = _fibonacci_directions(num_heldout)
-    Rh, Th = look_at_view_transform(dist, he, ha)
-    cams_h = FoVPerspectiveCameras(R=Rh, T=Th)
-
-    def rgb(c):
-        ras = MeshRasterizer(c, RasterizationSettings(image_size=image_size))
-        r = MeshRenderer(ras, SoftPhongShader(cameras=c, lights=lights))
-        return np.asarray(r(mesh)[..., :3], np.float64), ras(mesh).mask.astype(np.float64)
-
-    img, _ = rgb(cams)
-    sil = sigmoid_alpha_blend(rasterize_soft(mesh, cams,
-                                             SoftRasterizationSettings.tutorial(image_size)),
-                              _SIGMA)
-    img_h, mask_h = rgb(cams_h)
-    cfg = {"num_views": num_views, "image_size": image_size, "num_heldout": num_heldout,
-           "dist": dist, "elev": elev.tolist(), "azim": azim.tolist(),
-           "heldout_elev": he.tolist(), "heldout_azim": ha.tolist(),
-           "light_location": loc.tolist(), "sigma": _SIGMA, "blur_radius": TUTORIAL_BLUR_RADIUS,
-           "faces_per_pixel": 50}
-    return MultiViewSplit(MultiViewData(cams, sil, img, lights),
-                            MultiViewData(cams_h, mask_h, img_h, lights), mesh, name, cfg)
-
-
-def cow_multiview_dataset(*, num_views: int = 20, image_size: int = 128,
-                          num_heldout: int = 16) -> MultiViewSplit:
-    """The tutorial's dataset of the cow (or of the textured stand-in when the cow is absent).
-
-    The mesh comes from :func:`geofit.data.load_textured_mesh` and is normalised as in the
-    tutorial (centred on the vertex mean, divided by the largest absolute coordinate).
-
-    Returns
-    -------
-    MultiViewSplit
-        ``name`` says which mesh was used.
-    """
-    from ..data import load_textured_mesh
-
-    dm = load_textured_mesh()
-    mesh = dm.mesh.normalize().mesh
-    return render_multiview_dataset(mesh, num_views=num_views, image_size=image_size,
-                                    num_heldout=num_heldout, name=dm.name)
+    return PointLights(location=[[0.0, 0.0, -3.0]])
 
 
 # =========================================================================================
@@ -306,8 +125,9 @@ class ViewsEvaluator:
 
     Parameters
     ----------
-    heldout : MultiViewData
-        Binary silhouettes and (optionally) RGB of the held-out views.
+    heldout : MultiViewDataset
+        Binary silhouettes and (optionally) RGB of the held-out views (e.g. a dataset's
+        ``held_out``).
     target_mesh : Mesh, optional
         The true surface (chamfer-L2 and F-score via :class:`geofit.metrics.MeshEvaluator`).
     n_samples : int
@@ -322,10 +142,10 @@ class ViewsEvaluator:
     the RGB is Phong shading of the vertex colours with the dataset's light.
     """
 
-    def __init__(self, heldout: MultiViewData, target_mesh: Mesh | None = None, *,
+    def __init__(self, heldout: MultiViewDataset, target_mesh: Mesh | None = None, *,
                  n_samples: int = 20000, taus: Sequence[float] = (0.01, 0.02)):
-        if not isinstance(heldout, MultiViewData):
-            raise TypeError(f"heldout: expected MultiViewData, got {type(heldout)!r}")
+        if not isinstance(heldout, MultiViewDataset):
+            raise TypeError(f"heldout: expected a MultiViewDataset, got {type(heldout)!r}")
         self.heldout = heldout
         self.mesh_eval = None
         self.taus = tuple(taus)
@@ -352,7 +172,7 @@ class ViewsEvaluator:
         out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
         if colors is not None and h.images is not None:
             m = Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=h.lights))
+            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=_lights(h)))
             out["psnr"] = psnr(np.asarray(r(m)[..., :3], np.float64), h.images)
         if surface and self.mesh_eval is not None:
             mm = self.mesh_eval.evaluate(Mesh(mesh.verts, mesh.faces))
@@ -435,7 +255,7 @@ class _Objective:
     rendered in batches of at most ``max_views`` (bounded memory).
     """
 
-    def __init__(self, base: Mesh, data: MultiViewData, weights: Mapping[str, float], *,
+    def __init__(self, base: Mesh, data: MultiViewDataset, weights: Mapping[str, float], *,
                  textured: bool, param, settings: SoftRasterizationSettings,
                  views_per_step: int | None = None, rng=None, sigma: float = _SIGMA,
                  max_views: int = 5):
@@ -454,7 +274,7 @@ class _Objective:
         self.n_calls = 0
         if textured:
             self.renderer = SoftPhongRenderer(
-                lights=data.lights, raster_settings=settings,
+                lights=_lights(data), raster_settings=settings,
                 blend_params=BlendParams(sigma=sigma, gamma=1e-4))
 
     def split(self, x):
@@ -621,7 +441,7 @@ class _Recorder:
         return False
 
 
-def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
+def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
                       silhouette_method: str = "scipy-lbfgs",
                       textured_method: str = "lstsq",
                       silhouette_weights: Mapping[str, float] | None = None,
@@ -639,7 +459,7 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
 
     Parameters
     ----------
-    views : MultiViewData
+    views : MultiViewDataset
         Training views: cameras, soft silhouettes and (for a textured stage) RGB images.
     init : Mesh, optional
         Starting mesh (default ``ico_sphere(4)``, or ``ico_sphere(4 - subdivisions)`` when
@@ -704,8 +524,8 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
         ``failed``, ``diverged``, ``callback``, ``stalled``, ``time_budget``, ``max_eval``,
         ``max_iter``, ``converged``; ``stages`` has each stage's own status and message.
     """
-    if not isinstance(views, MultiViewData):
-        raise TypeError(f"views: expected MultiViewData, got {type(views)!r}")
+    if not isinstance(views, MultiViewDataset):
+        raise TypeError(f"views: expected a MultiViewDataset, got {type(views)!r}")
     check_choice(silhouette_method, "silhouette_method", SILHOUETTE_METHODS + ("none",))
     check_choice(textured_method, "textured_method", TEXTURED_METHODS)
     check_choice(textured_init, "textured_init", ("silhouette", "sphere"))
@@ -911,7 +731,7 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
 # =========================================================================================
 
 
-def _lstsq_colors(mesh: Mesh, data: MultiViewData, reg: float) -> np.ndarray:
+def _lstsq_colors(mesh: Mesh, data: MultiViewDataset, reg: float) -> np.ndarray:
     """Vertex colours minimising the RGB error of the hard render (geometry fixed).
 
     The hard render (one face per pixel, blur 0; PyTorch3D's ``SoftPhongShader`` at K = 1) is
@@ -923,7 +743,7 @@ def _lstsq_colors(mesh: Mesh, data: MultiViewData, reg: float) -> np.ndarray:
 
     settings = SoftRasterizationSettings(image_size=data.image_size, blur_radius=0.0,
                                          faces_per_pixel=1)
-    r = SoftPhongRenderer(data.cameras, data.lights, raster_settings=settings)
+    r = SoftPhongRenderer(data.cameras, _lights(data), raster_settings=settings)
     out = r(mesh, np.full((mesh.n_verts, 3), 0.5))
     A, b = out.color_operator()
     L = uniform_laplacian(mesh)
