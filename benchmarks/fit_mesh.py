@@ -36,7 +36,7 @@ from _harness import (
 )
 
 from geofit import Mesh, torus
-from geofit.fit import RECIPES, CoarseToFine, fit_mesh
+from geofit.fit import CoarseToFine, fit_mesh
 from geofit.metrics import MeshEvaluator
 
 # PyTorch3D's own tutorial run, as stated in the issue's acceptance text (PyTorch3D 0.7.9, CPU,
@@ -48,6 +48,16 @@ PYTORCH3D = {"label": "PyTorch3D tutorial (268 s)", "seconds": 268.0, "chamfer_l
 TIME_LIMIT = PYTORCH3D["seconds"] / 20  # 13.4 s: the acceptance's "1/20 of that time (13 s)"
 ACCURACY = {"chamfer_l2": ("<=", PYTORCH3D["chamfer_l2"]),
             "fscore@0.01": (">=", PYTORCH3D["fscore@0.01"])}
+
+#: The runs: fit_mesh keyword arguments (recipe and method) of each named run.
+RUNS = {
+    "tutorial": {"recipe": "tutorial"},
+    "adam": {"method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
+    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
+    "large-steps": {"recipe": "default", "method": "lbfgs", "large_steps": 10.0},
+    "coarse-to-fine": {"recipe": "coarse-to-fine"},
+}
 
 LABELS = {
     "tutorial": "SGD, tutorial recipe (ico4, lr 1, momentum 0.9)",
@@ -69,8 +79,8 @@ def load_target():
 # ------------------------------------------------------------------------------ speed/accuracy
 def method_settings(name: str, quick: bool) -> tuple[dict, int]:
     """fit_mesh keyword arguments and the checkpoint interval (evaluations) of a method."""
-    kw = dict(RECIPES[name])
-    stochastic = kw["method"] in ("sgd", "adam")
+    kw = dict(RUNS[name])
+    stochastic = _method(kw) in ("sgd", "adam")
     every = 100 if stochastic else (5 if name == "coarse-to-fine" else 10)
     if quick:
         if stochastic:
@@ -84,14 +94,20 @@ def method_settings(name: str, quick: bool) -> tuple[dict, int]:
     return kw, every
 
 
+def _method(kw: dict) -> str:
+    """The solver a run's keyword arguments select (its recipe's unless given)."""
+    from geofit.fit import RECIPES
+
+    return kw.get("method") or RECIPES[kw.get("recipe", "default")]["method"]
+
+
 def run_method(name: str, target: Mesh, evaluator: MeshEvaluator, quick: bool) -> MethodRun:
     kw, every = method_settings(name, quick)
     run = MethodRun(name=name, label=LABELS[name],
                     config={k: (repr(v) if not isinstance(v, (int, float, str, bool)) else v)
                             for k, v in kw.items()} | {"checkpoint_every": every})
     t0 = time.perf_counter()
-    res = fit_mesh(None, target, evaluator=evaluator, checkpoint_every=every, progress=False,
-                   **kw)
+    res = fit_mesh(target, evaluator=evaluator, checkpoint_every=every, progress=False, **kw)
     wall = time.perf_counter() - t0
     a = res.history.as_arrays()
     for i, s in enumerate(a["checkpoint_seconds"]):
@@ -143,7 +159,7 @@ def scenario(mode: str, name: str, target: Mesh, quick: bool):
     from geofit import ico_sphere
 
     kw, _ = method_settings(name, quick)
-    if kw["method"] in ("sgd", "adam"):
+    if _method(kw) in ("sgd", "adam"):
         kw["n_iter"] = 60 if quick else 500
     rng = np.random.default_rng(7)
     norm = target.normalize()
@@ -163,22 +179,22 @@ def scenario(mode: str, name: str, target: Mesh, quick: bool):
     elif mode == "torus":
         tin = reference = torus()
     elif mode == "degenerate_start":
-        c2f = kw.get("coarse_to_fine")
+        c2f = kw.get("coarse_to_fine", kw.get("recipe") == "coarse-to-fine")
         level = 2 if c2f else 4
         if isinstance(c2f, CoarseToFine):
             level = c2f.start_level
         source = collapse_edges(ico_sphere(level))
     elif mode == "step_x100":
-        if kw["method"] == "sgd":
+        if _method(kw) == "sgd":
             kw["lr"] = 100.0
-        elif kw["method"] == "adam":
+        elif _method(kw) == "adam":
             kw["lr"] = 100 * kw.get("lr", 0.01)
         else:
             from geofit.fit import FINE_WEIGHTS, TUTORIAL_WEIGHTS
 
             x100 = {k: 100 * v for k, v in TUTORIAL_WEIGHTS.items()}
             kw["weights"] = [x100, {k: 100 * v for k, v in FINE_WEIGHTS.items()}]
-            c2f = kw.get("coarse_to_fine")
+            c2f = kw.get("coarse_to_fine", kw.get("recipe") == "coarse-to-fine" or None)
             if c2f is not None:
                 c2f = c2f if isinstance(c2f, CoarseToFine) else CoarseToFine()
                 c2f.coarse_weights = x100
@@ -198,8 +214,8 @@ def run_stability(names, target: Mesh, quick: bool, budget: float) -> list[dict]
             row = {"method": name, "mode": mode}
             t0 = time.perf_counter()
             try:
-                res = fit_mesh(source, tin, evaluator=None, progress=False, time_budget=budget,
-                               **kw)
+                res = fit_mesh(tin, init=source, evaluator=None, progress=False,
+                               time_budget=budget, **kw)
             except Exception as exc:  # noqa: BLE001 - the table reports it
                 msg = str(exc)
                 row.update(outcome=f"failed: {type(exc).__name__}: {msg}", status="failed",

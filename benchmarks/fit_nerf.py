@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser
 
-from geofit.datasets import held_out_views, tutorial_views
+from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.metrics import psnr
 from geofit.render.implicit import OccupancyGrid
@@ -71,9 +71,8 @@ def run_method(name: str, label: str, config: NerfConfig, train, test, *, time_b
                   f"wall {wall[-1]:7.1f} s  loss {info['loss']:.4f}  held-out PSNR "
                   f"{info['psnr']:.2f} dB  (load {load_average()[:1]})", flush=True)
 
-    res = fit_nerf(train.images, train.silhouettes, train.cameras, config=config,
-                   held_out=(test.images, test.silhouettes, test.cameras),
-                   time_budget=time_budget, eval_every=eval_every, seed=seed, callback=cb)
+    res = fit_nerf(train, config=config, held_out=test, time_budget=time_budget,
+                   eval_every=eval_every, seed=seed, callback=cb)
     run.curve["wall_seconds"] = wall
     run.curve["cpu_seconds"] = cpu
     steps = res.n_iterations
@@ -153,7 +152,7 @@ def main(argv=None) -> int:
             cfg = NerfConfig.tutorial(n_iter=tut_steps, n_rays_per_image=100, n_pts_per_ray=32)
         print(f"tutorial network, {tut_steps} steps ...", flush=True)
         t0, c0 = time.perf_counter(), time.process_time()
-        res = fit_nerf(train.images, train.silhouettes, train.cameras, config=cfg, seed=0)
+        res = fit_nerf(train, config=cfg, seed=0)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         hull = OccupancyGrid.from_silhouettes(train.silhouettes, train.cameras,
                                               resolution=96 if not quick else 32).dilate(1)
@@ -338,9 +337,8 @@ def stability(train, test, out: Path, *, quick: bool, budget: float) -> None:
     for name, label, cfg, (im, sil, cams), extra in cases:  # cases
         print(f"stability case {name} ...", flush=True)
         every = budget / (15 if "early_stopping" in extra else 5)
-        res = fit_nerf(im, sil, cams, config=cfg, held_out=(test.images, test.silhouettes,
-                                                             test.cameras),
-                       time_budget=budget, eval_every=every, seed=0, **extra)
+        res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams), config=cfg,
+                       held_out=test, time_budget=budget, eval_every=every, seed=0, **extra)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)

@@ -72,22 +72,21 @@ def settings(name: str, quick: bool, budget: float) -> dict:
     c2f = [(0, 2), (1, 1)]
     tut = 40 if quick else 2000
     out = {
-        "tutorial": {"silhouette_method": "tutorial", "textured_method": "tutorial",
-                         "textured_init": "sphere", "silhouette_iters": tut, "textured_iters": tut,
-                         "init_level": 4},
-        "scipy-lbfgs": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+        "tutorial": {"recipe": "tutorial", "silhouette_iters": tut, "textured_iters": tut,
+                     "init_level": 4},
+        "scipy-lbfgs": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                             "silhouette_iters": 2000, "silhouette_time": budget, "init_level": 4},
-        "lbfgs-large-steps": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+        "lbfgs-large-steps": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                                   "large_steps": 10.0, "silhouette_iters": 2000,
                                   "silhouette_time": budget, "init_level": 4},
-        "best": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+        "best": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                      "large_steps": 10.0, "levels": c2f, "silhouette_iters": 400,
                      "silhouette_time": budget - 10.0 if not quick else budget,
                      "silhouette_weights": BEST_WEIGHTS, "init_level": 3},
-        "nlopt-lbfgs": {"silhouette_method": "nlopt-lbfgs", "textured_method": "lstsq",
+        "nlopt-lbfgs": {"silhouette_method": "lbfgs-nlopt", "textured_method": "lstsq",
                             "large_steps": 10.0, "levels": c2f, "silhouette_iters": 600,
                             "silhouette_time": budget, "init_level": 3},
-        "contour": {"silhouette_method": "contour", "textured_method": "lstsq", "large_steps": 10.0,
+        "contour": {"recipe": "contour", "large_steps": 10.0,
                         "levels": c2f, "silhouette_iters": 4000, "silhouette_time": budget,
                         "adam_lr": 0.01, "init_level": 3},
     }[name]
@@ -197,7 +196,7 @@ def memory_report(ds) -> dict:
                      "seconds_forward_and_vjp": wall, "cpu_seconds_forward_and_vjp": cpu}
     # one objective evaluation as the fits run it (views in batches of 5)
     for name, kw in (("fit_silhouette_1_iteration",
-                      {"silhouette_method": "scipy-lbfgs", "silhouette_iters": 1,
+                      {"silhouette_method": "lbfgs", "silhouette_iters": 1,
                            "textured_method": "none"}),
                      ("fit_textured_1_iteration",
                       {"silhouette_method": "none", "textured_method": "lbfgs",

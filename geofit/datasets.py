@@ -130,7 +130,10 @@ class MultiViewDataset:
         n = len(self.cameras)
         if n == 0:
             raise ValueError("cameras: expected at least one camera, got 0")
-        self.silhouettes = as_array(self.silhouettes, "silhouettes", (n, None, None))
+        self.silhouettes = as_array(self.silhouettes, "silhouettes", (None, None, None))
+        if self.silhouettes.shape[0] != n:
+            raise ValueError(f"silhouettes, cameras: expected one camera per view, got "
+                             f"{self.silhouettes.shape[0]} silhouettes and {n} cameras")
         H, W = self.silhouettes.shape[1:]
         if H < 2 or W < 2:
             raise ValueError(f"silhouettes: expected images of at least 2 x 2 pixels, got "

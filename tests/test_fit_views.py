@@ -156,11 +156,12 @@ def _iou(data, mesh):
 
 
 @pytest.mark.parametrize("method,kw", [
-    ("tutorial", {"silhouette_iters": 60}),
-    ("scipy-lbfgs", {"silhouette_iters": 25}),
-    ("nlopt-lbfgs", {"silhouette_iters": 40}),
-    ("scipy-lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)]}),
-    ("contour", {"silhouette_iters": 60, "large_steps": 5.0, "adam_lr": 0.01}),
+    ("sgd", {"silhouette_iters": 60}),
+    ("lbfgs", {"silhouette_iters": 25}),
+    ("lbfgs-nlopt", {"silhouette_iters": 40}),
+    ("lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)]}),
+    ("adam", {"silhouette_iters": 60, "large_steps": 5.0, "adam_lr": 0.01,
+              "silhouette_loss": "contour"}),
 ])
 def test_silhouette_methods_improve_the_fit(data, method, kw):
     """Every silhouette method ends with a status from STATUSES, a lower loss, and a better
@@ -191,8 +192,8 @@ def test_textured_fit_is_finite_at_every_step(data):
         assert np.all(np.isfinite(rec["x"]))
         assert all(math.isfinite(v) for v in rec["terms"].values())
 
-    for method, init in (("tutorial", "sphere"), ("lbfgs", "silhouette")):
-        res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="tutorial",
+    for method, init in (("sgd", "sphere"), ("lbfgs", "silhouette")):
+        res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
                                 silhouette_iters=15, textured_method=method,
                                 textured_init=init, textured_iters=15, callback=check)
         assert res.ok, res.message
@@ -206,7 +207,7 @@ def test_textured_stage_improves_psnr(data):
     """Least-squares colours beat uniform grey on held-out views; the joint L-BFGS (positions
     and colours) then lowers its training loss without losing held-out PSNR."""
     ev = ViewsEvaluator(data.held_out)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="scipy-lbfgs",
+    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
                             silhouette_iters=25, textured_method="lbfgs", textured_iters=10)
     sil = res.silhouette_mesh
     grey = ev(sil, np.full((sil.n_verts, 3), 0.5))["psnr"]
@@ -227,12 +228,12 @@ def test_evaluate_and_callback_hooks(data):
     """Checkpoints carry the evaluator's metrics with the clock paused; a callback returning
     True stops the stage with status 'callback'."""
     ev = ViewsEvaluator(data.held_out)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="scipy-lbfgs",
+    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
                             silhouette_iters=10, textured_method="none",
                             evaluate=lambda m, c: ev(m, c), eval_every=0.0)
     assert len(res.history.checkpoints) == len(res.history)
     assert res.history.metric_names == ("iou",)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="tutorial",
+    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
                             silhouette_iters=50, textured_method="none",
                             callback=lambda rec: rec["step"] >= 5)
     assert res.status == "callback" and len(res.history) == 5
@@ -274,7 +275,7 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
         init = init.update_verts(init.verts * 0.2)
     if kind == "off_centre":
         init = init.update_verts(init.verts * 0.6 + [0.3, 0.2, 0.0])
-    for method in ("scipy-lbfgs", "tutorial"):
+    for method in ("lbfgs", "sgd"):
         res = fit_mesh_to_views(views, init=init, silhouette_method=method, silhouette_iters=20,
                                 textured_method="lstsq")
         assert res.status in ("converged", "max_iter", "max_eval", "stalled", "time_budget")
@@ -289,15 +290,21 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
 
 def test_validation(data):
     tr = data
-    with pytest.raises(TypeError, match="views"):
+    with pytest.raises(TypeError, match="dataset"):
         fit_mesh_to_views(tr.silhouettes)
+    with pytest.raises(ValueError, match="recipe"):
+        fit_mesh_to_views(tr, recipe="fast")
+    with pytest.raises(ValueError, match="silhouette_loss"):
+        fit_mesh_to_views(tr, silhouette_loss="hard")
+    with pytest.raises(ValueError, match="silhouette_loss"):
+        fit_mesh_to_views(tr, silhouette_loss="contour", silhouette_method="lbfgs")
     with pytest.raises(ValueError, match="silhouette_method"):
         fit_mesh_to_views(tr, silhouette_method="adamw")
     with pytest.raises(ValueError, match="textured_method"):
-        fit_mesh_to_views(tr, textured_method="sgd")
+        fit_mesh_to_views(tr, textured_method="adam")
     with pytest.raises(ValueError, match="textured_init"):
         fit_mesh_to_views(tr, textured_init="cube")
-    with pytest.raises(ValueError, match="views"):
+    with pytest.raises(ValueError, match="dataset"):
         fit_mesh_to_views(MultiViewDataset(images=None, silhouettes=tr.silhouettes,
                                            cameras=tr.cameras), textured_method="lstsq")
     with pytest.raises(ValueError, match="silhouette_weights"):
@@ -334,7 +341,7 @@ def test_validation(data):
         tutorial_views(4, mesh=_object(1), dist=0.0)
     with pytest.raises(TypeError, match="heldout"):
         ViewsEvaluator(tr.silhouettes)
-    assert SILHOUETTE_METHODS == ("tutorial", "scipy-lbfgs", "nlopt-lbfgs", "contour")
+    assert SILHOUETTE_METHODS == ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 
 def test_cli_fit_views(tmp_path, monkeypatch, capsys):
@@ -353,3 +360,33 @@ def test_cli_fit_views(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "fit_views.obj").stat().st_size > 0
     assert "held-out IoU" in capsys.readouterr().out
     assert main(["fit-views", "--out", str(tmp_path), "--views", "0"]) == 1
+
+
+def test_former_method_names_and_data_type_warn_and_agree(data):
+    """"scipy-lbfgs", "tutorial", "contour" and MultiViewData work for one release with a
+    DeprecationWarning and fit exactly as the current names; the recipes set the stages."""
+    from geofit.fit.views import MultiViewData
+
+    kw = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_method": "none"}
+    new = fit_mesh_to_views(data, silhouette_method="lbfgs", **kw)
+    assert new.method == "lbfgs+none" and new.recipe == "default" and new.init is kw["init"]
+    with pytest.warns(DeprecationWarning, match="scipy-lbfgs"):
+        old = fit_mesh_to_views(data, silhouette_method="scipy-lbfgs", **kw)
+    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
+    with pytest.warns(DeprecationWarning, match="MultiViewData"):
+        mv = MultiViewData(data.cameras, data.silhouettes, data.images, data.lights)
+    np.testing.assert_array_equal(fit_mesh_to_views(mv, silhouette_method="lbfgs", **kw)
+                                  .mesh.verts, new.mesh.verts)
+    tut = fit_mesh_to_views(data, recipe="tutorial", init=ico_sphere(1), silhouette_iters=3,
+                            textured_iters=2)
+    with pytest.warns(DeprecationWarning, match="silhouette_method='tutorial'"), \
+            pytest.warns(DeprecationWarning, match="textured_method='tutorial'"):
+        old = fit_mesh_to_views(data, silhouette_method="tutorial", textured_method="tutorial",
+                                textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
+                                textured_iters=2)
+    assert tut.method == "sgd+sgd" and [s["method"] for s in old.stages] == ["sgd", "sgd"]
+    np.testing.assert_array_equal(old.colors, tut.colors)
+    with pytest.warns(DeprecationWarning, match="silhouette_method='contour'"):
+        old = fit_mesh_to_views(data, silhouette_method="contour", large_steps=5.0, **kw)
+    new = fit_mesh_to_views(data, recipe="contour", large_steps=5.0, **kw)
+    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)

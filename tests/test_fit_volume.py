@@ -8,6 +8,7 @@ import pytest
 
 import geofit.fit.volume as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import MultiViewDataset
 from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
 from geofit.loss import huber
 from geofit.render.raymarching import EmissionAbsorptionRaymarcher
@@ -41,6 +42,11 @@ def _scene(n_views=8, elev=0.0, size=SIZE, seed=0):
 @pytest.fixture(scope="module")
 def scene():
     return _scene()
+
+
+def _ds(images, silhouettes, cameras) -> MultiViewDataset:
+    return MultiViewDataset(images=np.clip(images, 0.0, 1.0), silhouettes=silhouettes,
+                            cameras=cameras)
 
 
 def _psnr_iou(result, images, sils, cams, renderer):
@@ -169,11 +175,11 @@ def test_visual_hull_validation(scene):
 # -------------------------------------------------------------------------------------- fitting
 
 
-@pytest.mark.parametrize("method", ["lbfgs", "nlopt-lbfgs", "adam"])
+@pytest.mark.parametrize("method", ["lbfgs", "lbfgs-nlopt", "adam"])
 def test_fit_recovers_the_scene(scene, method):
     """geofit's methods fit the training views well with fewer voxels and samples than dense."""
     images, sils, cams, _, renderer = scene
-    res = fit_volume(images, sils, cams, method=method, volume_size=16, n_pts_per_ray=N_PTS,
+    res = fit_volume(_ds(images, sils, cams), method=method, volume_size=16, n_pts_per_ray=N_PTS,
                      levels=(8, 16), iterations=(40, 40), precision="float64")
     assert isinstance(res, VolumeFitResult) and res.ok
     assert res.status in ("max_iter", "converged", "stalled", "max_eval")
@@ -193,7 +199,7 @@ def test_tutorial_recipe_runs_dense(scene):
     """The tutorial recipe optimises every voxel with Adam on random view batches."""
     images, sils, cams, _, _ = scene
     seen = []
-    res = fit_volume(images, sils, cams, method="tutorial", volume_size=16,
+    res = fit_volume(_ds(images, sils, cams), recipe="tutorial", volume_size=16,
                      n_pts_per_ray=N_PTS, batch_size=3, n_iter=12, seed=0,
                      monitor=lambda v: seen.append(v) or {"n": float(len(seen))},
                      monitor_every=1e9)
@@ -214,10 +220,10 @@ def test_monitor_and_time_budget(scene):
         assert np.all(np.isfinite(vol.densities))
         return {"mean_density": float(vol.densities.mean())}
 
-    res = fit_volume(images, sils, cams, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+    res = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
                      iterations=(5, 5), monitor=monitor)
     assert len(calls) >= 2 and "mean_density" in res.history.metric_names
-    quick = fit_volume(images, sils, cams, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+    quick = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
                        iterations=(500, 500), time_budget=0.05)
     assert quick.status == "time_budget"
     assert np.all(np.isfinite(quick.volume.densities))
@@ -229,7 +235,7 @@ def test_monitor_and_time_budget(scene):
 def test_all_black_target_is_empty_not_nan(scene):
     """Black images and empty silhouettes: nothing is carved in, the volume stays finite."""
     images, sils, cams, _, renderer = scene
-    res = fit_volume(np.zeros_like(images), np.zeros_like(sils), cams, volume_size=16,
+    res = fit_volume(_ds(np.zeros_like(images), np.zeros_like(sils), cams), volume_size=16,
                      n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
     assert res.ok and np.all(np.isfinite(res.volume.densities))
     assert res.n_active_voxels == 0 and res.volume.densities.max() == 0.0
@@ -240,12 +246,12 @@ def test_all_black_target_is_empty_not_nan(scene):
 def test_huge_learning_rate_stays_finite(scene):
     """Adam with lr 1e6 saturates the sigmoids but never produces NaN."""
     images, sils, cams, _, _ = scene
-    res = fit_volume(images, sils, cams, method="adam", lr=1e6, volume_size=16,
+    res = fit_volume(_ds(images, sils, cams), method="adam", lr=1e6, volume_size=16,
                      n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
     assert res.status == "diverged" and "learning rate" in res.message
     assert np.all(np.isfinite(res.volume.densities)) and np.all(np.isfinite(res.volume.features))
     assert np.all(np.isfinite(res.history.as_arrays()["loss"]))
-    tut = fit_volume(images, sils, cams, method="tutorial", lr=1e6, volume_size=16,
+    tut = fit_volume(_ds(images, sils, cams), recipe="tutorial", lr=1e6, volume_size=16,
                      n_pts_per_ray=N_PTS, batch_size=3, n_iter=6)
     assert tut.status == "diverged" and "saturation" in tut.message
     assert np.all(np.isfinite(tut.volume.densities))
@@ -262,7 +268,7 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
     R[2], T[2] = look_at_view_transform(2.7, 40.0, 123.0)[0][0], look_at_view_transform(
         2.7, 40.0, 123.0)[1][0]
     wrong = FoVPerspectiveCameras(R=R, T=T)
-    res = fit_volume(noisy, sils, wrong, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+    res = fit_volume(_ds(noisy, sils, wrong), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
                      iterations=(30, 30), carve_tolerance=1)
     assert res.ok
     assert res.view_losses.shape == (len(images),) and np.argmax(res.view_losses) == 2
@@ -275,33 +281,59 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
 def test_fit_validation(scene):
     """Invalid inputs and settings raise ValueError/TypeError naming the argument."""
     images, sils, cams, _, _ = scene
-    with pytest.raises(ValueError, match="images"):
-        fit_volume(images[..., :2], sils, cams)
-    with pytest.raises(ValueError, match="silhouettes"):
-        fit_volume(images, sils[:3], cams)
-    with pytest.raises(ValueError, match="cameras"):
-        fit_volume(images, sils, cams[:2])
+    with pytest.raises(TypeError, match="dataset"):
+        fit_volume(images)
+    with pytest.raises(ValueError, match="dataset"):
+        fit_volume(MultiViewDataset(images=None, silhouettes=sils, cameras=cams))
+    with pytest.raises(ValueError, match="recipe"):
+        fit_volume(_ds(images, sils, cams), recipe="dense")
     with pytest.raises(ValueError, match="method"):
-        fit_volume(images, sils, cams, method="sgd")
+        fit_volume(_ds(images, sils, cams), recipe="tutorial", method="lbfgs")
+    with pytest.raises(ValueError, match="method"):
+        fit_volume(_ds(images, sils, cams), method="sgd")
     with pytest.raises(ValueError, match="levels"):
-        fit_volume(images, sils, cams, volume_size=16, levels=(16, 8))
+        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(16, 8))
     with pytest.raises(ValueError, match="volume_size"):
-        fit_volume(images, sils, cams, volume_size=1)
+        fit_volume(_ds(images, sils, cams), volume_size=1)
     with pytest.raises(ValueError, match="iterations"):
-        fit_volume(images, sils, cams, volume_size=16, levels=(8, 16), iterations=(0, 1))
+        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(8, 16), iterations=(0, 1))
     with pytest.raises(ValueError, match="termination"):
-        fit_volume(images, sils, cams, termination=2.0)
+        fit_volume(_ds(images, sils, cams), termination=2.0)
     with pytest.raises(ValueError, match="precision"):
-        fit_volume(images, sils, cams, precision="float16")
+        fit_volume(_ds(images, sils, cams), precision="float16")
     with pytest.raises(ValueError, match="max_depth"):
-        fit_volume(images, sils, cams, min_depth=3.0, max_depth=1.0)
-    with pytest.raises(ValueError, match="images"):
-        fit_volume(np.full_like(images, np.nan), sils, cams)
+        fit_volume(_ds(images, sils, cams), min_depth=3.0, max_depth=1.0)
     with pytest.raises(ValueError, match="batch_size"):
-        fit_volume(images, sils, cams, method="tutorial", batch_size=0)
+        fit_volume(_ds(images, sils, cams), recipe="tutorial", batch_size=0)
     with pytest.raises(TypeError, match="monitor"):
-        fit_volume(images, sils, cams, monitor=3)
-    assert set(FIT_VOLUME_METHODS) == {"lbfgs", "nlopt-lbfgs", "adam", "tutorial"}
+        fit_volume(_ds(images, sils, cams), monitor=3)
+    assert set(FIT_VOLUME_METHODS) == {"lbfgs", "lbfgs-nlopt", "adam"}
+
+
+def test_former_call_form_warns_and_agrees(scene):
+    """fit_volume(images, silhouettes, cameras), method="tutorial" and "nlopt-lbfgs" work for
+    one release with a DeprecationWarning; the former form still validates its arrays."""
+    images, sils, cams, _, _ = scene
+    kw = {"volume_size": 16, "n_pts_per_ray": N_PTS, "levels": (8, 16), "iterations": (3, 3)}
+    new = fit_volume(_ds(images, sils, cams), **kw)
+    assert new.method == "lbfgs" and new.recipe == "default" and new.init is None
+    with pytest.warns(DeprecationWarning, match=r"fit_volume\(images, silhouettes, cameras"):
+        old = fit_volume(images, sils, cams, **kw)
+    np.testing.assert_array_equal(old.volume.densities, new.volume.densities)
+    with pytest.warns(DeprecationWarning, match="method='tutorial'"):
+        tut = fit_volume(_ds(images, sils, cams), method="tutorial", volume_size=8,
+                         n_pts_per_ray=N_PTS, batch_size=2, n_iter=2)
+    assert tut.recipe == "tutorial" and tut.method == "adam"
+    with pytest.warns(DeprecationWarning, match="nlopt-lbfgs"):
+        fit_volume(_ds(images, sils, cams), method="nlopt-lbfgs", **kw)
+    for bad, name in ((images[..., :2], "images"), (np.full_like(images, np.nan), "images")):
+        with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=name):
+            fit_volume(bad, sils, cams)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="silhouettes"):
+        fit_volume(images, sils[:3], cams)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="cameras"):
+        fit_volume(images, sils, cams[:2])
+
 
 
 # ------------------------------------------------------------------------------------- datasets

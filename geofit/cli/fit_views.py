@@ -5,8 +5,8 @@ tutorial data is found, else the procedural stand-in): ``--views`` views with so
 RGB, plus ``--heldout`` held-out views; deforms an ico-sphere to the silhouettes, then fits vertex
 colours (and, with ``--textured lbfgs``, positions). geofit's default: L-BFGS over all views in the
 large-steps parameterisation, coarse-to-fine (half resolution and one subdivision level less
-first), colours by one least-squares solve. ``--method tutorial --textured tutorial`` runs the
-tutorial's SGD recipe instead.
+first), colours by one least-squares solve. ``--recipe tutorial`` runs the tutorial's SGD recipe
+instead, ``--recipe contour`` the hard silhouette's contour gradients with Adam.
 
 Writes into ``--out``: ``fit_views.obj`` (the fitted surface), ``fit_views_colors.npz`` (verts,
 faces, vertex colours), ``fit_views.json`` (status, timings, held-out IoU / PSNR, chamfer-L2 and
@@ -52,16 +52,16 @@ def run(args: argparse.Namespace) -> int:
     t_data = time.perf_counter() - t0
     levels = None
     init_level = args.init_level
-    if not args.no_coarse_to_fine and args.method != "tutorial" and args.image_size % 2 == 0 \
+    stochastic = args.recipe == "tutorial" if args.method is None else args.method == "sgd"
+    if not args.no_coarse_to_fine and not stochastic and args.image_size % 2 == 0 \
             and init_level >= 1:
         levels = [(0, 2), (1, 1)]
         init_level -= 1
-    kw = {"silhouette_method": args.method, "textured_method": args.textured,
-          "silhouette_iters": args.silhouette_iters, "textured_iters": args.textured_iters,
-          "silhouette_time": args.time, "large_steps": (None if args.method == "tutorial"
-                                                        else args.large_steps),
-          "levels": levels, "seed": args.seed,
-          "textured_init": "sphere" if args.textured == "tutorial" else "silhouette"}
+    kw = {"recipe": args.recipe, "silhouette_method": args.method,
+          "textured_method": args.textured, "silhouette_iters": args.silhouette_iters,
+          "textured_iters": args.textured_iters, "silhouette_time": args.time,
+          "large_steps": None if stochastic else args.large_steps, "levels": levels,
+          "seed": args.seed}
     fit = fit_mesh_to_views(ds, init=ico_sphere(init_level), **kw)
     ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=20000)
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``fit-views`` sub-command."""
-    from ..fit.views import SILHOUETTE_METHODS, TEXTURED_METHODS
+    from ..fit.views import RECIPES, SILHOUETTE_METHODS, TEXTURED_METHODS
 
     p = subparsers.add_parser(
         "fit-views",
@@ -120,10 +120,13 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
     p.add_argument("--heldout", type=int, default=16, help="held-out views (default 16)")
-    p.add_argument("--method", choices=SILHOUETTE_METHODS, default="scipy-lbfgs",
-                   help="silhouette stage (default scipy-lbfgs)")
-    p.add_argument("--textured", choices=TEXTURED_METHODS, default="lstsq",
-                   help="textured stage (default lstsq)")
+    p.add_argument("--recipe", choices=tuple(RECIPES), default="default",
+                   help="named settings (default: L-BFGS silhouettes, least-squares colours; "
+                        "tutorial: the tutorial's SGD; contour: contour gradients with Adam)")
+    p.add_argument("--method", choices=SILHOUETTE_METHODS + ("none",), default=None,
+                   help="override the recipe's silhouette-stage method")
+    p.add_argument("--textured", choices=TEXTURED_METHODS, default=None,
+                   help="override the recipe's textured-stage method")
     p.add_argument("--silhouette-iters", type=int, default=200,
                    help="silhouette iterations (default 200; the tutorial uses 2000 SGD steps)")
     p.add_argument("--textured-iters", type=int, default=50, help="textured iterations")

@@ -1,5 +1,37 @@
 """Fitting: objectives composed from losses by the chain rule, solvers, histories.
 
+The four fits take their data first, then keyword options::
+
+    fit_mesh(target, *, init=None, recipe="default", method=None, ...)      # tutorial 1
+    fit_mesh_to_views(dataset, *, init=None, recipe="default", ...)         # tutorial 4
+    fit_volume(dataset, *, recipe="default", method=None, ...)              # tutorial 5
+    fit_nerf(dataset, *, recipe="default", method=None, ...)                # tutorial 6
+
+``target`` is a :class:`~geofit.Mesh` or a ``(verts, faces)`` pair; ``dataset`` a
+:class:`geofit.datasets.MultiViewDataset` (``geofit.datasets.tutorial_views(4 | 5 | 6)``
+renders the tutorials'). One vocabulary across them:
+
+================  ==========  ======================  ==========  ==========
+method            fit_mesh    fit_mesh_to_views       fit_volume  fit_nerf
+================  ==========  ======================  ==========  ==========
+``"lbfgs"``       default     silhouettes (default),  default     --
+                              textured (joint)
+``"lbfgs-nlopt"`` yes         silhouettes             yes         --
+``"adam"``        yes         silhouettes             yes         only
+``"sgd"``         tutorial    tutorial (both stages)  --          --
+``"lstsq"``       --          colours (default)       --          --
+================  ==========  ======================  ==========  ==========
+
+``"lbfgs"`` is scipy's L-BFGS-B, ``"lbfgs-nlopt"`` nlopt's LD_LBFGS. Recipes name complete
+settings; every fit has ``"default"`` (geofit's) and ``"tutorial"`` (PyTorch3D's recipe,
+exactly); ``fit_mesh`` adds ``"coarse-to-fine"``, ``fit_mesh_to_views`` adds ``"contour"``.
+Every result is a :class:`FitResult` with ``status``, ``message``, ``seconds``,
+``cpu_seconds``, ``history``, ``n_params``, ``n_iterations``, ``n_evaluations``, ``method``,
+``recipe`` and ``init``. The former spellings (``fit_mesh(source, target)``,
+``fit_volume(images, silhouettes, cameras)``, ``fit_nerf(images, silhouettes, cameras)``,
+``"scipy-lbfgs"``, ``"nlopt-lbfgs"``, ``method="tutorial"``, ``preset=``) work for one more
+release with a :class:`DeprecationWarning`.
+
 * :mod:`geofit.fit.history` -- :class:`Clock`, :class:`FitHistory`, :class:`FitResult`, shared by
   every fit in geofit.
 * :mod:`geofit.fit.solvers` -- scipy L-BFGS-B, nlopt LD_LBFGS, SGD with momentum and Adam over a
@@ -14,6 +46,8 @@
 """
 from __future__ import annotations
 
+from ._options import METHODS as METHOD_NAMES
+from ._options import RECIPE_NAMES
 from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
 from .mesh import (
     FINE_WEIGHTS,
@@ -35,7 +69,9 @@ __all__ = [
     "CONVERGED_STATUSES",
     "FINE_WEIGHTS",
     "METHODS",
+    "METHOD_NAMES",
     "RECIPES",
+    "RECIPE_NAMES",
     "SOLVERS",
     "STATUSES",
     "TUTORIAL_WEIGHTS",

@@ -11,15 +11,10 @@ from typing import Any
 
 from ..datasets import MultiViewDataset, tutorial_views
 from ..structures import Mesh
+from ._options import warn_deprecated
 
 __all__ = ["MultiViewData", "MultiViewSplit", "cow_multiview_dataset",
-           "render_multiview_dataset", "warn_deprecated"]
-
-
-def warn_deprecated(old: str, new: str, stacklevel: int = 3) -> None:
-    """Emit the DeprecationWarning of a renamed call form (removed in the next release)."""
-    warnings.warn(f"{old} is deprecated and will be removed in the next release; use {new}",
-                  DeprecationWarning, stacklevel=stacklevel)
+           "render_multiview_dataset"]
 
 
 class MultiViewData(MultiViewDataset):

@@ -46,12 +46,15 @@ import scipy.sparse as sp
 
 from .._validate import as_array, as_faces, as_rng, check_choice, check_positive
 from ..structures import Mesh
+from ._options import Recipes, method_name, recipe_name, warn_deprecated
+from ._progress import NoBar, progress_bar
 from .history import Clock, FitHistory, FitResult
 from .solvers import SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
 __all__ = [
     "FINE_WEIGHTS",
     "METHODS",
+    "RECIPES",
     "TUTORIAL_WEIGHTS",
     "CoarseToFine",
     "LargeSteps",
@@ -60,8 +63,8 @@ __all__ = [
     "fit_mesh",
 ]
 
-#: Solvers :func:`fit_mesh` accepts.
-METHODS = ("sgd", "adam", "scipy-lbfgs", "nlopt-lbfgs")
+#: Methods (solvers) :func:`fit_mesh` accepts.
+METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 #: The tutorial's weights (chamfer 1, edge 1, normal consistency 0.01, Laplacian 0.1).
 TUTORIAL_WEIGHTS = {"chamfer": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 0.1}
@@ -70,21 +73,21 @@ TUTORIAL_WEIGHTS = {"chamfer": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 0.
 #: point-to-surface distances there is no sampling noise for the regularisers to smooth out.
 FINE_WEIGHTS = {"chamfer": 1.0, "edge": 0.03, "normal": 0.003, "laplacian": 0.01}
 
-#: Named settings of :func:`fit_mesh` used by the benchmark, the command line and the notebook:
-#: ``fit_mesh(source, target, **RECIPES[name])``.
-RECIPES: dict[str, dict] = {
+#: Recipes of :func:`fit_mesh` (``fit_mesh(target, recipe=name)``; every entry is also a dict
+#: of keyword options).
+RECIPES: dict[str, dict] = Recipes({
+    # L-BFGS, deterministic stages, exact point-to-surface distances, large steps (lambda 10)
+    "default": {"method": "lbfgs"},
     # the tutorial exactly: SGD lr 1.0 momentum 0.9, 2000 steps, 5000 fresh samples a side
     "tutorial": {"method": "sgd"},
-    # the same stochastic objective with Adam
-    "adam": {"method": "adam", "lr": 0.01},
-    # quasi-Newton, deterministic stages, exact point-to-surface distances
-    "scipy-lbfgs": {"method": "scipy-lbfgs", "large_steps": None},
-    "nlopt-lbfgs": {"method": "nlopt-lbfgs", "large_steps": None},
-    # the same with the large-steps parameterisation
-    "large-steps": {"method": "scipy-lbfgs", "large_steps": 10.0},
     # ico 2 -> 3 -> 4, subdividing only while the accuracy asks for it
-    "coarse-to-fine": {"method": "scipy-lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
-}
+    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
+}, {
+    "adam": {"method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
+    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
+    "large-steps": {"method": "lbfgs", "large_steps": 10.0},
+}, fit="fit_mesh")
 
 _TERMS = ("chamfer", "edge", "normal", "laplacian")
 _STOCHASTIC = ("sgd", "adam")
@@ -493,8 +496,6 @@ class MeshFitResult(FitResult):
         Normalisation centre: ``mesh.verts = mesh_normalized.verts * scale + center``.
     scale : float
         Normalisation scale.
-    method : str
-        The solver.
     metrics : MeshMetrics or None
         Final accuracy (the evaluator's, see :func:`fit_mesh`), None without an evaluator.
     stages : list of dict
@@ -506,7 +507,6 @@ class MeshFitResult(FitResult):
     mesh_normalized: Mesh
     center: np.ndarray
     scale: float
-    method: str = ""
     metrics: Any = None
     stages: list = field(default_factory=list)
 
@@ -534,7 +534,10 @@ class MeshFitResult(FitResult):
 _FAILED = ("nonfinite", "diverged", "failed")
 
 
-def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
+_UNSET = object()
+
+
+def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | None = None,
              weights: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
              distance: str | None = None, n_samples: int | None = None,
              n_iter: int | None = None,
@@ -544,22 +547,29 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
              time_budget: float | None = None, seed=0, evaluator: Any = "default",
              checkpoint_every: int | None = None, progress: bool = True,
              callback: Callable[[StepInfo], bool | None] | None = None,
-             solver_options: Mapping[str, Any] | None = None) -> MeshFitResult:
-    """Deform ``source`` into ``target`` (PyTorch3D's deform tutorial, and faster solvers).
+             solver_options: Mapping[str, Any] | None = None,
+             source=_UNSET) -> MeshFitResult:
+    """Deform a sphere (or ``init``) into ``target`` (PyTorch3D's deform tutorial, and faster
+    solvers).
 
     Parameters
     ----------
-    source : Mesh, (verts, faces), int or None
-        Starting mesh, an ico-sphere level, or None: ``ico_sphere(4)`` (the tutorial's), or
-        ``ico_sphere(coarse_to_fine.start_level)`` with coarse-to-fine. It is placed as given
-        in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
     target : Mesh or (verts, faces)
         Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
         the largest absolute coordinate) and returns the result in the original frame.
-    method : {"scipy-lbfgs", "nlopt-lbfgs", "sgd", "adam"}
-        Solver. ``"sgd"`` reproduces the tutorial exactly by default (5000 fresh samples a side
-        per step, point-to-point chamfer, weights 1 / 1 / 0.01 / 0.1, lr 1.0, momentum 0.9,
-        2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS solvers use
+    init : Mesh, (verts, faces), int or None
+        Starting mesh, an ico-sphere level, or None: ``ico_sphere(4)`` (the tutorial's), or
+        ``ico_sphere(coarse_to_fine.start_level)`` with coarse-to-fine. It is placed as given
+        in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
+    recipe : {"default", "tutorial", "coarse-to-fine"}
+        Named settings (:data:`RECIPES`) that the other options override: ``"default"`` is
+        L-BFGS with large steps, ``"tutorial"`` the tutorial's SGD, ``"coarse-to-fine"``
+        L-BFGS from ``ico_sphere(2)`` subdividing while the accuracy asks for it.
+    method : {"lbfgs", "lbfgs-nlopt", "sgd", "adam"}, optional
+        Solver (default: the recipe's). ``"lbfgs"`` is scipy's L-BFGS-B, ``"lbfgs-nlopt"``
+        nlopt's LD_LBFGS. ``"sgd"`` reproduces the tutorial exactly by default (5000 fresh
+        samples a side per step, point-to-point chamfer, weights 1 / 1 / 0.01 / 0.1, lr 1.0,
+        momentum 0.9, 2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS solvers use
         deterministic stages (fixed samples, redrawn between stages).
     weights : dict or sequence of dict, optional
         Term weights (``"chamfer"``, ``"edge"``, ``"normal"``, ``"laplacian"``). A sequence gives
@@ -638,7 +648,8 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     --------
     >>> from geofit import ico_sphere
     >>> target = ico_sphere(3).scale_verts(2.0)
-    >>> res = fit_mesh(1, target, n_samples=500, n_stages=1, evaluator=None, progress=False)
+    >>> res = fit_mesh(target, init=1, n_samples=500, n_stages=1, evaluator=None,
+    ...                progress=False)
     >>> res.status in ("converged", "max_iter"), res.n_verts, bool(res.mesh.verts.max() > 1.5)
     (True, 42, True)
     """
@@ -647,7 +658,16 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     from ..shapes import ico_sphere, subdivide
 
     # ---- validate once
-    check_choice(method, "method", METHODS)
+    target, init = _init_argument(target, args, init, source)
+    recipe = recipe_name(recipe, RECIPES, fit="fit_mesh")
+    settings = RECIPES[recipe]
+    method = method_name(method if method is not None else settings["method"], "method",
+                         METHODS, fit="fit_mesh")
+    if coarse_to_fine is None:
+        coarse_to_fine = settings.get("coarse_to_fine")
+    if isinstance(large_steps, str) and large_steps == "auto" and "large_steps" in settings:
+        large_steps = settings["large_steps"]
+    source = init
     stochastic = method in _STOCHASTIC
     if coarse_to_fine is True:
         coarse_to_fine = CoarseToFine()
@@ -658,15 +678,16 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
                         f"got {type(coarse_to_fine)!r}")
     c2f = coarse_to_fine
     if c2f is not None and stochastic:
-        raise ValueError(f"coarse_to_fine: needs a deterministic method (scipy-lbfgs or "
-                         f"nlopt-lbfgs), got method={method!r}")
+        raise ValueError(f"coarse_to_fine: needs a deterministic method (lbfgs or "
+                         f"lbfgs-nlopt), got method={method!r}")
     target_mesh = _as_mesh(target, "target")
     if source is None:
         source = ico_sphere(c2f.start_level if c2f is not None else 4)
     elif isinstance(source, (int, np.integer)) and not isinstance(source, bool):
         source = ico_sphere(int(source))
-    source = _as_mesh(source, "source")
+    source = _as_mesh(source, "init")
     source, n_degenerate, n_moved = _repair_degenerate(source)
+    init_mesh = source
     distance = distance or ("points" if stochastic else "surface")
     check_choice(distance, "distance", ("surface", "points"))
     if n_samples is not None:
@@ -712,7 +733,7 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     stages: list[dict] = []
     run = _Run(clock, history, evaluator, norm, checkpoint_every, callback)
     n_levels = c2f.max_level - c2f.start_level + 1 if c2f is not None else 1
-    run.bar = _progress(progress, n_iter * n_stages * n_levels, f"fit_mesh[{method}]")
+    run.bar = progress_bar(progress, n_iter * n_stages * n_levels, f"fit_mesh[{method}]")
 
     if n_degenerate:
         history.note(0, 0.0, f"source: {n_degenerate} zero-area triangles; moved {n_moved} "
@@ -796,9 +817,26 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=run.iters,
         n_evaluations=run.evals,
         mesh=mesh.update_verts(norm.undo(mesh.verts)), mesh_normalized=mesh,
-        center=norm.center.copy(), scale=float(norm.scale), method=method,
+        center=norm.center.copy(), scale=float(norm.scale), method=method, recipe=recipe,
+        init=init_mesh,
         metrics=run.metrics, stages=stages,
     )
+
+
+def _init_argument(target, args: tuple, init, source):
+    """``(target, init)`` from the current call form, or from the former ``fit_mesh(source,
+    target)`` and ``source=`` (with a DeprecationWarning)."""
+    if len(args) > 1:
+        raise TypeError(f"fit_mesh: expected one positional argument (target), got "
+                        f"{1 + len(args)}")
+    if args:
+        warn_deprecated("fit_mesh(source, target, ...)", "fit_mesh(target, init=source, ...)",
+                        4)
+        return args[0], target
+    if source is not _UNSET:
+        warn_deprecated("fit_mesh(source=...)", "fit_mesh(target, init=...)", 4)
+        return target, source
+    return target, init
 
 
 class _Run:
@@ -812,7 +850,7 @@ class _Run:
         self.last_ckpt = -1
         self.metrics = None
         self.stalled = False
-        self.bar = _NoBar()
+        self.bar = NoBar()
 
     def _evaluate(self, mesh: Mesh) -> dict | None:
         """Metrics of ``mesh`` (normalised frame) at the current evaluation count, clock paused."""
@@ -867,27 +905,8 @@ def _solve(method, obj, x0, *, n_iter, lr, momentum, time_budget, callback, cloc
     if method == "adam":
         return adam(obj, x0, lr=lr, n_iter=n_iter, time_budget=time_budget, callback=callback,
                     clock=clock, **opts)
-    if method == "scipy-lbfgs":
+    if method == "lbfgs":
         return lbfgs_scipy(obj, x0, max_iter=n_iter, time_budget=time_budget,
                            callback=callback, clock=clock, **opts)
     return lbfgs_nlopt(obj, x0, max_eval=int(1.25 * n_iter) + 5, time_budget=time_budget,
                        callback=callback, clock=clock, **opts)
-
-
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def set_postfix(self, **kw):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress(enabled: bool, total: int, desc: str):
-    if not enabled:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True)

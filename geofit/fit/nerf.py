@@ -5,10 +5,10 @@ frequencies, two hidden layers of 256 with Softplus(beta=10), 317,188 parameters
 the cow: per step 6 random views, 750 Monte Carlo rays per view with 128 samples each over view
 depths [0.1, 3.0], Huber losses (scale 0.1) on the colours and the silhouettes (targets sampled
 bilinearly at the rays' xy), Adam with lr 1e-3 for 3000 steps and a new Adam at lr 1e-4 from 75 %.
-:func:`fit_nerf` with ``preset="tutorial"`` runs exactly that recipe, with the gradients of
+:func:`fit_nerf` with ``recipe="tutorial"`` runs exactly that recipe, with the gradients of
 :mod:`geofit.render.implicit` (pixels -> raymarcher vjp -> density and colour heads -> trunk).
 
-geofit's scene-sized recipe (``preset="scene"``) fits the same kind of field but models no more
+geofit's scene-sized recipe (``recipe="default"``) fits the same kind of field but models no more
 than the scene needs:
 
 * **a smaller network**: 8 frequencies from ``omega0 = 1``, ReLU layers of 96, a colour head of
@@ -66,10 +66,12 @@ from ..nn.optim import Adam, exponential_decay, step_decay
 from ..render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
 from ..render.raymarching import EmissionAbsorptionRaymarcher
 from ..render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from ._options import Recipes, dataset_argument, method_name, recipe_name, warn_deprecated
 from .history import Clock, FitHistory, FitResult
 
 __all__ = [
     "NERF_PRESETS",
+    "RECIPES",
     "NerfConfig",
     "NerfFitResult",
     "fit_nerf",
@@ -77,7 +79,13 @@ __all__ = [
     "sample_images_at_xys",
 ]
 
-#: Presets of :func:`fit_nerf`.
+#: Recipes of :func:`fit_nerf`: geofit's scene-sized field, or the tutorial's.
+RECIPES: dict[str, dict] = Recipes({"default": {"method": "adam", "config": "NerfConfig.scene"},
+                                    "tutorial": {"method": "adam",
+                                                 "config": "NerfConfig.tutorial"}},
+                                   fit="fit_nerf")
+
+#: Deprecated: the former ``preset`` names (``"scene"`` is the recipe ``"default"``).
 NERF_PRESETS = ("scene", "tutorial")
 
 #: Candidate samples per chunk of a training step (bounds the memory of the caches).
@@ -91,7 +99,7 @@ _CHUNK_SAMPLES = 1 << 17
 
 @dataclass
 class NerfConfig:
-    """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the presets.
+    """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the recipes.
 
     Network (see :class:`~geofit.render.implicit.NeuralRadianceField`): ``n_harmonic_functions``,
     ``omega0``, ``append_input``, ``n_hidden_neurons``, ``n_hidden_layers``,
@@ -398,7 +406,7 @@ class _Data:
 
 
 def _held_out(held_out) -> _Data | None:
-    if held_out is None:
+    if held_out is None or held_out is False:
         return None
     if hasattr(held_out, "images") and hasattr(held_out, "cameras"):
         return _Data(held_out.images, held_out.silhouettes, held_out.cameras, "held_out.")
@@ -408,6 +416,16 @@ def _held_out(held_out) -> _Data | None:
         raise ValueError("held_out: expected (images, silhouettes, cameras) or an object with "
                          "those attributes") from None
     return _Data(images, silhouettes, cameras, "held_out.")
+
+
+def _recipe(recipe: str, preset: str | None) -> str:
+    """The recipe of :func:`fit_nerf` (the former ``preset=`` warns)."""
+    if preset is not None:
+        check_choice(preset, "preset", NERF_PRESETS)
+        new = "default" if preset == "scene" else "tutorial"
+        warn_deprecated(f"fit_nerf(preset={preset!r})", f"fit_nerf(dataset, recipe={new!r})", 5)
+        recipe = new
+    return recipe_name(recipe, RECIPES, fit="fit_nerf")
 
 
 def _silhouette_weights(silhouettes: np.ndarray, margin: int) -> np.ndarray:
@@ -459,29 +477,29 @@ class _DensityGrid:
         return OccupancyGrid(occ.occupied & hull.occupied, hull.bounds, grid)
 
 
-def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene",
+def fit_nerf(dataset, *args, recipe: str = "default", method: str | None = None,
              config: NerfConfig | None = None, held_out=None, time_budget: float | None = None,
              eval_every: float | None = None, early_stopping: int | None = None,
              render_size: int | None = None, init: NeuralRadianceField | None = None, seed=0,
              callback: Callable[[dict], bool | None] | None = None, verbose: bool = False,
-             **overrides) -> NerfFitResult:
+             preset: str | None = None, **overrides) -> NerfFitResult:
     """Fit a neural radiance field to posed RGB images and silhouettes.
 
     Parameters
     ----------
-    images : (N, H, W, 3) float64
-        Training images in [0, 1] (black background, as the tutorial's renders).
-    silhouettes : (N, H, W) float64
-        Training silhouettes in [0, 1].
-    cameras : CamerasBase
-        The ``N`` cameras.
-    preset : {"scene", "tutorial"}
-        Base settings (:meth:`NerfConfig.scene` or :meth:`NerfConfig.tutorial`).
+    dataset : MultiViewDataset
+        Training images in [0, 1] (black background, as the tutorial's renders), silhouettes
+        in [0, 1] and the ``N`` cameras; ``dataset.held_out`` is the default ``held_out``.
+    recipe : {"default", "tutorial"}
+        Base settings: geofit's scene-sized recipe (:meth:`NerfConfig.scene`) or the tutorial's
+        (:meth:`NerfConfig.tutorial`).
+    method : {"adam"}, optional
+        The solver (Adam is the only one: the objective is stochastic).
     config : NerfConfig, optional
-        Settings to use instead of the preset.
-    held_out : (images, silhouettes, cameras) or object with those attributes, optional
+        Settings to use instead of the recipe's.
+    held_out : MultiViewDataset, (images, silhouettes, cameras), None or False
         Views not trained on: rendered in full at checkpoints (PSNR and Huber loss) and at the
-        end.
+        end. None: ``dataset.held_out``; False: none.
     time_budget : float, optional
         Seconds of solver time (checkpoints excluded); the fit stops with status
         ``"time_budget"`` when used up.
@@ -503,8 +521,10 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         ``loss``, and the held-out metrics); True stops the fit (status ``"callback"``).
     verbose : bool
         Print a line per checkpoint.
+    preset : {"scene", "tutorial"}, optional
+        Deprecated: ``recipe`` (``"scene"`` is ``"default"``).
     **overrides
-        Fields of :class:`NerfConfig` replacing the preset's.
+        Fields of :class:`NerfConfig` replacing the recipe's.
 
     Returns
     -------
@@ -516,16 +536,21 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         too large kills the network rather than making it NaN).
     """
     t_wall = time.perf_counter()
-    check_choice(preset, "preset", NERF_PRESETS)
+    data = dataset_argument(dataset, args, fit="fit_nerf")
+    if held_out is None:
+        held_out = data.held_out
+    recipe = _recipe(recipe, preset)
+    method = method_name("adam" if method is None else method, "method", ("adam",),
+                         fit="fit_nerf")
     if config is None:
-        config = NerfConfig.scene() if preset == "scene" else NerfConfig.tutorial()
+        config = NerfConfig.scene() if recipe == "default" else NerfConfig.tutorial()
     elif not isinstance(config, NerfConfig):
         raise TypeError(f"config: expected a NerfConfig, got {type(config)!r}")
     try:
         cfg = replace(config, **overrides).validate()
     except TypeError as exc:
         raise ValueError(f"overrides: {exc}") from None
-    data = _Data(images, silhouettes, cameras, "")
+    data = _Data(data.images, data.silhouettes, data.cameras, "")
     test = _held_out(held_out)
     if time_budget is not None:
         time_budget = check_positive(time_budget, "time_budget")
@@ -828,4 +853,5 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         status=status, message=message, history=history, n_params=n_params,
         seconds=clock.elapsed(), n_iterations=n_steps, n_evaluations=n_steps, field=field,
         config=cfg, occupancy=hull, samples_per_ray=spr_sum / max(n_steps, 1), psnr=p_final,
-        images=images_out, wall_seconds=time.perf_counter() - t_wall)
+        images=images_out, wall_seconds=time.perf_counter() - t_wall, method=method,
+        recipe=recipe, init=init)

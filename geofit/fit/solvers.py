@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, check_choice, check_positive
+from .._validate import as_array, check_positive
 from .history import STATUSES, Clock
 
 __all__ = [
@@ -50,8 +50,8 @@ __all__ = [
 
 Objective = Callable[[np.ndarray], "tuple[float, np.ndarray]"]
 
-#: Solver names accepted by :func:`minimize`.
-SOLVERS = ("scipy-lbfgs", "nlopt-lbfgs", "sgd", "adam")
+#: Solver names accepted by :func:`minimize` (the method names of :mod:`geofit.fit`).
+SOLVERS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 
 class StepInfo(NamedTuple):
@@ -527,7 +527,7 @@ def adam(fun: Objective, x0, *, lr: float = 1e-3, betas: tuple[float, float] = (
                         clock=clock, name="Adam")
 
 
-def minimize(fun: Objective, x0, method: str = "scipy-lbfgs", **options) -> SolveResult:
+def minimize(fun: Objective, x0, method: str = "lbfgs", **options) -> SolveResult:
     """Dispatch to one of :data:`SOLVERS` by name.
 
     Parameters
@@ -537,7 +537,8 @@ def minimize(fun: Objective, x0, method: str = "scipy-lbfgs", **options) -> Solv
     x0 : (n,) float64
         Starting point.
     method : str
-        ``"scipy-lbfgs"``, ``"nlopt-lbfgs"``, ``"sgd"`` or ``"adam"``.
+        ``"lbfgs"`` (scipy), ``"lbfgs-nlopt"``, ``"sgd"`` or ``"adam"`` (the former
+        ``"scipy-lbfgs"`` and ``"nlopt-lbfgs"`` warn).
     **options
         Keyword options of the chosen solver.
 
@@ -548,7 +549,8 @@ def minimize(fun: Objective, x0, method: str = "scipy-lbfgs", **options) -> Solv
     >>> res.status, bool(np.allclose(res.x, 0))
     ('converged', True)
     """
-    check_choice(method, "method", SOLVERS)
-    solver = {"scipy-lbfgs": lbfgs_scipy, "nlopt-lbfgs": lbfgs_nlopt, "sgd": sgd,
-              "adam": adam}[method]
+    from ._options import method_name
+
+    method = method_name(method, "method", SOLVERS, fit="minimize", stacklevel=4)
+    solver = {"lbfgs": lbfgs_scipy, "lbfgs-nlopt": lbfgs_nlopt, "sgd": sgd, "adam": adam}[method]
     return solver(fun, x0, **options)

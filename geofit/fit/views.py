@@ -11,16 +11,18 @@ plain sight in :class:`_Objective`.
 * :func:`fit_mesh_to_views` -- a silhouette stage, then a textured stage. Silhouette methods
   (:data:`SILHOUETTE_METHODS`):
 
-  - ``"tutorial"``: the tutorial's recipe (SGD lr 1, momentum 0.9, two random views per step,
-    soft silhouettes, weights silhouette 1, edge 1, normal 0.01, Laplacian 1);
-  - ``"scipy-lbfgs"`` / ``"nlopt-lbfgs"``: the same objective over *all* views (deterministic),
+  - ``"sgd"`` (recipe ``"tutorial"``): the tutorial's recipe (SGD lr 1, momentum 0.9, two
+    random views per step, soft silhouettes, weights silhouette 1, edge 1, normal 0.01,
+    Laplacian 1);
+  - ``"lbfgs"`` / ``"lbfgs-nlopt"``: the same objective over *all* views (deterministic),
     optionally with the large-steps parameterisation and coarse-to-fine levels (image size and
     mesh level rising together);
-  - ``"contour"``: geometry-first: the hard silhouette's loss differentiated by edge sampling
-    along the mesh's projected contour (:mod:`geofit.render.contour`), Adam in the large-steps
-    parameterisation, coarse-to-fine.
+  - ``"adam"`` with ``silhouette_loss="contour"`` (recipe ``"contour"``): geometry-first: the
+    hard silhouette's loss differentiated by edge sampling along the mesh's projected contour
+    (:mod:`geofit.render.contour`), Adam in the large-steps parameterisation, coarse-to-fine.
 
-  Textured methods (:data:`TEXTURED_METHODS`): ``"tutorial"`` (SGD on offsets and colours, two
+  Textured methods (:data:`TEXTURED_METHODS`): ``"sgd"`` (the tutorial's: SGD on offsets and
+  colours, two
   views per step, weights RGB 1, silhouette 1, edge 1, normal 0.01, Laplacian 1), ``"lstsq"``
   (colours by one sparse least-squares solve on the hard render of the fitted geometry: for
   fixed geometry the image is affine in the colours), ``"lbfgs"`` (``lstsq`` colours, then joint
@@ -62,10 +64,14 @@ from ..render.soft import (
 )
 from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesVertex
+from ._options import Recipes, method_name, recipe_name, warn_deprecated
+from ._progress import NoBar, progress_bar
 from .history import Clock, FitHistory, FitResult
 from .solvers import adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
 __all__ = [
+    "RECIPES",
+    "SILHOUETTE_LOSSES",
     "SILHOUETTE_METHODS",
     "TEXTURED_METHODS",
     "TUTORIAL_SILHOUETTE_WEIGHTS",
@@ -87,10 +93,23 @@ from ._deprecated import (  # noqa: E402
     render_multiview_dataset,
 )
 
-#: Silhouette-stage methods of :func:`fit_mesh_to_views`.
-SILHOUETTE_METHODS = ("tutorial", "scipy-lbfgs", "nlopt-lbfgs", "contour")
+#: Silhouette-stage methods of :func:`fit_mesh_to_views` (``"none"`` skips the stage).
+SILHOUETTE_METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
+#: Silhouette losses: the soft silhouette's squared error, or the hard silhouette's contour
+#: gradients (:mod:`geofit.render.contour`).
+SILHOUETTE_LOSSES = ("soft", "contour")
 #: Textured-stage methods of :func:`fit_mesh_to_views`.
-TEXTURED_METHODS = ("tutorial", "lstsq", "lbfgs", "none")
+TEXTURED_METHODS = ("lstsq", "lbfgs", "sgd", "none")
+
+#: Recipes of :func:`fit_mesh_to_views`: the stage methods and their settings.
+RECIPES: dict[str, dict] = Recipes({
+    "default": {"silhouette_method": "lbfgs", "silhouette_loss": "soft",
+                "textured_method": "lstsq", "textured_init": "silhouette", "large_steps": None},
+    "tutorial": {"silhouette_method": "sgd", "silhouette_loss": "soft",
+                 "textured_method": "sgd", "textured_init": "sphere", "large_steps": None},
+    "contour": {"silhouette_method": "adam", "silhouette_loss": "contour",
+                "textured_method": "lstsq", "textured_init": "silhouette", "large_steps": 10.0},
+}, fit="fit_mesh_to_views")
 
 #: The tutorial's loss weights for the silhouette stage.
 TUTORIAL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
@@ -381,6 +400,42 @@ def _check_weights(weights, defaults, name):
     return out
 
 
+def _stage_options(settings, silhouette_method, silhouette_loss, textured_method,
+                   textured_init, large_steps):
+    """The stage options in the current vocabulary: the recipe's where not given; the former
+    ``"tutorial"`` and ``"contour"`` methods translated with a DeprecationWarning."""
+    if silhouette_method == "tutorial":
+        warn_deprecated("fit_mesh_to_views(silhouette_method='tutorial')",
+                        "recipe='tutorial' or silhouette_method='sgd'", 5)
+        silhouette_method = "sgd"
+    elif silhouette_method == "contour":
+        warn_deprecated("fit_mesh_to_views(silhouette_method='contour')",
+                        "recipe='contour' or silhouette_method='adam', silhouette_loss='contour'",
+                        5)
+        silhouette_method, silhouette_loss = "adam", "contour"
+    if textured_method == "tutorial":
+        warn_deprecated("fit_mesh_to_views(textured_method='tutorial')",
+                        "recipe='tutorial' or textured_method='sgd'", 5)
+        textured_method = "sgd"
+    sm = settings["silhouette_method"] if silhouette_method is None else silhouette_method
+    if sm != "none":
+        sm = method_name(sm, "silhouette_method", SILHOUETTE_METHODS + ("none",),
+                         fit="fit_mesh_to_views", stacklevel=5)
+    loss = settings["silhouette_loss"] if silhouette_loss is None else silhouette_loss
+    check_choice(loss, "silhouette_loss", SILHOUETTE_LOSSES)
+    if loss == "contour" and sm not in ("adam", "none"):
+        raise ValueError(f"silhouette_loss: 'contour' gradients are not those of a smooth "
+                         f"objective; expected silhouette_method='adam', got {sm!r}")
+    tm = settings["textured_method"] if textured_method is None else textured_method
+    tm = method_name(tm, "textured_method", TEXTURED_METHODS, fit="fit_mesh_to_views",
+                     stacklevel=5)
+    ti = settings["textured_init"] if textured_init is None else textured_init
+    check_choice(ti, "textured_init", ("silhouette", "sphere"))
+    if isinstance(large_steps, str) and large_steps == "auto":
+        large_steps = settings["large_steps"]
+    return sm, loss, tm, ti, large_steps
+
+
 def _levels(levels, mesh_level_final: int, image_size):
     """Coarse-to-fine schedule: list of (subdivisions to apply before, downsample factor)."""
     if levels is None:
@@ -403,7 +458,8 @@ class _Recorder:
     """Records history rows, checks finiteness, runs the observer's evaluation at checkpoints."""
 
     def __init__(self, history: FitHistory, clock: Clock, evaluate, eval_every: float,
-                 callback, stage_index: int, step0: int):
+                 callback, stage_index: int, step0: int, bar=None):
+        self.bar = NoBar() if bar is None else bar
         self.h = history
         self.clock = clock
         self.evaluate = evaluate
@@ -431,6 +487,10 @@ class _Recorder:
             terms = {k: terms.get(k, 0.0) for k in self.h.terms}
         self.h.record(step, seconds, value, terms, metrics, n_params=len(info.x),
                       stage=self.stage)
+        with self.clock.paused():
+            self.bar.update(1)
+            if self.steps % 10 == 1:
+                self.bar.set_postfix(loss=f"{value:.4g}", stage=self.stage)
         if self.callback is not None:
             with self.clock.paused():
                 stop = self.callback({"stage": self.stage, "step": step, "seconds": seconds,
@@ -441,33 +501,43 @@ class _Recorder:
         return False
 
 
-def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
-                      silhouette_method: str = "scipy-lbfgs",
-                      textured_method: str = "lstsq",
+def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | None = None,
+                      recipe: str = "default", silhouette_method: str | None = None,
+                      silhouette_loss: str | None = None, textured_method: str | None = None,
                       silhouette_weights: Mapping[str, float] | None = None,
                       textured_weights: Mapping[str, float] | None = None,
                       silhouette_iters: int = 2000, textured_iters: int = 2000,
                       silhouette_time: float | None = None, textured_time: float | None = None,
-                      large_steps: float | None = None, levels=None,
-                      textured_init: str = "silhouette", views_per_step: int = 2,
+                      large_steps: float | str | None = "auto", levels=None,
+                      textured_init: str | None = None, views_per_step: int = 2,
                       lr: float = 1.0, momentum: float = 0.9, adam_lr: float = 0.01,
                       faces_per_pixel: int = 50, color_reg: float = 1e-4,
                       contour_threshold: float | None = 0.9,
                       evaluate: Callable | None = None, eval_every: float = 5.0,
-                      callback: Callable | None = None, seed=0) -> ViewsFitResult:
+                      callback: Callable | None = None, seed=0,
+                      progress: bool = True) -> ViewsFitResult:
     """Deform a sphere to match multi-view silhouettes, then fit vertex colours (tutorial 4).
 
     Parameters
     ----------
-    views : MultiViewDataset
+    dataset : MultiViewDataset
         Training views: cameras, soft silhouettes and (for a textured stage) RGB images.
     init : Mesh, optional
         Starting mesh (default ``ico_sphere(4)``, or ``ico_sphere(4 - subdivisions)`` when
         ``levels`` subdivide).
-    silhouette_method : str
-        One of :data:`SILHOUETTE_METHODS` (see the module docstring), or ``"none"``.
-    textured_method : str
-        One of :data:`TEXTURED_METHODS`.
+    recipe : {"default", "tutorial", "contour"}
+        Named settings (:data:`RECIPES`) for the options left at None: ``"default"`` is L-BFGS
+        on the soft silhouettes of all views, then least-squares colours; ``"tutorial"`` the
+        tutorial's SGD (two random views per step) for both stages, the textured one from the
+        sphere; ``"contour"`` Adam on the hard silhouette's contour gradients, large steps 10.
+    silhouette_method : {"lbfgs", "lbfgs-nlopt", "sgd", "adam", "none"}, optional
+        Solver of the silhouette stage (see the module docstring); ``"sgd"`` draws
+        ``views_per_step`` random views per step, the others use all views.
+    silhouette_loss : {"soft", "contour"}, optional
+        The soft silhouettes' squared error, or the hard silhouette's contour gradients
+        (``"adam"`` only).
+    textured_method : {"lstsq", "lbfgs", "sgd", "none"}, optional
+        Method of the textured stage.
     silhouette_weights, textured_weights : dict, optional
         Term weights (defaults: the tutorial's, :data:`TUTORIAL_SILHOUETTE_WEIGHTS` and
         :data:`TUTORIAL_TEXTURED_WEIGHTS`).
@@ -476,8 +546,9 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
         split evenly over the levels).
     silhouette_time, textured_time : float, optional
         Time budgets in seconds per stage (solver time).
-    large_steps : float, optional
-        ``lambda`` of the large-steps parameterisation (None: plain vertex positions).
+    large_steps : float, "auto" or None
+        ``lambda`` of the large-steps parameterisation (None: plain vertex positions; "auto":
+        the recipe's).
     levels : sequence of (int, int), optional
         Coarse-to-fine schedule for the L-BFGS and contour methods: per level the number of
         midpoint subdivisions to apply first and the image downsampling factor, e.g.
@@ -485,7 +556,7 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
         resolution. Default: one level at full resolution. The edge, normal and Laplacian
         weights of a level with ``s`` subdivisions still to come are multiplied by ``4**-s``
         (the three terms scale with the squared edge length).
-    textured_init : {"silhouette", "sphere"}
+    textured_init : {"silhouette", "sphere"}, optional
         Start the textured stage from the silhouette result (default) or, as the tutorial
         does, from the initial mesh ``init``.
     views_per_step : int
@@ -516,6 +587,8 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
         stage.
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
+    progress : bool
+        Show a tqdm progress bar (on stderr; one tick per iteration of either stage).
 
     Returns
     -------
@@ -524,13 +597,15 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
         ``failed``, ``diverged``, ``callback``, ``stalled``, ``time_budget``, ``max_eval``,
         ``max_iter``, ``converged``; ``stages`` has each stage's own status and message.
     """
-    if not isinstance(views, MultiViewDataset):
-        raise TypeError(f"views: expected a MultiViewDataset, got {type(views)!r}")
-    check_choice(silhouette_method, "silhouette_method", SILHOUETTE_METHODS + ("none",))
-    check_choice(textured_method, "textured_method", TEXTURED_METHODS)
-    check_choice(textured_init, "textured_init", ("silhouette", "sphere"))
+    if not isinstance(dataset, MultiViewDataset):
+        raise TypeError(f"dataset: expected a MultiViewDataset, got {type(dataset)!r}")
+    views = dataset
+    recipe = recipe_name(recipe, RECIPES, fit="fit_mesh_to_views")
+    silhouette_method, silhouette_loss, textured_method, textured_init, large_steps = \
+        _stage_options(RECIPES[recipe], silhouette_method, silhouette_loss, textured_method,
+                       textured_init, large_steps)
     if textured_method != "none" and views.images is None:
-        raise ValueError("views: a textured stage needs RGB images (views.images is None)")
+        raise ValueError("dataset: a textured stage needs RGB images (dataset.images is None)")
     sw = _check_weights(silhouette_weights, TUTORIAL_SILHOUETTE_WEIGHTS, "silhouette_weights")
     tw = _check_weights(textured_weights, TUTORIAL_TEXTURED_WEIGHTS, "textured_weights")
     for nm, v in (("silhouette_iters", silhouette_iters), ("textured_iters", textured_iters),
@@ -555,6 +630,10 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
     rng = as_rng(seed)
     clock = Clock()
     history = FitHistory()
+    total = (silhouette_iters if silhouette_method != "none" else 0) + \
+        (textured_iters if textured_method in ("sgd", "lbfgs") else 0)
+    bar = progress_bar(progress, total, f"fit_mesh_to_views[{silhouette_method}+"
+                                        f"{textured_method}]")
     stages: list = []
     n_iter_total = 0
     n_eval_total = 0
@@ -568,7 +647,7 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
     # ------------------------------------------------------------------ silhouette stage
     if silhouette_method != "none":
         t_stage = clock.elapsed()
-        if silhouette_method == "tutorial":
+        if silhouette_method == "sgd":
             sub_levels = [(0, 1)]
         else:
             sub_levels = lv
@@ -589,7 +668,7 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
             # coarse level they get the weight that gives them their final-level magnitude
             later = sum(s_ for s_, _ in sub_levels[li + 1:])
             wl = {k: (v * 0.25 ** later if k in _REG_TERMS else v) for k, v in sw.items()}
-            if silhouette_method == "contour":
+            if silhouette_loss == "contour":
                 from ..render.contour import ContourSilhouetteLoss
 
                 closs = ContourSilhouetteLoss(data.cameras, data.silhouettes,
@@ -599,8 +678,8 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
                 obj = _Objective(mesh, data, wl, textured=False, param=param,
                                  settings=settings_for(size),
                                  views_per_step=(views_per_step if silhouette_method
-                                                 == "tutorial" else None), rng=rng)
-            rec = _Recorder(history, clock, evaluate, eval_every, callback, li, step)
+                                                 == "sgd" else None), rng=rng)
+            rec = _Recorder(history, clock, evaluate, eval_every, callback, li, step, bar)
             x0 = param.to_params(mesh.verts)
 
             def mesh_of(x, obj=obj):
@@ -609,13 +688,13 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
             def cb(info, obj=obj, rec=rec, mesh_of=mesh_of):
                 return rec(obj, info, mesh_of, lambda x: None)
 
-            if silhouette_method == "tutorial":
+            if silhouette_method == "sgd":
                 res = sgd(obj, x0, lr=lr, momentum=momentum, n_iter=iters, time_budget=budget,
                           callback=cb, clock=clock)
-            elif silhouette_method == "scipy-lbfgs":
+            elif silhouette_method == "lbfgs":
                 res = lbfgs_scipy(obj, x0, max_iter=iters, time_budget=budget, callback=cb,
                                   clock=clock)
-            elif silhouette_method == "nlopt-lbfgs":
+            elif silhouette_method == "lbfgs-nlopt":
                 res = lbfgs_nlopt(obj, x0, max_eval=iters, time_budget=budget, callback=cb,
                                   clock=clock)
             else:
@@ -660,14 +739,14 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
         data = views
         size = data.image_size
         status, message = "converged", ""
-        if textured_method == "tutorial":
+        if textured_method == "sgd":
             param = _Identity(tex_mesh.n_verts)
             obj = _Objective(tex_mesh, data, tw, textured=True, param=param,
                              settings=settings_for(size, persp=False),
                              views_per_step=views_per_step, rng=rng)
             x0 = np.concatenate([param.to_params(tex_mesh.verts),
                                  np.full(3 * tex_mesh.n_verts, 0.5)])
-            rec = _Recorder(history, clock, evaluate, eval_every, callback, 100, step)
+            rec = _Recorder(history, clock, evaluate, eval_every, callback, 100, step, bar)
 
             def cb(info, obj=obj, rec=rec):
                 return rec(obj, info, lambda x: obj.base.update_verts(obj.split(x)[0]),
@@ -696,7 +775,7 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
                 obj = _Objective(tex_mesh, data, tw, textured=True, param=param,
                                  settings=settings_for(size, persp=False))
                 x0 = np.concatenate([param.to_params(tex_mesh.verts), colors.ravel()])
-                rec = _Recorder(history, clock, evaluate, eval_every, callback, 100, step)
+                rec = _Recorder(history, clock, evaluate, eval_every, callback, 100, step, bar)
 
                 def cb(info, obj=obj, rec=rec):
                     return rec(obj, info, lambda x: obj.base.update_verts(obj.split(x)[0]),
@@ -713,6 +792,7 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
         mesh = Mesh(tex_mesh.verts, tex_mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
         stages.append({"name": "textured", "method": textured_method, "status": status,
                        "message": message, "seconds": clock.elapsed() - t_stage})
+    bar.close()
     if not stages:
         raise ValueError("silhouette_method and textured_method are both 'none': nothing to fit")
     statuses = [s["status"] for s in stages]
@@ -723,7 +803,9 @@ def fit_mesh_to_views(views: MultiViewDataset, *, init: Mesh | None = None,
                           n_params=mesh.n_verts * (6 if colors is not None else 3),
                           seconds=clock.elapsed(), n_iterations=n_iter_total,
                           n_evaluations=n_eval_total, mesh=mesh, colors=colors,
-                          silhouette_mesh=sil_mesh, stages=stages)
+                          silhouette_mesh=sil_mesh, stages=stages,
+                          method=f"{silhouette_method}+{textured_method}", recipe=recipe,
+                          init=init)
 
 
 # =========================================================================================

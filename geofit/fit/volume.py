@@ -4,12 +4,12 @@ The tutorial (``fit_textured_volume``) optimises a dense ``128^3`` grid of log-d
 colour logits, renders it with ``NDCMultinomialRaysampler`` (150 samples per ray over view depths
 [0.1, 3.0]) and PyTorch3D's emission-absorption raymarcher, and minimises Huber losses (scale 0.1)
 on the colours and the silhouettes with Adam (lr 0.1, 300 steps of 10 random views, lr x 0.1 at
-75%). :func:`fit_volume` with ``method="tutorial"`` runs exactly that recipe, with analytic
+75%). :func:`fit_volume` with ``recipe="tutorial"`` runs exactly that recipe, with analytic
 gradients (the raymarcher's vector-Jacobian product, then the transpose of the sparse trilinear
 operator, then the sigmoids).
 
-geofit's own methods (``"lbfgs"``, ``"nlopt-lbfgs"``, ``"adam"``) fit the same model and the same
-renderer, but keep the problem as small as the scene allows:
+geofit's own recipe (``"default"``; methods ``"lbfgs"``, ``"lbfgs-nlopt"``, ``"adam"``) fits the
+same model and the same renderer, but keeps the problem as small as the scene allows:
 
 * **visual hull**: a voxel can be occupied only if its trilinear footprint projects into every
   silhouette (:func:`visual_hull`); all other voxels are fixed empty;
@@ -74,10 +74,12 @@ from ..render.volume import (
 )
 from ..structures.volume import Volume
 from . import solvers
+from ._options import Recipes, dataset_argument, method_name, recipe_name, warn_deprecated
 from .history import Clock, FitHistory, FitResult
 
 __all__ = [
     "FIT_VOLUME_METHODS",
+    "RECIPES",
     "VolumeFitResult",
     "VolumeMetrics",
     "fit_volume",
@@ -87,7 +89,11 @@ __all__ = [
 ]
 
 #: Methods accepted by :func:`fit_volume`.
-FIT_VOLUME_METHODS = ("lbfgs", "nlopt-lbfgs", "adam", "tutorial")
+FIT_VOLUME_METHODS = ("lbfgs", "lbfgs-nlopt", "adam")
+
+#: Recipes of :func:`fit_volume`: geofit's reduced model, or the tutorial's dense grid and Adam.
+RECIPES: dict[str, dict] = Recipes({"default": {"method": "lbfgs"},
+                                    "tutorial": {"method": "adam"}}, fit="fit_volume")
 
 _EPS = 1e-10          # PyTorch3D's EA eps
 _LOGIT_CLIP = 1e-6    # opacities/colours are kept in [clip, 1 - clip] when converted to logits
@@ -384,8 +390,6 @@ class VolumeFitResult(FitResult):
     stages : list of dict
         Per level: grid size, image size, samples per ray, free voxels, rays and samples kept,
         solver status, iterations, seconds.
-    method : str
-        The method used.
     view_losses : (N,) float64 or None
         geofit's methods: each training view's mean loss (colour + silhouette Huber) at the
         end; a view far above the others (reported in ``message``) disagrees with the rest:
@@ -399,7 +403,6 @@ class VolumeFitResult(FitResult):
     samples_per_ray: float = 0.0
     n_pts_per_ray: int = 0
     stages: list = field(default_factory=list)
-    method: str = ""
     view_losses: np.ndarray | None = None
 
     def summary(self) -> dict[str, Any]:
@@ -830,7 +833,7 @@ def _rays(cameras: CamerasBase, R_h: int, R_w: int, n_pts: int, min_depth: float
         -1, n_pts)[0]
 
 
-def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfgs",
+def fit_volume(dataset, *args, recipe: str = "default", method: str | None = None,
                volume_size: int = 128, volume_extent: float = 3.0, n_pts_per_ray: int = 150,
                min_depth: float = 0.1, max_depth: float = 3.0, levels=None,
                iterations=None, carve: bool = True, carve_tolerance: int | None = None,
@@ -845,17 +848,16 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
 
     Parameters
     ----------
-    images : (N, H, W, 3) float64
-        Target RGB images in [0, 1] with a black background (the tutorial's renders).
-    silhouettes : (N, H, W) float64
-        Target silhouettes in [0, 1].
-    cameras : CamerasBase
-        The ``N`` cameras (PyTorch3D conventions).
-    method : {"lbfgs", "nlopt-lbfgs", "adam", "tutorial"}
+    dataset : MultiViewDataset
+        Target RGB images in [0, 1] with a black background (the tutorial's renders), target
+        silhouettes in [0, 1] and the ``N`` cameras (PyTorch3D conventions).
+    recipe : {"default", "tutorial"}
         ``"tutorial"``: PyTorch3D's recipe on the dense grid (Adam, ``n_iter`` steps of
-        ``batch_size`` random views, lr x 0.1 at 75%). The others use geofit's reduced model
-        (hull, coarse to fine, pruning, empty-space skipping) with full-batch scipy L-BFGS,
-        nlopt L-BFGS or Adam (lr ``lr``, x 0.1 for the last quarter of each level).
+        ``batch_size`` random views, lr x 0.1 at 75%). ``"default"``: geofit's reduced model
+        (hull, coarse to fine, pruning, empty-space skipping).
+    method : {"lbfgs", "lbfgs-nlopt", "adam"}, optional
+        Solver of the default recipe: full-batch scipy L-BFGS (default), nlopt L-BFGS or Adam
+        (lr ``lr``, x 0.1 for the last quarter of each level). The tutorial recipe is Adam.
     volume_size : int
         Final grid size (a cube, as the tutorial's 128).
     volume_extent : float
@@ -931,13 +933,10 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
     ValueError
         On inconsistent shapes, non-finite inputs or invalid settings.
     """
-    imgs = as_array(images, "images", (None, None, None, 3))
+    dataset = dataset_argument(dataset, args, fit="fit_volume")
+    imgs, sils, cameras = dataset.images, dataset.silhouettes, dataset.cameras
     N, H, W, _ = imgs.shape
-    if N == 0:
-        raise ValueError("images: expected at least one view, got shape (0, H, W, 3)")
-    sils = as_array(silhouettes, "silhouettes", (N, H, W))
-    cameras = _check_cameras(cameras, N)
-    check_choice(method, "method", FIT_VOLUME_METHODS)
+    recipe, method = _recipe_and_method(recipe, method)
     S = int(volume_size) if isinstance(volume_size, (numbers.Integral, np.integer)) else -1
     if S < 2 or isinstance(volume_size, bool):
         raise ValueError(f"volume_size: expected an integer >= 2, got {volume_size!r}")
@@ -976,10 +975,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         raise TypeError(f"monitor: expected a callable, got {type(monitor)!r}")
     if monitor_every is not None:
         monitor_every = check_positive(monitor_every, "monitor_every")
-    imgs = np.clip(imgs, 0.0, 1.0)
-    sils = np.clip(sils, 0.0, 1.0)
-
-    if method == "tutorial":
+    if recipe == "tutorial":
         if not isinstance(batch_size, (numbers.Integral, np.integer)) or batch_size < 1:
             raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         if not isinstance(n_iter, (numbers.Integral, np.integer)) or n_iter < 1:
@@ -1189,7 +1185,7 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
             res = solvers.lbfgs_scipy(fun, x0, max_iter=n_iter_level, time_budget=remaining,
                                       ftol=1e-12, gtol=1e-12, memory=20, callback=callback,
                                       clock=clock)
-        else:  # nlopt-lbfgs
+        else:  # lbfgs-nlopt
             res = solvers.lbfgs_nlopt(fun, x0, max_eval=int(n_iter_level * 1.25) + 1,
                                       time_budget=remaining, ftol_rel=1e-12, memory=20,
                                       callback=callback, clock=clock)
@@ -1245,7 +1241,22 @@ def _fit_levels(imgs, sils, cameras, S, extent, n_pts_final, min_depth, max_dept
         n_active_voxels=int(last.get("free_density_voxels", 0)),
         n_colour_voxels=int(last.get("colour_voxels", 0)), n_occupied_voxels=n_occ,
         samples_per_ray=float(last.get("samples_per_ray", 0.0)), n_pts_per_ray=n_pts_final,
-        stages=stages, method=method, view_losses=view_losses)
+        stages=stages, method=method, recipe="default", view_losses=view_losses)
+
+
+def _recipe_and_method(recipe, method) -> tuple[str, str]:
+    """The recipe and method of :func:`fit_volume` (the former ``method="tutorial"`` is the
+    tutorial recipe, with a DeprecationWarning)."""
+    if method == "tutorial":
+        warn_deprecated("fit_volume(method='tutorial')", "fit_volume(dataset, recipe='tutorial')",
+                        5)
+        recipe, method = "tutorial", None
+    recipe = recipe_name(recipe, RECIPES, fit="fit_volume")
+    method = method_name(RECIPES[recipe]["method"] if method is None else method, "method",
+                         FIT_VOLUME_METHODS, fit="fit_volume", stacklevel=5)
+    if recipe == "tutorial" and method != "adam":
+        raise ValueError(f"method: the tutorial recipe is Adam's; got method={method!r}")
+    return recipe, method
 
 
 def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, huber_scale, lr,
@@ -1348,4 +1359,4 @@ def _fit_tutorial(imgs, sils, cameras, S, extent, n_pts, min_depth, max_depth, h
         n_evaluations=n_ev, volume=vol,
         n_active_voxels=nv, n_colour_voxels=nv,
         n_occupied_voxels=int(np.count_nonzero(vol.densities)), samples_per_ray=spr,
-        n_pts_per_ray=n_pts, stages=stages, method="tutorial")
+        n_pts_per_ray=n_pts, stages=stages, method="adam", recipe="tutorial")
