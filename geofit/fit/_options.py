@@ -13,9 +13,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["METHODS", "RECIPE_NAMES", "Recipes", "check_int", "dataset_argument", "method_name",
-           "recipe_name",
-           "warn_deprecated"]
+__all__ = ["METHODS", "RECIPE_NAMES", "Recipes", "check_int", "check_weights", "dataset_argument",
+           "method_name", "recipe_name", "warn_deprecated"]
 
 #: Every method (solver) name a geofit fit accepts, and what it is.
 METHODS: dict[str, str] = {
@@ -119,3 +118,26 @@ def _clip01(a, name: str):
     except (TypeError, ValueError):
         raise ValueError(f"{name}: could not convert to a float array") from None
     return np.clip(a, 0.0, 1.0)
+
+
+def check_weights(weights, defaults: Mapping[str, float], name: str, *,
+                  required: str | None = None) -> dict[str, float]:
+    """Term weights: ``defaults`` updated by ``weights`` (None: the defaults), every value a
+    number >= 0 and every name one of ``defaults``; ``required`` must weigh more than 0."""
+    from .._validate import check_positive
+
+    if weights is None:
+        out = dict(defaults)
+    elif not isinstance(weights, Mapping):
+        raise TypeError(f"{name}: expected a dict of term weights, got {type(weights)!r}")
+    else:
+        unknown = set(weights) - set(defaults)
+        if unknown:
+            raise ValueError(f"{name}: unknown terms {sorted(unknown)}; expected some of "
+                             f"{tuple(defaults)}")
+        out = dict(defaults)
+        for k, v in weights.items():
+            out[k] = check_positive(v, f"{name}[{k!r}]", strict=False)
+    if required is not None and not out[required] > 0.0:
+        raise ValueError(f"{name}: the data term {required!r} needs a weight > 0")
+    return out
