@@ -14,15 +14,9 @@ import pytest
 
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
 from geofit.datasets import MultiViewDataset, tutorial_views
-from geofit.fit.views import (
-    SILHOUETTE_METHODS,
-    ViewsEvaluator,
-    _Identity,
-    _LargeSteps,
-    _lstsq_colors,
-    _Objective,
-    fit_mesh_to_views,
-)
+from geofit.fit._views_objective import _lstsq_colors, _Objective
+from geofit.fit.large_steps import IdentityParameterization, LargeSteps
+from geofit.fit.views import SILHOUETTE_METHODS, ViewsEvaluator, fit_mesh_to_views
 from geofit.metrics import psnr, silhouette_iou
 from geofit.render.soft import SoftRasterizationSettings
 
@@ -100,13 +94,16 @@ def test_evaluator_scores_the_truth_perfectly(data):
 
 
 def test_large_steps_parameterisation_is_consistent():
-    """verts(to_params(V)) == V and pullback is the adjoint of verts (<g, J u> = <J^T g, u>)."""
+    """to_verts(to_params(V)) == V and grad_params is the adjoint of to_verts
+    (<g, J u> = <J^T g, u>), on flat parameter vectors as the fits use them."""
     m = ico_sphere(2)
-    p = _LargeSteps(m, 10.0)
-    np.testing.assert_allclose(p.verts(p.to_params(m.verts)), m.verts, atol=1e-12)
-    rng = np.random.default_rng(0)
-    u, g = rng.normal(size=3 * m.n_verts), rng.normal(size=(m.n_verts, 3))
-    assert np.sum(g * p.verts(u)) == pytest.approx(np.sum(p.pullback(g) * u), rel=1e-12)
+    for p in (LargeSteps(m, 10.0), IdentityParameterization(m)):
+        np.testing.assert_allclose(p.to_verts(p.to_params(m.verts).ravel()), m.verts,
+                                   atol=1e-12)
+        rng = np.random.default_rng(0)
+        u, g = rng.normal(size=3 * m.n_verts), rng.normal(size=(m.n_verts, 3))
+        assert np.sum(g * p.to_verts(u)) == pytest.approx(np.sum(p.grad_params(g).ravel() * u),
+                                                          rel=1e-12)
 
 
 @pytest.mark.parametrize("textured,large", [(False, None), (True, None), (False, 5.0)])
@@ -115,11 +112,11 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     a central difference along a random direction matches <grad, u>."""
     m = ico_sphere(2)
     m = m.update_verts(m.verts * 0.7)
-    param = _LargeSteps(m, large) if large else _Identity(m.n_verts)
+    param = LargeSteps(m, large) if large else IdentityParameterization(m)
     weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
     st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None)
     obj = _Objective(m, data, weights, textured=textured, param=param, settings=st)
-    x = param.to_params(m.verts)
+    x = param.to_params(m.verts).ravel()
     if textured:
         x = np.concatenate([x, np.random.default_rng(1).uniform(0.2, 0.8, 3 * m.n_verts)])
     f, g = obj(x)
