@@ -6,7 +6,7 @@ runs in seconds and needs no data files.
 import numpy as np
 import pytest
 
-import geofit.fit.volume as fv
+import geofit.fit._volume_problem as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import MultiViewDataset
 from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
@@ -389,3 +389,32 @@ def test_cli_fit_volume(tmp_path):
     assert (tmp_path / "volume_rotation.gif").stat().st_size > 0
     with pytest.raises(SystemExit):   # argparse rejects a malformed level list
         main(["fit-volume", "--levels", "8,x", "--out", str(tmp_path)])
+
+
+def test_one_visual_hull_for_fit_volume_and_occupancy_grid(scene):
+    """OccupancyGrid.from_silhouettes and fit_volume's visual_hull are one implementation
+    (geofit.structures.volume.carve): the occupancy grid equals a per-voxel reference loop
+    (a voxel is kept when the pixel of its centre is inside every dilated silhouette)."""
+    from scipy.ndimage import binary_dilation
+
+    import geofit.fit.volume
+    from geofit.render.implicit import OccupancyGrid
+    from geofit.structures import volume as sv
+
+    assert geofit.fit.volume.visual_hull is sv.visual_hull
+    _, sils, cams, _, _ = scene
+    grid = OccupancyGrid.from_silhouettes(sils, cams, resolution=8, dilate_pixels=1)
+    masks = np.stack([binary_dilation(s > 0.5, np.ones((3, 3), bool)) for s in sils])
+    M = cams.get_full_projection_transform()
+    N, H, W = sils.shape
+    expected = np.ones(8 ** 3, bool)
+    for k, c in enumerate(grid.centers().reshape(-1, 3)):  # voxels (reference loop)
+        for v in range(N):  # views
+            h = np.append(c, 1.0) @ M[v]
+            col = np.rint((W - 1 - h[0] / h[3] * min(H, W)) / 2.0)
+            row = np.rint((H - 1 - h[1] / h[3] * min(H, W)) / 2.0)
+            if not (h[3] > 0 and 0 <= col < W and 0 <= row < H and masks[v, int(row), int(col)]):
+                expected[k] = False
+                break
+    np.testing.assert_array_equal(grid.occupied.reshape(-1), expected)
+    assert 0 < expected.sum() < expected.size

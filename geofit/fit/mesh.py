@@ -9,8 +9,9 @@ The objective is a weighted sum of a data term and three regularisers of the sou
   :func:`~geofit.loss.mesh_normal_consistency`, :func:`~geofit.loss.mesh_laplacian_smoothing`
   (uniform), PyTorch3D's definitions.
 * ``D`` with ``distance="points"``: PyTorch3D's ``chamfer_distance`` between ``n`` samples of the
-  source, ``P = B V`` (``B`` the sparse sampling matrix of :func:`geofit.ops.sample_points_from_meshes`),
-  and ``n`` samples ``Y`` of the target. ``dD/dV = B^T dD/dP``.
+  source, ``P = B V`` (``B`` the sparse sampling matrix of
+  :func:`geofit.ops.sample_points_from_meshes`), and ``n`` samples ``Y`` of the target.
+  ``dD/dV = B^T dD/dP``.
 * ``D`` with ``distance="surface"``: exact point-to-surface distances both ways, with no
   sample-to-sample bias: ``mean_i d(P_i, target)^2`` (:class:`geofit.loss.PointToSurface`) plus
   ``mean_j |Y_j - C_j|^2``, where ``C_j = Bc_j V`` is the closest point of the *source* surface
@@ -314,8 +315,8 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
         Solver (default: the recipe's). ``"lbfgs"`` is scipy's L-BFGS-B, ``"lbfgs-nlopt"``
         nlopt's LD_LBFGS. ``"sgd"`` reproduces the tutorial exactly by default (5000 fresh
         samples a side per step, point-to-point chamfer, weights 1 / 1 / 0.01 / 0.1, lr 1.0,
-        momentum 0.9, 2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS solvers use
-        deterministic stages (fixed samples, redrawn between stages).
+        momentum 0.9, 2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS
+        solvers use deterministic stages (fixed samples, redrawn between stages).
     weights : dict or sequence of dict, optional
         Term weights (``"chamfer"``, ``"edge"``, ``"normal"``, ``"laplacian"``). A sequence gives
         the weights of stage 0, 1, ... (the last one repeats). Default: the tutorial's for
