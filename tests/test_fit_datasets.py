@@ -135,3 +135,26 @@ def test_deprecated_dataset_names_warn_and_agree():
     np.testing.assert_array_equal(g.images, t5.images)
     with pytest.warns(DeprecationWarning, match="mesh_name"):
         assert g.mesh_name == "mesh"
+
+
+def test_every_multi_view_fit_shows_a_progress_bar_unless_asked_not_to(capsys):
+    """fit_mesh_to_views, fit_volume and fit_nerf draw a tqdm bar on stderr by default and
+    nothing with progress=False."""
+    from geofit.fit import fit_mesh_to_views, fit_nerf, fit_volume
+    from geofit.fit.nerf import NerfConfig
+
+    t4 = tutorial_views(4, mesh=_object(), num_views=3, image_size=16, num_held_out=0)
+    t5 = tutorial_views(5, mesh=_object(), num_views=4, image_size=16, num_held_out=0)
+    cfg = NerfConfig.scene(n_iter=3, n_hidden_neurons=8, n_rays_per_image=16, n_pts_per_ray=16,
+                           hull_resolution=16, n_threads=1)
+    runs = {"fit_mesh_to_views": lambda p: fit_mesh_to_views(
+                t4, init=ico_sphere(1), silhouette_iters=2, textured_method="none", progress=p),
+            "fit_volume": lambda p: fit_volume(t5, volume_size=8, n_pts_per_ray=16,
+                                               iterations=2, progress=p),
+            "fit_nerf": lambda p: fit_nerf(t5, config=cfg, progress=p)}
+    for name, run in runs.items():  # fits
+        capsys.readouterr()
+        run(True)
+        assert name in capsys.readouterr().err
+        run(False)
+        assert capsys.readouterr().err == ""

@@ -324,49 +324,49 @@ def test_save_obj_round_trip(tmp_path):
 def test_validation():
     tgt = ico_sphere(2)
     with pytest.raises(ValueError, match="method"):
-        fit_mesh(tgt, init=1, method="bfgs")
+        fit_mesh(tgt, init=1, method="bfgs", progress=False)
     with pytest.raises(ValueError, match="recipe"):
-        fit_mesh(tgt, recipe="fast")
+        fit_mesh(tgt, recipe="fast", progress=False)
     with pytest.raises(ValueError, match="unknown terms"):
-        fit_mesh(tgt, init=1, weights={"chamfer": 1, "smooth": 1})
+        fit_mesh(tgt, init=1, weights={"chamfer": 1, "smooth": 1}, progress=False)
     with pytest.raises(ValueError, match="edge"):
-        fit_mesh(tgt, init=1, weights={"chamfer": 1, "edge": -1})
+        fit_mesh(tgt, init=1, weights={"chamfer": 1, "edge": -1}, progress=False)
     with pytest.raises(ValueError, match="'chamfer' needs a weight"):
-        fit_mesh(tgt, init=1, weights={"edge": 1})
+        fit_mesh(tgt, init=1, weights={"edge": 1}, progress=False)
     with pytest.raises(ValueError, match="coarse_to_fine"):
-        fit_mesh(tgt, method="sgd", coarse_to_fine=True)
+        fit_mesh(tgt, method="sgd", coarse_to_fine=True, progress=False)
     with pytest.raises(TypeError, match="coarse_to_fine"):
-        fit_mesh(tgt, coarse_to_fine="yes")
+        fit_mesh(tgt, coarse_to_fine="yes", progress=False)
     with pytest.raises(ValueError, match="n_stages"):
-        fit_mesh(tgt, init=1, method="adam", n_stages=2)
+        fit_mesh(tgt, init=1, method="adam", n_stages=2, progress=False)
     with pytest.raises(ValueError, match="distance"):
-        fit_mesh(tgt, init=1, distance="l1")
+        fit_mesh(tgt, init=1, distance="l1", progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh(tgt, init=1, large_steps="big")
+        fit_mesh(tgt, init=1, large_steps="big", progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh(tgt, init=1, large_steps=-1.0)
+        fit_mesh(tgt, init=1, large_steps=-1.0, progress=False)
     with pytest.raises(ValueError, match="n_samples"):
-        fit_mesh(tgt, init=1, n_samples=0)
+        fit_mesh(tgt, init=1, n_samples=0, progress=False)
     with pytest.raises(ValueError, match="lr"):
-        fit_mesh(tgt, init=1, method="sgd", lr=-1)
+        fit_mesh(tgt, init=1, method="sgd", lr=-1, progress=False)
     with pytest.raises(ValueError, match="time_budget"):
-        fit_mesh(tgt, init=1, time_budget=0)
+        fit_mesh(tgt, init=1, time_budget=0, progress=False)
     with pytest.raises(ValueError, match="checkpoint_every"):
-        fit_mesh(tgt, init=1, checkpoint_every=0)
+        fit_mesh(tgt, init=1, checkpoint_every=0, progress=False)
     with pytest.raises(ValueError, match="evaluator"):
-        fit_mesh(tgt, init=1, evaluator="fast")
+        fit_mesh(tgt, init=1, evaluator="fast", progress=False)
     with pytest.raises(TypeError, match="evaluator"):
-        fit_mesh(tgt, init=1, evaluator=3)
+        fit_mesh(tgt, init=1, evaluator=3, progress=False)
     with pytest.raises(TypeError, match="init"):
-        fit_mesh(tgt, init="sphere")
+        fit_mesh(tgt, init="sphere", progress=False)
     with pytest.raises(TypeError, match="target"):
-        fit_mesh(tgt.verts, init=1)
+        fit_mesh(tgt.verts, init=1, progress=False)
     with pytest.raises(ValueError, match="init: the surface has zero area"):
-        fit_mesh(tgt, init=Mesh(np.zeros((3, 3)), [[0, 1, 2]]))
+        fit_mesh(tgt, init=Mesh(np.zeros((3, 3)), [[0, 1, 2]]), progress=False)
     with pytest.raises(ValueError, match="target: expected a mesh with at least one face"):
-        fit_mesh((tgt.verts, np.zeros((0, 3), np.int64)), init=1)
+        fit_mesh((tgt.verts, np.zeros((0, 3), np.int64)), init=1, progress=False)
     with pytest.raises(TypeError, match="positional"):
-        fit_mesh(tgt, 1, tgt)
+        fit_mesh(tgt, 1, tgt, progress=False)
     with pytest.raises(ValueError, match="start_level"):
         CoarseToFine(start_level=-1)
     with pytest.raises(ValueError, match="max_level"):

@@ -192,7 +192,8 @@ def test_textured_fit_is_finite_at_every_step(data):
     for method, init in (("sgd", "sphere"), ("lbfgs", "silhouette")):
         res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
                                 silhouette_iters=15, textured_method=method,
-                                textured_init=init, textured_iters=15, callback=check)
+                                textured_init=init, textured_iters=15, callback=check,
+                                progress=False)
         assert res.ok, res.message
         assert np.all(np.isfinite(res.history.loss))
         assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
@@ -205,11 +206,12 @@ def test_textured_stage_improves_psnr(data):
     and colours) then lowers its training loss without losing held-out PSNR."""
     ev = ViewsEvaluator(data.held_out)
     res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
-                            silhouette_iters=25, textured_method="lbfgs", textured_iters=10)
+                            silhouette_iters=25, textured_method="lbfgs", textured_iters=10,
+                            progress=False)
     sil = res.silhouette_mesh
     grey = ev(sil, np.full((sil.n_verts, 3), 0.5))["psnr"]
     lsq = fit_mesh_to_views(data, init=sil, silhouette_method="none",
-                            textured_method="lstsq")
+                            textured_method="lstsq", progress=False)
     assert lsq.stages[0]["name"] == "textured" and lsq.n_iterations == 0
     p_lsq = ev(lsq.mesh, lsq.colors)["psnr"]
     assert p_lsq > grey + 0.5
@@ -227,12 +229,12 @@ def test_evaluate_and_callback_hooks(data):
     ev = ViewsEvaluator(data.held_out)
     res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
                             silhouette_iters=10, textured_method="none",
-                            evaluate=lambda m, c: ev(m, c), eval_every=0.0)
+                            evaluate=lambda m, c: ev(m, c), eval_every=0.0, progress=False)
     assert len(res.history.checkpoints) == len(res.history)
     assert res.history.metric_names == ("iou",)
     res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
                             silhouette_iters=50, textured_method="none",
-                            callback=lambda rec: rec["step"] >= 5)
+                            callback=lambda rec: rec["step"] >= 5, progress=False)
     assert res.status == "callback" and len(res.history) == 5
 
 
@@ -274,7 +276,7 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
         init = init.update_verts(init.verts * 0.6 + [0.3, 0.2, 0.0])
     for method in ("lbfgs", "sgd"):
         res = fit_mesh_to_views(views, init=init, silhouette_method=method, silhouette_iters=20,
-                                textured_method="lstsq")
+                                textured_method="lstsq", progress=False)
         assert res.status in ("converged", "max_iter", "max_eval", "stalled", "time_budget")
         assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
         assert _iou(data, res.mesh) >= _iou(data, init) - 1e-9
@@ -288,44 +290,45 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
 def test_validation(data):
     tr = data
     with pytest.raises(TypeError, match="dataset"):
-        fit_mesh_to_views(tr.silhouettes)
+        fit_mesh_to_views(tr.silhouettes, progress=False)
     with pytest.raises(ValueError, match="recipe"):
-        fit_mesh_to_views(tr, recipe="fast")
+        fit_mesh_to_views(tr, recipe="fast", progress=False)
     with pytest.raises(ValueError, match="silhouette_loss"):
-        fit_mesh_to_views(tr, silhouette_loss="hard")
+        fit_mesh_to_views(tr, silhouette_loss="hard", progress=False)
     with pytest.raises(ValueError, match="silhouette_loss"):
-        fit_mesh_to_views(tr, silhouette_loss="contour", silhouette_method="lbfgs")
+        fit_mesh_to_views(tr, silhouette_loss="contour", silhouette_method="lbfgs", progress=False)
     with pytest.raises(ValueError, match="silhouette_method"):
-        fit_mesh_to_views(tr, silhouette_method="adamw")
+        fit_mesh_to_views(tr, silhouette_method="adamw", progress=False)
     with pytest.raises(ValueError, match="textured_method"):
-        fit_mesh_to_views(tr, textured_method="adam")
+        fit_mesh_to_views(tr, textured_method="adam", progress=False)
     with pytest.raises(ValueError, match="textured_init"):
-        fit_mesh_to_views(tr, textured_init="cube")
+        fit_mesh_to_views(tr, textured_init="cube", progress=False)
     with pytest.raises(ValueError, match="dataset"):
         fit_mesh_to_views(MultiViewDataset(images=None, silhouettes=tr.silhouettes,
-                                           cameras=tr.cameras), textured_method="lstsq")
+                                           cameras=tr.cameras), textured_method="lstsq",
+                          progress=False)
     with pytest.raises(ValueError, match="silhouette_weights"):
-        fit_mesh_to_views(tr, silhouette_weights={"chamfer": 1.0})
+        fit_mesh_to_views(tr, silhouette_weights={"chamfer": 1.0}, progress=False)
     with pytest.raises(ValueError, match="textured_weights"):
-        fit_mesh_to_views(tr, textured_weights={"rgb": -1.0})
+        fit_mesh_to_views(tr, textured_weights={"rgb": -1.0}, progress=False)
     with pytest.raises(TypeError, match="silhouette_weights"):
-        fit_mesh_to_views(tr, silhouette_weights=[1.0])
+        fit_mesh_to_views(tr, silhouette_weights=[1.0], progress=False)
     with pytest.raises(ValueError, match="silhouette_iters"):
-        fit_mesh_to_views(tr, silhouette_iters=0)
+        fit_mesh_to_views(tr, silhouette_iters=0, progress=False)
     with pytest.raises(ValueError, match="views_per_step"):
-        fit_mesh_to_views(tr, views_per_step=7)
+        fit_mesh_to_views(tr, views_per_step=7, progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh_to_views(tr, large_steps=-1.0)
+        fit_mesh_to_views(tr, large_steps=-1.0, progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(0,)])
+        fit_mesh_to_views(tr, levels=[(0,)], progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(-1, 1)])
+        fit_mesh_to_views(tr, levels=[(-1, 1)], progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(0, 5)])
+        fit_mesh_to_views(tr, levels=[(0, 5)], progress=False)
     with pytest.raises(TypeError, match="init"):
-        fit_mesh_to_views(tr, init=np.zeros((3, 3)))
+        fit_mesh_to_views(tr, init=np.zeros((3, 3)), progress=False)
     with pytest.raises(ValueError, match="nothing to fit"):
-        fit_mesh_to_views(tr, silhouette_method="none", textured_method="none")
+        fit_mesh_to_views(tr, silhouette_method="none", textured_method="none", progress=False)
     with pytest.raises(ValueError, match="factor"):
         tr.downsample(5)
     with pytest.raises(TypeError, match="mesh"):
@@ -364,7 +367,8 @@ def test_former_method_names_and_data_type_warn_and_agree(data):
     DeprecationWarning and fit exactly as the current names; the recipes set the stages."""
     from geofit.fit.views import MultiViewData
 
-    kw = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_method": "none"}
+    kw = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_method": "none",
+          "progress": False}
     new = fit_mesh_to_views(data, silhouette_method="lbfgs", **kw)
     assert new.method == "lbfgs+none" and new.recipe == "default" and new.init is kw["init"]
     with pytest.warns(DeprecationWarning, match="scipy-lbfgs"):
@@ -375,12 +379,12 @@ def test_former_method_names_and_data_type_warn_and_agree(data):
     np.testing.assert_array_equal(fit_mesh_to_views(mv, silhouette_method="lbfgs", **kw)
                                   .mesh.verts, new.mesh.verts)
     tut = fit_mesh_to_views(data, recipe="tutorial", init=ico_sphere(1), silhouette_iters=3,
-                            textured_iters=2)
+                            textured_iters=2, progress=False)
     with pytest.warns(DeprecationWarning, match="silhouette_method='tutorial'"), \
             pytest.warns(DeprecationWarning, match="textured_method='tutorial'"):
         old = fit_mesh_to_views(data, silhouette_method="tutorial", textured_method="tutorial",
                                 textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
-                                textured_iters=2)
+                                textured_iters=2, progress=False)
     assert tut.method == "sgd+sgd" and [s["method"] for s in old.stages] == ["sgd", "sgd"]
     np.testing.assert_array_equal(old.colors, tut.colors)
     with pytest.warns(DeprecationWarning, match="silhouette_method='contour'"):

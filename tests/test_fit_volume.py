@@ -180,7 +180,7 @@ def test_fit_recovers_the_scene(scene, method):
     """geofit's methods fit the training views well with fewer voxels and samples than dense."""
     images, sils, cams, _, renderer = scene
     res = fit_volume(_ds(images, sils, cams), method=method, volume_size=16, n_pts_per_ray=N_PTS,
-                     levels=(8, 16), iterations=(40, 40), precision="float64")
+                     levels=(8, 16), iterations=(40, 40), precision="float64", progress=False)
     assert isinstance(res, VolumeFitResult) and res.ok
     assert res.status in ("max_iter", "converged", "stalled", "max_eval")
     assert res.volume.grid_size == (16, 16, 16)
@@ -202,7 +202,7 @@ def test_tutorial_recipe_runs_dense(scene):
     res = fit_volume(_ds(images, sils, cams), recipe="tutorial", volume_size=16,
                      n_pts_per_ray=N_PTS, batch_size=3, n_iter=12, seed=0,
                      monitor=lambda v: seen.append(v) or {"n": float(len(seen))},
-                     monitor_every=1e9)
+                     monitor_every=1e9, progress=False)
     assert res.status == "max_iter" and res.n_iterations == 12
     assert res.n_active_voxels == 16 ** 3 and res.n_params == 4 * 16 ** 3
     assert len(res.history) == 12 and len(seen) == 1
@@ -221,10 +221,10 @@ def test_monitor_and_time_budget(scene):
         return {"mean_density": float(vol.densities.mean())}
 
     res = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                     iterations=(5, 5), monitor=monitor)
+                     iterations=(5, 5), monitor=monitor, progress=False)
     assert len(calls) >= 2 and "mean_density" in res.history.metric_names
     quick = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                       iterations=(500, 500), time_budget=0.05)
+                       iterations=(500, 500), time_budget=0.05, progress=False)
     assert quick.status == "time_budget"
     assert np.all(np.isfinite(quick.volume.densities))
 
@@ -236,7 +236,7 @@ def test_all_black_target_is_empty_not_nan(scene):
     """Black images and empty silhouettes: nothing is carved in, the volume stays finite."""
     images, sils, cams, _, renderer = scene
     res = fit_volume(_ds(np.zeros_like(images), np.zeros_like(sils), cams), volume_size=16,
-                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
+                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10), progress=False)
     assert res.ok and np.all(np.isfinite(res.volume.densities))
     assert res.n_active_voxels == 0 and res.volume.densities.max() == 0.0
     img, _ = renderer(cams, res.volume)
@@ -247,12 +247,12 @@ def test_huge_learning_rate_stays_finite(scene):
     """Adam with lr 1e6 saturates the sigmoids but never produces NaN."""
     images, sils, cams, _, _ = scene
     res = fit_volume(_ds(images, sils, cams), method="adam", lr=1e6, volume_size=16,
-                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
+                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10), progress=False)
     assert res.status == "diverged" and "learning rate" in res.message
     assert np.all(np.isfinite(res.volume.densities)) and np.all(np.isfinite(res.volume.features))
     assert np.all(np.isfinite(res.history.as_arrays()["loss"]))
     tut = fit_volume(_ds(images, sils, cams), recipe="tutorial", lr=1e6, volume_size=16,
-                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=6)
+                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=6, progress=False)
     assert tut.status == "diverged" and "saturation" in tut.message
     assert np.all(np.isfinite(tut.volume.densities))
 
@@ -269,7 +269,7 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
         2.7, 40.0, 123.0)[1][0]
     wrong = FoVPerspectiveCameras(R=R, T=T)
     res = fit_volume(_ds(noisy, sils, wrong), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                     iterations=(30, 30), carve_tolerance=1)
+                     iterations=(30, 30), carve_tolerance=1, progress=False)
     assert res.ok
     assert res.view_losses.shape == (len(images),) and np.argmax(res.view_losses) == 2
     assert "views [2] fit much worse" in res.message
@@ -282,31 +282,32 @@ def test_fit_validation(scene):
     """Invalid inputs and settings raise ValueError/TypeError naming the argument."""
     images, sils, cams, _, _ = scene
     with pytest.raises(TypeError, match="dataset"):
-        fit_volume(images)
+        fit_volume(images, progress=False)
     with pytest.raises(ValueError, match="dataset"):
-        fit_volume(MultiViewDataset(images=None, silhouettes=sils, cameras=cams))
+        fit_volume(MultiViewDataset(images=None, silhouettes=sils, cameras=cams), progress=False)
     with pytest.raises(ValueError, match="recipe"):
-        fit_volume(_ds(images, sils, cams), recipe="dense")
+        fit_volume(_ds(images, sils, cams), recipe="dense", progress=False)
     with pytest.raises(ValueError, match="method"):
-        fit_volume(_ds(images, sils, cams), recipe="tutorial", method="lbfgs")
+        fit_volume(_ds(images, sils, cams), recipe="tutorial", method="lbfgs", progress=False)
     with pytest.raises(ValueError, match="method"):
-        fit_volume(_ds(images, sils, cams), method="sgd")
+        fit_volume(_ds(images, sils, cams), method="sgd", progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(16, 8))
+        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(16, 8), progress=False)
     with pytest.raises(ValueError, match="volume_size"):
-        fit_volume(_ds(images, sils, cams), volume_size=1)
+        fit_volume(_ds(images, sils, cams), volume_size=1, progress=False)
     with pytest.raises(ValueError, match="iterations"):
-        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(8, 16), iterations=(0, 1))
+        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(8, 16), iterations=(0, 1),
+                   progress=False)
     with pytest.raises(ValueError, match="termination"):
-        fit_volume(_ds(images, sils, cams), termination=2.0)
+        fit_volume(_ds(images, sils, cams), termination=2.0, progress=False)
     with pytest.raises(ValueError, match="precision"):
-        fit_volume(_ds(images, sils, cams), precision="float16")
+        fit_volume(_ds(images, sils, cams), precision="float16", progress=False)
     with pytest.raises(ValueError, match="max_depth"):
-        fit_volume(_ds(images, sils, cams), min_depth=3.0, max_depth=1.0)
+        fit_volume(_ds(images, sils, cams), min_depth=3.0, max_depth=1.0, progress=False)
     with pytest.raises(ValueError, match="batch_size"):
-        fit_volume(_ds(images, sils, cams), recipe="tutorial", batch_size=0)
+        fit_volume(_ds(images, sils, cams), recipe="tutorial", batch_size=0, progress=False)
     with pytest.raises(TypeError, match="monitor"):
-        fit_volume(_ds(images, sils, cams), monitor=3)
+        fit_volume(_ds(images, sils, cams), monitor=3, progress=False)
     assert set(FIT_VOLUME_METHODS) == {"lbfgs", "lbfgs-nlopt", "adam"}
 
 
@@ -315,24 +316,24 @@ def test_former_call_form_warns_and_agrees(scene):
     one release with a DeprecationWarning; the former form still validates its arrays."""
     images, sils, cams, _, _ = scene
     kw = {"volume_size": 16, "n_pts_per_ray": N_PTS, "levels": (8, 16), "iterations": (3, 3)}
-    new = fit_volume(_ds(images, sils, cams), **kw)
+    new = fit_volume(_ds(images, sils, cams), **kw, progress=False)
     assert new.method == "lbfgs" and new.recipe == "default" and new.init is None
     with pytest.warns(DeprecationWarning, match=r"fit_volume\(images, silhouettes, cameras"):
-        old = fit_volume(images, sils, cams, **kw)
+        old = fit_volume(images, sils, cams, **kw, progress=False)
     np.testing.assert_array_equal(old.volume.densities, new.volume.densities)
     with pytest.warns(DeprecationWarning, match="method='tutorial'"):
         tut = fit_volume(_ds(images, sils, cams), method="tutorial", volume_size=8,
-                         n_pts_per_ray=N_PTS, batch_size=2, n_iter=2)
+                         n_pts_per_ray=N_PTS, batch_size=2, n_iter=2, progress=False)
     assert tut.recipe == "tutorial" and tut.method == "adam"
     with pytest.warns(DeprecationWarning, match="nlopt-lbfgs"):
-        fit_volume(_ds(images, sils, cams), method="nlopt-lbfgs", **kw)
+        fit_volume(_ds(images, sils, cams), method="nlopt-lbfgs", **kw, progress=False)
     for bad, name in ((images[..., :2], "images"), (np.full_like(images, np.nan), "images")):
         with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=name):
-            fit_volume(bad, sils, cams)
+            fit_volume(bad, sils, cams, progress=False)
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="silhouettes"):
-        fit_volume(images, sils[:3], cams)
+        fit_volume(images, sils[:3], cams, progress=False)
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="cameras"):
-        fit_volume(images, sils, cams[:2])
+        fit_volume(images, sils, cams[:2], progress=False)
 
 
 

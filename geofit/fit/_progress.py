@@ -12,6 +12,7 @@ class NoBar:
     """The bar of ``progress=False``: does nothing."""
 
     disable = True
+    n = 0
 
     def update(self, n=1):
         pass
