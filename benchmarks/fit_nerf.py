@@ -72,7 +72,7 @@ def run_method(name: str, label: str, config: NerfConfig, train, test, *, time_b
                   f"{info['psnr']:.2f} dB  (load {load_average()[:1]})", flush=True)
 
     res = fit_nerf(train, config=config, held_out=test, time_budget=time_budget,
-                   eval_every=eval_every, seed=seed, callback=cb)
+                   eval_every=eval_every, seed=seed, callback=cb, progress=False)
     run.curve["wall_seconds"] = wall
     run.curve["cpu_seconds"] = cpu
     steps = res.n_iterations
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
             cfg = NerfConfig.tutorial(n_iter=tut_steps, n_rays_per_image=100, n_pts_per_ray=32)
         print(f"tutorial network, {tut_steps} steps ...", flush=True)
         t0, c0 = time.perf_counter(), time.process_time()
-        res = fit_nerf(train, config=cfg, seed=0)
+        res = fit_nerf(train, config=cfg, seed=0, progress=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         hull = OccupancyGrid.from_silhouettes(train.silhouettes, train.cameras,
                                               resolution=96 if not quick else 32).dilate(1)
@@ -338,7 +338,8 @@ def stability(train, test, out: Path, *, quick: bool, budget: float) -> None:
         print(f"stability case {name} ...", flush=True)
         every = budget / (15 if "early_stopping" in extra else 5)
         res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams), config=cfg,
-                       held_out=test, time_budget=budget, eval_every=every, seed=0, **extra)
+                       held_out=test, time_budget=budget, eval_every=every, seed=0,
+                       progress=False, **extra)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)

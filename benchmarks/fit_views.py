@@ -129,7 +129,7 @@ def run_method(name, ds, ev, quick, budget, eval_every) -> MethodRun:
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     fit = fit_mesh_to_views(ds, init=init, evaluate=evaluate, eval_every=eval_every,
-                            seed=0, **kw)
+                            seed=0, progress=False, **kw)
     wall = time.perf_counter() - t0
     final = ev(fit.mesh, fit.colors if fit.colors is not None else np.full(
         (fit.mesh.n_verts, 3), 0.5))
@@ -202,7 +202,7 @@ def memory_report(ds) -> dict:
                       {"silhouette_method": "none", "textured_method": "lbfgs",
                            "textured_iters": 1})):
         tracemalloc.start()
-        fit_mesh_to_views(ds, init=m, **kw)
+        fit_mesh_to_views(ds, init=m, progress=False, **kw)
         out[name] = {"peak_traced_mb": tracemalloc.get_traced_memory()[1] / 2 ** 20}
         tracemalloc.stop()
     return out
@@ -258,7 +258,7 @@ def run_stability(ds, ev, quick: bool, budget: float) -> list[dict]:
 
             t0 = time.perf_counter()
             try:
-                fit = fit_mesh_to_views(views, init=init, callback=cb, **kw)
+                fit = fit_mesh_to_views(views, init=init, callback=cb, progress=False, **kw)
                 m = ev(fit.mesh, fit.colors)
                 row = {"case": case, "method": name, "status": fit.status,
                        "message": fit.message, "seconds": fit.seconds,

@@ -82,7 +82,7 @@ def run_method(name: str, label: str, train, test, *, verbose=True, monitor_ever
         return out
 
     res = fit_volume(train, monitor=monitor, monitor_every=monitor_every, verbose=verbose,
-                     **kw)
+                     progress=False, **kw)
     wall_total = time.perf_counter() - t0
     cpu = cpu_seconds() - c0
     h = res.history
@@ -196,7 +196,7 @@ def stability(train, test, args) -> tuple[list, list]:
             opts.pop("iterations", None)
         t0 = time.perf_counter()
         try:
-            res = fit_volume(MultiViewDataset(**inputs), **opts)
+            res = fit_volume(MultiViewDataset(**inputs), progress=False, **opts)
             error = None
         except Exception as exc:  # a stress case must end with a status, not a crash
             res, error = None, f"{type(exc).__name__}: {exc}"

@@ -352,7 +352,7 @@ def test_cli_fit_views(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))   # no tutorial data: stand-in
     code = main(["fit-views", "--out", str(tmp_path), "--views", "4", "--image-size", "24",
                  "--heldout", "2", "--silhouette-iters", "5", "--textured-iters", "3",
-                 "--init-level", "1"])
+                 "--init-level", "1", "--no-progress"])
     assert code == 0
     summary = json.loads((tmp_path / "fit_views.json").read_text())
     assert summary["status"] in ("converged", "max_iter", "max_eval", "stalled")

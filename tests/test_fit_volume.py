@@ -378,7 +378,7 @@ def test_cli_fit_volume(tmp_path):
     from geofit.cli import main
 
     code = main(["fit-volume", "--size", "16", "--levels", "8,16", "--iters", "3,3",
-                 "--views", "4", "--image-size", "16", "--frames", "2", "--quiet",
+                 "--views", "4", "--image-size", "16", "--frames", "2", "--quiet", "--no-progress",
                  "--out", str(tmp_path)])
     assert code == 0
     summary = json.loads((tmp_path / "volume_summary.json").read_text())

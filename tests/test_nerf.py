@@ -627,6 +627,7 @@ def test_cli_fit_nerf_writes_outputs(tmp_path, capsys):
 
     code = main(["fit-nerf", "--views", "4", "--image-size", "16", "--time", "1",
                  "--iters", "5", "--frames", "2", "--width", "8", "--threads", "1", "--quiet",
+                 "--no-progress",
                  "--out", str(tmp_path)])
     assert code == 0
     summary = json.loads((tmp_path / "nerf_summary.json").read_text())

@@ -51,6 +51,7 @@ def add_view_args(p: argparse.ArgumentParser) -> None:
 
 
 def add_output_args(p: argparse.ArgumentParser) -> None:
-    """``--quiet`` and ``--out``."""
+    """``--quiet``, ``--no-progress`` and ``--out``."""
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", default="out", help="output folder (default: out)")

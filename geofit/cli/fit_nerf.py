@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         recipe = "default" if args.preset == "scene" else "tutorial"
     res = fit_nerf(train, recipe=recipe, held_out=test, time_budget=args.time,
                    early_stopping=args.early_stopping, seed=args.seed, verbose=not args.quiet,
-                   **overrides)
+                   progress=not args.no_progress, **overrides)
     summary = res.summary()
     summary["history"] = res.history.to_dict()
     (out / "nerf_summary.json").write_text(json.dumps(summary, indent=1) + "\n",

@@ -62,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
           "textured_iters": args.textured_iters, "silhouette_time": args.time,
           "large_steps": None if stochastic else args.large_steps, "levels": levels,
           "seed": args.seed}
-    fit = fit_mesh_to_views(ds, init=ico_sphere(init_level), **kw)
+    fit = fit_mesh_to_views(ds, init=ico_sphere(init_level), progress=not args.no_progress,
+                            **kw)
     ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=20000)
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
     metrics = ev(fit.mesh, colors)
@@ -139,4 +140,5 @@ def register(subparsers) -> None:
     p.add_argument("--init-level", type=int, default=4,
                    help="ico-sphere level of the final mesh (default 4)")
     p.add_argument("--seed", type=int, default=0, help="random views of the SGD recipe")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

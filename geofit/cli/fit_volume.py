@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         kw["smoothness"] = args.smoothness
     res = fit_volume(train, recipe=args.recipe, method=args.method,
                      volume_size=args.size, time_budget=args.time, n_iter=args.steps,
-                     precision=args.precision, verbose=not args.quiet, **kw)
+                     precision=args.precision, verbose=not args.quiet,
+                     progress=not args.no_progress, **kw)
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
     summary = res.summary()
     summary.update({"dataset": train.name, "views": len(train),

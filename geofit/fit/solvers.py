@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._validate import as_array, check_positive
+from ._options import check_int
 from .history import STATUSES, Clock
 
 __all__ = [
@@ -241,8 +242,7 @@ def lbfgs_scipy(fun: Objective, x0, *, max_iter: int | None = 1000, max_eval: in
                                      time_budget, clock)
     ftol = check_positive(ftol, "ftol", strict=False)
     gtol = check_positive(gtol, "gtol", strict=False)
-    if not isinstance(memory, (int, np.integer)) or memory < 1:
-        raise ValueError(f"memory: expected an integer >= 1, got {memory!r}")
+    memory = check_int(memory, "memory")
     tr = _Tracker(fun, x0, clock=clock, max_eval=max_eval, time_budget=time_budget,
                   callback=callback)
 
@@ -318,8 +318,7 @@ def lbfgs_nlopt(fun: Objective, x0, *, max_eval: int | None = 1000,
     x0, clock, time_budget = _common(x0, {"max_eval": max_eval}, time_budget, clock)
     ftol_rel = check_positive(ftol_rel, "ftol_rel", strict=False)
     xtol_rel = check_positive(xtol_rel, "xtol_rel", strict=False)
-    if not isinstance(memory, (int, np.integer)) or memory < 1:
-        raise ValueError(f"memory: expected an integer >= 1, got {memory!r}")
+    memory = check_int(memory, "memory")
     tr = _Tracker(fun, x0, clock=clock, max_eval=max_eval, time_budget=time_budget,
                   callback=callback)
     opt = nlopt.opt(nlopt.LD_LBFGS, x0.size)

@@ -281,21 +281,20 @@ def _levels(levels, mesh_level_final: int, image_size):
     return out
 
 
+@dataclass
 class _Recorder:
     """Records history rows, checks finiteness, runs the observer's evaluation at checkpoints."""
 
-    def __init__(self, history: FitHistory, clock: Clock, evaluate, eval_every: float,
-                 callback, stage_index: int, step0: int, bar=None):
-        self.bar = NoBar() if bar is None else bar
-        self.h = history
-        self.clock = clock
-        self.evaluate = evaluate
-        self.eval_every = eval_every
-        self.callback = callback
-        self.stage = stage_index
-        self.step0 = step0
-        self.last_eval = -math.inf
-        self.steps = 0
+    h: FitHistory
+    clock: Clock
+    evaluate: Callable | None
+    eval_every: float
+    callback: Callable | None
+    stage: int
+    step0: int
+    bar: object = field(default_factory=NoBar)
+    last_eval: float = -math.inf
+    steps: int = 0
 
     def __call__(self, obj: _Objective, info, mesh_fn, colors_fn, force_eval=False) -> bool:
         self.steps += 1
