@@ -11,16 +11,15 @@ The four fits take their data first, then keyword options::
 :class:`geofit.datasets.MultiViewDataset` (``geofit.datasets.tutorial_views(4 | 5 | 6)``
 renders the tutorials'). One vocabulary across them:
 
-================  ==========  ======================  ==========  ==========
-method            fit_mesh    fit_mesh_to_views       fit_volume  fit_nerf
-================  ==========  ======================  ==========  ==========
-``"lbfgs"``       default     silhouettes (default),  default     --
-                              textured (joint)
-``"lbfgs-nlopt"`` yes         silhouettes             yes         --
-``"adam"``        yes         silhouettes             yes         only
-``"sgd"``         tutorial    tutorial (both stages)  --          --
-``"lstsq"``       --          colours (default)       --          --
-================  ==========  ======================  ==========  ==========
+=================  ========  =======================================  ==========  ============
+method             fit_mesh  fit_mesh_to_views                        fit_volume  fit_nerf
+=================  ========  =======================================  ==========  ============
+``"lbfgs"``        default   silhouettes (default), textured (joint)  default     --
+``"lbfgs-nlopt"``  yes       silhouettes                              yes         --
+``"adam"``         yes       silhouettes (soft or contour loss)       yes         the only one
+``"sgd"``          tutorial  tutorial (both stages)                   --          --
+``"lstsq"``        --        colours (default)                        --          --
+=================  ========  =======================================  ==========  ============
 
 ``"lbfgs"`` is scipy's L-BFGS-B, ``"lbfgs-nlopt"`` nlopt's LD_LBFGS. Recipes name complete
 settings; every fit has ``"default"`` (geofit's) and ``"tutorial"`` (PyTorch3D's recipe,
@@ -36,13 +35,17 @@ release with a :class:`DeprecationWarning`.
   every fit in geofit.
 * :mod:`geofit.fit.solvers` -- scipy L-BFGS-B, nlopt LD_LBFGS, SGD with momentum and Adam over a
   flat float64 vector, with budgets, statuses and non-finite guards.
-* :mod:`geofit.fit.mesh` -- :func:`fit_mesh` (PyTorch3D's deform tutorial and faster solvers),
-  the large-steps parameterisation and coarse-to-fine.
+* :mod:`geofit.fit.mesh` -- :func:`fit_mesh` (PyTorch3D's deform tutorial and faster solvers)
+  and coarse-to-fine; :mod:`geofit.fit.large_steps` -- the large-steps parameterisation.
 * :mod:`geofit.fit.views` -- :func:`fit_mesh_to_views`: a mesh and its colours fitted to
   multi-view silhouettes and images (tutorial 4).
 * :mod:`geofit.fit.volume` -- :func:`fit_volume`: a voxel grid of densities and colours fitted by
   emission-absorption raymarching (tutorial 5).
 * :mod:`geofit.fit.nerf` -- :func:`fit_nerf`: a neural radiance field (tutorial 6).
+
+Private modules hold the steps of the long fits: ``_mesh_objective``, ``_views_objective``,
+``_volume_problem``, ``_volume_levels``, ``_nerf_train``; ``_options`` the shared vocabulary and
+checks, ``_progress`` the progress bars, ``_deprecated`` the former dataset names.
 """
 from __future__ import annotations
 
