@@ -418,3 +418,18 @@ def test_cli_fit_mesh(tmp_path, capsys):
     assert fitted.n_verts == n_verts and n_verts in (162, 642, 2562)
     assert np.all(np.isfinite(fitted.verts)) and fitted.verts.min() > 1.0  # original frame
     assert (out / "fit_mesh_history.json").exists()
+
+
+def test_fit_docstring_examples():
+    """The Examples sections of the fit modules run as doctests."""
+    import doctest
+
+    import geofit.fit.history as fh
+    import geofit.fit.large_steps as fl
+    import geofit.fit.mesh as fm
+    import geofit.fit.solvers as fs
+
+    for mod in (fh, fl, fm, fs):
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0, mod.__name__
+        assert result.attempted > 0, mod.__name__
