@@ -49,14 +49,15 @@ TIME_LIMIT = PYTORCH3D["seconds"] / 20  # 13.4 s: the acceptance's "1/20 of that
 ACCURACY = {"chamfer_l2": ("<=", PYTORCH3D["chamfer_l2"]),
             "fscore@0.01": (">=", PYTORCH3D["fscore@0.01"])}
 
-#: The runs: fit_mesh keyword arguments (recipe and method) of each named run.
+#: The runs: fit_mesh keyword arguments of each named run (recipe settings spelled out).
 RUNS = {
-    "tutorial": {"recipe": "tutorial"},
+    "tutorial": {"method": "sgd"},                                   # recipe="tutorial"
     "adam": {"method": "adam", "lr": 0.01},
     "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
     "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
-    "large-steps": {"recipe": "default", "method": "lbfgs", "large_steps": 10.0},
-    "coarse-to-fine": {"recipe": "coarse-to-fine"},
+    "large-steps": {"method": "lbfgs", "large_steps": 10.0},         # recipe="default"
+    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0,       # recipe="coarse-to-fine"
+                       "coarse_to_fine": True},
 }
 
 LABELS = {
@@ -80,7 +81,7 @@ def load_target():
 def method_settings(name: str, quick: bool) -> tuple[dict, int]:
     """fit_mesh keyword arguments and the checkpoint interval (evaluations) of a method."""
     kw = dict(RUNS[name])
-    stochastic = _method(kw) in ("sgd", "adam")
+    stochastic = kw["method"] in ("sgd", "adam")
     every = 100 if stochastic else (5 if name == "coarse-to-fine" else 10)
     if quick:
         if stochastic:
@@ -92,13 +93,6 @@ def method_settings(name: str, quick: bool) -> tuple[dict, int]:
         if name == "coarse-to-fine":
             kw["coarse_to_fine"] = CoarseToFine(max_level=3)
     return kw, every
-
-
-def _method(kw: dict) -> str:
-    """The solver a run's keyword arguments select (its recipe's unless given)."""
-    from geofit.fit import RECIPES
-
-    return kw.get("method") or RECIPES[kw.get("recipe", "default")]["method"]
 
 
 def run_method(name: str, target: Mesh, evaluator: MeshEvaluator, quick: bool) -> MethodRun:
@@ -159,7 +153,7 @@ def scenario(mode: str, name: str, target: Mesh, quick: bool):
     from geofit import ico_sphere
 
     kw, _ = method_settings(name, quick)
-    if _method(kw) in ("sgd", "adam"):
+    if kw["method"] in ("sgd", "adam"):
         kw["n_iter"] = 60 if quick else 500
     rng = np.random.default_rng(7)
     norm = target.normalize()
@@ -179,22 +173,22 @@ def scenario(mode: str, name: str, target: Mesh, quick: bool):
     elif mode == "torus":
         tin = reference = torus()
     elif mode == "degenerate_start":
-        c2f = kw.get("coarse_to_fine", kw.get("recipe") == "coarse-to-fine")
+        c2f = kw.get("coarse_to_fine")
         level = 2 if c2f else 4
         if isinstance(c2f, CoarseToFine):
             level = c2f.start_level
         source = collapse_edges(ico_sphere(level))
     elif mode == "step_x100":
-        if _method(kw) == "sgd":
+        if kw["method"] == "sgd":
             kw["lr"] = 100.0
-        elif _method(kw) == "adam":
+        elif kw["method"] == "adam":
             kw["lr"] = 100 * kw.get("lr", 0.01)
         else:
             from geofit.fit import FINE_WEIGHTS, TUTORIAL_WEIGHTS
 
             x100 = {k: 100 * v for k, v in TUTORIAL_WEIGHTS.items()}
             kw["weights"] = [x100, {k: 100 * v for k, v in FINE_WEIGHTS.items()}]
-            c2f = kw.get("coarse_to_fine", kw.get("recipe") == "coarse-to-fine" or None)
+            c2f = kw.get("coarse_to_fine")
             if c2f is not None:
                 c2f = c2f if isinstance(c2f, CoarseToFine) else CoarseToFine()
                 c2f.coarse_weights = x100
