@@ -43,6 +43,7 @@ import numpy as np
 
 from ._validate import as_array, check_positive
 from .cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
+from .io.views import load_views, save_views
 from .structures.mesh import Mesh
 
 __all__ = [
@@ -52,7 +53,9 @@ __all__ = [
     "cow_mesh",
     "generate_cow_renders",
     "held_out_views",
+    "load_views",
     "render_views",
+    "save_views",
     "training_azimuths",
     "tutorial_views",
 ]

@@ -36,19 +36,27 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from ..datasets import tutorial_views
+    from ..fit._views_objective import dataset_lights
     from ..fit.views import ViewsEvaluator, fit_mesh_to_views
     from ..io import save_obj
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
     from ..structures import Mesh, TexturesVertex
+    from ._common import capture_views
 
     _int(args.views, "--views")
     _int(args.image_size, "--image-size", 8)
     _int(args.heldout, "--heldout")
     _int(args.init_level, "--init-level", 0)
     t0 = time.perf_counter()
-    ds = tutorial_views(4, num_views=args.views, image_size=args.image_size,
-                        num_held_out=args.heldout)
+    if args.capture:
+        ds, _ = capture_views(args.capture)   # ds.held_out: the held-out views
+        H, W = ds.image_size
+        args.views, args.heldout, args.image_size = len(ds), len(ds.held_out), H
+        args.no_coarse_to_fine = args.no_coarse_to_fine or bool(H % 2 or W % 2)
+    else:
+        ds = tutorial_views(4, num_views=args.views, image_size=args.image_size,
+                            num_held_out=args.heldout)
     t_data = time.perf_counter() - t0
     levels = None
     init_level = args.init_level
@@ -87,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     cams = h.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
     tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
-    pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=h.lights))(tm)
+    lights = dataset_lights(h)   # a capture's: the tutorial's point light
+    pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=lights))(tm)
                       [..., :3], np.float64)
     grid = np.concatenate([np.concatenate(list(h.images[:k]), 1), np.concatenate(list(pred), 1)],
                           0)
@@ -101,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
     line = f"held-out IoU {metrics['iou']:.4f}"
     if "psnr" in metrics and fit.colors is not None:
         line += f", PSNR {metrics['psnr']:.2f} dB"
-    line += (f"; chamfer-L2 {metrics['chamfer_l2']:.3g}, F-score@0.01 "
-             f"{metrics['fscore@0.01']:.3f}")
+    if "chamfer_l2" in metrics:  # with a true mesh (not for a capture)
+        line += (f"; chamfer-L2 {metrics['chamfer_l2']:.3g}, F-score@0.01 "
+                 f"{metrics['fscore@0.01']:.3f}")
     print(line)
     print(f"wrote {dest / 'fit_views.obj'}, fit_views.json, fit_views.png")
     return 0 if fit.ok else 1
@@ -117,6 +127,9 @@ def register(subparsers) -> None:
         help="fit a mesh and its colours to multi-view images (PyTorch3D's fit_textured_mesh)",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
+    from ._common import add_capture_arg
+
+    add_capture_arg(p)
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
