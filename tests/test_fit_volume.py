@@ -11,8 +11,8 @@ from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import MultiViewDataset
 from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
 from geofit.loss import huber
-from geofit.render.raymarching import EmissionAbsorptionRaymarcher
-from geofit.render.raysampling import NDCMultinomialRaysampler
+from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher
+from geofit.render.volume.raysampling import NDCMultinomialRaysampler
 from geofit.render.volume import VolumeRenderer
 from geofit.structures.volume import Volume
 
@@ -399,7 +399,7 @@ def test_one_visual_hull_for_fit_volume_and_occupancy_grid(scene):
     from scipy.ndimage import binary_dilation
 
     import geofit.fit.volume
-    from geofit.render.implicit import OccupancyGrid
+    from geofit.render import OccupancyGrid
     from geofit.structures import volume as sv
 
     assert geofit.fit.volume.visual_hull is sv.visual_hull

@@ -15,11 +15,17 @@ import numpy as np
 
 from ..loss.robust import huber
 from ..metrics import psnr
-from ..nn._threads import run_parallel
+from .._threads import parallel_map
 from ..nn.optim import Adam, exponential_decay, step_decay
-from ..render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
-from ..render.raymarching import EmissionAbsorptionRaymarcher
-from ..render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from ..render.volume import (
+    EmissionAbsorptionRaymarcher,
+    ImplicitRenderer,
+    MonteCarloRaysampler,
+    NDCMultinomialRaysampler,
+    NeuralRadianceField,
+    OccupancyGrid,
+    RayBundle,
+)
 from ._progress import progress_bar
 from .history import Clock, FitHistory
 
@@ -67,7 +73,7 @@ class _DensityGrid:
             idx = np.zeros(len(p), dtype=np.int64)
             return field._forward(p, dirs, idx, None, False)[0][:, 0]
 
-        new = np.concatenate(run_parallel(work, chunks, n_threads)) if len(pts) else \
+        new = np.concatenate(parallel_map(work, chunks, n_threads)) if len(pts) else \
             np.zeros(0, np.float32)
         old = self.opacity[self.cells]
         self.opacity[self.cells] = np.maximum(new, self.decay * np.minimum(old, 1.0))
@@ -259,7 +265,7 @@ class _NerfTraining:
             k = cache.ray_index.size
             return lc.sum() / (3 * R), ls.sum() / R, lo, grads, k
 
-        outs = run_parallel(work, [p for p in parts if p.stop > p.start], n_threads)
+        outs = parallel_map(work, [p for p in parts if p.stop > p.start], n_threads)
         terms = {"color": sum(o[0] for o in outs), "silhouette": sum(o[1] for o in outs)}
         if cfg.opacity_regularization > 0:
             terms["opacity"] = sum(o[2] for o in outs)

@@ -180,7 +180,8 @@ def _lstsq_colors(mesh: Mesh, data: MultiViewDataset, reg: float) -> np.ndarray:
 
 
 class _ContourObjective:
-    """Geometry-first silhouette objective (see :mod:`geofit.render.contour`) plus regularisers."""
+    """Geometry-first silhouette objective (see :mod:`geofit.render.soft.contour`) plus
+    regularisers."""
 
     def __init__(self, base: Mesh, closs, weights, param):
         self.base = base

@@ -19,7 +19,8 @@ plain sight in :class:`_Objective`.
     mesh level rising together);
   - ``"adam"`` with ``silhouette_loss="contour"`` (recipe ``"contour"``): geometry-first: the
     hard silhouette's loss differentiated by edge sampling along the mesh's projected contour
-    (:mod:`geofit.render.contour`), Adam in the large-steps parameterisation, coarse-to-fine.
+    (:mod:`geofit.render.soft.contour`), Adam in the large-steps parameterisation,
+    coarse-to-fine.
 
   Textured methods (:data:`TEXTURED_METHODS`): ``"sgd"`` (the tutorial's: SGD on offsets and
   colours, two
@@ -100,7 +101,7 @@ from ._deprecated import (  # noqa: E402
 #: Silhouette-stage methods of :func:`fit_mesh_to_views` (``"none"`` skips the stage).
 SILHOUETTE_METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 #: Silhouette losses: the soft silhouette's squared error, or the hard silhouette's contour
-#: gradients (:mod:`geofit.render.contour`).
+#: gradients (:mod:`geofit.render.soft.contour`).
 SILHOUETTE_LOSSES = ("soft", "contour")
 #: Textured-stage methods of :func:`fit_mesh_to_views`.
 TEXTURED_METHODS = ("lstsq", "lbfgs", "sgd", "none")
@@ -588,7 +589,7 @@ def _silhouette_objective(plan: _ViewsPlan, run: _ViewsRun, mesh: Mesh,
     """The objective of one level: soft silhouettes, or the contour term."""
     param = vertex_parameterization(mesh, plan.large_steps)
     if plan.silhouette_loss == "contour":
-        from ..render.contour import ContourSilhouetteLoss
+        from ..render.soft.contour import ContourSilhouetteLoss
 
         closs = ContourSilhouetteLoss(data.cameras, data.silhouettes,
                                       threshold=plan.contour_threshold)

@@ -33,7 +33,8 @@ same model and the same renderer, but keeps the problem as small as the scene al
   1 dB in the measurements behind the default.
 
 Sampled values, ray marching and sparse products run in float32 by default (``precision``), on
-two threads; the loss is accumulated and the parameters kept in float64.
+geofit's threads (:func:`geofit.get_num_threads`); the loss is accumulated and the parameters
+kept in float64.
 
 Every result reports the number of free voxels (``n_active_voxels``) and the mean number of
 samples marched per ray (``samples_per_ray``).
@@ -52,10 +53,11 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import one_blas_thread
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
-from ..render.raysampling import NDCMultinomialRaysampler
+from ..render.volume.raysampling import NDCMultinomialRaysampler
 from ..structures.volume import Volume, visual_hull
 from ._options import (
     Recipes,
@@ -66,7 +68,6 @@ from ._options import (
     warn_deprecated,
 )
 from ._volume_levels import _fit_tutorial, _LevelsFit, _VolumeOptions
-from ._volume_problem import _OneBlasThread
 from .history import FitResult
 
 __all__ = [
@@ -136,7 +137,7 @@ def render_volume(volume: Volume, cameras: CamerasBase, image_size=128, *,
     >>> images.shape, bool(images[0, 8, 8, 3] > 0.99), bool(np.allclose(images[..., :3], 1.0))
     ((1, 16, 16, 4), True, False)
     """
-    from ..render.raymarching import EmissionAbsorptionRaymarcher
+    from ..render.volume.raymarching import EmissionAbsorptionRaymarcher
     from ..render.volume import VolumeRenderer
 
     if isinstance(image_size, (numbers.Integral, np.integer)):
@@ -390,13 +391,13 @@ def fit_volume(dataset, *args, recipe: str = "default", method: str | None = Non
         o.batch_size = check_int(batch_size, "batch_size")
         o.n_iter = check_int(n_iter, "n_iter")
         o.rng = as_rng(seed)
-        with _OneBlasThread():
+        with one_blas_thread():
             return VolumeFitResult(**_fit_tutorial(o))
     _level_options(o, levels=levels, iterations=iterations, carve=carve,
                    carve_tolerance=carve_tolerance, carve_margin=carve_margin,
                    prune_threshold=prune_threshold, prune_dilation=prune_dilation,
                    termination=termination, smoothness=smoothness)
-    with _OneBlasThread():
+    with one_blas_thread():
         return VolumeFitResult(**_LevelsFit(o).run())
 
 

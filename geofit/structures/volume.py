@@ -17,7 +17,7 @@ coordinates) is piecewise constant: no gradient flows with respect to the point 
 
 :func:`visual_hull` (space carving of a grid by silhouettes, :func:`carve` for any points) is
 geofit's one visual hull: :func:`geofit.fit.volume.fit_volume` and
-:meth:`geofit.render.implicit.OccupancyGrid.from_silhouettes` both use it.
+:meth:`geofit.render.OccupancyGrid.from_silhouettes` both use it.
 """
 from __future__ import annotations
 
