@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, check_positive
+from ._validate import as_array, as_unit_images, check_positive
 from .cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
 from .io.views import load_views, save_views
 from .structures.mesh import Mesh
@@ -143,7 +143,7 @@ class MultiViewDataset:
                              f"{(H, W)}")
         _check_unit_range(self.silhouettes, "silhouettes")
         if self.images is not None:
-            self.images = as_array(self.images, "images", (n, H, W, 3))
+            self.images = as_unit_images(self.images, "images", (n, H, W, 3))
             _check_unit_range(self.images, "images")
         if not isinstance(self.name, str):
             raise TypeError(f"name: expected a str, got {type(self.name)!r}")

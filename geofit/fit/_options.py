@@ -100,8 +100,11 @@ def dataset_argument(dataset, args: tuple, *, fit: str, images_required: bool = 
         warn_deprecated(f"{fit}(images, silhouettes, cameras, ...)",
                         f"{fit}(MultiViewDataset(images=..., silhouettes=..., cameras=...), ...)",
                         4)
+        from .._validate import as_unit_images
+
         images, silhouettes, cameras = dataset, args[0], args[1]
-        dataset = MultiViewDataset(images=_clip01(images, "images"),
+        images = np.clip(as_unit_images(images, "images", (None, None, None, 3)), 0.0, 1.0)
+        dataset = MultiViewDataset(images=images,
                                    silhouettes=_clip01(silhouettes, "silhouettes"),
                                    cameras=cameras)
     if not isinstance(dataset, MultiViewDataset):

@@ -58,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from .._threads import get_num_threads, parallel_map
-from .._validate import as_array, as_rng, check_choice, check_positive
+from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
 from ..render.volume import (
@@ -369,10 +369,15 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
                                        n_pts_per_ray=n_pts_per_ray, min_depth=min_depth,
                                        max_depth=max_depth)
     renderer = ImplicitRenderer(sampler, EmissionAbsorptionRaymarcher(), occupancy=occupancy)
+    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
+    r = len(cameras) * int(H) * int(W)
+    from geofit._memory import check_allocation  # memory guard (issue 18), measured ~7
+    per = 7 * np.dtype(field.dtype).itemsize * field.config["n_hidden_neurons"]  # B/sample
+    check_allocation(per * min(chunk_rays, r) * n_pts_per_ray * n_threads, "chunk_rays and "
+                     "n_pts_per_ray", "the network activations of one chunk of rays per thread")
     bundle = sampler(cameras)
     flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
     r = flat.origins.shape[0]
-    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
     chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]
 
     def work(sl):
@@ -391,7 +396,7 @@ class _Data:
     """Validated training / held-out data."""
 
     def __init__(self, images, silhouettes, cameras, name: str):
-        self.images = as_array(images, f"{name}images", (None, None, None, 3))
+        self.images = as_unit_images(images, f"{name}images", (None, None, None, 3))
         N, H, W, _ = self.images.shape
         if N == 0:
             raise ValueError(f"{name}images: expected at least one view, got shape "
@@ -514,6 +519,7 @@ def fit_nerf(dataset, *args, recipe: str = "default", method: str | None = None,
     clock = Clock()  # the set-up (hull, rays) is part of the method's time
     n_threads = get_num_threads() if cfg.n_threads is None else int(cfg.n_threads)
     field, cfg = _initial_field(init, cfg, rng)
+    _check_step_memory(cfg, data.N, n_threads)
     training = _NerfTraining(cfg, data, test, field, rng=rng, clock=clock, n_threads=n_threads,
                              time_budget=time_budget, eval_every=eval_every,
                              early_stopping=early_stopping, render_size=render_size,
@@ -529,6 +535,21 @@ def fit_nerf(dataset, *args, recipe: str = "default", method: str | None = None,
         n_evaluations=n_steps, field=field, config=cfg, occupancy=training.hull,
         samples_per_ray=training.spr_sum / max(n_steps, 1), psnr=p_final, images=images_out,
         wall_seconds=time.perf_counter() - t_wall, method=method, recipe=recipe, init=init)
+
+
+def _check_step_memory(cfg: NerfConfig, n_views: int, n_threads: int) -> None:
+    """Memory guard (issue 18): one training step's samples and network activations
+    (measured ~13 B per hidden unit and sample)."""
+    from geofit._memory import check_allocation
+
+    from ._nerf_train import _CHUNK_SAMPLES
+
+    batch = min(cfg.batch_size, n_views)
+    per, step = 13 * np.dtype(cfg.dtype).itemsize * cfg.n_hidden_neurons, batch * \
+        cfg.n_rays_per_image * cfg.n_pts_per_ray  # B per sample, samples per step
+    check_allocation(per * min(step, n_threads * max(_CHUNK_SAMPLES, cfg.n_pts_per_ray))
+                     + 64 * step, "batch_size, n_rays_per_image and n_pts_per_ray",
+                     "one training step's samples and network activations")
 
 
 def _config(recipe: str, config, overrides) -> NerfConfig:

@@ -402,9 +402,15 @@ def fit_volume(dataset, *args, recipe: str = "default", method: str | None = Non
 
 
 def _grid_size(volume_size) -> int:
+    from geofit._memory import check_allocation
+
     S = int(volume_size) if isinstance(volume_size, (numbers.Integral, np.integer)) else -1
     if S < 2 or isinstance(volume_size, bool):
         raise ValueError(f"volume_size: expected an integer >= 2, got {volume_size!r}")
+    # memory guard (issue 18): 4 channels x 8 B x ~8 copies (values, gradients, Adam / L-BFGS
+    # state, operators)
+    check_allocation(4 * 8 * 8 * S**3, "volume_size", f"a {S}^3 grid (values, gradients, "
+                     "solver state)")
     return S
 
 
