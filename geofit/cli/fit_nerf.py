@@ -2,7 +2,7 @@
 
 Renders the tutorial's 40 training views of the cow with geofit (black background, silhouettes,
 cameras) and the held-out views between them, fits a NeRF with :func:`geofit.fit.nerf.fit_nerf`
-(the scene-sized recipe by default, ``--preset tutorial`` for the tutorial's network and recipe),
+(the scene-sized recipe by default, ``--recipe tutorial`` for the tutorial's network and recipe),
 and writes into ``--out``:
 
 * ``nerf_summary.json`` -- status, parameter count, samples per ray, held-out PSNR, times, the
@@ -34,10 +34,12 @@ def run(args: argparse.Namespace) -> int:
     overrides = options(args, {"lr": "lr", "n_hidden_neurons": "n_hidden_neurons",
                                "n_harmonic_functions": "n_harmonic_functions",
                                "n_iter": "n_iter", "threads": "n_threads"})
-    res = fit_nerf(train.images, train.silhouettes, train.cameras, preset=args.preset,
-                   held_out=(test.images, test.silhouettes, test.cameras),
-                   time_budget=args.time, early_stopping=args.early_stopping, seed=args.seed,
-                   verbose=not args.quiet, **overrides)
+    recipe = args.recipe
+    if args.preset is not None:  # the former option
+        recipe = "default" if args.preset == "scene" else "tutorial"
+    res = fit_nerf(train, recipe=recipe, held_out=test, time_budget=args.time,
+                   early_stopping=args.early_stopping, seed=args.seed, verbose=not args.quiet,
+                   progress=not args.no_progress, **overrides)
     summary = res.summary()
     summary["history"] = res.history.to_dict()
     write_json(out / "nerf_summary.json", summary)
@@ -59,17 +61,19 @@ def register(subparsers) -> None:
     """Add the ``fit-nerf`` sub-command."""
     p = add_command(subparsers, "fit-nerf",
                     "fit a neural radiance field to renders of the cow (tutorial 6)", __doc__, run)
-    p.add_argument("--preset", choices=("scene", "tutorial"), default="scene",
+    p.add_argument("--recipe", choices=("default", "tutorial"), default="default",
                    help="geofit's scene-sized recipe (default) or the tutorial's")
+    p.add_argument("--preset", choices=("scene", "tutorial"), default=None,
+                   help="deprecated spelling of --recipe (scene: default)")
     p.add_argument("--time", type=float, default=600.0,
                    help="solver time budget in seconds (default 600)")
     p.add_argument("--iters", dest="n_iter", type=int, default=None,
-                   help="maximum Adam steps (default: the preset's)")
-    p.add_argument("--lr", type=float, default=None, help="learning rate (default: preset)")
+                   help="maximum Adam steps (default: the recipe's)")
+    p.add_argument("--lr", type=float, default=None, help="learning rate (default: recipe)")
     p.add_argument("--width", dest="n_hidden_neurons", type=int, default=None,
-                   help="hidden width (default: preset)")
+                   help="hidden width (default: recipe)")
     p.add_argument("--frequencies", dest="n_harmonic_functions", type=int, default=None,
-                   help="harmonic frequencies of the point embedding (default: preset)")
+                   help="harmonic frequencies of the point embedding (default: recipe)")
     p.add_argument("--early-stopping", type=int, default=None,
                    help="stop when the held-out loss has not improved for this many checkpoints")
     add_capture_arg(p)
