@@ -41,6 +41,7 @@ from .ops import (
     cot_laplacian,
     norm_laplacian,
     sample_points_from_meshes,
+    sample_points_with_jacobian,
     uniform_laplacian,
 )
 from .raycast import (
@@ -139,6 +140,7 @@ __all__ = [
     "cot_laplacian",
     "norm_laplacian",
     "sample_points_from_meshes",
+    "sample_points_with_jacobian",
     "uniform_laplacian",
     # ray casting
     "ClosestPoints",

@@ -382,8 +382,8 @@ def test_point_to_surface_has_no_sampling_noise():
 
     m = ico_sphere(2)
     t = PointToSurface(m)
-    a = sample_points_from_meshes(m, 2000, seed=0).points
-    b = sample_points_from_meshes(m, 2000, seed=1).points
+    a = sample_points_from_meshes(m, 2000, seed=0)
+    b = sample_points_from_meshes(m, 2000, seed=1)
     v, g = t.loss(a)
     assert v < 1e-24 and np.abs(g).max() < 1e-11
     assert chamfer_distance(a, b).loss > 1e-4
@@ -393,11 +393,11 @@ def test_point_to_surface_chain_rule_through_sampling():
     """d/dV loss(B V) = B^T grad: finite differences over the vertices of a source mesh."""
     from geofit import ico_sphere
     from geofit.loss import PointToSurface
-    from geofit.ops import sample_points_from_meshes
+    from geofit.ops import sample_points_with_jacobian
 
     target = PointToSurface(ico_sphere(2))
     src = ico_sphere(0).scale_verts(1.4)
-    s = sample_points_from_meshes(src, 60, seed=3)
+    s = sample_points_with_jacobian(src, 60, seed=3)
     _v, g = target.loss(s.B @ src.verts)
     gV = s.B.T @ g
     fd = _fd(lambda V: target.loss(s.B @ V)[0], src.verts.copy())
@@ -448,3 +448,29 @@ def test_point_to_surface_validation():
         t.symmetric_loss(np.zeros((0, 3)), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="target_samples"):
         t.symmetric_loss(np.zeros((2, 3)), np.zeros((2, 4)))
+
+
+def test_unpacks_like_pytorch3d():
+    """``loss, loss_normals = chamfer_distance(x, y)`` as in PyTorch3D; gradients stay attributes."""
+    x = [[0.0, 0, 0]]
+    y = [[3.0, 0, 0]]
+    loss, loss_normals = chamfer_distance(x, y)
+    assert loss == 18.0 and loss_normals is None
+    r = chamfer_distance(x, y)
+    assert len(r) == 2 and r[0] == 18.0 and r[1] is None and tuple(r) == (18.0, None)
+    assert_array_equal(r.grad_x, [[-12.0, 0, 0]])
+    n = [[0.0, 0, 1]]
+    loss, loss_normals = chamfer_distance(x, y, x_normals=n, y_normals=n)
+    assert loss == 18.0 and loss_normals == 0.0
+    target_loss, target_normals = ChamferTarget(y).chamfer(x)
+    assert target_loss == 18.0 and target_normals is None
+
+
+def test_docstring_examples_run():
+    """The Examples sections of geofit.loss.chamfer run as doctests."""
+    import doctest
+
+    import geofit.loss.chamfer as mod
+
+    result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0

@@ -9,8 +9,8 @@ The objective is a weighted sum of a data term and three regularisers of the sou
   :func:`~geofit.loss.mesh_normal_consistency`, :func:`~geofit.loss.mesh_laplacian_smoothing`
   (uniform), PyTorch3D's definitions.
 * ``D`` with ``distance="points"``: PyTorch3D's ``chamfer_distance`` between ``n`` samples of the
-  source, ``P = B V`` (``B`` the sparse sampling matrix of :func:`geofit.ops.sample_points_from_meshes`),
-  and ``n`` samples ``Y`` of the target. ``dD/dV = B^T dD/dP``.
+  source, ``P = B V`` (``B`` the sparse sampling matrix of
+  :func:`geofit.ops.sample_points_with_jacobian`), and ``n`` samples ``Y`` of the target. ``dD/dV = B^T dD/dP``.
 * ``D`` with ``distance="surface"``: exact point-to-surface distances both ways, with no
   sample-to-sample bias: ``mean_i d(P_i, target)^2`` (:class:`geofit.loss.PointToSurface`) plus
   ``mean_j |Y_j - C_j|^2``, where ``C_j = Bc_j V`` is the closest point of the *source* surface
@@ -304,22 +304,23 @@ class MeshObjective:
         """Draw new fixed samples: source barycentrics on ``verts`` (area-weighted there) and
         target points (for ``resample="stage"``)."""
         from ..loss import ChamferTarget
-        from ..ops import sample_points_from_meshes
+        from ..ops import sample_points_from_meshes, sample_points_with_jacobian
 
         mesh = self.source if verts is None else self.source.update_verts(verts)
-        self._B = sample_points_from_meshes(mesh, self.n_samples, seed=self.rng).B
-        self._Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng).points
+        self._B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
+        self._Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng)
         self._target_cloud = ChamferTarget(self._Y) if self.distance == "points" else None
 
     # -- evaluation
     def _data(self, mesh: Mesh, V: np.ndarray):
         from ..loss import chamfer_distance
         from ..ops import barycentric_matrix, sample_points_from_meshes
+        from ..ops import sample_points_with_jacobian
         from ..raycast import PointToMeshDistance
 
         if self.resample_mode == "step":
-            B = sample_points_from_meshes(mesh, self.n_samples, seed=self.rng).B
-            Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng).points
+            B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
+            Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng)
             cloud = None
         else:
             B, Y, cloud = self._B, self._Y, self._target_cloud
@@ -388,8 +389,8 @@ class MeshObjective:
 
         rng = self.rng if seed is None else as_rng(seed)
         mesh = self.source.update_verts(verts)
-        P = sample_points_from_meshes(mesh, self.n_samples, seed=rng).points
-        Y = sample_points_from_meshes(self.target, self.n_samples, seed=rng).points
+        P = sample_points_from_meshes(mesh, self.n_samples, seed=rng)
+        Y = sample_points_from_meshes(self.target, self.n_samples, seed=rng)
         p2s = self._p2s if self._p2s is not None else PointToSurface(self.target)
         d_pt = p2s.query(P).distances
         d_tp = PointToMeshDistance(mesh).query(Y).distances

@@ -25,6 +25,8 @@ there (measured: 0.15 ms vs 2 ms for 500 points).
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -40,8 +42,13 @@ _COS_EPS = 1e-6  # PyTorch3D's cosine_similarity eps in chamfer_distance
 _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (measured break-even)
 
 
-class ChamferResult(NamedTuple):
-    """Chamfer distance, its normal term, and their gradients.
+@dataclass(frozen=True, eq=False)
+class ChamferResult:
+    """Chamfer distance, its normal term, and their gradients; unpacks as PyTorch3D's 2-tuple.
+
+    ``loss, loss_normals = chamfer_distance(x, y)`` works as in PyTorch3D (iteration, ``len``
+    and indexing see only ``(loss, loss_normals)``); the analytic gradients, which PyTorch3D
+    leaves to autograd, are attributes.
 
     Attributes
     ----------
@@ -61,8 +68,18 @@ class ChamferResult(NamedTuple):
     loss_normals: float | np.ndarray | None
     grad_x: np.ndarray
     grad_y: np.ndarray
-    grad_x_normals: np.ndarray | None
-    grad_y_normals: np.ndarray | None
+    grad_x_normals: np.ndarray | None = None
+    grad_y_normals: np.ndarray | None = None
+
+    def __iter__(self) -> Iterator:
+        """``(loss, loss_normals)``, PyTorch3D's return value."""
+        return iter((self.loss, self.loss_normals))
+
+    def __len__(self) -> int:
+        return 2
+
+    def __getitem__(self, i):
+        return (self.loss, self.loss_normals)[i]
 
 
 def _make_tree(points: np.ndarray) -> cKDTree:
@@ -275,9 +292,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     Returns
     -------
     ChamferResult
-        ``(loss, loss_normals, grad_x, grad_y, grad_x_normals, grad_y_normals)``; the gradients
-        have the shapes of the inputs (2-D in, 2-D out). With ``batch_reduction=None`` the
-        gradients are those of ``loss.sum()`` (and ``loss_normals.sum()``).
+        Unpacks as PyTorch3D's ``(loss, loss_normals)`` (``loss_normals`` None without
+        normals) and carries ``grad_x``, ``grad_y``, ``grad_x_normals``, ``grad_y_normals``;
+        the gradients have the shapes of the inputs (2-D in, 2-D out). With
+        ``batch_reduction=None`` the gradients are those of ``loss.sum()`` (and
+        ``loss_normals.sum()``).
 
     Raises
     ------
@@ -300,7 +319,10 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     Examples
     --------
     >>> from geofit.loss import chamfer_distance
-    >>> r = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])
+    >>> loss, loss_normals = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])  # as PyTorch3D
+    >>> loss, loss_normals
+    (18.0, None)
+    >>> r = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])  # the gradients are attributes
     >>> r.loss, r.grad_x.tolist(), r.grad_y.tolist()
     (18.0, [[-12.0, 0.0, 0.0]], [[12.0, 0.0, 0.0]])
     """
