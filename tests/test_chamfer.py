@@ -270,14 +270,16 @@ def test_chamfer_target_reuses_its_tree():
     rng = np.random.default_rng(9)
     y = rng.normal(size=(300, 3))
     t = ChamferTarget(y)
-    tree = t._tree
+    index = t._index
     for k in range(3):
         x = rng.normal(size=(200, 3)) + 0.1 * k
         v, g = t.loss(x)
+        if k == 0:
+            tree = index._scipy
         r = chamfer_distance(x, y)
         assert_allclose(v, r.loss, rtol=1e-14)
         assert_allclose(g, r.grad_x, rtol=1e-14, atol=1e-18)
-    assert t._tree is tree and len(t) == 300
+    assert t._index is index and index._scipy is tree and tree is not None and len(t) == 300
     assert "300" in repr(t)
 
 
@@ -474,3 +476,64 @@ def test_docstring_examples_run():
 
     result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+def _brute_nearest_sqdist(p, q):
+    """Reference: squared distance from each p to its nearest q, by a full distance matrix."""
+    d = ((p[:, None, :] - q[None, :, :]) ** 2).sum(-1)
+    return d.min(axis=1)
+
+
+@pytest.mark.parametrize("backend", ["scipy", "open3d", "auto"])
+@pytest.mark.parametrize("offset", [0.0, 3.0])
+def test_backends_find_the_exact_nearest_neighbours(backend, offset):
+    """Each backend's neighbours have the brute-force distances, overlapping or far apart."""
+    from geofit.loss.chamfer import _NearestIndex
+
+    rng = np.random.default_rng(4)
+    y = rng.normal(size=(700, 3))
+    y /= np.linalg.norm(y, axis=1, keepdims=True)  # a sphere: far queries are hard for trees
+    x = 0.3 * rng.normal(size=(500, 3)) + [offset, 0.0, 0.0]
+    for p, q in ((x, y), (y, x)):
+        idx = _NearestIndex(q, backend).nearest(p, 2)
+        d = ((p - q[idx]) ** 2).sum(1)
+        assert_array_equal(d, _brute_nearest_sqdist(p, q))
+    r = chamfer_distance(x, y, backend=backend)
+    want = _brute_nearest_sqdist(x, y).mean() + _brute_nearest_sqdist(y, x).mean()
+    assert_allclose(r.loss, want, rtol=1e-14)
+
+
+def test_backends_agree_on_values_and_gradients():
+    """Open3D and scipy give the same loss and gradients; 'auto' switches to Open3D when large."""
+    from geofit.loss import chamfer as ch
+
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(ch._OPEN3D_FROM, 3))
+    y = rng.normal(size=(ch._OPEN3D_FROM + 10, 3)) + [0.5, 0, 0]
+    a = chamfer_distance(x, y, backend="scipy")
+    b = chamfer_distance(x, y, backend="open3d")
+    assert_allclose(a.loss, b.loss, rtol=1e-13)
+    assert_allclose(a.grad_x, b.grad_x, rtol=0, atol=1e-15)
+    assert_allclose(a.grad_y, b.grad_y, rtol=0, atol=1e-15)
+    big = ch._NearestIndex(y, "auto")
+    big.nearest(x, 2)
+    assert big._open3d is not None and big._scipy is None
+    small = ch._NearestIndex(y[:100], "auto")
+    small.nearest(x[:100], 2)
+    assert small._scipy is not None and small._open3d is None
+    l1 = ch._NearestIndex(y, "auto")
+    l1.nearest(x, 1)  # L1: scipy only
+    assert l1._scipy is not None and l1._open3d is None
+
+
+def test_backend_validation():
+    """An unknown backend, or Open3D with the L1 norm, raises naming the backend."""
+    x = np.zeros((2, 3))
+    with pytest.raises(ValueError, match="backend"):
+        chamfer_distance(x, x, backend="faiss")
+    with pytest.raises(ValueError, match="backend: 'open3d' has no L1"):
+        chamfer_distance(x, x, backend="open3d", norm=1)
+    with pytest.raises(ValueError, match="backend"):
+        ChamferTarget(x, backend="kd")
+    with pytest.raises(ValueError, match="backend"):
+        ChamferTarget(x, backend="open3d").loss(x, norm=1)

@@ -40,6 +40,8 @@ _BATCH_REDUCTIONS = ("mean", "sum", None)
 _POINT_REDUCTIONS = ("mean", "sum", "max")
 _COS_EPS = 1e-6  # PyTorch3D's cosine_similarity eps in chamfer_distance
 _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (measured break-even)
+_BACKENDS = ("auto", "open3d", "scipy")
+_OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is used (measured)
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,17 +84,54 @@ class ChamferResult:
         return (self.loss, self.loss_normals)[i]
 
 
-def _make_tree(points: np.ndarray) -> cKDTree:
-    # Unbalanced, non-compact trees build faster and query as fast (measured: see module doc).
-    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+class _NearestIndex:
+    """Exact nearest neighbours in a fixed cloud: Open3D's ``core.nns`` or scipy's cKDTree.
+
+    The search structure is built on the first query (one per backend actually used) and reused;
+    ``backend`` is ``"open3d"``, ``"scipy"`` or ``"auto"`` (see :func:`_pick`).
+    """
+
+    def __init__(self, points: np.ndarray, backend: str):
+        self.points = points
+        self.backend = backend
+        self._scipy = None
+        self._open3d = None
+
+    def _pick(self, n_queries: int, norm: int) -> str:
+        if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
+            return "scipy"
+        if self.backend != "auto":
+            return self.backend
+        # Measured in benchmarks/chamfer.py: scipy for small clouds, where Open3D's tensor
+        # set-up dominates; Open3D from _OPEN3D_FROM points, where it is faster on far clouds.
+        return "open3d" if min(len(self.points), n_queries) >= _OPEN3D_FROM else "scipy"
+
+    def nearest(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
+        if self._pick(len(q), norm) == "open3d":
+            if self._open3d is None:
+                import open3d as o3d
+
+                self._open3d = o3d.core.nns.NearestNeighborSearch(
+                    o3d.core.Tensor(np.ascontiguousarray(self.points)))
+                self._open3d.knn_index()
+            import open3d as o3d
+
+            idx, _ = self._open3d.knn_search(o3d.core.Tensor(np.ascontiguousarray(q)), 1)
+            return idx.numpy()[:, 0].astype(np.int64, copy=False)
+        if self._scipy is None:
+            # Unbalanced, non-compact trees build faster and query as fast (benchmarks/chamfer)
+            self._scipy = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+        # Threads pay off only for large queries (scipy starts them on every call).
+        _, idx = self._scipy.query(q, k=1, p=norm,
+                                   workers=-1 if len(q) >= _PARALLEL_QUERY else 1)
+        return np.asarray(idx, dtype=np.int64)
 
 
-def _nearest(tree: cKDTree, tree_points: np.ndarray, q: np.ndarray, norm: int):
-    """Nearest tree point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
-    # Threads pay off only for large queries (scipy starts them on every call).
-    _, idx = tree.query(q, k=1, p=norm, workers=-1 if len(q) >= _PARALLEL_QUERY else 1)
-    idx = np.asarray(idx, dtype=np.int64)
-    diff = q - tree_points[idx]
+def _nearest(index: _NearestIndex, q: np.ndarray, norm: int):
+    """Nearest index point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
+    idx = index.nearest(q, norm)
+    diff = q - index.points[idx]
     if norm == 2:
         d = np.einsum("ij,ij->i", diff, diff)
         dd = 2.0 * diff
@@ -141,14 +180,14 @@ class _Direction(NamedTuple):
     dn_q: np.ndarray | None  # (k, 3) d nterm / d q_normal[idx]
 
 
-def _direction(p, q, tree_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
+def _direction(p, q, index_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
     if len(p) == 0 or len(q) == 0:  # nothing to match: this direction contributes 0
         z = np.zeros(len(p))
         zz = np.zeros((len(p), 3))
         with_n = p_normals is not None
         return _Direction(z, np.zeros(len(p), np.int64), zz, z if with_n else None,
                           zz if with_n else None, zz if with_n else None)
-    idx, d, dd = _nearest(tree_q, q, p, norm)
+    idx, d, dd = _nearest(index_q, p, norm)
     if p_normals is None:
         return _Direction(d, idx, dd, None, None, None)
     cos, ga, gb = _cos_and_grads(p_normals, q_normals[idx])
@@ -197,15 +236,15 @@ def _reduce_direction(dr: _Direction, point_reduction: str, w: float, n_q: int) 
     return _Reduced(float(value), value_n, g_p, g_q, gpn, gqn)
 
 
-def _member(xb, yb, tree_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
-            abs_cosine):
+def _member(xb, yb, index_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
+            abs_cosine, backend):
     """Both directions of one batch member combined: (loss, loss_n, gx, gy, gxn, gyn)."""
-    rx = _reduce_direction(_direction(xb, yb, tree_y, norm, xnb, ynb, abs_cosine),
+    rx = _reduce_direction(_direction(xb, yb, index_y, norm, xnb, ynb, abs_cosine),
                            point_reduction, w, len(yb))
     if single_directional:
         return rx.value, rx.value_n, rx.g_p, rx.g_q, rx.gn_p, rx.gn_q
-    tree_x = _make_tree(xb) if len(xb) else None  # x moves: its tree is rebuilt per call
-    ry = _reduce_direction(_direction(yb, xb, tree_x, norm, ynb, xnb, abs_cosine),
+    index_x = _NearestIndex(xb, backend)  # x moves: its tree is rebuilt per call
+    ry = _reduce_direction(_direction(yb, xb, index_x, norm, ynb, xnb, abs_cosine),
                            point_reduction, w, len(xb))
     if point_reduction == "max":
         # torch.maximum: the gradient goes to the larger term, split evenly on a tie
@@ -242,7 +281,11 @@ def _as_lengths(lengths, name: str, N: int, P: int) -> np.ndarray:
     return arr
 
 
-def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals):
+def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals, backend):
+    check_choice(backend, "backend", _BACKENDS)
+    if backend == "open3d" and norm == 1:
+        raise ValueError("backend: 'open3d' has no L1 search, use norm=2 or backend='scipy' "
+                         "(or 'auto')")
     check_choice(batch_reduction, "batch_reduction", _BATCH_REDUCTIONS)
     check_choice(point_reduction, "point_reduction", _POINT_REDUCTIONS)
     if isinstance(norm, bool) or norm not in (1, 2):
@@ -258,7 +301,8 @@ def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals)
 def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_normals=None,
                      weights=None, batch_reduction: str | None = "mean",
                      point_reduction: str = "mean", norm: int = 2,
-                     single_directional: bool = False, abs_cosine: bool = True) -> ChamferResult:
+                     single_directional: bool = False, abs_cosine: bool = True,
+                     backend: str = "auto") -> ChamferResult:
     """Chamfer distance between two point clouds (or padded batches), PyTorch3D's semantics.
 
     Parameters
@@ -288,6 +332,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         Only the x -> y term.
     abs_cosine : bool
         Normal term ``1 - |cos|`` (orientation ignored) or ``1 - cos``.
+    backend : {"auto", "open3d", "scipy"}
+        The exact nearest-neighbour search: Open3D's ``core.nns`` (knn) or scipy's ``cKDTree``;
+        ``"auto"`` takes the faster one as measured by ``benchmarks/chamfer.py`` (see the
+        module notes). ``norm=1`` needs scipy (``"auto"`` picks it). Every backend returns the
+        exact nearest neighbours; values agree to rounding.
 
     Returns
     -------
@@ -302,8 +351,9 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     ------
     ValueError
         On bad shapes, mismatched batch sizes, non-finite coordinates, lengths out of range,
-        negative weights, an unknown reduction or norm, normals with ``point_reduction="max"``
-        or only one of the two normals arrays.
+        negative weights, an unknown reduction, norm or backend, ``backend="open3d"`` with
+        ``norm=1``, normals with ``point_reduction="max"`` or only one of the two normals
+        arrays.
 
     Notes
     -----
@@ -326,7 +376,7 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     >>> r.loss, r.grad_x.tolist(), r.grad_y.tolist()
     (18.0, [[-12.0, 0.0, 0.0]], [[12.0, 0.0, 0.0]])
     """
-    _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals)
+    _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals, backend)
     X, x2d = _as_cloud(x, "x")
     Y, y2d = _as_cloud(y, "y")
     N, P1, _ = X.shape
@@ -369,10 +419,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         nx, ny = lx[b], ly[b]
         xb = X[b, :nx]
         yb = Y[b, :ny]
-        out = _member(xb, yb, _make_tree(yb) if ny else None,
+        out = _member(xb, yb, _NearestIndex(yb, backend),
                       XN[b, :nx] if with_n else None, YN[b, :ny] if with_n else None,
                       w=w[b] / div, point_reduction=point_reduction, norm=norm,
-                      single_directional=single_directional, abs_cosine=abs_cosine)
+                      single_directional=single_directional, abs_cosine=abs_cosine,
+                      backend=backend)
         loss[b] = out[0]
         gx[b, :nx] = out[2]
         gy[b, :ny] = out[3]
@@ -405,6 +456,8 @@ class ChamferTarget:
         Target points (at least one).
     y_normals : (m, 3) float64, optional
         Target normals, for the normal term of :meth:`chamfer`.
+    backend : {"auto", "open3d", "scipy"}
+        The nearest-neighbour search, as in :func:`chamfer_distance`.
 
     Notes
     -----
@@ -425,20 +478,23 @@ class ChamferTarget:
     True
     """
 
-    def __init__(self, y, *, y_normals=None):
+    def __init__(self, y, *, y_normals=None, backend: str = "auto"):
         self.points = as_points(y, "y", allow_empty=False)
         self.points.setflags(write=False)
         self.normals = None
         if y_normals is not None:
             self.normals = as_array(y_normals, "y_normals", (len(self.points), 3))
             self.normals.setflags(write=False)
-        self._tree = _make_tree(self.points)
+        check_choice(backend, "backend", _BACKENDS)
+        self.backend = backend
+        self._index = _NearestIndex(self.points, self.backend)
 
     def __len__(self) -> int:
         return len(self.points)
 
     def __repr__(self) -> str:
-        return f"ChamferTarget(n_points={len(self.points)}, normals={self.normals is not None})"
+        return (f"ChamferTarget(n_points={len(self.points)}, normals={self.normals is not None}, "
+                f"backend={self.backend!r})")
 
     def chamfer(self, x, *, x_normals=None, point_reduction: str = "mean", norm: int = 2,
                 single_directional: bool = False, abs_cosine: bool = True) -> ChamferResult:
@@ -462,12 +518,13 @@ class ChamferTarget:
         y_normals = self.normals if x_normals is not None else None
         if x_normals is not None and self.normals is None:
             raise ValueError("x_normals: the target was built without y_normals")
-        _check_options("mean", point_reduction, norm, x_normals, y_normals)
+        _check_options("mean", point_reduction, norm, x_normals, y_normals, self.backend)
         xp = as_points(x, "x")
         xn = as_array(x_normals, "x_normals", (len(xp), 3)) if x_normals is not None else None
-        out = _member(xp, self.points, self._tree, xn, y_normals, w=1.0,
+        out = _member(xp, self.points, self._index, xn, y_normals, w=1.0,
                       point_reduction=point_reduction, norm=norm,
-                      single_directional=single_directional, abs_cosine=abs_cosine)
+                      single_directional=single_directional, abs_cosine=abs_cosine,
+                      backend=self.backend)
         loss_n = None if out[1] is None else float(out[1])
         return ChamferResult(float(out[0]), loss_n, out[2], out[3], out[4], out[5])
 

@@ -1,0 +1,246 @@
+"""Exact nearest neighbours for chamfer: Open3D's search structures against scipy's cKDTree.
+
+A chamfer distance needs, in both directions, the exact nearest point of one cloud for every
+point of the other. This benchmark times that search (tree builds included, both directions)
+for three scenes and three sizes (10k, 100k and 1M points a side):
+
+* ``overlap``: two independent samplings of the normalised dolphin (the tutorial's target) --
+  the end of a fit, every query has a neighbour one sample spacing away;
+* ``tutorial``: samples of ``ico_sphere(4)`` against the normalised dolphin -- the start of the
+  mesh-fitting tutorial: the dolphin sits inside the unit sphere, so a dolphin point near the
+  centre is almost equally far from every sphere point;
+* ``apart``: the same sphere shifted by (3, 0, 0), clear of the dolphin -- two disjoint clouds.
+
+Methods: ``scipy.spatial.cKDTree`` (geofit's settings ``balanced_tree=False,
+compact_nodes=False``, with ``workers=-1`` and ``workers=1``; and scipy's default balanced,
+compact tree), Open3D's ``core.nns.NearestNeighborSearch`` (``knn_index``/``knn_search`` and
+``hybrid_index``/``hybrid_search`` with a radius of 3 sample spacings, the misses then searched
+with knn), ``open3d.geometry.KDTreeFlann`` (one Python call per query point: up to 100k only),
+and :func:`geofit.chamfer_distance` end to end with each backend. Every method's neighbours are
+checked against scipy's: the distances must be equal (exact search; ties may pick another index).
+
+A (method, scene, size) whose previous size took more than ``--max-seconds`` / 10 is skipped
+(the table says so): the far scenes grow faster than linearly.
+
+Run from the repository root::
+
+    GEOFIT_DATA=/path/to/data python benchmarks/chamfer.py [--quick]
+
+Writes ``benchmarks/results/chamfer.json`` and ``chamfer.png``.
+"""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+from _harness import BenchmarkReport, machine_info, markdown_table, parser, record_load
+
+import geofit
+from geofit.data import load_target_mesh
+from geofit.ops import sample_points_from_meshes
+
+
+def scenes(n: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The three (x, y) pairs of n points a side."""
+    dolphin = load_target_mesh().mesh.normalize().mesh
+    sphere = geofit.ico_sphere(4)
+    y = sample_points_from_meshes(dolphin, n, seed=0)
+    return {
+        "overlap": (sample_points_from_meshes(dolphin, n, seed=1), y),
+        "tutorial": (sample_points_from_meshes(sphere, n, seed=1), y),
+        "apart": (sample_points_from_meshes(sphere, n, seed=1) + [3.0, 0.0, 0.0], y),
+    }
+
+
+# ------------------------------------------------------------------------- one direction each
+def scipy_nn(workers: int, balanced: bool):
+    from scipy.spatial import cKDTree
+
+    def nn(tree_points, q):
+        tree = cKDTree(tree_points, balanced_tree=balanced, compact_nodes=balanced)
+        return tree.query(q, k=1, workers=workers)[1]
+
+    return nn
+
+
+def open3d_knn(tree_points, q):
+    import open3d as o3d
+
+    nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(tree_points))
+    nns.knn_index()
+    idx, _ = nns.knn_search(o3d.core.Tensor(q), 1)
+    return idx.numpy()[:, 0]
+
+
+def open3d_hybrid(tree_points, q):
+    """Fixed-radius search (3 sample spacings), then knn for the queries with no hit."""
+    import open3d as o3d
+
+    lo, hi = tree_points.min(0), tree_points.max(0)
+    spacing = float(np.sqrt(np.prod(np.sort(hi - lo)[1:]) / len(tree_points)))
+    radius = 3.0 * spacing
+    nns = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(tree_points))
+    nns.hybrid_index(radius)
+    idx, _, _ = nns.hybrid_search(o3d.core.Tensor(q), radius, 1)
+    idx = idx.numpy()[:, 0].astype(np.int64)
+    miss = idx < 0
+    if miss.any():
+        nns.knn_index()
+        idx[miss] = nns.knn_search(o3d.core.Tensor(q[miss]), 1)[0].numpy()[:, 0]
+    return idx
+
+
+def open3d_flann(tree_points, q):
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tree_points))
+    tree = o3d.geometry.KDTreeFlann(pc)
+    return np.array([tree.search_knn_vector_3d(p, 1)[1][0] for p in q])  # one call per query
+
+
+def geofit_chamfer(backend: str):
+    def run(x, y):
+        return geofit.chamfer_distance(x, y, backend=backend).loss
+
+    return run
+
+
+NN_METHODS = {
+    "scipy": ("scipy cKDTree, workers=-1 (geofit's settings)", scipy_nn(-1, False)),
+    "scipy_1": ("scipy cKDTree, workers=1", scipy_nn(1, False)),
+    "scipy_balanced": ("scipy cKDTree, balanced + compact (scipy default)", scipy_nn(-1, True)),
+    "open3d_knn": ("Open3D core.nns knn", open3d_knn),
+    "open3d_hybrid": ("Open3D core.nns hybrid (3 spacings) + knn for misses", open3d_hybrid),
+    "open3d_flann": ("Open3D KDTreeFlann (a Python call per point)", open3d_flann),
+}
+CHAMFER_METHODS = {
+    "chamfer_scipy": ("geofit.chamfer_distance(backend='scipy')", geofit_chamfer("scipy")),
+    "chamfer_open3d": ("geofit.chamfer_distance(backend='open3d')", geofit_chamfer("open3d")),
+    "chamfer_auto": ("geofit.chamfer_distance(backend='auto')", geofit_chamfer("auto")),
+}
+FLANN_MAX = 100_000
+
+
+def _sqdist(a, b, idx):
+    d = a - b[idx]
+    return np.einsum("ij,ij->i", d, d)
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
+    p.add_argument("--max-seconds", type=float, default=300.0,
+                   help="skip a method at the next size once it took more than this / 10")
+    args = p.parse_args()
+    sizes = [2_000, 20_000] if args.quick else args.sizes
+    load_before = os.getloadavg()
+    import open3d as o3d  # imported before the timings (its import takes seconds)
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    report = BenchmarkReport("chamfer", config={"sizes": sizes, "quick": bool(args.quick),
+                                                "max_seconds": args.max_seconds})
+    report.notes += [
+        "seconds: wall time of one run, both directions (x -> y and y -> x), tree builds "
+        "included; the machine's other jobs add noise, see loadavg_before/after",
+        "check: every method's squared distances equal scipy's exactly (an exact search); "
+        "'skipped' rows were not run because the previous size took > max_seconds / 10",
+        "scenes: overlap = two samplings of the normalised dolphin; tutorial = ico_sphere(4) "
+        "samples against the dolphin inside it (the fit's start); apart = the sphere shifted "
+        "by (3, 0, 0)",
+    ]
+    rows = []
+    last: dict[tuple[str, str], float] = {}
+    for n in sizes:
+        for scene, (x, y) in scenes(n).items():
+            ref = None
+            for key, (label, fn) in {**NN_METHODS, **CHAMFER_METHODS}.items():
+                prev = last.get((key, scene))
+                skip = (prev is not None and prev > args.max_seconds / 10) or (
+                    key == "open3d_flann" and n > FLANN_MAX)
+                if skip:
+                    why = (f"> {FLANN_MAX} points" if key == "open3d_flann" and n > FLANN_MAX
+                           else f"took {prev:.1f} s at the previous size")
+                    rows.append({"method": key, "label": label, "scene": scene, "n": n,
+                                 "seconds": None, "status": f"skipped: {why}"})
+                    print(f"{n:>8} {scene:9s} {key:15s} skipped ({why})", flush=True)
+                    last[(key, scene)] = np.inf
+                    continue
+                t0 = time.perf_counter()
+                if key in CHAMFER_METHODS:
+                    out = fn(x, y)
+                else:
+                    out = (fn(y, x), fn(x, y))  # x -> y queries a tree over y, and back
+                dt = time.perf_counter() - t0
+                last[(key, scene)] = dt
+                status = "ok"
+                if key in NN_METHODS:
+                    d = (_sqdist(x, y, out[0]), _sqdist(y, x, out[1]))
+                    if ref is None:
+                        ref = d
+                        ref_loss = d[0].mean() + d[1].mean()
+                    elif not (np.array_equal(d[0], ref[0]) and np.array_equal(d[1], ref[1])):
+                        status = "MISMATCH"
+                elif not np.isclose(out, ref_loss, rtol=1e-12):
+                    status = "MISMATCH"
+                rows.append({"method": key, "label": label, "scene": scene, "n": n,
+                             "seconds": dt, "status": status})
+                print(f"{n:>8} {scene:9s} {key:15s} {dt:9.3f} s  {status}", flush=True)
+    record_load(report, load_before)
+    report.tables["runs"] = rows
+    by = {(r["method"], r["scene"], r["n"]): r["seconds"] for r in rows}
+    ratio = {}
+    for key in {**NN_METHODS, **CHAMFER_METHODS}:
+        for n in sizes:
+            o = by.get((key, "overlap", n))
+            for scene in ("tutorial", "apart"):
+                f = by.get((key, scene, n))
+                if o and f:
+                    ratio[f"{key} {scene}/overlap n={n}"] = f / o
+    report.tables["far_over_overlap"] = ratio
+    header = ["method"] + [f"{s} {n // 1000}k" for n in sizes
+                           for s in ("overlap", "tutorial", "apart")]
+    md = []
+    for key, (label, _) in {**NN_METHODS, **CHAMFER_METHODS}.items():
+        cells = [label]
+        for n in sizes:
+            for s in ("overlap", "tutorial", "apart"):
+                v = by.get((key, s, n))
+                cells.append("skipped" if v is None else f"{v:.3g}")
+        md.append(cells)
+    report.tables["markdown"] = markdown_table(header, md)
+    print(report.tables["markdown"])
+    stem = "chamfer_quick" if args.quick else "chamfer"
+    out = report.write(args.out / f"{stem}.json")
+    plot(rows, sizes, args.out / f"{stem}.png", machine_info())
+    print("wrote", out)
+
+
+def plot(rows, sizes, path, mi) -> None:
+    import matplotlib.pyplot as plt
+
+    from geofit.viz import chart_style
+
+    with chart_style():
+        fig, axes = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
+        for ax, scene in zip(axes, ("overlap", "tutorial", "apart")):
+            for key, (label, _) in {**NN_METHODS, **CHAMFER_METHODS}.items():
+                pts = [(r["n"], r["seconds"]) for r in rows
+                       if r["method"] == key and r["scene"] == scene and r["seconds"]]
+                if pts:
+                    nn, ss = zip(*pts)
+                    ax.loglog(nn, ss, "o-" if key in NN_METHODS else "s--", label=label)
+            ax.set_title(scene)
+            ax.set_xlabel("points a side")
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0].set_ylabel("seconds, both directions (builds included)")
+        axes[-1].legend(fontsize=7, loc="upper left")
+        fig.suptitle(f"Exact nearest neighbours for chamfer: {mi['cpu']}, "
+                     f"{mi['cpu_affinity']} cores")
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
