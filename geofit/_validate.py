@@ -17,6 +17,7 @@ __all__ = [
     "as_faces",
     "as_rng",
     "check_choice",
+    "check_int",
     "check_positive",
     "shape_str",
 ]
@@ -140,3 +141,36 @@ def check_positive(value, name: str, *, strict: bool = True) -> float:
         rel = "> 0" if strict else ">= 0"
         raise ValueError(f"{name}: expected a finite number {rel}, got {value!r}")
     return v
+
+
+def check_int(value, name: str, low: int = 1, *, allow_none: bool = False,
+              error: type[Exception] = ValueError) -> int | None:
+    """Return ``int(value)`` after checking it is an integer (not a bool) ``>= low``.
+
+    Parameters
+    ----------
+    value : object
+        The input; Python and numpy integers are accepted.
+    name : str
+        The argument's name, used in error messages.
+    low : int
+        Smallest allowed value.
+    allow_none : bool
+        Pass None through (an optional count).
+    error : {ValueError, TypeError}
+        Raised for a value that is not an integer; a value below ``low`` is a ValueError.
+
+    Raises
+    ------
+    ValueError or TypeError
+        ``"{name}: expected an integer >= {low}, got {value!r}"``.
+    """
+    if value is None and allow_none:
+        return None
+    message = f"{name}: expected an integer >= {low}, got {value!r}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral,
+                                                                     np.integer)):
+        raise error(message)
+    if value < low:
+        raise ValueError(message)
+    return int(value)

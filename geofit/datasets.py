@@ -22,12 +22,12 @@ to geofit's procedural textured stand-in and say so in ``mesh_name``.
 """
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._validate import as_array, check_positive
+from ._validate import check_int as _count
 from .cameras import FoVPerspectiveCameras, look_at_view_transform
 from .structures.mesh import Mesh
 
@@ -120,13 +120,6 @@ def training_azimuths(num_views: int = 40, azimuth_range: float = 180.0) -> np.n
     if not np.isfinite(r):
         raise ValueError(f"azimuth_range: expected a finite number, got {azimuth_range!r}")
     return np.linspace(-r, r, n) + 180.0
-
-
-def _count(value, name: str) -> int:
-    if not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, bool) \
-            or value < 1:
-        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
-    return int(value)
 
 
 def _background(background) -> np.ndarray:

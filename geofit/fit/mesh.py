@@ -45,6 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import as_array, as_faces, as_rng, check_choice, check_positive
+from .._validate import check_int as _check_int
 from ..structures import Mesh
 from .history import Clock, FitHistory, FitResult
 from .solvers import SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
@@ -153,12 +154,6 @@ def _check_weights(w, name="weights") -> dict[str, float]:
     if out["chamfer"] == 0.0:
         raise ValueError(f"{name}: the data term 'chamfer' needs a weight > 0")
     return out
-
-
-def _check_int(v, name: str, lo: int = 1) -> int:
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
-    return int(v)
 
 
 # ------------------------------------------------------------------------------------ large steps

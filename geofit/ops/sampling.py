@@ -18,13 +18,12 @@ Two entry points draw the same samples from the same seed:
 """
 from __future__ import annotations
 
-import numbers
 from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_rng
+from .._validate import as_rng, check_int
 from ..structures.mesh import Mesh, Meshes
 
 __all__ = [
@@ -121,13 +120,6 @@ def barycentric_matrix(faces: np.ndarray, face_idx: np.ndarray, bary: np.ndarray
     )
 
 
-def _check_num_samples(num_samples) -> int:
-    if (not isinstance(num_samples, (numbers.Integral, np.integer)) or isinstance(num_samples, bool)
-            or num_samples < 1):
-        raise ValueError(f"num_samples: expected an integer >= 1, got {num_samples!r}")
-    return int(num_samples)
-
-
 def _sample_one(mesh: Mesh, n: int, rng: np.random.Generator, return_normals: bool,
                 return_textures: bool, name: str) -> SampledPoints:
     if mesh.n_faces == 0:
@@ -219,7 +211,7 @@ def sample_points_with_jacobian(mesh, num_samples: int = 10000, *, seed=None,
     >>> bool(abs(s.points - s.B @ ico_sphere(2).verts).max() < 1e-15)
     True
     """
-    n = _check_num_samples(num_samples)
+    n = check_int(num_samples, "num_samples")
     rng = as_rng(seed)
     if isinstance(mesh, Mesh):
         return _sample_one(mesh, n, rng, bool(return_normals), bool(return_textures), "mesh")

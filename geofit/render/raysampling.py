@@ -16,12 +16,12 @@ not reproduced, only the distribution.
 """
 from __future__ import annotations
 
-import numbers
 from typing import NamedTuple
 
 import numpy as np
 
 from .._validate import as_array, as_rng
+from .._validate import check_int as _positive_int
 from ..cameras import CamerasBase, ndc_grid
 
 __all__ = [
@@ -94,15 +94,6 @@ def _check_cameras(cameras) -> CamerasBase:
         raise TypeError(f"cameras: expected a geofit cameras batch (CamerasBase), got "
                         f"{type(cameras)!r}")
     return cameras
-
-
-def _positive_int(value, name: str, *, allow_none: bool = False) -> int | None:
-    if value is None and allow_none:
-        return None
-    if (not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, bool)
-            or value < 1):
-        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
-    return int(value)
 
 
 def _depth_range(min_depth, max_depth) -> tuple[float, float]:
