@@ -19,8 +19,11 @@ with knn), ``open3d.geometry.KDTreeFlann`` (one Python call per query point: up 
 and :func:`geofit.chamfer_distance` end to end with each backend. Every method's neighbours are
 checked against scipy's: the distances must be equal (exact search; ties may pick another index).
 
-A (method, scene, size) whose previous size took more than ``--max-seconds`` / 10 is skipped
-(the table says so): the far scenes grow faster than linearly.
+Up to 100k points a side each figure is the median of ``--repeat`` runs (3); at 1M one run, and
+only the methods that were not already slower at 100k than the plain search of their library
+(scipy's balanced tree, the hybrid search, KDTreeFlann and the per-backend chamfer runs are
+skipped there; the table says so). The times of the two directions are also stored apart:
+far scenes are hard in one direction (a query almost equally far from many points).
 
 Run from the repository root::
 
@@ -120,6 +123,8 @@ CHAMFER_METHODS = {
     "chamfer_auto": ("geofit.chamfer_distance(backend='auto')", geofit_chamfer("auto")),
 }
 FLANN_MAX = 100_000
+LARGE = 1_000_000  # from this size: one run, and only the methods below
+LARGE_METHODS = ("scipy", "scipy_1", "open3d_knn", "chamfer_auto")
 
 
 def _sqdist(a, b, idx):
@@ -130,8 +135,7 @@ def _sqdist(a, b, idx):
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
-    p.add_argument("--max-seconds", type=float, default=300.0,
-                   help="skip a method at the next size once it took more than this / 10")
+    p.add_argument("--repeat", type=int, default=3, help="runs per figure below 1M (median)")
     args = p.parse_args()
     sizes = [2_000, 20_000] if args.quick else args.sizes
     load_before = os.getloadavg()
@@ -139,40 +143,47 @@ def main() -> None:
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     report = BenchmarkReport("chamfer", config={"sizes": sizes, "quick": bool(args.quick),
-                                                "max_seconds": args.max_seconds})
+                                                "repeat": args.repeat, "large": LARGE,
+                                                "large_methods": list(LARGE_METHODS)})
     report.notes += [
-        "seconds: wall time of one run, both directions (x -> y and y -> x), tree builds "
-        "included; the machine's other jobs add noise, see loadavg_before/after",
-        "check: every method's squared distances equal scipy's exactly (an exact search); "
-        "'skipped' rows were not run because the previous size took > max_seconds / 10",
+        "seconds: wall time, both directions (x -> y and y -> x), tree builds included; median "
+        "of `repeat` runs below 1M points, one run at 1M; the machine's other jobs add noise, "
+        "see loadavg_before/after and the per-row load",
+        "check: every method's squared distances equal scipy's exactly (an exact search)",
         "scenes: overlap = two samplings of the normalised dolphin; tutorial = ico_sphere(4) "
         "samples against the dolphin inside it (the fit's start); apart = the sphere shifted "
         "by (3, 0, 0)",
     ]
     rows = []
-    last: dict[tuple[str, str], float] = {}
     for n in sizes:
+        repeat = 1 if n >= LARGE else max(args.repeat, 1)
         for scene, (x, y) in scenes(n).items():
             ref = None
             for key, (label, fn) in {**NN_METHODS, **CHAMFER_METHODS}.items():
-                prev = last.get((key, scene))
-                skip = (prev is not None and prev > args.max_seconds / 10) or (
-                    key == "open3d_flann" and n > FLANN_MAX)
-                if skip:
-                    why = (f"> {FLANN_MAX} points" if key == "open3d_flann" and n > FLANN_MAX
-                           else f"took {prev:.1f} s at the previous size")
+                why = None
+                if key == "open3d_flann" and n > FLANN_MAX:
+                    why = f"a Python call per point: run up to {FLANN_MAX} points"
+                elif n >= LARGE and key not in LARGE_METHODS:
+                    why = "slower than its library's plain search at 100k: not run at 1M"
+                if why:
                     rows.append({"method": key, "label": label, "scene": scene, "n": n,
                                  "seconds": None, "status": f"skipped: {why}"})
-                    print(f"{n:>8} {scene:9s} {key:15s} skipped ({why})", flush=True)
-                    last[(key, scene)] = np.inf
                     continue
-                t0 = time.perf_counter()
-                if key in CHAMFER_METHODS:
-                    out = fn(x, y)
-                else:
-                    out = (fn(y, x), fn(x, y))  # x -> y queries a tree over y, and back
-                dt = time.perf_counter() - t0
-                last[(key, scene)] = dt
+                times, dirs = [], []
+                for _ in range(repeat):  # repetitions of one measurement
+                    t0 = time.perf_counter()
+                    if key in CHAMFER_METHODS:
+                        out = fn(x, y)
+                        t1 = t0
+                    else:  # x -> y queries a tree over y, and back
+                        out0 = fn(y, x)
+                        t1 = time.perf_counter()
+                        out = (out0, fn(x, y))
+                    t2 = time.perf_counter()
+                    times.append(t2 - t0)
+                    dirs.append((t1 - t0, t2 - t1))
+                k = int(np.argsort(times)[len(times) // 2])  # the median run
+                dt = times[k]
                 status = "ok"
                 if key in NN_METHODS:
                     d = (_sqdist(x, y, out[0]), _sqdist(y, x, out[1]))
@@ -183,9 +194,15 @@ def main() -> None:
                         status = "MISMATCH"
                 elif not np.isclose(out, ref_loss, rtol=1e-12):
                     status = "MISMATCH"
-                rows.append({"method": key, "label": label, "scene": scene, "n": n,
-                             "seconds": dt, "status": status})
-                print(f"{n:>8} {scene:9s} {key:15s} {dt:9.3f} s  {status}", flush=True)
+                row = {"method": key, "label": label, "scene": scene, "n": n, "seconds": dt,
+                       "runs": times, "status": status, "load_1min": os.getloadavg()[0]}
+                if key in NN_METHODS:
+                    row["seconds_x_to_y"], row["seconds_y_to_x"] = dirs[k]
+                rows.append(row)
+                extra = (f" (x->y {dirs[k][0]:.3f}, y->x {dirs[k][1]:.3f})"
+                         if key in NN_METHODS else "")
+                print(f"{n:>8} {scene:9s} {key:15s} {dt:9.3f} s{extra}  {status}  "
+                      f"load {row['load_1min']:.1f}", flush=True)
     record_load(report, load_before)
     report.tables["runs"] = rows
     by = {(r["method"], r["scene"], r["n"]): r["seconds"] for r in rows}
