@@ -227,17 +227,8 @@ def sample_points_from_meshes(mesh, num_samples: int = 10000, *, seed=None,
 
     Parameters
     ----------
-    mesh : Mesh or Meshes
-        The surface(s) to sample.
-    num_samples : int
-        Number of points per mesh, >= 1.
-    seed : int, numpy.random.Generator or None
-        Randomness; the same seed gives the same samples (and the same as
-        :func:`sample_points_with_jacobian`).
-    return_normals : bool
-        Also return the unit normal of each sample's face.
-    return_textures : bool
-        Also return each sample's colour (``mesh.sample_textures``).
+    mesh, num_samples, seed, return_normals, return_textures
+        As in :func:`sample_points_with_jacobian`; the same arguments give the same samples.
 
     Returns
     -------
