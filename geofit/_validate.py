@@ -17,6 +17,7 @@ __all__ = [
     "as_faces",
     "as_rng",
     "check_choice",
+    "check_finite",
     "check_int",
     "check_positive",
     "shape_str",
@@ -131,12 +132,24 @@ def check_choice(value, name: str, choices: Iterable) -> None:
         raise ValueError(f"{name}: expected one of {choices}, got {value!r}")
 
 
-def check_positive(value, name: str, *, strict: bool = True) -> float:
-    """Return ``float(value)`` after checking it is finite and positive (or >= 0)."""
+def _as_float(value, name: str) -> float:
     try:
-        v = float(value)
+        return float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name}: expected a number, got {value!r}") from None
+
+
+def check_finite(value, name: str) -> float:
+    """Return ``float(value)`` after checking it is a finite number."""
+    v = _as_float(value, name)
+    if not np.isfinite(v):
+        raise ValueError(f"{name}: expected a finite number, got {value!r}")
+    return v
+
+
+def check_positive(value, name: str, *, strict: bool = True) -> float:
+    """Return ``float(value)`` after checking it is finite and positive (or >= 0)."""
+    v = _as_float(value, name)
     if not np.isfinite(v) or (v <= 0 if strict else v < 0):
         rel = "> 0" if strict else ">= 0"
         raise ValueError(f"{name}: expected a finite number {rel}, got {value!r}")

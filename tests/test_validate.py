@@ -26,3 +26,28 @@ def test_check_int_type_error_option():
     with pytest.raises(ValueError, match="K: expected an integer >= 2, got 1"):
         check_int(1, "K", 2, error=TypeError)
 
+
+
+@pytest.mark.parametrize("value,message", [("abc", "expected a number"), (None, "expected a number"),
+                                           (np.inf, "expected a finite number"),
+                                           (np.nan, "expected a finite number")])
+def test_check_finite_rejects(value, message):
+    """Not a number, or not finite: ValueError naming the argument."""
+    from geofit._validate import check_finite
+
+    with pytest.raises(ValueError, match=f"^t: {message}"):
+        check_finite(value, "t")
+
+
+def test_check_finite_users():
+    """The edge loss's target length and Softplus's threshold use the shared check."""
+    from geofit import ico_sphere
+    from geofit._validate import check_finite
+    from geofit.loss import mesh_edge_loss
+    from geofit.nn import Softplus
+
+    assert check_finite(np.float32(-2.5), "t") == -2.5
+    with pytest.raises(ValueError, match="target_length: expected a finite number"):
+        mesh_edge_loss(ico_sphere(0), target_length=np.inf)
+    with pytest.raises(ValueError, match="threshold: expected a number"):
+        Softplus(threshold="high")

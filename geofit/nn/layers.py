@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import as_rng, check_positive
+from .._validate import as_rng, check_finite, check_positive
 
 __all__ = [
     "Layer",
@@ -200,9 +200,7 @@ class Softplus(_Activation):
 
     def __init__(self, beta: float = 1.0, threshold: float = 20.0, *, dtype=np.float32):
         self.beta = check_positive(beta, "beta")
-        self.threshold = float(threshold)
-        if not np.isfinite(self.threshold):
-            raise ValueError(f"threshold: expected a finite number, got {threshold!r}")
+        self.threshold = check_finite(threshold, "threshold")
         super().__init__(dtype=dtype)
 
     def forward(self, x, *, cache=True):

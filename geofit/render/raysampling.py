@@ -21,6 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._validate import as_array, as_rng
+from .._validate import check_finite as _finite_float
 from .._validate import check_int as _positive_int
 from ..cameras import CamerasBase, ndc_grid
 
@@ -102,16 +103,6 @@ def _depth_range(min_depth, max_depth) -> tuple[float, float]:
     if hi < lo:
         raise ValueError(f"max_depth: expected >= min_depth = {lo:g}, got {hi:g}")
     return lo, hi
-
-
-def _finite_float(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number, got {value!r}") from None
-    if not np.isfinite(v):
-        raise ValueError(f"{name}: expected a finite number, got {value!r}")
-    return v
 
 
 def _jiggle_within_stratas(bin_centers: np.ndarray, rng: np.random.Generator) -> np.ndarray:
