@@ -138,6 +138,8 @@ def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     p.add_argument("--repeat", type=int, default=3, help="runs per figure below 100k (median)")
+    p.add_argument("--timeout", type=float, default=300.0,
+                   help="seconds after which one measurement is stopped and reported as such")
     args = p.parse_args()
     sizes = [2_000, 20_000] if args.quick else args.sizes
     load_before = os.getloadavg()
@@ -146,6 +148,7 @@ def main() -> None:
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     report = BenchmarkReport("chamfer", config={"sizes": sizes, "quick": bool(args.quick),
                                                 "repeat": args.repeat, "large": LARGE,
+                                                "timeout": args.timeout,
                                                 "large_methods": list(LARGE_METHODS)})
     report.notes += [
         "seconds: wall time, both directions (x -> y and y -> x), tree builds included; median "
@@ -157,6 +160,7 @@ def main() -> None:
         "by (3, 0, 0)",
     ]
     rows = []
+    stem = "chamfer_quick" if args.quick else "chamfer"
     for n in sizes:
         repeat = 1 if n >= ONE_RUN else max(args.repeat, 1)
         for scene, (x, y) in scenes(n).items():
@@ -167,47 +171,90 @@ def main() -> None:
                     why = f"a Python call per point: run up to {FLANN_MAX} points"
                 elif n >= LARGE and key not in LARGE_METHODS:
                     why = "slower than its library's plain search at 100k: not run at 1M"
+                row = {"method": key, "label": label, "scene": scene, "n": n, "seconds": None}
                 if why:
-                    rows.append({"method": key, "label": label, "scene": scene, "n": n,
-                                 "seconds": None, "status": f"skipped: {why}"})
+                    rows.append({**row, "status": f"skipped: {why}"})
                     continue
-                times, dirs = [], []
-                for _ in range(repeat):  # repetitions of one measurement
-                    t0 = time.perf_counter()
-                    if key in CHAMFER_METHODS:
-                        out = fn(x, y)
-                        t1 = t0
-                    else:  # x -> y queries a tree over y, and back
-                        out0 = fn(y, x)
-                        t1 = time.perf_counter()
-                        out = (out0, fn(x, y))
-                    t2 = time.perf_counter()
-                    times.append(t2 - t0)
-                    dirs.append((t1 - t0, t2 - t1))
+                out = _measure(key, fn, x, y, repeat, args.timeout)
+                if out is None:  # did not finish: a lower bound, not a time
+                    row.update(status=f"timeout: not finished after {args.timeout:g} s",
+                               seconds_at_least=args.timeout, load_1min=os.getloadavg()[0])
+                    rows.append(row)
+                    print(f"{n:>8} {scene:9s} {key:15s} > {args.timeout:g} s (timeout)",
+                          flush=True)
+                    _write(report, rows, sizes, args.out, stem, load_before, partial=True)
+                    continue
+                times, dirs, result = out
                 k = int(np.argsort(times)[len(times) // 2])  # the median run
-                dt = times[k]
                 status = "ok"
                 if key in NN_METHODS:
-                    d = (_sqdist(x, y, out[0]), _sqdist(y, x, out[1]))
                     if ref is None:
-                        ref = d
-                        ref_loss = d[0].mean() + d[1].mean()
-                    elif not (np.array_equal(d[0], ref[0]) and np.array_equal(d[1], ref[1])):
+                        ref = result
+                    elif not (np.array_equal(result[0], ref[0])
+                              and np.array_equal(result[1], ref[1])):
                         status = "MISMATCH"
-                elif not np.isclose(out, ref_loss, rtol=1e-12):
+                elif ref is not None and not np.isclose(result, ref[0].mean() + ref[1].mean(),
+                                                        rtol=1e-12):
                     status = "MISMATCH"
-                row = {"method": key, "label": label, "scene": scene, "n": n, "seconds": dt,
-                       "runs": times, "status": status, "load_1min": os.getloadavg()[0]}
+                row.update(seconds=times[k], runs=times, status=status,
+                           load_1min=os.getloadavg()[0])
                 if key in NN_METHODS:
                     row["seconds_x_to_y"], row["seconds_y_to_x"] = dirs[k]
                 rows.append(row)
                 extra = (f" (x->y {dirs[k][0]:.3f}, y->x {dirs[k][1]:.3f})"
                          if key in NN_METHODS else "")
-                print(f"{n:>8} {scene:9s} {key:15s} {dt:9.3f} s{extra}  {status}  "
+                print(f"{n:>8} {scene:9s} {key:15s} {times[k]:9.3f} s{extra}  {status}  "
                       f"load {row['load_1min']:.1f}", flush=True)
+                _write(report, rows, sizes, args.out, stem, load_before, partial=True)
+    _write(report, rows, sizes, args.out, stem, load_before, partial=False)
+    print(report.tables["markdown"])
+    plot(rows, sizes, args.out / f"{stem}.png", machine_info())
+    print("wrote", args.out / f"{stem}.json")
+
+
+def _child(key, fn, x, y, repeat, conn) -> None:
+    """Run one measurement (in a forked process) and send (times, directions, result)."""
+    times, dirs = [], []
+    for _ in range(repeat):  # repetitions of one measurement
+        t0 = time.perf_counter()
+        if key in CHAMFER_METHODS:
+            out = fn(x, y)
+            t1 = t0
+        else:  # x -> y queries a tree over y, and back
+            out0 = fn(y, x)
+            t1 = time.perf_counter()
+            out = (out0, fn(x, y))
+        t2 = time.perf_counter()
+        times.append(t2 - t0)
+        dirs.append((t1 - t0, t2 - t1))
+    result = out if key in CHAMFER_METHODS else (_sqdist(x, y, out[0]), _sqdist(y, x, out[1]))
+    conn.send((times, dirs, result))
+    conn.close()
+
+
+def _measure(key, fn, x, y, repeat, timeout):
+    """(times, per-direction times, result) of one measurement, or None after ``timeout`` s."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")  # the child shares x and y; Open3D was imported before
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(key, fn, x, y, repeat, send))
+    proc.start()
+    send.close()
+    got = recv.recv() if recv.poll(timeout) else None
+    if got is None:
+        proc.kill()
+    proc.join()
+    return got
+
+
+def _write(report, rows, sizes, out_dir, stem, load_before, *, partial: bool) -> None:
+    """Tables and the JSON from the rows so far (rewritten after every row)."""
+    report.config["partial"] = partial
     record_load(report, load_before)
     report.tables["runs"] = rows
     by = {(r["method"], r["scene"], r["n"]): r["seconds"] for r in rows}
+    status = {(r["method"], r["scene"], r["n"]): r["status"] for r in rows}
     ratio = {}
     for key in {**NN_METHODS, **CHAMFER_METHODS}:
         for n in sizes:
@@ -224,15 +271,13 @@ def main() -> None:
         cells = [label]
         for n in sizes:
             for s in ("overlap", "tutorial", "apart"):
-                v = by.get((key, s, n))
-                cells.append("skipped" if v is None else f"{v:.3g}")
+                v, st = by.get((key, s, n)), status.get((key, s, n), "")
+                cells.append(f"{v:.3g}" if v is not None else
+                             f"> {st.split('after ')[1]}" if st.startswith("timeout") else
+                             "skipped" if st.startswith("skipped") else "")
         md.append(cells)
     report.tables["markdown"] = markdown_table(header, md)
-    print(report.tables["markdown"])
-    stem = "chamfer_quick" if args.quick else "chamfer"
-    out = report.write(args.out / f"{stem}.json")
-    plot(rows, sizes, args.out / f"{stem}.png", machine_info())
-    print("wrote", out)
+    report.write(out_dir / f"{stem}.json")
 
 
 def plot(rows, sizes, path, mi) -> None:
