@@ -1,9 +1,9 @@
 """Chamfer distance between point clouds with analytic gradients (PyTorch3D's ``chamfer_distance``).
 
-For every point of ``x`` the nearest point of ``y`` is found (and vice versa) with an exact
-KD-tree (``scipy.spatial.cKDTree``); the distances are then recomputed in float64 from the
-coordinate differences, so values and gradients are exact for the neighbours found. The choice of
-neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
+For every point of ``x`` the nearest point of ``y`` is found (and vice versa) by an exact
+KD-tree search (Open3D's or scipy's, see below); the distances are then recomputed in float64 from
+the coordinate differences, so values and gradients are exact for the neighbours found. The choice
+of neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
 ``knn_points`` indices are constants), and the gradient is exact wherever the nearest neighbours
 are unique.
 
@@ -12,16 +12,26 @@ Gradients (squared distances, ``point_reduction="mean"``, one direction): with `
 ``y_j`` (``np.bincount``); the other direction is the mirror image. The two directions are
 **summed** (PyTorch3D's convention): one point at (0, 0) against one at (3, 0) gives 18.
 
-Why cKDTree: measured on this 2-core machine (shared with other jobs, so +-30%) for both
-directions of a chamfer distance between two uniform clouds, tree builds included,
-``cKDTree(balanced_tree=False, compact_nodes=False)`` took 1.3 / 5.9 / 20 / 122 ms for
-1k / 5k / 20k / 100k points per cloud; Open3D's ``core.nns.NearestNeighborSearch`` (float64
-tensors, knn_index + knn_search) took 0.7 / 4.9 / 27 / 166 ms, and ``KDTreeFlann`` needs a
-Python loop per query point. Both are exact and returned identical neighbours; cKDTree is the
-faster one from ~10k points, equal at the tutorial's 5k, and it also supports the L1 metric
-(``norm=1``) that PyTorch3D's ``knn_points(norm=1)`` uses. Queries of fewer than 4096 points run
-on one thread: scipy starts its worker threads on every call, which costs more than it saves
-there (measured: 0.15 ms vs 2 ms for 500 points).
+Search backends (``backend=``): ``"open3d"`` is Open3D's ``core.nns.NearestNeighborSearch``
+(``knn_index`` + ``knn_search`` with k = 1 on float64 tensors, on all cores); ``"scipy"`` is
+scipy's ``cKDTree(balanced_tree=False, compact_nodes=False)``, whose queries of fewer than 4096
+points run on one thread (scipy starts its worker threads on every call, which costs more than it
+saves there: 0.15 ms against 2 ms for 500 points). Both are exact (tests compare them with brute
+force, and ``benchmarks/chamfer.py`` checks that every method returns scipy's distances); only
+scipy has the L1 metric of ``norm=1``. ``"auto"``, the default, takes scipy below 20 000 points a
+side and Open3D from there, after ``benchmarks/chamfer.py`` (``benchmarks/results/chamfer.json``:
+both directions, tree builds included, on this 2-core machine at a load of 13 to 17, so +-50%):
+at 100k points a side, two samplings of the dolphin took 1.16 s (scipy) and 1.45 s (Open3D),
+the mesh-fitting tutorial's start (sphere samples around the dolphin) 33.6 s and 24.3 s, the
+sphere moved clear of the dolphin 8.1 s and 8.2 s; at 10k all are within the noise
+(0.03 to 0.5 s). Open3D is the faster one where chamfer is slow.
+
+Far-apart clouds are slow for every exact KD-tree, Open3D's included: a query that is almost
+equally far from many points (a dolphin point near the centre of the sphere) must visit all of
+them to prove which one is nearest, so the time grows faster than ``n log n`` (at 100k points
+the tutorial's start took 20 to 30 times as long as two overlapping clouds, at 1M see
+``benchmarks/results/chamfer.json``). No backend measured keeps far-apart clouds within twice the
+time of overlapping ones.
 """
 from __future__ import annotations
 
@@ -448,7 +458,7 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
 
 
 class ChamferTarget:
-    """A fixed target cloud with a prebuilt KD-tree, for repeated chamfer distances to it.
+    """A fixed target cloud whose KD-tree is built once, for repeated chamfer distances to it.
 
     Parameters
     ----------
@@ -461,7 +471,8 @@ class ChamferTarget:
 
     Notes
     -----
-    The x -> y direction queries the tree built here once. The y -> x direction needs a tree
+    The x -> y direction queries one tree over ``y``, built at the first query and reused
+    (scipy's or Open3D's, as ``backend`` picks for the sizes). The y -> x direction needs a tree
     over ``x``, which moves between calls, so it is rebuilt on every call (as PyTorch3D's
     ``knn_points`` does for both directions). Values equal ``chamfer_distance(x, y)`` with the
     same options.
