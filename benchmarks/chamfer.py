@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 from _harness import BenchmarkReport, machine_info, markdown_table, parser, record_load
@@ -138,9 +139,13 @@ def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     p.add_argument("--repeat", type=int, default=3, help="runs per figure below 100k (median)")
+    p.add_argument("--replot", type=Path, help="only redraw the PNG of this JSON")
     p.add_argument("--timeout", type=float, default=300.0,
                    help="seconds after which one measurement is stopped and reported as such")
     args = p.parse_args()
+    if args.replot:
+        replot(args.replot)
+        return
     sizes = [2_000, 20_000] if args.quick else args.sizes
     load_before = os.getloadavg()
     import open3d as o3d  # imported before the timings (its import takes seconds)
@@ -281,29 +286,48 @@ def _write(report, rows, sizes, out_dir, stem, load_before, *, partial: bool) ->
 
 
 def plot(rows, sizes, path, mi) -> None:
+    """Seconds against points a side, one panel per scene; a run stopped at the timeout is an
+    open triangle at the timeout (a lower bound)."""
     import matplotlib.pyplot as plt
 
     from geofit.viz import chart_style
 
+    methods = {**NN_METHODS, **CHAMFER_METHODS}
     with chart_style():
-        fig, axes = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
+        fig, axes = plt.subplots(1, 3, figsize=(13, 5.2), sharey=True)
         for ax, scene in zip(axes, ("overlap", "tutorial", "apart")):
-            for key, (label, _) in {**NN_METHODS, **CHAMFER_METHODS}.items():
+            for i, (key, (label, _)) in enumerate(methods.items()):
+                color = f"C{i}"
                 pts = [(r["n"], r["seconds"]) for r in rows
                        if r["method"] == key and r["scene"] == scene and r["seconds"]]
                 if pts:
                     nn, ss = zip(*pts)
-                    ax.loglog(nn, ss, "o-" if key in NN_METHODS else "s--", label=label)
+                    ax.loglog(nn, ss, "o-" if key in NN_METHODS else "s--", color=color,
+                              label=label if scene == "overlap" else None)
+                late = [(r["n"], r["seconds_at_least"]) for r in rows
+                        if r["method"] == key and r["scene"] == scene
+                        and r.get("seconds_at_least")]
+                if late:
+                    nn, ss = zip(*late)
+                    ax.loglog(nn, ss, "^", color=color, markerfacecolor="none", markersize=9)
             ax.set_title(scene)
             ax.set_xlabel("points a side")
             ax.grid(True, which="both", alpha=0.3)
         axes[0].set_ylabel("seconds, both directions (builds included)")
-        axes[-1].legend(fontsize=7, loc="upper left")
+        fig.legend(loc="lower center", ncol=3, fontsize=8, frameon=False)
         fig.suptitle(f"Exact nearest neighbours for chamfer: {mi['cpu']}, "
-                     f"{mi['cpu_affinity']} cores")
-        fig.tight_layout()
+                     f"{mi['cpu_affinity']} cores (open triangle: stopped at the timeout)")
+        fig.tight_layout(rect=(0, 0.14, 1, 1))
         fig.savefig(path, dpi=110)
         plt.close(fig)
+
+
+def replot(path) -> None:
+    """Redraw the PNG next to a written JSON (``--replot``)."""
+    import json
+
+    d = json.loads(Path(path).read_text(encoding="utf-8"))
+    plot(d["tables"]["runs"], d["config"]["sizes"], Path(path).with_suffix(".png"), d["machine"])
 
 
 if __name__ == "__main__":
