@@ -13,7 +13,9 @@ for three scenes and three sizes (10k, 100k and 1M points a side):
 
 Methods: ``scipy.spatial.cKDTree`` (geofit's settings ``balanced_tree=False,
 compact_nodes=False``, with ``workers=-1`` and ``workers=1``; and scipy's default balanced,
-compact tree), Open3D's ``core.nns.NearestNeighborSearch`` (``knn_index``/``knn_search`` and
+compact tree), both again with the tree points and the queries sorted along a Z-order curve
+(:func:`geofit.loss.chamfer.morton_order`, sorting timed), Open3D's
+``core.nns.NearestNeighborSearch`` (``knn_index``/``knn_search`` and
 ``hybrid_index``/``hybrid_search`` with a radius of 3 sample spacings, the misses then searched
 with knn), ``open3d.geometry.KDTreeFlann`` (one Python call per query point: up to 100k only),
 and :func:`geofit.chamfer_distance` end to end with each backend. Every method's neighbours are
@@ -43,6 +45,7 @@ from _harness import BenchmarkReport, machine_info, markdown_table, parser, reco
 
 import geofit
 from geofit.data import load_target_mesh
+from geofit.loss.chamfer import morton_order
 from geofit.ops import sample_points_from_meshes
 
 
@@ -76,6 +79,18 @@ def open3d_knn(tree_points, q):
     nns.knn_index()
     idx, _ = nns.knn_search(o3d.core.Tensor(q), 1)
     return idx.numpy()[:, 0]
+
+
+def z_order(nn):
+    """``nn`` on a tree over Z-ordered points queried in Z-order (sorting timed too)."""
+    def run(tree_points, q):
+        ot, oq = morton_order(tree_points), morton_order(q)
+        idx = nn(np.ascontiguousarray(tree_points[ot]), np.ascontiguousarray(q[oq]))
+        out = np.empty(len(q), np.int64)
+        out[oq] = ot[idx]
+        return out
+
+    return run
 
 
 def open3d_hybrid(tree_points, q):
@@ -116,6 +131,9 @@ NN_METHODS = {
     "scipy_1": ("scipy cKDTree, workers=1", scipy_nn(1, False)),
     "scipy_balanced": ("scipy cKDTree, balanced + compact (scipy default)", scipy_nn(-1, True)),
     "open3d_knn": ("Open3D core.nns knn", open3d_knn),
+    "scipy_morton": ("scipy cKDTree, workers=-1, points and queries in Z-order",
+                     z_order(scipy_nn(-1, False))),
+    "open3d_morton": ("Open3D core.nns knn, points and queries in Z-order", z_order(open3d_knn)),
     "open3d_hybrid": ("Open3D core.nns hybrid (3 spacings) + knn for misses", open3d_hybrid),
     "open3d_flann": ("Open3D KDTreeFlann (a Python call per point)", open3d_flann),
 }
@@ -127,7 +145,8 @@ CHAMFER_METHODS = {
 FLANN_MAX = 100_000
 LARGE = 1_000_000  # from this size only the methods below
 ONE_RUN = 100_000  # from this size one run per figure
-LARGE_METHODS = ("scipy", "scipy_1", "open3d_knn", "chamfer_auto")
+LARGE_METHODS = ("scipy", "scipy_1", "open3d_knn", "scipy_morton", "open3d_morton",
+                 "chamfer_auto")
 
 
 def _sqdist(a, b, idx):
@@ -140,7 +159,7 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     p.add_argument("--repeat", type=int, default=3, help="runs per figure below 100k (median)")
     p.add_argument("--replot", type=Path, help="only redraw the PNG of this JSON")
-    p.add_argument("--timeout", type=float, default=300.0,
+    p.add_argument("--timeout", type=float, default=150.0,
                    help="seconds after which one measurement is stopped and reported as such")
     args = p.parse_args()
     if args.replot:

@@ -537,3 +537,40 @@ def test_backend_validation():
         ChamferTarget(x, backend="kd")
     with pytest.raises(ValueError, match="backend"):
         ChamferTarget(x, backend="open3d").loss(x, norm=1)
+
+
+def test_morton_order_is_a_local_permutation():
+    """The Z-order is a permutation; on an 8^3 grid its first 8 points are the corner 2^3 cube."""
+    from geofit.loss.chamfer import morton_order
+
+    g = np.stack(np.meshgrid(*[np.arange(8.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    shuffled = g[np.random.default_rng(0).permutation(len(g))]
+    o = morton_order(shuffled)
+    assert_array_equal(np.sort(o), np.arange(len(g)))
+    first = shuffled[o[:8]]
+    assert_array_equal(np.sort(first, axis=0).max(axis=0), [1.0, 1.0, 1.0])
+    assert len(np.unique(first, axis=0)) == 8
+    assert_array_equal(morton_order(np.zeros((5, 3))), np.arange(5))  # no extent: stable
+
+
+@pytest.mark.parametrize("backend", ["scipy", "open3d"])
+def test_z_ordered_search_is_exact(monkeypatch, backend):
+    """Above _MORTON_FROM points the tree and the queries are sorted: answers stay exact."""
+    from geofit.loss import chamfer as ch
+
+    monkeypatch.setattr(ch, "_MORTON_FROM", 16)
+    rng = np.random.default_rng(8)
+    y = rng.normal(size=(600, 3))
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    x = 0.4 * rng.normal(size=(450, 3)) + [0.2, 3.0, 0.0]
+    for p, q in ((x, y), (y, x), (x, x + 1e-3)):
+        index = ch._NearestIndex(q, backend)
+        assert index._order is not None
+        idx = index.nearest(p, 2)
+        assert_array_equal(((p - q[idx]) ** 2).sum(1), _brute_nearest_sqdist(p, q))
+    r = chamfer_distance(x, y, backend=backend)
+    monkeypatch.setattr(ch, "_MORTON_FROM", 10 ** 9)
+    plain = chamfer_distance(x, y, backend=backend)
+    assert r.loss == plain.loss
+    assert_array_equal(r.grad_x, plain.grad_x)
+    assert_array_equal(r.grad_y, plain.grad_y)

@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from .._validate import as_array, as_points, check_choice
 
-__all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance"]
+__all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]
 
 _BATCH_REDUCTIONS = ("mean", "sum", None)
 _POINT_REDUCTIONS = ("mean", "sum", "max")
@@ -52,6 +52,7 @@ _COS_EPS = 1e-6  # PyTorch3D's cosine_similarity eps in chamfer_distance
 _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (measured break-even)
 _BACKENDS = ("auto", "open3d", "scipy")
 _OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is used (measured)
+_MORTON_FROM = 20_000  # clouds and queries from this size are searched in Z-order (measured)
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,11 +95,36 @@ class ChamferResult:
         return (self.loss, self.loss_normals)[i]
 
 
+def morton_order(points: np.ndarray) -> np.ndarray:
+    """(n,) int64 permutation that sorts ``points`` (n, 3) along a Z-order (Morton) curve.
+
+    Points close in space get close positions, so a KD-tree built over sorted points, queried by
+    sorted queries, reads memory in order: measured in ``benchmarks/chamfer.py`` (``*_morton``
+    rows). 21 bits per axis over the points' bounding cube.
+    """
+    lo = points.min(axis=0)
+    span = float((points.max(axis=0) - lo).max())
+    scale = (2 ** 21 - 1) / span if span > 0 else 0.0
+    q = ((points - lo) * scale).astype(np.uint64)
+    code = np.zeros(len(points), np.uint64)
+    for axis in range(3):  # the three coordinates: spread 21 bits to every third bit
+        v = q[:, axis]
+        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF),
+                            (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3),
+                            (2, 0x1249249249249249)):
+            v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+        code |= v << np.uint64(axis)
+    return np.argsort(code, kind="stable").astype(np.int64, copy=False)
+
+
 class _NearestIndex:
     """Exact nearest neighbours in a fixed cloud: Open3D's ``core.nns`` or scipy's cKDTree.
 
     The search structure is built on the first query (one per backend actually used) and reused;
-    ``backend`` is ``"open3d"``, ``"scipy"`` or ``"auto"`` (see :func:`_pick`).
+    ``backend`` is ``"open3d"``, ``"scipy"`` or ``"auto"`` (see :meth:`_pick`). From
+    ``_MORTON_FROM`` points the tree is built over the points in Z-order and the queries are
+    searched in Z-order too (the answers are mapped back): the same exact neighbours, read with
+    far fewer cache misses.
     """
 
     def __init__(self, points: np.ndarray, backend: str):
@@ -106,6 +132,9 @@ class _NearestIndex:
         self.backend = backend
         self._scipy = None
         self._open3d = None
+        self._order = morton_order(points) if len(points) >= _MORTON_FROM else None
+        self._tree_points = (points if self._order is None
+                             else np.ascontiguousarray(points[self._order]))
 
     def _pick(self, n_queries: int, norm: int) -> str:
         if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
@@ -118,20 +147,31 @@ class _NearestIndex:
 
     def nearest(self, q: np.ndarray, norm: int) -> np.ndarray:
         """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
-        if self._pick(len(q), norm) == "open3d":
-            if self._open3d is None:
-                import open3d as o3d
+        q_order = morton_order(q) if len(q) >= _MORTON_FROM else None
+        qs = q if q_order is None else np.ascontiguousarray(q[q_order])
+        idx = self._search(qs, norm)
+        if self._order is not None:
+            idx = self._order[idx]
+        if q_order is not None:
+            out = np.empty_like(idx)
+            out[q_order] = idx
+            idx = out
+        return idx
 
-                self._open3d = o3d.core.nns.NearestNeighborSearch(
-                    o3d.core.Tensor(np.ascontiguousarray(self.points)))
-                self._open3d.knn_index()
+    def _search(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """Indices into ``self._tree_points`` of the nearest point of each query."""
+        if self._pick(len(q), norm) == "open3d":
             import open3d as o3d
 
+            if self._open3d is None:
+                self._open3d = o3d.core.nns.NearestNeighborSearch(
+                    o3d.core.Tensor(self._tree_points))
+                self._open3d.knn_index()
             idx, _ = self._open3d.knn_search(o3d.core.Tensor(np.ascontiguousarray(q)), 1)
             return idx.numpy()[:, 0].astype(np.int64, copy=False)
         if self._scipy is None:
             # Unbalanced, non-compact trees build faster and query as fast (benchmarks/chamfer)
-            self._scipy = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+            self._scipy = cKDTree(self._tree_points, balanced_tree=False, compact_nodes=False)
         # Threads pay off only for large queries (scipy starts them on every call).
         _, idx = self._scipy.query(q, k=1, p=norm,
                                    workers=-1 if len(q) >= _PARALLEL_QUERY else 1)
