@@ -16,21 +16,23 @@ Search backends (``backend=``): ``"open3d"`` is Open3D's ``core.nns.NearestNeigh
 (``knn_index`` + ``knn_search`` with k = 1 on float64 tensors, on all cores); ``"scipy"`` is
 scipy's ``cKDTree(balanced_tree=False, compact_nodes=False)``, whose queries of fewer than 4096
 points run on one thread (scipy starts its worker threads on every call, which costs more than it
-saves there: 0.15 ms against 2 ms for 500 points). Both are exact (tests compare them with brute
-force, and ``benchmarks/chamfer.py`` checks that every method returns scipy's distances); only
-scipy has the L1 metric of ``norm=1``. ``"auto"``, the default, takes scipy below 20 000 points a
-side and Open3D from there, after ``benchmarks/chamfer.py`` (``benchmarks/results/chamfer.json``:
-both directions, tree builds included, on this 2-core machine at a load of 13 to 17, so +-50%):
-at 100k points a side, two samplings of the dolphin took 1.16 s (scipy) and 1.45 s (Open3D),
-the mesh-fitting tutorial's start (sphere samples around the dolphin) 33.6 s and 24.3 s, the
-sphere moved clear of the dolphin 8.1 s and 8.2 s; at 10k all are within the noise
-(0.03 to 0.5 s). Open3D is the faster one where chamfer is slow.
+saves there: 0.15 ms against 2 ms for 500 points). From 20 000 points the tree is built over the
+points sorted along a Z-order curve and the queries are searched in that order too
+(:func:`morton_order`; the answers are mapped back), which saves cache misses. Every path is
+exact (tests compare them with brute force, and ``benchmarks/chamfer.py`` checks that every
+method returns scipy's distances); only scipy has the L1 metric of ``norm=1``. ``"auto"``, the
+default, takes scipy below 20 000 points a side and Open3D from there, after
+``benchmarks/chamfer.py`` (``benchmarks/results/chamfer.json``: both directions, tree builds
+included, 2 shared cores at a load of 15 to 18, so read ratios rather than seconds): at 100k
+points a side ``chamfer_distance`` took 3.9 s with scipy and 2.8 s with Open3D on two samplings
+of the dolphin, and 58 s and 24 s at the mesh-fitting tutorial's start (sphere samples around
+the dolphin); at 10k all backends are within the noise (0.1 to 1.5 s).
 
 Far-apart clouds are slow for every exact KD-tree, Open3D's included: a query that is almost
 equally far from many points (a dolphin point near the centre of the sphere) must visit all of
-them to prove which one is nearest, so the time grows faster than ``n log n`` (at 100k points
-the tutorial's start took 20 to 30 times as long as two overlapping clouds, at 1M see
-``benchmarks/results/chamfer.json``). No backend measured keeps far-apart clouds within twice the
+them to prove which one is nearest, so the time grows faster than ``n log n`` (at 100k points the
+tutorial's start took 7 times as long as two overlapping clouds with the default, 15 times with
+scipy; 1M points: see the JSON). No backend measured keeps far-apart clouds within twice the
 time of overlapping ones.
 """
 from __future__ import annotations
