@@ -7,6 +7,7 @@ gradients.
 from __future__ import annotations
 
 from . import data, fit, io, metrics, render
+from ._threads import get_num_threads, set_num_threads
 from .cameras import (
     CamerasBase,
     FoVOrthographicCameras,
@@ -98,6 +99,9 @@ __version__ = "0.1.0"
 
 __all__ = [
     "__version__",
+    # threads
+    "get_num_threads",
+    "set_num_threads",
     # structures
     "Mesh",
     "Meshes",

@@ -32,8 +32,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array
-from .._validate import check_int as _as_int_at_least
+from ..._validate import as_array
+from ..._validate import check_int as _as_int_at_least
 
 __all__ = [
     "AbsorptionOnlyRaymarcher",

@@ -20,10 +20,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, as_rng
-from .._validate import check_finite as _finite_float
-from .._validate import check_int as _positive_int
-from ..cameras import CamerasBase, ndc_grid
+from ..._validate import as_array, as_rng
+from ..._validate import check_finite as _finite_float
+from ..._validate import check_int as _positive_int
+from ...cameras import CamerasBase, ndc_grid
 
 __all__ = [
     "MonteCarloRaysampler",
