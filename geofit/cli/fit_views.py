@@ -20,16 +20,11 @@ import time
 
 import numpy as np
 
+from .._validate import check_int as _int
 from ._common import (add_capture_arg, add_command, capture_views, out_dir, save_png,
                       write_json)
 
 __all__ = ["register", "run"]
-
-
-def _int(v: int, name: str, lo: int = 1) -> int:
-    if v < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {v}")
-    return v
 
 
 def run(args: argparse.Namespace) -> int:
