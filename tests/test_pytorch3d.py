@@ -102,6 +102,7 @@ def _check_fd(fun, x0, rtol=1e-6, atol=1e-8):
     ("broadcast", lambda x: ((x * tensor([1.0, 2.0, 3.0]) + x.mean(0)) ** 2).sum()),
     ("numpy-left", lambda x: (np.float64(2.0) * x + np.ones(3) - x / np.float64(3.0)).sum()),
     ("clone", lambda x: (x.clone() ** 2).sum()),
+    ("torch-index", lambda x: (x[1, ..., range(2)] ** 2).sum() + (x[[0, 3], 1] ** 3).sum()),
 ])
 def test_tape_arithmetic_matches_finite_differences(name, fun):
     """Every recorded arithmetic vjp equals central differences (float64)."""

@@ -423,7 +423,17 @@ class Tensor:
     def __getitem__(self, index):
         index = _data(index)
         if isinstance(index, tuple):
-            index = tuple(_data(i) for i in index)
+            index = tuple(list(i) if isinstance(i, range) else _data(i) for i in index)
+            ints = [isinstance(i, (int, np.integer)) for i in index]
+            arrays = [isinstance(i, (list, np.ndarray)) and np.ndim(i) > 0 for i in index]
+            if any(ints) and any(arrays) and not any(i is None for i in index):
+                # torch applies integer indices as basic indexing (numpy would broadcast them
+                # with the arrays and move the result's axes to the front): do them first
+                first = tuple(i if k else (Ellipsis if i is Ellipsis else slice(None))
+                              for i, k in zip(index, ints))
+                return self[first][tuple(i for i, k in zip(index, ints) if not k)]
+        elif isinstance(index, range):
+            index = list(index)
         shape = self.data.shape
         value = self.data[index]
 

@@ -33,8 +33,10 @@ class PointsRasterizer(_gr.PointsRasterizer):
     def __init__(self, cameras=None, raster_settings=None, device=None):
         super().__init__(cameras, raster_settings)
 
-    def __call__(self, point_clouds, **kwargs):
-        return super().__call__(_clouds(point_clouds), kwargs.get("cameras"),
+    def __call__(self, point_clouds, cameras=None, **kwargs):
+        if isinstance(point_clouds, Pointclouds):
+            point_clouds = _clouds(point_clouds)
+        return super().__call__(point_clouds, kwargs.get("cameras", cameras),
                                 raster_settings=kwargs.get("raster_settings"))
 
     def to(self, *args, **kwargs):
