@@ -18,9 +18,14 @@ from .textures import TexturesVertex
 __all__ = ["sample_points_from_meshes"]
 
 
+# geofit's sampler that keeps the sparse Jacobian (``SampledPoints`` with ``B``)
+_SAMPLER = getattr(_sampling, "sample_points_with_jacobian", None) or \
+    _sampling.sample_points_from_meshes
+
+
 def _draw(mesh, n: int, rng, normals: bool):
     """geofit's sampler for one mesh: SampledPoints (points, normals, face_idx, bary, B)."""
-    return _sampling.sample_points_from_meshes(mesh, n, seed=rng, return_normals=normals)
+    return _SAMPLER(mesh, n, seed=rng, return_normals=normals)
 
 
 def sample_points_from_meshes(meshes: Meshes, num_samples: int = 10000,

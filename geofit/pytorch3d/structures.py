@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import structures as _gs
+from ..structures.volume import Volume as _Volume
 from ._common import missing_names, np_
 from .tensor import Tensor, cat
 from .textures import TexturesUV, TexturesVertex, _convert_textures
@@ -579,7 +580,7 @@ class Volumes:
                 raise ValueError(f"features: expected shape ({d.shape[0]}, C, "
                                  f"{', '.join(map(str, d.shape[2:]))}), got {f.shape}")
         self._vols = [
-            _gs.Volume(d[i, 0], None if f is None else f[i],
+            _Volume(d[i, 0], None if f is None else f[i],
                        voxel_size=np_(voxel_size, np.float64),
                        volume_translation=np_(volume_translation, np.float64),
                        align_corners=align_corners)

@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...render import harmonic as _harm
-from ...render import raymarching as _march
-from ...render import raysampling as _rays
-from ...render import volume as _vol
 from .._common import drop_device, np_
 from ..structures import Volumes
 from ..tensor import Tensor
@@ -21,16 +17,32 @@ __all__ = ["EmissionAbsorptionRaymarcher", "HarmonicEmbedding", "ImplicitRendere
            "MonteCarloRaysampler", "NDCMultinomialRaysampler", "RayBundle", "VolumeRenderer",
            "ray_bundle_to_ray_points"]
 
-NDCMultinomialRaysampler = drop_device(_rays.NDCMultinomialRaysampler)
-MonteCarloRaysampler = drop_device(_rays.MonteCarloRaysampler)
-EmissionAbsorptionRaymarcher = drop_device(_march.EmissionAbsorptionRaymarcher)
-HarmonicEmbedding = drop_device(_harm.HarmonicEmbedding)
-RayBundle = _rays.RayBundle
+try:  # geofit.render exports every renderer
+    from ...render import EmissionAbsorptionRaymarcher as _EA
+    from ...render import HarmonicEmbedding as _HE
+    from ...render import MonteCarloRaysampler as _MC
+    from ...render import NDCMultinomialRaysampler as _NDC
+    from ...render import RayBundle
+    from ...render import VolumeRenderer as _VR
+    from ...render import ray_bundle_to_ray_points as _points
+except ImportError:  # geofit 0.1's flat module layout
+    from ...render.harmonic import HarmonicEmbedding as _HE
+    from ...render.raymarching import EmissionAbsorptionRaymarcher as _EA
+    from ...render.raysampling import MonteCarloRaysampler as _MC
+    from ...render.raysampling import NDCMultinomialRaysampler as _NDC
+    from ...render.raysampling import RayBundle
+    from ...render.raysampling import ray_bundle_to_ray_points as _points
+    from ...render.volume import VolumeRenderer as _VR
+
+NDCMultinomialRaysampler = drop_device(_NDC)
+MonteCarloRaysampler = drop_device(_MC)
+EmissionAbsorptionRaymarcher = drop_device(_EA)
+HarmonicEmbedding = drop_device(_HE)
 
 
 def ray_bundle_to_ray_points(ray_bundle) -> Tensor:
     """(B, ..., n_pts, 3) sample points ``origins + lengths * directions``."""
-    return Tensor(_rays.ray_bundle_to_ray_points(ray_bundle))
+    return Tensor(_points(ray_bundle))
 
 
 class VolumeRenderer:
@@ -44,7 +56,7 @@ class VolumeRenderer:
     """
 
     def __init__(self, raysampler, raymarcher, sample_mode: str = "bilinear"):
-        self._r = _vol.VolumeRenderer(raysampler, raymarcher, sample_mode)
+        self._r = _VR(raysampler, raymarcher, sample_mode)
         self.raysampler = raysampler
         self.raymarcher = raymarcher
 
@@ -59,7 +71,7 @@ class VolumeRenderer:
             return Tensor(self._r.render_rays(volumes._vols[0], bundle)), bundle
         if n != len(cameras):
             raise ValueError(f"volumes: expected 1 or {len(cameras)} volumes, got {n}")
-        parts = [self._r.render_rays(v, _rays.RayBundle(*(np_(a)[i:i + 1] for a in bundle)))
+        parts = [self._r.render_rays(v, RayBundle(*(np_(a)[i:i + 1] for a in bundle)))
                  for i, v in enumerate(volumes._vols)]  # loop over batch members
         return Tensor(np.concatenate(parts)), bundle
 
