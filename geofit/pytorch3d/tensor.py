@@ -27,7 +27,7 @@ Examples
 >>> loss = ((x * 2.0 - 1.0) ** 2).mean()
 >>> loss.backward()
 >>> x.grad.numpy()  # d/dx mean((2x - 1)^2) = 4 (2x - 1) / 3
-array([ 1.33333333,  4.        ,  6.66666667])
+array([1.33333333, 4.        , 6.66666667])
 """
 from __future__ import annotations
 
@@ -53,6 +53,7 @@ __all__ = [
     "no_grad",
     "ones",
     "ones_like",
+    "record",
     "tensor",
     "zeros",
     "zeros_like",
@@ -639,3 +640,35 @@ def manual_seed(seed: int) -> None:
 def default_rng() -> np.random.Generator:
     """The generator seeded by :func:`manual_seed`."""
     return _RNG
+
+
+def record(value, inputs: Sequence, vjp: Callable) -> Tensor:
+    """Put your own differentiable operation on the tape.
+
+    Parameters
+    ----------
+    value : array_like
+        The operation's output, computed from the inputs' ``.data``.
+    inputs : sequence of Tensor
+        The tensors it was computed from.
+    vjp : callable
+        ``vjp(g) -> tuple`` of one gradient per input (None for no gradient): given
+        ``g = dL/d value`` (shaped like ``value``), return ``dL/d input`` for each input.
+
+    Returns
+    -------
+    Tensor
+        Records ``vjp`` when an input requires a gradient (and gradients are enabled).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = Parameter(np.array([0.0, 1.0]))
+    >>> s = 1.0 / (1.0 + np.exp(-x.data))                      # a sigmoid ...
+    >>> y = record(s, [x], lambda g: (g * s * (1.0 - s),))     # ... and its vjp
+    >>> y.sum().backward()
+    >>> np.round(x.grad.numpy(), 4)
+    array([0.25  , 0.1966])
+    """
+    inputs = [t if isinstance(t, Tensor) else Tensor(t) for t in inputs]
+    return Tensor._record(np.asarray(value), inputs, vjp)
