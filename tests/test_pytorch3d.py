@@ -552,7 +552,7 @@ def test_hard_render_and_errors_for_what_is_not_differentiable():
     ("geofit.pytorch3d.renderer", "PulsarPointsRenderer", "AlphaCompositor"),
     ("geofit.pytorch3d.ops", "knn_points", "cKDTree"),
     ("geofit.pytorch3d.vis.plotly_vis", "plot_scene", "matplotlib"),
-    ("geofit.pytorch3d.nn", "Module", "NeuralRadianceField"),
+    ("geofit.pytorch3d.nn", "Linear", "NeuralRadianceField"),
     ("geofit.pytorch3d.renderer", "NoSuchThing", "six introductory tutorials"),
 ])
 def test_missing_pytorch3d_names_say_what_to_use(module, name, hint):
@@ -640,3 +640,55 @@ def test_custom_objective_guide_runs(tmp_path, monkeypatch):
     ns = {"__name__": "guide"}
     for i, block in enumerate(blocks):  # the guide's blocks, in order
         exec(compile(block, f"custom_objective.md block {i}", "exec"), ns)
+
+
+def test_tape_sigmoid_sqrt_clamp_expand_split_match_finite_differences():
+    """The ops the volume tutorial adds to the tape (its huber: clamp(1e-4).sqrt())."""
+    from geofit.pytorch3d.tensor import sigmoid
+
+    def fun(x):
+        a, b = sigmoid(x).expand(3, 4, 3).split([2, 1], dim=-1)
+        huber = ((1 + (a - 0.3) ** 2 / 0.01).clamp(1e-4).sqrt() - 1) * 0.1
+        return huber.abs().mean() + (b.exp() * x[None, :, 2:]).clamp(max=1.5).sum()
+
+    _check_fd(fun, np.random.default_rng(2).normal(size=(4, 3)))
+    with pytest.raises(ValueError, match="sum to"):
+        tensor(np.ones((2, 3))).split([1, 1], dim=1)
+    p = Parameter(np.ones(3))
+    with pytest.raises(TypeError, match="in-place"):
+        p[0] = 2.0
+
+
+def test_volume_render_on_the_tape_equals_geofits_vjp():
+    """A VolumeModel-style expand of one volume: the tape gives VolumeRenderer.vjp."""
+    from geofit.pytorch3d.renderer import (
+        EmissionAbsorptionRaymarcher,
+        NDCMultinomialRaysampler,
+        VolumeRenderer,
+    )
+    from geofit.pytorch3d.structures import Volumes
+    from geofit.structures.volume import Volume
+
+    R, T = look_at_view_transform(2.0, 10.0, [0.0, 70.0, 150.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    r = VolumeRenderer(raysampler=NDCMultinomialRaysampler(
+        image_width=10, image_height=10, n_pts_per_ray=20, min_depth=0.5, max_depth=3.5),
+        raymarcher=EmissionAbsorptionRaymarcher())
+    rng = np.random.default_rng(0)
+    dens = Parameter(rng.random((1, 5, 5, 5)) * 0.4)
+    cols = Parameter(rng.random((3, 5, 5, 5)))
+    W = rng.normal(size=(3, 10, 10, 4))
+    vols = Volumes(densities=dens[None].expand(3, *dens.shape),
+                   features=cols[None].expand(3, *cols.shape), voxel_size=0.3)
+    images, bundle = r(cameras=cams, volumes=vols)
+    (images * W).sum().backward()
+    ref = r._r.vjp(W, Volume(dens.data[0], cols.data, voxel_size=0.3), bundle)
+    np.testing.assert_allclose(dens.grad.numpy()[0], ref.densities, atol=TOL)
+    np.testing.assert_allclose(cols.grad.numpy(), ref.features, atol=TOL)
+    two = Parameter(rng.random((3, 1, 5, 5, 5)) * 0.4)  # three different volumes
+
+    def fun(d):
+        return (r(cameras=cams, volumes=Volumes(densities=d, features=np.ones((3, 3, 5, 5, 5)),
+                                                 voxel_size=0.3))[0] * W).sum()
+
+    _check_fd(fun, two.data)

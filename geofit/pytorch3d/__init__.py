@@ -9,16 +9,15 @@ hand-written vector-Jacobian products, recorded on a tape (:class:`~.tensor.Tens
 not provided raises an AttributeError (ImportError in ``from ... import``) that says what to use
 instead.
 """
-from . import io, loss, nn, ops, optim, renderer, structures, tensor, utils, vis
+from . import io, loss, nn, ops, optim, renderer, structures, tensor, transforms, utils, vis
 from ._common import missing_names
 from .tensor import Parameter, Tensor, full, manual_seed, no_grad, tensor as tensor_
 
 __all__ = ["Parameter", "Tensor", "full", "io", "loss", "manual_seed", "nn", "no_grad", "ops",
-           "optim", "renderer", "structures", "tensor", "tensor_", "utils", "vis"]
+           "optim", "renderer", "structures", "tensor", "tensor_", "transforms", "utils",
+           "vis"]
 
 __getattr__ = missing_names("geofit.pytorch3d", {
-    "transforms": "geofit.cameras has the camera transforms (R, T row-vector convention); "
-                  "scipy.spatial.transform.Rotation converts rotations",
     "implicitron": "not provided; the NeRF tutorial's model is "
                    "geofit.render.implicit.NeuralRadianceField",
     "datasets": "geofit.datasets.generate_cow_renders, geofit.data for the tutorial files",

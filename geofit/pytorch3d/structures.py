@@ -13,7 +13,7 @@ import numpy as np
 from .. import structures as _gs
 from ..structures.volume import Volume as _Volume
 from ._common import missing_names, np_
-from .tensor import Tensor, cat
+from .tensor import Tensor, cat, stack
 from .textures import TexturesUV, TexturesVertex, _convert_textures
 
 __all__ = ["Meshes", "Pointclouds", "Volumes", "join_meshes_as_batch"]
@@ -554,54 +554,62 @@ class Volumes:
 
     Parameters
     ----------
-    densities : (N, 1, D, H, W) array / Tensor or list of (1, D, H, W)
-    features : (N, C, D, H, W) or list of (C, D, H, W), optional
+    densities : (N, 1, D, H, W) array / Tensor, or list of (1, D, H, W)
+    features : (N, C, D, H, W) array / Tensor, or list of (C, D, H, W), optional
     voxel_size : float or (3,)
     volume_translation : (3,) float
     align_corners : bool
 
     Notes
     -----
-    Values only: :class:`geofit.pytorch3d.renderer.VolumeRenderer` renders them; gradients of
-    a volume fit go through geofit's own :func:`geofit.fit.fit_volume` (see the README table).
+    Densities and features may be tensors that require a gradient (the volume tutorial's
+    ``sigmoid(log_densities)[None].expand(N, ...)``):
+    :class:`geofit.pytorch3d.renderer.VolumeRenderer` records geofit's vjp to them. A batch
+    that is one volume expanded N times (a zero stride) is stored once.
     """
 
     def __init__(self, densities, features=None, voxel_size=1.0, volume_translation=(0., 0., 0.),
                  align_corners: bool = True):
-        d = np_(densities, np.float64) if not isinstance(densities, list) else \
-            np.stack([np_(x, np.float64) for x in densities])
-        if d.ndim != 5 or d.shape[1] != 1:
-            raise ValueError(f"densities: expected shape (N, 1, D, H, W), got {d.shape}")
-        f = None
+        dt = stack(densities) if isinstance(densities, list) else _as_tensor(densities,
+                                                                              "densities")
+        if dt.ndim != 5 or dt.shape[1] != 1:
+            raise ValueError(f"densities: expected shape (N, 1, D, H, W), got {dt.shape}")
+        ft = None
         if features is not None:
-            f = np_(features, np.float64) if not isinstance(features, list) else \
-                np.stack([np_(x, np.float64) for x in features])
-            if f.ndim != 5 or f.shape[0] != d.shape[0] or f.shape[2:] != d.shape[2:]:
-                raise ValueError(f"features: expected shape ({d.shape[0]}, C, "
-                                 f"{', '.join(map(str, d.shape[2:]))}), got {f.shape}")
+            ft = stack(features) if isinstance(features, list) else _as_tensor(features,
+                                                                                "features")
+            if ft.ndim != 5 or ft.shape[0] != dt.shape[0] or ft.shape[2:] != dt.shape[2:]:
+                raise ValueError(f"features: expected shape ({dt.shape[0]}, C, "
+                                 f"{', '.join(map(str, dt.shape[2:]))}), got {ft.shape}")
+        d = dt.data
+        f = None if ft is None else ft.data
+        n = d.shape[0]
+        # one volume expanded N times (zero stride) is stored, rendered and differentiated once
+        self._shared = n > 1 and d.strides[0] == 0 and (f is None or f.strides[0] == 0)
         self._vols = [
             _Volume(d[i, 0], None if f is None else f[i],
-                       voxel_size=np_(voxel_size, np.float64),
-                       volume_translation=np_(volume_translation, np.float64),
-                       align_corners=align_corners)
-            for i in range(d.shape[0])]  # loop over batch members
-        self._densities = d
-        self._features = f
+                    voxel_size=np_(voxel_size, np.float64),
+                    volume_translation=np_(volume_translation, np.float64),
+                    align_corners=align_corners)
+            for i in range(1 if self._shared else n)]  # loop over batch members
+        self._densities = dt
+        self._features = ft
 
     def __len__(self) -> int:
-        return len(self._vols)
+        return self._densities.shape[0]
 
     def densities(self) -> Tensor:
-        return Tensor(self._densities)
+        return self._densities
 
     def features(self):
-        return None if self._features is None else Tensor(self._features)
+        return self._features
 
     def get_grid_sizes(self) -> Tensor:
         return Tensor(np.array([self._densities.shape[2:]] * len(self), np.int64))
 
     def get_coord_grid(self, world_coordinates: bool = True) -> Tensor:
-        return Tensor(np.stack([v.get_coord_grid(world_coordinates) for v in self._vols]))
+        g = [v.get_coord_grid(world_coordinates) for v in self._vols]
+        return Tensor(np.stack(g * len(self) if self._shared else g))
 
     def to(self, *args, **kwargs) -> Volumes:
         return self

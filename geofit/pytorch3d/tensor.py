@@ -53,7 +53,10 @@ __all__ = [
     "no_grad",
     "ones",
     "ones_like",
+    "randint",
+    "randperm",
     "record",
+    "sigmoid",
     "tensor",
     "zeros",
     "zeros_like",
@@ -323,10 +326,10 @@ class Tensor:
         return self.data.astype(dtype, copy=False)
 
     def __float__(self) -> float:
-        return float(self.data)
+        return float(self.data.item())  # one element of any shape, as torch
 
     def __int__(self) -> int:
-        return int(self.data)
+        return int(self.data.item())
 
     def __index__(self) -> int:
         return self.data.__index__()
@@ -475,6 +478,69 @@ class Tensor:
         """The slices along ``dim`` (each keeps the gradient)."""
         n = self.data.shape[dim]
         return tuple(self[(slice(None),) * (dim % self.data.ndim) + (i,)] for i in range(n))
+
+    def sigmoid(self) -> Tensor:
+        """``1 / (1 + exp(-x))`` (gradient ``s (1 - s)``)."""
+        a = self.data
+        s = np.empty_like(a)
+        pos = a >= 0
+        s[pos] = 1.0 / (1.0 + np.exp(-a[pos]))
+        e = np.exp(a[~pos])
+        s[~pos] = e / (1.0 + e)  # no overflow for large negative inputs
+        return Tensor._record(s, (self,), lambda g: (g * s * (1.0 - s),))
+
+    def sqrt(self) -> Tensor:
+        """``sqrt(x)`` (gradient ``1 / (2 sqrt(x))``)."""
+        r = np.sqrt(self.data)
+        return Tensor._record(r, (self,), lambda g: (g * 0.5 / r,))
+
+    def exp(self) -> Tensor:
+        """``exp(x)``."""
+        e = np.exp(self.data)
+        return Tensor._record(e, (self,), lambda g: (g * e,))
+
+    def clamp(self, min=None, max=None) -> Tensor:  # noqa: A002 - torch's keyword names
+        """Values limited to [min, max] (gradient 1 inside, 0 where clamped, as torch)."""
+        a = self.data
+        keep = np.ones(a.shape, bool)
+        if min is not None:
+            keep &= a >= min
+        if max is not None:
+            keep &= a <= max
+        return Tensor._record(np.clip(a, min, max), (self,), lambda g: (g * keep,))
+
+    clip = clamp
+
+    def expand(self, *sizes) -> Tensor:
+        """A broadcast view to ``sizes`` (-1 keeps a size); the gradient sums over the copies."""
+        if len(sizes) == 1 and isinstance(sizes[0], (tuple, list)):
+            sizes = tuple(sizes[0])
+        lead = len(sizes) - self.data.ndim
+        shape = tuple(self.data.shape[i - lead] if (s == -1 and i >= lead) else int(s)
+                      for i, s in enumerate(sizes))
+        old = self.data.shape
+        return Tensor._record(np.broadcast_to(self.data, shape), (self,),
+                              lambda g: (_unbroadcast(g, old),))
+
+    def split(self, split_size_or_sections, dim: int = 0) -> tuple:
+        """Pieces along ``dim`` of one size or of the given sizes (``torch.split``)."""
+        n = self.data.shape[dim]
+        if isinstance(split_size_or_sections, (int, np.integer)):
+            bounds = list(range(0, n, int(split_size_or_sections))) + [n]
+        else:
+            bounds = [0] + np.cumsum(split_size_or_sections).tolist()
+            if bounds[-1] != n:
+                raise ValueError(f"split_size_or_sections: the sizes sum to {bounds[-1]}, the "
+                                 f"dimension has {n}")
+        lead = (slice(None),) * (dim % self.data.ndim)
+        return tuple(self[lead + (slice(a, b),)] for a, b in zip(bounds[:-1], bounds[1:]))
+
+    def __setitem__(self, index, value) -> None:
+        if self.requires_grad and _MODE.enabled:
+            raise TypeError("setitem: in-place assignment into a tensor that requires a "
+                            "gradient is not recorded; build the tensor first, then make it a "
+                            "Parameter")
+        self.data[_data(index)] = _data(value)
 
     # ------------------------------------------------------------------ value-only operations
     def _constant_op(self, name: str):
@@ -672,3 +738,20 @@ def record(value, inputs: Sequence, vjp: Callable) -> Tensor:
     """
     inputs = [t if isinstance(t, Tensor) else Tensor(t) for t in inputs]
     return Tensor._record(np.asarray(value), inputs, vjp)
+
+
+def sigmoid(x) -> Tensor:
+    """``torch.sigmoid``."""
+    return (x if isinstance(x, Tensor) else Tensor(x)).sigmoid()
+
+
+def randperm(n: int, *, device=None) -> Tensor:
+    """A random permutation of ``range(n)`` from the :func:`manual_seed` generator."""
+    return Tensor(_RNG.permutation(int(n)))
+
+
+def randint(low: int = 0, high: int | None = None, size=(1,), *, device=None) -> Tensor:
+    """Random integers in ``[low, high)`` from the :func:`manual_seed` generator."""
+    if high is None:
+        low, high = 0, low
+    return Tensor(_RNG.integers(low, high, size=size))

@@ -59,6 +59,9 @@ from .points import (
     PointsRenderer,
 )
 
+#: PyTorch3D's former name of NDCMultinomialRaysampler (older texts of the volume tutorial).
+NDCGridRaysampler = NDCMultinomialRaysampler
+
 __all__ = [
     "AlphaCompositor",
     "AmbientLights",
@@ -77,6 +80,7 @@ __all__ = [
     "MeshRenderer",
     "MeshRendererWithFragments",
     "MonteCarloRaysampler",
+    "NDCGridRaysampler",
     "NDCMultinomialRaysampler",
     "NormWeightedCompositor",
     "OpenGLOrthographicCameras",
@@ -110,7 +114,6 @@ __getattr__ = missing_names("geofit.pytorch3d.renderer", {
     "TexturesAtlas": "use TexturesUV, or geofit.render.TexturesFlat for one colour per face",
     "MultinomialRaysampler": "use NDCMultinomialRaysampler (the tutorials' grid raysampler)",
     "GridRaysampler": "use NDCMultinomialRaysampler",
-    "NDCGridRaysampler": "use NDCMultinomialRaysampler",
     "AbsorptionOnlyRaymarcher": "use EmissionAbsorptionRaymarcher",
     "VolumeSampler": "geofit.structures.Volume.sample(points) samples a volume trilinearly",
     "rasterize_meshes": "use MeshRasterizer(cameras, raster_settings)(meshes)",

@@ -61,19 +61,46 @@ class VolumeRenderer:
         self.raymarcher = raymarcher
 
     def __call__(self, cameras, volumes: Volumes, **kwargs):
-        """Camera ``i`` renders volume ``i`` (or the single volume); images (B, ..., C + 1)."""
+        """Camera ``i`` renders volume ``i`` (or the single volume); images (B, ..., C + 1).
+
+        Recorded on the tape (geofit's :meth:`geofit.render.volume.VolumeRenderer.vjp`) when
+        the densities or features require a gradient.
+        """
         if not isinstance(volumes, Volumes):
             raise TypeError(f"volumes: expected geofit.pytorch3d.structures.Volumes, got "
                             f"{type(volumes)!r}")
         bundle = self.raysampler(cameras, **kwargs)
-        n = len(volumes)
-        if n == 1:
-            return Tensor(self._r.render_rays(volumes._vols[0], bundle)), bundle
-        if n != len(cameras):
-            raise ValueError(f"volumes: expected 1 or {len(cameras)} volumes, got {n}")
-        parts = [self._r.render_rays(v, RayBundle(*(np_(a)[i:i + 1] for a in bundle)))
-                 for i, v in enumerate(volumes._vols)]  # loop over batch members
-        return Tensor(np.concatenate(parts)), bundle
+        n, B = len(volumes), len(cameras)
+        if n not in (1, B):
+            raise ValueError(f"volumes: expected 1 or {B} volumes, got {n}")
+        if len(volumes._vols) == 1:
+            groups = [(0, slice(0, B), bundle)]
+        else:
+            groups = [(i, slice(i, i + 1), RayBundle(*(np_(a)[i:i + 1] for a in bundle)))
+                      for i in range(n)]
+        images = np.concatenate([self._r.render_rays(volumes._vols[i], b)
+                                 for i, _, b in groups])  # loop over distinct volumes
+        parents = [t for t in (volumes._densities, volumes._features) if t is not None]
+        shared = len(volumes._vols) == 1 and n > 1
+
+        def vjp(g):
+            gd = np.zeros(volumes._densities.shape[1:] if shared else volumes._densities.shape)
+            gf = None
+            if volumes._features is not None:
+                gf = np.zeros(volumes._features.shape[1:] if shared
+                              else volumes._features.shape)
+            for i, sl, b in groups:  # loop over distinct volumes
+                r = self._r.vjp(g[sl], volumes._vols[i], b)
+                tgt = slice(None) if shared else i
+                gd[tgt][0] += r.densities
+                if gf is not None:
+                    gf[tgt] += r.features
+            if shared:  # one volume expanded n times: its gradient, spread without a copy
+                gd = np.broadcast_to(gd / n, volumes._densities.shape)
+                gf = None if gf is None else np.broadcast_to(gf / n, volumes._features.shape)
+            return (gd, gf)[:len(parents)]
+
+        return Tensor._record(images, parents, vjp), bundle
 
     def to(self, *args, **kwargs):
         return self
