@@ -4,7 +4,7 @@
 ``parameters()`` finds the :class:`~.tensor.Parameter` attributes (also of sub-modules), calling
 the module runs ``forward``, ``.to(device)`` returns it. It is *not* a layer library: the NeRF
 tutorial's ``torch.nn.Linear`` / ``Softplus`` network is not emulated (geofit's
-:class:`geofit.render.implicit.NeuralRadianceField` is that network with its analytic backward).
+geofit's ``NeuralRadianceField`` (:mod:`geofit.render`) is that network with its analytic backward).
 """
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ class Module:
 
 
 _LAYERS = ("torch.nn layers are not emulated (no general autodiff): the NeRF tutorial's network "
-           "is geofit.render.implicit.NeuralRadianceField (with its analytic backward) and "
+           "is geofit's NeuralRadianceField in geofit.render (with its analytic backward) and "
            "geofit.fit.fit_nerf its fit; geofit.nn has Linear, Softplus, ReLU, Sigmoid and "
            "Sequential with forward/backward")
 __getattr__ = missing_names("geofit.pytorch3d.nn", {

@@ -63,7 +63,10 @@ def sample_points_from_meshes(meshes: Meshes, num_samples: int = 10000,
     if meshes.isempty():
         raise ValueError("meshes: the batch is empty")
     rng = default_rng() if seed is None else np.random.default_rng(seed)
-    n = _sampling._check_num_samples(num_samples)
+    if (not isinstance(num_samples, (int, np.integer)) or isinstance(num_samples, bool)
+            or num_samples < 1):
+        raise ValueError(f"num_samples: expected an integer >= 1, got {num_samples!r}")
+    n = int(num_samples)
     draws = [_draw(m, n, rng, return_normals) for m in meshes._geofit()]  # batch members
     Bs = [d.B for d in draws]
 
