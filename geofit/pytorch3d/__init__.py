@@ -11,10 +11,10 @@ instead.
 """
 from . import io, loss, nn, ops, optim, renderer, structures, tensor, transforms, utils, vis
 from ._common import missing_names
-from .tensor import Parameter, Tensor, full, manual_seed, no_grad, tensor as tensor_
+from .tensor import Parameter, Tensor, full, manual_seed, no_grad
 
 __all__ = ["Parameter", "Tensor", "full", "io", "loss", "manual_seed", "nn", "no_grad", "ops",
-           "optim", "renderer", "structures", "tensor", "tensor_", "transforms", "utils",
+           "optim", "renderer", "structures", "tensor", "transforms", "utils",
            "vis"]
 
 __getattr__ = missing_names("geofit.pytorch3d", {

@@ -24,7 +24,8 @@ def _np_args(kwargs: dict) -> dict:
 
 def look_at_view_transform(dist=1.0, elev=0.0, azim=0.0, degrees: bool = True, eye=None,
                            at=((0, 0, 0),), up=((0, 1, 0),), device="cpu"):
-    """``R (N, 3, 3), T (N, 3)`` of cameras looking at ``at`` (:func:`geofit.look_at_view_transform`).
+    """``R (N, 3, 3), T (N, 3)`` of cameras looking at ``at``
+    (:func:`geofit.look_at_view_transform`).
 
     Examples
     --------
