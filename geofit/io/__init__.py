@@ -1,6 +1,9 @@
-"""Reading and writing meshes (Wavefront OBJ/MTL with textures) and point clouds (.npz, .ply)."""
+"""Reading and writing meshes (Wavefront OBJ/MTL with textures), point clouds (.npz, .ply) and
+multi-view captures (NeRF transforms.json, COLMAP, OpenCV).
+"""
 from .obj import Material, ObjData, load_mesh, load_obj, load_objs_as_meshes, save_obj
 from .points import load_pointcloud, save_pointcloud
+from .views import load_views, save_views
 
 __all__ = [
     "Material",
@@ -9,6 +12,8 @@ __all__ = [
     "load_obj",
     "load_objs_as_meshes",
     "load_pointcloud",
+    "load_views",
     "save_obj",
     "save_pointcloud",
+    "save_views",
 ]
