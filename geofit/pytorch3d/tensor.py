@@ -42,6 +42,7 @@ import numpy as np
 __all__ = [
     "Parameter",
     "Tensor",
+    "arange",
     "as_tensor",
     "cat",
     "default_rng",
@@ -399,6 +400,11 @@ class Tensor:
             return Tensor._record(a * a, (self,), lambda g: (2.0 * g * a,))
         return Tensor._record(a ** p, (self,), lambda g: (g * p * a ** (p - 1),))
 
+    def __rpow__(self, base):
+        c = _data(base)
+        v = np.power(c, self.data.astype(np.float64))
+        return Tensor._record(v, (self,), lambda g: (g * v * np.log(c),))
+
     def abs(self) -> Tensor:
         """``|x|`` (gradient ``sign(x)``, 0 at 0 as torch)."""
         a = self.data
@@ -498,6 +504,21 @@ class Tensor:
         """``exp(x)``."""
         e = np.exp(self.data)
         return Tensor._record(e, (self,), lambda g: (g * e,))
+
+    def sin(self) -> Tensor:
+        """``sin(x)``."""
+        a = self.data
+        return Tensor._record(np.sin(a), (self,), lambda g: (g * np.cos(a),))
+
+    def cos(self) -> Tensor:
+        """``cos(x)``."""
+        a = self.data
+        return Tensor._record(np.cos(a), (self,), lambda g: (-g * np.sin(a),))
+
+    def log(self) -> Tensor:
+        """``log(x)``."""
+        a = self.data
+        return Tensor._record(np.log(a), (self,), lambda g: (g / a,))
 
     def clamp(self, min=None, max=None) -> Tensor:  # noqa: A002 - torch's keyword names
         """Values limited to [min, max] (gradient 1 inside, 0 where clamped, as torch)."""
@@ -673,6 +694,12 @@ def zeros_like(x, *, dtype=None, device=None, requires_grad: bool = False) -> Te
 def ones_like(x, *, dtype=None, device=None, requires_grad: bool = False) -> Tensor:
     """Ones shaped like ``x`` (``torch.ones_like``)."""
     return Tensor(np.ones_like(_data(x), dtype=dtype), requires_grad)
+
+
+def arange(start, end=None, step=1, *, dtype=None, device=None) -> Tensor:
+    """``torch.arange`` (integers unless a bound is a float)."""
+    return Tensor(np.arange(start, end, step, dtype=dtype) if end is not None
+                  else np.arange(start, dtype=dtype))
 
 
 def linspace(start, end, steps: int, *, dtype=None, device=None) -> Tensor:

@@ -110,7 +110,10 @@ class ImplicitRenderer:
     """Render a volumetric function (PyTorch3D's ``ImplicitRenderer``): ``images, ray_bundle``.
 
     ``volumetric_function(ray_bundle=..., cameras=..., **kwargs)`` returns ``(densities
-    (..., n_pts, 1), features (..., n_pts, C))``; the raymarcher composites them.
+    (..., n_pts, 1), features (..., n_pts, C))``, arrays or tensors; the raymarcher composites
+    them. When they are tensors that require a gradient (a field built from
+    :mod:`geofit.pytorch3d.nn` layers and tape arithmetic), the images record the raymarcher's
+    analytic vjp to them, so ``loss.backward()`` reaches the field's parameters.
     """
 
     def __init__(self, raysampler, raymarcher):
@@ -122,7 +125,15 @@ class ImplicitRenderer:
                       if k in kwargs}
         bundle = self.raysampler(cameras, **sampler_kw)
         densities, features = volumetric_function(ray_bundle=bundle, cameras=cameras, **kwargs)
-        return Tensor(self.raymarcher(np_(densities), np_(features))), bundle
+        d = densities if isinstance(densities, Tensor) else Tensor(np_(densities))
+        f = features if isinstance(features, Tensor) else Tensor(np_(features))
+        images = self.raymarcher(d.data, f.data)
+
+        def vjp(g):
+            r = self.raymarcher.vjp(g, d.data, f.data)
+            return r.densities, r.features
+
+        return Tensor._record(images, [d, f], vjp), bundle
 
     def to(self, *args, **kwargs):
         return self
