@@ -2,8 +2,8 @@
 
 ``from pytorch3d.X import Y`` becomes ``from geofit.pytorch3d.X import Y`` for the modules
 ``io``, ``structures``, ``ops``, ``loss``, ``renderer``, ``utils`` and ``vis``; torch's tensor
-creation and optimisers come from :mod:`geofit.pytorch3d.tensor` and
-:mod:`geofit.pytorch3d.optim`. Everything is numpy underneath; gradients come from geofit's
+creation, optimisers and the few ``torch.nn`` pieces the tutorials use come from
+:mod:`geofit.pytorch3d.tensor`, :mod:`geofit.pytorch3d.optim` and :mod:`geofit.pytorch3d.nn`. Everything is numpy underneath; gradients come from geofit's
 hand-written vector-Jacobian products, recorded on a tape (:class:`~.tensor.Tensor`) so that
 ``loss.backward()`` and ``optimizer.step()`` work as in the tutorials. A PyTorch3D name that is
 not provided raises an AttributeError (ImportError in ``from ... import``) that says what to use
