@@ -754,3 +754,86 @@ def test_implicit_renderer_on_the_tape_equals_the_raymarcher_vjp():
     ref = marcher.vjp(W, dens.data, cols.data)
     np.testing.assert_allclose(dens.grad.numpy(), ref.densities, atol=TOL)
     np.testing.assert_allclose(cols.grad.numpy(), ref.features, atol=TOL)
+
+
+# ------------------------------------------------------------------------------- validators
+def _validator_cases():
+    from geofit.pytorch3d import io as pio
+    from geofit.pytorch3d.renderer import (
+        AlphaCompositor,
+        EmissionAbsorptionRaymarcher,
+        NDCMultinomialRaysampler,
+        PointsRasterizationSettings,
+        PointsRasterizer,
+        PointsRenderer,
+        TexturesUV,
+        VolumeRenderer,
+    )
+    from geofit.pytorch3d.structures import Volumes
+    from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib
+
+    s0 = geofit.ico_sphere(0)
+    one = Meshes([s0.verts], [s0.faces])
+    two = Meshes([s0.verts, s0.verts], [s0.faces, s0.faces])
+    cams, size = _cams(2, 8)
+    uv = dict(faces_uvs=[s0.faces], verts_uvs=[np.zeros((12, 2))])
+    pts_r = PointsRenderer(PointsRasterizer(cams[0], PointsRasterizationSettings(image_size=8)),
+                           AlphaCompositor())
+    vr = VolumeRenderer(NDCMultinomialRaysampler(image_width=4, image_height=4, n_pts_per_ray=4,
+                                                 min_depth=0.1, max_depth=3.0),
+                        EmissionAbsorptionRaymarcher())
+    soft_uv = Meshes([s0.verts], [s0.faces], textures=TexturesUV(maps=[np.ones((4, 4, 3))], **uv))
+    return [
+        (ValueError, "texture atlas", lambda: pio.load_obj("x.obj", create_texture_atlas=True)),
+        (ValueError, "vn lines", lambda: pio.save_obj("x.obj", s0.verts, s0.faces,
+                                                      normals=s0.verts)),
+        (TypeError, "Meshes", lambda: mesh_edge_loss(s0)),
+        (TypeError, "Meshes", lambda: sample_points_from_meshes(s0, 10)),
+        (ValueError, "empty", lambda: sample_points_from_meshes(Meshes([], []), 10)),
+        (ValueError, "num_samples", lambda: sample_points_from_meshes(one, 0)),
+        (ValueError, "momentum", lambda: optim.SGD([Parameter(np.ones(1))], lr=1.0,
+                                                   momentum=-1.0)),
+        (TypeError, "array or Tensor", lambda: Meshes([object()], [s0.faces])),
+        (ValueError, "scale", lambda: two.scale_verts(Parameter(np.ones(3)))),
+        (ValueError, "finite", lambda: one.scale_verts(np.inf)),
+        (ValueError, r"\(P, 3\)", lambda: Pointclouds([np.zeros((4, 2))])),
+        (ValueError, "expected 1 arrays", lambda: Pointclouds([np.zeros((4, 3))],
+                                                              features=[np.ones((4, 3))] * 2)),
+        (ValueError, "N:", lambda: Pointclouds([np.zeros((4, 3))]).extend(0)),
+        (ValueError, "features", lambda: Volumes(np.zeros((1, 1, 4, 4, 4)),
+                                                 features=np.zeros((1, 3, 4, 4, 5)))),
+        (TypeError, "floating point", lambda: tensor([1, 2]).requires_grad_()),
+        (ValueError, r"\(N, V, C\)", lambda: TexturesVertex(verts_features=np.ones((12, 3)))),
+        (ValueError, r"\(V, C\)", lambda: TexturesVertex(verts_features=[np.ones(12)])),
+        (ValueError, "bilinear", lambda: TexturesUV(maps=[np.ones((4, 4, 3))],
+                                                     sampling_mode="nearest", **uv)),
+        (ValueError, "one of each", lambda: TexturesUV(maps=[np.ones((4, 4, 3))] * 2, **uv)),
+        (ValueError, "faces_uvs for", lambda: setattr(
+            one, "textures", TexturesUV(maps=[np.ones((4, 4, 3))], faces_uvs=[s0.faces[:3]],
+                                        verts_uvs=[np.zeros((12, 2))]))),
+        (ValueError, "different sizes", lambda: TexturesUV(
+            maps=[np.ones((4, 4, 3)), np.ones((5, 4, 3))], faces_uvs=[s0.faces] * 2,
+            verts_uvs=[np.zeros((12, 2))] * 2).maps_padded()),
+        (ValueError, "1 or 2 volumes", lambda: vr(cameras=cams, volumes=Volumes(
+            np.zeros((3, 1, 4, 4, 4))))),
+        (ValueError, "one mesh", lambda: MeshRasterizer(cams, _soft_settings(8))(two)),
+        (ValueError, "1 or 2 cameras", lambda: MeshRenderer(
+            MeshRasterizer(raster_settings=_soft_settings(8)), SoftSilhouetteShader())(
+            Meshes([s0.verts] * 2, [s0.faces] * 2), cameras=FoVPerspectiveCameras(
+                R=np.stack([np.eye(3)] * 3), T=np.tile([0.0, 0.0, 3.0], (3, 1))))),
+        (NotImplementedError, "TexturesVertex", lambda: MeshRenderer(
+            MeshRasterizer(cams, _soft_settings(8)), SoftPhongShader(cameras=cams))(soft_uv)),
+        (NotImplementedError, "no gradient", lambda: pts_r(Pointclouds(
+            [Parameter(np.zeros((3, 3)))], features=[np.ones((3, 3))]))),
+        (TypeError, "Pointclouds", lambda: pts_r(np.zeros((3, 3)))),
+        (TypeError, "TexturesUV", lambda: texturesuv_image_matplotlib(TexturesVertex(
+            verts_features=np.ones((1, 12, 3))))),
+    ]
+
+
+@pytest.mark.parametrize("case", range(len(_validator_cases())))
+def test_validators_name_the_argument(case):
+    """Every validation branch of geofit.pytorch3d raises with a message naming the problem."""
+    exc, match, call = _validator_cases()[case]
+    with pytest.raises(exc, match=match):
+        call()
