@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     Image.fromarray((grid * 255 + 0.5).astype(np.uint8)).save(path)
     n_rays = res.face_ids.size
     print(f"geofit demo: {args.views} views of {args.size}x{args.size} = {n_rays} rays in one "
-          f"Embree call: cast {res.seconds_cast:.3f} s ({n_rays / res.seconds_cast / 1e6:.1f} M rays/s), "
+          f"threaded cast: cast {res.seconds_cast:.3f} s ({n_rays / res.seconds_cast / 1e6:.1f} M rays/s), "
           f"shade {res.seconds_shade:.3f} s; coverage {np.mean(res.face_ids >= 0):.1%}")
     print(f"geofit demo: wrote {path}")
     return 0

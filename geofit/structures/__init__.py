@@ -2,6 +2,7 @@
 from .mesh import Mesh, Meshes, Normalization, Topology, as_meshes
 from .pointcloud import PointCloud, Pointclouds, as_pointclouds
 from .textures import TexturesBase, TexturesUV, TexturesVertex
+from .volume import Volume
 
 __all__ = [
     "Mesh",
@@ -15,4 +16,5 @@ __all__ = [
     "TexturesBase",
     "TexturesUV",
     "TexturesVertex",
+    "Volume",
 ]
