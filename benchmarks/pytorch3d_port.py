@@ -147,10 +147,18 @@ def run_t1(n_iter: int, every: int, n_metric: int, tmp: Path) -> MethodRun:
 
 # ------------------------------------------------------------------------------ tutorial 4
 def _heldout(image_size: int):
-    from geofit.fit.views import ViewsEvaluator, cow_multiview_dataset
+    """(training views, ViewsEvaluator of the 16 held-out views and the true mesh)."""
+    from geofit.fit.views import ViewsEvaluator
 
-    split = cow_multiview_dataset(num_views=20, image_size=image_size, num_heldout=16)
-    return split, ViewsEvaluator(split.heldout, split.mesh)
+    try:  # geofit's unified multi-view dataset
+        from geofit.datasets import tutorial_views
+    except ImportError:  # geofit 0.1
+        from geofit.fit.views import cow_multiview_dataset
+
+        split = cow_multiview_dataset(num_views=20, image_size=image_size, num_heldout=16)
+        return split.train, ViewsEvaluator(split.heldout, split.mesh)
+    data = tutorial_views(4, image_size=image_size, num_held_out=16)
+    return data, ViewsEvaluator(data.held_out, data.mesh)
 
 
 def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
@@ -175,7 +183,7 @@ def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
     from geofit.pytorch3d.utils import ico_sphere
 
     obj_filename, tname = _obj("cow", tmp)
-    split, evaluator = _heldout(image_size)
+    _, evaluator = _heldout(image_size)
     np.random.seed(0)  # the tutorial's np.random.permutation of views (unseeded there)
     device = "cpu"
     # ---- the tutorial's cells, imports changed, torch.linspace -> np.linspace ---------------
@@ -264,15 +272,20 @@ def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
 
 
 def run_t4_geofit(n_iter: int, image_size: int) -> MethodRun:
+    import inspect
+
     from geofit.fit.views import fit_mesh_to_views
 
-    split, evaluator = _heldout(image_size)
+    train, evaluator = _heldout(image_size)
+    if "recipe" in inspect.signature(fit_mesh_to_views).parameters:
+        recipe = {"recipe": "tutorial", "textured_method": "none"}
+    else:  # geofit 0.1's option names
+        recipe = {"silhouette_method": "tutorial", "textured_method": "none"}
     run = MethodRun(name="t4-geofit",
                     label='geofit.fit_mesh_to_views(silhouette_method="tutorial")',
-                    config={"n_iter": n_iter, "image_size": image_size, "seed": 0})
-    res = fit_mesh_to_views(split.train, silhouette_method="tutorial", textured_method="none",
-                            silhouette_iters=n_iter, evaluate=lambda m, c: evaluator(
-                                m, surface=False), eval_every=60.0, seed=0)
+                    config={"n_iter": n_iter, "image_size": image_size, "seed": 0, **recipe})
+    res = fit_mesh_to_views(train, silhouette_iters=n_iter, evaluate=lambda m, c: evaluator(
+        m, surface=False), eval_every=60.0, seed=0, **recipe)
     a = res.history.as_arrays()
     for s, iou in zip(a["checkpoint_seconds"], a["metrics"]["iou"]):
         run.add(s, iou=iou)
