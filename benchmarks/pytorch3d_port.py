@@ -277,10 +277,12 @@ def run_t4_geofit(n_iter: int, image_size: int) -> MethodRun:
     from geofit.fit.views import fit_mesh_to_views
 
     train, evaluator = _heldout(image_size)
-    if "recipe" in inspect.signature(fit_mesh_to_views).parameters:
-        recipe = {"recipe": "tutorial", "textured_method": "none"}
+    params = inspect.signature(fit_mesh_to_views).parameters
+    if "recipe" in params:
+        recipe = {"recipe": "tutorial", "textured_method": "none", "progress": False}
     else:  # geofit 0.1's option names
         recipe = {"silhouette_method": "tutorial", "textured_method": "none"}
+    del params
     run = MethodRun(name="t4-geofit",
                     label='geofit.fit_mesh_to_views(silhouette_method="tutorial")',
                     config={"n_iter": n_iter, "image_size": image_size, "seed": 0, **recipe})
