@@ -108,11 +108,9 @@ def test_fit_mesh_adaptive_validation(kw, match):
 def test_docstring_examples():
     """The Examples sections of the remeshing, topology and adaptive-fit modules run."""
     import doctest
+    import importlib
 
-    import geofit.fit.adaptive as fa
-    import geofit.ops.remesh as rm
-    import geofit.ops.topology as tp
-
-    for mod in (rm, tp, fa):
+    for name in ("geofit.ops.remesh", "geofit.ops.topology", "geofit.fit.adaptive"):
+        mod = importlib.import_module(name)  # the package exports functions of the same name
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0 and result.attempted > 0, mod.__name__
