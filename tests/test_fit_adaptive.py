@@ -114,3 +114,18 @@ def test_docstring_examples():
         mod = importlib.import_module(name)  # the package exports functions of the same name
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0 and result.attempted > 0, mod.__name__
+
+
+def test_fit_mesh_default_is_adaptive():
+    """fit_mesh(None, target) with no other option runs the adaptive fit; init='sphere' does not."""
+    from geofit.fit import AdaptiveMeshFitResult, fit_mesh
+
+    target = torus(1.0, 0.35, 32, 16)
+    res = fit_mesh(None, target, evaluator=None, time_budget=3.0)
+    assert isinstance(res, AdaptiveMeshFitResult) and res.init == "target"
+    assert res.topology.genus == 1
+    res = fit_mesh(None, target, init="sphere", n_iter=2, n_stages=1, evaluator=None,
+                   progress=False)
+    assert not isinstance(res, AdaptiveMeshFitResult) and res.n_verts == 2562
+    with pytest.raises(ValueError, match="init"):
+        fit_mesh(None, target, init="poisson")

@@ -544,13 +544,19 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
              time_budget: float | None = None, seed=0, evaluator: Any = "default",
              checkpoint_every: int | None = None, progress: bool = True,
              callback: Callable[[StepInfo], bool | None] | None = None,
-             solver_options: Mapping[str, Any] | None = None) -> MeshFitResult:
+             solver_options: Mapping[str, Any] | None = None,
+             init: str = "auto") -> MeshFitResult:
     """Deform ``source`` into ``target`` (PyTorch3D's deform tutorial, and faster solvers).
+
+    ``fit_mesh(None, target)`` with no other option is geofit's best fit for any shape:
+    :func:`geofit.fit.adaptive.fit_mesh_adaptive` (initial mesh from the target's own topology,
+    error-driven remeshing; its result also reports ``init`` and ``topology``).
 
     Parameters
     ----------
     source : Mesh, (verts, faces), int or None
-        Starting mesh, an ico-sphere level, or None: ``ico_sphere(4)`` (the tutorial's), or
+        Starting mesh, an ico-sphere level, or None: with no other option, the adaptive fit
+        above; otherwise ``ico_sphere(4)`` (the tutorial's), or
         ``ico_sphere(coarse_to_fine.start_level)`` with coarse-to-fine. It is placed as given
         in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
     target : Mesh or (verts, faces)
@@ -608,6 +614,9 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
         solver's parameters); True stops the fit with status ``"callback"``.
     solver_options : dict, optional
         Extra keyword options for the solver (e.g. ``{"ftol": 1e-12}``, ``{"betas": ...}``).
+    init : {"auto", "sphere"}
+        With ``source=None`` and the default options, ``"auto"`` runs the adaptive fit and
+        ``"sphere"`` the ico-sphere fit (the tutorial's start, for parity).
 
     Returns
     -------
@@ -645,6 +654,17 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     from ..loss import PointToSurface
     from ..metrics import MeshEvaluator
     from ..shapes import ico_sphere, subdivide
+
+    # ---- the default call: the adaptive fit (initial mesh and topology from the data)
+    check_choice(init, "init", ("auto", "sphere"))
+    if (source is None and init == "auto" and method == "scipy-lbfgs" and weights is None
+            and distance is None and n_samples is None and n_iter is None and n_stages is None
+            and large_steps == "auto" and coarse_to_fine in (None, False) and callback is None
+            and checkpoint_every is None and not solver_options):
+        from .adaptive import fit_mesh_adaptive
+
+        return fit_mesh_adaptive(target, seed=seed, evaluator=evaluator,
+                                 **({} if time_budget is None else {"time_budget": time_budget}))
 
     # ---- validate once
     check_choice(method, "method", METHODS)
