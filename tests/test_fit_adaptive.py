@@ -129,3 +129,22 @@ def test_fit_mesh_default_is_adaptive():
     assert not isinstance(res, AdaptiveMeshFitResult) and res.n_verts == 2562
     with pytest.raises(ValueError, match="init"):
         fit_mesh(None, target, init="poisson")
+
+
+def test_visual_hull_mesh_of_a_ball():
+    """The hull of a ball seen from 8 directions is one closed genus-0 part around the ball."""
+    from geofit.datasets import render_views
+    from geofit.fit.init import visual_hull_mesh
+
+    ball = ico_sphere(3).scale_verts(0.6)
+    ds = render_views(ball, [0, 45, 90, 135, 180, 225, 270, 315], [0, 30, 60, -30, 0, -60, 30, 0],
+                      image_size=64)
+    h = visual_hull_mesh(ds.silhouettes, ds.cameras, extent=1.0, resolution=40, n_faces=500)
+    r = topology(h)
+    assert (r.genus, r.n_components, r.n_boundary_loops) == (0, 1, 0)
+    radius = np.linalg.norm(h.verts, axis=1)
+    assert radius.min() > 0.58 and radius.max() < 0.8  # contains the ball, a few pixels loose
+    with pytest.raises(ValueError, match="resolution"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, resolution=4)
+    with pytest.raises(ValueError, match="empty"):
+        visual_hull_mesh(np.zeros_like(ds.silhouettes), ds.cameras, resolution=16)

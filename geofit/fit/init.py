@@ -19,7 +19,8 @@ import numpy as np
 
 from ..structures import Mesh
 
-__all__ = ["INITS", "InitialMesh", "decimate", "initial_mesh", "mesh_from_occupancy"]
+__all__ = ["INITS", "InitialMesh", "decimate", "initial_mesh", "mesh_from_occupancy",
+           "visual_hull_mesh"]
 
 #: Initialisations :func:`initial_mesh` accepts.
 INITS = ("auto", "sphere", "target")
@@ -178,3 +179,68 @@ def initial_mesh(init, target: Mesh | None = None, *, n_faces: int = 2000,
     m = decimate(target, n_faces)
     return InitialMesh(m, "target", f"the target decimated to {m.n_faces} faces "
                                     f"({m.n_verts} vertices, quadric error, Open3D)")
+
+
+def visual_hull_mesh(silhouettes, cameras, *, extent: float = 1.5, resolution: int = 96,
+                     n_faces: int | None = 2000) -> Mesh:
+    """A coarse mesh of the visual hull of silhouettes (tutorial 4's initialisation).
+
+    Each silhouette, thresholded at 0.5, becomes a signed distance in pixels (positive inside,
+    scipy's Euclidean distance transform). Every node of a ``resolution``-cube grid spanning
+    ``[-extent, extent]^3`` is projected into every view (``cameras.transform_points_screen``)
+    and reads the signed distance there (bilinear; far outside beyond the image); the minimum
+    over the views is positive exactly inside the visual hull, and, being a smooth field, its
+    zero level set is located to a fraction of a voxel by marching cubes (not the
+    conservative, dilated carving of :func:`geofit.fit.volume.visual_hull`, which must never cut
+    into the object). Marching cubes (scikit-image) and :func:`decimate` then give the mesh. The
+    hull has the genus and parts the silhouettes show (a hole seen through in some view stays
+    open); it is larger than the object where no view sees a concavity.
+
+    Parameters
+    ----------
+    silhouettes : (N, H, W) float64
+        Silhouettes in [0, 1].
+    cameras : CamerasBase
+        The ``N`` cameras.
+    extent : float
+        Half-size of the grid (world units, centred at the origin).
+    resolution : int
+        Grid nodes per side (>= 8).
+    n_faces : int or None
+        Decimate to this many faces (None: keep the marching-cubes mesh).
+
+    Returns
+    -------
+    Mesh
+
+    Raises
+    ------
+    ValueError
+        If ``resolution`` < 8, the silhouettes are not (N, H, W) with N cameras, or the hull is
+        empty or fills the whole grid.
+    """
+    from scipy.ndimage import distance_transform_edt, map_coordinates
+
+    from .._validate import as_array
+
+    if not isinstance(resolution, (int, np.integer)) or resolution < 8:
+        raise ValueError(f"resolution: expected an integer >= 8, got {resolution!r}")
+    sil = as_array(silhouettes, "silhouettes", (len(cameras), None, None))
+    N, H, W = sil.shape
+    t = np.linspace(-float(extent), float(extent), int(resolution))
+    P = np.stack(np.meshgrid(t, t, t, indexing="ij"), -1).reshape(-1, 3)  # x, y, z order
+    occ = np.full(len(P), np.inf)
+    for i in range(N):  # views (each one vectorised call over all grid nodes)
+        inside = sil[i] > 0.5
+        sd = np.where(inside, distance_transform_edt(inside) - 0.5,
+                      0.5 - distance_transform_edt(~inside))
+        xy = cameras[i].transform_points_screen(P, (H, W))[0]
+        val = map_coordinates(sd, [xy[:, 1] - 0.5, xy[:, 0] - 0.5], order=1,
+                              cval=-float(H + W))
+        np.minimum(occ, val, out=occ)
+    occ = occ.reshape((int(resolution),) * 3)
+    if not (occ > 0).any() or (occ > 0).all():
+        raise ValueError("silhouettes: the visual hull is empty or fills the whole grid; check "
+                         "the cameras and extent")
+    vs = t[1] - t[0]
+    return mesh_from_occupancy(occ, (t[0],) * 3, vs, level=0.0, n_faces=n_faces)
