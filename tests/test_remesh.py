@@ -82,3 +82,26 @@ def test_remesh_validation(kw, match):
         remesh(ico_sphere(1), **kw)
     with pytest.raises(TypeError, match="mesh"):
         remesh(np.zeros((3, 3)), 0.1)
+
+
+def test_remesh_leaves_nonmanifold_vertex_alone():
+    """Two cones touching at one vertex (a bowtie): the shared vertex is never collapsed."""
+    a = ico_sphere(1)
+    top = int(np.argmax(a.verts[:, 1]))
+    v1 = a.verts - a.verts[top]
+    v2 = -v1  # point-mirrored copy touching at the origin
+    keep = np.arange(len(v1)) != top
+    idx2 = np.full(len(v1), -1)
+    idx2[keep] = len(v1) + np.arange(keep.sum())
+    idx2[top] = top
+    faces = np.concatenate([a.faces, idx2[a.faces]])
+    m = Mesh(np.concatenate([v1, v2[keep]]), faces)
+    assert topology(m).n_nonmanifold_verts == 1
+    from geofit.ops.remesh import _boundary_verts
+
+    protected = _boundary_verts(m)
+    assert protected[top] and protected.sum() == 1  # the bowtie vertex, nothing else
+    r = remesh(m, 2.0 * float(m.edge_lengths.mean()), n_passes=3)
+    assert np.any(np.all(r.mesh.verts == 0.0, axis=1))  # the bowtie vertex stays in place
+    t = topology(r.mesh)
+    assert t.n_components == 1 and t.n_nonmanifold_edges == 0 and t.winding_consistent

@@ -85,10 +85,15 @@ def _edge_faces(mesh: Mesh):
 
 
 def _boundary_verts(mesh: Mesh) -> np.ndarray:
+    """(V,) bool: vertices on a boundary or non-manifold edge, or whose faces form several fans
+    (Open3D's ``get_non_manifold_vertices``); collapses never move them."""
+    from .topology import _open3d
+
     topo = mesh.topology
     b = np.zeros(mesh.n_verts, dtype=bool)
     counts = topo.edge_face_counts
     b[topo.edges[counts != 2].ravel()] = True
+    b[np.asarray(_open3d(mesh).get_non_manifold_vertices(), dtype=np.int64)] = True
     return b
 
 
