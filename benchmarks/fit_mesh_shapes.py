@@ -7,7 +7,8 @@ spheres). Each target is normalised like the tutorial (the fit does it). Accurac
 :mod:`geofit.metrics` with exact point-to-surface distances, 100 000 seeded samples a side, in
 the target's normalised frame; the curves use 20 000 samples a side at each round's end (solver
 clock paused). With ``--compare`` the previous best recipe (``RECIPES["coarse-to-fine"]``, with
-the same 10 s budget) runs too.
+the same 10 s budget) runs too; with ``--remesh-from-sphere`` also the adaptive fit started from
+``ico_sphere(3)`` (the remeshing then does all the refining; genus 0 only).
 
 Writes ``fit_mesh_shapes.json``, ``fit_mesh_shapes.md`` and one accuracy-against-time chart
 ``fit_mesh_shapes_<shape>.png`` per shape into ``--out``.
@@ -24,7 +25,7 @@ from pathlib import Path
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
 
 from geofit import load_mesh
-from geofit.fit import RECIPES, fit_mesh
+from geofit.fit import RECIPES, fit_mesh, fit_mesh_adaptive
 from geofit.metrics import MeshEvaluator
 from geofit.ops import topology
 from geofit.shapes import TEST_SHAPES
@@ -49,11 +50,12 @@ def load_shapes(names=None) -> dict:
     return shapes
 
 
-def run(name: str, label: str, target, kw: dict) -> MethodRun:
+def run(name: str, label: str, target, kw: dict, fn=None) -> MethodRun:
     ev_curve = MeshEvaluator(target, n_samples=20_000, taus=0.01, normalize=True)
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
-    res = fit_mesh(None, target, evaluator=ev_curve, **kw)
+    res = (fit_mesh(None, target, evaluator=ev_curve, **kw) if fn is None
+           else fn(target, evaluator=ev_curve, **kw))
     wall = time.perf_counter() - t0
     r = MethodRun(name=name, label=label, config={k: repr(v) for k, v in kw.items()})
     for c in res.history.checkpoints:
@@ -76,6 +78,8 @@ def run(name: str, label: str, target, kw: dict) -> MethodRun:
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--compare", action="store_true", help="also run the coarse-to-fine recipe")
+    p.add_argument("--remesh-from-sphere", action="store_true",
+                   help="also fit_mesh_adaptive from ico_sphere(3): remeshing does the refining")
     p.add_argument("--shapes", default="", help="comma-separated subset")
     args = p.parse_args()
     out = Path(tempfile.mkdtemp()) if args.quick and args.out == p.get_default("out") else args.out
@@ -92,6 +96,10 @@ def main() -> None:
             runs.append(run(f"{sname}:coarse-to-fine", "coarse-to-fine recipe (10 s)", target,
                             dict(RECIPES["coarse-to-fine"], time_budget=TIME_LIMIT,
                                  progress=False)))
+        if args.remesh_from_sphere:
+            runs.append(run(f"{sname}:sphere+remesh", "ico-sphere 3 + remeshing (adaptive)",
+                            target, {"init": 3, "max_rounds": 6, "large_steps": 10.0,
+                                     "time_budget": TIME_LIMIT}, fn=fit_mesh_adaptive))
         for r in runs:
             report.add(r)
             f = r.final
