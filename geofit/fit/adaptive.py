@@ -13,8 +13,9 @@
    midpoint lies ``d`` from the target asks for the length ``l sqrt(eps / d)`` (the error of
    linear interpolation grows as ``l^2``), clipped to ``[l / 2, 3 l / 2]``, and each vertex takes
    the smallest of its edges'. Refinement stops once the accuracy is met.
-3. The result reports the initialisation, the vertex count and the :class:`~geofit.ops.TopologyReport`
-   of the fitted mesh; a self-intersecting result says so in its message.
+3. The result reports the initialisation, the vertex count and the
+   :class:`~geofit.ops.TopologyReport` of the fitted mesh; a self-intersecting result says so
+   in its message.
 
 The gradients are those of :class:`~geofit.fit.MeshObjective` (tested there); this module adds
 no new gradient.

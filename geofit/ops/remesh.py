@@ -213,7 +213,8 @@ def _collapse(mesh: Mesh, lv: np.ndarray, lo: float, hi: float, max_valence: int
     remap = np.arange(n)
     remap[b[ids]] = a[ids]
     faces = remap[F]
-    good = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    good = ((faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+            & (faces[:, 0] != faces[:, 2]))
     faces = faces[good]
     used = np.ones(n, dtype=bool)
     used[b[ids]] = False

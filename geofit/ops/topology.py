@@ -156,7 +156,8 @@ def topology(mesh: Mesh, *, self_intersections: bool = True) -> TopologyReport:
     return TopologyReport(
         n_verts=int(used.sum()), n_faces=len(F), n_edges=len(E), euler_characteristic=chi,
         n_components=n_components, n_boundary_loops=n_loops, genus=int(genus),
-        n_nonmanifold_edges=n_nm_edges, n_nonmanifold_verts=len(np.asarray(o3m.get_non_manifold_vertices())),
+        n_nonmanifold_edges=n_nm_edges,
+        n_nonmanifold_verts=len(np.asarray(o3m.get_non_manifold_vertices())),
         n_self_intersecting_pairs=(len(np.asarray(o3m.get_self_intersecting_triangles()))
                                    if self_intersections else -1),
         winding_consistent=winding, n_degenerate_faces=degenerate,
