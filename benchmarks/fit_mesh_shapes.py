@@ -1,4 +1,4 @@
-"""The default ``fit_mesh(None, target)`` on every test shape: accuracy, seconds, vertices, genus.
+"""The default ``fit_mesh(target)`` on every test shape: accuracy, seconds, vertices, genus.
 
 Shapes: the tutorial's dolphin and ``$GEOFIT_DATA/shapes/*.obj`` (fandisk, teapot, suzanne,
 woody, ogre; see the data's SOURCES.md), and geofit's procedural shapes
@@ -6,7 +6,7 @@ woody, ogre; see the data's SOURCES.md), and geofit's procedural shapes
 spheres). Each target is normalised like the tutorial (the fit does it). Accuracy is
 :mod:`geofit.metrics` with exact point-to-surface distances, 100 000 seeded samples a side, in
 the target's normalised frame; the curves use 20 000 samples a side at each round's end (solver
-clock paused). With ``--compare`` the previous best recipe (``RECIPES["coarse-to-fine"]``, with
+clock paused). With ``--compare`` the previous best recipe (``recipe="coarse-to-fine"``, with
 the same 10 s budget) runs too; with ``--remesh-from-sphere`` also the adaptive fit started from
 ``ico_sphere(3)`` (the remeshing then does all the refining; genus 0 only).
 
@@ -25,7 +25,7 @@ from pathlib import Path
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
 
 from geofit import load_mesh
-from geofit.fit import RECIPES, fit_mesh, fit_mesh_adaptive
+from geofit.fit import fit_mesh, fit_mesh_adaptive
 from geofit.metrics import MeshEvaluator
 from geofit.ops import topology
 from geofit.shapes import TEST_SHAPES
@@ -54,7 +54,7 @@ def run(name: str, label: str, target, kw: dict, fn=None) -> MethodRun:
     ev_curve = MeshEvaluator(target, n_samples=20_000, taus=0.01, normalize=True)
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
-    res = (fit_mesh(None, target, evaluator=ev_curve, **kw) if fn is None
+    res = (fit_mesh(target, evaluator=ev_curve, **kw) if fn is None
            else fn(target, evaluator=ev_curve, **kw))
     wall = time.perf_counter() - t0
     r = MethodRun(name=name, label=label, config={k: repr(v) for k, v in kw.items()})
@@ -91,11 +91,11 @@ def main() -> None:
     for sname, make in shapes.items():  # shapes
         target = make()
         t_in = topology(target)
-        runs = [run(f"{sname}:default", "fit_mesh(None, target)", target, {})]
+        runs = [run(f"{sname}:default", "fit_mesh(target)", target, {})]
         if args.compare:
             runs.append(run(f"{sname}:coarse-to-fine", "coarse-to-fine recipe (10 s)", target,
-                            dict(RECIPES["coarse-to-fine"], time_budget=TIME_LIMIT,
-                                 progress=False)))
+                            {"recipe": "coarse-to-fine", "time_budget": TIME_LIMIT,
+                             "progress": False}))
         if args.remesh_from_sphere:
             runs.append(run(f"{sname}:sphere+remesh", "ico-sphere 3 + remeshing (adaptive)",
                             target, {"init": 3, "max_rounds": 6, "large_steps": 10.0,
@@ -125,7 +125,7 @@ def main() -> None:
     report.tables["shapes"] = {"header": header, "rows": rows}
     report.write(out / "fit_mesh_shapes.json")
     md = ["# fit_mesh on every test shape", "",
-          "Default `fit_mesh(None, target)`; metrics from geofit.metrics (exact distances, "
+          "Default `fit_mesh(target)`; metrics from geofit.metrics (exact distances, "
           "100 000 samples a side, normalised frame). Seconds are the solver clock (wall time "
           "with metric checkpoints excluded) on a shared 2-core machine; the 1-minute load "
           "average at the start of each fit is in the table: at a load of 10-15 wall seconds "

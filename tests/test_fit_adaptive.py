@@ -117,18 +117,18 @@ def test_docstring_examples():
 
 
 def test_fit_mesh_default_is_adaptive():
-    """fit_mesh(None, target) with no other option runs the adaptive fit; init='sphere' does not."""
+    """fit_mesh(target) with no other option runs the adaptive fit; init='sphere' does not."""
     from geofit.fit import AdaptiveMeshFitResult, fit_mesh
 
     target = torus(1.0, 0.35, 32, 16)
-    res = fit_mesh(None, target, evaluator=None, time_budget=3.0)
+    res = fit_mesh(target, evaluator=None, time_budget=3.0)
     assert isinstance(res, AdaptiveMeshFitResult) and res.init == "target"
     assert res.topology.genus == 1
-    res = fit_mesh(None, target, init="sphere", n_iter=2, n_stages=1, evaluator=None,
+    res = fit_mesh(target, init="sphere", n_iter=2, n_stages=1, evaluator=None,
                    progress=False)
     assert not isinstance(res, AdaptiveMeshFitResult) and res.n_verts == 2562
     with pytest.raises(ValueError, match="init"):
-        fit_mesh(None, target, init="poisson")
+        fit_mesh(target, init="poisson")
 
 
 def test_visual_hull_mesh_of_a_ball():
@@ -136,7 +136,10 @@ def test_visual_hull_mesh_of_a_ball():
     from geofit.datasets import render_views
     from geofit.fit.init import visual_hull_mesh
 
-    ball = ico_sphere(3).scale_verts(0.6)
+    from geofit.structures import TexturesVertex
+
+    s = ico_sphere(3)
+    ball = Mesh(0.6 * s.verts, s.faces, TexturesVertex(np.full((s.n_verts, 3), 0.7)))
     ds = render_views(ball, [0, 45, 90, 135, 180, 225, 270, 315], [0, 30, 60, -30, 0, -60, 30, 0],
                       image_size=64)
     h = visual_hull_mesh(ds.silhouettes, ds.cameras, extent=1.0, resolution=40, n_faces=500)

@@ -31,7 +31,10 @@ import numpy as np
 from .._validate import as_rng, check_positive
 from ..structures import Mesh
 from .history import Clock, FitHistory
-from .mesh import LargeSteps, MeshFitResult, MeshObjective, _as_mesh, _check_int, _check_weights
+from ._mesh_objective import MeshObjective, mesh_weights
+from ._options import check_int
+from .large_steps import LargeSteps
+from .mesh import MeshFitResult, _as_mesh
 from .solvers import lbfgs_scipy
 
 __all__ = ["ADAPTIVE_WEIGHTS", "AdaptiveMeshFitResult", "fit_mesh_adaptive", "refine_lengths"]
@@ -161,10 +164,10 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
     from .init import initial_mesh
 
     target_mesh = _as_mesh(target, "target")
-    n_faces = _check_int(n_faces, "n_faces", 4)
-    max_rounds = _check_int(max_rounds, "max_rounds")
-    max_verts = _check_int(max_verts, "max_verts", 4)
-    n_iter = _check_int(n_iter, "n_iter")
+    n_faces = check_int(n_faces, "n_faces", 4)
+    max_rounds = check_int(max_rounds, "max_rounds")
+    max_verts = check_int(max_verts, "max_verts", 4)
+    n_iter = check_int(n_iter, "n_iter")
     lam = check_positive(large_steps, "large_steps")
     chamfer_l2 = check_positive(chamfer_l2, "chamfer_l2", strict=False)
     tau = check_positive(tau, "tau")
@@ -172,7 +175,7 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         raise ValueError(f"fscore: expected a number in [0, 1], got {fscore!r}")
     if time_budget is not None:
         time_budget = check_positive(time_budget, "time_budget")
-    w = _check_weights(weights if weights is not None else ADAPTIVE_WEIGHTS)
+    w = mesh_weights(weights if weights is not None else ADAPTIVE_WEIGHTS)
     if isinstance(evaluator, str):
         if evaluator != "default":
             raise ValueError(f"evaluator: expected a MeshEvaluator, 'default' or None, "
