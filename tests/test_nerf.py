@@ -459,6 +459,8 @@ def test_fit_nonfinite_gradient_returns_last_finite(toy_scene, monkeypatch):
         return grads
 
     monkeypatch.setattr(ImplicitRenderer, "backward", poisoned)
+    # one chunk per step here, so that the 3rd backward call is the 3rd step
+    monkeypatch.setattr("geofit.fit._nerf_train._MIN_PARTS", 1)
     res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=10), seed=0, progress=False)
     assert res.status == "nonfinite" and "NaN" in res.message
     assert np.all(np.isfinite(res.field.get_flat())) and len(res.history.loss) == 3
@@ -638,3 +640,17 @@ def test_cli_fit_nerf_writes_outputs(tmp_path, capsys):
     for name in ("nerf_heldout.png", "nerf_rotation.gif"):
         assert (tmp_path / name).stat().st_size > 0
     assert "fit-nerf" in capsys.readouterr().out
+
+
+def test_fit_same_seed_same_network_on_1_and_2_threads(toy_scene):
+    """The same seed gives the same network whatever the thread count: a training step is cut
+    into chunks independently of the threads, and the chunks' gradients are summed in order."""
+    imgs, sils, cams = toy_scene
+    fields = []
+    for n_threads in (1, 2):
+        res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(
+            n_iter=25, n_threads=n_threads), seed=3, progress=False)
+        fields.append(res.field)
+    p1, p2 = (np.concatenate([np.ravel(v) for v in f.params.values()]) for f in fields)
+    assert p1.size > 100
+    np.testing.assert_array_equal(p1, p2)

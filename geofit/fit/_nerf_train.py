@@ -31,6 +31,10 @@ from .history import Clock, FitHistory
 
 #: Candidate samples per chunk of a training step (bounds the memory of the caches).
 _CHUNK_SAMPLES = 1 << 17
+#: A training step is split into at least this many chunks, whatever the thread count: the
+#: chunks' gradients are summed in chunk order, so the same seed gives the same network on 1, 2
+#: or 8 cores (a partition that followed the thread count changed the float32 sums).
+_MIN_PARTS = 8
 
 
 def _silhouette_weights(silhouettes: np.ndarray, margin: int) -> np.ndarray:
@@ -238,10 +242,9 @@ class _NerfTraining:
         """The loss terms, the parameter gradients and the samples per ray of a batch."""
         cfg, n_threads, renderer, field = self.cfg, self.n_threads, self.renderer, self.field
         R = flat.origins.shape[0]
-        # chunks of at most _CHUNK_SAMPLES candidate samples (bounded memory), a multiple of
-        # the thread count; every chunk's gradients are summed
-        n_parts = max(n_threads, -(-R * cfg.n_pts_per_ray // _CHUNK_SAMPLES))
-        n_parts = -(-n_parts // n_threads) * n_threads
+        # chunks of at most _CHUNK_SAMPLES candidate samples (bounded memory) and at least
+        # _MIN_PARTS of them, independent of the thread count (deterministic sums)
+        n_parts = min(R, max(_MIN_PARTS, -(-R * cfg.n_pts_per_ray // _CHUNK_SAMPLES)))
         parts = [slice(i * R // n_parts, (i + 1) * R // n_parts) for i in range(n_parts)]
         reg_on = self.reg_on
 

@@ -1,19 +1,10 @@
 """Geometric operators: surface sampling (with its sparse Jacobian), Laplacian matrices,
 topology reports and remeshing."""
-from .laplacian import cot_laplacian, norm_laplacian, uniform_laplacian
+from . import laplacian, sampling
+from .laplacian import *  # noqa: F403 - the public names are the submodules' __all__
 from .remesh import RemeshResult, remesh
-from .sampling import SampledPoints, barycentric_matrix, sample_points_from_meshes
+from .sampling import *  # noqa: F403
 from .topology import TopologyReport, topology
 
-__all__ = [
-    "RemeshResult",
-    "SampledPoints",
-    "TopologyReport",
-    "barycentric_matrix",
-    "cot_laplacian",
-    "norm_laplacian",
-    "remesh",
-    "sample_points_from_meshes",
-    "topology",
-    "uniform_laplacian",
-]
+__all__ = sorted([*laplacian.__all__, *sampling.__all__, "RemeshResult", "TopologyReport",
+                  "remesh", "topology"])
