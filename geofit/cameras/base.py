@@ -470,6 +470,7 @@ class CamerasBase:
 
         Examples
         --------
+        >>> from geofit.cameras import FoVPerspectiveCameras
         >>> cam = FoVPerspectiveCameras(fov=90.0)
         >>> xy, J = cam.projection_jacobian([[0.5, 0.0, 2.0]])
         >>> xy[0, 0], J[0, 0].round(12) + 0.0
