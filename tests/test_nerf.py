@@ -12,6 +12,7 @@ import pytest
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.fit.nerf import (
     NerfConfig,
+    _nerf_batch_loss,
     fit_nerf,
     render_nerf,
     sample_images_at_xys,
@@ -169,6 +170,35 @@ def test_call_and_forward_batched_agree():
 
 
 # -------------------------------------------------------------------------------------- renderer
+@pytest.mark.parametrize("with_grid", [False, True])
+def test_fit_nerf_composed_loss_matches_finite_differences(with_grid):
+    """fit_nerf's training loss (Huber colour + weighted Huber silhouette + opacity regulariser
+    on one fixed ray batch) has the gradient of its value, by central differences in float64."""
+    f = tiny_field()
+    grid = None
+    if with_grid:
+        occ = np.zeros((6, 6, 6), bool)
+        occ[1:5, 1:5, 1:5] = True
+        grid = OccupancyGrid(occ, [[-1.2] * 3, [1.2] * 3])
+    ren = ImplicitRenderer(MonteCarloRaysampler(-0.5, 0.5, -0.5, 0.5, 6, 8, 1.5, 3.5),
+                           EmissionAbsorptionRaymarcher(), occupancy=grid)
+    bundle = MonteCarloRaysampler(-0.5, 0.5, -0.5, 0.5, 6, 8, 1.5, 3.5)(cameras(), seed=5)
+    flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
+    R = flat.origins.shape[0]
+    rng = np.random.default_rng(7)
+    tgt_rgb, tgt_sil = rng.random((R, 3)), rng.random(R)
+    sil_w = (rng.random(R) > 0.3).astype(np.float64)
+    args = (flat, tgt_rgb, tgt_sil, sil_w, R, 0.1, 0.05)
+
+    def fun():
+        lc, ls, lo, _, _ = _nerf_batch_loss(ren, f, *args)
+        return lc + ls + lo
+
+    lc, ls, lo, grads, k = _nerf_batch_loss(ren, f, *args)
+    assert lc > 0 and ls > 0 and lo > 0 and k > 0
+    fd_check(fun, f, f.flatten_grads(grads), n=60)
+
+
 @pytest.mark.parametrize("use_grid", [False, True])
 def test_pipeline_pixels_to_weights_matches_finite_differences(use_grid):
     """d<G, render>/d weights (sampler -> field -> EA raymarcher) equals central differences,

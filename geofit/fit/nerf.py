@@ -466,6 +466,34 @@ class _DensityGrid:
         return OccupancyGrid(occ.occupied & hull.occupied, hull.bounds, grid)
 
 
+def _nerf_batch_loss(renderer, field, bundle: RayBundle, tgt_rgb, tgt_sil, sil_w, n_rays: int,
+                     huber_scale: float, opacity_weight: float):
+    """The training loss of :func:`fit_nerf` on (a chunk of) one ray batch, and its gradient.
+
+    ``color = sum huber(rgb - tgt_rgb) / (3 R)``, ``silhouette = sum sil_w huber(alpha -
+    tgt_sil) / R`` and ``opacity = opacity_weight / R sum_samples a (1 - a)`` (``R = n_rays``,
+    the whole batch's ray count, so that chunks add up). Returns ``(color, silhouette, opacity,
+    grads, k)``: the three terms, the gradient dict of the field's parameters (the sum of the
+    terms') and the number of samples kept.
+    """
+    img, _, cache = renderer.render(None, field, ray_bundle=bundle)
+    lc, gc = huber(img[:, :3], tgt_rgb, huber_scale)
+    ls, gs = huber(img[:, 3], tgt_sil, huber_scale)
+    if sil_w is not None:
+        ls, gs = ls * sil_w, gs * sil_w
+    G = np.empty_like(img)
+    G[:, :3] = gc / (3 * n_rays)
+    G[:, 3] = gs / n_rays
+    lo, gd = 0.0, None
+    if opacity_weight > 0 and cache.ray_index.size:
+        a = cache.sample_densities()
+        w = opacity_weight / n_rays
+        lo = w * float(np.sum(a * (1.0 - a)))
+        gd = w * (1.0 - 2.0 * a)
+    grads = renderer.backward(field, cache, G, gd)
+    return lc.sum() / (3 * n_rays), ls.sum() / n_rays, lo, grads, cache.ray_index.size
+
+
 def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene",
              config: NerfConfig | None = None, held_out=None, time_budget: float | None = None,
              eval_every: float | None = None, early_stopping: int | None = None,
@@ -662,23 +690,9 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
 
         def work(sl):
             sub = RayBundle(*(a[sl] for a in flat))
-            img, _, cache = renderer.render(None, field, ray_bundle=sub)
-            lc, gc = huber(img[:, :3], tgt_rgb[sl], cfg.huber_scale)
-            ls, gs = huber(img[:, 3], tgt_sil[sl], cfg.huber_scale)
-            if sil_w is not None:
-                ls, gs = ls * sil_w[sl], gs * sil_w[sl]
-            G = np.empty_like(img)
-            G[:, :3] = gc / (3 * R)
-            G[:, 3] = gs / R
-            lo, gd = 0.0, None
-            if reg_on[0] and cache.ray_index.size:
-                a = cache.sample_densities()
-                w = cfg.opacity_regularization / R
-                lo = w * float(np.sum(a * (1.0 - a)))
-                gd = w * (1.0 - 2.0 * a)
-            grads = renderer.backward(field, cache, G, gd)
-            k = cache.ray_index.size
-            return lc.sum() / (3 * R), ls.sum() / R, lo, grads, k
+            return _nerf_batch_loss(renderer, field, sub, tgt_rgb[sl], tgt_sil[sl],
+                                    None if sil_w is None else sil_w[sl], R, cfg.huber_scale,
+                                    cfg.opacity_regularization if reg_on[0] else 0.0)
 
         outs = parallel_map(work, [p for p in parts if p.stop > p.start], n_threads)
         terms = {"color": sum(o[0] for o in outs), "silhouette": sum(o[1] for o in outs)}
