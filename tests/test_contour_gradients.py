@@ -60,7 +60,8 @@ def _central_differences(fun, x, h=1e-6):
     for i in range(x.size):  # coordinates of a tiny mesh
         e = np.zeros(x.size)
         e[i] = h
-        g[i] = (fun((x.ravel() + e).reshape(x.shape)) - fun((x.ravel() - e).reshape(x.shape))) / (2 * h)
+        xp, xm = (x.ravel() + e).reshape(x.shape), (x.ravel() - e).reshape(x.shape)
+        g[i] = (fun(xp) - fun(xm)) / (2 * h)
     return g.reshape(x.shape)
 
 
