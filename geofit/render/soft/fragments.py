@@ -31,6 +31,9 @@ _NEGLIGIBLE = 1e-20  # softmax weight ratio below which an entry's colour is not
 # ------------------------------------------------------------------------------------------
 
 
+_VJP_CHUNK = 65536  # entries per chunk of the backward pass
+
+
 def _n_threads(n) -> int:
     if n is None:
         return get_num_threads()
@@ -109,9 +112,10 @@ class SoftFragments:
 
     @cached_property
     def _bary_depth(self) -> tuple[np.ndarray, np.ndarray]:
-        bary = np.empty((len(self), 3))
-        depth = np.empty(len(self))
         c = self._ctx
+        dtype = c.get("dtype", np.float64)
+        bary = np.empty((len(self), 3), dtype)
+        depth = np.empty(len(self), dtype)
         for n, s in self._views():
             if s.start == s.stop:
                 continue
@@ -197,21 +201,19 @@ class SoftFragments:
         m = len(self)
         if m == 0 or (grad_dists is None and grad_zbuf is None and grad_bary is None):
             return np.zeros((V, 3))
-        gd_all = None if grad_dists is None else as_array(grad_dists, "grad_dists", (m,))
-        gz_all = None if grad_zbuf is None else as_array(grad_zbuf, "grad_zbuf", (m,))
-        gb_all = None if grad_bary is None else as_array(grad_bary, "grad_bary", (m, 3))
+        gd_all = None if grad_dists is None else _grad(grad_dists, "grad_dists", (m,))
+        gz_all = None if grad_zbuf is None else _grad(grad_zbuf, "grad_zbuf", (m,))
+        gb_all = None if grad_bary is None else _grad(grad_bary, "grad_bary", (m, 3))
         faces = ctx["faces"]
 
-        def one(n):
-            s = slice(int(self.view_offsets[n]), int(self.view_offsets[n + 1]))
-            if s.start == s.stop:
-                return None
+        def chunk(n, s):
+            def part(a):  # this chunk's gradient, in float64
+                return None if a is None else a[s].astype(np.float64, copy=False)
+
             if gz_all is None and gb_all is None:
-                return _dist_vjp(self, n, s, gd_all[s], V)
+                return _dist_vjp(self, n, s, part(gd_all), V)
             g = _EntryGeometry(self, n, s)
-            gx, gy, gz = g.vjp(None if gd_all is None else gd_all[s],
-                               None if gz_all is None else gz_all[s],
-                               None if gb_all is None else gb_all[s],
+            gx, gy, gz = g.vjp(part(gd_all), part(gz_all), part(gb_all),
                                ctx["perspective_correct"], ctx["clip"])
             f = self.face[s]
             J = ctx["J"][n]
@@ -225,8 +227,24 @@ class SoftFragments:
                     out += np.bincount(vid, gz[c], V)[:, None] * ctx["R"][n][:, 2][None, :]
             return out
 
+        def one(n):
+            # a view in chunks of at most _VJP_CHUNK entries (bounded float64 temporaries)
+            lo, hi = int(self.view_offsets[n]), int(self.view_offsets[n + 1])
+            out = None
+            for a in range(lo, hi, _VJP_CHUNK):  # chunks of the view's entries
+                g = chunk(n, slice(a, min(a + _VJP_CHUNK, hi)))
+                out = g if out is None else out + g
+            return out
+
         parts = _map_views(one, self.n_views, ctx["n_threads"])
         return sum((p for p in parts if p is not None), np.zeros((V, 3)))
+
+
+def _grad(x, name, shape):
+    """A per-entry gradient as float64, or as float32 if given so (no float64 copy of a
+    float32 gradient the size of the fragments; views are upcast one at a time)."""
+    keep = isinstance(x, np.ndarray) and x.dtype == np.float32
+    return as_array(x, name, shape, np.float32 if keep else np.float64)
 
 
 _EDGE_ENDS = np.array([[0, 1], [0, 2], [1, 2]])
