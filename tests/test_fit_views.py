@@ -119,7 +119,8 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     m = m.update_verts(m.verts * 0.7)
     param = _LargeSteps(m, large) if large else _Identity(m.n_verts)
     weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
-    st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None)
+    st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None,
+                                            dtype=np.float64)  # exact to float64
     obj = _Objective(m, data.train, weights, textured=textured, param=param, settings=st)
     x = param.to_params(m.verts)
     if textured:
