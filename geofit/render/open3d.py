@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import atexit
 import gc
+import os
+import sys
 from typing import NamedTuple
 
 import numpy as np
@@ -205,6 +207,14 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     return Open3DRender(images, depth, np.isfinite(depth))
 
 
+def has_display() -> bool:
+    """Whether a window can be shown: on Linux and other X11/Wayland systems, ``DISPLAY`` or
+    ``WAYLAND_DISPLAY`` is set; macOS and Windows are assumed to have one."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bool = True):
     """Open Open3D's interactive viewer on ``mesh`` at the viewpoint of ``cameras[index]``.
 
@@ -229,7 +239,9 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     Raises
     ------
     RuntimeError
-        If Open3D cannot create a window (no display and no offscreen fallback).
+        With ``run=True`` on a machine without a display (checked first, see
+        :func:`has_display`: the event loop of an offscreen window would never return), or if
+        Open3D cannot create a window. :func:`render_open3d` renders the same view offscreen.
     """
     import open3d as o3d
 
@@ -240,6 +252,11 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)
+    if run and not has_display():
+        raise RuntimeError("show_open3d: no display (neither DISPLAY nor WAYLAND_DISPLAY is "
+                           "set), so no window can be shown; use render_open3d(mesh, cameras, "
+                           "image_size) for an offscreen image, or run=False to script the "
+                           "viewer")
     m, _ = mesh_to_open3d(mesh)
     vis = o3d.visualization.Visualizer()
     if not vis.create_window(window_name="geofit", width=W, height=H):
