@@ -9,7 +9,7 @@ import numpy as np
 from ..viz import plot_accuracy_vs_time
 from ._common import (
     _GF, _P3D, StepResult, _bar, _begin, _fit_row, _heldout_comparison, _pick, _record_fit, _series,
-    _settings_text, _try,
+    _recipe_cut, _settings_text, _try,
 )
 
 __all__ = ["step_fit_views"]
@@ -100,7 +100,12 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
         _record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
                     final={"seconds": fit.seconds, **final,
                            "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
-        res.metrics.append({"method": label, "status": fit.status,
+        cut = ""
+        if name == "tutorial":
+            full = _views_settings("full")["tutorial"]
+            cut = _recipe_cut(kw["silhouette_iters"] + kw["textured_iters"],
+                              full["silhouette_iters"] + full["textured_iters"])
+        res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), **final})
         res.param_counts.append({"method": label, "vertices": fit.mesh.n_verts,
                                  "position parameters": 3 * fit.mesh.n_verts,
@@ -135,7 +140,8 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     pt, gf = res.metrics[0], res.metrics[1]
     res.headline = {
         _P3D: f"IoU {pt.get('iou', float('nan')):.3f}, PSNR "
-              f"{pt.get('psnr', float('nan')):.1f} dB in {pt['seconds']:.1f} s",
+              f"{pt.get('psnr', float('nan')):.1f} dB in {pt['seconds']:.1f} s"
+              + pt["method"][len(labels["tutorial"]):],
         _GF: f"IoU {gf.get('iou', float('nan')):.3f}, PSNR "
              f"{gf.get('psnr', float('nan')):.1f} dB in {gf['seconds']:.1f} s"}
     res.seconds = time.perf_counter() - t0

@@ -9,7 +9,7 @@ import numpy as np
 from ..viz import plot_accuracy_vs_time
 from ._common import (
     _GF, _P3D, StepResult, _bar, _begin, _cow_views, _fit_row, _heldout_comparison, _iou, _pick,
-    _psnr, _record_fit, _render_volume, _series, _settings_text, _try,
+    _psnr, _recipe_cut, _record_fit, _render_volume, _series, _settings_text, _try,
 )
 
 __all__ = ["step_fit_volume"]
@@ -88,7 +88,9 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                             features=vol.features, voxel_size=vol.voxel_size,
                             volume_translation=vol.volume_translation)
         res.files[f"{key} volume"] = d / f"{key}_volume.npz"
-        res.metrics.append({"method": label, "status": fit.status,
+        cut = _recipe_cut(fit.n_iterations, _volume_settings("full")["tutorial"]["n_iter"]) \
+            if key == "tutorial" else ""
+        res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "held-out PSNR (dB)": final["psnr"],
                             "held-out IoU": final["iou"],
                             "samples per ray": round(fit.samples_per_ray, 1)})
@@ -111,7 +113,9 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     pt, gf = res.metrics
     res.headline = {
         _P3D: f"PSNR {pt['held-out PSNR (dB)']:.1f} dB in {pt['seconds']:.1f} s, "
-              f"{res.param_counts[0]['free parameters']:,} params",
+              f"{res.param_counts[0]['free parameters']:,} params"
+              + _recipe_cut(fits["tutorial"].n_iterations,
+                            _volume_settings("full")["tutorial"]["n_iter"]),
         _GF: f"PSNR {gf['held-out PSNR (dB)']:.1f} dB in {gf['seconds']:.1f} s, "
              f"{res.param_counts[1]['free parameters']:,} params"}
     res.seconds = time.perf_counter() - t0

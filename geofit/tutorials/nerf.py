@@ -9,7 +9,7 @@ import numpy as np
 from ..viz import plot_accuracy_vs_time
 from ._common import (
     _GF, _P3D, StepResult, _bar, _begin, _cow_views, _fit_row, _heldout_comparison, _pick,
-    _record_fit, _series, _settings_text, _try,
+    _recipe_cut, _record_fit, _series, _settings_text, _try,
 )
 
 __all__ = ["step_nerf"]
@@ -80,7 +80,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
                     config={k: repr(v) for k, v in kw.items()})
         np.savez_compressed(d / f"{key}_weights.npz", **fit.field.params)
         res.files[f"{key} weights"] = d / f"{key}_weights.npz"
-        res.metrics.append({"method": label, "status": fit.status,
+        cut = _recipe_cut(fit.n_iterations, _nerf_settings("full")["tutorial"]["n_iter"]) \
+            if key == "tutorial" else ""
+        res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
                             "held-out PSNR (dB)": fit.psnr,
                             "samples per ray": round(fit.samples_per_ray, 1)})
@@ -103,7 +105,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     pt, gf = res.metrics
     res.headline = {
         _P3D: f"PSNR {pt['held-out PSNR (dB)'] or float('nan'):.1f} dB in {pt['seconds']:.1f} s, "
-              f"{res.param_counts[0]['network parameters']:,} params",
+              f"{res.param_counts[0]['network parameters']:,} params"
+              + _recipe_cut(fits["tutorial"].n_iterations,
+                            _nerf_settings("full")["tutorial"]["n_iter"]),
         _GF: f"PSNR {gf['held-out PSNR (dB)'] or float('nan'):.1f} dB in {gf['seconds']:.1f} s, "
              f"{res.param_counts[1]['network parameters']:,} params"}
     res.seconds = time.perf_counter() - t0
