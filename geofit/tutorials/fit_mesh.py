@@ -39,7 +39,8 @@ def _fit_mesh_settings(name: str, size: str) -> dict:
         kw["checkpoint_every"] = 100 if stochastic else 10
         return kw
     if stochastic:
-        kw.update(n_iter=_pick(size, 20, 300, _TUTORIAL_STEPS), checkpoint_every=_pick(size, 10, 50, 100))
+        kw.update(n_iter=_pick(size, 20, 300, _TUTORIAL_STEPS),
+                  checkpoint_every=_pick(size, 10, 50, 100))
         if size == "tiny":
             kw.update(n_samples=500)
     else:
