@@ -171,29 +171,6 @@ def test_show_open3d_validation():
         show_open3d(ico_sphere(1), cams, index=3)
 
 
-def test_show_open3d_without_a_display_raises_at_once(monkeypatch):
-    """With no DISPLAY / WAYLAND_DISPLAY, the blocking viewer raises a RuntimeError naming the
-    offscreen alternative, before any window is created (it used to hang for minutes)."""
-    pytest.importorskip("open3d")
-    import open3d as o3d
-
-    from geofit.render import open3d as go3d
-
-    monkeypatch.setattr(go3d.sys, "platform", "linux")
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    assert not go3d.has_display()
-
-    def no_window(*args, **kwargs):
-        raise AssertionError("a viewer was created")
-
-    monkeypatch.setattr(o3d.visualization, "Visualizer", no_window)
-    with pytest.raises(RuntimeError, match="no display.*render_open3d"):
-        go3d.show_open3d(ico_sphere(1), FoVPerspectiveCameras())
-    monkeypatch.setenv("DISPLAY", ":0")
-    assert go3d.has_display()
-
-
 @pytest.mark.slow
 def test_depth_of_a_sphere_matches_analytic(o3d_ok):
     """Next to the image centre both renderers see the sphere's near point: depth 2 up to the

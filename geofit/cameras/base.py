@@ -164,19 +164,15 @@ class CamerasBase:
             v.flags.writeable = False
             setattr(self, k, v)
         self._R_inv = np.linalg.inv(self.R)
-        self._ready = True
 
-    def __setattr__(self, name, value) -> None:
+    def __setattr__(self, name, value):
         """Assigning ``R``, ``T``, a per-camera parameter or a batch-wide setting (``degrees``)
-        of a constructed batch goes through the constructor's validation (the batch is
-        rebuilt, broadcast to one ``N``); the stored arrays are read-only."""
-        if self.__dict__.get("_ready") and name in ("R", "T") + self._FIELDS + tuple(
-                self._shared()):
-            kwargs = {**self._fields(), **self._shared(), name: value}
-            new = type(self)(**kwargs)
-            self.__dict__.update(new.__dict__)
-            return
-        object.__setattr__(self, name, value)
+        re-runs the constructor's checks."""
+        if "_R_inv" in self.__dict__ and name in ("R", "T") + self._FIELDS + tuple(self._shared()):
+            params = {**self._shared(), **self._fields(), name: value}
+            self.__dict__.update(type(self)(**params).__dict__)
+        else:
+            object.__setattr__(self, name, value)
 
     def _shared(self) -> dict:
         """Batch-wide settings (not indexed by camera)."""

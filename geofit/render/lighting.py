@@ -54,25 +54,6 @@ def _broadcast(**arrays: np.ndarray) -> dict:
     return out
 
 
-def _assign(obj, name: str, value, check) -> None:
-    """``obj.name = value`` for a batched parameter (in ``obj._PARAMS``): ``check(value)``,
-    then the batch of every parameter broadcast to one ``N`` (1 or ``N`` rows each)."""
-    if name not in type(obj)._PARAMS:
-        object.__setattr__(obj, name, value)
-        return
-    params = {k: obj.__dict__[k] for k in type(obj)._PARAMS if k in obj.__dict__}
-    params[name] = check(value)
-    if len(params) < len(type(obj)._PARAMS):  # being constructed
-        object.__setattr__(obj, name, _broadcast(**{name: params[name]})[name])
-        return
-    try:
-        params = _broadcast(**params)
-    except ValueError as e:
-        raise ValueError(f"{name}: {e}") from None
-    for k, v in params.items():
-        object.__setattr__(obj, k, v)
-
-
 def per_point(param: np.ndarray, batch_idx: np.ndarray | None, dtype=np.float32) -> np.ndarray:
     """Gather a batched ``(N, C)`` parameter for points with batch indices ``batch_idx (k,)``.
 
@@ -197,10 +178,14 @@ class _Lights:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(N={len(self)})"
 
-    def __setattr__(self, name, value) -> None:
-        """Assigning a parameter validates it as the constructor does (shape (N, 3) or (3,),
-        finite) and broadcasts the batch again; the stored arrays are read-only."""
-        _assign(self, name, value, lambda v: _batched(v, name, (3,)))
+    def __setattr__(self, name, value):
+        """Assigning a parameter validates and broadcasts it as the constructor does."""
+        if name in self._PARAMS and all(k in self.__dict__ for k in self._PARAMS):
+            params = {k: self.__dict__[k] for k in self._PARAMS}
+            params[name] = _batched(value, name, (3,))
+            self.__dict__.update(_broadcast(**params))
+        else:
+            object.__setattr__(self, name, value)
 
     def _set(self, **params) -> None:
         """Validate each (N, 3) or (3,) parameter and broadcast the batch to one N."""

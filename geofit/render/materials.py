@@ -4,20 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import as_array
-from .lighting import _assign, _batched, _broadcast
+from .lighting import _batched, _broadcast
 
 __all__ = ["Materials"]
-
-
-def _check_shininess(shininess) -> np.ndarray:
-    s = as_array(shininess, "shininess")
-    if s.ndim == 0:
-        s = s.reshape(1)
-    if s.ndim != 1 or s.shape[0] == 0:
-        raise ValueError(f"shininess: expected a number or shape (n,), got {s.shape}")
-    if np.any(s < 0):
-        raise ValueError(f"shininess: expected values >= 0, got minimum {float(s.min())}")
-    return s
 
 
 class Materials:
@@ -50,7 +39,13 @@ class Materials:
 
     def __init__(self, ambient_color=((1.0, 1.0, 1.0),), diffuse_color=((1.0, 1.0, 1.0),),
                  specular_color=((1.0, 1.0, 1.0),), shininess=64.0):
-        s = _check_shininess(shininess)
+        s = as_array(shininess, "shininess")
+        if s.ndim == 0:
+            s = s.reshape(1)
+        if s.ndim != 1 or s.shape[0] == 0:
+            raise ValueError(f"shininess: expected a number or shape (n,), got {s.shape}")
+        if np.any(s < 0):
+            raise ValueError(f"shininess: expected values >= 0, got minimum {float(s.min())}")
         b = _broadcast(ambient_color=_batched(ambient_color, "ambient_color", (3,)),
                        diffuse_color=_batched(diffuse_color, "diffuse_color", (3,)),
                        specular_color=_batched(specular_color, "specular_color", (3,)),
@@ -58,13 +53,14 @@ class Materials:
         for k, v in b.items():
             setattr(self, k, v)
 
-    def __setattr__(self, name, value) -> None:
-        """Assigning a parameter validates it as the constructor does and broadcasts the batch
-        again; the stored arrays are read-only."""
-        if name == "shininess":
-            _assign(self, name, value, _check_shininess)
+    def __setattr__(self, name, value):
+        """Assigning a parameter validates and broadcasts it as the constructor does."""
+        if name in self._PARAMS and all(k in self.__dict__ for k in self._PARAMS):
+            params = {k: self.__dict__[k] for k in self._PARAMS}
+            params[name] = value
+            self.__dict__.update(Materials(**params).__dict__)
         else:
-            _assign(self, name, value, lambda v: _batched(v, name, (3,)))
+            object.__setattr__(self, name, value)
 
     def __len__(self) -> int:
         return self.ambient_color.shape[0]

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import atexit
 import gc
-import os
-import sys
 from typing import NamedTuple
 
 import numpy as np
@@ -207,14 +205,6 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     return Open3DRender(images, depth, np.isfinite(depth))
 
 
-def has_display() -> bool:
-    """Whether a window can be shown: on Linux and other X11/Wayland systems, ``DISPLAY`` or
-    ``WAYLAND_DISPLAY`` is set; macOS and Windows are assumed to have one."""
-    if sys.platform in ("darwin", "win32"):
-        return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
 def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bool = True):
     """Open Open3D's interactive viewer on ``mesh`` at the viewpoint of ``cameras[index]``.
 
@@ -239,9 +229,9 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     Raises
     ------
     RuntimeError
-        With ``run=True`` on a machine without a display (checked first, see
-        :func:`has_display`: the event loop of an offscreen window would never return), or if
-        Open3D cannot create a window. :func:`render_open3d` renders the same view offscreen.
+        If Open3D cannot create a window (no display and no offscreen fallback), or, with
+        ``run=True`` on Linux, if there is no display at all (checked first: the event loop
+        would otherwise wait for a window no one can close).
     """
     import open3d as o3d
 
@@ -252,11 +242,12 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)
-    if run and not has_display():
-        raise RuntimeError("show_open3d: no display (neither DISPLAY nor WAYLAND_DISPLAY is "
-                           "set), so no window can be shown; use render_open3d(mesh, cameras, "
-                           "image_size) for an offscreen image, or run=False to script the "
-                           "viewer")
+    import os, sys  # noqa: E401 - display check (issue 18): run() would wait for ever
+    if run and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                         or os.environ.get("WAYLAND_DISPLAY")):
+        raise RuntimeError("show_open3d: no display (DISPLAY and WAYLAND_DISPLAY are unset), so "
+                           "the viewer could never be closed; use render_open3d(...) for an "
+                           "offscreen image, or run=False to script the viewer")
     m, _ = mesh_to_open3d(mesh)
     vis = o3d.visualization.Visualizer()
     if not vis.create_window(window_name="geofit", width=W, height=H):
