@@ -35,6 +35,7 @@ from ..._threads import get_num_threads, parallel_map
 from ..._validate import as_array, check_choice
 from ...cameras import CamerasBase
 from ...structures.pointcloud import Pointclouds, as_pointclouds
+from .._settings import float_dtype
 from .compositing import AlphaCompositor, NormWeightedCompositor
 
 __all__ = [
@@ -114,13 +115,7 @@ class PointsRasterizationSettings:
 
     def __post_init__(self):
         _image_hw(self.image_size)
-        try:
-            dt = None if self.dtype is None else np.dtype(self.dtype)
-        except TypeError:
-            dt = None
-        if dt is None or dt.type not in (np.float32, np.float64):
-            raise ValueError(f"dtype: expected numpy.float32 or numpy.float64, got {self.dtype!r}")
-        object.__setattr__(self, "dtype", dt.type)
+        object.__setattr__(self, "dtype", float_dtype(self.dtype))
         _check_int(self.points_per_pixel, "points_per_pixel", 1)
         check_choice(self.radius_units, "radius_units", ("ndc", "world"))
         r = np.asarray(self.radius)

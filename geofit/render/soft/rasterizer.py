@@ -18,7 +18,7 @@ import numpy as np
 from ..._validate import check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh
-from .._settings import image_hw
+from .._settings import float_dtype, image_hw
 from .fragments import SoftFragments, _EPS, _map_views, _n_threads
 
 __all__ = [
@@ -116,13 +116,7 @@ class SoftRasterizationSettings:
         if t is not None and (not isinstance(t, (int, np.integer)) or isinstance(t, bool)
                               or t < 1):
             raise ValueError(f"n_threads: expected None or an integer >= 1, got {t!r}")
-        try:
-            dt = None if self.dtype is None else np.dtype(self.dtype)
-        except TypeError:
-            dt = None
-        if dt is None or dt.type not in (np.float32, np.float64):
-            raise ValueError(f"dtype: expected numpy.float32 or numpy.float64, got {self.dtype!r}")
-        object.__setattr__(self, "dtype", dt.type)
+        object.__setattr__(self, "dtype", float_dtype(self.dtype))
 
     @classmethod
     def tutorial(cls, image_size=128, **kwargs) -> SoftRasterizationSettings:
