@@ -67,7 +67,7 @@ class SoftFragments:
         Row-major pixel index ``row * W + col`` within its view (row 0 at the top).
     face : (m,) int64
         Face index (into the mesh's faces, not packed over views).
-    dist : (m,) float64
+    dist : (m,) float32 (the settings' ``dtype``)
         Signed squared NDC distance from the pixel centre to the projected triangle, negative
         inside (PyTorch3D's ``dists``).
     view_offsets : (N + 1,) int64
@@ -127,13 +127,13 @@ class SoftFragments:
 
     @property
     def bary(self) -> np.ndarray:
-        """(m, 3) float64 barycentrics as PyTorch3D outputs them (perspective-corrected and
+        """(m, 3) barycentrics (the settings' ``dtype``) as PyTorch3D outputs them (perspective-corrected and
         clipped per the settings)."""
         return self._bary_depth[0]
 
     @property
     def depth(self) -> np.ndarray:
-        """(m,) float64 view depth of the pixel's point on the face (PyTorch3D's ``zbuf``),
+        """(m,) view depth (the settings' ``dtype``) of the pixel's point on the face (PyTorch3D's ``zbuf``),
         interpolated with :attr:`bary`."""
         return self._bary_depth[1]
 

@@ -55,8 +55,8 @@ class SoftRender:
 
     Attributes
     ----------
-    images : (N, H, W, 4) float64
-        RGBA (RGB = 1 for silhouettes).
+    images : (N, H, W, 4) float32 or float64
+        RGBA (RGB = 1 for silhouettes); Phong images in the settings' ``dtype``.
     fragments : SoftFragments
     """
 
