@@ -127,14 +127,14 @@ class SoftFragments:
 
     @property
     def bary(self) -> np.ndarray:
-        """(m, 3) barycentrics (the settings' ``dtype``) as PyTorch3D outputs them (perspective-corrected and
-        clipped per the settings)."""
+        """(m, 3) barycentrics (the settings' ``dtype``) as PyTorch3D outputs them
+        (perspective-corrected and clipped per the settings)."""
         return self._bary_depth[0]
 
     @property
     def depth(self) -> np.ndarray:
-        """(m,) view depth (the settings' ``dtype``) of the pixel's point on the face (PyTorch3D's ``zbuf``),
-        interpolated with :attr:`bary`."""
+        """(m,) view depth (the settings' ``dtype``) of the pixel's point on the face
+        (PyTorch3D's ``zbuf``), interpolated with :attr:`bary`."""
         return self._bary_depth[1]
 
     @cached_property
