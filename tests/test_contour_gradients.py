@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from geofit import FoVPerspectiveCameras, Mesh, look_at_view_transform
-from geofit.fit.views import _ContourObjective, _LargeSteps
+from geofit.fit._views_objective import _ContourObjective
+from geofit.fit.large_steps import vertex_parameterization
 from geofit.render.soft.contour import ContourSilhouetteLoss
 from geofit.shapes import plane
 
@@ -104,15 +105,13 @@ class _ContinuousContourLoss:
 def test_views_contour_objective_matches_finite_differences(large_steps):
     """fit_mesh_to_views' contour objective (silhouette + edge + normal + Laplacian terms, in
     the identity or the large-steps parameterisation) has the gradient of its value."""
-    from geofit.fit.views import _Identity
-
     cams = _cameras()
     mesh = _mesh(n=3, seed=1)
     closs = _ContinuousContourLoss(ContourSilhouetteLoss(cams, _ramp(2), samples_per_pixel=16.0))
     weights = {"silhouette": 1.0, "edge": 0.3, "normal": 0.05, "laplacian": 0.2}
-    param = _LargeSteps(mesh, large_steps) if large_steps else _Identity(mesh.n_verts)
+    param = vertex_parameterization(mesh, large_steps)
     obj = _ContourObjective(mesh, closs, weights, param)
-    x0 = param.to_params(mesh.verts)
+    x0 = param.to_params(mesh.verts).ravel()
     value, grad = obj(x0)
     assert set(obj.last["terms"]) == {"silhouette", "edge", "normal", "laplacian"}
     fd = _central_differences(lambda x: obj(x)[0], x0)
