@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import (
-    StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _record_fit,
-    _try, _views_config,
+    StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _recipe_cut,
+    _record_fit, _try, _views_config,
 )
 
 __all__ = ["step_fit_views"]
