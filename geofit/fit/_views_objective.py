@@ -160,7 +160,7 @@ def _lstsq_colors(mesh: Mesh, data: MultiViewDataset, reg: float) -> np.ndarray:
     from ..ops import uniform_laplacian
 
     settings = SoftRasterizationSettings(image_size=data.image_size, blur_radius=0.0,
-                                         faces_per_pixel=1)
+                                         faces_per_pixel=1, dtype=np.float64)
     r = SoftPhongRenderer(data.cameras, dataset_lights(data), raster_settings=settings)
     out = r(mesh, np.full((mesh.n_verts, 3), 0.5))
     A, b = out.color_operator()

@@ -517,9 +517,11 @@ class _ViewsPlan:
                    faces_per_pixel, rest["color_reg"], rest["contour_threshold"])
 
     def settings(self, size, persp=None) -> SoftRasterizationSettings:
-        """The tutorial's soft rasterization at ``size`` with this fit's K."""
+        """The tutorial's soft rasterization at ``size`` with this fit's K, storing fragments
+        in float64: the fit's gradients are solved by L-BFGS line searches (DESIGN: float64
+        where gradients are checked and solved), and its benchmark figures were measured so."""
         return SoftRasterizationSettings.tutorial(size, faces_per_pixel=self.faces_per_pixel,
-                                                  perspective_correct=persp)
+                                                  perspective_correct=persp, dtype=np.float64)
 
 
 class _ViewsRun:
