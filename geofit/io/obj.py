@@ -3,6 +3,11 @@
 The reader keeps the file's vertex order and its per-corner texture-coordinate indices exactly
 (no vertex merging or splitting, unlike general-purpose mesh loaders), fan-triangulates polygons
 as ``(v0, vi, vi+1)``, and raises on anything it cannot load instead of returning a partial mesh.
+
+Why one module of ~850 lines: the OBJ reader, its MTL and texture reading and the path policy
+for the files an OBJ names (``mtllib``, ``map_Kd`` stay inside the OBJ's folder unless
+``allow_outside=True``) are one chain of checks on one untrusted input, read top to bottom; the
+general mesh formats (PLY, STL, OFF, glTF) live in :mod:`geofit.io.mesh`.
 """
 from __future__ import annotations
 
