@@ -29,7 +29,7 @@ import numpy as np
 
 from ._validate import as_array, check_positive
 from .cameras import FoVPerspectiveCameras, look_at_view_transform
-from .structures.mesh import Mesh
+from .structures.mesh import Mesh, as_mesh
 
 __all__ = [
     "MultiViewDataset",
@@ -172,8 +172,7 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     )
     from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
 
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     size = _count(image_size, "image_size")
     dist = check_positive(dist, "dist")
     bg = _background(background)

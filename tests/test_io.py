@@ -598,7 +598,7 @@ def test_pointcloud_errors(tmp_path):
     with pytest.raises(ValueError, match=r"g\.ply: the file holds no points \(or Open3D"):
         load_pointcloud(tmp_path / "g.ply")
     cloud = PointCloud(pts, np.zeros((3, 1)))
-    with pytest.raises(TypeError, match="cloud: expected a PointCloud"):
+    with pytest.raises(TypeError, match="cloud: expected a geofit PointCloud"):
         save_pointcloud(tmp_path / "a.npz", pts)
     with pytest.raises(ValueError, match=r"path: expected a \.npz or \.ply file"):
         save_pointcloud(tmp_path / "a.txt", cloud)

@@ -62,7 +62,7 @@ from ..render.soft import (
     sigmoid_alpha_blend_vjp,
 )
 from ..shapes import ico_sphere, subdivide
-from ..structures import Mesh, TexturesVertex
+from ..structures import Mesh, TexturesVertex, as_mesh
 from .history import Clock, FitHistory, FitResult
 from .solvers import adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
@@ -238,8 +238,7 @@ def render_multiview_dataset(mesh: Mesh, *, num_views: int = 20, image_size: int
         SoftPhongShader,
     )
 
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     if mesh.textures is None:
         raise ValueError("mesh: expected a textured mesh (TexturesUV or TexturesVertex)")
     for nm, v in (("num_views", num_views), ("image_size", image_size),
@@ -726,8 +725,8 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
     n_sub = sum(s for s, _ in lv)
     if init is None:
         init = ico_sphere(max(4 - n_sub, 0))
-    elif not isinstance(init, Mesh):
-        raise TypeError(f"init: expected a Mesh, got {type(init)!r}")
+    else:
+        init = as_mesh(init, "init")
     for s_, f_ in lv:
         H, W = views.image_size
         if H % f_ or W % f_:

@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import as_rng
-from ..structures.mesh import Mesh, Meshes
+from ..structures.mesh import Mesh, Meshes, as_mesh
 
 __all__ = ["SampledPoints", "barycentric_matrix", "sample_points_from_meshes"]
 
@@ -182,6 +182,8 @@ def sample_points_from_meshes(mesh, num_samples: int = 10000, *, seed=None,
     """
     n = _check_num_samples(num_samples)
     rng = as_rng(seed)
+    if not isinstance(mesh, (Mesh, Meshes)):
+        mesh = as_mesh(mesh, "mesh")  # a trimesh or Open3D mesh
     if isinstance(mesh, Mesh):
         return _sample_one(mesh, n, rng, bool(return_normals), bool(return_textures), "mesh")
     if isinstance(mesh, Meshes):

@@ -23,7 +23,7 @@ import numpy as np
 
 from .._validate import check_positive
 from ..cameras import CamerasBase, ndc_grid
-from ..structures import Mesh, Meshes
+from ..structures import Mesh, Meshes, as_meshes
 from . import _raycast
 from ._settings import image_hw
 
@@ -401,13 +401,7 @@ class Fragments:
 
 
 def _as_batch(meshes) -> Meshes:
-    if isinstance(meshes, Meshes):
-        return meshes
-    if isinstance(meshes, Mesh):
-        return Meshes([meshes])
-    if isinstance(meshes, (list, tuple)) and all(isinstance(m, Mesh) for m in meshes):
-        return Meshes(list(meshes))
-    raise TypeError(f"meshes: expected a Mesh or Meshes, got {type(meshes)!r}")
+    return as_meshes(meshes)  # geofit, trimesh or Open3D meshes
 
 
 def _check_cameras(cameras) -> CamerasBase:

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..cameras import FoVPerspectiveCameras, to_open3d
-from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex
+from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex, as_mesh, as_meshes
 from .textures import TexturesFlat
 
 __all__ = ["Open3DRender", "mesh_to_open3d", "render_open3d", "show_open3d"]
@@ -87,10 +87,7 @@ def mesh_to_open3d(mesh: Mesh):
 
 
 def _as_views(meshes, cameras):
-    if isinstance(meshes, Mesh):
-        meshes = Meshes([meshes])
-    if not isinstance(meshes, Meshes):
-        raise TypeError(f"meshes: expected a Mesh or Meshes, got {type(meshes)!r}")
+    meshes = as_meshes(meshes)  # geofit, trimesh or Open3D meshes
     if not isinstance(cameras, FoVPerspectiveCameras):
         raise TypeError(f"cameras: expected FoVPerspectiveCameras (Open3D has pinhole cameras "
                         f"only), got {type(cameras)!r}")
@@ -233,8 +230,7 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     """
     import open3d as o3d
 
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     if not isinstance(cameras, FoVPerspectiveCameras):
         raise TypeError(f"cameras: expected FoVPerspectiveCameras, got {type(cameras)!r}")
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
