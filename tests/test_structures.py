@@ -528,3 +528,13 @@ def test_fit_mesh_takes_library_meshes():
     assert res.mesh.n_verts == 42
     with pytest.raises(TypeError, match="target: expected a geofit Mesh, trimesh.Trimesh"):
         fit_mesh(source, "sphere.obj", n_iter=1, progress=False)
+
+
+def test_docstring_examples_run():
+    """The examples in the structures' docstrings run (doctest)."""
+    import doctest
+
+    import geofit.structures.mesh as sm
+
+    result = doctest.testmod(sm, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.failed == 0 and result.attempted > 0

@@ -1,14 +1,19 @@
-"""Reading and writing meshes (Wavefront OBJ/MTL with textures) and point clouds (.npz, .ply)."""
-from .obj import Material, ObjData, load_mesh, load_obj, load_objs_as_meshes, save_obj
+"""Reading and writing meshes (OBJ/MTL with textures, PLY, STL, OFF, GLB/glTF) and point clouds
+(.npz, .ply)."""
+from .mesh import READ_FORMATS, WRITE_FORMATS, load_mesh, save_mesh
+from .obj import Material, ObjData, load_obj, load_objs_as_meshes, save_obj
 from .points import load_pointcloud, save_pointcloud
 
 __all__ = [
     "Material",
     "ObjData",
+    "READ_FORMATS",
+    "WRITE_FORMATS",
     "load_mesh",
     "load_obj",
     "load_objs_as_meshes",
     "load_pointcloud",
+    "save_mesh",
     "save_obj",
     "save_pointcloud",
 ]
