@@ -62,3 +62,16 @@ def to_uint8(colors: np.ndarray) -> np.ndarray:
 def stash_matches(stash: np.ndarray, shown: np.ndarray) -> bool:
     """Whether float colours kept beside an 8-bit copy still agree with it (nobody edited it)."""
     return stash.shape == shown.shape and bool(np.array_equal(to_uint8(stash), shown))
+
+
+def geofit_record(obj) -> dict:
+    """What geofit's ``to_trimesh`` left in ``obj.metadata["geofit"]`` ({} when nothing)."""
+    meta = getattr(obj, "metadata", None)
+    rec = meta.get("geofit") if isinstance(meta, dict) else None
+    return rec if isinstance(rec, dict) else {}
+
+
+def from_uint8(rgba: np.ndarray) -> np.ndarray:
+    """8-bit (n, 3 or 4) colours -> float ``c / 255``: RGB, or RGBA when some alpha is below 255."""
+    c = 4 if rgba.shape[1] == 4 and np.any(rgba[:, 3] < 255) else 3
+    return rgba[:, :c] / 255.0

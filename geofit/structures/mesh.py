@@ -359,27 +359,25 @@ class Mesh:
             raise TypeError(f"mesh: expected a trimesh.Trimesh, got {type(mesh)!r}")
         verts = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-        info = getattr(mesh, "metadata", None) or {}
-        info = info.get("geofit") if isinstance(info, dict) else None
+        info = _foreign.geofit_record(mesh)
         visual = getattr(mesh, "visual", None)
         kind = getattr(visual, "kind", None)
         textures = None
         if kind == "vertex":
             rgba = np.asarray(visual.vertex_colors)
-            stash = info.get("verts_features") if isinstance(info, dict) else None
+            stash = info.get("verts_features")
             stash = None if stash is None else np.asarray(stash)
             if (stash is not None and stash.ndim == 2 and stash.shape[1] in (1, 3, 4)
                     and _foreign.stash_matches(_rgba(stash), rgba)):
                 textures = TexturesVertex(stash)
             else:
-                c = 4 if rgba.shape[1] == 4 and np.any(rgba[:, 3] < 255) else 3
-                textures = TexturesVertex(rgba[:, :c] / 255.0)
+                textures = TexturesVertex(_foreign.from_uint8(rgba))
         elif kind == "texture" and visual.uv is not None and len(visual.uv) == len(verts):
             image = _trimesh_image(visual.material)
             if image is not None:
                 uv = np.asarray(visual.uv, dtype=np.float64)
-                split = _unsplit(info, len(verts), faces) if isinstance(info, dict) else None
-                stash = info.get("maps") if isinstance(info, dict) else None
+                split = _unsplit(info, len(verts), faces)
+                stash = info.get("maps")
                 maps = (np.asarray(stash) if stash is not None
                         and _foreign.stash_matches(np.asarray(stash), image) else image / 255.0)
                 if split is not None:

@@ -95,14 +95,12 @@ class PointCloud:
             normals are kept in ``cloud.metadata["geofit"]``, and used while they still agree
             with the trimesh object).
         """
-        from ._foreign import foreign_kind, stash_matches
+        from ._foreign import foreign_kind, from_uint8, geofit_record, stash_matches
 
         if foreign_kind(cloud) != "trimesh.PointCloud":
             raise TypeError(f"cloud: expected a trimesh.PointCloud, got {type(cloud)!r}")
         points = np.asarray(cloud.vertices, dtype=np.float64)
-        info = getattr(cloud, "metadata", None) or {}
-        info = info.get("geofit") if isinstance(info, dict) else None
-        info = info if isinstance(info, dict) else {}
+        info = geofit_record(cloud)
         stash = info.get("features")
         stash = None if stash is None else np.asarray(stash)
         if stash is not None and (stash.ndim != 2 or len(stash) != len(points)):
@@ -114,8 +112,7 @@ class PointCloud:
             if c in (3, 4) and stash_matches(stash, colors[:, :c]):
                 features = stash
             else:
-                c = 4 if colors.shape[1] == 4 and np.any(colors[:, 3] < 255) else 3
-                features = colors[:, :c] / 255.0
+                features = from_uint8(colors)
         elif stash is not None and stash.shape[1] not in (3, 4):
             features = stash  # features that are not colours (trimesh has no place for them)
         normals = info.get("normals")
