@@ -769,3 +769,18 @@ def test_docstring_examples_run():
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0, mod.__name__
         assert result.attempted > 0, mod.__name__
+
+
+def test_load_mesh_reads_gltf_with_side_files(tmp_path):
+    """A .gltf (JSON plus .bin buffers, as trimesh writes it) loads with its vertex colours."""
+    import trimesh
+
+    tm = trimesh.creation.icosphere(2)
+    tm.visual.vertex_colors = np.tile([200, 10, 10, 255], (len(tm.vertices), 1)).astype(np.uint8)
+    for name, blob in trimesh.exchange.gltf.export_gltf(tm.scene()).items():
+        (tmp_path / name).write_bytes(blob)
+    mesh = load_mesh(tmp_path / "model.gltf")
+    assert (mesh.n_verts, mesh.n_faces) == (162, 320)
+    np.testing.assert_allclose(mesh.verts, tm.vertices, atol=1e-6)  # float32 in glTF
+    np.testing.assert_array_equal(mesh.textures.verts_features,
+                                  np.tile([200, 10, 10], (162, 1)) / 255)

@@ -514,6 +514,13 @@ def test_library_meshes_accepted_at_public_boundaries():
     pts = np.array(mesh.verts)
     oc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     assert chamfer_distance(oc, trimesh.PointCloud(pts)).loss == 0.0
+    from geofit.render import PointsRasterizationSettings, PointsRasterizer
+
+    prast = PointsRasterizer(rast.cameras, PointsRasterizationSettings(16, 0.05, 4))
+    ref = prast(PointCloud(pts)).idx
+    assert (ref >= 0).any()
+    for cloud in (oc, trimesh.PointCloud(pts), [oc]):
+        assert_array_equal(prast(cloud).idx, ref)
 
 
 def test_fit_mesh_takes_library_meshes():
