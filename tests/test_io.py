@@ -636,7 +636,7 @@ def test_real_cow_matches_pytorch3d():
     np.testing.assert_allclose(colour, ref["uvlookup_colour"], rtol=0, atol=1e-4)  # float32 ref
 
 
-# ----------------------------------------------------------------------------- load_mesh / save_mesh
+# ------------------------------------------------------------------------ load_mesh / save_mesh
 def _coloured_sphere(level=2):
     m = ico_sphere(level)
     cols = np.random.default_rng(7).uniform(0, 1, (m.n_verts, 3))  # like fitted colours
@@ -646,7 +646,7 @@ def _coloured_sphere(level=2):
 @pytest.mark.parametrize("ext, atol", [(".obj", 0.0), (".ply", 0.0), (".off", 1e-9),
                                        (".glb", 1e-6)])
 def test_save_mesh_load_mesh_round_trip(tmp_path, ext, atol):
-    """save_mesh then load_mesh keeps vertex order and faces (positions to the format's precision)."""
+    """save_mesh then load_mesh keeps vertex order and faces (positions to format precision)."""
     mesh = _coloured_sphere()
     save_mesh(tmp_path / f"m{ext}", mesh)
     back = load_mesh(tmp_path / f"m{ext}")
@@ -656,7 +656,7 @@ def test_save_mesh_load_mesh_round_trip(tmp_path, ext, atol):
 
 @pytest.mark.parametrize("ext", [".ply", ".glb"])
 def test_fitted_colours_export_to_ply_and_glb(tmp_path, ext):
-    """Vertex colours come back within 1/255 from the 8-bit formats (and without colours on request)."""
+    """Vertex colours come back within 1/255 from the 8-bit formats (none on request)."""
     mesh = _coloured_sphere()
     save_mesh(tmp_path / f"fit{ext}", mesh)
     back = load_mesh(tmp_path / f"fit{ext}")
@@ -731,13 +731,15 @@ def test_wrong_format_errors(tmp_path):
     """Each function refuses what it cannot do and names the format and the right function."""
     mesh = ico_sphere(1)
     save_mesh(tmp_path / "m.ply", mesh)
-    with pytest.raises(ValueError, match=r"m\.ply: this is a PLY file, not OBJ.*geofit\.io\.load_mesh"):
+    with pytest.raises(ValueError,
+                       match=r"m\.ply: this is a PLY file, not OBJ.*geofit\.io\.load_mesh"):
         load_obj(tmp_path / "m.ply")
     (tmp_path / "disguised.obj").write_bytes((tmp_path / "m.ply").read_bytes())
     with pytest.raises(ValueError, match=r"disguised\.obj: this is a PLY file"):
         load_obj(tmp_path / "disguised.obj")
     np.testing.assert_array_equal(load_mesh(tmp_path / "disguised.obj").verts, mesh.verts)
-    with pytest.raises(ValueError, match=r"save_obj writes Wavefront OBJ.*PLY.*geofit\.io\.save_mesh"):
+    with pytest.raises(ValueError,
+                       match=r"save_obj writes Wavefront OBJ.*PLY.*geofit\.io\.save_mesh"):
         save_obj(tmp_path / "x.ply", mesh)
     assert not (tmp_path / "x.ply").exists()
     with pytest.raises(ValueError, match=r"save_mesh writes \.obj, \.ply.*'x\.gltf'.*\.glb"):

@@ -305,7 +305,8 @@ def _seamed_mesh():
 
     m = procedural_textured_mesh(n_lat=6, n_lon=8, texture_size=16)
     t = m.textures  # maps read from image files hold multiples of 1/255; Open3D keeps 8 bits
-    return Mesh(m.verts, m.faces, TexturesUV(np.round(t.maps * 255) / 255, t.faces_uvs, t.verts_uvs))
+    maps = np.round(t.maps * 255) / 255
+    return Mesh(m.verts, m.faces, TexturesUV(maps, t.faces_uvs, t.verts_uvs))
 
 
 def _assert_same_mesh(a, b):
@@ -469,7 +470,8 @@ def test_as_mesh_and_as_pointcloud_accept_foreign_and_reject_others():
 
 @pytest.mark.parametrize("kind, hint", [
     ("trimesh", "Mesh.from_trimesh"), ("trimesh_cloud", "cloud.vertices"),
-    ("open3d", "numpy.asarray\\(mesh.vertices\\)"), ("open3d_cloud", "numpy.asarray\\(cloud.points\\)"),
+    ("open3d", "numpy.asarray\\(mesh.vertices\\)"),
+    ("open3d_cloud", "numpy.asarray\\(cloud.points\\)"),
     ("geofit", "mesh.verts")])
 def test_as_array_says_how_to_convert_geometry_objects(kind, hint):
     """A mesh or cloud object where an array is expected gets a TypeError with the conversion."""

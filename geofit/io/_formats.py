@@ -11,7 +11,7 @@ EXTENSIONS = {
 
 
 def sniff(path: Path) -> str | None:
-    """The format of ``path``: PLY, GLB or OFF from the magic bytes, else by extension, else None."""
+    """The format of ``path``: PLY, GLB or OFF by its first bytes, else by extension, or None."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(4)

@@ -24,7 +24,8 @@ ARRAY_HINTS = {
     "trimesh.Scene": "pass scene.to_geometry().vertices, or geofit.structures.as_mesh(scene)",
     "open3d.TriangleMesh": "pass numpy.asarray(mesh.vertices) (and numpy.asarray(mesh.triangles)),"
                            " or geofit.Mesh.from_open3d(mesh)",
-    "open3d.PointCloud": "pass numpy.asarray(cloud.points), or geofit.PointCloud.from_open3d(cloud)",
+    "open3d.PointCloud": "pass numpy.asarray(cloud.points), or "
+                         "geofit.PointCloud.from_open3d(cloud)",
     "geofit.Mesh": "pass mesh.verts (and mesh.faces)",
     "geofit.PointCloud": "pass cloud.points",
 }

@@ -159,7 +159,8 @@ class PointCloud:
         return trimesh.PointCloud(np.array(self.points), colors=colors, metadata={"geofit": info})
 
     def to_open3d(self):
-        """An ``open3d.geometry.PointCloud`` with colours (first three feature channels) and normals."""
+        """An ``open3d.geometry.PointCloud`` with colours (the first three feature channels,
+        clipped to [0, 1]) and normals."""
         import open3d as o3d
 
         # Open3D's Vector3dVector rejects read-only arrays: pass copies.
@@ -295,7 +296,8 @@ def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
 
 
 def as_pointclouds(clouds, name: str = "point_clouds") -> Pointclouds:
-    """Accept a Pointclouds batch, one cloud or a list of clouds (any type :func:`as_pointcloud` takes)."""
+    """A Pointclouds batch from a batch, one cloud or a list of clouds (of the types
+    :func:`as_pointcloud` takes)."""
     if isinstance(clouds, Pointclouds):
         return clouds
     if isinstance(clouds, (list, tuple)):
