@@ -786,3 +786,15 @@ def test_load_mesh_reads_gltf_with_side_files(tmp_path):
     np.testing.assert_allclose(mesh.verts, tm.vertices, atol=1e-6)  # float32 in glTF
     np.testing.assert_array_equal(mesh.textures.verts_features,
                                   np.tile([200, 10, 10], (162, 1)) / 255)
+
+
+def test_ply_bakes_a_uv_texture_into_vertex_colours(tmp_path):
+    """A UV-textured mesh saved as PLY carries the texture's colour at each vertex."""
+    m = ico_sphere(1)
+    uv = np.full((1, 2), 0.5)
+    maps = np.broadcast_to([0.2, 0.4, 0.6], (4, 4, 3))  # one colour everywhere
+    mesh = Mesh(m.verts, m.faces, TexturesUV(maps, np.zeros_like(m.faces), uv))
+    save_mesh(tmp_path / "t.ply", mesh)
+    back = load_mesh(tmp_path / "t.ply")
+    np.testing.assert_allclose(back.textures.verts_features,
+                               np.tile([0.2, 0.4, 0.6], (m.n_verts, 1)), atol=0.5 / 255)

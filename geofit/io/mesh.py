@@ -9,6 +9,7 @@ Extension   :func:`load_mesh` reads                      :func:`save_mesh` write
 ==========  ==========================================  ==========================================
 ``.obj``    geofit's OBJ reader: UV texture (TexturesUV)  OBJ + MTL + PNG texture (TexturesUV)
 ``.ply``    trimesh: vertex colours, polygons split       Open3D: float64 positions, 8-bit colours
+                                                         (a UV texture baked to vertex colours)
 ``.stl``    trimesh, vertices merged                     trimesh: binary STL (float32), geometry
 ``.off``    trimesh, polygons split                      trimesh: ASCII OFF, geometry
 ``.glb``    trimesh: vertex colours or UVs + image       trimesh: float32 positions, colours or
@@ -132,6 +133,17 @@ def _merge_corners(tm) -> Mesh:
     return Mesh(V[order], new_id[F])
 
 
+def _bake_uv_colours(mesh: Mesh) -> np.ndarray:
+    """(V, C) vertex colours from a UV texture: the mean of the texture at a vertex's corners."""
+    tex = mesh.textures
+    corner = tex.sample_uv(tex.verts_uvs[tex.faces_uvs.ravel()])  # (3F, C)
+    idx = mesh.faces.ravel()
+    count = np.maximum(np.bincount(idx, minlength=mesh.n_verts), 1)[:, None]
+    sums = np.stack([np.bincount(idx, weights=corner[:, c], minlength=mesh.n_verts)
+                     for c in range(corner.shape[1])], axis=1)  # loop over channels
+    return np.clip(sums / count, 0.0, 1.0)
+
+
 def save_mesh(path: PathLike, mesh) -> None:
     """Write a triangle mesh in the format its extension names.
 
@@ -145,8 +157,9 @@ def save_mesh(path: PathLike, mesh) -> None:
         or UVs with the texture as a PNG, written by trimesh).
     mesh : Mesh, trimesh.Trimesh or open3d.geometry.TriangleMesh
         The mesh. Vertex colours (a TexturesVertex with 1, 3 or 4 channels in [0, 1]) go to PLY
-        and GLB; a UV texture goes to OBJ and GLB. PLY, STL and OFF do not store a UV texture
-        image and OBJ does not store vertex colours: those are left out.
+        and GLB; a UV texture goes to OBJ and GLB, and to PLY as vertex colours (the texture's
+        mean over each vertex's corners). STL and OFF hold geometry only, and OBJ does not
+        store vertex colours: those are left out.
 
     Raises
     ------
@@ -177,8 +190,12 @@ def save_mesh(path: PathLike, mesh) -> None:
     if suffix == ".ply":
         import open3d as o3d
 
+        tex = mesh.textures
+        if isinstance(tex, TexturesUV):
+            tex = TexturesVertex(_bake_uv_colours(mesh))
         plain = Mesh(mesh.verts, mesh.faces,
-                     mesh.textures if isinstance(mesh.textures, TexturesVertex) else None)
+                     tex if isinstance(tex, TexturesVertex) and tex.n_channels in (1, 3, 4)
+                     else None)
         ok = o3d.io.write_triangle_mesh(str(path), plain.to_open3d(), write_ascii=False,
                                         write_vertex_normals=False,
                                         write_vertex_colors=plain.textures is not None)
