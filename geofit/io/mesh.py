@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..structures._foreign import scene_to_mesh
 from ..structures.mesh import Mesh, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
@@ -104,7 +105,7 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
             n = sum(len(getattr(g, "vertices", ())) for g in loaded.geometry.values())
             raise ValueError(f"{path}: the file has no faces ({n} points): "
                              "read a point cloud with geofit.io.load_pointcloud")
-        loaded = loaded.to_geometry()
+        loaded = scene_to_mesh(loaded)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         n = len(getattr(loaded, "vertices", ()))
         raise ValueError(f"{path}: the file has no faces ({n} vertices): "

@@ -76,3 +76,10 @@ def from_uint8(rgba: np.ndarray) -> np.ndarray:
     """8-bit (n, 3 or 4) colours -> float ``c / 255``: RGB, or RGBA when some alpha is below 255."""
     c = 4 if rgba.shape[1] == 4 and np.any(rgba[:, 3] < 255) else 3
     return rgba[:, :c] / 255.0
+
+
+def scene_to_mesh(scene):
+    """A ``trimesh.Scene`` flattened into one ``trimesh.Trimesh`` (node transforms applied)."""
+    if hasattr(scene, "to_geometry"):  # trimesh >= 4.5
+        return scene.to_geometry()
+    return scene.dump(concatenate=True)

@@ -354,7 +354,7 @@ class Mesh:
 
         kind = _foreign.foreign_kind(mesh)
         if kind == "trimesh.Scene":
-            mesh = mesh.to_geometry()
+            mesh = _foreign.scene_to_mesh(mesh)
         elif kind != "trimesh.Trimesh":
             raise TypeError(f"mesh: expected a trimesh.Trimesh, got {type(mesh)!r}")
         verts = np.asarray(mesh.vertices, dtype=np.float64)
