@@ -6,7 +6,7 @@ domain; ``GEOFIT_DATA`` or the user cache take precedence), the demo
 1. renders the fit_textured_mesh tutorial's views: ``--views`` cameras around the cow at
    ``--size`` pixels (RGB and soft silhouettes), plus ``--heldout`` views kept for evaluation;
 2. fits a mesh and its vertex colours to the training views with
-   :func:`geofit.fit_mesh_to_views` (an ico-sphere deformed to the silhouettes by L-BFGS within
+   ``geofit.fit_mesh_to_views`` (an ico-sphere deformed to the silhouettes by L-BFGS within
    a ``--time`` budget in seconds, then the colours by one least-squares solve);
 3. writes ``out/demo.png`` (held-out targets above the fit seen from the same cameras, with the
    held-out silhouette IoU and PSNR, the chamfer-L2 and F-score against the true cow, and the
@@ -244,7 +244,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo", help="fit a mesh and its colours to rendered views of the cow "
                      "(out/demo.png, out/fit.ply)",
-        description=__doc__.split("\n\n")[1] if __doc__ else None)
+        description=__doc__.split("\n\n", 1)[1].rsplit("\n\n", 1)[0].replace("``", "")
+        if __doc__ else None, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--size", type=int, default=128, help="image size in pixels (default 128)")
     p.add_argument("--heldout", type=int, default=8, help="held-out views (default 8)")
