@@ -547,3 +547,14 @@ def test_docstring_examples_run():
 
     result = doctest.testmod(sm, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.failed == 0 and result.attempted > 0
+
+
+def test_trimesh_face_colours_become_vertex_colours():
+    """Face colours (which TexturesVertex cannot hold) arrive as the mean over a vertex's faces."""
+    import trimesh
+
+    tm = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]],
+                         process=False)
+    tm.visual.face_colors = [[255, 0, 0, 255], [0, 0, 255, 255]]
+    cols = Mesh.from_trimesh(tm).textures.verts_features
+    assert_array_equal(cols, [[1, 0, 0], [0.5, 0, 0.5], [0.5, 0, 0.5], [0, 0, 1]])

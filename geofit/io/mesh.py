@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..structures._foreign import scene_to_mesh
-from ..structures.mesh import Mesh, as_mesh
+from ..structures.mesh import Mesh, _corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
 from .obj import _obj_to_mesh, save_obj
@@ -138,11 +138,7 @@ def _bake_uv_colours(mesh: Mesh) -> np.ndarray:
     """(V, C) vertex colours from a UV texture: the mean of the texture at a vertex's corners."""
     tex = mesh.textures
     corner = tex.sample_uv(tex.verts_uvs[tex.faces_uvs.ravel()])  # (3F, C)
-    idx = mesh.faces.ravel()
-    count = np.maximum(np.bincount(idx, minlength=mesh.n_verts), 1)[:, None]
-    sums = np.stack([np.bincount(idx, weights=corner[:, c], minlength=mesh.n_verts)
-                     for c in range(corner.shape[1])], axis=1)  # loop over channels
-    return np.clip(sums / count, 0.0, 1.0)
+    return np.clip(_corner_mean(corner, mesh.faces, mesh.n_verts), 0.0, 1.0)
 
 
 def save_mesh(path: PathLike, mesh) -> None:

@@ -341,7 +341,9 @@ class Mesh:
             With a :class:`TexturesVertex` from the vertex colours (RGB, or RGBA when some
             alpha is below 255, as ``colour / 255``), or a :class:`TexturesUV` from the UVs and
             the material's image (``faces_uvs == faces``, since trimesh keeps one UV per
-            vertex); no textures for face colours or an untextured material.
+            vertex). Face colours become vertex colours, the mean over each vertex's faces
+            (a TexturesVertex cannot hold one colour per face). No textures for an untextured
+            material.
 
         Notes
         -----
@@ -372,6 +374,10 @@ class Mesh:
                 textures = TexturesVertex(stash)
             else:
                 textures = TexturesVertex(_foreign.from_uint8(rgba))
+        elif kind == "face" and len(faces):
+            face_colours = _foreign.from_uint8(np.asarray(visual.face_colors))
+            textures = TexturesVertex(_corner_mean(np.repeat(face_colours, 3, axis=0), faces,
+                                                   len(verts)))
         elif kind == "texture" and visual.uv is not None and len(visual.uv) == len(verts):
             image = _trimesh_image(visual.material)
             if image is not None:
@@ -506,6 +512,14 @@ class Mesh:
             m.textures = [o3d.geometry.Image(np.ascontiguousarray(to_uint8(rgb)))]
             m.triangle_material_ids = o3d.utility.IntVector(np.zeros(self.n_faces, np.int32))
         return m
+
+
+def _corner_mean(values: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+    """(3F, C) values at face corners (face-major) -> (n, C): the mean at each vertex (0 if none)."""
+    idx = faces.ravel()
+    count = np.maximum(np.bincount(idx, minlength=n), 1)
+    return np.stack([np.bincount(idx, weights=values[:, c], minlength=n) / count
+                     for c in range(values.shape[1])], axis=1)  # loop over channels
 
 
 def _rgba(features: np.ndarray) -> np.ndarray:
