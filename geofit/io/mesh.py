@@ -98,7 +98,7 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
         loaded = trimesh.load(str(path), file_type=_TRIMESH_TYPES[fmt], process=False)
     except Exception as exc:  # trimesh raises many types for malformed files
         raise ValueError(f"{path}: trimesh could not read it as {fmt} "
-                         f"({type(exc).__name__}: {exc})") from None
+                         f"({type(exc).__name__}: {str(exc)[:200]})") from None
     if isinstance(loaded, trimesh.Scene):
         geoms = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
         if not geoms:
@@ -112,9 +112,12 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
                          "read a point cloud with geofit.io.load_pointcloud")
     if not np.isfinite(np.asarray(loaded.vertices)).all():
         raise ValueError(f"{path}: the vertex coordinates are not all finite")
-    if fmt == "STL":
-        return _merge_corners(loaded)
-    mesh = Mesh.from_trimesh(loaded)
+    try:
+        if fmt == "STL":
+            return _merge_corners(loaded)
+        mesh = Mesh.from_trimesh(loaded)
+    except ValueError as exc:  # e.g. face indices out of range, colours of the wrong size
+        raise ValueError(f"{path}: {exc}") from None
     return mesh if load_textures else Mesh(mesh.verts, mesh.faces)
 
 
