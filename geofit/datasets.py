@@ -29,6 +29,7 @@ import numpy as np
 
 from ._validate import as_array, check_positive
 from .cameras import FoVPerspectiveCameras, look_at_view_transform
+from .io.views import load_views, save_views
 from .structures.mesh import Mesh, as_mesh
 
 __all__ = [
@@ -36,7 +37,9 @@ __all__ = [
     "cow_mesh",
     "generate_cow_renders",
     "held_out_views",
+    "load_views",
     "render_views",
+    "save_views",
     "training_azimuths",
 ]
 

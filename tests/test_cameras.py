@@ -538,10 +538,10 @@ def _k(**entries):
     (lambda: camera_position_from_spherical_angles([1.0, 2.0], [0.0, 1.0, 2.0]),
      "mismatched batch sizes"),
     # OpenCV
-    (lambda: cameras_from_opencv_projection(_I, np.zeros(3), _k(c02=30.0), (48, 64)),
-     r"camera_matrix: off-centre principal points .* \(cx, cy\) = \(30, 24\)"),
-    (lambda: cameras_from_opencv_projection(_I, np.zeros(3), _k(c12=23.5), (48, 64)),
-     "camera_matrix: off-centre principal points"),
+    (lambda: cameras_from_opencv_projection(_I * [[1], [1], [-1]], np.zeros(3), _K_GOOD,
+                                            (48, 64)), "R: expected rotation matrices"),
+    (lambda: cameras_from_opencv_projection(_I, np.zeros(3), _k(c11=0.0), (48, 64)),
+     "camera_matrix: expected focal lengths fx, fy > 0"),
     (lambda: cameras_from_opencv_projection(_I, np.zeros(3), _k(c01=0.5), (48, 64)),
      r"camera_matrix: skew K\[0, 1\] = 0.5"),
     (lambda: cameras_from_opencv_projection(_I, np.zeros(3), _k(c21=0.1), (48, 64)),
@@ -575,7 +575,8 @@ def test_invalid_inputs_raise(call, match):
      "scaled_depth_input: expected True or False"),
     (lambda: look_at_view_transform(degrees=None), "degrees: expected True or False"),
     (lambda: opencv_from_cameras_projection(FoVOrthographicCameras(), (8, 8)),
-     "cameras: expected FoVPerspectiveCameras, got FoVOrthographicCameras"),
+     "cameras: expected FoVPerspectiveCameras or PerspectiveCameras, got "
+     "FoVOrthographicCameras"),
 ])
 def test_invalid_types_raise(call, match):
     with pytest.raises(TypeError, match=match):
@@ -597,24 +598,55 @@ def test_open3d_invalid_inputs():
         from_open3d([])
     with pytest.raises(TypeError, match="params_list: expected open3d.camera.PinholeCamera"):
         from_open3d(["camera"])
-    with pytest.raises(TypeError, match="cameras: expected FoVPerspectiveCameras"):
+    with pytest.raises(TypeError, match="cameras: expected FoVPerspectiveCameras or Persp"):
         to_open3d(FoVOrthographicCameras(), (8, 8))
     p = o3d.camera.PinholeCameraParameters()
     p.intrinsic = o3d.camera.PinholeCameraIntrinsic(64, 48, 100.0, 100.0, 30.0, 24.0)
-    p.extrinsic = np.eye(4)
-    with pytest.raises(ValueError, match="camera_matrix: off-centre principal points"):
+    E = np.eye(4)
+    E[3, 0] = 0.5
+    p.extrinsic = E
+    with pytest.raises(ValueError, match=r"params_list: expected extrinsic matrices with bottom"):
         from_open3d([p])
 
 
+def test_open3d_off_centre_principal_point_round_trips():
+    """An off-centre Open3D intrinsic gives PerspectiveCameras that reproduce its pixels."""
+    o3d = pytest.importorskip("open3d")
+    p = o3d.camera.PinholeCameraParameters()
+    p.intrinsic = o3d.camera.PinholeCameraIntrinsic(64, 48, 100.0, 90.0, 30.0, 20.0)
+    p.extrinsic = np.eye(4)
+    cams = from_open3d([p])
+    assert type(cams).__name__ == "PerspectiveCameras"
+    X = np.array([[0.1, -0.2, 2.0], [0.0, 0.0, 3.0]])
+    px = cams.transform_points_screen(X, (48, 64))[0, :, :2]
+    expect = (X[:, :2] / X[:, 2:]) * [100.0, 90.0] + [30.0, 20.0]
+    assert_allclose(px, expect, atol=1e-9)
+    back = to_open3d(cams, (48, 64))[0]
+    assert_allclose(back.intrinsic.intrinsic_matrix, p.intrinsic.intrinsic_matrix, atol=1e-9)
+
+
 def test_degenerate_look_at_warns_and_cannot_make_a_camera():
-    """A zero-distance look-at gives PyTorch3D's singular R with a warning; cameras reject it."""
+    """dist=0 raises; eye == at gives PyTorch3D's singular R with a warning; cameras reject it."""
+    with pytest.raises(ValueError, match=r"dist: expected non-zero distances, got \[0.0\]"):
+        look_at_view_transform(dist=0.0)
+    with pytest.raises(ValueError, match="dist: expected non-zero"):
+        look_at_view_transform(dist=[2.7, 0.0], azim=[0.0, 90.0])
     with pytest.warns(RuntimeWarning, match="look-at frame undefined"):
-        R, T = look_at_view_transform(dist=0.0)
+        R, T = look_at_view_transform(eye=[[0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match="R: expected rotation matrices"):
         FoVPerspectiveCameras(R=R, T=T)
 
 
 def test_docstring_examples():
-    """The Examples sections of geofit.cameras run as doctests."""
-    result = doctest.testmod(gc, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted > 5 and result.failed == 0
+    """The Examples sections of every geofit.cameras module run as doctests."""
+    import importlib
+    import pkgutil
+
+    attempted = 0
+    for info in pkgutil.iter_modules(gc.__path__):
+        mod = importlib.import_module(f"geofit.cameras.{info.name}")
+        result = doctest.testmod(mod, extraglobs=vars(gc),
+                                 optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0, mod.__name__
+        attempted += result.attempted
+    assert attempted > 5

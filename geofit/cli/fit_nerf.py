@@ -21,7 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_output_args, add_view_args, cow_views, save_gif, save_png
+from ._common import (
+    add_capture_arg,
+    add_output_args,
+    add_view_args,
+    capture_views,
+    cow_views,
+    save_gif,
+    save_png,
+)
 
 __all__ = ["register", "run"]
 
@@ -32,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    train, test = cow_views(args)
+    train, test = capture_views(args.capture) if args.capture else cow_views(args)
     overrides = {}
     for key in ("lr", "n_hidden_neurons", "n_harmonic_functions", "n_iter"):
         v = getattr(args, key)
@@ -86,6 +94,7 @@ def register(subparsers) -> None:
                    help="harmonic frequencies of the point embedding (default: preset)")
     p.add_argument("--early-stopping", type=int, default=None,
                    help="stop when the held-out loss has not improved for this many checkpoints")
+    add_capture_arg(p)
     add_view_args(p)
     p.add_argument("--threads", type=int, default=None, help="threads (default: up to 2)")
     p.add_argument("--seed", type=int, default=0, help="random seed")

@@ -46,8 +46,14 @@ def run(args: argparse.Namespace) -> int:
     _int(args.heldout, "--heldout")
     _int(args.init_level, "--init-level", 0)
     t0 = time.perf_counter()
-    ds = cow_multiview_dataset(num_views=args.views, image_size=args.image_size,
-                               num_heldout=args.heldout)
+    if args.capture:
+        ds = _capture_split(args.capture)
+        H, W = ds.train.image_size
+        args.views, args.heldout, args.image_size = len(ds.train), len(ds.heldout), H
+        args.no_coarse_to_fine = args.no_coarse_to_fine or bool(H % 2 or W % 2)
+    else:
+        ds = cow_multiview_dataset(num_views=args.views, image_size=args.image_size,
+                                   num_heldout=args.heldout)
     t_data = time.perf_counter() - t0
     levels = None
     init_level = args.init_level
@@ -99,11 +105,23 @@ def run(args: argparse.Namespace) -> int:
     line = f"held-out IoU {metrics['iou']:.4f}"
     if "psnr" in metrics and fit.colors is not None:
         line += f", PSNR {metrics['psnr']:.2f} dB"
-    line += (f"; chamfer-L2 {metrics['chamfer_l2']:.3g}, F-score@0.01 "
-             f"{metrics['fscore@0.01']:.3f}")
+    if "chamfer_l2" in metrics:  # with a true mesh (not for a capture)
+        line += (f"; chamfer-L2 {metrics['chamfer_l2']:.3g}, F-score@0.01 "
+                 f"{metrics['fscore@0.01']:.3f}")
     print(line)
     print(f"wrote {dest / 'fit_views.obj'}, fit_views.json, fit_views.png")
     return 0 if fit.ok else 1
+
+
+def _capture_split(path: str):
+    """A capture folder as the tutorial's split (no true mesh, the default light)."""
+    from ..fit.views import MultiViewData, MultiViewSplit
+    from ._common import capture_views
+
+    train, test = capture_views(path)
+    return MultiViewSplit(MultiViewData(train.cameras, train.silhouettes, train.images),
+                          MultiViewData(test.cameras, test.silhouettes, test.images),
+                          mesh=None, name=train.mesh_name)
 
 
 def register(subparsers) -> None:
@@ -115,6 +133,9 @@ def register(subparsers) -> None:
         help="fit a mesh and its colours to multi-view images (PyTorch3D's fit_textured_mesh)",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
+    from ._common import add_capture_arg
+
+    add_capture_arg(p)
     p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")

@@ -22,7 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_output_args, add_view_args, cow_views, save_gif, save_png
+from ._common import (
+    add_capture_arg,
+    add_output_args,
+    add_view_args,
+    capture_views,
+    cow_views,
+    save_gif,
+    save_png,
+)
 
 __all__ = ["register", "run"]
 
@@ -42,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    train, test = cow_views(args)
+    train, test = capture_views(args.capture) if args.capture else cow_views(args)
     t_data = time.perf_counter() - t0
     kw = {}
     if args.levels is not None:
@@ -104,6 +112,7 @@ def register(subparsers) -> None:
     p.add_argument("--time", type=float, default=None, help="solver time budget in seconds")
     p.add_argument("--precision", choices=("float32", "float64"), default="float32",
                    help="arithmetic of the ray marching (default float32)")
+    add_capture_arg(p)
     add_view_args(p)
     add_output_args(p)
     p.set_defaults(func=run)
