@@ -19,7 +19,6 @@ import argparse
 import datetime as _dt
 import json
 import os
-import platform
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -29,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from geofit.report import _cpu_affinity, _cpu_model, _load_average, _version
+from geofit.fit.history import _json_safe
+from geofit.report import _version, machine_summary
 from geofit.viz import STYLE, chart_style
 from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
 
@@ -61,29 +61,17 @@ __all__ = [
 def machine_info() -> dict[str, Any]:
     """CPU, core count, memory, OS, Python and the versions of the numerical stack.
 
-    The facts :func:`geofit.report.machine_summary` gives, plus the memory and trimesh; the
-    probes are the report's.
+    :func:`geofit.report.machine_summary` (CPU model and count, affinity, geofit's thread
+    count, load, OS, Python, versions) plus the memory and trimesh's version.
     """
     try:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
     except (ValueError, OSError, AttributeError):
         mem = None
-    return {
-        "cpu": _cpu_model(),
-        "cpu_count": os.cpu_count(),
-        "cpu_affinity": _cpu_affinity(),
-        "memory_gib": round(mem, 1) if mem else None,
-        # other processes share the cores: read times with it
-        "load_average_1_5_15min": _load_average(),
-        "os": platform.platform(),
-        "python": platform.python_version(),
-        "versions": {
-            "geofit": _version("geofit"), "numpy": _version("numpy"),
-            "scipy": _version("scipy"), "open3d": _version("open3d-cpu", "open3d"),
-            "nlopt": _version("nlopt"), "trimesh": _version("trimesh"),
-            "embreex": _version("embreex"), "matplotlib": _version("matplotlib"),
-        },
-    }
+    info = machine_summary()  # other processes share the cores: read times with its load
+    info["memory_gib"] = round(mem, 1) if mem else None
+    info["versions"]["trimesh"] = _version("trimesh")
+    return info
 
 
 def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
@@ -128,25 +116,15 @@ def time_call(fn: Callable[[], Any], *, repeat: int = 1) -> tuple[Any, float]:
 
 
 def json_safe(obj):
-    """Plain-JSON version of ``obj``: numpy scalars/arrays converted, NaN/inf as strings."""
+    """Plain-JSON version of ``obj``: :func:`geofit.fit.history._json_safe` (numpy scalars and
+    arrays converted, NaN/inf as strings), and paths as strings."""
+    if isinstance(obj, Path):
+        return str(obj)
     if isinstance(obj, Mapping):
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        if np.isfinite(v):
-            return v
-        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
+    return _json_safe(obj)
 
 
 # ---------------------------------------------------------------------------------------- data
@@ -158,12 +136,8 @@ class MethodRun:
     ----------
     name : str
         Short key (``"sgd"``, ``"lbfgs"``).
-    label : str
-        Legend text.
-    seconds : list of float
-        Solver time at each checkpoint.
-    curve : dict str -> list of float
-        Metric values at each checkpoint (same length as ``seconds``).
+    label, seconds, curve
+        As :class:`geofit.viz.Series` (``seconds``: solver time at each checkpoint).
     final : dict
         Final metrics and sizes (``n_verts``, ...).
     status, message : str
@@ -301,11 +275,16 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def parser(description: str) -> argparse.ArgumentParser:
-    """The common command line: ``--quick`` (CI-sized) and ``--out DIR``."""
+def parser(description: str, *, reference: Path | None = None) -> argparse.ArgumentParser:
+    """The common command line: ``--quick`` (CI-sized) and ``--out DIR``; with a default
+    ``reference`` file also the renderers' ``--image-size``, ``--repeat`` and ``--reference``."""
     p = argparse.ArgumentParser(description=description)
     p.add_argument("--quick", action="store_true",
                    help="reduced sizes for CI (numbers not comparable to the full run)")
     p.add_argument("--out", type=Path, default=RESULTS_DIR,
                    help=f"directory for the JSON and PNG (default {RESULTS_DIR})")
+    if reference is not None:
+        p.add_argument("--image-size", type=int, default=512)
+        p.add_argument("--repeat", type=int, default=5)
+        p.add_argument("--reference", type=Path, default=reference)
     return p

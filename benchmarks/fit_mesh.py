@@ -35,9 +35,10 @@ from _harness import (
     plot_accuracy_vs_time,
 )
 
-from geofit import Mesh, torus
+from geofit import Mesh
 from geofit.fit import RECIPES, CoarseToFine, fit_mesh
 from geofit.metrics import MeshEvaluator
+from geofit.tutorials.stability import MESH_MODES, fit_mesh_scenario
 
 # PyTorch3D's own tutorial run, as stated in the issue's acceptance text (PyTorch3D 0.7.9, CPU,
 # 2 cores, this machine; metrics by geofit.metrics as below). Not re-measured by this script.
@@ -118,76 +119,15 @@ def run_method(name: str, target: Mesh, evaluator: MeshEvaluator, quick: bool) -
 
 # ------------------------------------------------------------------------------ stability
 MODES = ("noise", "holes", "torus", "degenerate_start", "step_x100", "nan_target")
-MODE_TEXT = {
-    "noise": "target vertices + Gaussian noise, sigma 0.01 (normalised frame); scored against "
-             "the clean target",
-    "holes": "target with 4 holes (faces within 0.15 of 4 random vertices removed, open "
-             "boundary); scored against the full target",
-    "torus": "genus-1 target (geofit.torus()) from a genus-0 sphere",
-    "degenerate_start": "source with every 7th edge collapsed (zero-area triangles)",
-    "step_x100": "SGD/Adam: lr x100; L-BFGS: objective x100 (all weights), i.e. the first "
-                 "gradient step 100 times too large, which the line search must absorb",
-    "nan_target": "one target coordinate set to NaN",
-}
-
-
-def collapse_edges(mesh: Mesh, every: int = 7) -> Mesh:
-    v = mesh.verts.copy()
-    e = mesh.edges[::every]
-    v[e[:, 0]] = v[e[:, 1]]
-    return mesh.update_verts(v)
+MODE_TEXT = MESH_MODES  # the scenarios live in geofit.tutorials.stability (shared with the report)
 
 
 def scenario(mode: str, name: str, target: Mesh, quick: bool):
     """(source, target input, fit_mesh kwargs, reference mesh for scoring) of one cell."""
-    from geofit import ico_sphere
-
     kw, _ = method_settings(name, quick)
     if kw["method"] in ("sgd", "adam"):
         kw["n_iter"] = 60 if quick else 500
-    rng = np.random.default_rng(7)
-    norm = target.normalize()
-    tnorm = norm.mesh
-    source = None
-    reference = target
-    tin = target
-    if mode == "noise":
-        tin = target.update_verts(target.verts + rng.normal(scale=0.01 * norm.scale,
-                                                            size=target.verts.shape))
-    elif mode == "holes":
-        centres = tnorm.verts[rng.choice(tnorm.n_verts, 4, replace=False)]
-        fc = tnorm.verts[tnorm.faces].mean(1)
-        d = np.linalg.norm(fc[:, None, :] - centres[None], axis=2).min(1)
-        keep = d > 0.15
-        tin = Mesh(target.verts, target.faces[keep])
-    elif mode == "torus":
-        tin = reference = torus()
-    elif mode == "degenerate_start":
-        c2f = kw.get("coarse_to_fine")
-        level = 2 if c2f else 4
-        if isinstance(c2f, CoarseToFine):
-            level = c2f.start_level
-        source = collapse_edges(ico_sphere(level))
-    elif mode == "step_x100":
-        if kw["method"] == "sgd":
-            kw["lr"] = 100.0
-        elif kw["method"] == "adam":
-            kw["lr"] = 100 * kw.get("lr", 0.01)
-        else:
-            from geofit.fit import FINE_WEIGHTS, TUTORIAL_WEIGHTS
-
-            x100 = {k: 100 * v for k, v in TUTORIAL_WEIGHTS.items()}
-            kw["weights"] = [x100, {k: 100 * v for k, v in FINE_WEIGHTS.items()}]
-            c2f = kw.get("coarse_to_fine")
-            if c2f is not None:
-                c2f = c2f if isinstance(c2f, CoarseToFine) else CoarseToFine()
-                c2f.coarse_weights = x100
-                kw["coarse_to_fine"] = c2f
-    elif mode == "nan_target":
-        v = target.verts.copy()
-        v[0, 0] = np.nan
-        tin = (v, target.faces)
-    return source, tin, kw, reference
+    return fit_mesh_scenario(mode, target, kw, seed=7)
 
 
 def run_stability(names, target: Mesh, quick: bool, budget: float) -> list[dict]:

@@ -37,7 +37,7 @@ from _harness import BenchmarkReport, MethodRun, markdown_table, parser
 from geofit.datasets import generate_cow_renders, held_out_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.metrics import psnr
-from geofit.render.implicit import OccupancyGrid
+from geofit.render.volume.implicit import OccupancyGrid
 
 #: Acceptance criteria of the issue.
 TARGET_PSNR = 25.6          # dB, PyTorch3D's voxel volume of tutorial 5 on the same views

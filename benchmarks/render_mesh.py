@@ -36,27 +36,15 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport,
-    MethodRun,
-    markdown_table,
-    parser,
-    print_machine,
-    print_parity,
-    record_load,
+    BenchmarkReport, MethodRun, markdown_table, parser, print_machine, print_parity, record_load,
     result_paths,
 )
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.data import load_textured_mesh
 from geofit.render import (
-    HardPhongShader,
-    Materials,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    PointLights,
-    RasterizationSettings,
-    SoftPhongShader,
+    HardPhongShader, Materials, MeshRasterizer, MeshRenderer, MeshRendererWithFragments,
+    PointLights, RasterizationSettings, SoftPhongShader,
 )
 
 REPO = Path(__file__).resolve().parent.parent
@@ -159,11 +147,8 @@ def open3d_iou(mesh, size: int) -> float | None:
 
 
 def main() -> None:
-    p = parser(__doc__.split("\n\n")[0])
-    p.add_argument("--image-size", type=int, default=512)
+    p = parser(__doc__.split("\n\n")[0], reference=DEFAULT_REFERENCE)
     p.add_argument("--views", type=int, default=20)
-    p.add_argument("--repeat", type=int, default=5)
-    p.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE)
     args = p.parse_args()
     size, n_views, repeat = args.image_size, args.views, args.repeat
     if args.quick:

@@ -29,22 +29,15 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport,
-    MethodRun,
-    markdown_table,
-    parser,
-    print_machine,
-    print_parity,
-    record_load,
-    result_paths,
-    time_call,
+    BenchmarkReport, MethodRun, markdown_table, parser, print_machine, print_parity, record_load,
+    result_paths, time_call,
 )
 
 from geofit import PointCloud
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
 from geofit.data import load_textured_mesh
 from geofit.ops import sample_points_from_meshes
-from geofit.render.compositing import AlphaCompositor, NormWeightedCompositor
+from geofit.render.points.compositing import AlphaCompositor, NormWeightedCompositor
 from geofit.render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
 
 REPO = Path(__file__).resolve().parent.parent
@@ -82,11 +75,8 @@ def parity(reference: Path) -> tuple[list, dict]:
 
 
 def main() -> None:
-    p = parser(__doc__.split("\n\n")[0])
+    p = parser(__doc__.split("\n\n")[0], reference=DEFAULT_REFERENCE)
     p.add_argument("--points", type=int, default=500_000, help="cloud size (default 500000)")
-    p.add_argument("--image-size", type=int, default=512)
-    p.add_argument("--repeat", type=int, default=5)
-    p.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE)
     args = p.parse_args()
     n_points, size, repeat = args.points, args.image_size, args.repeat
     if args.quick:

@@ -6,6 +6,7 @@ casting, Open3D KD-trees and scipy.sparse operators with analytic gradients.
 from __future__ import annotations
 
 from . import data, fit, io, metrics, render
+from ._threads import get_num_threads, set_num_threads
 from .cameras import (
     CamerasBase,
     FoVOrthographicCameras,
@@ -97,6 +98,9 @@ __version__ = "0.1.0"
 
 __all__ = [
     "__version__",
+    # threads
+    "get_num_threads",
+    "set_num_threads",
     # structures
     "Mesh",
     "Meshes",

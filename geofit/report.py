@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ._threads import cpu_count, get_num_threads
 from .fit.history import _json_safe
 
 __all__ = ["SCHEMA", "ReportFiles", "format_value", "machine_summary", "markdown_table",
@@ -188,17 +189,13 @@ def _load_average() -> list[float] | None:
         return None
 
 
-def _cpu_affinity() -> int | None:
-    """Cores this process may run on, None where the OS does not say."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-
-
 def machine_summary() -> dict[str, Any]:
     """CPU count and model, load average, OS, Python and the numerical stack's versions."""
     return {
         "cpu": _cpu_model(),
         "cpu_count": os.cpu_count(),
-        "cpu_affinity": _cpu_affinity(),
+        "cpu_affinity": cpu_count(),
+        "geofit_threads": get_num_threads(),
         "load_average_1_5_15min": _load_average(),
         "os": platform.platform(),
         "python": platform.python_version(),

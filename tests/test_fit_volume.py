@@ -10,8 +10,8 @@ import geofit.fit.volume as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
 from geofit.loss import huber
-from geofit.render.raymarching import EmissionAbsorptionRaymarcher
-from geofit.render.raysampling import NDCMultinomialRaysampler
+from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher
+from geofit.render.volume.raysampling import NDCMultinomialRaysampler
 from geofit.render.volume import VolumeRenderer
 from geofit.structures.volume import Volume
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geofit.render.harmonic import HALF_PI_F32, HarmonicEmbedding, TutorialHarmonicEmbedding
+from geofit.render.volume.harmonic import HALF_PI_F32, HarmonicEmbedding, TutorialHarmonicEmbedding
 
 REF = np.load(Path(__file__).parent / "data" / "nerf.npz")
 POINTS = REF["points"]

@@ -18,9 +18,9 @@ from geofit.fit.nerf import (
 )
 from geofit.loss import huber
 from geofit.metrics import psnr
-from geofit.render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
-from geofit.render.raymarching import EmissionAbsorptionRaymarcher
-from geofit.render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from geofit.render.volume.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
+from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher
+from geofit.render.volume import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
 
 
 def tiny_field(activation="softplus", seed=1, **kw):

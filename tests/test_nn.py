@@ -19,7 +19,6 @@ from geofit.nn import (
     exponential_decay,
     step_decay,
 )
-from geofit.nn._threads import blas_threads, run_parallel
 
 
 def fd_input_grad(layer, x, G, h=1e-6):
@@ -192,15 +191,6 @@ def test_schedules():
     e = exponential_decay(1e-2, 1e-4, 100)
     assert e(0)[0] == pytest.approx(1e-2) and e(100)[0] == pytest.approx(1e-4)
     assert e(50)[0] == pytest.approx(1e-3)
-
-
-def test_run_parallel_and_blas_threads():
-    """run_parallel returns results in order, threaded or not; blas_threads restores."""
-    out = run_parallel(lambda a: a @ a.T, [np.eye(3) * i for i in range(4)], 2)
-    assert [float(o[0, 0]) for o in out] == [0.0, 1.0, 4.0, 9.0]
-    with blas_threads(1):
-        x = np.ones((64, 64)) @ np.ones((64, 64))
-    assert x[0, 0] == 64.0
 
 
 @pytest.mark.parametrize("make, match", [

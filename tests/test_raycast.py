@@ -492,3 +492,28 @@ def test_closest_validation():
     with pytest.raises(ValueError, match="P"):
         closest_point_on_triangles(np.zeros((2, 4)), np.zeros((2, 3)), np.zeros((2, 3)),
                                    np.zeros((2, 3)))
+
+
+def test_embree_scene_is_the_shared_wrapper():
+    """EmbreeScene maps the used vertices into [-1, 1]^3, skips meshes without faces, and its
+    float32 hits agree with RayCaster's; the mesh rasterizer casts against the same class."""
+    from geofit.raycast import EmbreeScene
+    from geofit.render import MeshRasterizer
+
+    m = ico_sphere(1)
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    sc = EmbreeScene([empty, (2.0 * m.verts + 5.0, m.faces)])
+    np.testing.assert_allclose(sc.center, 5.0, atol=1e-12)
+    assert sc.scale == pytest.approx(2.0, rel=1e-12)
+    assert sc.geom_to_mesh.tolist() == [1]
+    o = np.array([[0.1, 0.2, 3.0]], np.float32)  # the normalised frame is m's own frame here
+    geom, prim, u, v, t = sc.intersect(o, np.array([[0.0, 0.0, -1.0]], np.float32))
+    hits = RayCaster(m).cast([[0.1, 0.2, 3.0]], [[0.0, 0.0, -1.0]])
+    assert geom[0] == 0 and prim[0] == hits.face_id[0]
+    assert float(t[0]) == pytest.approx(hits.t[0], abs=1e-5)
+    assert sc.occluded(o, np.array([[0.0, 0.0, -1.0]], np.float32),
+                       np.array([1.5], np.float32)).tolist() == [False]
+    rast = MeshRasterizer()
+    assert isinstance(rast._scene(m), EmbreeScene)
+    with pytest.raises(ValueError, match="meshes"):
+        EmbreeScene([empty])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-from geofit.render.raysampling import (
+from geofit.render.volume.raysampling import (
     MonteCarloRaysampler,
     NDCMultinomialRaysampler,
     RayBundle,

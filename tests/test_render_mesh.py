@@ -33,7 +33,7 @@ from geofit.render import (
     sample_textures,
 )
 from geofit.render.lighting import diffuse, specular
-from geofit.render.textures import sample_texels
+from geofit.render.mesh.textures import sample_texels
 
 DATA = Path(__file__).parent / "data"
 REF = np.load(DATA / "render_mesh.npz")
@@ -823,3 +823,39 @@ def test_batch_of_differently_textured_meshes():
         cov = img[b, ..., 3] == 1
         assert cov.sum() > 20
         assert_allclose(img[b][cov][:, :3], np.broadcast_to(rgb, (cov.sum(), 3)), atol=1e-6)
+
+
+def test_every_public_renderer_imports_from_geofit_render():
+    """geofit.render exports the renderers of every subpackage, the same objects."""
+    import geofit.render as gr
+    from geofit.render import mesh, points, soft, volume
+    from geofit.structures import Volume
+
+    names = ["MeshRenderer", "MeshRasterizer", "HardPhongShader", "SoftPhongShader",
+             "HardGouraudShader", "SoftGouraudShader", "HardFlatShader", "SoftSilhouetteShader",
+             "SoftSilhouetteRenderer", "SoftPhongRenderer", "rasterize_soft", "PointsRenderer",
+             "PointsRasterizer", "AlphaCompositor", "NormWeightedCompositor",
+             "NDCMultinomialRaysampler", "MonteCarloRaysampler", "EmissionAbsorptionRaymarcher",
+             "AbsorptionOnlyRaymarcher", "VolumeRenderer", "ImplicitRenderer",
+             "HarmonicEmbedding", "NeuralRadianceField"]
+    for name in names:
+        assert name in gr.__all__, name
+        home = [m for m in (mesh, points, soft, volume) if name in m.__all__]
+        assert len(home) == 1 and getattr(home[0], name) is getattr(gr, name), name
+    assert Volume.__module__ == "geofit.structures.volume"
+
+
+def test_flat_module_paths_warn_and_give_the_moved_module():
+    """The 0.1 flat paths (geofit.render.raysampling, ...) import the moved module, with a
+    DeprecationWarning naming the new path."""
+    import importlib
+    import sys
+
+    import geofit.render as gr
+
+    for old, new in gr.MOVED_MODULES.items():
+        sys.modules.pop(f"geofit.render.{old}", None)
+        with pytest.warns(DeprecationWarning, match=f"geofit.render.{new}"):
+            mod = importlib.import_module(f"geofit.render.{old}")
+        assert mod is importlib.import_module(f"geofit.render.{new}")
+        assert mod.__spec__.name == f"geofit.render.{new}"

@@ -8,8 +8,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from geofit import PointCloud, Pointclouds
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-from geofit.render import points as points_mod
-from geofit.render.compositing import (
+from geofit.render.points import rasterizer as points_mod
+from geofit.render.points.compositing import (
     AlphaCompositor,
     NormWeightedCompositor,
     add_background_color,
@@ -139,7 +139,7 @@ def test_images_match_pytorch3d(ref, cam, rk, radius, name, compositor):
 def test_rasterize_points_matches_naive_loop(H, W, threads, monkeypatch):
     """The vectorised core equals the heap-per-pixel loop, also for non-square images and when
     the rows are split into bands for threads."""
-    monkeypatch.setattr(points_mod, "_THREADS", threads)
+    monkeypatch.setattr(points_mod, "get_num_threads", lambda: threads)
     monkeypatch.setattr(points_mod, "_THREAD_MIN_POINTS", 0)
     rng = np.random.default_rng(1)
     n = 60
@@ -476,7 +476,7 @@ def test_docstring_examples():
     """The Examples sections of the points and compositing modules run as doctests."""
     import doctest
 
-    from geofit.render import compositing
+    from geofit.render.points import compositing
 
     for mod in (points_mod, compositing):
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)

@@ -1,5 +1,5 @@
 """Tests for geofit.render.soft (soft rasterizer, silhouette and Phong blends, vjps) and
-geofit.render.contour (the contour gradient of the hard silhouette loss).
+geofit.render.soft.contour (the contour gradient of the hard silhouette loss).
 
 Non-differentiable terms (tested away from them): which faces a pixel keeps (blur cut-off,
 top-K, z >= 0), the choice of the nearest edge, barycentric clipping, relu of the diffuse term,
@@ -33,7 +33,6 @@ from geofit.render import (
     RasterizationSettings,
     SoftPhongShader,
 )
-from geofit.render.contour import ContourSilhouetteLoss, contour_edges
 from geofit.render.soft import (
     TUTORIAL_BLUR_RADIUS,
     SoftFragments,
@@ -47,6 +46,7 @@ from geofit.render.soft import (
     sigmoid_alpha_blend_vjp,
     softmax_rgb_blend_soft,
 )
+from geofit.render.soft.contour import ContourSilhouetteLoss, contour_edges
 
 DATA = Path(__file__).parent / "data" / "soft_grad.npz"
 S = 64
@@ -753,3 +753,40 @@ def test_tutorial_blur_radius_value():
     """log(1/1e-4 - 1) * 1e-4: sigmoid(-blur / sigma) = 1e-4."""
     assert TUTORIAL_BLUR_RADIUS == pytest.approx(9.21024036697585e-4, rel=1e-12)
     assert 1.0 / (1.0 + math.exp(TUTORIAL_BLUR_RADIUS / 1e-4)) == pytest.approx(1e-4, rel=1e-9)
+
+
+def test_docstring_examples_run():
+    """The Examples sections of the soft renderer's modules run as doctests."""
+    import doctest
+    import importlib
+
+    names = ["rasterizer", "renderer", "contour"]
+    for name in names:
+        mod = importlib.import_module(f"geofit.render.soft.{name}")
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.attempted > 0 and result.failed == 0, mod.__name__
+
+
+def test_soft_phong_shader_on_soft_fragments_is_the_differentiable_blend():
+    """geofit.render.SoftPhongShader means PyTorch3D's: on the soft rasterizer's fragments it is
+    the K-face softmax blend, the same images as SoftPhongRenderer; on hard fragments it stays
+    the K = 1 render; its inputs are checked."""
+    Shader = SoftPhongShader
+    mesh = _noisy_mesh(1)
+    colors = np.random.default_rng(3).uniform(0.2, 0.9, (mesh.n_verts, 3))
+    tm = Mesh(mesh.verts, mesh.faces, textures=TexturesVertex(colors))
+    R, T = look_at_view_transform(2.7, [0.0, 30.0], [0.0, 60.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    lights = PointLights(location=[[0.0, 1.0, -3.0]])
+    st = SoftRasterizationSettings.tutorial(24)
+    fr = rasterize_soft(tm, cams, st)
+    images = Shader(cameras=cams, lights=lights)(fr, tm)
+    ref = SoftPhongRenderer(cams, lights, raster_settings=st)(tm, colors).images
+    np.testing.assert_allclose(images, ref, rtol=0, atol=1e-12)
+    assert images.shape == (2, 24, 24, 4) and np.any(images[..., 3] < 1.0)
+    with pytest.raises(ValueError, match="cameras"):
+        Shader(lights=lights)(fr, tm)
+    with pytest.raises(TypeError, match="meshes"):
+        Shader(cameras=cams)(fr, mesh.verts)
+    with pytest.raises(ValueError, match="shadows"):
+        Shader(cameras=cams, shadows=True)(fr, tm)

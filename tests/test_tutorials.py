@@ -359,3 +359,34 @@ def test_plot_model_sizes(tmp_path):
     for bad, match in (({}, "sizes"), ({"x": 0}, "x"), ({"x": float("nan")}, "x")):
         with pytest.raises(ValueError, match=match):
             plot_model_sizes(bad, tmp_path / "t.png")
+
+
+def test_fit_mesh_stability_scenarios():
+    """The shared stability scenarios perturb exactly one input each; unknown modes raise."""
+    from geofit import ico_sphere
+    from geofit.tutorials.stability import MESH_MODES, fit_mesh_scenario
+
+    target = ico_sphere(3)
+    kw = {"method": "sgd"}
+    for mode in MESH_MODES:
+        sc = fit_mesh_scenario(mode, target, kw)
+        assert kw == {"method": "sgd"}  # the caller's kwargs are not modified
+        if mode == "noise":
+            d = np.abs(sc.target.verts - target.verts)
+            assert 0 < d.max() < 0.1 and sc.target.n_faces == target.n_faces
+        elif mode == "holes":
+            assert 0 < sc.target.n_faces < target.n_faces
+        elif mode == "torus":
+            assert sc.reference is sc.target and sc.target.n_verts != target.n_verts
+        elif mode == "degenerate_start":
+            areas = sc.source.face_areas
+            assert np.sum(areas < 1e-12) > 0
+        elif mode == "step_x100":
+            assert sc.kwargs["lr"] == 100.0
+        elif mode == "nan_target":
+            assert np.isnan(sc.target[0]).sum() == 1
+        assert sc.reference is target or mode == "torus"
+    lb = fit_mesh_scenario("step_x100", target, {"method": "scipy-lbfgs"})
+    assert len(lb.kwargs["weights"]) == 2
+    with pytest.raises(ValueError, match="mode"):
+        fit_mesh_scenario("flood", target, kw)

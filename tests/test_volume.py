@@ -10,12 +10,12 @@ import pytest
 import scipy.sparse as sp
 
 from geofit.cameras import FoVPerspectiveCameras
-from geofit.render.raymarching import (
+from geofit.render.volume.raymarching import (
     AbsorptionOnlyRaymarcher,
     EmissionAbsorptionRaymarcher,
     sample_deltas,
 )
-from geofit.render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from geofit.render.volume import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
 from geofit.render.volume import VolumeRenderer
 from geofit.structures.volume import Volume, trilinear_matrix, voxel_footprint
 
@@ -457,12 +457,24 @@ def test_docstring_examples():
 
     import geofit.datasets as gd
     import geofit.fit.volume as gfv
-    import geofit.render.raymarching as grm
-    import geofit.render.raysampling as grs
-    import geofit.render.volume as grv
+    import geofit.render.volume.raymarching as grm
+    import geofit.render.volume.raysampling as grs
+    import geofit.render.volume.renderer as grv
     import geofit.structures.volume as gsv
 
     for mod in (gsv, grm, grs, grv, gfv, gd):
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0, mod.__name__
         assert result.attempted > 0, mod.__name__
+
+
+def test_implicit_docstring_examples():
+    """The Examples of the implicit renderer and the radiance field run as doctests."""
+    import doctest
+
+    import geofit.render.volume.implicit as gvi
+    import geofit.render.volume.radiance_field as gvf
+
+    for mod in (gvi, gvf):
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.attempted > 0 and result.failed == 0, mod.__name__

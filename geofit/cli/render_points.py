@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
     from ..data import find
     from ..io import load_pointcloud
-    from ..render.compositing import AlphaCompositor, NormWeightedCompositor
+    from ..render.points.compositing import AlphaCompositor, NormWeightedCompositor
     from ..render.points import (
         PointsRasterizationSettings,
         PointsRasterizer,

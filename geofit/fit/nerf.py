@@ -6,7 +6,7 @@ the cow: per step 6 random views, 750 Monte Carlo rays per view with 128 samples
 depths [0.1, 3.0], Huber losses (scale 0.1) on the colours and the silhouettes (targets sampled
 bilinearly at the rays' xy), Adam with lr 1e-3 for 3000 steps and a new Adam at lr 1e-4 from 75 %.
 :func:`fit_nerf` with ``preset="tutorial"`` runs exactly that recipe, with the gradients of
-:mod:`geofit.render.implicit` (pixels -> raymarcher vjp -> density and colour heads -> trunk).
+:mod:`geofit.render.volume` (pixels -> raymarcher vjp -> density and colour heads -> trunk).
 
 geofit's scene-sized recipe (``preset="scene"``) fits the same kind of field but models no more
 than the scene needs:
@@ -31,8 +31,9 @@ than the scene needs:
   skipped too, and samples lying more than ``occlusion_margin`` samples behind the point where
   the grid's transmittance falls below ``min_transmittance`` are not evaluated (they would add
   less than that to the pixel);
-* **two threads**: each step's rays are split in halves that run forward and backward in two
-  Python threads with one BLAS thread each (numpy releases the GIL), and float32 arithmetic;
+* **threads**: each step's rays are split into chunks that run forward and backward on
+  geofit's thread pool (:func:`geofit.get_num_threads` threads, one BLAS thread each; numpy
+  releases the GIL), in float32 arithmetic;
 * **a time-aware schedule**: with a time budget the learning rate decays exponentially with the
   elapsed fraction of the budget.
 
@@ -57,15 +58,21 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
 from ..metrics import psnr
-from ..nn._threads import cpu_count, run_parallel
 from ..nn.optim import Adam, exponential_decay, step_decay
-from ..render.implicit import ImplicitRenderer, NeuralRadianceField, OccupancyGrid
-from ..render.raymarching import EmissionAbsorptionRaymarcher
-from ..render.raysampling import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
+from ..render.volume import (
+    EmissionAbsorptionRaymarcher,
+    ImplicitRenderer,
+    MonteCarloRaysampler,
+    NDCMultinomialRaysampler,
+    NeuralRadianceField,
+    OccupancyGrid,
+    RayBundle,
+)
 from .history import Clock, FitHistory, FitResult
 
 __all__ = [
@@ -93,7 +100,7 @@ _CHUNK_SAMPLES = 1 << 17
 class NerfConfig:
     """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the presets.
 
-    Network (see :class:`~geofit.render.implicit.NeuralRadianceField`): ``n_harmonic_functions``,
+    Network (see :class:`~geofit.render.NeuralRadianceField`): ``n_harmonic_functions``,
     ``omega0``, ``append_input``, ``n_hidden_neurons``, ``n_hidden_layers``,
     ``n_harmonic_functions_dir``, ``omega0_dir``, ``n_hidden_color``, ``activation``, ``beta``.
 
@@ -122,8 +129,8 @@ class NerfConfig:
     2 px wider than the object's coverage in the RGB images, and fitting both makes an opaque
     black shell around the object, invisible from the training elevation but dark from above.
 
-    Execution: ``dtype`` of the network, ``n_threads`` (None: up to 2), ``chunk_rays`` for the
-    full-image renders.
+    Execution: ``dtype`` of the network, ``n_threads`` (None: :func:`geofit.get_num_threads`),
+    ``chunk_rays`` for the full-image renders.
     """
 
     n_harmonic_functions: int = 60
@@ -343,7 +350,7 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
     chunk_rays : int
         Rays per chunk (bounds memory).
     n_threads : int, optional
-        Threads over chunks (None: up to 2).
+        Threads over chunks (None: :func:`geofit.get_num_threads`).
 
     Returns
     -------
@@ -362,13 +369,13 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
     bundle = sampler(cameras)
     flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
     r = flat.origins.shape[0]
-    n_threads = min(2, cpu_count()) if n_threads is None else max(int(n_threads), 1)
+    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
     chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]
 
     def work(sl):
         return renderer._render_flat(RayBundle(*(a[sl] for a in flat)), field, cache=False)[0]
 
-    out = np.concatenate(run_parallel(work, chunks, n_threads), axis=0)
+    out = np.concatenate(parallel_map(work, chunks, n_threads), axis=0)
     return out.reshape(len(cameras), int(H), int(W), 4)
 
 
@@ -450,7 +457,7 @@ class _DensityGrid:
             idx = np.zeros(len(p), dtype=np.int64)
             return field._forward(p, dirs, idx, None, False)[0][:, 0]
 
-        new = np.concatenate(run_parallel(work, chunks, n_threads)) if len(pts) else \
+        new = np.concatenate(parallel_map(work, chunks, n_threads)) if len(pts) else \
             np.zeros(0, np.float32)
         old = self.opacity[self.cells]
         self.opacity[self.cells] = np.maximum(new, self.decay * np.minimum(old, 1.0))
@@ -536,7 +543,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             raise ValueError(f"early_stopping: expected an integer >= 1, got {early_stopping!r}")
     rng = as_rng(seed)
     clock = Clock()  # the set-up (hull, rays) is part of the method's time
-    n_threads = min(2, cpu_count()) if cfg.n_threads is None else int(cfg.n_threads)
+    n_threads = get_num_threads() if cfg.n_threads is None else int(cfg.n_threads)
     if init is None:
         field = cfg.network(seed=rng)
     elif isinstance(init, NeuralRadianceField):
@@ -673,7 +680,7 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
             k = cache.ray_index.size
             return lc.sum() / (3 * R), ls.sum() / R, lo, grads, k
 
-        outs = run_parallel(work, [p for p in parts if p.stop > p.start], n_threads)
+        outs = parallel_map(work, [p for p in parts if p.stop > p.start], n_threads)
         terms = {"color": sum(o[0] for o in outs), "silhouette": sum(o[1] for o in outs)}
         if cfg.opacity_regularization > 0:
             terms["opacity"] = sum(o[2] for o in outs)

@@ -17,7 +17,7 @@ plain sight in :class:`_Objective`.
     optionally with the large-steps parameterisation and coarse-to-fine levels (image size and
     mesh level rising together);
   - ``"contour"``: geometry-first: the hard silhouette's loss differentiated by edge sampling
-    along the mesh's projected contour (:mod:`geofit.render.contour`), Adam in the large-steps
+    along the mesh's projected contour (:mod:`geofit.render.soft.contour`), Adam in the large-steps
     parameterisation, coarse-to-fine.
 
   Textured methods (:data:`TEXTURED_METHODS`): ``"tutorial"`` (SGD on offsets and colours, two
@@ -769,7 +769,7 @@ def fit_mesh_to_views(views: MultiViewData, *, init: Mesh | None = None,
             later = sum(s_ for s_, _ in sub_levels[li + 1:])
             wl = {k: (v * 0.25 ** later if k in _REG_TERMS else v) for k, v in sw.items()}
             if silhouette_method == "contour":
-                from ..render.contour import ContourSilhouetteLoss
+                from ..render.soft.contour import ContourSilhouetteLoss
 
                 closs = ContourSilhouetteLoss(data.cameras, data.silhouettes,
                                               threshold=contour_threshold)
@@ -941,7 +941,7 @@ def _lstsq_colors(mesh: Mesh, data: MultiViewData, reg: float) -> np.ndarray:
 
 
 class _ContourObjective:
-    """Geometry-first silhouette objective (see :mod:`geofit.render.contour`) plus regularisers."""
+    """Geometry-first silhouette objective (see :mod:`geofit.render.soft`) plus regularisers."""
 
     def __init__(self, base: Mesh, closs, weights, param):
         self.base = base

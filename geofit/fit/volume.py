@@ -33,7 +33,8 @@ renderer, but keep the problem as small as the scene allows:
   1 dB in the measurements behind the default.
 
 Sampled values, ray marching and sparse products run in float32 by default (``precision``), on
-two threads; the loss is accumulated and the parameters kept in float64.
+geofit's threads (:func:`geofit.get_num_threads`); the loss is accumulated and the parameters
+kept in float64.
 
 Every result reports the number of free voxels (``n_active_voxels``) and the mean number of
 samples marched per ray (``samples_per_ray``).
@@ -55,17 +56,18 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import ndimage
 
+from .._threads import get_num_threads, one_blas_thread, parallel_map
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
-from ..render.raymarching import (
+from ..render.volume.raymarching import (
     _exclusive_product,
     _shifted_cumprod,
     _suffix_from,
     _through_transmittance,
 )
-from ..render.raysampling import NDCMultinomialRaysampler
-from ..render.volume import (
+from ..render.volume.raysampling import NDCMultinomialRaysampler
+from ..render.volume.renderer import (
     _cell_table,
     _range_layout,
     _range_operator,
@@ -281,7 +283,7 @@ def render_volume(volume: Volume, cameras: CamerasBase, image_size=128, *,
         Colours and opacity (empty-space skipping makes this fast; the result is the full
         ray march's).
     """
-    from ..render.raymarching import EmissionAbsorptionRaymarcher
+    from ..render.volume.raymarching import EmissionAbsorptionRaymarcher
     from ..render.volume import VolumeRenderer
 
     if isinstance(image_size, (numbers.Integral, np.integer)):
@@ -583,17 +585,17 @@ class _Problem:
     def _split(self):
         """Row blocks of W at chunk boundaries, one per thread (built once)."""
         if self._blocks is None:
-            n_t = _n_threads()
+            n_t = get_num_threads()
             chunks = self.layout.chunks
             if n_t < 2 or len(chunks) < 2:
                 self._blocks = [(0, self.layout.n_rows, self.W)]
             else:
-                half = self.W.nnz / 2
-                starts = [row for row, a, b, K in chunks]
-                cut = min(range(1, len(chunks)),
-                          key=lambda i: abs(self.W.indptr[starts[i]] - half))
-                r = starts[cut]
-                self._blocks = [(0, r, self.W[:r]), (r, self.layout.n_rows, self.W[r:])]
+                starts = np.array([row for row, a, b, K in chunks])
+                nnz_at = self.W.indptr[starts]  # nonzeros before each chunk
+                targets = self.W.nnz * np.arange(1, n_t) / n_t
+                cuts = np.unique(np.clip(np.searchsorted(nnz_at, targets), 1, len(chunks) - 1))
+                rows = [0, *starts[cuts].tolist(), self.layout.n_rows]
+                self._blocks = [(r0, r1, self.W[r0:r1]) for r0, r1 in zip(rows, rows[1:])]
         return self._blocks
 
     def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
@@ -648,7 +650,7 @@ class _Problem:
     def evaluate(self, x: np.ndarray, *, want_grad: bool = True):
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
 
-        Sparse products and ray chunks run on two threads (numpy and scipy release the GIL).
+        Sparse products and ray chunks run on geofit's threads (numpy and scipy release the GIL).
         """
         X, sd, sc = self._values(x)
         blocks = self._split()
@@ -657,11 +659,12 @@ class _Problem:
         def fwd(blk):
             r0, r1, Wb = blk
             Y[r0:r1] = Wb @ X
-        _map(fwd, blocks)
+        parallel_map(fwd, blocks)
         G = np.empty_like(Y) if want_grad else None
         nch = len(self.layout.chunks)
-        parts = [(0, nch)] if len(blocks) == 1 else [(0, nch // 2), (nch // 2, nch)]
-        sums = _map(lambda p: self._march_chunks(Y, G, *p), parts)
+        bounds = np.linspace(0, nch, len(blocks) + 1).astype(int).tolist()
+        parts = list(zip(bounds, bounds[1:]))
+        sums = parallel_map(lambda p: self._march_chunks(Y, G, *p), parts)
         n_col = 3.0 * self.n_pixels
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
@@ -678,8 +681,8 @@ class _Problem:
         value = sum(terms.values())
         if not want_grad:
             return value, terms
-        Zs = _map(lambda blk: blk[2].T @ G[blk[0]:blk[1]], blocks)
-        Z = Zs[0] if len(Zs) == 1 else Zs[0] + Zs[1]
+        Zs = parallel_map(lambda blk: blk[2].T @ G[blk[0]:blk[1]], blocks)
+        Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
         nd = self.n_free_density
         grad = np.empty_like(x)
         Z = Z.astype(np.float64, copy=False)
@@ -719,83 +722,6 @@ def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
     data = np.concatenate([np.ones(e), -np.ones(e)])
     return sp.csr_matrix((data, (np.concatenate([np.arange(e), np.arange(e)]),
                                  np.concatenate([i, j]))), shape=(e, n))
-
-
-_POOL = None
-_BLAS: list | None = None
-
-
-def _blas_apis() -> list:
-    """(setter, getter) of every OpenBLAS loaded in this process (numpy's and scipy's)."""
-    global _BLAS
-    if _BLAS is not None:
-        return _BLAS
-    import ctypes
-
-    _BLAS = []
-    try:
-        with open("/proc/self/maps", encoding="utf-8") as fh:
-            paths = sorted({line.split()[-1] for line in fh if "openblas" in line.lower()})
-    except OSError:
-        return _BLAS
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for prefix in ("scipy_openblas_", "openblas_"):
-            for suffix in ("64_", ""):
-                sname = f"{prefix}set_num_threads{suffix}"
-                gname = f"{prefix}get_num_threads{suffix}"
-                if hasattr(lib, sname) and hasattr(lib, gname):
-                    setter, getter = getattr(lib, sname), getattr(lib, gname)
-                    setter.argtypes, setter.restype = [ctypes.c_int], None
-                    getter.argtypes, getter.restype = [], ctypes.c_int
-                    _BLAS.append((setter, getter))
-                    break
-            else:
-                continue
-            break
-    return _BLAS
-
-
-class _OneBlasThread:
-    """Context manager: one OpenBLAS thread in every loaded OpenBLAS (restored on exit).
-
-    The fit's heavy work is sparse and elementwise; BLAS threads only appear in the solvers'
-    small dense updates (L-BFGS-B), where on two busy cores they spin against the fit's own
-    threads and slowed a solve five-fold in measurements.
-    """
-
-    def __enter__(self):
-        self._old = [(setter, getter()) for setter, getter in _blas_apis()]
-        for setter, _ in self._old:
-            setter(1)
-        return self
-
-    def __exit__(self, *exc):
-        for setter, old in self._old:
-            setter(old)
-        return False
-
-
-def _n_threads() -> int:
-    import os
-
-    return 2 if (os.cpu_count() or 1) >= 2 else 1
-
-
-def _map(fn, items):
-    """``[fn(i) for i in items]`` on a two-thread pool (in order)."""
-    global _POOL
-    items = list(items)
-    if len(items) < 2:
-        return [fn(i) for i in items]
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="geofit-volume")
-    return list(_POOL.map(fn, items))
 
 
 # --------------------------------------------------------------------------------------------
@@ -984,7 +910,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
             raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         if not isinstance(n_iter, (numbers.Integral, np.integer)) or n_iter < 1:
             raise ValueError(f"n_iter: expected an integer >= 1, got {n_iter!r}")
-        with _OneBlasThread():
+        with one_blas_thread():
             return _fit_tutorial(imgs, sils, cameras, S, extent, int(n_pts_per_ray), min_depth,
                                  max_depth, huber_scaling, lr, int(batch_size), int(n_iter),
                                  time_budget, as_rng(seed), monitor, monitor_every, verbose,
@@ -1010,7 +936,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
         iterations += [iterations[-1]] * (len(levels) - len(iterations))
     if any(v < 1 for v in iterations):
         raise ValueError(f"iterations: expected integers >= 1, got {iterations}")
-    with _OneBlasThread():
+    with one_blas_thread():
         return _fit_levels(imgs, sils, cameras, S, extent, int(n_pts_per_ray), min_depth,
                            max_depth, levels, iterations, method, bool(carve),
                            int(carve_tolerance), carve_margin, prune_threshold,

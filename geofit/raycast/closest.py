@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._threads import open3d_threads
 from .._validate import as_array, as_points
 from ..structures import Mesh, as_mesh
 
@@ -241,6 +242,8 @@ class PointToMeshDistance:
 
     def _build(self, verts: np.ndarray) -> None:
         import open3d as o3d
+
+        open3d_threads()  # geofit's thread count, if overridden, bounds Open3D's TBB threads
 
         used = verts[np.unique(self._faces)]
         lo, hi = used.min(axis=0), used.max(axis=0)

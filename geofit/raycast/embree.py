@@ -14,16 +14,15 @@ the three things that keep its answers accurate are (as in trimesh):
 from __future__ import annotations
 
 import itertools
-import os
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
 
+from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_points
 from ..structures import Meshes, as_meshes
 
-__all__ = ["RayCaster", "RayHits"]
+__all__ = ["EmbreeScene", "RayCaster", "RayHits"]
 
 # Bounding-sphere radius of the normalised box [-1, 1]^3, with a margin.
 _R = 1.75
@@ -119,6 +118,117 @@ def _as_ray_limit(x, name: str, r: int) -> np.ndarray:
     return arr
 
 
+def _check_rays(origins, directions, tnear, tfar):
+    """Validated rays: ``o, d (r, 3)`` float64 (non-zero directions), ``tnear, tfar (r,)``."""
+    o = as_points(origins, "origins")
+    r = len(o)
+    d = as_array(directions, "directions", (r, 3))
+    L2 = _dot(d, d)
+    if np.any(L2 == 0):
+        raise ValueError(f"directions: expected non-zero vectors, got "
+                         f"{int(np.count_nonzero(L2 == 0))} zero-length rows")
+    tn = _as_ray_limit(tnear, "tnear", r)
+    tf = _as_ray_limit(tfar, "tfar", r)
+    if np.any(~np.isfinite(tn)) or np.any(tn < 0):
+        raise ValueError("tnear: expected finite values >= 0")
+    if np.any(tf < tn):
+        raise ValueError("tfar: expected tfar >= tnear for every ray")
+    return o, d, tn, tf
+
+
+class EmbreeScene:
+    """One Embree scene (``embreex``) over triangle meshes, in a normalised frame.
+
+    The one place geofit builds Embree scenes: :class:`RayCaster` (any rays, float64 checks and
+    refinement) and the mesh rasterizer (millions of structured pixel rays, generated in float32
+    inside worker threads) both cast against it. Vertices are mapped into ``[-1, 1]^3`` by
+    ``x' = (x - center) / scale`` (one map for all meshes, from the vertices the faces use), and
+    rays given to :meth:`intersect` and :meth:`occluded` are in that frame, in float32.
+
+    Parameters
+    ----------
+    meshes : sequence of (verts, faces)
+        ``verts (V_i, 3) float64`` and ``faces (F_i, 3) int64`` of each mesh; meshes without
+        faces get no Embree geometry. At least one face in all.
+    robust : bool, optional
+        Embree's robust (watertight) traversal, so that a ray through a shared edge hits one of
+        its triangles (default True).
+
+    Attributes
+    ----------
+    center : (3,) float64
+        Centre of the bounding box of the used vertices.
+    scale : float
+        Half the longest side of that box (1 for a degenerate box).
+    lo, hi : (3,) float64
+        The box.
+    geom_to_mesh : (G,) int64
+        Index in ``meshes`` of each Embree geometry (the meshes with faces, in order).
+
+    Notes
+    -----
+    embreex creates its device with ``rtcNewDevice(NULL)`` and exposes no configuration string,
+    so the build threads of Embree's own (TBB) scheduler, used only while the scene is
+    committed, cannot be set from Python: they follow the process's CPU affinity (measured:
+    committing a scene on 2 allowed cores added one TBB worker thread, under ``taskset -c 0``
+    none), not :func:`geofit.set_num_threads`. Queries run on the calling thread; callers split
+    rays over geofit's pool (:func:`geofit.get_num_threads`).
+    """
+
+    def __init__(self, meshes, *, robust: bool = True):
+        from embreex import mesh_construction, rtcore_scene
+
+        meshes = [(np.asarray(v, dtype=np.float64), np.asarray(f)) for v, f in meshes]
+        used = [v[f.ravel()] for v, f in meshes if len(f)]
+        if not used:
+            raise ValueError("meshes: expected at least one face, got 0 faces")
+        used = np.concatenate(used)
+        self.lo, self.hi = used.min(axis=0), used.max(axis=0)
+        self.center = 0.5 * (self.lo + self.hi)
+        half = 0.5 * float(np.max(self.hi - self.lo))
+        self.scale = half if half > 0 else 1.0
+        scene = rtcore_scene.EmbreeScene(robust=bool(robust))
+        geom_to_mesh = []
+        for i, (v, f) in enumerate(meshes):  # loop over meshes
+            if len(f) == 0:
+                continue
+            v32 = np.ascontiguousarray((v - self.center) / self.scale, dtype=np.float32)
+            mesh_construction.TriangleMesh(scene, v32, np.ascontiguousarray(f, dtype=np.int32))
+            geom_to_mesh.append(i)
+        self.geom_to_mesh = np.asarray(geom_to_mesh, dtype=np.int64)
+        # One tiny query commits the scene before any threads share it.
+        scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+        self._scene = scene
+
+    def intersect(self, o: np.ndarray, d: np.ndarray, tfar: np.ndarray | None = None):
+        """First hits of float32 rays ``o + t d`` (normalised frame), ``t <= tfar``.
+
+        Parameters
+        ----------
+        o, d : (r, 3) float32
+            Contiguous origins and directions in the normalised frame.
+        tfar : (r,) float32, optional
+            Largest ``t`` per ray (default unlimited).
+
+        Returns
+        -------
+        geom, prim : (r,) int32
+            Embree geometry (-1 on a miss; see ``geom_to_mesh``) and triangle within it.
+        u, v, t : (r,) float32
+            Embree's barycentrics of vertices 1 and 2 and the ray parameter of the hit.
+        """
+        if tfar is None:
+            res = self._scene.run(o, d, output=1)
+        else:
+            res = self._scene.run(o, d, dists=tfar, output=1)
+        return res["geomID"], res["primID"], res["u"], res["v"], res["tfar"]
+
+    def occluded(self, o: np.ndarray, d: np.ndarray, tfar: np.ndarray) -> np.ndarray:
+        """(r,) bool: whether float32 rays (normalised frame) hit anything with ``t <= tfar``."""
+        res = self._scene.run(o, d, dists=tfar, query="OCCLUDED")
+        return np.asarray(res) >= 0
+
+
 class RayCaster:
     """One Embree scene over a mesh or a batch of meshes; first hits and occlusion for rays.
 
@@ -127,9 +237,11 @@ class RayCaster:
     meshes : Mesh or Meshes or sequence of Mesh
         The geometry. Mesh ``i`` of the batch is reported as ``mesh_id == i``.
     n_threads : int, optional
-        Threads used for large ray batches (default: the CPUs available to this process). The
-        rays are split into ``n_threads`` contiguous chunks, each cast and refined on its own
-        thread (embreex releases the GIL); results do not depend on the thread count.
+        Threads used for large ray batches (default: :func:`geofit.get_num_threads`, read at
+        each call: the CPUs available to this process unless overridden). The rays are split
+        into ``n_threads`` contiguous chunks, each cast and refined on its own thread of
+        geofit's shared pool (embreex releases the GIL); results do not depend on the thread
+        count.
     parallel_min : int, optional
         Ray counts below this are cast in one call on the calling thread (default 50 000).
     robust : bool, optional
@@ -160,9 +272,9 @@ class RayCaster:
     4.3 ms for 5,120 faces and 75-225 ms for 100,000 faces; ``benchmarks/raycast.py`` records
     the current figures.
 
-    *Threads.* Large batches are split into ``n_threads`` chunks on a
-    ``concurrent.futures.ThreadPoolExecutor``; each chunk runs Embree (which releases the GIL)
-    and its own float64 refinement.
+    *Threads.* Large batches are split into ``n_threads`` chunks on geofit's shared thread pool
+    (:mod:`geofit._threads`); each chunk is one Embree call (which releases the GIL) and its own
+    float64 refinement, so a batch of rays costs ``n_threads`` Embree calls, not one per ray.
 
     Examples
     --------
@@ -177,49 +289,33 @@ class RayCaster:
     def __init__(self, meshes, *, n_threads: int | None = None,
                  parallel_min: int = _DEFAULT_PARALLEL_MIN, robust: bool = True):
         self._meshes = as_meshes(meshes)
-        if n_threads is None:
-            try:
-                n_threads = len(os.sched_getaffinity(0))
-            except AttributeError:  # not on Linux
-                n_threads = os.cpu_count() or 1
-        if not isinstance(n_threads, (int, np.integer)) or n_threads < 1:
+        if n_threads is not None and (not isinstance(n_threads, (int, np.integer))
+                                      or n_threads < 1):
             raise ValueError(f"n_threads: expected an integer >= 1, got {n_threads!r}")
         if not isinstance(parallel_min, (int, np.integer)) or parallel_min < 1:
             raise ValueError(f"parallel_min: expected an integer >= 1, got {parallel_min!r}")
-        self.n_threads = int(n_threads)
+        self._n_threads = None if n_threads is None else int(n_threads)
         self.parallel_min = int(parallel_min)
         self._robust = bool(robust)
         self._build()
 
     # ------------------------------------------------------------------ scene
     def _build(self) -> None:
-        from embreex import mesh_construction, rtcore_scene
-
         ms = self._meshes
         nf = ms.num_faces_per_mesh()
         if len(ms) == 0 or nf.sum() == 0:
             raise ValueError("meshes: expected at least one face in the batch, got 0 faces")
-        V = ms.verts_packed()
-        lo, hi = V.min(axis=0), V.max(axis=0)
-        self._center = 0.5 * (lo + hi)
-        half = 0.5 * float(np.max(hi - lo))
-        self._scale = half if half > 0 else 1.0
-        self._verts_packed = V
+        self._verts_packed = ms.verts_packed()
         self._faces_packed = ms.faces_packed()
         self._face_first = ms.mesh_to_faces_packed_first_idx()
-        scene = rtcore_scene.EmbreeScene(robust=self._robust)
-        geom_to_mesh = []
-        for i, m in enumerate(ms):  # loop over batch members
-            if m.n_faces == 0:
-                continue
-            v32 = np.ascontiguousarray((m.verts - self._center) / self._scale, dtype=np.float32)
-            f32 = np.ascontiguousarray(m.faces, dtype=np.int32)
-            mesh_construction.TriangleMesh(scene, v32, f32)
-            geom_to_mesh.append(i)
-        self._geom_to_mesh = np.asarray(geom_to_mesh, dtype=np.int64)
-        # One tiny query commits the scene before any threads share it.
-        scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
-        self._scene = scene
+        self._embree = EmbreeScene([(m.verts, m.faces) for m in ms], robust=self._robust)
+        self._center, self._scale = self._embree.center, self._embree.scale
+        self._geom_to_mesh = self._embree.geom_to_mesh
+
+    @property
+    def n_threads(self) -> int:
+        """Threads (and chunks) used for a large batch of rays."""
+        return get_num_threads() if self._n_threads is None else self._n_threads
 
     @property
     def meshes(self) -> Meshes:
@@ -276,20 +372,7 @@ class RayCaster:
 
     # ------------------------------------------------------------------ rays
     def _validate_rays(self, origins, directions, tnear, tfar):
-        o = as_points(origins, "origins")
-        r = len(o)
-        d = as_array(directions, "directions", (r, 3))
-        L2 = _dot(d, d)
-        if np.any(L2 == 0):
-            raise ValueError(f"directions: expected non-zero vectors, got "
-                             f"{int(np.count_nonzero(L2 == 0))} zero-length rows")
-        tn = _as_ray_limit(tnear, "tnear", r)
-        tf = _as_ray_limit(tfar, "tfar", r)
-        if np.any(~np.isfinite(tn)) or np.any(tn < 0):
-            raise ValueError("tnear: expected finite values >= 0")
-        if np.any(tf < tn):
-            raise ValueError("tfar: expected tfar >= tnear for every ray")
-        return o, d, tn, tf
+        return _check_rays(origins, directions, tnear, tfar)
 
     def _prepare(self, o, d, tn, tf):
         """Rays in the normalised frame, advanced to the scene: float32 start, unit direction and
@@ -317,13 +400,13 @@ class RayCaster:
         if r == 0:
             return out
         start, u, far, empty, s0, L = self._prepare(o, d, tn, tf)
-        res = self._scene.run(start, u, dists=far, output=1)
-        geom = res["geomID"].astype(np.int64)
+        geom, prim, eu, ev, et = self._embree.intersect(start, u, far)
+        geom = geom.astype(np.int64)
         h = np.flatnonzero((geom >= 0) & ~empty)
         if len(h) == 0:
             return out
         mesh = self._geom_to_mesh[geom[h]]
-        face = res["primID"][h].astype(np.int64)
+        face = prim[h].astype(np.int64)
         tri = self._faces_packed[self._face_first[mesh] + face]
         V = self._verts_packed
         t, bu, bv, det = _moller_trumbore(o[h], d[h], V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
@@ -331,9 +414,9 @@ class RayCaster:
         par = det == 0
         if np.any(par):
             hp = h[par]
-            t[par] = (s0[hp] + res["tfar"][hp].astype(np.float64)) / L[hp]
-            bu[par] = res["u"][hp]
-            bv[par] = res["v"][hp]
+            t[par] = (s0[hp] + et[hp].astype(np.float64)) / L[hp]
+            bu[par] = eu[hp]
+            bv[par] = ev[hp]
         keep = t <= tf[h]  # tfar applied exactly to the refined t
         h, mesh, face, t, bu, bv = h[keep], mesh[keep], face[keep], t[keep], bu[keep], bv[keep]
         w = np.stack([1.0 - bu - bv, bu, bv], axis=1)
@@ -350,22 +433,18 @@ class RayCaster:
         if len(o) == 0:
             return np.zeros(0, dtype=bool)
         start, u, far, empty, _, _ = self._prepare(o, d, tn, tf)
-        res = self._scene.run(start, u, dists=far, query="OCCLUDED")
-        return (np.asarray(res) >= 0) & ~empty
+        return self._embree.occluded(start, u, far) & ~empty
 
     def _chunks(self, r: int) -> list[slice]:
-        if r < self.parallel_min or self.n_threads == 1:
+        n = self.n_threads
+        if r < self.parallel_min or n == 1:
             return [slice(0, r)]
-        bounds = np.linspace(0, r, self.n_threads + 1).astype(int)
+        bounds = np.linspace(0, r, n + 1).astype(int)
         return [slice(a, b) for a, b in itertools.pairwise(bounds)]
 
     def _map(self, fn, o, d, tn, tf) -> list:
-        parts = self._chunks(len(o))
-        if len(parts) == 1:
-            return [fn(o, d, tn, tf)]
-        with ThreadPoolExecutor(len(parts)) as ex:
-            futures = [ex.submit(fn, o[p], d[p], tn[p], tf[p]) for p in parts]
-            return [f.result() for f in futures]
+        return parallel_map(lambda p: fn(o[p], d[p], tn[p], tf[p]), self._chunks(len(o)),
+                            self.n_threads)
 
     def cast(self, origins, directions, *, tnear=0.0, tfar=np.inf) -> RayHits:
         """First hit of each ray ``origins + t * directions`` with ``tnear <= t <= tfar``.

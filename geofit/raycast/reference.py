@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import as_faces, as_points, check_positive
-from .embree import RayHits, _as_ray_limit, _empty_hits
+from .embree import RayHits, _check_rays, _empty_hits
 
 __all__ = ["intersect_rays_triangles"]
 
@@ -56,21 +56,10 @@ def intersect_rays_triangles(origins, directions, verts, faces, *, tnear=0.0, tf
     >>> hits.t, hits.face_id, hits.bary
     (array([1.]), array([0]), array([[0.6, 0.2, 0.2]]))
     """
-    o = as_points(origins, "origins")
+    o, d, tn, tf = _check_rays(origins, directions, tnear, tfar)
     r = len(o)
-    d = as_points(directions, "directions")
-    if len(d) != r:
-        raise ValueError(f"directions: expected shape ({r}, 3), got {d.shape}")
-    if np.any(np.einsum("ij,ij->i", d, d) == 0):
-        raise ValueError("directions: expected non-zero vectors, got zero-length rows")
     V = as_points(verts, "verts")
     F = as_faces(faces, "faces", len(V))
-    tn = _as_ray_limit(tnear, "tnear", r)
-    tf = _as_ray_limit(tfar, "tfar", r)
-    if np.any(~np.isfinite(tn)) or np.any(tn < 0):
-        raise ValueError("tnear: expected finite values >= 0")
-    if np.any(tf < tn):
-        raise ValueError("tfar: expected tfar >= tnear for every ray")
     chunk_pairs = int(check_positive(chunk_pairs, "chunk_pairs"))
     out = _empty_hits(r)
     m = len(F)

@@ -1,90 +1,108 @@
-"""Rendering. Meshes: Embree ray casting with PyTorch3D's renderer API and shading formulas.
+"""Rendering, in subpackages by primitive as PyTorch3D's ``renderer/``.
 
-- :class:`MeshRenderer`, :class:`MeshRendererWithFragments`, :class:`MeshRasterizer`,
-  :class:`RasterizationSettings`, :class:`Fragments`: one ray per pixel centre, all views in one
-  threaded cast; face ids, barycentrics, depth and normals per pixel (K = 1).
-- Shaders: :class:`HardPhongShader`, :class:`SoftPhongShader`, :class:`HardGouraudShader`,
-  :class:`SoftGouraudShader`, :class:`HardFlatShader`; lights :class:`PointLights`,
-  :class:`DirectionalLights`, :class:`AmbientLights`; :class:`Materials`; :class:`BlendParams`.
-- Beyond PyTorch3D: supersampled antialiasing (``RasterizationSettings(supersample=s)``), hard
-  shadows (``shadows=True`` on Phong / flat shaders), :class:`TexturesFlat`.
-- Points: :class:`PointsRasterizer`, :class:`PointsRenderer`, :class:`AlphaCompositor`,
-  :class:`NormWeightedCompositor` (PyTorch3D semantics, vectorised).
-- Helpers: :func:`image_grid`, :func:`make_grid`, :func:`plot_texture_uv`; Open3D comparison in
+- :mod:`geofit.render.mesh` -- hard mesh rendering by Embree ray casting:
+  :class:`MeshRenderer`, :class:`MeshRendererWithFragments`, :class:`MeshRasterizer`,
+  :class:`RasterizationSettings`, :class:`Fragments` (one ray per pixel centre, K = 1); shaders
+  :class:`HardPhongShader`, :class:`SoftPhongShader`, :class:`HardGouraudShader`,
+  :class:`SoftGouraudShader`, :class:`HardFlatShader`; :class:`TexturesFlat`. Beyond
+  PyTorch3D: supersampled antialiasing (``RasterizationSettings(supersample=s)``) and hard
+  shadows (``shadows=True`` on Phong / flat shaders).
+- :mod:`geofit.render.soft` -- differentiable mesh rendering (PyTorch3D's blur radius and K
+  faces per pixel, with vector-Jacobian products): :func:`rasterize_soft`,
+  :class:`SoftRasterizationSettings`, :class:`SoftSilhouetteShader`,
+  :class:`SoftSilhouetteRenderer`, :class:`SoftPhongRenderer`, :class:`ContourSilhouetteLoss`.
+- :mod:`geofit.render.points` -- :class:`PointsRasterizer`, :class:`PointsRenderer`,
+  :class:`AlphaCompositor`, :class:`NormWeightedCompositor`.
+- :mod:`geofit.render.volume` -- ray samplers (:class:`NDCMultinomialRaysampler`,
+  :class:`MonteCarloRaysampler`), raymarchers (:class:`EmissionAbsorptionRaymarcher`,
+  :class:`AbsorptionOnlyRaymarcher`), :class:`VolumeRenderer`, :class:`ImplicitRenderer`,
+  :class:`NeuralRadianceField`, :class:`HarmonicEmbedding`.
+- Shared: lights (:class:`PointLights`, :class:`DirectionalLights`, :class:`AmbientLights`),
+  :class:`Materials`, :class:`BlendParams` and the blend functions, :func:`image_grid`,
+  :func:`make_grid`, :func:`plot_texture_uv`; Open3D's renderer for comparison in
   :mod:`geofit.render.open3d`.
+
+*Names and PyTorch3D.* A shader here means what it means in PyTorch3D: ``SoftPhongShader`` is
+Phong shading with ``softmax_rgb_blend`` of the fragments it is given. On the hard rasterizer's
+fragments (K = 1, the render tutorial's setting) it is a forward renderer; on
+:class:`SoftFragments` from :func:`rasterize_soft` (K faces, blur) it is the differentiable
+blend, and :class:`SoftPhongRenderer` bundles that path with its ``vjp``.
+
+The modules of the flat layout of geofit 0.1 (``geofit.render.raysampling``, ``.raymarching``,
+``.implicit``, ``.harmonic``, ``.compositing``, ``.contour``, ``.shading``, ``.textures``) still
+import, with a DeprecationWarning naming the new path.
 """
-from .compositing import AlphaCompositor, NormWeightedCompositor, add_background_color
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.util
+import sys
+import warnings
+
+from . import mesh, points, soft, volume
 from .blending import BlendParams, hard_rgb_blend, sigmoid_alpha, softmax_rgb_blend
 from .lighting import AmbientLights, DirectionalLights, PointLights
 from .materials import Materials
-from .mesh import (
-    Fragments,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    RasterizationSettings,
-)
-from .points import (
-    PointFragments,
-    PointsRasterizationSettings,
-    PointsRasterizer,
-    PointsRenderer,
-    PointsRendering,
-    rasterize_points,
-)
-from .shading import (
-    HardFlatShader,
-    HardGouraudShader,
-    HardPhongShader,
-    SoftGouraudShader,
-    SoftPhongShader,
-    apply_lighting,
-    flat_shading,
-    gouraud_shading,
-    phong_shading,
-    sample_textures,
-    shadow_visibility,
-)
-from .textures import TexturesFlat
+from .mesh import *  # noqa: F403 - the renderers of each primitive, listed in its __all__
+from .points import *  # noqa: F403
+from .soft import *  # noqa: F403
 from .utils import image_grid, make_grid, plot_texture_uv, texturesuv_image_matplotlib
+from .volume import *  # noqa: F403
 
-__all__ = [
-    "AlphaCompositor",
-    "NormWeightedCompositor",
-    "add_background_color",
-    "PointFragments",
-    "PointsRasterizationSettings",
-    "PointsRasterizer",
-    "PointsRenderer",
-    "PointsRendering",
-    "rasterize_points",
-    "AmbientLights",
-    "BlendParams",
-    "DirectionalLights",
-    "Fragments",
-    "HardFlatShader",
-    "HardGouraudShader",
-    "HardPhongShader",
-    "Materials",
-    "MeshRasterizer",
-    "MeshRenderer",
-    "MeshRendererWithFragments",
-    "PointLights",
-    "RasterizationSettings",
-    "SoftGouraudShader",
-    "SoftPhongShader",
-    "TexturesFlat",
-    "apply_lighting",
-    "flat_shading",
-    "gouraud_shading",
-    "hard_rgb_blend",
-    "image_grid",
-    "make_grid",
-    "phong_shading",
-    "plot_texture_uv",
-    "sample_textures",
-    "shadow_visibility",
-    "sigmoid_alpha",
-    "softmax_rgb_blend",
-    "texturesuv_image_matplotlib",
-]
+_SHARED = ["AmbientLights", "BlendParams", "DirectionalLights", "Materials", "PointLights",
+           "hard_rgb_blend", "image_grid", "make_grid", "plot_texture_uv", "sigmoid_alpha",
+           "softmax_rgb_blend", "texturesuv_image_matplotlib"]
+__all__ = _SHARED + mesh.__all__ + soft.__all__ + points.__all__ + volume.__all__
+
+# Modules of the flat layout (geofit 0.1) -> their new homes.
+MOVED_MODULES = {
+    "raysampling": "volume.raysampling",
+    "raymarching": "volume.raymarching",
+    "implicit": "volume.implicit",
+    "harmonic": "volume.harmonic",
+    "compositing": "points.compositing",
+    "contour": "soft.contour",
+    "shading": "mesh.shading",
+    "textures": "mesh.textures",
+}
+
+
+def _moved_warning(old: str) -> None:
+    new = f"{__name__}.{MOVED_MODULES[old]}"
+    warnings.warn(f"{__name__}.{old} moved to {new} (same names; also exported by "
+                  f"{__name__}); the old path will be removed in the next release",
+                  DeprecationWarning, stacklevel=3)
+
+
+class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """``import geofit.render.<old>`` gives the module at its new path, with a warning."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        head, _, tail = fullname.rpartition(".")
+        if head == __name__ and tail in MOVED_MODULES:
+            return importlib.util.spec_from_loader(fullname, self)
+        return None
+
+    _specs: dict = {}
+
+    def create_module(self, spec):
+        old = spec.name.rpartition(".")[2]
+        _moved_warning(old)
+        module = importlib.import_module(f"{__name__}.{MOVED_MODULES[old]}")
+        self._specs[module.__name__] = module.__spec__
+        return module
+
+    def exec_module(self, module):
+        # the import system set the alias's spec on the module: give it back its own
+        module.__spec__ = self._specs.pop(module.__name__, module.__spec__)
+
+
+if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):
+    sys.meta_path.append(_MovedModuleFinder())
+
+
+def __getattr__(name: str):
+    if name in MOVED_MODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -48,15 +48,14 @@ def new_images(fragments, bg: np.ndarray, n_threads: int = 1) -> np.ndarray:
     out = np.empty((N * H * W, 4), dtype=np.float32)
     fill = np.append(bg, np.float32(0.0))
     if n_threads > 1 and len(out) >= 1 << 20:
-        from concurrent.futures import ThreadPoolExecutor
+        from .._threads import parallel_map
 
         bounds = np.linspace(0, len(out), n_threads + 1).astype(np.int64)
 
         def run(i):
             out[bounds[i]:bounds[i + 1]] = fill
 
-        with ThreadPoolExecutor(n_threads) as ex:
-            list(ex.map(run, range(n_threads)))
+        parallel_map(run, range(n_threads), n_threads)
     else:
         out[:] = fill
     return out

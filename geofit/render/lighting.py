@@ -178,6 +178,12 @@ class _Lights:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(N={len(self)})"
 
+    def _set(self, **params) -> None:
+        """Validate each (N, 3) or (3,) parameter and broadcast the batch to one N."""
+        batched = {k: _batched(v, k, (3,)) for k, v in params.items()}
+        for k, v in _broadcast(**batched).items():
+            setattr(self, k, v)
+
     def _with(self, **params):
         new = type(self).__new__(type(self))
         for k, v in _broadcast(**params).items():
@@ -313,12 +319,8 @@ class PointLights(_Lights):
 
     def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
                  specular_color=((0.2, 0.2, 0.2),), location=((0.0, 1.0, 0.0),)):
-        b = _broadcast(ambient_color=_batched(ambient_color, "ambient_color", (3,)),
-                       diffuse_color=_batched(diffuse_color, "diffuse_color", (3,)),
-                       specular_color=_batched(specular_color, "specular_color", (3,)),
-                       location=_batched(location, "location", (3,)))
-        for k, v in b.items():
-            setattr(self, k, v)
+        self._set(ambient_color=ambient_color, diffuse_color=diffuse_color,
+                  specular_color=specular_color, location=location)
 
     def _light_vector(self, p, batch_idx):
         d = per_point_t(self.location, batch_idx, p.dtype) - p
@@ -340,12 +342,8 @@ class DirectionalLights(_Lights):
 
     def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
                  specular_color=((0.2, 0.2, 0.2),), direction=((0.0, 1.0, 0.0),)):
-        b = _broadcast(ambient_color=_batched(ambient_color, "ambient_color", (3,)),
-                       diffuse_color=_batched(diffuse_color, "diffuse_color", (3,)),
-                       specular_color=_batched(specular_color, "specular_color", (3,)),
-                       direction=_batched(direction, "direction", (3,)))
-        for k, v in b.items():
-            setattr(self, k, v)
+        self._set(ambient_color=ambient_color, diffuse_color=diffuse_color,
+                  specular_color=specular_color, direction=direction)
 
     def _light_vector(self, p, batch_idx):
         d = per_point_t(self.direction, batch_idx, p.dtype)

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..cameras import FoVPerspectiveCameras, to_open3d
 from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex, as_mesh, as_meshes
-from .textures import TexturesFlat
+from .mesh.textures import TexturesFlat
 
 __all__ = ["Open3DRender", "mesh_to_open3d", "render_open3d", "show_open3d"]
 

@@ -139,6 +139,23 @@ def _check_uv(textures) -> TexturesUV:
     return textures
 
 
+def _texture_axes(textures, ax, *, cmap_gray: bool = False, interpolation=None):
+    """The checked TexturesUV and the axes (new 7x7 figure if None) with its map drawn on
+    the unit UV square."""
+    import matplotlib.pyplot as plt
+
+    tex = _check_uv(textures)
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 7))
+    maps = tex.maps
+    img = maps[..., :3] if maps.shape[2] >= 3 else maps[..., 0]
+    extra = {"interpolation": interpolation} if interpolation else {}
+    if cmap_gray:
+        extra["cmap"] = None if img.ndim == 3 else "gray"
+    ax.imshow(np.clip(img, 0, 1), extent=(0.0, 1.0, 0.0, 1.0), origin="upper", **extra)
+    return tex, ax
+
+
 def plot_texture_uv(textures, ax=None, *, color=(1.0, 0.0, 0.0), linewidth: float = 0.3,
                     alpha: float = 0.8):
     """Show a texture image with the mesh's UV layout (the triangles in UV space) drawn over it.
@@ -161,16 +178,9 @@ def plot_texture_uv(textures, ax=None, *, color=(1.0, 0.0, 0.0), linewidth: floa
     -------
     matplotlib.axes.Axes
     """
-    import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
-    tex = _check_uv(textures)
-    if ax is None:
-        _, ax = plt.subplots(figsize=(7, 7))
-    maps = tex.maps
-    img = maps[..., :3] if maps.shape[2] >= 3 else maps[..., 0]
-    ax.imshow(np.clip(img, 0, 1), extent=(0.0, 1.0, 0.0, 1.0), origin="upper",
-              cmap=None if img.ndim == 3 else "gray", interpolation="bilinear")
+    tex, ax = _texture_axes(textures, ax, cmap_gray=True, interpolation="bilinear")
     uv = tex.face_uvs()                                      # (F, 3, 2)
     segs = np.stack([uv, np.roll(uv, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     ax.add_collection(LineCollection(segs, colors=[color], linewidths=linewidth, alpha=alpha))
@@ -201,17 +211,11 @@ def texturesuv_image_matplotlib(textures, *, subsample: int | None = 10000, ax=N
     -------
     matplotlib.axes.Axes
     """
-    import matplotlib.pyplot as plt
     from matplotlib.collections import EllipseCollection
 
     from .._validate import as_rng
 
-    tex = _check_uv(textures)
-    if ax is None:
-        _, ax = plt.subplots(figsize=(7, 7))
-    maps = tex.maps
-    img = maps[..., :3] if maps.shape[2] >= 3 else maps[..., 0]
-    ax.imshow(np.clip(img, 0, 1), extent=(0.0, 1.0, 0.0, 1.0), origin="upper")
+    tex, ax = _texture_axes(textures, ax)
     uv = tex.verts_uvs
     if subsample is not None and len(uv) > subsample:
         uv = uv[as_rng(seed).choice(len(uv), int(subsample), replace=False)]

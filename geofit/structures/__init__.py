@@ -2,6 +2,7 @@
 from .mesh import Mesh, Meshes, Normalization, Topology, as_mesh, as_meshes
 from .pointcloud import PointCloud, Pointclouds, as_pointcloud, as_pointclouds
 from .textures import TexturesBase, TexturesUV, TexturesVertex
+from .volume import Volume
 
 __all__ = [
     "Mesh",
@@ -17,4 +18,5 @@ __all__ = [
     "TexturesBase",
     "TexturesUV",
     "TexturesVertex",
+    "Volume",
 ]

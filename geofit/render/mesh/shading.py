@@ -19,15 +19,15 @@ the diffuse and specular terms where it is blocked (hard shadows; off by default
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..structures import TexturesUV
-from .blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
-from .lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
-from .materials import Materials
-from .mesh import Fragments
+from ..._threads import parallel_map
+from ...structures import TexturesUV
+from ..blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
+from ..lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
+from ..materials import Materials
+from .rasterizer import Fragments
 from .textures import UVTables, sample_texels_t
 
 __all__ = [
@@ -187,7 +187,7 @@ def sample_textures(fragments: Fragments, default=(1.0, 1.0, 1.0)) -> np.ndarray
     -------
     texels : (k, C) float32
         UV maps are sampled bilinearly with PyTorch3D's convention (see
-        :mod:`geofit.render.textures`), per-vertex colours interpolated, flat colours copied.
+        :mod:`geofit.render.mesh.textures`), per-vertex colours interpolated, flat colours copied.
 
     Raises
     ------
@@ -262,11 +262,7 @@ def shadow_visibility(fragments: Fragments, lights, points=None, normals=None,
             return sc.occluded(np.ascontiguousarray(on[c]), np.ascontiguousarray(dn[c]),
                                np.ascontiguousarray(tfar[c]))
 
-        if len(chunks) > 1 and n_threads > 1:
-            with ThreadPoolExecutor(n_threads) as ex:
-                occ = np.concatenate(list(ex.map(run, chunks)))
-        else:
-            occ = run(chunks[0])
+        occ = np.concatenate(parallel_map(run, chunks, n_threads))
         vis[sel[occ & ok]] = 0.0
     return vis
 
@@ -310,7 +306,7 @@ def _flat_chunk(fragments, sl, lights, centers, materials, idx, visibility, texe
 
 
 def _gouraud_table(fragments, lights, centers, materials):
-    from ..structures import TexturesVertex
+    from ...structures import TexturesVertex
 
     meshes = fragments.meshes
     for i, m in enumerate(meshes):  # loop over views
@@ -504,13 +500,43 @@ class HardPhongShader(_Shader):
 
 
 class SoftPhongShader(HardPhongShader):
-    """Per-pixel Phong shading with PyTorch3D's soft blending (``softmax_rgb_blend``, K = 1).
+    """Phong shading with PyTorch3D's soft blending (``softmax_rgb_blend``) of the fragments.
 
-    RGB equals HardPhongShader's on covered pixels; alpha is ``sigmoid(-dists / sigma)``, the
-    soft coverage of the kept face (0.5 to 1 inside it). Parameters as :class:`HardPhongShader`.
+    As in PyTorch3D, what it blends is what the rasterizer kept:
+
+    - on :class:`Fragments` of the (hard, ray-cast) :class:`MeshRasterizer`, K = 1: RGB equals
+      HardPhongShader's on covered pixels and alpha is ``sigmoid(-dists / sigma)``, the soft
+      coverage of the kept face (0.5 to 1 inside it) -- the render tutorial's setting;
+    - on :class:`~geofit.render.soft.SoftFragments` of :func:`~geofit.render.rasterize_soft`
+      (blur radius, K faces per pixel): the differentiable blend of the K faces of each pixel,
+      with ``TexturesVertex`` colours (float64 images; for the gradient use
+      :class:`~geofit.render.SoftPhongRenderer`, whose result has ``vjp``).
+
+    Parameters as :class:`HardPhongShader` (``shadows`` only on hard fragments).
     """
 
     _soft = True
+
+    def __call__(self, fragments, meshes=None, **kwargs) -> np.ndarray:
+        from ..soft.fragments import SoftFragments
+
+        if not isinstance(fragments, SoftFragments):
+            return super().__call__(fragments, meshes, **kwargs)
+        from ...structures import Mesh, TexturesVertex
+        from ..soft.renderer import shade_soft_phong
+
+        if self.shadows:
+            raise ValueError("shadows: shadow rays need the hard rasterizer's fragments")
+        if not isinstance(meshes, Mesh) or not isinstance(meshes.textures, TexturesVertex):
+            raise TypeError("meshes: expected the rasterized Mesh with TexturesVertex colours, "
+                            f"got {type(meshes)!r}")
+        cameras = kwargs.get("cameras", self.cameras)
+        if cameras is None:
+            raise ValueError("cameras: the soft fragments do not carry them; pass cameras=")
+        return shade_soft_phong(fragments, meshes, meshes.textures.verts_features,
+                                kwargs.get("lights", self.lights), cameras,
+                                kwargs.get("materials", self.materials),
+                                kwargs.get("blend_params", self.blend_params)).images
 
 
 class HardGouraudShader(_Shader):

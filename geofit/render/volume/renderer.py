@@ -1,7 +1,7 @@
 """Volume rendering: sample a :class:`~geofit.structures.volume.Volume` along rays and raymarch.
 
 :class:`VolumeRenderer` is PyTorch3D's ``VolumeRenderer``: a ray sampler gives a
-:class:`~geofit.render.raysampling.RayBundle`, the volume is sampled at every ray point with
+:class:`~geofit.render.volume.raysampling.RayBundle`, the volume is sampled at every ray point with
 ``grid_sample`` semantics (trilinear, zero padding, the volume's ``align_corners``) and a raymarcher
 composites each ray. The sampling step is the sparse matrix of
 :func:`~geofit.structures.volume.trilinear_matrix`, so :meth:`VolumeRenderer.vjp` carries an image
@@ -16,9 +16,9 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_array, check_choice
-from ..cameras import CamerasBase
-from ..structures.volume import Volume, trilinear_matrix
+from ..._validate import as_array, check_choice
+from ...cameras import CamerasBase
+from ...structures.volume import Volume, trilinear_matrix
 from .raymarching import AbsorptionOnlyRaymarcher, EmissionAbsorptionRaymarcher, sample_deltas
 from .raysampling import RayBundle
 
@@ -339,7 +339,7 @@ class VolumeRenderer:
     ----------
     raysampler : callable
         ``raysampler(cameras, **kwargs) -> RayBundle`` (e.g.
-        :class:`~geofit.render.raysampling.NDCMultinomialRaysampler`).
+        :class:`~geofit.render.volume.raysampling.NDCMultinomialRaysampler`).
     raymarcher : EmissionAbsorptionRaymarcher or AbsorptionOnlyRaymarcher
         Composites each ray (it needs a ``vjp`` method for :meth:`vjp`).
     sample_mode : {"bilinear", "nearest"}
@@ -358,7 +358,7 @@ class VolumeRenderer:
     Examples
     --------
     >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-    >>> from geofit.render.raysampling import NDCMultinomialRaysampler
+    >>> from geofit.render.volume.raysampling import NDCMultinomialRaysampler
     >>> R, T = look_at_view_transform(2.7, 0.0, 0.0)
     >>> vol = Volume(np.full((8, 8, 8), 0.1), np.ones((3, 8, 8, 8)), voxel_size=0.2)
     >>> renderer = VolumeRenderer(NDCMultinomialRaysampler(image_width=16, image_height=16,
@@ -546,12 +546,7 @@ class VolumeRenderer:
             Features and opacity per ray (only the opacity, ``(B, ..., 1)``, for an
             absorption-only raymarcher or a volume without features).
         """
-        volume = self._check_volume(volume)
-        bundle = _check_bundle(ray_bundle)
-        lead = bundle.origins.shape[:-1]
-        n = bundle.lengths.shape[-1]
-        emits = isinstance(self.raymarcher, EmissionAbsorptionRaymarcher)
-        C = volume.n_features if emits else 0
+        volume, bundle, lead, n, emits, C = self._setup(volume, ray_bundle)
         out = np.empty((int(np.prod(lead)), C + 1))
         if self._use_ranges(volume):
             o, d, L = self._flat_bundle(bundle)
@@ -568,6 +563,15 @@ class VolumeRenderer:
             else:
                 out[sl] = self.raymarcher(dens.reshape(r, n), deltas)
         return out.reshape(lead + (C + 1,))
+
+    def _setup(self, volume, ray_bundle):
+        """Checked volume and bundle, the bundle's leading shape, samples per ray, whether the
+        raymarcher emits features, and their count C (0 without)."""
+        volume = self._check_volume(volume)
+        bundle = _check_bundle(ray_bundle)
+        emits = isinstance(self.raymarcher, EmissionAbsorptionRaymarcher)
+        return (volume, bundle, bundle.origins.shape[:-1], bundle.lengths.shape[-1], emits,
+                volume.n_features if emits else 0)
 
     def vjp(self, grad_images, volume: Volume, ray_bundle: RayBundle) -> VolumeGradients:
         """Gradient of ``<grad_images, render_rays(volume, ray_bundle)>`` w.r.t. the voxels.
@@ -590,12 +594,7 @@ class VolumeRenderer:
         Which voxels a sample reads is piecewise constant in the sample position; the gradient
         is with respect to the voxel values only, and is exact (the map is smooth in them).
         """
-        volume = self._check_volume(volume)
-        bundle = _check_bundle(ray_bundle)
-        lead = bundle.origins.shape[:-1]
-        n = bundle.lengths.shape[-1]
-        emits = isinstance(self.raymarcher, EmissionAbsorptionRaymarcher)
-        C = volume.n_features if emits else 0
+        volume, bundle, lead, n, emits, C = self._setup(volume, ray_bundle)
         G = as_array(grad_images, "grad_images", lead + (C + 1,)).reshape(-1, C + 1)
         g_dens = np.zeros(volume.n_voxels)
         g_feat = np.zeros((volume.n_voxels, C)) if (emits and volume.features is not None) \

@@ -21,8 +21,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, as_rng
-from ..cameras import CamerasBase, ndc_grid
+from ..._validate import as_array, as_rng
+from ...cameras import CamerasBase, ndc_grid
 
 __all__ = [
     "MonteCarloRaysampler",

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import as_array
+from ..._validate import as_array
 
 __all__ = ["AlphaCompositor", "NormWeightedCompositor", "add_background_color"]
 
@@ -173,19 +173,15 @@ class AlphaCompositor(_Compositor):
 class NormWeightedCompositor(_Compositor):
     """Normalised weighted sum (PyTorch3D's ``NormWeightedCompositor``).
 
-    ``out = sum_k w_k f_k / max(sum_k w_k, 1e-4)`` over the filled slots.
-
-    Parameters
-    ----------
-    background_color : float or (C,) or (C - 1,) float64, optional
-        Colour of pixels no point covers; None (default) leaves them 0.
+    ``out = sum_k w_k f_k / max(sum_k w_k, 1e-4)`` over the filled slots; ``background_color``
+    as :class:`AlphaCompositor`.
 
     Examples
     --------
-    >>> idx = np.array([0, 1, -1]).reshape(1, 1, 1, 3)
-    >>> w = np.array([0.5, 1.0, 0.3]).reshape(1, 1, 1, 3)
-    >>> NormWeightedCompositor()(idx, w, np.array([[1.0], [4.0]]))[0, 0, 0]
-    array([3.])
+    >>> half = np.full((1, 1, 1, 2), 0.5)
+    >>> NormWeightedCompositor()(np.array([1, 0]).reshape(half.shape), half,
+    ...                          np.array([[1.0], [4.0]]))[0, 0, 0]
+    array([2.5])
     """
 
     def _accumulate(self, idx, weights, features):

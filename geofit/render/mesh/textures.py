@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import as_array
-from ..structures.textures import TexturesBase, TexturesUV, TexturesVertex
+from ..._validate import as_array
+from ...structures.textures import TexturesBase, TexturesUV, TexturesVertex
 
 __all__ = ["TexturesFlat", "sample_texels"]
 

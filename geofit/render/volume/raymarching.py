@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array
+from ..._validate import as_array
 
 __all__ = [
     "AbsorptionOnlyRaymarcher",

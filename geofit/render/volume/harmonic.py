@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_positive
+from ..._validate import check_positive
 
 __all__ = ["HALF_PI_F32", "HarmonicEmbedding", "TutorialHarmonicEmbedding"]
 

@@ -9,59 +9,19 @@ way as RayCaster's: vertices mapped into ``[-1, 1]^3`` and robust (watertight) t
 """
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
+
+from ..._threads import get_num_threads, parallel_map
+from ...raycast.embree import EmbreeScene, _moller_trumbore
 
 # Rays per task handed to a worker thread (a few tasks per thread balance the load).
 _TASK_RAYS = 65_536
 
 
 def n_threads_default() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
-class Scene:
-    """An Embree scene over one mesh in a normalised frame (``x' = (x - center) / scale``).
-
-    Parameters
-    ----------
-    verts : (V, 3) float64
-    faces : (F, 3) int64, F >= 1
-    """
-
-    def __init__(self, verts: np.ndarray, faces: np.ndarray):
-        from embreex import mesh_construction, rtcore_scene
-
-        self.verts = verts
-        self.faces = faces
-        used = verts[faces.ravel()] if len(faces) else np.zeros((1, 3))
-        lo, hi = used.min(axis=0), used.max(axis=0)
-        self.center = 0.5 * (lo + hi)
-        half = 0.5 * float(np.max(hi - lo))
-        self.scale = half if half > 0 else 1.0
-        self.lo, self.hi = lo, hi
-        scene = rtcore_scene.EmbreeScene(robust=True)
-        v32 = np.ascontiguousarray((verts - self.center) / self.scale, dtype=np.float32)
-        mesh_construction.TriangleMesh(scene, v32, np.ascontiguousarray(faces, dtype=np.int32))
-        # One tiny query commits the scene before threads share it.
-        scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
-        self._scene = scene
-
-    def intersect(self, o: np.ndarray, d: np.ndarray):
-        """Embree first hits for float32 rays in the normalised frame -> (prim, u, v, t)."""
-        res = self._scene.run(o, d, output=1)
-        return res["primID"], res["u"], res["v"], res["tfar"]
-
-    def occluded(self, o: np.ndarray, d: np.ndarray, tfar: np.ndarray) -> np.ndarray:
-        """Whether float32 rays in the normalised frame hit anything before ``tfar``."""
-        res = self._scene.run(o, d, dists=tfar, query="OCCLUDED")
-        return np.asarray(res) >= 0
+    return get_num_threads()
 
 
 class PixelHits(NamedTuple):
@@ -166,14 +126,14 @@ def coverage_mask(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, H: int, W: i
     return np.repeat(np.repeat(tiles, _TILE, axis=0), _TILE, axis=1)[:H, :W]
 
 
-def cast_pixels(scene: Scene, pixels: np.ndarray, rays: list[ViewRays], xs: np.ndarray,
+def cast_pixels(scene: EmbreeScene, pixels: np.ndarray, rays: list[ViewRays], xs: np.ndarray,
                 ys: np.ndarray, tnear: np.ndarray, n_threads: int,
                 tnear_pixel: np.ndarray | None = None) -> PixelHits:
     """Cast the rays through the given pixel centres (float32, Embree's answer unrefined).
 
     Parameters
     ----------
-    scene : Scene
+    scene : EmbreeScene
     pixels : (r,) int64
         Sorted flat pixel indices into ``(N, H, W)``.
     rays : list of ViewRays
@@ -217,17 +177,14 @@ def cast_pixels(scene: Scene, pixels: np.ndarray, rays: list[ViewRays], xs: np.n
         tn = tn32[view] if tp32 is None else tp32[a:b]
         d = cf[:, 3] + x * cf[:, 4] + y * cf[:, 5]
         o = cf[:, 0] + x * cf[:, 1] + y * cf[:, 2] + tn[:, None] * d
-        prim, u, v, t = scene.intersect(o, d)
+        _, prim, u, v, t = scene.intersect(o, d)
         hit = np.flatnonzero(prim >= 0)
         return p[hit], prim[hit].astype(np.int64), u[hit], v[hit], t[hit] + tn[hit]
 
     if len(pixels) == 0:
         parts = []
-    elif n_threads > 1 and n_tasks > 1:
-        with ThreadPoolExecutor(n_threads) as ex:
-            parts = list(ex.map(run, range(n_tasks)))
     else:
-        parts = [run(k) for k in range(n_tasks)]
+        parts = parallel_map(run, range(n_tasks), n_threads)
     if not parts:
         return PixelHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
                          np.zeros(0))
@@ -258,11 +215,6 @@ def hit_rays(pixels: np.ndarray, rays: list[ViewRays], xs: np.ndarray, ys: np.nd
     return o, d, np.concatenate([x, y], axis=1)
 
 
-def _cross(a, b):
-    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
-
-
 def refine(o: np.ndarray, d: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray,
            bary: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Float64 Moller-Trumbore of ray ``i`` against triangle ``i``: exact ``t`` and barycentrics.
@@ -274,17 +226,8 @@ def refine(o: np.ndarray, d: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.nda
 
     Returns ``bary (r, 3)``, ``t (r,)``.
     """
-    e1 = B - A
-    e2 = C - A
-    pvec = _cross(d, e2)
-    det = np.einsum("ij,ij->i", e1, pvec)
+    tt, u, v, det = _moller_trumbore(o, d, A, B, C)
     ok = det != 0
-    inv = np.divide(1.0, np.where(ok, det, 1.0)) * ok
-    tvec = o - A
-    u = np.einsum("ij,ij->i", tvec, pvec) * inv
-    qvec = _cross(tvec, e1)
-    v = np.einsum("ij,ij->i", d, qvec) * inv
-    tt = np.einsum("ij,ij->i", e2, qvec) * inv
     w = np.stack([1.0 - u - v, u, v], axis=1)
     w = np.where(ok[:, None], w, bary)
     tt = np.where(ok, tt, t)

@@ -46,9 +46,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, check_positive
-from ..cameras import CamerasBase
-from ..structures import Mesh, Topology, as_mesh
+from ..._validate import as_array, check_positive
+from ...cameras import CamerasBase
+from ...structures import Mesh, Topology, as_mesh
 
 __all__ = ["ContourSamples", "ContourSilhouetteLoss", "contour_edges"]
 
@@ -192,7 +192,7 @@ class ContourSilhouetteLoss:
         self.image_size = (H, W)
 
     def _masks(self, mesh: Mesh) -> np.ndarray:
-        from .mesh import MeshRasterizer, RasterizationSettings
+        from ..mesh.rasterizer import MeshRasterizer, RasterizationSettings
 
         ras = MeshRasterizer(self.cameras, RasterizationSettings(image_size=self.image_size))
         return ras(mesh).mask

@@ -1,39 +1,32 @@
-"""Mesh rendering by Embree ray casting, with PyTorch3D's renderer API.
+"""The hard mesh rasterizer: Embree ray casting with PyTorch3D's rasterizer API.
 
-``MeshRenderer(rasterizer=MeshRasterizer(cameras, RasterizationSettings(...)),
-shader=SoftPhongShader(cameras, lights))`` renders a mesh, a batch of meshes, or one mesh seen by
-``N`` cameras; ``renderer(mesh, cameras=..., lights=..., materials=...)`` overrides the stored
-objects for one call, as in PyTorch3D.
+:class:`MeshRasterizer` turns meshes seen by cameras into :class:`Fragments`; the renderers that
+pair it with a shader are in :mod:`geofit.render.mesh.renderer`.
 
 The "rasterizer" casts one ray per pixel centre (PyTorch3D's pixel centres, NDC +X left, +Y up,
-row 0 at the top) from the camera through the scene, all rays of all views in one threaded
-Embree call, and keeps the first hit: the face PyTorch3D keeps with ``faces_per_pixel=1`` and
-``blur_radius=0``. A ray hit gives the *perspective-correct* barycentrics of the hit point
-exactly, and the view depth is the ray parameter (ray directions have view-space z = 1). Hits
-are refined in float64.
+row 0 at the top) from the camera through the scene, all rays of all views together, in
+chunks spread over geofit's threads (a few Embree calls per thread), and keeps the first hit:
+the face PyTorch3D keeps with ``faces_per_pixel=1`` and ``blur_radius=0``. A ray hit gives the
+*perspective-correct* barycentrics of the hit point exactly, and the view depth is the ray
+parameter (ray directions have view-space z = 1). Hits are refined in float64.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 
-from .._validate import check_positive
-from ..cameras import CamerasBase, ndc_grid
-from ..structures import Mesh, Meshes, as_meshes
+from ..._threads import parallel_map
+from ..._validate import check_positive
+from ...cameras import CamerasBase, ndc_grid
+from ...raycast.embree import EmbreeScene
+from ...structures import Mesh, Meshes, as_meshes
 from . import _raycast
-from ._settings import image_hw
+from .._settings import image_hw
 
-__all__ = [
-    "Fragments",
-    "MeshRasterizer",
-    "MeshRenderer",
-    "MeshRendererWithFragments",
-    "RasterizationSettings",
-]
+__all__ = ["Fragments", "MeshRasterizer", "RasterizationSettings"]
 
 
 # ------------------------------------------------------------------------------------------
@@ -212,10 +205,7 @@ class Fragments:
         """``[fn(sl) for sl in chunks]``, run on the worker threads."""
         parts = self._chunks()
         n = self._ctx.get("n_threads", 1)
-        if len(parts) == 1 or n == 1:
-            return [fn(p) for p in parts]
-        with ThreadPoolExecutor(n) as ex:
-            return list(ex.map(fn, parts))
+        return parallel_map(fn, parts, n)
 
     def _interp(self, table: np.ndarray, sl: slice, bary: np.ndarray | None = None) -> np.ndarray:
         """(C, len) barycentric interpolation of a (C, sum V) per-vertex table over hits ``sl``."""
@@ -449,13 +439,13 @@ class MeshRasterizer:
     def __init__(self, cameras=None, raster_settings: RasterizationSettings | None = None):
         self.cameras = cameras
         self.raster_settings = raster_settings or RasterizationSettings()
-        self._scenes: list[tuple[np.ndarray, np.ndarray, _raycast.Scene]] = []
+        self._scenes: list[tuple[np.ndarray, np.ndarray, EmbreeScene]] = []
 
-    def _scene(self, mesh: Mesh) -> _raycast.Scene:
+    def _scene(self, mesh: Mesh) -> EmbreeScene:
         for v, f, sc in self._scenes:
             if v is mesh.verts and f is mesh.faces:
                 return sc
-        sc = _raycast.Scene(mesh.verts, mesh.faces)
+        sc = EmbreeScene([(mesh.verts, mesh.faces)])
         self._scenes.insert(0, (mesh.verts, mesh.faces, sc))
         del self._scenes[self._CACHE_SIZE:]
         return sc
@@ -696,76 +686,5 @@ def _refine_threaded(hits, vtri, xy_packed, z_packed, perspective, pc, rays, xs,
         sub = _raycast.PixelHits(hits.pixel[sl], hits.face[sl], hits.bary[sl], hits.depth[sl])
         return _refine(sub, vtri[sl], xy_packed, z_packed, perspective, pc, rays, xs, ys, mesh)
 
-    with ThreadPoolExecutor(n_threads) as ex:
-        parts = list(ex.map(run, range(m)))
+    parts = parallel_map(run, range(m), n_threads)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
-
-
-# ------------------------------------------------------------------------------------------
-# Renderers
-# ------------------------------------------------------------------------------------------
-
-
-def downsample(images: np.ndarray, factor: int) -> np.ndarray:
-    """Box-filter (N, sH, sW, C) images down to (N, H, W, C)."""
-    if factor == 1:
-        return images
-    N, H, W, C = images.shape
-    s = factor
-    return images.reshape(N, H // s, s, W // s, s, C).mean(axis=(2, 4), dtype=np.float32)
-
-
-class MeshRenderer:
-    """Rasterizer plus shader: ``images = renderer(meshes, **kwargs)`` (PyTorch3D's class).
-
-    Parameters
-    ----------
-    rasterizer : MeshRasterizer
-    shader : a shader from :mod:`geofit.render.shading` (e.g. SoftPhongShader)
-
-    Notes
-    -----
-    Keyword arguments of the call go to both: ``cameras=`` and ``raster_settings=`` to the
-    rasterizer, ``cameras=``, ``lights=``, ``materials=`` and ``blend_params=`` to the shader,
-    overriding the stored objects for that call only.
-    """
-
-    def __init__(self, rasterizer: MeshRasterizer, shader):
-        if not isinstance(rasterizer, MeshRasterizer):
-            raise TypeError(f"rasterizer: expected a MeshRasterizer, got {type(rasterizer)!r}")
-        if not callable(shader):
-            raise TypeError(f"shader: expected a shader, got {type(shader)!r}")
-        self.rasterizer = rasterizer
-        self.shader = shader
-
-    def _render(self, meshes, **kwargs):
-        fragments = self.rasterizer(meshes, **kwargs)
-        images = self.shader(fragments, fragments.meshes, **kwargs)
-        return downsample(images, fragments.supersample), fragments
-
-    def __call__(self, meshes, **kwargs) -> np.ndarray:
-        """Render.
-
-        Parameters
-        ----------
-        meshes : Mesh, Meshes or list of Mesh
-        **kwargs
-            Overrides for this call (see the class notes).
-
-        Returns
-        -------
-        images : (N, H, W, 4) float32
-            RGBA in [0, 1]; row 0 is the top of the picture, column 0 its left.
-        """
-        return self._render(meshes, **kwargs)[0]
-
-
-class MeshRendererWithFragments(MeshRenderer):
-    """A MeshRenderer that also returns the fragments: ``images, fragments = renderer(mesh)``.
-
-    The fragments give face ids, depth and normal images for free (see :class:`Fragments`);
-    with ``supersample > 1`` they are at the supersampled size.
-    """
-
-    def __call__(self, meshes, **kwargs) -> tuple[np.ndarray, Fragments]:
-        return self._render(meshes, **kwargs)

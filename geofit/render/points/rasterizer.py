@@ -26,15 +26,15 @@ from __future__ import annotations
 
 import itertools
 import numbers
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, check_choice
-from ..cameras import CamerasBase
-from ..structures.pointcloud import Pointclouds, as_pointclouds
+from ..._threads import get_num_threads, parallel_map
+from ..._validate import as_array, check_choice
+from ...cameras import CamerasBase
+from ...structures.pointcloud import Pointclouds, as_pointclouds
 from .compositing import AlphaCompositor, NormWeightedCompositor
 
 __all__ = [
@@ -52,7 +52,6 @@ _CHUNK_CANDIDATES = 1 << 22
 # Slack, in pixels, when bounding a disc by pixel centres: the exact distance test decides.
 _BOX_SLACK = 1e-7
 # Threads (row bands of the image) for large clouds; numpy releases the GIL in the heavy steps.
-_THREADS = 2
 _THREAD_MIN_POINTS = 50_000
 
 
@@ -344,14 +343,11 @@ def _rasterize(xy, z, radius, image_index, n_images, image_size, K):
             filled[group_pix] = np.minimum(before + size, K)
 
     if len(sel):
-        n_bands = _THREADS if len(sel) >= _THREAD_MIN_POINTS and H >= 2 * _THREADS else 1
+        n_threads = get_num_threads()
+        n_bands = n_threads if len(sel) >= _THREAD_MIN_POINTS and H >= 2 * n_threads else 1
         edges = np.linspace(0, H, n_bands + 1).round().astype(int)
         bands = list(itertools.pairwise(edges.tolist()))
-        if n_bands == 1:
-            band_job(bands[0])
-        else:
-            with ThreadPoolExecutor(n_bands) as pool:   # numpy releases the GIL
-                list(pool.map(band_job, bands))
+        parallel_map(band_job, bands, n_bands)   # numpy releases the GIL
     shape = (n_images, H, W, K)
     entry_out = entry_out.reshape(shape)
     valid = entry_out >= 0
@@ -507,12 +503,8 @@ class PointsRasterizer:
 
         Parameters
         ----------
-        point_clouds : PointCloud or Pointclouds
-            The clouds (their points must be finite; ``PointCloud`` checks this).
-        cameras : CamerasBase, optional
-            Overrides the rasterizer's cameras.
-        raster_settings : PointsRasterizationSettings, optional
-            Overrides the rasterizer's settings.
+        point_clouds, cameras, raster_settings
+            As :meth:`transform` (the points must be finite; ``PointCloud`` checks this).
 
         Returns
         -------

@@ -1,0 +1,49 @@
+"""Meshes: hard rendering by Embree ray casting with PyTorch3D's rasterizer and shader API.
+
+- :mod:`.rasterizer`: :class:`MeshRasterizer` (one ray per pixel centre, every view in one
+  threaded cast; K = 1), :class:`Fragments`, :class:`RasterizationSettings`.
+- :mod:`.renderer`: :class:`MeshRenderer`, :class:`MeshRendererWithFragments`.
+- :mod:`.shading`: the shaders (:class:`HardPhongShader`, :class:`SoftPhongShader`, Gouraud,
+  flat) and PyTorch3D's shading functions; hard shadows by shadow rays.
+- :mod:`.textures`: texture sampling at the hits (:class:`TexturesFlat`, :func:`sample_texels`).
+- :mod:`._raycast`: the pixel rays, cast against :class:`geofit.raycast.EmbreeScene`.
+
+The differentiable (soft) mesh renderer is :mod:`geofit.render.soft`.
+"""
+from .rasterizer import Fragments, MeshRasterizer, RasterizationSettings
+from .renderer import MeshRenderer, MeshRendererWithFragments
+from .shading import (
+    HardFlatShader,
+    HardGouraudShader,
+    HardPhongShader,
+    SoftGouraudShader,
+    SoftPhongShader,
+    apply_lighting,
+    flat_shading,
+    gouraud_shading,
+    phong_shading,
+    sample_textures,
+    shadow_visibility,
+)
+from .textures import TexturesFlat, sample_texels
+
+__all__ = [
+    "Fragments",
+    "HardFlatShader",
+    "HardGouraudShader",
+    "HardPhongShader",
+    "MeshRasterizer",
+    "MeshRenderer",
+    "MeshRendererWithFragments",
+    "RasterizationSettings",
+    "SoftGouraudShader",
+    "SoftPhongShader",
+    "TexturesFlat",
+    "apply_lighting",
+    "flat_shading",
+    "gouraud_shading",
+    "phong_shading",
+    "sample_textures",
+    "sample_texels",
+    "shadow_visibility",
+]

@@ -1,0 +1,432 @@
+"""The soft rasterizer: PyTorch3D's CPU mesh rasterizer with a blur radius and K faces.
+
+:func:`rasterize_soft` finds, for every pixel, the ``K`` faces nearest in view depth among
+those whose projected triangle contains the pixel centre or lies within
+``sqrt(blur_radius)`` of it (PyTorch3D's ``rasterize_meshes_cpu.cpp``), without a dense
+pixels-by-faces array: (face, pixel) candidate pairs from the faces' NDC bounding boxes,
+in chunks of at most ``max_pairs``, tested exactly, sorted per pixel by depth (then face
+index) and cut at ``K``. See :mod:`geofit.render.soft` for what is differentiable.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..._validate import check_positive
+from ...cameras import CamerasBase
+from ...structures import Mesh
+from .._settings import image_hw
+from .fragments import SoftFragments, _EPS, _map_views, _n_threads
+
+__all__ = [
+    "TUTORIAL_BLUR_RADIUS",
+    "SoftRasterizationSettings",
+    "rasterize_soft",
+]
+
+#: The tutorial's blur radius ``log(1 / 1e-4 - 1) * 1e-4``: the squared NDC distance at which
+#: ``sigmoid(-d / sigma)`` falls to 1e-4 for ``sigma = 1e-4`` (about 2 px at 128 px).
+TUTORIAL_BLUR_RADIUS = math.log(1.0 / 1e-4 - 1.0) * 1e-4
+
+
+# ------------------------------------------------------------------------------------------
+# Settings
+# ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SoftRasterizationSettings:
+    """Settings of the soft rasterizer (PyTorch3D's ``RasterizationSettings`` with blur).
+
+    Parameters
+    ----------
+    image_size : int or (H, W)
+        As :class:`geofit.render.RasterizationSettings` (square for an int).
+    blur_radius : float
+        Squared NDC distance: a face is kept for a pixel outside it when the squared distance
+        from the pixel centre to the projected triangle is below this. 0 keeps only faces whose
+        interior contains the pixel centre. The tutorial uses :data:`TUTORIAL_BLUR_RADIUS`.
+    faces_per_pixel : int
+        ``K``: at most this many faces per pixel, the nearest in view depth.
+    perspective_correct : bool or None
+        Perspective-correct barycentrics. None means True for perspective cameras (PyTorch3D).
+    clip_barycentric_coords : bool or None
+        Clamp negative barycentrics to 0 and renormalise (affects ``bary_coords`` and ``zbuf``).
+        None means ``blur_radius > 0`` (PyTorch3D).
+    cull_backfaces : bool
+        Skip faces whose projected winding is clockwise (negative signed area).
+    z_clip_value : float or None
+        Faces with a vertex at view depth below this are dropped. None means ``znear / 2`` when
+        perspective-correct, else none (every face with all depths >= 1e-8 is used), as
+        PyTorch3D's default, except that PyTorch3D clips crossing faces instead of dropping them.
+    max_pairs : int
+        Largest number of (face, pixel) candidate pairs tested at once per thread; bounds the
+        memory (about 0.2 kB per pair in flight).
+    n_threads : int or None
+        Threads over views (default: :func:`geofit.get_num_threads`).
+
+    Examples
+    --------
+    >>> s = SoftRasterizationSettings.tutorial(64)
+    >>> s.image_size, s.faces_per_pixel, round(s.blur_radius, 7)
+    ((64, 64), 50, 0.000921)
+    """
+
+    image_size: Any = 256
+    blur_radius: float = 0.0
+    faces_per_pixel: int = 1
+    perspective_correct: bool | None = None
+    clip_barycentric_coords: bool | None = None
+    cull_backfaces: bool = False
+    z_clip_value: float | None = None
+    max_pairs: int = 250_000
+    n_threads: int | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "image_size", image_hw(self.image_size))
+        object.__setattr__(self, "blur_radius",
+                           check_positive(self.blur_radius, "blur_radius", strict=False))
+        k = self.faces_per_pixel
+        if not isinstance(k, (int, np.integer)) or isinstance(k, (bool, np.bool_)) or k < 1:
+            raise ValueError(f"faces_per_pixel: expected an integer >= 1, got {k!r}")
+        for name in ("perspective_correct", "clip_barycentric_coords"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, (bool, np.bool_)):
+                raise ValueError(f"{name}: expected None, True or False, got {v!r}")
+        if not isinstance(self.cull_backfaces, (bool, np.bool_)):
+            raise ValueError(  # noqa: TRY004 - a bad setting value, as RasterizationSettings
+                f"cull_backfaces: expected True or False, got {self.cull_backfaces!r}")
+        if self.z_clip_value is not None:
+            object.__setattr__(self, "z_clip_value",
+                               check_positive(self.z_clip_value, "z_clip_value", strict=False))
+        m = self.max_pairs
+        if not isinstance(m, (int, np.integer)) or isinstance(m, (bool, np.bool_)) or m < 1:
+            raise ValueError(f"max_pairs: expected an integer >= 1, got {m!r}")
+        t = self.n_threads
+        if t is not None and (not isinstance(t, (int, np.integer)) or isinstance(t, bool)
+                              or t < 1):
+            raise ValueError(f"n_threads: expected None or an integer >= 1, got {t!r}")
+
+    @classmethod
+    def tutorial(cls, image_size=128, **kwargs) -> SoftRasterizationSettings:
+        """The fit_textured_mesh tutorial's soft settings: blur 9.21e-4, 50 faces per pixel."""
+        kwargs.setdefault("blur_radius", TUTORIAL_BLUR_RADIUS)
+        kwargs.setdefault("faces_per_pixel", 50)
+        return cls(image_size=image_size, **kwargs)
+
+
+# ------------------------------------------------------------------------------------------
+# Rasterizer
+# ------------------------------------------------------------------------------------------
+
+
+def _check_mesh(mesh) -> Mesh:
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
+    return mesh
+
+
+def _check_cameras(cameras) -> CamerasBase:
+    if not isinstance(cameras, CamerasBase):
+        raise TypeError(f"cameras: expected a geofit camera batch, got {type(cameras)!r}")
+    return cameras
+
+
+def _check_settings(settings) -> SoftRasterizationSettings:
+    if settings is None:
+        return SoftRasterizationSettings()
+    if not isinstance(settings, SoftRasterizationSettings):
+        raise TypeError(f"raster_settings: expected SoftRasterizationSettings, got "
+                        f"{type(settings)!r}")
+    return settings
+
+
+def _pixel_centres(H: int, W: int):
+    S = min(H, W)
+    px = (W - 1 - 2 * np.arange(W, dtype=np.float64)) / S
+    py = (H - 1 - 2 * np.arange(H, dtype=np.float64)) / S
+    return px, py
+
+
+def _seg_sqdist(qx, qy, ax, ay, dx, dy, inv_l2, degenerate):
+    """Squared distance from q to segment a + t d (PyTorch3D's PointLineDistanceForward).
+
+    ``inv_l2 = 1 / |d|^2`` (0 for a degenerate segment) and ``degenerate`` (0/1): a degenerate
+    segment (``|d|^2 <= 1e-8``) gives the distance to its second end ``a + d`` (t = 1).
+    """
+    rx = qx - ax
+    ry = qy - ay
+    t = np.clip((rx * dx + ry * dy) * inv_l2 + degenerate, 0.0, 1.0)
+    ex = rx - t * dx
+    ey = ry - t * dy
+    return ex * ex + ey * ey
+
+
+_TEMP_FLOATS_PER_PAIR = 24  # float64 temporaries alive per candidate pair (rough count)
+
+
+def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, clip, cull,
+                    zclip, max_pairs):
+    """Kept entries of one view: (face, pixel, signed dist, edge, inside) and its stats."""
+    stats = {"candidates": 0, "peak_pairs": 0, "max_faces_per_pixel": 0, "truncated_pixels": 0}
+    S = min(H, W)
+    x0, x1, x2 = (np.ascontiguousarray(a) for a in x[faces].T)
+    y0, y1, y2 = (np.ascontiguousarray(a) for a in y[faces].T)
+    zf = z[faces]
+    area = (x2 - x0) * (y1 - y0) - (y2 - y0) * (x1 - x0)  # EF(p2; p0, p1) = EF(p0; p1, p2)
+    ok = (np.abs(area) > _EPS) & (np.abs(area + _EPS) > 1e-12)
+    ok &= zf.min(1) >= max(zclip, _EPS)
+    ok &= np.isfinite(x0 + x1 + x2 + y0 + y1 + y2)
+    if cull:
+        ok &= area >= 0.0
+    fids = np.flatnonzero(ok)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int8),
+             np.zeros(0, bool))
+    if fids.size == 0:
+        return empty, stats
+    r = math.sqrt(blur)
+    X = np.stack([x0[fids], x1[fids], x2[fids]], 1)
+    Y = np.stack([y0[fids], y1[fids], y2[fids]], 1)
+    tol = 1e-9
+    # column i sits at x = (W - 1 - 2 i) / S, row j at y = (H - 1 - 2 j) / S
+    i_lo = np.maximum(np.ceil((W - 1 - (X.max(1) + r) * S) / 2 - tol), 0).astype(np.int64)
+    i_hi = np.minimum(np.floor((W - 1 - (X.min(1) - r) * S) / 2 + tol), W - 1).astype(np.int64)
+    j_lo = np.maximum(np.ceil((H - 1 - (Y.max(1) + r) * S) / 2 - tol), 0).astype(np.int64)
+    j_hi = np.minimum(np.floor((H - 1 - (Y.min(1) - r) * S) / 2 + tol), H - 1).astype(np.int64)
+    nx = np.maximum(i_hi - i_lo + 1, 0)
+    ny = np.maximum(j_hi - j_lo + 1, 0)
+    counts = nx * ny
+    nz = counts > 0
+    fids, i_lo, j_lo, nx, counts = fids[nz], i_lo[nz], j_lo[nz], nx[nz], counts[nz]
+    if fids.size == 0:
+        return empty, stats
+    stats["candidates"] = int(counts.sum())
+    # Per-face constants (indexed by position in fids). Edge lines scaled to signed distances,
+    # positive inside: s_i = a_i qx + b_i qy + c_i, edge i opposite corner i.
+    X0, X1, X2 = x0[fids], x1[fids], x2[fids]
+    Y0, Y1, Y2 = y0[fids], y1[fids], y2[fids]
+    sgn = np.sign(area[fids])
+    lines = []
+    for (xa, ya, xb, yb) in ((X1, Y1, X2, Y2), (X2, Y2, X0, Y0), (X0, Y0, X1, Y1)):
+        a, b = yb - ya, -(xb - xa)
+        inv = sgn / np.sqrt(a * a + b * b)
+        lines.append((a * inv, b * inv, -(xa * a + ya * b) * inv))
+    segs = []  # (ax, ay, dx, dy, inv_l2, degenerate) for edges (0,1), (0,2), (1,2)
+    for (xa, ya, xb, yb) in ((X0, Y0, X1, Y1), (X0, Y0, X2, Y2), (X1, Y1, X2, Y2)):
+        dx, dy = xb - xa, yb - ya
+        l2 = dx * dx + dy * dy
+        deg = (l2 <= _EPS).astype(np.float64)
+        segs.append((xa, ya, dx, dy, np.where(deg > 0, 0.0, 1.0 / np.where(deg > 0, 1.0, l2)),
+                     deg))
+    degface = (segs[0][5] + segs[1][5] + segs[2][5]) > 0
+    if not clip:
+        Zc = zf[fids]
+        if perspective_correct:
+            zz = (Zc[:, 1] * Zc[:, 2], Zc[:, 0] * Zc[:, 2], Zc[:, 0] * Zc[:, 1])
+        Aeps = area[fids] + _EPS
+    cut = -r - 1e-12
+    parts = []
+    cum = np.cumsum(counts)
+    start = 0
+    while start < len(fids):  # chunks of faces (bounded memory)
+        base = int(cum[start - 1]) if start else 0
+        stop = max(int(np.searchsorted(cum, base + max_pairs, side="right")), start + 1)
+        cc = counts[start:stop]
+        n_pairs = int(cc.sum())
+        stats["peak_pairs"] = max(stats["peak_pairs"], n_pairs)
+        loc = np.repeat(np.arange(start, stop), cc)  # position in fids
+        off = np.arange(n_pairs, dtype=np.int64) - np.repeat(np.cumsum(cc) - cc, cc)
+        nxl = nx[loc]
+        col = i_lo[loc] + off % nxl
+        row = j_lo[loc] + off // nxl
+        del off, nxl
+        qx = px[col]
+        qy = py[row]
+        # stage 1: signed distances to the three edge lines; a pair whose pixel lies beyond
+        # sqrt(blur) outside one of them is farther than sqrt(blur) from the triangle
+        sl = [a[loc] * qx + b[loc] * qy + c[loc] for a, b, c in lines]
+        s_min = np.minimum(np.minimum(sl[0], sl[1]), sl[2])
+        live = np.flatnonzero(s_min > cut)
+        loc, col, row, qx, qy, s_min = (v[live] for v in (loc, col, row, qx, qy, s_min))
+        sl = [v[live] for v in sl]
+        # stage 2: exact squared distance to the triangle (the nearest of the three segments,
+        # PyTorch3D's order e01, e02, e12 on ties). Inside a triangle the nearest segment point
+        # is the foot on the nearest edge line, so there it is (min_i s_i)^2 (faces with a
+        # degenerate edge, whose distance PyTorch3D takes to an end point, excepted).
+        inside = s_min > 0.0
+        gen = np.flatnonzero(~inside | degface[loc])
+        fast = np.flatnonzero(inside & ~degface[loc])
+        n_live = len(loc)
+        dist = np.empty(n_live)
+        edge = np.empty(n_live, np.int8)
+        # edge e01 is line 2 (opposite corner 2), e02 line 1, e12 line 0
+        d0, d1, d2 = sl[2][fast], sl[1][fast], sl[0][fast]
+        use01 = (d0 <= d1) & (d0 <= d2)
+        use02 = ~use01 & (d1 <= d2)
+        dmin = np.where(use01, d0, np.where(use02, d1, d2))
+        dist[fast] = dmin * dmin
+        edge[fast] = np.where(use01, 0, np.where(use02, 1, 2))
+        if gen.size:
+            lg = loc[gen]
+            d = [_seg_sqdist(qx[gen], qy[gen], ax[lg], ay[lg], dx[lg], dy[lg], il[lg], dg[lg])
+                 for ax, ay, dx, dy, il, dg in segs]
+            use01 = (d[0] <= d[1]) & (d[0] <= d[2])
+            use02 = ~use01 & (d[1] <= d[2])
+            dist[gen] = np.where(use01, d[0], np.where(use02, d[1], d[2]))
+            edge[gen] = np.where(use01, 0, np.where(use02, 1, 2))
+        keep = inside | (dist < blur)
+        if not clip:  # unclipped barycentrics can put an outside pixel behind the camera
+            raw = [_edge_function(i, qx, qy, X0[loc], Y0[loc], X1[loc], Y1[loc], X2[loc],
+                                  Y2[loc]) / Aeps[loc] for i in range(3)]
+            if perspective_correct:
+                top = [raw[i] * zz[i][loc] for i in range(3)]
+                den = np.maximum(top[0] + top[1] + top[2], _EPS)
+                raw = [t / den for t in top]
+            pz = raw[0] * Zc[loc, 0] + raw[1] * Zc[loc, 1] + raw[2] * Zc[loc, 2]
+            keep &= pz >= 0.0
+        sel = np.flatnonzero(keep)
+        parts.append((fids[loc[sel]], row[sel] * W + col[sel],
+                      np.where(inside[sel], -dist[sel], dist[sel]), edge[sel], inside[sel]))
+        start = stop
+    f, pix, sd, edge, inside = (np.concatenate(c) for c in zip(*parts))
+    n = len(f)
+    if n:
+        cnt = np.bincount(pix, minlength=H * W)
+        stats["max_faces_per_pixel"] = int(cnt.max())
+        over = cnt > K
+        stats["truncated_pixels"] = int(np.count_nonzero(over))
+        if stats["truncated_pixels"]:
+            f, pix, sd, edge, inside = _truncate(f, pix, sd, edge, inside, over[pix], x, y, z,
+                                                 faces, px, py, W, K, perspective_correct,
+                                                 clip)
+    return (f, pix, sd, edge, inside), stats
+
+
+def _edge_function(i, qx, qy, x0, y0, x1, y1, x2, y2):
+    """PyTorch3D's e_i: EF(q; p1, p2), EF(q; p2, p0) or EF(q; p0, p1)."""
+    if i == 0:
+        return (qx - x1) * (y2 - y1) - (qy - y1) * (x2 - x1)
+    if i == 1:
+        return (qx - x2) * (y0 - y2) - (qy - y2) * (x0 - x2)
+    return (qx - x0) * (y1 - y0) - (qy - y0) * (x1 - x0)
+
+
+def _truncate(f, pix, sd, edge, inside, crowded, x, y, z, faces, px, py, W, K,
+              perspective_correct, clip):
+    """Keep the K nearest entries (in view depth, ties by face) of the pixels with more."""
+    sel = np.flatnonzero(crowded)
+    tmp = SoftFragments(1, (len(py), W), K, np.zeros(len(sel), np.int64), pix[sel], f[sel],
+                        sd[sel], np.array([0, len(sel)]), {}, edge[sel], inside[sel],
+                        {"faces": faces, "x": x[None], "y": y[None], "z": z[None], "px": px,
+                         "py": py, "perspective_correct": perspective_correct, "clip": clip})
+    drop = sel[tmp.k >= K]
+    keep = np.ones(len(f), bool)
+    keep[drop] = False
+    return f[keep], pix[keep], sd[keep], edge[keep], inside[keep]
+
+
+def rasterize_soft(mesh: Mesh, cameras: CamerasBase,
+                   raster_settings: SoftRasterizationSettings | None = None) -> SoftFragments:
+    """Soft-rasterize one mesh seen by a batch of cameras (PyTorch3D's CPU rasterizer).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        ``V`` vertices, ``F`` faces; rendered in every view.
+    cameras : FoVPerspectiveCameras or FoVOrthographicCameras
+        ``N`` cameras.
+    raster_settings : SoftRasterizationSettings, optional
+        Default ``SoftRasterizationSettings()`` (PyTorch3D's defaults: 256 px, blur 0, K = 1).
+
+    Returns
+    -------
+    SoftFragments
+        ``fragments.pix_to_face[n, j, i, k]`` is the face of the ``k``-th nearest entry at row
+        ``j``, column ``i`` of view ``n`` (-1 if fewer faces), as PyTorch3D's ``Fragments``
+        (but face indices are local to the mesh, not packed over views).
+
+    Notes
+    -----
+    Per pixel centre ``q`` and face with projected corners ``p0, p1, p2`` (NDC x, y) and view
+    depths ``z0, z1, z2``, as ``rasterize_meshes_cpu.cpp``:
+
+    - faces with ``|area| <= 1e-8`` (NDC units, ``area`` = twice the signed area) or a depth
+      below the clip depth (and below 1e-8) are skipped, back faces too if ``cull_backfaces``;
+    - barycentrics ``b_i = e_i(q) / (area + 1e-8)`` from the edge functions, perspective-corrected
+      (``b_i z_j z_k`` normalised, denominator clamped at 1e-8) when asked;
+    - ``inside`` means every ``b_i > 0``; ``dist`` is the squared distance to the nearest edge
+      segment, negated inside; a face with the pixel outside is kept only if
+      ``dist < blur_radius``;
+    - clipped barycentrics (``max(b, 0)``, renormalised with the sum floored at 1e-5) give the
+      depth ``zbuf = sum b_i z_i``; entries with ``zbuf < 0`` are dropped (possible only without
+      clipping);
+    - the ``K`` entries of smallest depth are kept (ties: smaller face index first).
+
+    Candidates come from each face's pixel rectangle (its NDC bounding box grown by
+    ``sqrt(blur_radius)``); a candidate more than ``sqrt(blur_radius)`` outside one of the
+    triangle's edge lines is rejected before the exact segment distances are computed. Views are
+    processed in parallel threads.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from geofit import FoVPerspectiveCameras, ico_sphere, look_at_view_transform
+    >>> R, T = look_at_view_transform(2.7, 0.0, 0.0)
+    >>> cams = FoVPerspectiveCameras(R=R, T=T)
+    >>> fr = rasterize_soft(ico_sphere(2), cams, SoftRasterizationSettings.tutorial(32))
+    >>> fr.pix_to_face.shape, bool((fr.dists[fr.pix_to_face >= 0] < 9.3e-4).all())
+    ((1, 32, 32, 50), True)
+    """
+    mesh = _check_mesh(mesh)
+    cameras = _check_cameras(cameras)
+    s = _check_settings(raster_settings)
+    H, W = s.image_size
+    K = int(s.faces_per_pixel)
+    persp = cameras.is_perspective() if s.perspective_correct is None else bool(
+        s.perspective_correct)
+    clip = (s.blur_radius > 0.0) if s.clip_barycentric_coords is None else bool(
+        s.clip_barycentric_coords)
+    if s.z_clip_value is not None:
+        zclip = s.z_clip_value
+    elif persp and cameras.is_perspective():
+        zclip = float(np.min(cameras.znear)) / 2.0
+    else:
+        zclip = 0.0
+    verts = mesh.verts
+    faces = mesh.faces
+    N = len(cameras)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        proj = cameras.projection_jacobian(verts)
+    xy = proj.xy
+    # a vertex on the camera plane has an infinite Jacobian; its faces are never kept
+    J = np.where(np.isfinite(proj.jacobian), proj.jacobian, 0.0)
+    x = np.ascontiguousarray(xy[..., 0])
+    y = np.ascontiguousarray(xy[..., 1])
+    zview = np.einsum("va,na->nv", verts, cameras.R[:, :, 2]) + cameras.T[:, None, 2]
+    px, py = _pixel_centres(H, W)
+    threads = _n_threads(s.n_threads)
+
+    def one(n):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return _rasterize_view(x[n], y[n], zview[n], faces, H, W, px, py, s.blur_radius, K,
+                                   persp, clip, s.cull_backfaces, zclip, int(s.max_pairs))
+
+    results = _map_views(one, N, threads)
+    cols = [r[0] for r in results]
+    counts = [len(c[0]) for c in cols]
+    f, pix, sd, edge, inside = (np.concatenate(c) for c in zip(*cols))
+    stats = {"candidates": sum(r[1]["candidates"] for r in results), "entries": len(f),
+             "peak_pairs": max(r[1]["peak_pairs"] for r in results),
+             "max_faces_per_pixel": max(r[1]["max_faces_per_pixel"] for r in results),
+             "truncated_pixels": sum(r[1]["truncated_pixels"] for r in results)}
+    stats["peak_bytes_estimate"] = int(stats["peak_pairs"] * _TEMP_FLOATS_PER_PAIR * 8
+                                       * min(threads, N))
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    view = np.repeat(np.arange(N, dtype=np.int64), counts)
+    ctx = {"n_verts": mesh.n_verts, "faces": faces, "x": x, "y": y, "z": zview, "J": J,
+           "R": cameras.R, "px": px, "py": py, "perspective_correct": persp, "clip": clip,
+           "zclip": zclip, "blur_radius": s.blur_radius, "n_threads": threads}
+    return SoftFragments(N, (H, W), K, view, pix, f, sd, offsets, stats, edge, inside, ctx)

@@ -1,0 +1,374 @@
+"""What the tutorial steps share: the result types, the report helpers, the cow renders."""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validate import check_choice
+from ..fit.history import FitHistory, _json_safe
+from ..viz import Series, image_panel, save_png
+
+__all__ = ["SIZES", "StepResult", "TutorialsRun"]
+
+
+#: Run sizes: test-sized, the reduced default, the tutorials' own.
+SIZES = ("tiny", "default", "full")
+
+# the two columns of the report's summary table
+_P3D = "PyTorch3D's recipe (run by geofit)"
+_GF = "geofit's method"
+
+
+# --------------------------------------------------------------------------------------------
+# Results
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class StepResult:
+    """What one workflow produced: images, numbers, model sizes, stability, files.
+
+    Attributes
+    ----------
+    name : str
+        Step key (``"fit_mesh"``, ...).
+    title : str
+        Heading of its report section.
+    tutorial : str
+        The PyTorch3D tutorial it reproduces.
+    status : str
+        ``"ok"`` or ``"failed: <exception>: <message>"``.
+    seconds : float
+        Wall time of the whole step (set-up, fits, evaluation, figures).
+    size : str
+        One of :data:`SIZES`.
+    description : str
+        One paragraph: what was run and how it was measured.
+    config : dict
+        The step's settings (image sizes, views, iterations, ...).
+    images : dict str -> Path
+        Result images (PNG), by label.
+    targets : dict str -> Path
+        Target / reference images (PNG), by label.
+    comparison : Path or None
+        One PNG with the targets next to the results.
+    comparison_caption : str
+        Its caption.
+    charts : dict str -> Path
+        Charts (PNG) by caption: the speed-accuracy chart first.
+    metrics : list of dict
+        One row per method: status, seconds, accuracy.
+    param_counts : list of dict
+        One row per method: the free parameters of its model (or the scene size of a render).
+    stability : list of dict
+        One row per (method, failure case): the outcome (``converged``, ``stopped: <status>``,
+        ``ok``, or ``failed: <exception>: <message>``) and what came out.
+    methods : list of dict
+        One benchmark-style record per method (``name``, ``label``, ``status``, ``message``,
+        ``config``, ``final``, ``curve`` with ``seconds`` and one list per metric).
+    histories : dict str -> FitHistory
+        The fits' histories, by method.
+    files : dict str -> Path
+        Other outputs: meshes (OBJ), volumes (npz), histories (JSON).
+    headline : dict
+        Short summary cells for the report's overview table.
+    notes : list of str
+        Remarks (data used, what was not run and why).
+    """
+
+    name: str
+    title: str
+    tutorial: str
+    status: str = "ok"
+    seconds: float = 0.0
+    size: str = "default"
+    description: str = ""
+    config: dict = field(default_factory=dict)
+    images: dict = field(default_factory=dict)
+    targets: dict = field(default_factory=dict)
+    comparison: Path | None = None
+    comparison_caption: str = ""
+    charts: dict = field(default_factory=dict)
+    metrics: list = field(default_factory=list)
+    param_counts: list = field(default_factory=list)
+    stability: list = field(default_factory=list)
+    methods: list = field(default_factory=list)
+    histories: dict = field(default_factory=dict)
+    files: dict = field(default_factory=dict)
+    headline: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True unless the step failed."""
+        return not self.status.startswith("failed")
+
+    def method_records(self) -> list[dict]:
+        """The benchmark-style method records, each tagged with the step name."""
+        return [{"step": self.name, **m} for m in self.methods]
+
+    def to_dict(self, out: Path | None = None) -> dict:
+        """JSON-ready summary (paths relative to ``out`` when given)."""
+        def rel(p):
+            p = Path(p)
+            if out is not None:
+                try:
+                    return p.resolve().relative_to(Path(out).resolve()).as_posix()
+                except ValueError:
+                    pass
+            return str(p)
+
+        return _json_safe({
+            "name": self.name, "title": self.title, "tutorial": self.tutorial,
+            "status": self.status, "seconds": self.seconds, "size": self.size,
+            "config": self.config, "metrics": self.metrics, "param_counts": self.param_counts,
+            "stability": self.stability, "headline": self.headline, "notes": self.notes,
+            "images": {k: rel(v) for k, v in self.images.items()},
+            "targets": {k: rel(v) for k, v in self.targets.items()},
+            "comparison": None if self.comparison is None else rel(self.comparison),
+            "charts": {k: rel(v) for k, v in self.charts.items()},
+            "files": {k: rel(v) for k, v in self.files.items()},
+        })
+
+
+@dataclass
+class TutorialsRun:
+    """The result of :func:`run_tutorials`.
+
+    Attributes
+    ----------
+    steps : list of StepResult
+    seconds : float
+        Total wall time.
+    out : Path
+        The output folder.
+    report : dict
+        ``{"html": Path, "md": Path, "json": Path}``, and ``"gallery"`` (list of Path) when
+        a gallery was written.
+    charts : dict str -> Path
+        Charts over all steps (parameter counts).
+    """
+
+    steps: list
+    seconds: float
+    out: Path
+    report: dict
+    charts: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """True when every step ran."""
+        return all(s.ok for s in self.steps)
+
+
+# --------------------------------------------------------------------------------------------
+# Shared helpers
+# --------------------------------------------------------------------------------------------
+
+
+def _pick(size: str, tiny, default, full):
+    return {"tiny": tiny, "default": default, "full": full}[size]
+
+
+def _method(name: str, label: str, *, seconds=(), curve=None, final=None, status="",
+            message="", config=None) -> dict:
+    """A benchmark-style method record (the layout of benchmarks/_harness.py's MethodRun)."""
+    return {"name": name, "label": label, "status": status, "message": message,
+            "config": dict(config or {}), "final": dict(final or {}),
+            "curve": {"seconds": [float(s) for s in seconds],
+                      **{k: [float(x) for x in v] for k, v in (curve or {}).items()}}}
+
+
+def _series(methods: Sequence[dict]) -> list[Series]:
+    return [Series(m["label"], m["curve"]["seconds"],
+                   {k: v for k, v in m["curve"].items() if k != "seconds"}) for m in methods]
+
+
+def _failure(exc: BaseException) -> str:
+    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else "(no message)"
+    return f"failed: {type(exc).__name__}: {msg}"
+
+
+def _try(fn: Callable[..., Any], *args, **kwargs) -> tuple[Any, str | None]:
+    """``(fn(*args, **kwargs), None)`` or ``(None, "failed: <exception>: <message>")``."""
+    try:
+        return fn(*args, **kwargs), None
+    except Exception as exc:  # noqa: BLE001 - stability rows report every failure
+        return None, _failure(exc)
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def set_postfix_str(self, s="", refresh=True):
+        pass
+
+    def close(self):
+        pass
+
+
+def _bar(progress: bool, total: int, desc: str):
+    if not progress:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True)
+
+
+def _cameras(dist, elev, azim, *, ortho: bool = False, **kw):
+    from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
+
+    R, T = look_at_view_transform(dist, elev, azim)
+    if ortho:
+        return FoVOrthographicCameras(R=R, T=T, **kw)
+    return FoVPerspectiveCameras(R=R, T=T, **kw)
+
+
+def _shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), light=(2.0, 2.0, 2.0),
+                background=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """(N, H, W, 3) Phong render of an untextured mesh in a flat colour (one per camera)."""
+    from ..render import (
+        BlendParams, HardPhongShader, MeshRasterizer, MeshRenderer, PointLights,
+        RasterizationSettings, TexturesFlat,
+    )
+    from ..structures import Mesh
+
+    m = Mesh(mesh.verts, mesh.faces, TexturesFlat(list(color)))
+    n = len(cameras)
+    renderer = MeshRenderer(MeshRasterizer(cameras, RasterizationSettings(image_size=image_size)),
+                            HardPhongShader(lights=PointLights(location=[list(light)]),
+                                            blend_params=BlendParams(background_color=background)))
+    return np.asarray(renderer(m.extend(n) if n > 1 else m)[..., :3], dtype=np.float64)
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return math.inf if mse == 0 else -10.0 * math.log10(mse)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = np.asarray(a) > 0.5, np.asarray(b) > 0.5
+    union = int((a | b).sum())
+    return 1.0 if union == 0 else float((a & b).sum() / union)
+
+
+def _write_history(history: FitHistory, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    history.to_json(path)
+    return path
+
+
+def _accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list, dict]:
+    """Checkpoint seconds and the metric columns ``{new_name: values}`` of a history."""
+    a = history.as_arrays()
+    curve = {new: a["metrics"][old].tolist() for old, new in names.items()
+             if old in a["metrics"]}
+    return a["checkpoint_seconds"].tolist(), curve
+
+
+def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
+    """Check ``size``, start the clock, create ``out/<name>``: the empty result, folder, start."""
+    check_choice(size, "size", SIZES)
+    t0 = time.perf_counter()
+    d = Path(out) / name
+    d.mkdir(parents=True, exist_ok=True)
+    from .runner import STEPS  # the step table names every step module: imported when used
+
+    _, title, tutorial = STEPS[name]
+    return StepResult(name, title, tutorial, size=size), d, t0
+
+
+def _settings_text(settings: Mapping) -> str:
+    """``"k=v, k=v"`` of a settings dict (the report's config cells)."""
+    return ", ".join(f"{k}={v}" for k, v in settings.items())
+
+
+def _record_fit(res: StepResult, d: Path, key: str, label: str, fit, metrics: Sequence[str], *,
+                final: dict, config: Mapping) -> None:
+    """Add one fit's method record (curves of ``metrics`` from its history) and its history."""
+    seconds, curve = _accuracy_curve(fit.history, {k: k for k in metrics})
+    res.methods.append(_method(key, label, seconds=seconds, curve=curve, final=final,
+                               status=fit.status, message=fit.message, config=config))
+    res.histories[key] = fit.history
+    res.files[f"{key} history"] = _write_history(fit.history, d / f"{key}_history.json")
+
+
+def _heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: Mapping,
+                        fits: Mapping, caption: str) -> None:
+    """Save the held-out targets and each method's renders of them, and the comparison panel.
+
+    ``targets`` (k, H, W, 3) are the views shown; ``renders`` map a method to at least k renders
+    (k, H, W, 3 or 4) of the same views; ``fits`` map it to its result (``.seconds``).
+    """
+    k = len(targets)
+    res.targets["held-out views"] = save_png(np.concatenate(list(targets), axis=1),
+                                             d / "target.png")
+    for key, r in renders.items():
+        res.images[key] = save_png(np.concatenate(list(r[:k, ..., :3]), axis=1), d / f"{key}.png")
+    res.comparison = image_panel(
+        [[targets[i]] + [renders[key][i, ..., :3] for key in renders] for i in range(k)],
+        d / "comparison.png",
+        col_labels=["held-out target"] + [f"{key}\n{fits[key].seconds:.1f} s" for key in fits],
+        row_labels=[f"view {i + 1}" for i in range(k)])
+    res.comparison_caption = caption
+
+
+def _run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
+    """One stability row per case: ``str`` of what it returned, or how it failed."""
+    rows = []
+    for case, fn in cases.items():  # failure cases
+        r, err = _try(fn)
+        rows.append({"case": case, "outcome": err if err is not None else str(r)})
+    return rows
+
+
+def _fit_row(method: str, case: str, fit, err: str | None,
+             measure: Callable[[Any], dict]) -> dict:
+    """A fit's stability row: how it failed, or how it stopped and ``measure(fit)``."""
+    row = {"method": method, "case": case}
+    if err is not None:
+        row["outcome"] = err
+    else:
+        row.update(outcome="converged" if fit.converged else f"stopped: {fit.status}",
+                   **measure(fit))
+    return row
+
+
+# --------------------------------------------------------------------------------------------
+# Shared by 5 and 6: the tutorials' renders of the cow (black background, silhouettes)
+# --------------------------------------------------------------------------------------------
+
+
+def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
+    """Training and held-out renders of the volume and NeRF tutorials (:mod:`geofit.datasets`).
+
+    Training: ``generate_cow_renders`` (elevation 0, azimuths around the cow, black background,
+    0/1 silhouettes). Held out: views half-way between the training azimuths, at elevations 0
+    and 20 degrees (20 only when a single view is asked for).
+    """
+    from ..datasets import generate_cow_renders, held_out_views
+
+    train = generate_cow_renders(num_views=n_views, image_size=image_size)
+    elevations = (0.0, 20.0) if n_heldout >= 2 else (20.0,)
+    test = held_out_views(num_views=n_views, elevations=elevations,
+                          n_azimuths=max(1, n_heldout // len(elevations)),
+                          image_size=heldout_size)
+    return train, test, train.mesh_name
+
+
+def _render_volume(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
+    from ..render import EmissionAbsorptionRaymarcher, NDCMultinomialRaysampler
+    from ..render.volume import VolumeRenderer
+
+    r = VolumeRenderer(NDCMultinomialRaysampler(image_width=image_size, image_height=image_size,
+                                                n_pts_per_ray=n_pts, min_depth=0.1,
+                                                max_depth=3.0),
+                       EmissionAbsorptionRaymarcher())
+    return r(cameras, volume)[0]

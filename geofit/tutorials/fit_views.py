@@ -1,0 +1,179 @@
+"""Step 4, fit_textured_mesh: :func:`geofit.fit.views.fit_mesh_to_views`, PyTorch3D's recipe
+next to geofit's methods, and the stability cases."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..viz import plot_accuracy_vs_time
+from ._common import (
+    _GF, _P3D, StepResult, _bar, _begin, _fit_row, _heldout_comparison, _pick, _record_fit, _series,
+    _settings_text, _try,
+)
+
+__all__ = ["step_fit_views"]
+
+
+# --------------------------------------------------------------------------------------------
+# 4. fit a mesh to multi-view images
+# --------------------------------------------------------------------------------------------
+
+
+def _views_settings(size: str) -> dict:
+    return {
+        "num_views": _pick(size, 4, 20, 20),
+        "image_size": _pick(size, 32, 64, 128),
+        "num_heldout": _pick(size, 2, 8, 16),
+        # PyTorch3D's recipe (fit_textured_mesh): SGD on 2 random views, then the textured
+        # stage from the sphere
+        "tutorial": {"silhouette_method": "tutorial", "textured_method": "tutorial",
+                     "textured_init": "sphere",
+                     "silhouette_iters": _pick(size, 4, 150, 2000),
+                     "textured_iters": _pick(size, 4, 150, 2000)},
+        # geofit's best (benchmarks/fit_views.py "best"): L-BFGS on all views, large steps,
+        # coarse-to-fine; least-squares colours, then joint L-BFGS
+        "geofit": {"silhouette_method": "scipy-lbfgs", "textured_method": "lbfgs",
+                   "large_steps": 10.0,
+                   "levels": _pick(size, None, [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
+                   "silhouette_iters": _pick(size, 4, 60, 2000),
+                   "textured_iters": _pick(size, 4, 30, 200),
+                   "textured_time": _pick(size, None, 10.0, 120.0)},
+        "init_level": _pick(size, 2, 4, 4),
+        "eval_every": _pick(size, 1e9, 4.0, 20.0),
+    }
+
+
+def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: int = 0
+                   ) -> StepResult:
+    """Fit a mesh and vertex colours to multi-view images: the tutorial's SGD and geofit's solvers.
+
+    Sizes: ``"full"``: 20 views of 128 px, 2000 SGD steps per stage as the tutorial;
+    ``"default"``: 20 views of 64 px, 150 SGD steps per stage. Progress: a progress bar over the
+    stages; seed: random view choices of the SGD recipe. Writes into ``out/fit_views``; the
+    signature and the StepResult are :func:`run_step`'s.
+    """
+    from ..fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
+    from ..io import save_obj
+    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
+    from ..shapes import ico_sphere
+    from ..structures import Mesh, TexturesVertex
+
+    res, d, t0 = _begin(out, "fit_views", size)
+    cfg = _views_settings(size)
+    ds = cow_multiview_dataset(num_views=cfg["num_views"], image_size=cfg["image_size"],
+                               num_heldout=cfg["num_heldout"])
+    res.config = {"object": ds.name, "training views": cfg["num_views"],
+                  "held-out views": cfg["num_heldout"], "image size": cfg["image_size"],
+                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
+                  "geofit": _settings_text(cfg["geofit"])}
+    res.description = (
+        "A sphere is deformed to match the soft silhouettes of the training views, then its "
+        "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "
+        "views: silhouette IoU and RGB PSNR (hard renders), and chamfer-L2 / F-score at 0.01 "
+        "against the true mesh. Times are solver times (the clock is paused at checkpoints).")
+    ev = ViewsEvaluator(ds.heldout, ds.mesh, n_samples=_pick(size, 2000, 10_000, 20_000),
+                        taus=(0.01,))
+    labels = {"tutorial": "PyTorch3D recipe: SGD, 2 random views per step",
+              "geofit": "geofit: L-BFGS on all views, large steps, coarse-to-fine; "
+                        "least-squares then L-BFGS colours"}
+
+    def evaluate(mesh, colors):
+        # the silhouette stage has no colours yet: score its shape in a uniform grey, so that
+        # every checkpoint has the same metrics (PSNR then rises in the textured stage)
+        if colors is None:
+            colors = np.full((mesh.n_verts, 3), 0.5)
+        return ev(mesh, colors)
+
+    bar = _bar(progress, len(labels), "fit_views")
+    fits = {}
+    for name, label in labels.items():  # methods
+        kw = dict(cfg[name])
+        init = ico_sphere(cfg["init_level"] - (1 if kw.get("levels") else 0))
+        fit = fit_mesh_to_views(ds.train, init=init, evaluate=evaluate,
+                                eval_every=cfg["eval_every"], seed=seed, **kw)
+        fits[name] = fit
+        final = ev(fit.mesh, fit.colors)
+        n_colors = 0 if fit.colors is None else int(np.size(fit.colors))
+        res.files[f"{name} mesh"] = d / f"{name}.obj"
+        save_obj(res.files[f"{name} mesh"], fit.mesh)
+        _record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
+                    final={"seconds": fit.seconds, **final,
+                           "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
+        res.metrics.append({"method": label, "status": fit.status,
+                            "seconds": round(fit.seconds, 2), **final})
+        res.param_counts.append({"method": label, "vertices": fit.mesh.n_verts,
+                                 "position parameters": 3 * fit.mesh.n_verts,
+                                 "colour parameters": n_colors,
+                                 "free parameters": 3 * fit.mesh.n_verts + n_colors})
+        bar.update(1)
+    bar.close()
+
+    # held-out renders of each result next to the held-out targets
+    h = ds.heldout
+    k = min(3, len(h))
+    cams = h.cameras[np.arange(k)]
+    ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
+    renders = {}
+    for name, fit in fits.items():
+        colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
+        m = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
+        renders[name] = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams,
+                                                                     lights=h.lights))(
+            m.extend(k))[..., :3], dtype=np.float64)
+    _heldout_comparison(res, d, h.images[:k], renders, fits,
+                        f"Held-out views of the {ds.name} (never trained on) and the fitted "
+                        "meshes rendered from them.")
+    panels = [{"metric": "iou", "label": "held-out silhouette IoU"}]
+    if any("chamfer_l2" in m["curve"] for m in res.methods):
+        panels.append({"metric": "chamfer_l2", "label": "chamfer-L2 vs true mesh (log)",
+                       "logy": True})
+    res.charts["Speed and accuracy: held-out IoU and chamfer-L2 against solver time"] = \
+        plot_accuracy_vs_time(_series(res.methods), panels, d / "speed_accuracy.png",
+                              title=f"fit_mesh_to_views on the {ds.name} ({size} size)")
+    res.stability = _views_stability(ds, size, seed)
+    pt, gf = res.metrics[0], res.metrics[1]
+    res.headline = {
+        _P3D: f"IoU {pt.get('iou', float('nan')):.3f}, PSNR "
+              f"{pt.get('psnr', float('nan')):.1f} dB in {pt['seconds']:.1f} s",
+        _GF: f"IoU {gf.get('iou', float('nan')):.3f}, PSNR "
+             f"{gf.get('psnr', float('nan')):.1f} dB in {gf['seconds']:.1f} s"}
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def _views_stability(ds, size: str, seed: int) -> list[dict]:
+    from ..fit.views import MultiViewData, fit_mesh_to_views
+    from ..shapes import ico_sphere
+
+    tr = ds.train
+    iters = _pick(size, 2, 10, 40)
+    nan_sil = tr.silhouettes.copy()
+    nan_sil[0, 0, 0] = np.nan
+    rng = np.random.default_rng(seed + 3)
+    cases = {
+        "one view only": lambda: MultiViewData(tr.cameras[[0]], tr.silhouettes[:1],
+                                               tr.images[:1], tr.lights),
+        "empty silhouettes": lambda: MultiViewData(tr.cameras, np.zeros_like(tr.silhouettes),
+                                                   tr.images, tr.lights),
+        "noisy silhouettes (20% pixels flipped)": lambda: MultiViewData(
+            tr.cameras, np.where(rng.random(tr.silhouettes.shape) < 0.2,
+                                 1.0 - tr.silhouettes, tr.silhouettes), tr.images, tr.lights),
+        "NaN in a silhouette": lambda: MultiViewData(tr.cameras, nan_sil, tr.images, tr.lights),
+    }
+    rows = []
+    for method, kw in (("tutorial", {"silhouette_method": "tutorial",
+                                     "textured_method": "none"}),
+                       ("geofit", {"silhouette_method": "scipy-lbfgs", "textured_method": "none",
+                                   "large_steps": 10.0})):
+        for case, make in cases.items():  # failure cases
+            def run(make=make, kw=kw):
+                views = make()
+                vps = min(2, len(views))
+                return fit_mesh_to_views(views, init=ico_sphere(2), silhouette_iters=iters,
+                                         views_per_step=vps, seed=seed, **kw)
+            fit, err = _try(run)
+            rows.append(_fit_row(method, case, fit, err, lambda f: {
+                "NaN vertices": bool(np.isnan(f.mesh.verts).any()),
+                "seconds": round(f.seconds, 2)}))
+    return rows

@@ -1,0 +1,137 @@
+"""Step 6, fit_simple_neural_radiance_field: :func:`geofit.fit.nerf.fit_nerf`, the tutorial's
+preset next to geofit's, and the stability cases."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..viz import plot_accuracy_vs_time
+from ._common import (
+    _GF, _P3D, StepResult, _bar, _begin, _cow_views, _fit_row, _heldout_comparison, _pick,
+    _record_fit, _series, _settings_text, _try,
+)
+
+__all__ = ["step_nerf"]
+
+
+# --------------------------------------------------------------------------------------------
+# 6. fit a neural radiance field
+# --------------------------------------------------------------------------------------------
+
+
+def _nerf_settings(size: str) -> dict:
+    budget = _pick(size, None, 20.0, None)
+    scene = {"preset": "scene", "n_iter": _pick(size, 2, 20000, 20000),
+             "n_pts_per_ray": _pick(size, 8, 64, 128)}
+    if size == "tiny":
+        scene.update(n_rays_per_image=32, hull_resolution=24)
+    return {
+        "n_views": _pick(size, 4, 20, 40), "image_size": _pick(size, 24, 64, 128),
+        "n_heldout": _pick(size, 1, 2, 8), "heldout_size": _pick(size, 24, 32, 128),
+        "tutorial": {"preset": "tutorial", "n_iter": _pick(size, 2, 3000, 3000),
+                     "n_rays_per_image": _pick(size, 32, 128, 750),
+                     "n_pts_per_ray": _pick(size, 8, 64, 128)},
+        "scene": scene,
+        "time_budget": budget,
+        "eval_every": _pick(size, 2, budget / 5 if budget else None, None),
+    }
+
+
+def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 0
+              ) -> StepResult:
+    """Fit a neural radiance field: the tutorial's network and recipe, and geofit's scene-sized one.
+
+    Sizes: ``"full"``: 40 views of 128 px, 3000 steps of the tutorial's recipe; ``"default"``:
+    20 views of 64 px, 64 samples per ray (the tutorial recipe with 128 rays per view instead of
+    750), each method stopped after 20 s of solver time, PSNR on held-out renders of 32 px.
+    Progress: a progress bar over the fits; seed: initialisation, view and ray choices. Writes
+    into ``out/nerf``; the signature and the StepResult are :func:`run_step`'s.
+    """
+    from ..fit.nerf import fit_nerf, render_nerf
+
+    res, d, t0 = _begin(out, "nerf", size)
+    cfg = _nerf_settings(size)
+    img = cfg["image_size"]
+    train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
+    res.config = {"object": name, "training views": cfg["n_views"],
+                  "held-out views": cfg["n_heldout"], "image size": img,
+                  "held-out image size": cfg["heldout_size"],
+                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
+                  "geofit": _settings_text(cfg["scene"]),
+                  "time budget per method (s)": cfg["time_budget"]}
+    res.description = (
+        "A radiance field (MLP on harmonic embeddings) is fitted to the renders with the "
+        "emission-absorption raymarcher. Accuracy: PSNR of full renders of held-out views "
+        "(azimuths half-way between the training views, elevations 0 and 20 degrees). Model "
+        "size: the network's weights.")
+    labels = {"tutorial": "PyTorch3D recipe: 60 frequencies, 2 x 256 Softplus, MC rays",
+              "scene": "geofit: scene-sized network, visual hull, density grid"}
+    bar = _bar(progress, len(labels), "nerf")
+    fits = {}
+    for key, label in labels.items():  # methods
+        kw = dict(cfg[key])
+        fit = fit_nerf(train.images, train.silhouettes, train.cameras, held_out=test,
+                       time_budget=cfg["time_budget"], eval_every=cfg["eval_every"], seed=seed,
+                       **kw)
+        fits[key] = fit
+        _record_fit(res, d, key, label, fit, ("psnr",),
+                    final={"seconds": fit.seconds, "psnr": fit.psnr, "n_params": fit.n_params},
+                    config={k: repr(v) for k, v in kw.items()})
+        np.savez_compressed(d / f"{key}_weights.npz", **fit.field.params)
+        res.files[f"{key} weights"] = d / f"{key}_weights.npz"
+        res.metrics.append({"method": label, "status": fit.status,
+                            "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
+                            "held-out PSNR (dB)": fit.psnr,
+                            "samples per ray": round(fit.samples_per_ray, 1)})
+        res.param_counts.append({"method": label, "network parameters": fit.n_params})
+        bar.update(1)
+    bar.close()
+    renders = {}
+    for key, fit in fits.items():
+        renders[key] = fit.images if fit.images is not None else render_nerf(
+            fit.field, test.cameras, cfg["heldout_size"], n_pts_per_ray=fit.config.n_pts_per_ray,
+            occupancy=fit.occupancy)
+    _heldout_comparison(res, d, test.images[:3], renders, fits,
+                        f"Held-out views of the {name} and the fitted fields rendered from them.")
+    res.charts["Speed and accuracy: held-out PSNR against solver time"] = \
+        plot_accuracy_vs_time(_series(res.methods),
+                              [{"metric": "psnr", "label": "held-out PSNR (dB)"}],
+                              d / "speed_accuracy.png",
+                              title=f"fit_nerf on the {name} ({size} size)")
+    res.stability = _nerf_stability(train, size, seed)
+    pt, gf = res.metrics
+    res.headline = {
+        _P3D: f"PSNR {pt['held-out PSNR (dB)'] or float('nan'):.1f} dB in {pt['seconds']:.1f} s, "
+              f"{res.param_counts[0]['network parameters']:,} params",
+        _GF: f"PSNR {gf['held-out PSNR (dB)'] or float('nan'):.1f} dB in {gf['seconds']:.1f} s, "
+             f"{res.param_counts[1]['network parameters']:,} params"}
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def _nerf_stability(train, size: str, seed: int) -> list[dict]:
+    from ..fit.nerf import fit_nerf
+
+    imgs, sils, cams = train.images, train.silhouettes, train.cameras
+    nan_i = imgs.copy()
+    nan_i[0, 0, 0, 0] = np.nan
+    n_iter = _pick(size, 2, 4, 50)
+    cases = {
+        "one view only": (imgs[:1], sils[:1], cams[[0]], {}),
+        "black images, empty silhouettes": (np.zeros_like(imgs), np.zeros_like(sils), cams, {}),
+        "NaN in an image": (nan_i, sils, cams, {}),
+        "learning rate x1000": (imgs, sils, cams, {"lr_x": 1000.0}),
+    }
+    rows = []
+    for method in ("tutorial", "scene"):
+        for case, (i_, s_, c_, extra) in cases.items():  # failure cases
+            kw = {"preset": method, "n_iter": n_iter, "n_pts_per_ray": 16,
+                  "n_rays_per_image": 64}
+            if "lr_x" in extra:
+                kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
+            fit, err = _try(fit_nerf, i_, s_, c_, seed=seed, **kw)
+            rows.append(_fit_row(method, case, fit, err, lambda f: {
+                "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
+                "seconds": round(f.seconds, 2)}))
+    return rows

@@ -1,0 +1,133 @@
+"""The fit_mesh stability scenarios, in one place for the tutorials' report and benchmarks/.
+
+Each scenario perturbs one input of :func:`geofit.fit.fit_mesh` the way real data or a careless
+setting would: a noisy or holed or NaN target, a genus-1 target, a degenerate start, a first step
+100 times too large. :func:`fit_mesh_scenario` returns the inputs of that run; the caller fits,
+scores against ``reference`` and reports the outcome (``benchmarks/fit_mesh.py`` writes the
+stability table, :func:`geofit.tutorials.step_fit_mesh` a row per case in its report).
+"""
+from __future__ import annotations
+
+import copy
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..structures import Mesh
+
+__all__ = ["MESH_MODES", "MeshScenario", "collapse_edges", "fit_mesh_scenario"]
+
+#: Scenario key -> what it does (the stability table's legend).
+MESH_MODES = {
+    "noise": "target vertices + Gaussian noise, sigma 0.01 (normalised frame); scored against "
+             "the clean target",
+    "holes": "target with 4 holes (faces within 0.15 of 4 random vertices removed, open "
+             "boundary); scored against the full target",
+    "torus": "genus-1 target (geofit.torus()) from a genus-0 sphere",
+    "degenerate_start": "source with every 7th edge collapsed (zero-area triangles)",
+    "step_x100": "SGD/Adam: lr x100; L-BFGS: objective x100 (all weights), i.e. the first "
+                 "gradient step 100 times too large, which the line search must absorb",
+    "nan_target": "one target coordinate set to NaN",
+}
+
+
+class MeshScenario(NamedTuple):
+    """Inputs of one stability run of :func:`geofit.fit.fit_mesh`.
+
+    Attributes
+    ----------
+    source : Mesh or None
+        The start (None: fit_mesh's default sphere).
+    target : Mesh or (verts, faces)
+        What to fit (may hold a NaN on purpose).
+    kwargs : dict
+        fit_mesh keyword arguments (a modified copy of the method's).
+    reference : Mesh
+        What to score the result against (the clean target).
+    """
+
+    source: Mesh | None
+    target: Any
+    kwargs: dict
+    reference: Mesh
+
+
+def collapse_edges(mesh: Mesh, every: int = 7) -> Mesh:
+    """``mesh`` with every ``every``-th edge collapsed onto its second end (zero-area faces)."""
+    v = mesh.verts.copy()
+    e = mesh.edges[::every]
+    v[e[:, 0]] = v[e[:, 1]]
+    return mesh.update_verts(v)
+
+
+def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: int | None = None,
+                      seed: int = 7) -> MeshScenario:
+    """The inputs of the stability run ``mode`` for a method's fit_mesh ``kwargs``.
+
+    Parameters
+    ----------
+    mode : str
+        A key of :data:`MESH_MODES`.
+    target : Mesh
+        The clean target.
+    kwargs : dict
+        The method's fit_mesh keyword arguments (not modified).
+    source_level : int, optional
+        Ico-sphere level of the start when the method has no coarse-to-fine schedule
+        (default 4, the tutorial's).
+    seed : int
+        Seed of the noise and of the hole centres (a fresh generator per scenario).
+
+    Returns
+    -------
+    MeshScenario
+
+    Raises
+    ------
+    ValueError
+        If ``mode`` is not a key of :data:`MESH_MODES`.
+    """
+    from ..fit import FINE_WEIGHTS, TUTORIAL_WEIGHTS, CoarseToFine
+    from ..shapes import ico_sphere, torus
+
+    if mode not in MESH_MODES:
+        raise ValueError(f"mode: expected one of {sorted(MESH_MODES)}, got {mode!r}")
+    kw = dict(kwargs)
+    rng = np.random.default_rng(seed)
+    norm = target.normalize()
+    source, tin, reference = None, target, target
+    if mode == "noise":
+        tin = target.update_verts(target.verts + rng.normal(scale=0.01 * norm.scale,
+                                                            size=target.verts.shape))
+    elif mode == "holes":
+        tn = norm.mesh
+        centres = tn.verts[rng.choice(tn.n_verts, 4, replace=False)]
+        d = np.linalg.norm(tn.verts[tn.faces].mean(1)[:, None, :] - centres[None], axis=2).min(1)
+        tin = Mesh(target.verts, target.faces[d > 0.15])
+    elif mode == "torus":
+        tin = reference = torus()
+    elif mode == "degenerate_start":
+        c2f = kw.get("coarse_to_fine")
+        if isinstance(c2f, CoarseToFine):
+            level = c2f.start_level
+        else:
+            level = 2 if c2f else (source_level or 4)
+        source = collapse_edges(ico_sphere(level))
+    elif mode == "step_x100":
+        if kw["method"] == "sgd":
+            kw["lr"] = 100.0 * kw.get("lr", 1.0)
+        elif kw["method"] == "adam":
+            kw["lr"] = 100.0 * kw.get("lr", 0.01)
+        else:
+            x100 = {k: 100 * v for k, v in TUTORIAL_WEIGHTS.items()}
+            kw["weights"] = [x100, {k: 100 * v for k, v in FINE_WEIGHTS.items()}]
+            c2f = kw.get("coarse_to_fine")
+            if c2f is not None and c2f is not False:
+                c2f = copy.copy(c2f) if isinstance(c2f, CoarseToFine) else CoarseToFine()
+                c2f.coarse_weights = x100
+                kw["coarse_to_fine"] = c2f
+    elif mode == "nan_target":
+        v = target.verts.copy()
+        v[0, 0] = np.nan
+        tin = (v, target.faces)
+    return MeshScenario(source, tin, kw, reference)
