@@ -505,8 +505,13 @@ def test_library_meshes_accepted_at_public_boundaries():
     rast = MeshRasterizer(FoVPerspectiveCameras(R=R, T=T), RasterizationSettings(image_size=16))
     ref = rast(mesh).pix_to_face
     rays_o, rays_d = np.array([[0.0, 0.0, 3.0]]), np.array([[0.0, 0.0, -1.0]])
+    from geofit.render.soft import SoftRasterizationSettings, rasterize_soft
+
+    soft = rasterize_soft(mesh, rast.cameras, SoftRasterizationSettings.tutorial(16))
     for obj in (tm, om):
         assert_array_equal(rast(obj).pix_to_face, ref)
+        assert_array_equal(rasterize_soft(obj, rast.cameras,
+                                          SoftRasterizationSettings.tutorial(16)).dist, soft.dist)
         assert_array_equal(RayCaster(obj).cast(rays_o, rays_d).face_id,
                            RayCaster(mesh).cast(rays_o, rays_d).face_id)
         assert_allclose(mesh_laplacian_smoothing(obj)[0], mesh_laplacian_smoothing(mesh)[0])
