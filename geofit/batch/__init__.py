@@ -1,0 +1,692 @@
+"""Many scenes, many machines: one Dask task per target, on this machine or on any Dask cluster.
+
+:func:`fit_many` fits (or renders) each target in its own Dask task. A task receives a path and
+its settings, loads its own input (no Embree scene, Open3D object or large array crosses a
+process boundary), runs geofit's workflow, and writes ``OUT/<name>/result.json`` (status,
+message, metrics, seconds, parameter count, history, the settings and their hash) and its
+outputs (mesh, volume, weights, pictures), each atomically (a temporary file, then
+``os.replace``). A failing target is recorded as ``"failed"`` (error type and message) and the
+batch goes on. A rerun into the same ``OUT`` skips every target whose ``result.json`` holds the same
+settings hash (the hash covers the task, the settings and the input files' sizes and
+modification times); ``retry_failed=True`` recomputes the failed ones, ``force=True`` all. Results stream in as they finish (``distributed.as_completed``) with a
+tqdm progress bar.
+
+Without ``client`` or ``scheduler``, :func:`fit_many` starts a ``distributed.LocalCluster`` of
+worker processes on 127.0.0.1 (no dashboard) and tears it down afterwards; with
+``scheduler="tcp://host:port"`` (or a ``distributed.Client``) the same call runs on any Dask
+cluster, e.g. ``dask scheduler`` plus ``dask worker`` processes, dask-jobqueue, Kubernetes or
+SSH. ``OUT`` must then be a folder every worker can write (a shared file system).
+
+Threads: each Dask worker runs one target at a time, and each target limits its compute
+threads (ray casting, rendering, BLAS, Open3D) to ``threads_per_worker`` through
+``geofit.set_num_threads`` and the ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` environment
+variables, so that ``n_workers * threads_per_worker`` never exceeds the cores.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import os
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from .._threads import cpu_count
+from ._tasks import (
+    CAPTURE_MARKERS,
+    MESH_SUFFIXES,
+    RESULT_FILE,
+    RESULT_SCHEMA,
+    is_capture,
+    run_target,
+)
+
+__all__ = [
+    "ACCURACY",
+    "CAPTURE_MARKERS",
+    "LOCAL_CLUSTER",
+    "MESH_SUFFIXES",
+    "TASKS",
+    "TASK_OPTIONS",
+    "BatchResult",
+    "Option",
+    "TargetResult",
+    "expand_targets",
+    "fit_many",
+    "settings_hash",
+    "task_settings",
+    "thread_env",
+]
+
+
+# ------------------------------------------------------------------------------ tasks
+@dataclass(frozen=True)
+class Option:
+    """One setting of a task: its type, default and help (shared by :func:`fit_many` keyword
+    arguments and the ``geofit batch`` flags)."""
+
+    type: type
+    default: Any
+    help: str
+    choices: tuple | None = None
+
+
+def _recipes() -> tuple:
+    from ..fit import RECIPES
+
+    return tuple(RECIPES)
+
+
+def _volume_methods() -> tuple:
+    from ..fit.volume import FIT_VOLUME_METHODS
+
+    return tuple(FIT_VOLUME_METHODS)
+
+
+_SEED = Option(int, 0, "random seed")
+_VIEWS_TIME = Option(float, None, "seconds of solver time per target")
+
+#: Every task's options, with defaults. ``fit_many(..., **fit_kwargs)`` accepts exactly these.
+TASK_OPTIONS: dict[str, dict[str, Option]] = {
+    "fit-mesh": {
+        "recipe": Option(str, None, "a fit_mesh recipe",
+                         _recipes()),
+        "time_budget": Option(float, None, "seconds of solver time per target"),
+        "n_iter": Option(int, None, "iterations per stage"),
+        "metric_samples": Option(int, 100_000, "samples a side for the accuracy"),
+        "seed": _SEED,
+    },
+    "render": {
+        "views": Option(int, 4, "views per target"),
+        "image_size": Option(int, 256, "pixels per side"),
+        "dist": Option(float, 2.7, "camera distance (the mesh is normalised first)"),
+        "elev": Option(float, 20.0, "camera elevation in degrees"),
+    },
+    "fit-views": {
+        "views": Option(int, 20, "training views rendered from a mesh target"),
+        "image_size": Option(int, 128, "image size of those views"),
+        "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
+        "time_budget": _VIEWS_TIME,
+        "iterations": Option(int, None, "silhouette iterations"),
+        "metric_samples": Option(int, 20_000, "samples a side for the surface accuracy"),
+        "seed": _SEED,
+    },
+    "fit-volume": {
+        "views": Option(int, 40, "training views rendered from a mesh target"),
+        "image_size": Option(int, 128, "image size of those views"),
+        "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
+        "time_budget": _VIEWS_TIME,
+        "size": Option(int, None, "final grid size"),
+        "method": Option(str, None, "fit_volume method", _volume_methods()),
+        "seed": _SEED,
+    },
+    "fit-nerf": {
+        "views": Option(int, 40, "training views rendered from a mesh target"),
+        "image_size": Option(int, 128, "image size of those views"),
+        "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
+        "time_budget": _VIEWS_TIME,
+        "preset": Option(str, None, "fit_nerf preset",
+                         ("scene", "tutorial")),
+        "n_iter": Option(int, None, "maximum steps"),
+        "seed": _SEED,
+    },
+}
+
+#: The tasks: ``fit-mesh`` and ``render`` take mesh files; ``fit-views``, ``fit-volume`` and
+#: ``fit-nerf`` take capture folders (read by ``geofit.datasets.load_views``) or mesh files
+#: (rendered into synthetic views first).
+TASKS = tuple(TASK_OPTIONS)
+
+#: Per task, the metric plotted as accuracy in ``summary.png`` and its label.
+ACCURACY: dict[str, tuple[str, str]] = {
+    "fit-mesh": ("fscore@0.01", "F-score@0.01 (normalised frame)"),
+    "render": ("coverage", "share of pixels on the mesh"),
+    "fit-views": ("iou", "held-out silhouette IoU"),
+    "fit-volume": ("psnr", "held-out PSNR (dB)"),
+    "fit-nerf": ("psnr", "held-out PSNR (dB)"),
+}
+
+
+def _check_task(task) -> str:
+    if task not in TASK_OPTIONS:
+        raise ValueError(f"task: expected one of {TASKS}, got {task!r}")
+    return task
+
+
+def task_settings(task: str, **kwargs) -> dict[str, Any]:
+    """The full settings of ``task``: its defaults updated with ``kwargs`` (None keeps the
+    default), each value checked against the option's type and choices.
+
+    Raises
+    ------
+    ValueError
+        For an unknown task, an option the task does not have, a value outside the choices,
+        or a count or budget that is not positive.
+    TypeError
+        For a value of the wrong type.
+    """
+    opts = TASK_OPTIONS[_check_task(task)]
+    unknown = sorted(set(kwargs) - set(opts))
+    if unknown:
+        raise ValueError(f"{unknown[0]}: not an option of task {task!r}; expected one of "
+                         f"{sorted(opts)}")
+    out = {}
+    for name, opt in opts.items():
+        v = kwargs.get(name)
+        if v is None:
+            out[name] = opt.default
+            continue
+        if opt.type is float and isinstance(v, int) and not isinstance(v, bool):
+            v = float(v)
+        if not isinstance(v, opt.type) or isinstance(v, bool):
+            raise TypeError(f"{name}: expected {opt.type.__name__}, got {v!r}")
+        if opt.choices is not None and v not in opt.choices:
+            raise ValueError(f"{name}: expected one of {opt.choices}, got {v!r}")
+        if opt.type in (int, float) and name not in ("seed", "elev") and not v > 0:
+            raise ValueError(f"{name}: expected a positive number, got {v!r}")
+        out[name] = v
+    return out
+
+
+# ------------------------------------------------------------------------------ targets
+def expand_targets(targets: str | os.PathLike | Iterable[str | os.PathLike],
+                   task: str = "fit-mesh") -> list[tuple[str, Path]]:
+    """Files and folders -> ``[(name, path), ...]`` in a stable order.
+
+    A file is one target. A folder expands to its mesh files (:data:`MESH_SUFFIXES`, not
+    recursive), and, for the multi-view tasks, is itself one target when it is a capture
+    (:func:`geofit.batch._tasks.is_capture`) or else contributes its capture sub-folders.
+    ``name`` is the file or folder stem, made unique with a short hash of the path when two
+    targets share a stem; it names the target's output folder.
+
+    Raises
+    ------
+    FileNotFoundError
+        For a path that does not exist.
+    ValueError
+        When nothing is left to run.
+    """
+    multiview = _check_task(task) in ("fit-views", "fit-volume", "fit-nerf")
+    if isinstance(targets, (str, os.PathLike)):
+        targets = [targets]
+    paths: list[Path] = []
+    for t in targets:
+        p = Path(t)
+        if not p.exists():
+            raise FileNotFoundError(f"targets: {p} does not exist")
+        if p.is_file() or (multiview and is_capture(p)):
+            paths.append(p)
+        else:
+            paths += [c for c in sorted(p.iterdir())
+                      if (c.is_file() and c.suffix.lower() in MESH_SUFFIXES)
+                      or (multiview and is_capture(c))]
+    seen: set[Path] = set()
+    unique = []
+    for p in paths:
+        r = p.resolve()
+        if r not in seen:
+            seen.add(r)
+            unique.append(r)
+    if not unique:
+        raise ValueError(f"targets: no mesh files{' or captures' if multiview else ''} in "
+                         f"{[str(t) for t in targets]}")
+    stems: dict[str, int] = {}
+    for p in unique:
+        stems[p.stem] = stems.get(p.stem, 0) + 1
+    return [(p.stem if stems[p.stem] == 1 else
+             f"{p.stem}-{hashlib.sha1(str(p).encode()).hexdigest()[:6]}", p) for p in unique]
+
+
+def _fingerprint(path: Path) -> list:
+    """(relative name, size, mtime_ns) of the target's files: changes when an input changes,
+    without reading it."""
+    files = [path] if path.is_file() else sorted(q for q in path.rglob("*") if q.is_file())
+    out = []
+    for q in files:
+        st = q.stat()
+        out.append([q.name if q == path else str(q.relative_to(path)), st.st_size,
+                    st.st_mtime_ns])
+    return out
+
+
+def settings_hash(task: str, path: Path, settings: dict) -> str:
+    """SHA-256 of the task, the settings, the result schema and the input's fingerprint."""
+    blob = json.dumps({"task": task, "settings": settings, "schema": RESULT_SCHEMA,
+                       "input": _fingerprint(Path(path))}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+# ------------------------------------------------------------------------------ results
+@dataclass
+class TargetResult:
+    """One target's outcome (a row of :class:`BatchResult`).
+
+    Attributes
+    ----------
+    name : str
+        Output folder name under ``out``.
+    target : str
+        Input path.
+    task : str
+    status : str
+        ``"ok"`` or ``"failed"``.
+    message : str
+        The fit's status and message, or the error (``"TypeName: message"``).
+    error_type : str or None
+        Exception type of a failure (``"FitStatus"`` when the fit ended non-finite/diverged,
+        ``"KilledWorker"`` etc. when the task itself was lost).
+    accuracy : float
+        The task's headline metric (:data:`ACCURACY`); -1 when not measured.
+    seconds : float
+        Wall time of the task on its worker (load, fit, evaluation, writing).
+    load_seconds, fit_seconds, eval_seconds : float
+        Its parts: reading/rendering the input, the solver's own time, the metrics.
+    n_params : int
+        Free parameters of the fit (0 for ``render``).
+    fit_status : str or None
+        The fit's own status (``"converged"``, ``"time_budget"``, ...).
+    metrics : dict
+        All metrics of the task.
+    settings_hash : str
+    reused : bool
+        True when an earlier run's ``result.json`` (same settings hash) was kept.
+    picture : str or None
+        Path of the target's picture relative to ``out``.
+    outputs : dict
+        The target's output files (``"mesh"``, ``"volume"``, ``"weights"``, views), relative
+        to ``out``.
+    """
+
+    name: str
+    target: str
+    task: str
+    status: str
+    message: str = ""
+    error_type: str | None = None
+    accuracy: float = -1.0
+    seconds: float = 0.0
+    load_seconds: float = 0.0
+    fit_seconds: float = 0.0
+    eval_seconds: float = 0.0
+    n_params: int = 0
+    fit_status: str | None = None
+    metrics: dict = field(default_factory=dict)
+    settings_hash: str = ""
+    reused: bool = False
+    picture: str | None = None
+    outputs: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @classmethod
+    def from_record(cls, rec: dict, reused: bool = False) -> TargetResult:
+        """A row from a ``result.json`` record."""
+        pic = rec.get("picture")
+        err = rec.get("error") or {}
+        return cls(name=rec["name"], target=rec["target"], task=rec["task"],
+                   status=rec["status"], message=rec.get("message", ""),
+                   error_type=err.get("type"), accuracy=float(rec.get("accuracy", -1.0)),
+                   seconds=float(rec.get("seconds", 0.0)),
+                   load_seconds=float(rec.get("load_seconds", 0.0)),
+                   fit_seconds=float(rec.get("fit_seconds", 0.0)),
+                   eval_seconds=float(rec.get("eval_seconds", 0.0)),
+                   n_params=int(rec.get("n_params", 0)), fit_status=rec.get("fit_status"),
+                   metrics=dict(rec.get("metrics") or {}),
+                   settings_hash=rec.get("settings_hash", ""), reused=reused,
+                   picture=None if pic is None else f"{rec['name']}/{pic}",
+                   outputs={k: f"{rec['name']}/{v}" for k, v in
+                            (rec.get("outputs") or {}).items()})
+
+
+_CSV_FIELDS = [f.name for f in fields(TargetResult) if f.name not in ("metrics", "outputs")]
+
+
+@dataclass
+class BatchResult(Sequence):
+    """The table :func:`fit_many` returns: one :class:`TargetResult` per target, in target order.
+
+    Attributes
+    ----------
+    rows : list of TargetResult
+    task : str
+    out : Path
+        The output folder.
+    settings : dict
+        The task's settings.
+    seconds : float
+        Wall time of the whole call (cluster start and tear-down included).
+    n_workers : int
+        Dask workers used (0 when every target was reused and no cluster was needed).
+    threads_per_worker : int
+    scheduler : str
+        ``"local"`` for the embedded LocalCluster, else the scheduler's address.
+    """
+
+    rows: list
+    task: str
+    out: Path
+    settings: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    n_workers: int = 0
+    threads_per_worker: int = 1
+    scheduler: str = "local"
+
+    def __getitem__(self, i):
+        return self.rows[i]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __iter__(self) -> Iterator[TargetResult]:
+        return iter(self.rows)
+
+    @property
+    def n_ok(self) -> int:
+        return sum(r.ok for r in self.rows)
+
+    @property
+    def n_failed(self) -> int:
+        return len(self.rows) - self.n_ok
+
+    @property
+    def n_reused(self) -> int:
+        return sum(r.reused for r in self.rows)
+
+    @property
+    def exit_code(self) -> int:
+        """0 when every target succeeded, 1 when some failed (the command line's exit code)."""
+        return 0 if self.n_failed == 0 else 1
+
+    def metric_names(self) -> list[str]:
+        names: list[str] = []
+        for r in self.rows:
+            names += [k for k in r.metrics if k not in names]
+        return names
+
+    def to_csv(self, path: str | os.PathLike) -> Path:
+        """One line per target: the row's fields and one column per metric (written atomically)."""
+        from ._tasks import atomic_write
+
+        metrics = self.metric_names()
+
+        def write(p: Path) -> None:
+            with open(p, "w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(_CSV_FIELDS + metrics)
+                for r in self.rows:
+                    d = asdict(r)
+                    w.writerow([d[k] for k in _CSV_FIELDS] + [r.metrics.get(m, "")
+                                                              for m in metrics])
+
+        return atomic_write(Path(path), write)
+
+    def to_dict(self) -> dict:
+        return {"schema": "geofit-batch-summary/1", "task": self.task, "out": str(self.out),
+                "settings": self.settings, "seconds": self.seconds,
+                "n_targets": len(self.rows), "n_ok": self.n_ok, "n_failed": self.n_failed,
+                "n_reused": self.n_reused, "n_workers": self.n_workers,
+                "threads_per_worker": self.threads_per_worker, "scheduler": self.scheduler,
+                "accuracy": {"metric": ACCURACY[self.task][0], "label": ACCURACY[self.task][1]},
+                "targets": [asdict(r) for r in self.rows]}
+
+    def __repr__(self) -> str:
+        return (f"BatchResult({self.task}: {len(self.rows)} targets, {self.n_ok} ok, "
+                f"{self.n_failed} failed, {self.n_reused} reused, {self.seconds:.1f} s)")
+
+
+def _previous(dest: Path, digest: str, retry_failed: bool) -> dict | None:
+    """The earlier ``result.json`` of a target when it holds the same settings hash and is
+    ``"ok"``, or ``"failed"`` by the target itself (not a lost task) and ``retry_failed`` is
+    off."""
+    try:
+        rec = json.loads((dest / RESULT_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if rec.get("schema") != RESULT_SCHEMA or rec.get("settings_hash") != digest:
+        return None
+    if rec.get("status") == "ok" or (not retry_failed and not rec.get("lost")):
+        rec.pop("history", None)
+        return rec
+    return None
+
+
+# ------------------------------------------------------------------------------ cluster
+def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]:
+    """(workers, threads per worker) of the embedded cluster, with workers x threads <= cores."""
+    cores = cpu_count()
+    if n_workers is None:
+        n_workers = max(1, cores // (threads or 1))
+    if threads is None:
+        threads = max(1, cores // n_workers)
+    if n_workers * threads > cores:
+        raise ValueError(f"n_workers x threads_per_worker: {n_workers} x {threads} = "
+                         f"{n_workers * threads} exceeds the {cores} cores of this machine")
+    return n_workers, threads
+
+
+def thread_env(threads: int) -> dict[str, str]:
+    """Environment of a worker process limited to ``threads`` compute threads, set before the
+    process starts: ``GEOFIT_NUM_THREADS`` (geofit's thread policy, :mod:`geofit._threads`,
+    which also limits BLAS and Open3D) and ``OMP_NUM_THREADS`` (read when OpenMP loads)."""
+    t = str(int(threads))
+    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t}
+
+
+#: Keyword arguments of every ``LocalCluster`` geofit starts: no dashboard, and the scheduler's
+#: remaining HTTP endpoint (health, metrics) on a free port of 127.0.0.1 rather than 8787.
+LOCAL_CLUSTER = {"dashboard_address": None,
+                 "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"}}
+
+
+def _start_local(n_workers: int, threads: int):
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                           host="127.0.0.1", env=thread_env(threads), **LOCAL_CLUSTER)
+    return cluster, Client(cluster)
+
+
+def _remote_threads(client, threads: int | None) -> int:
+    """Compute threads per task on an existing cluster: as given, else the cores of the
+    smallest worker host divided by the task slots Dask runs on it."""
+    if threads is not None:
+        return threads
+    info = _workers(client)
+    slots: dict[str, int] = {}
+    for w in info.values():
+        slots[w["host"]] = slots.get(w["host"], 0) + int(w["nthreads"])
+    if not slots:
+        return 1
+    cores = client.run(cpu_count)
+    per_host: dict[str, int] = {}
+    for addr, c in cores.items():
+        host = info[addr]["host"] if addr in info else addr
+        per_host[host] = c
+    return max(1, min(per_host.get(h, 1) // s for h, s in slots.items()))
+
+
+def _workers(client) -> dict:
+    """The scheduler's ``{address: info}`` of every worker (recent ``distributed`` lists only
+    the first five unless asked for all)."""
+    import inspect
+
+    if "n_workers" in inspect.signature(client.scheduler_info).parameters:
+        return client.scheduler_info(n_workers=-1)["workers"]
+    return client.scheduler_info()["workers"]  # pragma: no cover - older distributed
+
+
+# ------------------------------------------------------------------------------ the call
+def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_out", *,
+             client=None, scheduler: str | None = None, n_workers: int | None = None,
+             threads_per_worker: int | None = None, progress: bool = True,
+             force: bool = False, retry_failed: bool = False, summary: bool = True,
+             **fit_kwargs) -> BatchResult:
+    """Fit (or render) many targets, one Dask task each, and write a result per target.
+
+    Parameters
+    ----------
+    targets : path or iterable of paths
+        Mesh files, folders of mesh files, and for the multi-view tasks capture folders
+        (:func:`expand_targets`).
+    task : {"fit-mesh", "render", "fit-views", "fit-volume", "fit-nerf"}
+        What to run per target (:data:`TASKS`).
+    out : path
+        Output folder: ``out/<name>/result.json`` and the outputs of each target, and with
+        ``summary`` ``summary.json``, ``summary.csv``, ``summary.png`` and ``index.html``.
+    client : distributed.Client, optional
+        Run on this client's cluster (left running).
+    scheduler : str, optional
+        Address of a running Dask scheduler (``"tcp://host:8786"``); connected to and
+        disconnected from (the cluster is left running).
+    n_workers : int, optional
+        Worker processes of the embedded ``LocalCluster`` (default: cores // threads).
+    threads_per_worker : int, optional
+        Compute threads per target (ray casting, rendering, BLAS, Open3D). Default: the cores
+        divided by the workers (on an existing cluster: by the task slots on each host). The
+        embedded cluster refuses ``n_workers * threads_per_worker`` above the cores.
+    progress : bool
+        A tqdm progress bar on stderr.
+    force : bool
+        Recompute every target, even those whose earlier result has the same settings hash.
+    retry_failed : bool
+        Recompute the targets that failed earlier with the same settings hash (by default a
+        rerun keeps them: the same input and settings fail the same way). Tasks that were lost
+        (a worker died) are always retried.
+    summary : bool
+        Write the summary files into ``out``.
+    **fit_kwargs
+        The task's options (:data:`TASK_OPTIONS`), e.g. ``time_budget=5.0``,
+        ``recipe="coarse-to-fine"``.
+
+    Returns
+    -------
+    BatchResult
+        One :class:`TargetResult` per target, in target order; ``exit_code`` is 0 when all
+        succeeded.
+
+    Raises
+    ------
+    ValueError
+        For an unknown task or option, a bad option value, thread counts above the cores, or
+        no targets. A failing *target* never raises: it is recorded as ``"failed"``.
+    FileNotFoundError
+        For a target path that does not exist.
+
+    Notes
+    -----
+    The embedded cluster's workers are new processes (multiprocessing's "spawn"), which import
+    the calling script again: in a script, call :func:`fit_many` under
+    ``if __name__ == "__main__":``.
+
+    Examples
+    --------
+    >>> from geofit.batch import fit_many
+    >>> table = fit_many(["a.obj", "b.obj"], out="out", time_budget=5.0)  # doctest: +SKIP
+    >>> table.to_csv("out/table.csv")  # doctest: +SKIP
+    """
+    t0 = time.perf_counter()
+    settings = task_settings(task, **fit_kwargs)
+    items = expand_targets(targets, task)
+    out = Path(out).resolve()
+    if client is not None and scheduler is not None:
+        raise ValueError("client, scheduler: give at most one of them")
+    for v, nm in ((n_workers, "n_workers"), (threads_per_worker, "threads_per_worker")):
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < 1):
+            raise ValueError(f"{nm}: expected an integer >= 1, got {v!r}")
+    if client is None and scheduler is None:
+        n_workers, threads_per_worker = _plan_threads(n_workers, threads_per_worker)
+    out.mkdir(parents=True, exist_ok=True)
+    key = ACCURACY[task][0]
+    rows: dict[str, TargetResult] = {}
+    todo = []
+    for name, path in items:
+        digest = settings_hash(task, path, settings)
+        prev = None if force else _previous(out / name, digest, retry_failed)
+        if prev is not None:
+            rows[name] = TargetResult.from_record(prev, reused=True)
+        else:
+            todo.append({"task": task, "path": str(path), "name": name, "out": str(out),
+                         "settings": settings, "settings_hash": digest,
+                         "accuracy_key": key})
+    used_workers, where = 0, "local" if client is None and scheduler is None else "cluster"
+    if todo:
+        own = client is None
+        cluster = None
+        try:
+            if client is None and scheduler is not None:
+                from distributed import Client
+
+                client = Client(scheduler)
+            elif client is None:
+                cluster, client = _start_local(n_workers, threads_per_worker)
+            if cluster is None:
+                threads_per_worker = _remote_threads(client, threads_per_worker)
+                where = str(client.scheduler.address)
+            used_workers = len(_workers(client))
+            for spec in todo:
+                spec["threads"] = threads_per_worker
+            rows.update(_run(client, todo, progress))
+        finally:
+            if own and client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+    result = BatchResult([rows[name] for name, _ in items], task, out, settings,
+                         n_workers=used_workers, threads_per_worker=threads_per_worker or 1,
+                         scheduler=where)
+    result.seconds = time.perf_counter() - t0
+    if summary:
+        from ._summary import write_summary
+
+        write_summary(result)
+    return result
+
+
+def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
+    """Submit one task per spec, collect the records as they finish."""
+    from distributed import as_completed
+    from tqdm.auto import tqdm
+
+    futures = {}
+    for spec in todo:
+        f = client.submit(run_target, spec, pure=False,
+                          key=f"geofit-{spec['task']}-{spec['name']}-{spec['settings_hash'][:8]}")
+        futures[f] = spec
+    rows: dict[str, TargetResult] = {}
+    n_failed = 0
+    with tqdm(total=len(todo), desc=f"geofit batch {todo[0]['task']}", unit="target",
+              disable=not progress) as bar:
+        for fut in as_completed(futures):
+            spec = futures[fut]
+            try:
+                rec = fut.result()
+            except Exception as exc:  # noqa: BLE001 - the task was lost (worker died, ...)
+                rec = _lost(spec, exc)
+            row = TargetResult.from_record(rec)
+            rows[spec["name"]] = row
+            n_failed += not row.ok
+            bar.set_postfix_str(f"{row.name}: {row.status}; {n_failed} failed")
+            bar.update(1)
+    return rows
+
+
+def _lost(spec: dict, exc: BaseException) -> dict:
+    """The record of a task that did not return (its worker died): written by the client."""
+    from ._tasks import write_json
+
+    rec = {"schema": RESULT_SCHEMA, "name": spec["name"], "target": spec["path"],
+           "task": spec["task"], "settings": spec["settings"],
+           "settings_hash": spec["settings_hash"], "status": "failed",
+           "message": f"{type(exc).__name__}: {exc}",
+           "error": {"type": type(exc).__name__, "message": str(exc)}, "metrics": {},
+           "accuracy": -1.0, "seconds": 0.0, "n_params": 0, "picture": None, "lost": True}
+    dest = Path(spec["out"]) / spec["name"]
+    dest.mkdir(parents=True, exist_ok=True)
+    write_json(dest / RESULT_FILE, {**rec, "history": None})
+    return rec
+
