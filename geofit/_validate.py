@@ -16,6 +16,7 @@ __all__ = [
     "as_points",
     "as_faces",
     "as_rng",
+    "as_unit_images",
     "check_choice",
     "check_positive",
     "shape_str",
@@ -102,6 +103,20 @@ def as_array(
     if finite and target.kind == "f" and arr.size and not np.all(np.isfinite(arr)):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
         raise ValueError(f"{name}: expected finite values, got {bad} NaN or inf entries")
+    return arr
+
+
+def as_unit_images(x, name: str, shape: Sequence | None = None) -> np.ndarray:
+    """``as_array`` for float images with values in [0, 1]: integer (8-bit) data and values
+    outside [-0.01, 1.01] (a 0-255 float image) are refused, naming ``name``."""
+    dt = getattr(x, "dtype", None)
+    if dt is not None and np.dtype(dt).kind in "iu":
+        raise ValueError(f"{name}: expected float values in [0, 1], got integer dtype {dt} "
+                         f"(divide 8-bit images by 255)")
+    arr = as_array(x, name, shape)
+    if arr.size and (arr.min() < -0.01 or arr.max() > 1.01):
+        raise ValueError(f"{name}: expected values in [0, 1], got range [{arr.min():.4g}, "
+                         f"{arr.max():.4g}] (divide 0-255 images by 255)")
     return arr
 
 

@@ -451,12 +451,15 @@ def test_load_obj_errors(tmp_path, text, match):
 
 
 def test_load_obj_missing_files(tmp_path):
-    """Missing OBJ, MTL or texture image: FileNotFoundError naming the file."""
+    """Missing OBJ or texture image: FileNotFoundError naming the file; missing MTL: a warning."""
     with pytest.raises(FileNotFoundError, match=r"OBJ file not found: .*none\.obj"):
         load_obj(tmp_path / "none.obj")
     p = write(tmp_path / "m.obj", "mtllib gone.mtl\nusemtl a\n" + TRI + "f 1 2 3\n")
-    with pytest.raises(FileNotFoundError, match=r"line 1: material library not found: .*gone\.mtl"):
-        load_obj(p)
+    with pytest.warns(UserWarning, match=r"line 1: material library not found: .*gone\.mtl; "
+                                         r"loading the geometry without its materials"):
+        d = load_obj(p)  # PyTorch3D's behaviour: a warning, the geometry, no materials
+    np.testing.assert_array_equal(d.faces, [[0, 1, 2]])
+    assert d.materials == {} and d.texture_images == {} and d.material_names == ["a"]
     np.testing.assert_array_equal(load_obj(p, load_textures=False).faces, [[0, 1, 2]])
     write(tmp_path / "gone.mtl", "newmtl a\nmap_Kd missing_tex.png\n")
     with pytest.raises(FileNotFoundError, match=r"texture image of material 'a' not found: "
@@ -596,7 +599,7 @@ def test_pointcloud_errors(tmp_path):
     with pytest.raises(ValueError, match=r"nn\.npz: normals: expected shape \(3, 3\)"):
         load_pointcloud(tmp_path / "nn.npz")
     write(tmp_path / "g.ply", "garbage")
-    with pytest.raises(ValueError, match=r"g\.ply: the file holds no points \(or Open3D"):
+    with pytest.raises(ValueError, match=r"g\.ply: not a PLY file"):
         load_pointcloud(tmp_path / "g.ply")
     cloud = PointCloud(pts, np.zeros((3, 1)))
     with pytest.raises(TypeError, match="cloud: expected a geofit PointCloud"):

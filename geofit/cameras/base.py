@@ -165,6 +165,14 @@ class CamerasBase:
             setattr(self, k, v)
         self._R_inv = np.linalg.inv(self.R)
 
+    def __setattr__(self, name, value):
+        """Assigning ``R``, ``T`` or a per-camera parameter re-runs the constructor's checks."""
+        if "_R_inv" in self.__dict__ and name in ("R", "T") + self._FIELDS:
+            params = {**self._shared(), **self._fields(), name: value}
+            self.__dict__.update(type(self)(**params).__dict__)
+        else:
+            object.__setattr__(self, name, value)
+
     def _shared(self) -> dict:
         """Batch-wide settings (not indexed by camera)."""
         return {}

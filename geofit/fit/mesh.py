@@ -125,6 +125,9 @@ def _repair_degenerate(mesh: Mesh, max_rounds: int = 10) -> tuple[Mesh, int, int
     n_bad = int(bad.sum())
     if n_bad == 0:
         return mesh, 0, 0
+    F = mesh.faces
+    repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
+    bad &= ~repeated  # no vertex move gives such a face an area
     A = mesh.topology.adjacency
     deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
     V = mesh.verts.copy()
@@ -133,8 +136,8 @@ def _repair_degenerate(mesh: Mesh, max_rounds: int = 10) -> tuple[Mesh, int, int
         idx = np.unique(mesh.faces[bad])
         moved[idx] = True
         V[idx] = (A @ V)[idx] / deg[idx, None]
-        mesh = mesh.update_verts(V)
-        bad = mesh.face_areas <= tol
+        mesh = mesh.update_verts(V.copy())  # the mesh freezes the array it is given
+        bad = (mesh.face_areas <= tol) & ~repeated  # a repeated index stays degenerate
         if not bad.any():
             break
     return mesh, n_bad, int(moved.sum())

@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 
 from .._threads import get_num_threads, parallel_map
-from .._validate import as_array, as_rng, check_choice, check_positive
+from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
 from ..metrics import psnr
@@ -366,10 +366,15 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
                                        n_pts_per_ray=n_pts_per_ray, min_depth=min_depth,
                                        max_depth=max_depth)
     renderer = ImplicitRenderer(sampler, EmissionAbsorptionRaymarcher(), occupancy=occupancy)
+    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
+    r = len(cameras) * int(H) * int(W)
+    from geofit._memory import check_allocation  # memory guard (issue 18), measured ~7
+    per = 7 * np.dtype(field.dtype).itemsize * field.config["n_hidden_neurons"]  # B/sample
+    check_allocation(per * min(chunk_rays, r) * n_pts_per_ray * n_threads, "chunk_rays and "
+                     "n_pts_per_ray", "the network activations of one chunk of rays per thread")
     bundle = sampler(cameras)
     flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
     r = flat.origins.shape[0]
-    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
     chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]
 
     def work(sl):
@@ -388,7 +393,7 @@ class _Data:
     """Validated training / held-out data."""
 
     def __init__(self, images, silhouettes, cameras, name: str):
-        self.images = as_array(images, f"{name}images", (None, None, None, 3))
+        self.images = as_unit_images(images, f"{name}images", (None, None, None, 3))
         N, H, W, _ = self.images.shape
         if N == 0:
             raise ValueError(f"{name}images: expected at least one view, got shape "
@@ -556,6 +561,12 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     else:
         raise TypeError(f"init: expected a NeuralRadianceField, got {type(init)!r}")
     batch = min(cfg.batch_size, data.N)
+    from geofit._memory import check_allocation  # memory guard (issue 18), measured ~13
+    per, step = 13 * np.dtype(cfg.dtype).itemsize * cfg.n_hidden_neurons, batch * \
+        cfg.n_rays_per_image * cfg.n_pts_per_ray  # B per sample, samples per step
+    check_allocation(per * min(step, n_threads * max(_CHUNK_SAMPLES, cfg.n_pts_per_ray))
+                     + 64 * step, "batch_size, n_rays_per_image and n_pts_per_ray",
+                     "one training step's samples and network activations")
 
     # ---- occupancy and rays ----------------------------------------------------------------
     hull = None

@@ -57,7 +57,7 @@ import scipy.sparse as sp
 from scipy import ndimage
 
 from .._threads import get_num_threads, one_blas_thread, parallel_map
-from .._validate import as_array, as_rng, check_choice, check_positive
+from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
 from ..render.volume.raymarching import (
@@ -857,7 +857,7 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
     ValueError
         On inconsistent shapes, non-finite inputs or invalid settings.
     """
-    imgs = as_array(images, "images", (None, None, None, 3))
+    imgs = as_unit_images(images, "images", (None, None, None, 3))
     N, H, W, _ = imgs.shape
     if N == 0:
         raise ValueError("images: expected at least one view, got shape (0, H, W, 3)")
@@ -867,6 +867,9 @@ def fit_volume(images, silhouettes, cameras: CamerasBase, *, method: str = "lbfg
     S = int(volume_size) if isinstance(volume_size, (numbers.Integral, np.integer)) else -1
     if S < 2 or isinstance(volume_size, bool):
         raise ValueError(f"volume_size: expected an integer >= 2, got {volume_size!r}")
+    from geofit._memory import check_allocation  # memory guard (issue 18): 4 channels x 8 B x
+    check_allocation(4 * 8 * 8 * S**3, "volume_size", f"a {S}^3 grid (values, gradients, solver "
+                     "state)")  # ~8 copies (values, gradients, Adam / L-BFGS state, operators)
     extent = check_positive(volume_extent, "volume_extent")
     if not isinstance(n_pts_per_ray, (numbers.Integral, np.integer)) or n_pts_per_ray < 2:
         raise ValueError(f"n_pts_per_ray: expected an integer >= 2, got {n_pts_per_ray!r}")

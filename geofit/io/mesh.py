@@ -28,7 +28,7 @@ from ..structures._foreign import scene_to_mesh
 from ..structures.mesh import Mesh, _corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
-from .obj import _obj_to_mesh, save_obj
+from .obj import MAX_COORD, _obj_to_mesh, save_obj
 
 __all__ = ["load_mesh", "save_mesh", "READ_FORMATS", "WRITE_FORMATS"]
 
@@ -40,7 +40,7 @@ READ_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 WRITE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
 
 
-def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
+def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False) -> Mesh:
     """Load one triangle mesh from an OBJ, PLY, STL, OFF, GLB or glTF file.
 
     Parameters
@@ -55,6 +55,9 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
     load_textures : bool
         Attach the file's texture or colours: a TexturesUV (OBJ, GLB/glTF with an image), or a
         TexturesVertex from vertex colours (PLY, GLB/glTF), in [0, 1].
+    allow_outside : bool
+        For OBJ files, follow MTL and texture paths outside the file's folder (see
+        :func:`geofit.io.load_obj`).
 
     Returns
     -------
@@ -68,8 +71,9 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
         If the file does not exist.
     ValueError
         For an extension it does not read (naming those it does), a file that trimesh cannot
-        parse, a file with no faces (a point cloud: use :func:`geofit.io.load_pointcloud`) or
-        with non-finite vertices, or as :func:`geofit.io.load_obj`.
+        parse, a file with no faces (a point cloud: use :func:`geofit.io.load_pointcloud`), with
+        non-finite vertices or coordinates beyond 1e38 in absolute value, or as
+        :func:`geofit.io.load_obj`.
 
     Examples
     --------
@@ -90,7 +94,7 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     if suffix == ".obj" and sniff(path) == "OBJ":
-        return _obj_to_mesh(path, load_textures)
+        return _obj_to_mesh(path, load_textures, allow_outside)
     import trimesh
 
     fmt = sniff(path) or EXTENSIONS[suffix]
@@ -112,6 +116,8 @@ def load_mesh(path: PathLike, load_textures: bool = True) -> Mesh:
                          "read a point cloud with geofit.io.load_pointcloud")
     if not np.isfinite(np.asarray(loaded.vertices)).all():
         raise ValueError(f"{path}: the vertex coordinates are not all finite")
+    if np.abs(np.asarray(loaded.vertices)).max(initial=0.0) > MAX_COORD:
+        raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
     try:
         if fmt == "STL":
             return _merge_corners(loaded)

@@ -7,6 +7,7 @@ as ``(v0, vi, vi+1)``, and raises on anything it cannot load instead of returnin
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._memory import check_allocation
 from .._validate import as_array, as_faces, as_points
 from ._formats import EXTENSIONS, not_obj_error, sniff
 from ..structures._foreign import foreign_kind
@@ -79,8 +81,12 @@ class ObjData(NamedTuple):
     face_materials : (F,) int64
         Index of each face's material in ``material_names``; -1 before any ``usemtl``.
     texture_images : dict of str to (H, W, 3) float64
-        Diffuse texture (``map_Kd``) of each used material that has one, RGB in [0, 1] (8-bit
-        value / 255), row 0 at the top of the image; in order of first use.
+        Diffuse texture (``map_Kd``) of each used material that has one, RGB, row 0 at the
+        top of the image; in order of first use. Values are scaled by the pixel type: 8-bit
+        images (any mode PIL converts to RGB, as PyTorch3D does) / 255, 16-bit greyscale
+        / 65535, 32-bit integer (PIL mode ``I``) / 65535 when the values fit in 16 bits (or
+        the file is a PNG) and / (2^32 - 1) otherwise; float (TIFF) pixels are kept as they
+        are.
     material_names : list of str
         Material names in order of first ``usemtl`` (what ``face_materials`` indexes).
     """
@@ -99,11 +105,23 @@ class ObjData(NamedTuple):
 
 # --------------------------------------------------------------------------- parsing helpers
 def _read_text(path: Path) -> str:
-    data = path.read_bytes()
+    """The file's text: UTF-8 (a byte-order mark is dropped) or else Latin-1."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:  # permission denied, a directory, I/O errors
+        raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
         return data.decode("latin-1")
+
+
+def _lines(text: str) -> list:
+    """Lines split at \\n, \\r\\n or \\r only (not at the form feeds, vertical tabs, \\x1c-\\x1e and
+    Unicode separators that ``str.splitlines`` also breaks at)."""
+    return text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
 
 
 def _strip_comment(line: str) -> str:
@@ -113,6 +131,9 @@ def _strip_comment(line: str) -> str:
 
 _WS = np.zeros(256, dtype=bool)
 _WS[[9, 10, 11, 12, 13, 32]] = True  # \t \n \v \f \r and space
+_NUMERIC_OK = _WS.copy()  # bytes allowed in v/vt/vn lines: printable ASCII and whitespace
+_NUMERIC_OK[32:127] = True
+MAX_COORD = 1e38  # |coordinate| bound: beyond it areas, normals and float32 rendering overflow
 _POW10 = 10 ** np.arange(19, dtype=np.int64)
 _SLOT_NAMES = ("vertex", "texture coordinate", "normal")
 
@@ -137,6 +158,11 @@ def _parse_float_lines(bodies: list, lines: list, ncol: int, what: str, path: Pa
         return np.zeros((0, ncol))
     joined = "\n".join(bodies)
     blob = np.frombuffer((joined + "\n").encode("utf-8", "replace"), dtype=np.uint8)
+    bad_byte = ~_NUMERIC_OK[blob]
+    if bad_byte.any():  # control or non-ASCII characters: str.split and the tokeniser disagree
+        i = int(np.count_nonzero(blob[:int(np.flatnonzero(bad_byte)[0])] == 10))
+        raise ValueError(f"{path}: line {lines[i]}: {what} line has a control or non-ASCII "
+                         f"character (only printable ASCII, spaces and tabs are allowed)")
     counts = _tokens_per_line(blob)[2]
     short = counts < ncol
     if short.any():
@@ -261,10 +287,15 @@ def _resolve_indices(raw: np.ndarray, count_at: np.ndarray, total: int, what: st
 
 
 def _parse_mtl(path: Path) -> dict:
-    """Read the MTL keys PyTorch3D uses (newmtl, Ka, Kd, Ks, Ns, map_Kd) -> name -> Material."""
+    """Read the MTL keys PyTorch3D uses (newmtl, Ka, Kd, Ks, Ns, map_Kd) -> name -> Material.
+
+    Error messages name the file, the line number and the key, never the line's content (the
+    file may be one the user did not mean to expose). ``map_Kd`` is joined to the MTL's folder
+    here; the path policy is applied by :func:`load_obj` when the texture is read.
+    """
     mats: dict[str, Material] = {}
     cur: Material | None = None
-    for ln, raw_line in enumerate(_read_text(path).splitlines(), 1):
+    for ln, raw_line in enumerate(_lines(_read_text(path)), 1):
         line = _strip_comment(raw_line).strip()
         if not line:
             continue
@@ -289,11 +320,16 @@ def _parse_mtl(path: Path) -> dict:
             rest = rest.replace("\\", "/")
             p = Path(rest)
             cur.map_Kd = str(p if p.is_absolute() else (path.parent / p))
+            cur.extra["map_Kd_source"] = (str(path), ln, rest)
             continue
         try:
+            if not all(t.isascii() for t in tokens[1:4]):
+                raise ValueError
             vals = [float(t) for t in tokens[1:4]]
         except ValueError:
-            raise ValueError(f"{path}: line {ln}: {key} has a non-numeric value in {line!r}") from None
+            raise ValueError(f"{path}: line {ln}: {key} has a non-numeric value") from None
+        if not all(np.isfinite(vals)) or any(v < 0 for v in vals):
+            raise ValueError(f"{path}: line {ln}: {key} values must be finite and non-negative")
         if key == "Ns":
             if len(vals) < 1:
                 raise ValueError(f"{path}: line {ln}: Ns needs a value")
@@ -302,21 +338,95 @@ def _parse_mtl(path: Path) -> dict:
             if len(vals) == 1:  # "Kd 0.5" means grey
                 vals = vals * 3
             if len(vals) != 3:
-                raise ValueError(f"{path}: line {ln}: {key} needs 3 values, got {line!r}")
+                raise ValueError(f"{path}: line {ln}: {key} needs 3 values, got {len(vals)}")
             setattr(cur, key, np.array(vals, dtype=np.float64))
     return mats
 
 
-def _read_image(path: str) -> np.ndarray:
+def _check_inside(ref: str, target: Path, source: Path, ln: int, what: str,
+                  allow_outside: bool) -> None:
+    """The path policy: ``target`` (named as ``ref`` on line ``ln`` of ``source``) must lie in
+    the folder of ``source`` after resolving ``..`` and symlinks, unless ``allow_outside``."""
+    if any(ord(c) < 32 or c == "\x7f" for c in ref):  # NUL makes the OS calls raise
+        raise ValueError(f"{source}: line {ln}: the {what} path has a control character")
+    if allow_outside:
+        return
+    folder = source.parent.resolve()
+    why = None
+    if Path(ref.replace("\\", "/")).is_absolute():
+        why = "is an absolute path"
+    else:
+        try:
+            real = target.resolve()
+        except (OSError, RuntimeError):  # symlink loops
+            why = "cannot be resolved"
+        else:  # both the written path ('..' in it) and the real one (symlinks) must stay in
+            written = os.path.normpath(ref.replace("\\", "/"))
+            if written == ".." or written.startswith("../") or not real.is_relative_to(folder):
+                why = "resolves outside that folder ('..' or a symlink)"
+    if why is not None:
+        raise ValueError(f"{source}: line {ln}: the {what} path {ref!r} {why}; referenced files "
+                         f"must lie in the folder of the file that names them ({folder}); pass "
+                         f"allow_outside=True to follow such paths")
+
+
+def _image_to_float(im, path) -> np.ndarray:
+    """A PIL image -> (H, W, 3) float64, scaled by the pixel type's range (not clipped to 8 bit)."""
+    mode = im.mode
+    if mode.startswith("I;16"):  # 16-bit greyscale
+        a = np.asarray(im).astype(np.float64) / 65535.0
+    elif mode == "I":  # 32-bit integer pixels; PNG gives this mode for 16-bit greyscale
+        a = np.asarray(im)
+        if a.size and a.min() < 0:
+            raise ValueError(f"{path}: the image has negative pixel values")
+        bits = 16 if im.format == "PNG" or (a.size and a.max() <= 65535) else 32
+        a = a.astype(np.float64) / float(2**bits - 1)
+    elif mode == "F":  # float pixels (TIFF): the values as they are
+        a = np.asarray(im).astype(np.float64)
+        if not np.isfinite(a).all():
+            raise ValueError(f"{path}: the float image has NaN or infinite pixels")
+    elif mode == "1":
+        a = np.asarray(im).astype(np.float64)
+    else:  # 8-bit modes (L, P, RGB, RGBA, LA, CMYK, YCbCr, ...): PyTorch3D's convert("RGB")
+        return np.asarray(im.convert("RGB")).astype(np.float64) / 255.0
+    return np.repeat(a[:, :, None], 3, axis=2)
+
+
+def _read_image(path: str, memory_limit=None) -> np.ndarray:
+    """A texture image as (H, W, 3) float64; its decoded size is checked from the header first."""
+
     from PIL import Image
 
-    with Image.open(path) as im:
-        rgb = np.asarray(im.convert("RGB"))
-    return rgb.astype(np.float64) / 255.0
+    try:
+        with warnings.catch_warnings():
+            # PIL's warnings (corrupt EXIF, truncated data) refuse the image; geofit's own
+            # memory estimate replaces PIL's pixel-count warning
+            warnings.simplefilter("error")
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                w, h = im.size
+                bands = len(im.getbands())
+                check_allocation(w * h * (bands * 4 + 3 * 8 * 2), setting=str(path),
+                                 what=f"decoding this {w}x{h} image", limit=memory_limit)
+                im.load()
+                return _image_to_float(im, path)
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable image ({str(exc)[:200]})") from None
+    except FileNotFoundError:
+        raise
+    except MemoryError:
+        raise ValueError(f"{path}: not enough memory to decode the image") from None
+    except Exception as exc:  # noqa: BLE001 - PIL raises OSError, SyntaxError, EOFError,
+        # zlib.error, struct.error, DecompressionBombError, ... for damaged files
+        raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
 
 
 # --------------------------------------------------------------------------- public API
-def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
+def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False,
+             memory_limit=None) -> ObjData:
     """Read a Wavefront OBJ file, its MTL materials and its texture images.
 
     Follows ``pytorch3d.io.load_obj``: vertices, texture coordinates and normals are kept in
@@ -330,6 +440,13 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
     load_textures : bool
         Read the ``mtllib`` files and the ``map_Kd`` images they name. When False, neither is
         read (``materials`` and ``texture_images`` are empty), as in PyTorch3D.
+    allow_outside : bool
+        Follow ``mtllib`` and ``map_Kd`` paths that are absolute or resolve (through ``..`` or
+        a symlink) outside the folder of the file naming them. By default such paths raise
+        ValueError, so a downloaded mesh cannot make geofit read any file on the machine.
+    memory_limit : int or str, optional
+        Bytes a texture image may take once decoded (checked from its header before decoding);
+        default ``GEOFIT_MEMORY_LIMIT`` or half of the available memory.
 
     Returns
     -------
@@ -342,10 +459,14 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
     Raises
     ------
     FileNotFoundError
-        If the OBJ file, or (with ``load_textures``) an MTL file or a texture image it names,
-        does not exist. The message names the missing file.
+        If the OBJ file, or (with ``load_textures``) a texture image named by its MTL, does not
+        exist. The message names the missing file. (A missing MTL file is only a warning.)
     ValueError
-        Naming the file and line: a non-numeric or non-finite coordinate, a ``v``/``vn`` line
+        Naming the file: a file that cannot be read, a texture that is not a readable image or
+        would exceed the memory limit, an MTL or texture path outside the folder (see
+        ``allow_outside``), an MTL colour that is not finite and non-negative. Naming the file
+        and line: a control or non-ASCII character in a ``v``/``vt``/``vn`` line, a coordinate
+        beyond 1e38 in absolute value, a non-numeric or non-finite coordinate, a ``v``/``vn`` line
         with fewer than 3 values or a ``vt`` line with fewer than 2, a face with fewer than 3
         corners, a face mixing corners with and without ``vt`` (or ``vn``), an index that is 0
         or out of range, or a file without any face. A PLY, GLB or OFF file (recognised by its
@@ -381,7 +502,7 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
         raise FileNotFoundError(f"OBJ file not found: {path}")
     if sniff(path) not in (None, "OBJ"):
         raise not_obj_error(path, sniff(path), reader=True)
-    lines = _read_text(path).splitlines()
+    lines = _lines(_read_text(path))
 
     # One pass over the lines sorts them by keyword; the numbers are parsed afterwards in bulk.
     vb: list = []
@@ -432,6 +553,12 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
     verts = _parse_float_lines(vb, vl, 3, "vertex", path)
     verts_uvs = _parse_float_lines(tb, tl, 2, "texture coordinate", path)
     normals = _parse_float_lines(nb, nl, 3, "normal", path)
+    big = np.abs(verts).max(axis=1, initial=0.0) > MAX_COORD
+    if big.any():
+        i = int(np.flatnonzero(big)[0])
+        raise ValueError(f"{path}: line {vl[i]}: vertex coordinate beyond {MAX_COORD:g} in "
+                         f"absolute value (areas, normals and float32 rendering would overflow); "
+                         f"{int(big.sum())} such line(s)")
     if not fb:
         raise ValueError(f"{path}: the file has no faces (empty mesh; {len(verts)} vertices)")
 
@@ -483,8 +610,11 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
         for name, ln in mtllibs:  # one per mtllib statement
             mp = Path(name.replace("\\", "/"))
             mp = mp if mp.is_absolute() else path.parent / mp
+            _check_inside(name, mp, path, ln, "mtllib", allow_outside)
             if not mp.is_file():
-                raise FileNotFoundError(f"{path}: line {ln}: material library not found: {mp}")
+                warnings.warn(f"{path}: line {ln}: material library not found: {mp}; loading "
+                              f"the geometry without its materials", UserWarning, stacklevel=2)
+                continue
             defined.update(_parse_mtl(mp))
         cache: dict = {}
         for name in material_names:  # only the materials the OBJ uses, in order of first use
@@ -493,19 +623,22 @@ def load_obj(path: PathLike, load_textures: bool = True) -> ObjData:
             m = defined[name]
             materials[name] = m
             if m.map_Kd is not None:
+                src, src_line, ref = m.extra.get("map_Kd_source", (str(path), 0, m.map_Kd))
+                _check_inside(ref, Path(m.map_Kd), Path(src), src_line, "map_Kd texture",
+                              allow_outside)
                 if not Path(m.map_Kd).is_file():
                     raise FileNotFoundError(
                         f"{path}: texture image of material {name!r} not found: {m.map_Kd}")
                 if m.map_Kd not in cache:
-                    cache[m.map_Kd] = _read_image(m.map_Kd)
+                    cache[m.map_Kd] = _read_image(m.map_Kd, memory_limit)
                 texture_images[name] = cache[m.map_Kd]
 
     return ObjData(verts, faces, faces_uvs, verts_uvs, faces_normals_idx, normals, materials,
                    face_materials, texture_images, material_names)
 
 
-def _obj_to_mesh(path: Path, load_textures: bool) -> Mesh:
-    d = load_obj(path, load_textures=load_textures)
+def _obj_to_mesh(path: Path, load_textures: bool, allow_outside: bool = False) -> Mesh:
+    d = load_obj(path, load_textures=load_textures, allow_outside=allow_outside)
     tex = None
     if d.texture_images:
         if len(d.verts_uvs) == 0:
@@ -517,7 +650,8 @@ def _obj_to_mesh(path: Path, load_textures: bool) -> Mesh:
     return Mesh(d.verts, d.faces, tex)
 
 
-def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: bool = True) -> Meshes:
+def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: bool = True, *,
+                        allow_outside: bool = False) -> Meshes:
     """Load OBJ files into a :class:`~geofit.structures.Meshes` batch (PyTorch3D semantics).
 
     Parameters
@@ -527,6 +661,8 @@ def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: boo
     load_textures : bool
         Attach a :class:`~geofit.structures.TexturesUV` to meshes whose materials have a
         texture image.
+    allow_outside : bool
+        Follow MTL and texture paths outside each OBJ's folder (see :func:`load_obj`).
 
     Returns
     -------
@@ -549,7 +685,7 @@ def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: boo
     """
     if isinstance(files, (str, os.PathLike)):
         files = [files]
-    return Meshes([_obj_to_mesh(Path(f), load_textures) for f in files])
+    return Meshes([_obj_to_mesh(Path(f), load_textures, allow_outside) for f in files])
 
 
 def _fmt_floats(arr: np.ndarray, decimal_places: int | None) -> tuple:

@@ -2,17 +2,31 @@
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
+from .._memory import check_allocation
 from .._validate import as_array
 from ..structures.pointcloud import PointCloud, as_pointcloud
+from .obj import _tokens_per_line
 
 __all__ = ["load_pointcloud", "save_pointcloud"]
 
 _POINT_KEYS = ("verts", "points")
 _COLOUR_KEYS = ("rgb", "colors", "colours", "features")
+_MAX_COORD = 1e38  # larger coordinates overflow areas, normals and float32 rendering
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+_PLY_COLOURS = (("red", "green", "blue"), ("r", "g", "b"),
+                ("diffuse_red", "diffuse_green", "diffuse_blue"))
+_HEADER_MAX = 1 << 16
 
 
 def _colours_to_float(c: np.ndarray, path: Path, key: str) -> np.ndarray:
@@ -21,10 +35,228 @@ def _colours_to_float(c: np.ndarray, path: Path, key: str) -> np.ndarray:
             raise ValueError(f"{path}: integer colours {key!r} must lie in [0, 255], got range "
                              f"[{c.min()}, {c.max()}]")
         return c.astype(np.float64) / 255.0
+    if c.dtype.kind == "b":
+        return c.astype(np.float64)
     return c
 
 
-def load_pointcloud(path: str | os.PathLike) -> PointCloud:
+# --------------------------------------------------------------------------- PLY
+def _ply_header(path: Path, head: bytes):
+    """Parse a PLY header -> (format, [(element, count, [(prop, dtype or (count, item))])], size)."""
+    if not head.startswith(b"ply") or head[3:4] not in (b"\n", b"\r"):
+        raise ValueError(f"{path}: not a PLY file (it does not start with a 'ply' line)")
+    end = head.find(b"end_header")
+    if end < 0:
+        raise ValueError(f"{path}: PLY header without 'end_header' in its first "
+                         f"{_HEADER_MAX // 1024} KiB (truncated or not a PLY file)")
+    nl = head.find(b"\n", end)
+    if nl < 0 or head[end + 10:nl].strip(b"\r \t"):
+        raise ValueError(f"{path}: PLY header: 'end_header' must end its line")
+    try:
+        text = head[:end].decode("ascii")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: PLY header has non-ASCII bytes") from None
+    fmt = None
+    elements: list = []
+    for ln, line in enumerate(text.replace("\r", "").split("\n")[1:], 2):
+        tok = line.split()
+        if not tok or tok[0] in ("comment", "obj_info"):
+            continue
+        if tok[0] == "format":
+            if len(tok) != 3 or tok[2] != "1.0" or tok[1] not in (
+                    "ascii", "binary_little_endian", "binary_big_endian"):
+                raise ValueError(f"{path}: PLY header line {ln}: unsupported format line")
+            fmt = tok[1]
+        elif tok[0] == "element":
+            if len(tok) != 3 or not tok[2].isdigit() or not tok[2].isascii():
+                raise ValueError(f"{path}: PLY header line {ln}: expected 'element <name> "
+                                 f"<count>' with a non-negative integer count")
+            elements.append((tok[1], int(tok[2]), []))
+        elif tok[0] == "property":
+            if not elements:
+                raise ValueError(f"{path}: PLY header line {ln}: property before any element")
+            props = elements[-1][2]
+            if len(tok) == 3 and tok[1] in _PLY_TYPES:
+                props.append((tok[2], _PLY_TYPES[tok[1]]))
+            elif (len(tok) == 5 and tok[1] == "list" and tok[2] in _PLY_TYPES
+                  and tok[3] in _PLY_TYPES and _PLY_TYPES[tok[2]][0] in "iu"):
+                props.append((tok[4], (_PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]])))
+            else:
+                raise ValueError(f"{path}: PLY header line {ln}: unsupported property line")
+        else:
+            raise ValueError(f"{path}: PLY header line {ln}: unknown keyword {tok[0][:20]!r}")
+    if fmt is None:
+        raise ValueError(f"{path}: PLY header has no format line")
+    return fmt, elements, nl + 1
+
+
+def _read_ply(path: Path, limit):
+    """Read the vertex element of a PLY file -> (points, colours or None, normals or None).
+
+    Sizes declared by the header are checked against the file size before anything is
+    allocated; the data is parsed with numpy (binary) or a vectorised text parse (ASCII).
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    fmt, elements, body_start = _ply_header(path, head)
+    names = [e[0] for e in elements]
+    if "vertex" not in names:
+        raise ValueError(f"{path}: the PLY header declares no 'vertex' element")
+    k = names.index("vertex")
+    _, n, props = elements[k]
+    pnames = [p[0] for p in props]
+    if any(not isinstance(p[1], str) for p in props):
+        raise ValueError(f"{path}: PLY 'vertex' element with list properties is not supported")
+    missing = [c for c in "xyz" if c not in pnames]
+    if missing:
+        raise ValueError(f"{path}: PLY 'vertex' element has no {'/'.join(missing)} property")
+    body = size - body_start
+    if fmt == "ascii":
+        # every value takes at least 2 bytes (a digit and a separator)
+        need = 2 * sum(cnt * len(pr) for _, cnt, pr in elements[:k + 1])
+    else:
+        if any(not isinstance(p[1], str) for e in elements[:k] for p in e[2]):
+            raise ValueError(f"{path}: PLY elements with list properties before 'vertex' are "
+                             f"not supported")
+        need = sum(cnt * sum(np.dtype(p[1]).itemsize for p in pr)
+                   for _, cnt, pr in elements[:k + 1])
+    if need > body:
+        raise ValueError(f"{path}: the PLY header declares {n} vertices (at least {need} bytes "
+                         f"of {fmt} data) but the file holds only {max(body, 0)} bytes after the "
+                         f"header (truncated file or wrong count)")
+    n_out = 3 + 3 * ("nx" in pnames) + 3 * any(c[0] in pnames for c in _PLY_COLOURS)
+    per_value = 8 if fmt != "ascii" else 100  # ASCII: the line and token lists too
+    check_allocation(n * (per_value * len(props) + 8 * n_out), setting=str(path),
+                     what=f"the {n} declared vertices", limit=limit)
+    if fmt == "ascii":
+        data = _ply_ascii(path, elements, k, body_start)
+    else:
+        order = "<" if fmt == "binary_little_endian" else ">"
+        dt = np.dtype([(f"f{i}", order + p[1]) for i, p in enumerate(props)])
+        offset = body_start + sum(cnt * sum(np.dtype(p[1]).itemsize for p in pr)
+                                  for _, cnt, pr in elements[:k])
+        with open(path, "rb") as fh:
+            fh.seek(offset)
+            raw = np.frombuffer(fh.read(n * dt.itemsize), dtype=dt, count=n)
+        data = {p[0]: raw[f"f{i}"] for i, p in enumerate(props)}
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN / inf are refused by the caller
+        pts = np.stack([data[c].astype(np.float64) for c in "xyz"], axis=1)
+        nrm = (np.stack([data[c].astype(np.float64) for c in ("nx", "ny", "nz")], axis=1)
+               if all(c in data for c in ("nx", "ny", "nz")) else None)
+    col = None
+    for cn in _PLY_COLOURS:
+        if all(c in data for c in cn):
+            col = np.stack([data[c] for c in cn], axis=1)
+            if col.dtype.kind in "iu":  # 8-bit (or 16-bit) channels -> [0, 1]
+                top = 255.0 if col.dtype.itemsize == 1 else float(np.iinfo(col.dtype).max)
+                if col.min(initial=0) < 0:
+                    raise ValueError(f"{path}: PLY colours must not be negative")
+                col = col.astype(np.float64) / top
+            else:
+                col = col.astype(np.float64)
+            break
+    return pts, col, nrm
+
+
+def _ply_ascii(path: Path, elements: list, k: int, body_start: int) -> dict:
+    """The vertex element of an ASCII PLY (one element per line, as the format's writers do)."""
+    with open(path, "rb") as fh:
+        fh.seek(body_start)
+        blob = fh.read()
+    skip = sum(cnt for _, cnt, _ in elements[:k])
+    _, n, props = elements[k]
+    lines = blob.split(b"\n", skip + n)
+    rows = lines[skip:skip + n]
+    if len(rows) < n or (len(lines) == skip + n and not rows[-1].strip()):
+        raise ValueError(f"{path}: the PLY header declares {n} vertices but the file has fewer "
+                         f"lines (truncated file or wrong count)")
+    text = b"\n".join(rows)
+    arr = np.frombuffer(text, dtype=np.uint8)
+    ok = _ASCII_OK[arr]
+    if not ok.all():
+        i = int(np.count_nonzero(arr[:int(np.flatnonzero(~ok)[0])] == 10))
+        raise ValueError(f"{path}: PLY vertex {i}: unexpected character (only numbers and "
+                         f"spaces are allowed in ASCII PLY data)")
+    counts = _tokens_per_line(np.frombuffer(text + b"\n", dtype=np.uint8))[2]
+    if np.any(counts != len(props)):
+        i = int(np.flatnonzero(counts != len(props))[0])
+        raise ValueError(f"{path}: PLY vertex {i}: expected {len(props)} values per vertex "
+                         f"line, got {int(counts[i])}")
+    tokens = text.split()
+    try:
+        vals = np.array(tokens, dtype=np.float64).reshape(n, len(props))
+    except ValueError:
+        raise ValueError(f"{path}: PLY vertex data has a value that is not a number") from None
+    data = {}
+    for i, (name, typ) in enumerate(props):  # a loop over the few properties
+        col = vals[:, i]
+        if typ[0] in "iu":  # integer properties (colours): integral values in the type's range
+            info = np.iinfo(typ)
+            if not (np.all(col == np.round(col)) and np.all(col >= info.min)
+                    and np.all(col <= info.max)):
+                raise ValueError(f"{path}: PLY property {name!r} is declared {typ} but holds "
+                                 f"values that are not integers in [{info.min}, {info.max}]")
+            col = col.astype(typ)
+        data[name] = col
+    return data
+
+
+_ASCII_OK = np.zeros(256, dtype=bool)
+_ASCII_OK[[9, 10, 11, 12, 13, 32]] = True
+_ASCII_OK[np.frombuffer(b"0123456789+-.eEnaifNAIFty", dtype=np.uint8)] = True
+
+
+# --------------------------------------------------------------------------- NPZ
+def _read_npz(path: Path, limit):
+    """The arrays of a PittsburghBridge-style npz, sizes checked from the headers first."""
+    with open(path, "rb") as fh:  # our handle: closed even when numpy fails half-way
+        return _read_npz_from(path, fh, limit)
+
+
+def _read_npz_from(path: Path, fh, limit):
+    try:
+        z = np.load(fh, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: not a readable .npz file ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: expected an .npz archive, got a single .npy array")
+    with z:
+        keys = set(z.files)
+        pk = next((k for k in _POINT_KEYS if k in keys), None)
+        if pk is None:
+            raise ValueError(f"{path}: expected the points under one of {_POINT_KEYS}, "
+                             f"found keys {sorted(keys)[:20]}")
+        ck = next((k for k in _COLOUR_KEYS if k in keys), None)
+        wanted = [k for k in (pk, ck, "normals" if "normals" in keys else None) if k]
+        total = 0
+        for key in wanted:  # shapes and dtypes from the .npy headers, nothing decoded yet
+            try:
+                with z.zip.open(key + ".npy") as fh:
+                    version = np.lib.format.read_magic(fh)
+                    shape, _, dtype = (np.lib.format.read_array_header_1_0(fh)
+                                       if version == (1, 0) else
+                                       np.lib.format.read_array_header_2_0(fh))
+            except (ValueError, OSError, EOFError, KeyError, SyntaxError, TypeError,
+                    zipfile.BadZipFile, zlib.error) as exc:
+                raise ValueError(f"{path}: array {key!r} has an unreadable header "
+                                 f"({type(exc).__name__})") from None
+            if dtype.hasobject:
+                raise ValueError(f"{path}: array {key!r} holds Python objects")
+            total += 2 * int(np.prod(shape, dtype=object)) * max(dtype.itemsize, 8)
+        check_allocation(total, setting=str(path), what=f"the arrays {wanted}", limit=limit)
+        try:
+            pts = np.asarray(z[pk])
+            col = None if ck is None else _colours_to_float(np.asarray(z[ck]), path, ck)
+            nrm = np.asarray(z["normals"]) if "normals" in keys else None
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ValueError(f"{path}: array data is unreadable ({type(exc).__name__}: "
+                             f"{str(exc)[:200]})") from None
+    return pk, ck, pts, col, nrm
+
+
+def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud:
     """Read a point cloud with optional colours and normals.
 
     Parameters
@@ -33,7 +265,11 @@ def load_pointcloud(path: str | os.PathLike) -> PointCloud:
         ``.npz``: the points under ``verts`` (PyTorch3D's PittsburghBridge file) or ``points``;
         colours, optional, under ``rgb``, ``colors``, ``colours`` or ``features``; normals,
         optional, under ``normals``.
-        ``.ply``: read with ``open3d.io.read_point_cloud`` (points, colours and normals).
+        ``.ply``: ASCII or binary PLY; the ``vertex`` element's ``x, y, z``, optional
+        ``nx, ny, nz`` and optional ``red, green, blue`` (or ``r, g, b``) properties.
+    memory_limit : int or str, optional
+        Bytes the decoded arrays may take (see :func:`geofit._memory.check_allocation`);
+        default ``GEOFIT_MEMORY_LIMIT`` or half of the available memory.
 
     Returns
     -------
@@ -46,16 +282,20 @@ def load_pointcloud(path: str | os.PathLike) -> PointCloud:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        For an unsupported extension, missing point key, wrong shapes, non-finite values, a
-        colour count different from the point count, or a file without points.
+        Naming the file: an unsupported extension, an unreadable archive or header, a PLY
+        shorter than its header declares, missing point key, wrong shapes, non-finite values or
+        coordinates beyond 1e38, a colour count different from the point count, a file without
+        points, or arrays whose decoded size exceeds the memory limit (checked before decoding).
 
     Notes
     -----
     Colour rule for ``.npz``: integer arrays (such as uint8) are 8-bit values and are divided
     by 255 (values outside [0, 255] are an error); float arrays are used as they are, assumed to
     be in [0, 1] already (the PittsburghBridge ``rgb`` array is read by the PyTorch3D tutorial
-    as a float tensor and used directly as features). Open3D stores PLY colours as floats in
-    [0, 1].
+    as a float tensor and used directly as features). PLY colours stored as ``uchar`` are
+    divided by 255 (``ushort`` by 65535), float colours are used as they are.
+    The PLY reader parses the ``vertex`` element itself (numpy) rather than through Open3D,
+    whose reader returns uninitialised points for a file shorter than its header.
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -63,36 +303,45 @@ def load_pointcloud(path: str | os.PathLike) -> PointCloud:
         raise ValueError(f"path: expected a .npz or .ply file, got {path.name!r}")
     if not path.is_file():
         raise FileNotFoundError(f"point cloud file not found: {path}")
-    if suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
-            keys = set(z.files)
-            pk = next((k for k in _POINT_KEYS if k in keys), None)
-            if pk is None:
-                raise ValueError(f"{path}: expected the points under one of {_POINT_KEYS}, "
-                                 f"found keys {sorted(keys)}")
-            pts = np.asarray(z[pk])
-            ck = next((k for k in _COLOUR_KEYS if k in keys), None)
-            col = None if ck is None else _colours_to_float(np.asarray(z[ck]), path, ck)
-            nrm = np.asarray(z["normals"]) if "normals" in keys else None
-    else:
-        import open3d as o3d
-
-        pc = o3d.io.read_point_cloud(str(path), format="ply")
-        pts = np.asarray(pc.points, dtype=np.float64)
-        col = np.asarray(pc.colors, dtype=np.float64) if pc.has_colors() else None
-        nrm = np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None
-        pk, ck = "points", "colors"
+    try:
+        if suffix == ".npz":
+            pk, ck, pts, col, nrm = _read_npz(path, memory_limit)
+        else:
+            pts, col, nrm = _read_ply(path, memory_limit)
+            pk, ck = "points", "colors"
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: unreadable file ({str(exc)[:200]})") from None
+    except OSError as exc:  # permission denied, I/O errors
+        raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    except Exception as exc:  # noqa: BLE001 - zipfile and numpy raise NotImplementedError,
+        # RuntimeError (encrypted entries), zlib.error, EOFError, ... for damaged archives
+        raise ValueError(f"{path}: unreadable file ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
+    if pts.dtype.kind not in "biuf":
+        raise ValueError(f"{path}: {pk}: expected a numeric array, got dtype {pts.dtype}")
     pts = as_array(pts, f"{path}: {pk}", (None, 3))
     if len(pts) == 0:
-        extra = " (or Open3D could not parse it)" if suffix == ".ply" else ""
-        raise ValueError(f"{path}: the file holds no points{extra}")
+        raise ValueError(f"{path}: the file holds no points")
+    if np.abs(pts).max() > _MAX_COORD:
+        raise ValueError(f"{path}: {pk}: coordinates beyond {_MAX_COORD:g} in absolute value "
+                         f"(max {np.abs(pts).max():.3g}); areas, distances and float32 "
+                         f"rendering would overflow")
     if col is not None:
+        if col.dtype.kind not in "biuf":
+            raise ValueError(f"{path}: {ck}: expected a numeric array, got dtype {col.dtype}")
         if col.ndim == 1:
             col = col[:, None]
         col = as_array(col, f"{path}: {ck}", (len(pts), None))
     if nrm is not None:
+        if nrm.dtype.kind not in "biuf":
+            raise ValueError(f"{path}: normals: expected a numeric array, got dtype {nrm.dtype}")
         nrm = as_array(nrm, f"{path}: normals", (len(pts), 3))
-    return PointCloud(pts, col, nrm)
+    try:
+        return PointCloud(pts, col, nrm)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def save_pointcloud(path: str | os.PathLike, cloud: PointCloud) -> None:

@@ -178,6 +178,15 @@ class _Lights:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(N={len(self)})"
 
+    def __setattr__(self, name, value):
+        """Assigning a parameter validates and broadcasts it as the constructor does."""
+        if name in self._PARAMS and all(k in self.__dict__ for k in self._PARAMS):
+            params = {k: self.__dict__[k] for k in self._PARAMS}
+            params[name] = _batched(value, name, (3,))
+            self.__dict__.update(_broadcast(**params))
+        else:
+            object.__setattr__(self, name, value)
+
     def _set(self, **params) -> None:
         """Validate each (N, 3) or (3,) parameter and broadcast the batch to one N."""
         batched = {k: _batched(v, k, (3,)) for k, v in params.items()}

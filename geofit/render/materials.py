@@ -53,6 +53,15 @@ class Materials:
         for k, v in b.items():
             setattr(self, k, v)
 
+    def __setattr__(self, name, value):
+        """Assigning a parameter validates and broadcasts it as the constructor does."""
+        if name in self._PARAMS and all(k in self.__dict__ for k in self._PARAMS):
+            params = {k: self.__dict__[k] for k in self._PARAMS}
+            params[name] = value
+            self.__dict__.update(Materials(**params).__dict__)
+        else:
+            object.__setattr__(self, name, value)
+
     def __len__(self) -> int:
         return self.ambient_color.shape[0]
 

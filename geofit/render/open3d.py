@@ -226,7 +226,9 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     Raises
     ------
     RuntimeError
-        If Open3D cannot create a window (no display and no offscreen fallback).
+        If Open3D cannot create a window (no display and no offscreen fallback), or, with
+        ``run=True`` on Linux, if there is no display at all (checked first: the event loop
+        would otherwise wait for a window no one can close).
     """
     import open3d as o3d
 
@@ -236,6 +238,12 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)
+    import os, sys  # noqa: E401 - display check (issue 18): run() would wait for ever
+    if run and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                         or os.environ.get("WAYLAND_DISPLAY")):
+        raise RuntimeError("show_open3d: no display (DISPLAY and WAYLAND_DISPLAY are unset), so "
+                           "the viewer could never be closed; use render_open3d(...) for an "
+                           "offscreen image, or run=False to script the viewer")
     m, _ = mesh_to_open3d(mesh)
     vis = o3d.visualization.Visualizer()
     if not vis.create_window(window_name="geofit", width=W, height=H):

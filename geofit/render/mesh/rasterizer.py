@@ -490,6 +490,9 @@ class MeshRasterizer:
             meshes = meshes.extend(N)
         if nc == 1 and N > 1:
             cameras = cameras.extend(N)
+        from geofit._memory import check_allocation  # memory guard (issue 18): ~128 B per ray
+        check_allocation(128 * N * settings.raster_size[0] * settings.raster_size[1],
+                         "image_size", f"rasterizing {N} view(s) at {settings.raster_size}")
         return self._rasterize(meshes, cameras, settings)
 
     def _rasterize(self, meshes: Meshes, cameras, settings: RasterizationSettings) -> Fragments:

@@ -288,6 +288,9 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
 def _rasterize(xy, z, radius, image_index, n_images, image_size, K):
     """``rasterize_points`` on validated inputs."""
     H, W = image_size
+    from geofit._memory import check_allocation  # memory guard (issue 18): ~64 B per slot
+    check_allocation(64 * n_images * H * W * K, "points_per_pixel and image_size",
+                     f"the ({n_images}, {H}, {W}, K={K}) point fragments")
     n_pix = n_images * H * W
     entry_out = np.full(n_pix * K, -1, dtype=np.int64)
     dist_out = np.full(n_pix * K, -1.0)

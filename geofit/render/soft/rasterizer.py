@@ -396,6 +396,9 @@ def rasterize_soft(mesh: Mesh, cameras: CamerasBase,
     verts = mesh.verts
     faces = mesh.faces
     N = len(cameras)
+    from geofit._memory import check_allocation  # memory guard (issue 18): measured 20-30 B
+    check_allocation(N * H * W * (24 * K + 1024), "image_size and faces_per_pixel",  # /slot
+                     f"soft fragments of {N} view(s) at {(H, W)} with K={K}")  # + ~1 KB/px
     with np.errstate(invalid="ignore", divide="ignore"):
         proj = cameras.projection_jacobian(verts)
     xy = proj.xy

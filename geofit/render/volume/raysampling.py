@@ -138,6 +138,9 @@ def _xy_to_ray_bundle(cameras: CamerasBase, xy: np.ndarray, min_depth: float, ma
     B = xy.shape[0]
     spatial = xy.shape[1:-1]
     k = int(np.prod(spatial, dtype=np.int64))
+    from geofit._memory import check_allocation  # memory guard (issue 18): lengths + rays
+    check_allocation(8 * B * k * (2 * n_pts_per_ray + 12), "n_pts_per_ray and image size",
+                     f"a bundle of {B} x {k} rays with {n_pts_per_ray} samples each")
     flat = xy.reshape(B, k, 2)
     p1 = cameras.unproject_points(np.concatenate([flat, np.ones((B, k, 1))], axis=-1))
     p2 = cameras.unproject_points(np.concatenate([flat, np.full((B, k, 1), 2.0)], axis=-1))

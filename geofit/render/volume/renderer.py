@@ -383,6 +383,8 @@ class VolumeRenderer:
         self.raymarcher = raymarcher
         self.sample_mode = sample_mode
         self.chunk_size = int(chunk_size)
+        from geofit._memory import check_allocation  # memory guard (issue 18)
+        check_allocation(256 * self.chunk_size, "chunk_size", "one chunk of samples")
         if not isinstance(skip_empty, (bool, np.bool_)):
             raise TypeError(f"skip_empty: expected True or False, got {skip_empty!r}")
         self.skip_empty = bool(skip_empty)
