@@ -36,7 +36,7 @@ from _harness import (
 )
 
 from geofit import Mesh
-from geofit.fit import RECIPES, CoarseToFine, fit_mesh
+from geofit.fit import CoarseToFine, fit_mesh
 from geofit.metrics import MeshEvaluator
 from geofit.tutorials.stability import MESH_MODES, fit_mesh_scenario
 
@@ -49,6 +49,17 @@ PYTORCH3D = {"label": "PyTorch3D tutorial (268 s)", "seconds": 268.0, "chamfer_l
 TIME_LIMIT = PYTORCH3D["seconds"] / 20  # 13.4 s: the acceptance's "1/20 of that time (13 s)"
 ACCURACY = {"chamfer_l2": ("<=", PYTORCH3D["chamfer_l2"]),
             "fscore@0.01": (">=", PYTORCH3D["fscore@0.01"])}
+
+#: The runs: fit_mesh keyword arguments of each named run (recipe settings spelled out).
+RUNS = {
+    "tutorial": {"method": "sgd"},                                   # recipe="tutorial"
+    "adam": {"method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
+    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
+    "large-steps": {"method": "lbfgs", "large_steps": 10.0},         # recipe="default"
+    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0,       # recipe="coarse-to-fine"
+                       "coarse_to_fine": True},
+}
 
 LABELS = {
     "tutorial": "SGD, tutorial recipe (ico4, lr 1, momentum 0.9)",
@@ -70,7 +81,7 @@ def load_target():
 # ------------------------------------------------------------------------------ speed/accuracy
 def method_settings(name: str, quick: bool) -> tuple[dict, int]:
     """fit_mesh keyword arguments and the checkpoint interval (evaluations) of a method."""
-    kw = dict(RECIPES[name])
+    kw = dict(RUNS[name])
     stochastic = kw["method"] in ("sgd", "adam")
     every = 100 if stochastic else (5 if name == "coarse-to-fine" else 10)
     if quick:
@@ -91,8 +102,7 @@ def run_method(name: str, target: Mesh, evaluator: MeshEvaluator, quick: bool) -
                     config={k: (repr(v) if not isinstance(v, (int, float, str, bool)) else v)
                             for k, v in kw.items()} | {"checkpoint_every": every})
     t0 = time.perf_counter()
-    res = fit_mesh(None, target, evaluator=evaluator, checkpoint_every=every, progress=False,
-                   **kw)
+    res = fit_mesh(target, evaluator=evaluator, checkpoint_every=every, progress=False, **kw)
     wall = time.perf_counter() - t0
     a = res.history.as_arrays()
     for i, s in enumerate(a["checkpoint_seconds"]):
@@ -138,8 +148,8 @@ def run_stability(names, target: Mesh, quick: bool, budget: float) -> list[dict]
             row = {"method": name, "mode": mode}
             t0 = time.perf_counter()
             try:
-                res = fit_mesh(source, tin, evaluator=None, progress=False, time_budget=budget,
-                               **kw)
+                res = fit_mesh(tin, init=source, evaluator=None, progress=False,
+                               time_budget=budget, **kw)
             except Exception as exc:  # noqa: BLE001 - the table reports it
                 msg = str(exc)
                 row.update(outcome=f"failed: {type(exc).__name__}: {msg}", status="failed",

@@ -1,6 +1,7 @@
 """Benchmark: fit a neural radiance field to the cow (PyTorch3D's sixth tutorial) on the CPU.
 
-Data: geofit's ``generate_cow_renders()`` (40 views at elevation 0, 128 px, black background) and
+Data: geofit's ``tutorial_views(6)`` (PyTorch3D's ``generate_cow_renders``: 40 views at
+elevation 0, 128 px, black background) and
 ``held_out_views()`` (16 views between the training azimuths, at elevations 0 and 20).
 
 Methods (all geofit, numpy, float32 networks, gradients by hand):
@@ -34,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser
 
-from geofit.datasets import generate_cow_renders, held_out_views
+from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.metrics import psnr
 from geofit.render.volume.implicit import OccupancyGrid
@@ -70,9 +71,8 @@ def run_method(name: str, label: str, config: NerfConfig, train, test, *, time_b
                   f"wall {wall[-1]:7.1f} s  loss {info['loss']:.4f}  held-out PSNR "
                   f"{info['psnr']:.2f} dB  (load {load_average()[:1]})", flush=True)
 
-    res = fit_nerf(train.images, train.silhouettes, train.cameras, config=config,
-                   held_out=(test.images, test.silhouettes, test.cameras),
-                   time_budget=time_budget, eval_every=eval_every, seed=seed, callback=cb)
+    res = fit_nerf(train, config=config, held_out=test, time_budget=time_budget,
+                   eval_every=eval_every, seed=seed, callback=cb, progress=False)
     run.curve["wall_seconds"] = wall
     run.curve["cpu_seconds"] = cpu
     steps = res.n_iterations
@@ -113,17 +113,17 @@ def main(argv=None) -> int:
     out = Path(args.out)
     print(f"load average at start: {load_average()}", flush=True)
     t = time.perf_counter()
-    train = generate_cow_renders(image_size=size)
+    train = tutorial_views(6, image_size=size, num_held_out=0)
     test = held_out_views(image_size=size)
     print(f"data: {train!r} and {test!r} rendered in {time.perf_counter() - t:.1f} s",
           flush=True)
-    if train.mesh_name != "cow":
+    if train.name != "cow":
         print("warning: the cow was not found (set GEOFIT_DATA); using the stand-in", flush=True)
 
     if not args.only_stability:
         report = BenchmarkReport("fit_nerf", config={
             "train_views": len(train), "held_out_views": len(test), "image_size": size,
-            "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.mesh_name,
+            "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.name,
             "scene_budget_seconds": budget, "quick": quick})
         report.notes += [
             ("seconds are solver seconds: the held-out renders at checkpoints are excluded "
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
             cfg = NerfConfig.tutorial(n_iter=tut_steps, n_rays_per_image=100, n_pts_per_ray=32)
         print(f"tutorial network, {tut_steps} steps ...", flush=True)
         t0, c0 = time.perf_counter(), time.process_time()
-        res = fit_nerf(train.images, train.silhouettes, train.cameras, config=cfg, seed=0)
+        res = fit_nerf(train, config=cfg, seed=0, progress=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         hull = OccupancyGrid.from_silhouettes(train.silhouettes, train.cameras,
                                               resolution=96 if not quick else 32).dilate(1)
@@ -337,9 +337,9 @@ def stability(train, test, out: Path, *, quick: bool, budget: float) -> None:
     for name, label, cfg, (im, sil, cams), extra in cases:  # cases
         print(f"stability case {name} ...", flush=True)
         every = budget / (15 if "early_stopping" in extra else 5)
-        res = fit_nerf(im, sil, cams, config=cfg, held_out=(test.images, test.silhouettes,
-                                                             test.cameras),
-                       time_budget=budget, eval_every=every, seed=0, **extra)
+        res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams), config=cfg,
+                       held_out=test, time_budget=budget, eval_every=every, seed=0,
+                       progress=False, **extra)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)

@@ -43,12 +43,8 @@ import numpy as np
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
 
 from geofit import FoVPerspectiveCameras, ico_sphere, look_at_view_transform
-from geofit.fit.views import (
-    MultiViewData,
-    ViewsEvaluator,
-    cow_multiview_dataset,
-    fit_mesh_to_views,
-)
+from geofit.datasets import MultiViewDataset, tutorial_views
+from geofit.fit.views import ViewsEvaluator, fit_mesh_to_views
 
 TIME_LIMIT = 180.0  # the acceptance's 3 minutes
 # geofit's best method: the tutorial's regularisers with lighter edge and Laplacian weights
@@ -76,22 +72,21 @@ def settings(name: str, quick: bool, budget: float) -> dict:
     c2f = [(0, 2), (1, 1)]
     tut = 40 if quick else 2000
     out = {
-        "tutorial": {"silhouette_method": "tutorial", "textured_method": "tutorial",
-                         "textured_init": "sphere", "silhouette_iters": tut, "textured_iters": tut,
-                         "init_level": 4},
-        "scipy-lbfgs": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+        "tutorial": {"recipe": "tutorial", "silhouette_iters": tut, "textured_iters": tut,
+                     "init_level": 4},
+        "scipy-lbfgs": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                             "silhouette_iters": 2000, "silhouette_time": budget, "init_level": 4},
-        "lbfgs-large-steps": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+        "lbfgs-large-steps": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                                   "large_steps": 10.0, "silhouette_iters": 2000,
                                   "silhouette_time": budget, "init_level": 4},
-        "best": {"silhouette_method": "scipy-lbfgs", "textured_method": "lstsq",
+        "best": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                      "large_steps": 10.0, "levels": c2f, "silhouette_iters": 400,
                      "silhouette_time": budget - 10.0 if not quick else budget,
                      "silhouette_weights": BEST_WEIGHTS, "init_level": 3},
-        "nlopt-lbfgs": {"silhouette_method": "nlopt-lbfgs", "textured_method": "lstsq",
+        "nlopt-lbfgs": {"silhouette_method": "lbfgs-nlopt", "textured_method": "lstsq",
                             "large_steps": 10.0, "levels": c2f, "silhouette_iters": 600,
                             "silhouette_time": budget, "init_level": 3},
-        "contour": {"silhouette_method": "contour", "textured_method": "lstsq", "large_steps": 10.0,
+        "contour": {"recipe": "contour", "large_steps": 10.0,
                         "levels": c2f, "silhouette_iters": 4000, "silhouette_time": budget,
                         "adam_lr": 0.01, "init_level": 3},
     }[name]
@@ -133,8 +128,8 @@ def run_method(name, ds, ev, quick, budget, eval_every) -> MethodRun:
 
     load0 = os.getloadavg()
     t0 = time.perf_counter()
-    fit = fit_mesh_to_views(ds.train, init=init, evaluate=evaluate, eval_every=eval_every,
-                            seed=0, **kw)
+    fit = fit_mesh_to_views(ds, init=init, evaluate=evaluate, eval_every=eval_every,
+                            seed=0, progress=False, **kw)
     wall = time.perf_counter() - t0
     final = ev(fit.mesh, fit.colors if fit.colors is not None else np.full(
         (fit.mesh.n_verts, 3), 0.5))
@@ -173,8 +168,8 @@ def memory_report(ds) -> dict:
     )
 
     m = ico_sphere(4)
-    cams = ds.train.cameras
-    H, W = ds.train.image_size
+    cams = ds.cameras
+    H, W = ds.image_size
     out = {}
     for name, fn in (
             ("silhouette", lambda: SoftSilhouetteRenderer(
@@ -201,13 +196,13 @@ def memory_report(ds) -> dict:
                      "seconds_forward_and_vjp": wall, "cpu_seconds_forward_and_vjp": cpu}
     # one objective evaluation as the fits run it (views in batches of 5)
     for name, kw in (("fit_silhouette_1_iteration",
-                      {"silhouette_method": "scipy-lbfgs", "silhouette_iters": 1,
+                      {"silhouette_method": "lbfgs", "silhouette_iters": 1,
                            "textured_method": "none"}),
                      ("fit_textured_1_iteration",
                       {"silhouette_method": "none", "textured_method": "lbfgs",
                            "textured_iters": 1})):
         tracemalloc.start()
-        fit_mesh_to_views(ds.train, init=m, **kw)
+        fit_mesh_to_views(ds, init=m, progress=False, **kw)
         out[name] = {"peak_traced_mb": tracemalloc.get_traced_memory()[1] / 2 ** 20}
         tracemalloc.stop()
     return out
@@ -219,24 +214,23 @@ STAB_METHODS = ("best", "nlopt-lbfgs", "contour", "tutorial")
 
 
 def perturb(ds, case: str, rng):
-    tr = ds.train
+    tr = ds
     init_scale, init_shift = 1.0, np.zeros(3)
     if case == "few_views":
         tr = tr[np.linspace(0, len(tr) - 1, 4).round().astype(int)]
     elif case == "noisy":
-        tr = MultiViewData(tr.cameras, np.clip(tr.silhouettes + rng.normal(
-            0, 0.1, tr.silhouettes.shape), 0, 1), tr.images, tr.lights)
+        tr = MultiViewDataset(images=tr.images, silhouettes=np.clip(tr.silhouettes + rng.normal(
+            0, 0.1, tr.silhouettes.shape), 0, 1), cameras=tr.cameras, lights=tr.lights)
     elif case == "camera_1deg":
-        c = ds.config
-        R, T = look_at_view_transform(c["dist"], np.asarray(c["elev"]) + 1.0,
-                                      np.asarray(c["azim"]) + 1.0)
-        tr = MultiViewData(FoVPerspectiveCameras(R=R, T=T), tr.silhouettes, tr.images,
-                           tr.lights)
+        R, T = look_at_view_transform(ds.dist, ds.elev + 1.0, ds.azim + 1.0)
+        tr = MultiViewDataset(images=tr.images, silhouettes=tr.silhouettes,
+                              cameras=FoVPerspectiveCameras(R=R, T=T), lights=tr.lights)
     elif case == "hole":
         s = tr.silhouettes.copy()
         H, W = s.shape[1:]
         s[:, H // 2 - H // 16:H // 2 + H // 16, W // 2 - W // 16:W // 2 + W // 16] = 0.0
-        tr = MultiViewData(tr.cameras, s, tr.images, tr.lights)
+        tr = MultiViewDataset(images=tr.images, silhouettes=s, cameras=tr.cameras,
+                              lights=tr.lights)
     elif case == "small_start":
         init_scale = 0.25
     elif case == "off_centre":
@@ -264,7 +258,7 @@ def run_stability(ds, ev, quick: bool, budget: float) -> list[dict]:
 
             t0 = time.perf_counter()
             try:
-                fit = fit_mesh_to_views(views, init=init, callback=cb, **kw)
+                fit = fit_mesh_to_views(views, init=init, callback=cb, progress=False, **kw)
                 m = ev(fit.mesh, fit.colors)
                 row = {"case": case, "method": name, "status": fit.status,
                        "message": fit.message, "seconds": fit.seconds,
@@ -323,9 +317,9 @@ def main(argv=None) -> int:
     if quick and out == Path(__file__).resolve().parent / "results":
         out = Path(tempfile.mkdtemp(prefix="fit_views_"))
     size = 32 if quick else 128
-    ds = cow_multiview_dataset(num_views=(6 if quick else 20), image_size=size,
-                               num_heldout=(3 if quick else 16))
-    ev = ViewsEvaluator(ds.heldout, ds.mesh, n_samples=(2000 if quick else 20000),
+    ds = tutorial_views(4, num_views=(6 if quick else 20), image_size=size,
+                        num_held_out=(3 if quick else 16))
+    ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=(2000 if quick else 20000),
                         taus=(0.01, 0.02))
     print(f"object: {ds.name}; loadavg {os.getloadavg()}", flush=True)
     if args.stability:
@@ -349,7 +343,7 @@ def main(argv=None) -> int:
     budget = args.budget or (10.0 if quick else TIME_LIMIT)
     names = list(LABELS) if args.only is None else [n.strip() for n in args.only.split(",")]
     report = BenchmarkReport("fit_views", config={
-        "object": ds.name, "views": len(ds.train), "heldout_views": len(ds.heldout),
+        "object": ds.name, "views": len(ds), "heldout_views": len(ds.held_out),
         "image_size": size, "silhouette_budget_seconds": budget,
         "iou_target": IOU_TARGET, "time_limit_seconds": TIME_LIMIT,
         "metrics": "held-out silhouette IoU (hard coverage masks, mean over views), held-out RGB "
@@ -412,7 +406,7 @@ def main(argv=None) -> int:
          {"metric": "chamfer_l2", "label": "chamfer-L2 vs the cow", "logy": True},
          {"metric": "psnr", "label": "held-out PSNR (dB)"}],
         out / "fit_views.png", time_limit=TIME_LIMIT,
-        title=f"Fit a mesh to {len(ds.train)} views of the {ds.name} ({size} px)")
+        title=f"Fit a mesh to {len(ds)} views of the {ds.name} ({size} px)")
     print(f"wrote {json_path} and fit_views.png")
     return 0
 

@@ -1,8 +1,8 @@
 """Benchmark: fit a voxel volume to the cow by raymarching (PyTorch3D's fifth tutorial) on the CPU.
 
-Data: geofit's ``generate_cow_renders()`` (40 views at elevation 0, 128 px, black background,
-binary silhouettes) and ``held_out_views()`` (16 views between the training azimuths, at
-elevations 0 and 20; never trained on).
+Data: geofit's ``tutorial_views(5)`` (PyTorch3D's ``generate_cow_renders``: 40 views at
+elevation 0, 128 px, black background, binary silhouettes) and ``held_out_views()`` (16 views
+between the training azimuths, at elevations 0 and 20; never trained on).
 
 Methods (all geofit, numpy, analytic gradients):
 
@@ -11,7 +11,7 @@ Methods (all geofit, numpy, analytic gradients):
   seconds, whichever ends first);
 * ``lbfgs`` -- geofit's best: visual hull, coarse to fine (32^3, 64^3, 128^3), pruning, empty-space
   skipping, a smoothness prior, scipy L-BFGS over all rays of all views;
-* ``nlopt-lbfgs`` and ``adam`` -- the same reduced model with nlopt's L-BFGS and full-batch Adam.
+* ``lbfgs-nlopt`` and ``adam`` -- the same reduced model with nlopt's L-BFGS and full-batch Adam.
 
 Each method records held-out PSNR (RGB, black background, mean of the per-view PSNRs) and
 silhouette IoU (rendered opacity > 0.5 against the silhouette) at checkpoints against solver time;
@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import generate_cow_renders, held_out_views
+from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
 from geofit.fit.volume import fit_volume, volume_metrics
 
 #: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10
@@ -81,8 +81,8 @@ def run_method(name: str, label: str, train, test, *, verbose=True, monitor_ever
                   f"IoU {m.iou:.4f}  (load {loads[-1]})", flush=True)
         return out
 
-    res = fit_volume(train.images, train.silhouettes, train.cameras, monitor=monitor,
-                     monitor_every=monitor_every, verbose=verbose, **kw)
+    res = fit_volume(train, monitor=monitor, monitor_every=monitor_every, verbose=verbose,
+                     progress=False, **kw)
     wall_total = time.perf_counter() - t0
     cpu = cpu_seconds() - c0
     h = res.history
@@ -184,19 +184,19 @@ def stability(train, test, args) -> tuple[list, list]:
     cases.append(("huge learning rate", "geofit's Adam with lr = 1e6",
                   {}, {"method": "adam", "lr": 1e6}))
     cases.append(("huge learning rate (tutorial recipe)", "the tutorial's dense Adam with "
-                  "lr = 1e6, 20 steps", {}, {"method": "tutorial", "lr": 1e6,
+                  "lr = 1e6, 20 steps", {}, {"recipe": "tutorial", "lr": 1e6,
                                               "n_iter": 4 if args.quick else 20}))
     rows, records = [], []
     for name, what, data, kw in cases:  # stress cases
         inputs = {"images": train.images, "silhouettes": train.silhouettes,
                   "cameras": train.cameras, **data}
         opts = {**common, **kw}
-        if opts.get("method") == "tutorial":
+        if opts.get("recipe") == "tutorial":
             opts.pop("levels", None)
             opts.pop("iterations", None)
         t0 = time.perf_counter()
         try:
-            res = fit_volume(inputs["images"], inputs["silhouettes"], inputs["cameras"], **opts)
+            res = fit_volume(MultiViewDataset(**inputs), progress=False, **opts)
             error = None
         except Exception as exc:  # a stress case must end with a status, not a crash
             res, error = None, f"{type(exc).__name__}: {exc}"
@@ -227,7 +227,7 @@ def stability(train, test, args) -> tuple[list, list]:
 
 def main(argv=None) -> int:
     p = parser(__doc__.splitlines()[0])
-    p.add_argument("--methods", default="tutorial,lbfgs,nlopt-lbfgs,adam",
+    p.add_argument("--methods", default="tutorial,lbfgs,lbfgs-nlopt,adam",
                    help="comma-separated methods (default: all)")
     p.add_argument("--tutorial-budget", type=float, default=None,
                    help="solver seconds for the tutorial recipe (default: its 300 steps)")
@@ -251,21 +251,21 @@ def main(argv=None) -> int:
 
     print(f"uptime/load average at start: {load_average()}", flush=True)
     t0 = time.perf_counter()
-    train = generate_cow_renders(num_views=n_views, image_size=image_size)
+    train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     test = held_out_views(num_views=n_views, image_size=image_size,
                           n_azimuths=3 if quick else 8)
     t_data = time.perf_counter() - t0
     print(f"data: {train!r}, held out {test!r}, rendered in {t_data:.1f} s", flush=True)
-    if train.mesh_name != "cow":
+    if train.name != "cow":
         print("WARNING: the cow was not found (set GEOFIT_DATA to the tutorial data folder); "
-              f"this run uses geofit's stand-in {train.mesh_name!r}, so its numbers do not "
+              f"this run uses geofit's stand-in {train.name!r}, so its numbers do not "
               "compare with PyTorch3D's", flush=True)
 
     report = BenchmarkReport(
         "fit_volume",
         config={"quick": quick, "views": n_views, "image_size": image_size, "volume_size": size,
                 "held_out_views": len(test), "held_out_azim": test.azim, "held_out_elev":
-                test.elev, "dataset": train.mesh_name, "data_seconds": t_data},
+                test.elev, "dataset": train.name, "data_seconds": t_data},
         notes=["seconds are solver time: the held-out checkpoints run with the clock paused; "
                "wall_seconds_with_checkpoints includes them",
                "PSNR: mean over held-out views of 10 log10(1 / MSE) on RGB (black background); "
@@ -279,11 +279,12 @@ def main(argv=None) -> int:
                                               m.strip()]
     labels = {"tutorial": "tutorial recipe (dense 128^3, Adam, 10 views/step)",
               "lbfgs": "geofit L-BFGS (hull, 32-64-128, skipping)",
-              "nlopt-lbfgs": "geofit nlopt L-BFGS (same model)",
+              "lbfgs-nlopt": "geofit nlopt L-BFGS (same model)",
               "adam": "geofit Adam (same model, full batch)"}
     runs, results = [], {}
     for name in methods:  # methods
-        kw = {"method": name, "volume_size": size}
+        kw = {"recipe": "tutorial"} if name == "tutorial" else {"method": name}
+        kw["volume_size"] = size
         if name == "tutorial":
             kw.update(n_iter=4 if quick else 300, time_budget=args.tutorial_budget)
             if quick:

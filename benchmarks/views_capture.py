@@ -12,7 +12,6 @@ Run from the repository root: ``python benchmarks/views_capture.py [--quick]``.
 """
 from __future__ import annotations
 
-import inspect
 import os
 import tempfile
 import time
@@ -27,25 +26,19 @@ from geofit.io import load_views, save_views
 
 
 def _fit(ds, **kw):
-    """``fit_volume(dataset, ...)`` once the unified dataset form lands, the array form before."""
-    if "dataset" in inspect.signature(fit_volume).parameters:
-        return fit_volume(ds, **kw)
-    return fit_volume(ds.images, ds.silhouettes, ds.cameras, **kw)
+    """``fit_volume(dataset, ...)`` without a progress bar."""
+    return fit_volume(ds, progress=False, **kw)
 
 
 def main() -> None:
     args = parser(__doc__.splitlines()[0]).parse_args()
     views, size, volume = (10, 64, 64) if args.quick else (40, 128, 128)
     load_before = os.getloadavg()
-    if hasattr(geofit.datasets, "tutorial_views"):  # the unified dataset
-        train = geofit.datasets.tutorial_views(5, num_views=views, image_size=size,
-                                               num_held_out=0)
-    else:
-        train = geofit.datasets.generate_cow_renders(num_views=views, image_size=size)
+    train = geofit.datasets.tutorial_views(5, num_views=views, image_size=size, num_held_out=0)
     test = held_out_views(num_views=views, image_size=size)
     report = BenchmarkReport("views_capture", config={
         "views": views, "image_size": size, "volume_size": volume, "method": "lbfgs",
-        "held_out_views": len(test), "dataset": getattr(train, "name", None) or train.mesh_name})
+        "held_out_views": len(test), "dataset": train.name})
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         save_views(tmp, train, format="transforms")

@@ -1,38 +1,54 @@
-"""Multi-view datasets rendered by geofit: PyTorch3D's ``generate_cow_renders`` and held-out views.
+"""Multi-view datasets: one type for tutorials 4, 5 and 6, and geofit's renders of them.
 
-The volume and NeRF tutorials (and the mesh-from-views fit) train on renders of the cow made by
-``docs/tutorials/utils/generate_cow_renders.py``. :func:`generate_cow_renders` makes the same
-dataset with geofit's renderers:
+:class:`MultiViewDataset` holds posed views of one scene: images, silhouettes, cameras, the
+lights, optional held-out views (another :class:`MultiViewDataset`) and the true mesh when known.
+Every multi-view fit (:func:`geofit.fit_mesh_to_views`, :func:`geofit.fit_volume`,
+:func:`geofit.fit_nerf`) takes one; capture loaders build one with keywords::
 
-* the cow (``cow_mesh/cow.obj`` with its texture) is centred on its vertex mean and divided by its
-  largest absolute centred coordinate;
-* cameras ``look_at_view_transform(dist=2.7, elev, azim)`` with ``elev`` constant (0) and
-  ``azim = linspace(-azimuth_range, azimuth_range, num_views) + 180``, ``FoVPerspectiveCameras``
-  (fov 60, znear 1, zfar 100);
+    MultiViewDataset(images=..., silhouettes=..., cameras=..., name="capture")
+
+:func:`render_views` is the one renderer of synthetic datasets (PyTorch3D's
+``generate_cow_renders`` and the fit_textured_mesh tutorial's dataset are both made with it):
+
 * images: ``SoftPhongShader`` with ``PointLights(location=(0, 0, -3))``, one face per pixel, no
-  blur, ``BlendParams(sigma=1e-4, gamma=1e-4, background_color=(0, 0, 0))``, RGB only;
-* silhouettes: the soft silhouette (sigma 1e-4, blur radius ``log(1 / 1e-4 - 1) * 1e-4``, 50 faces
-  per pixel) thresholded at 1e-4, i.e. the pixels whose centre the mesh covers or comes within
-  ``sqrt(blur_radius)`` NDC (about 1.9 px at 128 px) of: the mesh's coverage of each pixel,
-  slightly dilated, as 0/1.
+  blur, ``BlendParams(sigma=1e-4, gamma=1e-4, background_color=background)``, RGB only;
+* silhouettes (``silhouettes=``): ``"soft"`` is the soft silhouette (sigma 1e-4, blur radius
+  ``log(1 / 1e-4 - 1) * 1e-4``, 50 faces per pixel) as it is (tutorial 4's targets);
+  ``"threshold"`` is the same thresholded at 1e-4, i.e. the pixels whose centre the mesh covers or
+  comes within ``sqrt(blur_radius)`` NDC (about 1.9 px at 128 px) of, as 0/1 (tutorials 5 and 6);
+  ``"coverage"`` is the hard render's coverage mask (tutorial 4's held-out views).
 
-:func:`held_out_views` renders the same scene from cameras between the training azimuths, at
-several elevations, for evaluation. Without the cow files (see :mod:`geofit.data`), both fall back
-to geofit's procedural textured stand-in and say so in ``mesh_name``.
+:func:`tutorial_views` renders the cow as a tutorial does, with held-out views attached:
+
+* ``tutorial_views(4)``: fit_textured_mesh's 20 views at 128 px (``elev = linspace(0, 360)``,
+  ``azim = linspace(-180, 180)``, white background, soft silhouettes) and 16 held-out views on a
+  Fibonacci sphere with coverage masks;
+* ``tutorial_views(5)`` / ``tutorial_views(6)``: ``generate_cow_renders``' 40 views at 128 px
+  (elevation 0, ``azim = linspace(-180, 180, 40) + 180``, black background, thresholded
+  silhouettes) and :func:`held_out_views` between the training azimuths at elevations 0 and 20.
+
+The cow (``cow_mesh/cow.obj`` with its texture) is centred on its vertex mean and divided by its
+largest absolute centred coordinate; without the cow files (see :mod:`geofit.data`) the
+procedural textured stand-in is used and ``name`` says so.
 """
 from __future__ import annotations
 
+import math
 import numbers
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, check_positive
-from .cameras import FoVPerspectiveCameras, look_at_view_transform
+from ._validate import as_array, as_unit_images, check_positive
+from .cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
 from .io.views import load_views, save_views
 from .structures.mesh import Mesh, as_mesh
 
 __all__ = [
+    "SILHOUETTE_KINDS",
+    "TUTORIALS",
     "MultiViewDataset",
     "cow_mesh",
     "generate_cow_renders",
@@ -41,56 +57,178 @@ __all__ = [
     "render_views",
     "save_views",
     "training_azimuths",
+    "tutorial_views",
 ]
 
 #: The silhouette renderer's blur radius in squared NDC units: ``log(1 / 1e-4 - 1) * 1e-4``.
 SILHOUETTE_BLUR_RADIUS = float(np.log(1.0 / 1e-4 - 1.0) * 1e-4)
 
+#: What :func:`render_views` can store as silhouettes (see the module docstring).
+SILHOUETTE_KINDS = ("threshold", "soft", "coverage")
 
-@dataclass
+#: The tutorials :func:`tutorial_views` renders the dataset of.
+TUTORIALS = (4, 5, 6)
+
+_SIGMA = 1e-4
+
+
+# --------------------------------------------------------------------------------------------
+# The dataset
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(kw_only=True)
 class MultiViewDataset:
-    """Posed renders of one scene.
+    """Posed views of one scene (keyword-only construction).
 
     Attributes
     ----------
-    images : (N, H, W, 3) float64
-        RGB in [0, 1] (background as rendered, black for the tutorial).
+    images : (N, H, W, 3) float64 or None
+        RGB in [0, 1] (None for silhouettes only).
     silhouettes : (N, H, W) float64
-        0/1 silhouettes.
-    cameras : FoVPerspectiveCameras
-        The ``N`` cameras.
-    azim : (N,) float64
-        Azimuth of each camera (degrees).
-    elev : (N,) float64
-        Elevation of each camera (degrees).
-    dist : float
-        Camera distance from the origin.
-    mesh_name : str
-        ``"cow"``, or the procedural stand-in's name when the cow files were not found.
+        Silhouettes in [0, 1] (soft or binary).
+    cameras : CamerasBase
+        The ``N`` cameras (PyTorch3D conventions).
+    lights : PointLights, DirectionalLights or AmbientLights, optional
+        The lights the images were rendered with (the fits that shade assume PyTorch3D's
+        tutorial light, a point light at (0, 0, -3), when None).
+    name : str
+        What the views show (``"cow"``, the stand-in's name, a capture's folder name).
+    azim, elev : (N,) float64, optional
+        Azimuth and elevation of each camera (degrees) when known.
+    dist : float, optional
+        Camera distance from the origin when all cameras share one.
+    held_out : MultiViewDataset, optional
+        Views for evaluation only (may be set after construction).
+    mesh : Mesh, optional
+        The true surface, when known (synthetic datasets).
+    config : dict
+        How the views were made (free-form, JSON-ready).
+
+    Examples
+    --------
+    >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+    >>> R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
+    >>> ds = MultiViewDataset(images=np.zeros((2, 8, 8, 3)), silhouettes=np.zeros((2, 8, 8)),
+    ...                       cameras=FoVPerspectiveCameras(R=R, T=T), name="empty")
+    >>> len(ds), ds.image_size, len(ds[1:]), ds.downsample(2).image_size
+    (2, (8, 8), 1, (4, 4))
     """
 
-    images: np.ndarray
+    images: np.ndarray | None
     silhouettes: np.ndarray
-    cameras: FoVPerspectiveCameras
-    azim: np.ndarray
-    elev: np.ndarray
-    dist: float = 2.7
-    mesh_name: str = "cow"
+    cameras: CamerasBase
+    lights: Any = None
+    name: str = ""
+    azim: np.ndarray | None = None
+    elev: np.ndarray | None = None
+    dist: float | None = None
+    held_out: MultiViewDataset | None = None
+    mesh: Mesh | None = None
+    config: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.cameras, CamerasBase):
+            raise TypeError(f"cameras: expected a geofit camera batch, got {type(self.cameras)!r}")
+        n = len(self.cameras)
+        if n == 0:
+            raise ValueError("cameras: expected at least one camera, got 0")
+        self.silhouettes = as_array(self.silhouettes, "silhouettes", (None, None, None))
+        if self.silhouettes.shape[0] != n:
+            raise ValueError(f"silhouettes, cameras: expected one camera per view, got "
+                             f"{self.silhouettes.shape[0]} silhouettes and {n} cameras")
+        H, W = self.silhouettes.shape[1:]
+        if H < 2 or W < 2:
+            raise ValueError(f"silhouettes: expected images of at least 2 x 2 pixels, got "
+                             f"{(H, W)}")
+        _check_unit_range(self.silhouettes, "silhouettes")
+        if self.images is not None:
+            self.images = as_unit_images(self.images, "images", (n, H, W, 3))
+            _check_unit_range(self.images, "images")
+        if not isinstance(self.name, str):
+            raise TypeError(f"name: expected a str, got {type(self.name)!r}")
+        for nm in ("azim", "elev"):
+            v = getattr(self, nm)
+            if v is not None:
+                setattr(self, nm, as_array(np.atleast_1d(v), nm, (n,)))
+        if self.dist is not None:
+            self.dist = check_positive(self.dist, "dist")
+        if self.held_out is not None and not isinstance(self.held_out, MultiViewDataset):
+            raise TypeError(f"held_out: expected a MultiViewDataset or None, got "
+                            f"{type(self.held_out)!r}")
+        if self.mesh is not None and not isinstance(self.mesh, Mesh):
+            raise TypeError(f"mesh: expected a geofit Mesh or None, got {type(self.mesh)!r}")
+
+    # -- size and selection
     def __len__(self) -> int:
-        return int(self.images.shape[0])
+        return int(self.silhouettes.shape[0])
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """``(H, W)`` in pixels."""
+        return tuple(int(s) for s in self.silhouettes.shape[1:])
+
+    @property
+    def mesh_name(self) -> str:
+        """Deprecated: use :attr:`name`."""
+        warnings.warn("MultiViewDataset.mesh_name is deprecated; use .name", DeprecationWarning,
+                      stacklevel=2)
+        return self.name
 
     def __repr__(self) -> str:
         N, H, W = self.silhouettes.shape
-        return (f"MultiViewDataset({N} views of {self.mesh_name!r}, {H}x{W}, "
-                f"elev {sorted(set(np.round(self.elev, 3).tolist()))})")
+        parts = [f"{N} views of {self.name!r}", f"{H}x{W}"]
+        if self.images is None:
+            parts.append("silhouettes only")
+        if self.held_out is not None:
+            parts.append(f"{len(self.held_out)} held out")
+        return f"MultiViewDataset({', '.join(parts)})"
+
+    def __getitem__(self, index) -> MultiViewDataset:
+        """The views selected by ``index`` (int, int array, bool mask or slice), as a dataset
+        (held-out views, mesh and lights kept)."""
+        idx = np.atleast_1d(np.arange(len(self))[index])
+        return self._replace(
+            images=None if self.images is None else self.images[idx],
+            silhouettes=self.silhouettes[idx], cameras=self.cameras[idx],
+            azim=None if self.azim is None else self.azim[idx],
+            elev=None if self.elev is None else self.elev[idx])
 
     def subset(self, index) -> MultiViewDataset:
-        """The views selected by ``index`` (int array, bool mask or slice)."""
-        idx = np.arange(len(self))[index]
-        idx = np.atleast_1d(idx)
-        return MultiViewDataset(self.images[idx], self.silhouettes[idx], self.cameras[idx],
-                                self.azim[idx], self.elev[idx], self.dist, self.mesh_name)
+        """Same as ``dataset[index]``."""
+        return self[index]
+
+    def downsample(self, factor: int) -> MultiViewDataset:
+        """Average ``factor x factor`` pixel blocks (a coarser level of the same views)."""
+        factor = _count(factor, "factor")
+        if factor == 1:
+            return self
+        n, H, W = self.silhouettes.shape
+        if H % factor or W % factor:
+            raise ValueError(f"factor: {factor} does not divide the image size {(H, W)}")
+        h, w = H // factor, W // factor
+        sil = self.silhouettes.reshape(n, h, factor, w, factor).mean(axis=(2, 4))
+        img = None
+        if self.images is not None:
+            img = self.images.reshape(n, h, factor, w, factor, 3).mean(axis=(2, 4))
+        return self._replace(images=img, silhouettes=sil)
+
+    def _replace(self, **changes) -> MultiViewDataset:
+        """A :class:`MultiViewDataset` (never a subclass) with ``changes``."""
+        kw = {f.name: getattr(self, f.name) for f in fields(MultiViewDataset)}
+        kw.update(changes)
+        return MultiViewDataset(**kw)
+
+
+def _check_unit_range(a: np.ndarray, name: str) -> None:
+    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+    if lo < 0.0 or hi > 1.0:
+        raise ValueError(f"{name}: expected values in [0, 1], got values in [{lo:g}, {hi:g}]")
+
+
+# --------------------------------------------------------------------------------------------
+# Rendering
+# --------------------------------------------------------------------------------------------
 
 
 def cow_mesh() -> tuple[Mesh, str]:
@@ -125,10 +263,10 @@ def training_azimuths(num_views: int = 40, azimuth_range: float = 180.0) -> np.n
     return np.linspace(-r, r, n) + 180.0
 
 
-def _count(value, name: str) -> int:
+def _count(value, name: str, lo: int = 1) -> int:
     if not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, bool) \
-            or value < 1:
-        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
+            or value < lo:
+        raise ValueError(f"{name}: expected an integer >= {lo}, got {value!r}")
     return int(value)
 
 
@@ -139,10 +277,25 @@ def _background(background) -> np.ndarray:
     return bg
 
 
+def _angles(azim, elev) -> tuple[np.ndarray, np.ndarray]:
+    az = np.atleast_1d(as_array(azim, "azim"))
+    el = np.atleast_1d(as_array(elev, "elev"))
+    if az.ndim != 1 or el.ndim != 1:
+        raise ValueError(f"azim, elev: expected scalars or 1-D arrays, got shapes {az.shape} "
+                         f"and {el.shape}")
+    try:
+        az, el = np.broadcast_arrays(az, el)
+    except ValueError:
+        raise ValueError(f"azim, elev: shapes {az.shape} and {el.shape} do not broadcast") \
+            from None
+    return np.ascontiguousarray(az, np.float64), np.ascontiguousarray(el, np.float64)
+
+
 def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float = 2.7,
                  background=(0.0, 0.0, 0.0), light_location=(0.0, 0.0, -3.0),
-                 mesh_name: str = "mesh") -> MultiViewDataset:
-    """Render a textured mesh the way ``generate_cow_renders`` does, from given angles.
+                 silhouettes: str = "threshold", name: str = "mesh",
+                 mesh_name: str | None = None) -> MultiViewDataset:
+    """Render a textured mesh from given angles: geofit's one renderer of synthetic datasets.
 
     Parameters
     ----------
@@ -155,15 +308,20 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     dist : float
         Camera distance.
     background : (3,) float64
-        Background colour of the images.
+        Background colour of the images (black in tutorials 5 and 6, white in tutorial 4).
     light_location : (3,) float64
-        World position of the point light (fixed in the world, as the tutorial's).
-    mesh_name : str
+        World position of the point light (fixed in the world, as the tutorials').
+    silhouettes : {"threshold", "soft", "coverage"}
+        What to store as silhouettes (see the module docstring).
+    name : str
         Stored in the result.
+    mesh_name : str, optional
+        Deprecated spelling of ``name``.
 
     Returns
     -------
     MultiViewDataset
+        With ``lights``, ``azim``, ``elev``, ``dist`` and ``mesh`` set.
     """
     from .render import (
         BlendParams,
@@ -175,89 +333,52 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     )
     from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
 
+    if mesh_name is not None:
+        warnings.warn("render_views(mesh_name=...) is deprecated; use name=...",
+                      DeprecationWarning, stacklevel=2)
+        name = mesh_name
     mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
+    if mesh.textures is None:
+        raise ValueError("mesh: expected a textured mesh (TexturesUV or TexturesVertex)")
     size = _count(image_size, "image_size")
     dist = check_positive(dist, "dist")
     bg = _background(background)
     light = as_array(light_location, "light_location", (3,))
-    az = np.atleast_1d(as_array(azim, "azim"))
-    el = np.atleast_1d(as_array(elev, "elev"))
-    if az.ndim != 1 or el.ndim != 1:
-        raise ValueError(f"azim, elev: expected scalars or 1-D arrays, got shapes {az.shape} "
-                         f"and {el.shape}")
-    try:
-        az, el = np.broadcast_arrays(az, el)
-    except ValueError:
-        raise ValueError(f"azim, elev: shapes {az.shape} and {el.shape} do not broadcast") \
-            from None
-    az, el = np.ascontiguousarray(az), np.ascontiguousarray(el)
+    if silhouettes not in SILHOUETTE_KINDS:
+        raise ValueError(f"silhouettes: expected one of {SILHOUETTE_KINDS}, got "
+                         f"{silhouettes!r}")
+    az, el = _angles(azim, elev)
     R, T = look_at_view_transform(dist=dist, elev=el, azim=az)
     cameras = FoVPerspectiveCameras(R=R, T=T)
     lights = PointLights(location=[light.tolist()])
-    renderer = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=cameras, raster_settings=RasterizationSettings(
-            image_size=size, blur_radius=0.0, faces_per_pixel=1)),
-        shader=SoftPhongShader(cameras=cameras, lights=lights, blend_params=BlendParams(
-            sigma=1e-4, gamma=1e-4, background_color=tuple(bg.tolist()))))
-    images = renderer(mesh, cameras=cameras, lights=lights)[..., :3]
-    fragments = rasterize_soft(mesh, cameras, SoftRasterizationSettings(
-        image_size=size, blur_radius=SILHOUETTE_BLUR_RADIUS, faces_per_pixel=50))
-    alpha = sigmoid_alpha_blend(fragments, 1e-4)
-    silhouettes = (alpha > 1e-4).astype(np.float64)
-    return MultiViewDataset(np.ascontiguousarray(images, dtype=np.float64), silhouettes, cameras,
-                            az.astype(np.float64), el.astype(np.float64), dist, mesh_name)
-
-
-def generate_cow_renders(num_views: int = 40, azimuth_range: float = 180.0,
-                         image_size: int = 128, background=(0.0, 0.0, 0.0), elev: float = 0.0,
-                         *, dist: float = 2.7, mesh: Mesh | None = None) -> MultiViewDataset:
-    """The volume and NeRF tutorials' dataset: the cow seen from ``num_views`` azimuths.
-
-    Parameters
-    ----------
-    num_views : int
-        Number of views (40 in the tutorials).
-    azimuth_range : float
-        Azimuths are ``linspace(-azimuth_range, azimuth_range, num_views) + 180`` degrees (with
-        the default 180 the first and last views coincide, as in the tutorial).
-    image_size : int
-        Square image size (128).
-    background : (3,) float64
-        Image background (black).
-    elev : float
-        Elevation of every view (0).
-    dist : float
-        Camera distance (2.7).
-    mesh : Mesh, optional
-        Render this mesh instead of the (normalised) cow.
-
-    Returns
-    -------
-    MultiViewDataset
-        ``images (N, S, S, 3)``, ``silhouettes (N, S, S)`` in {0, 1}, the cameras and angles.
-
-    Examples
-    --------
-    >>> data = generate_cow_renders(num_views=4, image_size=32)
-    >>> data.images.shape, data.silhouettes.shape, data.azim.tolist()
-    ((4, 32, 32, 3), (4, 32, 32), [0.0, 120.0, 240.0, 360.0])
-    """
-    az = training_azimuths(num_views, azimuth_range)
-    e = float(elev)
-    if not np.isfinite(e):
-        raise ValueError(f"elev: expected a finite number, got {elev!r}")
-    name = "mesh"
-    if mesh is None:
-        mesh, name = cow_mesh()
-    return render_views(mesh, az, np.full(len(az), e), image_size=image_size, dist=dist,
-                        background=background, mesh_name=name)
+    rasterizer = MeshRasterizer(cameras=cameras, raster_settings=RasterizationSettings(
+        image_size=size, blur_radius=0.0, faces_per_pixel=1))
+    renderer = MeshRenderer(rasterizer=rasterizer, shader=SoftPhongShader(
+        cameras=cameras, lights=lights, blend_params=BlendParams(
+            sigma=_SIGMA, gamma=1e-4, background_color=tuple(bg.tolist()))))
+    images = np.ascontiguousarray(renderer(mesh, cameras=cameras, lights=lights)[..., :3],
+                                  dtype=np.float64)
+    if silhouettes == "coverage":
+        sil = rasterizer(mesh).mask.astype(np.float64)
+    else:
+        fragments = rasterize_soft(mesh, cameras, SoftRasterizationSettings(
+            image_size=size, blur_radius=SILHOUETTE_BLUR_RADIUS, faces_per_pixel=50))
+        sil = sigmoid_alpha_blend(fragments, _SIGMA)
+        if silhouettes == "threshold":
+            sil = (sil > 1e-4).astype(np.float64)
+    return MultiViewDataset(
+        images=images, silhouettes=sil, cameras=cameras,
+        lights=lights, name=name, azim=az, elev=el, dist=dist, mesh=mesh,
+        config={"image_size": size, "dist": dist, "background": bg.tolist(),
+                "light_location": light.tolist(), "silhouettes": silhouettes,
+                "sigma": _SIGMA, "blur_radius": SILHOUETTE_BLUR_RADIUS, "faces_per_pixel": 50})
 
 
 def held_out_views(num_views: int = 40, azimuth_range: float = 180.0, *,
                    elevations=(0.0, 20.0), n_azimuths: int | None = 8, image_size: int = 128,
                    background=(0.0, 0.0, 0.0), dist: float = 2.7,
                    mesh: Mesh | None = None) -> MultiViewDataset:
-    """Evaluation views between the training azimuths of :func:`generate_cow_renders`.
+    """Evaluation views between the training azimuths of tutorials 5 and 6.
 
     The azimuths are the midpoints between consecutive training azimuths (none of them is a
     training view); ``n_azimuths`` of them, evenly spread around the circle, are rendered at every
@@ -272,12 +393,12 @@ def held_out_views(num_views: int = 40, azimuth_range: float = 180.0, *,
     n_azimuths : int or None
         How many midpoints to use per elevation (None: all ``num_views - 1``).
     image_size, background, dist, mesh
-        As in :func:`generate_cow_renders`.
+        As in :func:`tutorial_views`.
 
     Returns
     -------
     MultiViewDataset
-        Views ordered by elevation, then azimuth.
+        Views ordered by elevation, then azimuth, with thresholded silhouettes.
     """
     train = training_azimuths(num_views, azimuth_range)
     if len(train) < 2:
@@ -292,10 +413,112 @@ def held_out_views(num_views: int = 40, azimuth_range: float = 180.0, *,
     el = np.atleast_1d(as_array(elevations, "elevations"))
     if el.ndim != 1 or el.size == 0:
         raise ValueError(f"elevations: expected a non-empty 1-D sequence, got shape {el.shape}")
-    az_all = np.tile(mids, len(el))
-    el_all = np.repeat(el, len(mids))
     name = "mesh"
     if mesh is None:
         mesh, name = cow_mesh()
-    return render_views(mesh, az_all, el_all, image_size=image_size, dist=dist,
-                        background=background, mesh_name=name)
+    return render_views(mesh, np.tile(mids, len(el)), np.repeat(el, len(mids)),
+                        image_size=image_size, dist=dist, background=background, name=name)
+
+
+def _fibonacci_directions(n: int, offset: float = 0.5):
+    """(elev, azim) in degrees of ``n`` nearly uniform directions (Fibonacci sphere)."""
+    i = np.arange(n) + offset
+    y = 1.0 - 2.0 * i / n
+    elev = np.degrees(np.arcsin(np.clip(y, -1.0, 1.0)))
+    azim = np.degrees((i * math.pi * (3.0 - math.sqrt(5.0))) % (2 * math.pi)) - 180.0
+    return elev, azim
+
+
+def tutorial_views(tutorial: int = 5, *, mesh: Mesh | None = None, num_views: int | None = None,
+                   image_size: int = 128, num_held_out: int = 16, azimuth_range: float = 180.0,
+                   elev: float = 0.0, dist: float = 2.7, background=None,
+                   light_location=(0.0, 0.0, -3.0), name: str | None = None
+                   ) -> MultiViewDataset:
+    """A tutorial's training views of the cow (or of ``mesh``), with held-out views attached.
+
+    Parameters
+    ----------
+    tutorial : {4, 5, 6}
+        4: fit_textured_mesh (20 views, ``elev = linspace(0, 360)``, ``azim = linspace(-180,
+        180)``, white background, soft silhouettes; held-out views on a Fibonacci sphere with
+        coverage masks). 5, 6: ``generate_cow_renders`` (40 views at elevation ``elev``,
+        :func:`training_azimuths`, black background, thresholded silhouettes; held-out views
+        from :func:`held_out_views` at elevations 0 and 20, half of them at each).
+    mesh : Mesh, optional
+        Render this (textured, normalised) mesh instead of the normalised cow.
+    num_views : int, optional
+        Training views (20 for tutorial 4, 40 for 5 and 6).
+    image_size : int
+        Square image size (128).
+    num_held_out : int
+        Held-out views (16; an even number for tutorials 5 and 6; 0: none).
+    azimuth_range, elev : float
+        Tutorials 5 and 6: the azimuth range and the elevation of the training views.
+    dist : float
+        Camera distance (2.7).
+    background : (3,) float, optional
+        Image background (default: the tutorial's, white for 4 and black for 5 and 6).
+    light_location : (3,) float
+        The point light (0, 0, -3).
+    name : str, optional
+        Default: ``"cow"`` (or the stand-in's name), ``"mesh"`` for a given mesh.
+
+    Returns
+    -------
+    MultiViewDataset
+        Training views with ``held_out`` (or None) and ``mesh`` (the true surface) set.
+
+    Examples
+    --------
+    >>> data = tutorial_views(5, num_views=4, image_size=32, num_held_out=2)
+    >>> data.images.shape, data.silhouettes.shape, data.azim.tolist(), len(data.held_out)
+    ((4, 32, 32, 3), (4, 32, 32), [0.0, 120.0, 240.0, 360.0], 2)
+    """
+    if tutorial not in TUTORIALS:
+        raise ValueError(f"tutorial: expected one of {TUTORIALS}, got {tutorial!r}")
+    n_views = _count(num_views if num_views is not None else (20 if tutorial == 4 else 40),
+                     "num_views")
+    n_held = _count(num_held_out, "num_held_out", 0)
+    mesh_name = "mesh"
+    if mesh is None:
+        mesh, mesh_name = cow_mesh()
+    name = mesh_name if name is None else name
+    common = {"image_size": image_size, "dist": dist, "light_location": light_location,
+              "name": name}
+    if tutorial == 4:
+        bg = (1.0, 1.0, 1.0) if background is None else background
+        el = np.linspace(0.0, 360.0, n_views)
+        az = np.linspace(-180.0, 180.0, n_views)
+        data = render_views(mesh, az, el, background=bg, silhouettes="soft", **common)
+        if n_held:
+            he, ha = _fibonacci_directions(n_held)
+            data.held_out = render_views(mesh, ha, he, background=bg, silhouettes="coverage",
+                                         **common)
+    else:
+        bg = (0.0, 0.0, 0.0) if background is None else background
+        e = float(elev)
+        if not np.isfinite(e):
+            raise ValueError(f"elev: expected a finite number, got {elev!r}")
+        az = training_azimuths(n_views, azimuth_range)
+        data = render_views(mesh, az, np.full(len(az), e), background=bg, **common)
+        if n_held:
+            if n_held % 2:
+                raise ValueError(f"num_held_out: expected an even number for tutorial "
+                                 f"{tutorial} (half at elevation 0, half at 20), got {n_held}")
+            held = held_out_views(n_views, azimuth_range, n_azimuths=n_held // 2,
+                                  image_size=image_size, background=bg, dist=dist, mesh=mesh)
+            held.name = name
+            data.held_out = held
+    data.config.update(tutorial=tutorial, num_views=n_views, num_held_out=n_held)
+    return data
+
+
+def generate_cow_renders(num_views: int = 40, azimuth_range: float = 180.0,
+                         image_size: int = 128, background=(0.0, 0.0, 0.0), elev: float = 0.0,
+                         *, dist: float = 2.7, mesh: Mesh | None = None) -> MultiViewDataset:
+    """Deprecated: use ``tutorial_views(5, ...)`` (the same views, held-out views attached)."""
+    warnings.warn("generate_cow_renders is deprecated; use geofit.datasets.tutorial_views(5, "
+                  "num_views=..., num_held_out=0)", DeprecationWarning, stacklevel=2)
+    return tutorial_views(5, mesh=mesh, num_views=num_views, image_size=image_size,
+                          num_held_out=0, azimuth_range=azimuth_range, elev=elev, dist=dist,
+                          background=background, name=None if mesh is None else "mesh")

@@ -13,18 +13,10 @@ import numpy as np
 import pytest
 
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
-from geofit.fit.views import (
-    SILHOUETTE_METHODS,
-    MultiViewData,
-    MultiViewSplit,
-    ViewsEvaluator,
-    _Identity,
-    _LargeSteps,
-    _lstsq_colors,
-    _Objective,
-    fit_mesh_to_views,
-    render_multiview_dataset,
-)
+from geofit.datasets import MultiViewDataset, tutorial_views
+from geofit.fit._views_objective import _lstsq_colors, _Objective
+from geofit.fit.large_steps import IdentityParameterization, LargeSteps
+from geofit.fit.views import SILHOUETTE_METHODS, ViewsEvaluator, fit_mesh_to_views
 from geofit.metrics import psnr, silhouette_iou
 from geofit.render.soft import SoftRasterizationSettings
 
@@ -38,8 +30,8 @@ def _object(level=3):
 
 
 @pytest.fixture(scope="module")
-def data() -> MultiViewSplit:
-    return render_multiview_dataset(_object(), num_views=6, image_size=24, num_heldout=3)
+def data() -> MultiViewDataset:
+    return tutorial_views(4, mesh=_object(), num_views=6, image_size=24, num_held_out=3)
 
 
 # ------------------------------------------------------------------------------------------
@@ -50,10 +42,10 @@ def data() -> MultiViewSplit:
 def test_dataset_follows_the_tutorial(data):
     """20-view recipe geometry: elev linspace(0, 360), azim linspace(-180, 180), distance 2.7;
     soft silhouettes in [0, 1] with a soft rim, binary held-out masks, white background."""
-    tr, ho = data.train, data.heldout
+    tr, ho = data, data.held_out
     assert tr.silhouettes.shape == (6, 24, 24) and tr.images.shape == (6, 24, 24, 3)
-    np.testing.assert_allclose(data.config["elev"], np.linspace(0, 360, 6))
-    np.testing.assert_allclose(data.config["azim"], np.linspace(-180, 180, 6))
+    np.testing.assert_allclose(data.elev, np.linspace(0, 360, 6))
+    np.testing.assert_allclose(data.azim, np.linspace(-180, 180, 6))
     R, _ = look_at_view_transform(2.7, np.linspace(0, 360, 6), np.linspace(-180, 180, 6))
     np.testing.assert_allclose(tr.cameras.R, R, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(tr.cameras.get_camera_center(), axis=1), 2.7)
@@ -66,7 +58,7 @@ def test_dataset_follows_the_tutorial(data):
     ct, ch = tr.cameras.get_camera_center(), ho.cameras.get_camera_center()
     d = np.linalg.norm(ct[:, None] - ch[None], axis=2)
     assert d.min() > 0.05
-    np.testing.assert_allclose(data.train.lights.location, [[0.0, 0.0, -3.0]])
+    np.testing.assert_allclose(data.lights.location, [[0.0, 0.0, -3.0]])
 
 
 def test_iou_and_psnr_closed_forms():
@@ -87,7 +79,7 @@ def test_iou_and_psnr_closed_forms():
 def test_evaluator_scores_the_truth_perfectly(data):
     """The true mesh gets IoU 1, chamfer 0, F-score 1 and a PSNR limited only by the vertex
     colours' interpolation (here the truth *is* vertex-coloured: identical images)."""
-    ev = ViewsEvaluator(data.heldout, data.mesh, n_samples=2000)
+    ev = ViewsEvaluator(data.held_out, data.mesh, n_samples=2000)
     m = ev(data.mesh, data.mesh.textures.verts_features)
     assert m["iou"] == 1.0
     assert m["chamfer_l2"] < 1e-12 and m["fscore@0.01"] == 1.0
@@ -102,13 +94,16 @@ def test_evaluator_scores_the_truth_perfectly(data):
 
 
 def test_large_steps_parameterisation_is_consistent():
-    """verts(to_params(V)) == V and pullback is the adjoint of verts (<g, J u> = <J^T g, u>)."""
+    """to_verts(to_params(V)) == V and grad_params is the adjoint of to_verts
+    (<g, J u> = <J^T g, u>), on flat parameter vectors as the fits use them."""
     m = ico_sphere(2)
-    p = _LargeSteps(m, 10.0)
-    np.testing.assert_allclose(p.verts(p.to_params(m.verts)), m.verts, atol=1e-12)
-    rng = np.random.default_rng(0)
-    u, g = rng.normal(size=3 * m.n_verts), rng.normal(size=(m.n_verts, 3))
-    assert np.sum(g * p.verts(u)) == pytest.approx(np.sum(p.pullback(g) * u), rel=1e-12)
+    for p in (LargeSteps(m, 10.0), IdentityParameterization(m)):
+        np.testing.assert_allclose(p.to_verts(p.to_params(m.verts).ravel()), m.verts,
+                                   atol=1e-12)
+        rng = np.random.default_rng(0)
+        u, g = rng.normal(size=3 * m.n_verts), rng.normal(size=(m.n_verts, 3))
+        assert np.sum(g * p.to_verts(u)) == pytest.approx(np.sum(p.grad_params(g).ravel() * u),
+                                                          rel=1e-12)
 
 
 @pytest.mark.parametrize("textured,large", [(False, None), (True, None), (False, 5.0)])
@@ -117,11 +112,11 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     a central difference along a random direction matches <grad, u>."""
     m = ico_sphere(2)
     m = m.update_verts(m.verts * 0.7)
-    param = _LargeSteps(m, large) if large else _Identity(m.n_verts)
+    param = LargeSteps(m, large) if large else IdentityParameterization(m)
     weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
     st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None)
-    obj = _Objective(m, data.train, weights, textured=textured, param=param, settings=st)
-    x = param.to_params(m.verts)
+    obj = _Objective(m, data, weights, textured=textured, param=param, settings=st)
+    x = param.to_params(m.verts).ravel()
     if textured:
         x = np.concatenate([x, np.random.default_rng(1).uniform(0.2, 0.8, 3 * m.n_verts)])
     f, g = obj(x)
@@ -139,12 +134,12 @@ def test_lstsq_colours_recover_known_vertex_colours():
     """With the true geometry the hard render is affine in the colours: one sparse solve
     recovers the colours of every vertex the views see well."""
     obj = _object(2)
-    ds = render_multiview_dataset(obj, num_views=8, image_size=48, num_heldout=1)
-    c = _lstsq_colors(Mesh(obj.verts, obj.faces), ds.train, 1e-6)
+    ds = tutorial_views(4, mesh=obj, num_views=8, image_size=48, num_held_out=1)
+    c = _lstsq_colors(Mesh(obj.verts, obj.faces), ds, 1e-6)
     truth = obj.textures.verts_features
     err = np.abs(c - truth).max(1)
     assert np.median(err) < 0.02
-    ev = ViewsEvaluator(ds.train)
+    ev = ViewsEvaluator(ds)
     assert ev(Mesh(obj.verts, obj.faces), c)["psnr"] > 35.0
 
 
@@ -154,21 +149,22 @@ def test_lstsq_colours_recover_known_vertex_colours():
 
 
 def _iou(data, mesh):
-    return ViewsEvaluator(data.heldout)(mesh)["iou"]
+    return ViewsEvaluator(data.held_out)(mesh)["iou"]
 
 
 @pytest.mark.parametrize("method,kw", [
-    ("tutorial", {"silhouette_iters": 60}),
-    ("scipy-lbfgs", {"silhouette_iters": 25}),
-    ("nlopt-lbfgs", {"silhouette_iters": 40}),
-    ("scipy-lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)]}),
-    ("contour", {"silhouette_iters": 60, "large_steps": 5.0, "adam_lr": 0.01}),
+    ("sgd", {"silhouette_iters": 60}),
+    ("lbfgs", {"silhouette_iters": 25}),
+    ("lbfgs-nlopt", {"silhouette_iters": 40}),
+    ("lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)]}),
+    ("adam", {"silhouette_iters": 60, "large_steps": 5.0, "adam_lr": 0.01,
+              "silhouette_loss": "contour"}),
 ])
 def test_silhouette_methods_improve_the_fit(data, method, kw):
     """Every silhouette method ends with a status from STATUSES, a lower loss, and a better
     held-out IoU than the starting sphere."""
     init = ico_sphere(2)
-    res = fit_mesh_to_views(data.train, init=init, silhouette_method=method,
+    res = fit_mesh_to_views(data, init=init, silhouette_method=method,
                             textured_method="none", **kw)
     h = res.history
     assert res.ok and res.status in ("converged", "max_iter", "max_eval", "stalled")
@@ -193,10 +189,11 @@ def test_textured_fit_is_finite_at_every_step(data):
         assert np.all(np.isfinite(rec["x"]))
         assert all(math.isfinite(v) for v in rec["terms"].values())
 
-    for method, init in (("tutorial", "sphere"), ("lbfgs", "silhouette")):
-        res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="tutorial",
+    for method, init in (("sgd", "sphere"), ("lbfgs", "silhouette")):
+        res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
                                 silhouette_iters=15, textured_method=method,
-                                textured_init=init, textured_iters=15, callback=check)
+                                textured_init=init, textured_iters=15, callback=check,
+                                progress=False)
         assert res.ok, res.message
         assert np.all(np.isfinite(res.history.loss))
         assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
@@ -207,13 +204,14 @@ def test_textured_fit_is_finite_at_every_step(data):
 def test_textured_stage_improves_psnr(data):
     """Least-squares colours beat uniform grey on held-out views; the joint L-BFGS (positions
     and colours) then lowers its training loss without losing held-out PSNR."""
-    ev = ViewsEvaluator(data.heldout)
-    res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="scipy-lbfgs",
-                            silhouette_iters=25, textured_method="lbfgs", textured_iters=10)
+    ev = ViewsEvaluator(data.held_out)
+    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
+                            silhouette_iters=25, textured_method="lbfgs", textured_iters=10,
+                            progress=False)
     sil = res.silhouette_mesh
     grey = ev(sil, np.full((sil.n_verts, 3), 0.5))["psnr"]
-    lsq = fit_mesh_to_views(data.train, init=sil, silhouette_method="none",
-                            textured_method="lstsq")
+    lsq = fit_mesh_to_views(data, init=sil, silhouette_method="none",
+                            textured_method="lstsq", progress=False)
     assert lsq.stages[0]["name"] == "textured" and lsq.n_iterations == 0
     p_lsq = ev(lsq.mesh, lsq.colors)["psnr"]
     assert p_lsq > grey + 0.5
@@ -228,15 +226,15 @@ def test_textured_stage_improves_psnr(data):
 def test_evaluate_and_callback_hooks(data):
     """Checkpoints carry the evaluator's metrics with the clock paused; a callback returning
     True stops the stage with status 'callback'."""
-    ev = ViewsEvaluator(data.heldout)
-    res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="scipy-lbfgs",
+    ev = ViewsEvaluator(data.held_out)
+    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
                             silhouette_iters=10, textured_method="none",
-                            evaluate=lambda m, c: ev(m, c), eval_every=0.0)
+                            evaluate=lambda m, c: ev(m, c), eval_every=0.0, progress=False)
     assert len(res.history.checkpoints) == len(res.history)
     assert res.history.metric_names == ("iou",)
-    res = fit_mesh_to_views(data.train, init=ico_sphere(2), silhouette_method="tutorial",
+    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
                             silhouette_iters=50, textured_method="none",
-                            callback=lambda rec: rec["step"] >= 5)
+                            callback=lambda rec: rec["step"] >= 5, progress=False)
     assert res.status == "callback" and len(res.history) == 5
 
 
@@ -246,22 +244,22 @@ def test_evaluate_and_callback_hooks(data):
 
 
 def _perturbed(data, kind, rng):
-    tr = data.train
+    tr = data
     if kind == "few_views":
         return tr[np.arange(0, 6, 2)]
     if kind == "noisy":
-        return MultiViewData(tr.cameras, np.clip(tr.silhouettes + rng.normal(0, 0.2, tr.silhouettes.shape), 0, 1),
-                             tr.images, tr.lights)
+        noisy = np.clip(tr.silhouettes + rng.normal(0, 0.2, tr.silhouettes.shape), 0, 1)
+        return MultiViewDataset(images=tr.images, silhouettes=noisy, cameras=tr.cameras,
+                                lights=tr.lights)
     if kind == "hole":
         s = tr.silhouettes.copy()
         s[:, 10:14, 10:14] = 0.0
-        return MultiViewData(tr.cameras, s, tr.images, tr.lights)
+        return MultiViewDataset(images=tr.images, silhouettes=s, cameras=tr.cameras,
+                                lights=tr.lights)
     if kind == "camera_1deg":
-        c = data.config
-        R, T = look_at_view_transform(2.7, np.asarray(c["elev"]) + 1.0,
-                                      np.asarray(c["azim"]) + 1.0)
-        return MultiViewData(FoVPerspectiveCameras(R=R, T=T), tr.silhouettes, tr.images,
-                             tr.lights)
+        R, T = look_at_view_transform(2.7, data.elev + 1.0, data.azim + 1.0)
+        return MultiViewDataset(images=tr.images, silhouettes=tr.silhouettes,
+                                cameras=FoVPerspectiveCameras(R=R, T=T), lights=tr.lights)
     return tr
 
 
@@ -276,9 +274,9 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
         init = init.update_verts(init.verts * 0.2)
     if kind == "off_centre":
         init = init.update_verts(init.verts * 0.6 + [0.3, 0.2, 0.0])
-    for method in ("scipy-lbfgs", "tutorial"):
+    for method in ("lbfgs", "sgd"):
         res = fit_mesh_to_views(views, init=init, silhouette_method=method, silhouette_iters=20,
-                                textured_method="lstsq")
+                                textured_method="lstsq", progress=False)
         assert res.status in ("converged", "max_iter", "max_eval", "stalled", "time_budget")
         assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
         assert _iou(data, res.mesh) >= _iou(data, init) - 1e-9
@@ -290,60 +288,60 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
 
 
 def test_validation(data):
-    tr = data.train
-    with pytest.raises(TypeError, match="views"):
-        fit_mesh_to_views(tr.silhouettes)
+    tr = data
+    with pytest.raises(TypeError, match="dataset"):
+        fit_mesh_to_views(tr.silhouettes, progress=False)
+    with pytest.raises(ValueError, match="recipe"):
+        fit_mesh_to_views(tr, recipe="fast", progress=False)
+    with pytest.raises(ValueError, match="silhouette_loss"):
+        fit_mesh_to_views(tr, silhouette_loss="hard", progress=False)
+    with pytest.raises(ValueError, match="silhouette_loss"):
+        fit_mesh_to_views(tr, silhouette_loss="contour", silhouette_method="lbfgs", progress=False)
     with pytest.raises(ValueError, match="silhouette_method"):
-        fit_mesh_to_views(tr, silhouette_method="adamw")
+        fit_mesh_to_views(tr, silhouette_method="adamw", progress=False)
     with pytest.raises(ValueError, match="textured_method"):
-        fit_mesh_to_views(tr, textured_method="sgd")
+        fit_mesh_to_views(tr, textured_method="adam", progress=False)
     with pytest.raises(ValueError, match="textured_init"):
-        fit_mesh_to_views(tr, textured_init="cube")
-    with pytest.raises(ValueError, match="views"):
-        fit_mesh_to_views(MultiViewData(tr.cameras, tr.silhouettes), textured_method="lstsq")
+        fit_mesh_to_views(tr, textured_init="cube", progress=False)
+    with pytest.raises(ValueError, match="dataset"):
+        fit_mesh_to_views(MultiViewDataset(images=None, silhouettes=tr.silhouettes,
+                                           cameras=tr.cameras), textured_method="lstsq",
+                          progress=False)
     with pytest.raises(ValueError, match="silhouette_weights"):
-        fit_mesh_to_views(tr, silhouette_weights={"chamfer": 1.0})
+        fit_mesh_to_views(tr, silhouette_weights={"chamfer": 1.0}, progress=False)
     with pytest.raises(ValueError, match="textured_weights"):
-        fit_mesh_to_views(tr, textured_weights={"rgb": -1.0})
+        fit_mesh_to_views(tr, textured_weights={"rgb": -1.0}, progress=False)
     with pytest.raises(TypeError, match="silhouette_weights"):
-        fit_mesh_to_views(tr, silhouette_weights=[1.0])
+        fit_mesh_to_views(tr, silhouette_weights=[1.0], progress=False)
     with pytest.raises(ValueError, match="silhouette_iters"):
-        fit_mesh_to_views(tr, silhouette_iters=0)
+        fit_mesh_to_views(tr, silhouette_iters=0, progress=False)
     with pytest.raises(ValueError, match="views_per_step"):
-        fit_mesh_to_views(tr, views_per_step=7)
+        fit_mesh_to_views(tr, views_per_step=7, progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh_to_views(tr, large_steps=-1.0)
+        fit_mesh_to_views(tr, large_steps=-1.0, progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(0,)])
+        fit_mesh_to_views(tr, levels=[(0,)], progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(-1, 1)])
+        fit_mesh_to_views(tr, levels=[(-1, 1)], progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(0, 5)])
+        fit_mesh_to_views(tr, levels=[(0, 5)], progress=False)
     with pytest.raises(TypeError, match="init"):
-        fit_mesh_to_views(tr, init=np.zeros((3, 3)))
+        fit_mesh_to_views(tr, init=np.zeros((3, 3)), progress=False)
     with pytest.raises(ValueError, match="nothing to fit"):
-        fit_mesh_to_views(tr, silhouette_method="none", textured_method="none")
-    with pytest.raises(TypeError, match="cameras"):
-        MultiViewData(None, tr.silhouettes)
-    with pytest.raises(ValueError, match="silhouettes"):
-        MultiViewData(tr.cameras, tr.silhouettes[:2])
-    with pytest.raises(ValueError, match="silhouettes"):
-        MultiViewData(tr.cameras, np.zeros((6, 1, 5)))
-    with pytest.raises(ValueError, match="images"):
-        MultiViewData(tr.cameras, tr.silhouettes, tr.images[..., :2])
+        fit_mesh_to_views(tr, silhouette_method="none", textured_method="none", progress=False)
     with pytest.raises(ValueError, match="factor"):
         tr.downsample(5)
     with pytest.raises(TypeError, match="mesh"):
-        render_multiview_dataset(np.zeros((3, 3)))
+        tutorial_views(4, mesh=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="textured"):
-        render_multiview_dataset(ico_sphere(1))
+        tutorial_views(4, mesh=ico_sphere(1))
     with pytest.raises(ValueError, match="num_views"):
-        render_multiview_dataset(_object(1), num_views=0)
+        tutorial_views(4, mesh=_object(1), num_views=0)
     with pytest.raises(ValueError, match="dist"):
-        render_multiview_dataset(_object(1), dist=0.0)
+        tutorial_views(4, mesh=_object(1), dist=0.0)
     with pytest.raises(TypeError, match="heldout"):
         ViewsEvaluator(tr.silhouettes)
-    assert SILHOUETTE_METHODS == ("tutorial", "scipy-lbfgs", "nlopt-lbfgs", "contour")
+    assert SILHOUETTE_METHODS == ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 
 def test_cli_fit_views(tmp_path, monkeypatch, capsys):
@@ -355,7 +353,7 @@ def test_cli_fit_views(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
     code = main(["fit-views", "--out", str(tmp_path), "--views", "4", "--image-size", "24",
                  "--heldout", "2", "--silhouette-iters", "5", "--textured-iters", "3",
-                 "--init-level", "1"])
+                 "--init-level", "1", "--no-progress"])
     assert code == 0
     summary = json.loads((tmp_path / "fit_views.json").read_text())
     assert summary["status"] in ("converged", "max_iter", "max_eval", "stalled")
@@ -363,3 +361,34 @@ def test_cli_fit_views(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "fit_views.obj").stat().st_size > 0
     assert "held-out IoU" in capsys.readouterr().out
     assert main(["fit-views", "--out", str(tmp_path), "--views", "0"]) == 1
+
+
+def test_former_method_names_and_data_type_warn_and_agree(data):
+    """"scipy-lbfgs", "tutorial", "contour" and MultiViewData work for one release with a
+    DeprecationWarning and fit exactly as the current names; the recipes set the stages."""
+    from geofit.fit.views import MultiViewData
+
+    kw = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_method": "none",
+          "progress": False}
+    new = fit_mesh_to_views(data, silhouette_method="lbfgs", **kw)
+    assert new.method == "lbfgs+none" and new.recipe == "default" and new.init is kw["init"]
+    with pytest.warns(DeprecationWarning, match="scipy-lbfgs"):
+        old = fit_mesh_to_views(data, silhouette_method="scipy-lbfgs", **kw)
+    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
+    with pytest.warns(DeprecationWarning, match="MultiViewData"):
+        mv = MultiViewData(data.cameras, data.silhouettes, data.images, data.lights)
+    np.testing.assert_array_equal(fit_mesh_to_views(mv, silhouette_method="lbfgs", **kw)
+                                  .mesh.verts, new.mesh.verts)
+    tut = fit_mesh_to_views(data, recipe="tutorial", init=ico_sphere(1), silhouette_iters=3,
+                            textured_iters=2, progress=False)
+    with pytest.warns(DeprecationWarning, match="silhouette_method='tutorial'"), \
+            pytest.warns(DeprecationWarning, match="textured_method='tutorial'"):
+        old = fit_mesh_to_views(data, silhouette_method="tutorial", textured_method="tutorial",
+                                textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
+                                textured_iters=2, progress=False)
+    assert tut.method == "sgd+sgd" and [s["method"] for s in old.stages] == ["sgd", "sgd"]
+    np.testing.assert_array_equal(old.colors, tut.colors)
+    with pytest.warns(DeprecationWarning, match="silhouette_method='contour'"):
+        old = fit_mesh_to_views(data, silhouette_method="contour", large_steps=5.0, **kw)
+    new = fit_mesh_to_views(data, recipe="contour", large_steps=5.0, **kw)
+    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)

@@ -6,8 +6,9 @@ runs in seconds and needs no data files.
 import numpy as np
 import pytest
 
-import geofit.fit.volume as fv
+import geofit.fit._volume_problem as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import MultiViewDataset
 from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
 from geofit.loss import huber
 from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher
@@ -41,6 +42,11 @@ def _scene(n_views=8, elev=0.0, size=SIZE, seed=0):
 @pytest.fixture(scope="module")
 def scene():
     return _scene()
+
+
+def _ds(images, silhouettes, cameras) -> MultiViewDataset:
+    return MultiViewDataset(images=np.clip(images, 0.0, 1.0), silhouettes=silhouettes,
+                            cameras=cameras)
 
 
 def _psnr_iou(result, images, sils, cams, renderer):
@@ -169,12 +175,12 @@ def test_visual_hull_validation(scene):
 # -------------------------------------------------------------------------------------- fitting
 
 
-@pytest.mark.parametrize("method", ["lbfgs", "nlopt-lbfgs", "adam"])
+@pytest.mark.parametrize("method", ["lbfgs", "lbfgs-nlopt", "adam"])
 def test_fit_recovers_the_scene(scene, method):
     """geofit's methods fit the training views well with fewer voxels and samples than dense."""
     images, sils, cams, _, renderer = scene
-    res = fit_volume(images, sils, cams, method=method, volume_size=16, n_pts_per_ray=N_PTS,
-                     levels=(8, 16), iterations=(40, 40), precision="float64")
+    res = fit_volume(_ds(images, sils, cams), method=method, volume_size=16, n_pts_per_ray=N_PTS,
+                     levels=(8, 16), iterations=(40, 40), precision="float64", progress=False)
     assert isinstance(res, VolumeFitResult) and res.ok
     assert res.status in ("max_iter", "converged", "stalled", "max_eval")
     assert res.volume.grid_size == (16, 16, 16)
@@ -193,10 +199,10 @@ def test_tutorial_recipe_runs_dense(scene):
     """The tutorial recipe optimises every voxel with Adam on random view batches."""
     images, sils, cams, _, _ = scene
     seen = []
-    res = fit_volume(images, sils, cams, method="tutorial", volume_size=16,
+    res = fit_volume(_ds(images, sils, cams), recipe="tutorial", volume_size=16,
                      n_pts_per_ray=N_PTS, batch_size=3, n_iter=12, seed=0,
                      monitor=lambda v: seen.append(v) or {"n": float(len(seen))},
-                     monitor_every=1e9)
+                     monitor_every=1e9, progress=False)
     assert res.status == "max_iter" and res.n_iterations == 12
     assert res.n_active_voxels == 16 ** 3 and res.n_params == 4 * 16 ** 3
     assert len(res.history) == 12 and len(seen) == 1
@@ -214,11 +220,11 @@ def test_monitor_and_time_budget(scene):
         assert np.all(np.isfinite(vol.densities))
         return {"mean_density": float(vol.densities.mean())}
 
-    res = fit_volume(images, sils, cams, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                     iterations=(5, 5), monitor=monitor)
+    res = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                     iterations=(5, 5), monitor=monitor, progress=False)
     assert len(calls) >= 2 and "mean_density" in res.history.metric_names
-    quick = fit_volume(images, sils, cams, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                       iterations=(500, 500), time_budget=0.05)
+    quick = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                       iterations=(500, 500), time_budget=0.05, progress=False)
     assert quick.status == "time_budget"
     assert np.all(np.isfinite(quick.volume.densities))
 
@@ -229,8 +235,8 @@ def test_monitor_and_time_budget(scene):
 def test_all_black_target_is_empty_not_nan(scene):
     """Black images and empty silhouettes: nothing is carved in, the volume stays finite."""
     images, sils, cams, _, renderer = scene
-    res = fit_volume(np.zeros_like(images), np.zeros_like(sils), cams, volume_size=16,
-                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
+    res = fit_volume(_ds(np.zeros_like(images), np.zeros_like(sils), cams), volume_size=16,
+                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10), progress=False)
     assert res.ok and np.all(np.isfinite(res.volume.densities))
     assert res.n_active_voxels == 0 and res.volume.densities.max() == 0.0
     img, _ = renderer(cams, res.volume)
@@ -240,13 +246,13 @@ def test_all_black_target_is_empty_not_nan(scene):
 def test_huge_learning_rate_stays_finite(scene):
     """Adam with lr 1e6 saturates the sigmoids but never produces NaN."""
     images, sils, cams, _, _ = scene
-    res = fit_volume(images, sils, cams, method="adam", lr=1e6, volume_size=16,
-                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10))
+    res = fit_volume(_ds(images, sils, cams), method="adam", lr=1e6, volume_size=16,
+                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10), progress=False)
     assert res.status == "diverged" and "learning rate" in res.message
     assert np.all(np.isfinite(res.volume.densities)) and np.all(np.isfinite(res.volume.features))
     assert np.all(np.isfinite(res.history.as_arrays()["loss"]))
-    tut = fit_volume(images, sils, cams, method="tutorial", lr=1e6, volume_size=16,
-                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=6)
+    tut = fit_volume(_ds(images, sils, cams), recipe="tutorial", lr=1e6, volume_size=16,
+                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=6, progress=False)
     assert tut.status == "diverged" and "saturation" in tut.message
     assert np.all(np.isfinite(tut.volume.densities))
 
@@ -262,8 +268,8 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
     R[2], T[2] = look_at_view_transform(2.7, 40.0, 123.0)[0][0], look_at_view_transform(
         2.7, 40.0, 123.0)[1][0]
     wrong = FoVPerspectiveCameras(R=R, T=T)
-    res = fit_volume(noisy, sils, wrong, volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                     iterations=(30, 30), carve_tolerance=1)
+    res = fit_volume(_ds(noisy, sils, wrong), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                     iterations=(30, 30), carve_tolerance=1, progress=False)
     assert res.ok
     assert res.view_losses.shape == (len(images),) and np.argmax(res.view_losses) == 2
     assert "views [2] fit much worse" in res.message
@@ -275,43 +281,72 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
 def test_fit_validation(scene):
     """Invalid inputs and settings raise ValueError/TypeError naming the argument."""
     images, sils, cams, _, _ = scene
-    with pytest.raises(ValueError, match="images"):
-        fit_volume(images[..., :2], sils, cams)
-    with pytest.raises(ValueError, match="silhouettes"):
-        fit_volume(images, sils[:3], cams)
-    with pytest.raises(ValueError, match="cameras"):
-        fit_volume(images, sils, cams[:2])
+    with pytest.raises(TypeError, match="dataset"):
+        fit_volume(images, progress=False)
+    with pytest.raises(ValueError, match="dataset"):
+        fit_volume(MultiViewDataset(images=None, silhouettes=sils, cameras=cams), progress=False)
+    with pytest.raises(ValueError, match="recipe"):
+        fit_volume(_ds(images, sils, cams), recipe="dense", progress=False)
     with pytest.raises(ValueError, match="method"):
-        fit_volume(images, sils, cams, method="sgd")
+        fit_volume(_ds(images, sils, cams), recipe="tutorial", method="lbfgs", progress=False)
+    with pytest.raises(ValueError, match="method"):
+        fit_volume(_ds(images, sils, cams), method="sgd", progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_volume(images, sils, cams, volume_size=16, levels=(16, 8))
+        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(16, 8), progress=False)
     with pytest.raises(ValueError, match="volume_size"):
-        fit_volume(images, sils, cams, volume_size=1)
+        fit_volume(_ds(images, sils, cams), volume_size=1, progress=False)
     with pytest.raises(ValueError, match="iterations"):
-        fit_volume(images, sils, cams, volume_size=16, levels=(8, 16), iterations=(0, 1))
+        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(8, 16), iterations=(0, 1),
+                   progress=False)
     with pytest.raises(ValueError, match="termination"):
-        fit_volume(images, sils, cams, termination=2.0)
+        fit_volume(_ds(images, sils, cams), termination=2.0, progress=False)
     with pytest.raises(ValueError, match="precision"):
-        fit_volume(images, sils, cams, precision="float16")
+        fit_volume(_ds(images, sils, cams), precision="float16", progress=False)
     with pytest.raises(ValueError, match="max_depth"):
-        fit_volume(images, sils, cams, min_depth=3.0, max_depth=1.0)
-    with pytest.raises(ValueError, match="images"):
-        fit_volume(np.full_like(images, np.nan), sils, cams)
+        fit_volume(_ds(images, sils, cams), min_depth=3.0, max_depth=1.0, progress=False)
     with pytest.raises(ValueError, match="batch_size"):
-        fit_volume(images, sils, cams, method="tutorial", batch_size=0)
+        fit_volume(_ds(images, sils, cams), recipe="tutorial", batch_size=0, progress=False)
     with pytest.raises(TypeError, match="monitor"):
-        fit_volume(images, sils, cams, monitor=3)
-    assert set(FIT_VOLUME_METHODS) == {"lbfgs", "nlopt-lbfgs", "adam", "tutorial"}
+        fit_volume(_ds(images, sils, cams), monitor=3, progress=False)
+    assert set(FIT_VOLUME_METHODS) == {"lbfgs", "lbfgs-nlopt", "adam"}
+
+
+def test_former_call_form_warns_and_agrees(scene):
+    """fit_volume(images, silhouettes, cameras), method="tutorial" and "nlopt-lbfgs" work for
+    one release with a DeprecationWarning; the former form still validates its arrays."""
+    images, sils, cams, _, _ = scene
+    kw = {"volume_size": 16, "n_pts_per_ray": N_PTS, "levels": (8, 16), "iterations": (3, 3)}
+    new = fit_volume(_ds(images, sils, cams), **kw, progress=False)
+    assert new.method == "lbfgs" and new.recipe == "default" and new.init is None
+    with pytest.warns(DeprecationWarning, match=r"fit_volume\(images, silhouettes, cameras"):
+        old = fit_volume(images, sils, cams, **kw, progress=False)
+    np.testing.assert_array_equal(old.volume.densities, new.volume.densities)
+    with pytest.warns(DeprecationWarning, match="method='tutorial'"):
+        tut = fit_volume(_ds(images, sils, cams), method="tutorial", volume_size=8,
+                         n_pts_per_ray=N_PTS, batch_size=2, n_iter=2, progress=False)
+    assert tut.recipe == "tutorial" and tut.method == "adam"
+    with pytest.warns(DeprecationWarning, match="nlopt-lbfgs"):
+        fit_volume(_ds(images, sils, cams), method="nlopt-lbfgs", **kw, progress=False)
+    for bad, name in ((images[..., :2], "images"), (np.full_like(images, np.nan), "images")):
+        with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=name):
+            fit_volume(bad, sils, cams, progress=False)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="silhouettes"):
+        fit_volume(images, sils[:3], cams, progress=False)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="cameras"):
+        fit_volume(images, sils, cams[:2], progress=False)
+
 
 
 # ------------------------------------------------------------------------------------- datasets
 
 
 def test_cow_renders_and_held_out_views():
-    """generate_cow_renders follows the tutorial's cameras; held-out views sit between them."""
-    from geofit.datasets import generate_cow_renders, held_out_views, training_azimuths
+    """tutorial_views(5) follows generate_cow_renders' cameras; held-out views sit between
+    them."""
+    from geofit.datasets import held_out_views, training_azimuths, tutorial_views
 
-    data = generate_cow_renders(num_views=3, image_size=24)
+    data = tutorial_views(5, num_views=3, image_size=24, num_held_out=0)
+    assert data.held_out is None
     assert data.images.shape == (3, 24, 24, 3) and data.silhouettes.shape == (3, 24, 24)
     np.testing.assert_allclose(data.azim, [0.0, 180.0, 360.0])
     np.testing.assert_allclose(data.elev, 0.0)
@@ -329,11 +364,11 @@ def test_cow_renders_and_held_out_views():
     assert len(test) == 4 and set(test.azim.tolist()) <= set(mids.tolist())
     np.testing.assert_allclose(test.elev, [0, 0, 20, 20])
     with pytest.raises(ValueError, match="num_views"):
-        generate_cow_renders(num_views=0)
+        tutorial_views(5, num_views=0)
     with pytest.raises(ValueError, match="n_azimuths"):
         held_out_views(num_views=5, n_azimuths=9)
     with pytest.raises(ValueError, match="background"):
-        generate_cow_renders(num_views=1, image_size=8, background=(2.0, 0, 0))
+        tutorial_views(5, num_views=1, image_size=8, background=(2.0, 0, 0))
 
 
 def test_cli_fit_volume(tmp_path):
@@ -343,7 +378,7 @@ def test_cli_fit_volume(tmp_path):
     from geofit.cli import main
 
     code = main(["fit-volume", "--size", "16", "--levels", "8,16", "--iters", "3,3",
-                 "--views", "4", "--image-size", "16", "--frames", "2", "--quiet",
+                 "--views", "4", "--image-size", "16", "--frames", "2", "--quiet", "--no-progress",
                  "--out", str(tmp_path)])
     assert code == 0
     summary = json.loads((tmp_path / "volume_summary.json").read_text())
@@ -355,3 +390,32 @@ def test_cli_fit_volume(tmp_path):
     assert (tmp_path / "volume_rotation.gif").stat().st_size > 0
     with pytest.raises(SystemExit):   # argparse rejects a malformed level list
         main(["fit-volume", "--levels", "8,x", "--out", str(tmp_path)])
+
+
+def test_one_visual_hull_for_fit_volume_and_occupancy_grid(scene):
+    """OccupancyGrid.from_silhouettes and fit_volume's visual_hull are one implementation
+    (geofit.structures.volume.carve): the occupancy grid equals a per-voxel reference loop
+    (a voxel is kept when the pixel of its centre is inside every dilated silhouette)."""
+    from scipy.ndimage import binary_dilation
+
+    import geofit.fit.volume
+    from geofit.render import OccupancyGrid
+    from geofit.structures import volume as sv
+
+    assert geofit.fit.volume.visual_hull is sv.visual_hull
+    _, sils, cams, _, _ = scene
+    grid = OccupancyGrid.from_silhouettes(sils, cams, resolution=8, dilate_pixels=1)
+    masks = np.stack([binary_dilation(s > 0.5, np.ones((3, 3), bool)) for s in sils])
+    M = cams.get_full_projection_transform()
+    N, H, W = sils.shape
+    expected = np.ones(8 ** 3, bool)
+    for k, c in enumerate(grid.centers().reshape(-1, 3)):  # voxels (reference loop)
+        for v in range(N):  # views
+            h = np.append(c, 1.0) @ M[v]
+            col = np.rint((W - 1 - h[0] / h[3] * min(H, W)) / 2.0)
+            row = np.rint((H - 1 - h[1] / h[3] * min(H, W)) / 2.0)
+            if not (h[3] > 0 and 0 <= col < W and 0 <= row < H and masks[v, int(row), int(col)]):
+                expected[k] = False
+                break
+    np.testing.assert_array_equal(grid.occupied.reshape(-1), expected)
+    assert 0 < expected.sum() < expected.size

@@ -8,6 +8,7 @@ import pytest
 
 from geofit import Mesh, ico_sphere
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import MultiViewDataset
 from geofit.fit import fit_mesh, fit_volume
 from geofit.fit.nerf import fit_nerf
 
@@ -25,8 +26,8 @@ def test_fit_mesh_source_with_repeated_index_face():
     F[0] = [F[0, 0], F[0, 0], F[0, 1]]
     F[5] = [F[5, 0], F[5, 1], F[5, 1]]
     target = s.update_verts(s.verts * [1.5, 1.0, 0.8])
-    res = fit_mesh(Mesh(s.verts, F), target, n_iter=15, seed=0, progress=False)
-    ref = fit_mesh(s, target, n_iter=15, seed=0, progress=False)
+    res = fit_mesh(target, init=Mesh(s.verts, F), n_iter=15, seed=0, progress=False)
+    ref = fit_mesh(target, init=s, n_iter=15, seed=0, progress=False)
     assert "the source had 2 zero-area triangles" in res.message
     assert np.isfinite(res.mesh.verts).all()
     assert res.history.loss[-1] <= 1.1 * ref.history.loss[-1]
@@ -54,8 +55,11 @@ def test_fits_refuse_8bit_images(fit):
     white or fitted as they were)."""
     cams = _cameras(2)
     sils = np.zeros((2, 8, 8))
-    call = ((lambda im: fit_volume(im, sils, cams, volume_size=8)) if fit == "volume" else
-            (lambda im: fit_nerf(im, sils, cams, n_iter=1)))
+    def data(im):
+        return MultiViewDataset(images=im, silhouettes=sils, cameras=cams)
+
+    call = ((lambda im: fit_volume(data(im), volume_size=8, progress=False)) if fit == "volume"
+            else (lambda im: fit_nerf(data(im), n_iter=1, progress=False)))
     with pytest.raises(ValueError, match=r"^images: expected float values in \[0, 1\], got "
                                          r"integer dtype uint8"):
         call(np.full((2, 8, 8, 3), 200, np.uint8))

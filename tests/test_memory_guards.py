@@ -11,6 +11,7 @@ import pytest
 from geofit import PointCloud, ico_sphere
 from geofit._memory import check_allocation, memory_limit, parse_bytes
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import MultiViewDataset
 from geofit.fit import fit_volume
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.render import (
@@ -126,7 +127,8 @@ def test_points_rasterizer_huge_points_per_pixel_refused():
 def test_fit_volume_huge_volume_size_refused():
     """volume_size=2000 (8e9 voxels): refused naming volume_size before any grid exists."""
     imgs, sils = np.zeros((2, 8, 8, 3)), np.zeros((2, 8, 8))
-    err, peak = refused(fit_volume, imgs, sils, cameras(2), volume_size=2000)
+    data = MultiViewDataset(images=imgs, silhouettes=sils, cameras=cameras(2))
+    err, peak = refused(fit_volume, data, volume_size=2000, progress=False)
     assert str(err).startswith("volume_size: a 2000^3 grid") and peak < GB
 
 
@@ -145,12 +147,13 @@ def test_fit_nerf_huge_batch_refused():
     """n_rays_per_image=1e8 (a huge batch of rays per step): refused naming the batch settings,
     before the hull, the network's first step or any ray exists."""
     imgs, sils = np.zeros((2, 8, 8, 3)), np.zeros((2, 8, 8))
-    err, peak = refused(fit_nerf, imgs, sils, cameras(2), preset="tutorial",
-                        n_rays_per_image=10**8, n_iter=1)
+    data = MultiViewDataset(images=imgs, silhouettes=sils, cameras=cameras(2))
+    err, peak = refused(fit_nerf, data, recipe="tutorial", n_rays_per_image=10**8, n_iter=1,
+                        progress=False)
     assert str(err).startswith("batch_size, n_rays_per_image and n_pts_per_ray: one training "
                                "step's samples") and peak < GB
-    err, _ = refused(fit_nerf, imgs, sils, cameras(2), preset="tutorial", n_pts_per_ray=10**8,
-                     n_iter=1)
+    err, _ = refused(fit_nerf, data, recipe="tutorial", n_pts_per_ray=10**8, n_iter=1,
+                     progress=False)
     assert "n_pts_per_ray" in str(err)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import MultiViewDataset
 from geofit.fit.nerf import (
     NerfConfig,
     fit_nerf,
@@ -334,7 +335,7 @@ def test_sample_images_at_xys_matches_bilinear_loop():
 
 def test_silhouette_weights_leave_out_an_inner_band():
     """The silhouette loss weights are 0 exactly in a `margin`-pixel band inside the edge."""
-    from geofit.fit.nerf import _silhouette_weights
+    from geofit.fit._nerf_train import _silhouette_weights
 
     sil = np.zeros((1, 12, 12))
     sil[0, 2:10, 3:11] = 1.0
@@ -363,6 +364,10 @@ def toy_scene():
     return imgs[..., :3], (imgs[..., 3] > 0.5).astype(float), cams
 
 
+def _ds(images, silhouettes, cameras) -> MultiViewDataset:
+    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)
+
+
 def small_config(**kw):
     opts = {"n_harmonic_functions": 2, "n_hidden_neurons": 12, "n_hidden_color": 8,
             "n_harmonic_functions_dir": 1, "n_pts_per_ray": 32, "n_rays_per_image": 48,
@@ -377,8 +382,8 @@ def test_fit_scene_preset_learns_and_reports(toy_scene):
     returns full-image renders of the held-out views."""
     imgs, sils, cams = toy_scene
     train, test = np.arange(8), np.arange(8, 10)
-    res = fit_nerf(imgs[train], sils[train], cams[train], config=small_config(),
-                   held_out=(imgs[test], sils[test], cams[test]), seed=0)
+    res = fit_nerf(_ds(imgs[train], sils[train], cams[train]), config=small_config(),
+                   held_out=(imgs[test], sils[test], cams[test]), seed=0, progress=False)
     assert res.status == "max_iter" and res.ok, res.message
     L = np.array(res.history.loss)
     assert L[-10:].mean() < 0.5 * L[:5].mean()
@@ -395,8 +400,9 @@ def test_fit_scene_preset_learns_and_reports(toy_scene):
 def test_fit_with_silhouette_margin(toy_scene):
     """With a silhouette margin the fit still learns (the band carries only the RGB loss)."""
     imgs, sils, cams = toy_scene
-    res = fit_nerf(imgs[:8], sils[:8], cams[:8], config=small_config(silhouette_margin=1),
-                   held_out=(imgs[8:], sils[8:], cams[8:]), seed=0)
+    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]),
+                   config=small_config(silhouette_margin=1),
+                   held_out=(imgs[8:], sils[8:], cams[8:]), seed=0, progress=False)
     L = np.array(res.history.loss)
     assert res.ok and L[-10:].mean() < 0.7 * L[:5].mean() and res.psnr > 20, res.psnr
 
@@ -406,7 +412,7 @@ def test_fit_tutorial_preset_runs_montecarlo_recipe(toy_scene):
     imgs, sils, cams = toy_scene
     cfg = NerfConfig.tutorial(n_harmonic_functions=2, n_hidden_neurons=8, n_pts_per_ray=16,
                               n_rays_per_image=20, batch_size=2, n_iter=8, n_threads=2)
-    res = fit_nerf(imgs, sils, cams, config=cfg, seed=1)
+    res = fit_nerf(_ds(imgs, sils, cams), config=cfg, seed=1, progress=False)
     assert res.status == "max_iter" and res.samples_per_ray == 16
     assert res.occupancy is None and res.psnr is None and res.images is None
     assert len(res.history.loss) == 8
@@ -417,8 +423,8 @@ def test_fit_huge_learning_rate_never_nan(toy_scene, lr):
     """A learning rate 250x / 2500x too large: no NaN anywhere, and status 'diverged' with a
     message saying the held-out loss got worse than the untrained network's."""
     imgs, sils, cams = toy_scene
-    res = fit_nerf(imgs[:8], sils[:8], cams[:8], config=small_config(lr=lr, n_iter=40),
-                   held_out=(imgs[8:], sils[8:], cams[8:]), seed=0)
+    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(lr=lr, n_iter=40),
+                   held_out=(imgs[8:], sils[8:], cams[8:]), seed=0, progress=False)
     assert np.all(np.isfinite(res.field.get_flat()))
     assert res.status == "diverged" and "no progress" in res.message
     assert np.all(np.isfinite(res.images)) and np.isfinite(res.psnr)
@@ -431,7 +437,8 @@ def test_fit_without_held_out_flags_a_stuck_training_loss(toy_scene, lr, status)
     """Without held-out views, a training loss that does not fall (a dead network) is
     reported as 'diverged'; a healthy run is not."""
     imgs, sils, cams = toy_scene
-    res = fit_nerf(imgs, sils, cams, config=small_config(lr=lr, n_iter=60), seed=0)
+    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(lr=lr, n_iter=60), seed=0,
+                   progress=False)
     assert res.status == status
     if status == "diverged":
         assert "training loss" in res.message
@@ -452,7 +459,9 @@ def test_fit_nonfinite_gradient_returns_last_finite(toy_scene, monkeypatch):
         return grads
 
     monkeypatch.setattr(ImplicitRenderer, "backward", poisoned)
-    res = fit_nerf(imgs, sils, cams, config=small_config(n_iter=10), seed=0)
+    # one chunk per step here, so that the 3rd backward call is the 3rd step
+    monkeypatch.setattr("geofit.fit._nerf_train._MIN_PARTS", 1)
+    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=10), seed=0, progress=False)
     assert res.status == "nonfinite" and "NaN" in res.message
     assert np.all(np.isfinite(res.field.get_flat())) and len(res.history.loss) == 3
 
@@ -462,9 +471,9 @@ def test_fit_early_stopping_on_held_out_loss(toy_scene):
     and the fit stops early with status 'converged', returning the best checkpoint."""
     imgs, sils, cams = toy_scene
     noise = np.random.default_rng(0).uniform(size=imgs[8:].shape)
-    res = fit_nerf(imgs[:8], sils[:8], cams[:8], config=small_config(n_iter=200),
+    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(n_iter=200),
                    held_out=(noise, 1 - sils[8:], cams[8:]), eval_every=5, early_stopping=2,
-                   seed=0)
+                   seed=0, progress=False)
     assert res.status == "converged" and res.n_iterations < 200
     hl = [c["held_out_loss"] for c in res.history.checkpoints]
     assert min(hl) <= hl[-1]
@@ -472,17 +481,19 @@ def test_fit_early_stopping_on_held_out_loss(toy_scene):
 
 def test_fit_time_budget_and_callback(toy_scene):
     imgs, sils, cams = toy_scene
-    res = fit_nerf(imgs, sils, cams, config=small_config(n_iter=10 ** 6), time_budget=0.5,
-                   seed=0)
+    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=10 ** 6), time_budget=0.5,
+                   seed=0, progress=False)
     assert res.status == "time_budget" and res.seconds >= 0.5
     seen = []
-    res = fit_nerf(imgs, sils, cams, config=small_config(n_iter=100), eval_every=4,
-                   callback=lambda info: seen.append(info["step"]) or len(seen) >= 2, seed=0)
+    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=100), eval_every=4,
+                   callback=lambda info: seen.append(info["step"]) or len(seen) >= 2, seed=0,
+                   progress=False)
     assert res.status == "callback" and seen == [4, 8]
 
 
 @pytest.mark.parametrize("kw, match", [
-    ({"preset": "nerf"}, "preset"),
+    ({"recipe": "nerf"}, "recipe"),
+    ({"method": "sgd"}, "method"),
     ({"ray_sampling": "grid"}, "ray_sampling"),
     ({"occupancy": "all"}, "occupancy"),
     ({"lr_schedule": "cosine"}, "lr_schedule"),
@@ -507,23 +518,50 @@ def test_fit_validation(toy_scene, kw, match):
     """Invalid settings raise ValueError naming the setting."""
     imgs, sils, cams = toy_scene
     with pytest.raises(ValueError, match=match):
-        fit_nerf(imgs, sils, cams, **kw)
+        fit_nerf(_ds(imgs, sils, cams), **kw, progress=False)
 
 
 def test_fit_input_validation(toy_scene):
     imgs, sils, cams = toy_scene
-    with pytest.raises(ValueError, match="silhouettes"):
-        fit_nerf(imgs, sils[:3], cams)
-    with pytest.raises(ValueError, match="cameras"):
-        fit_nerf(imgs, sils, cams[:2])
-    with pytest.raises(TypeError, match="cameras"):
-        fit_nerf(imgs, sils, "cams")
-    with pytest.raises(ValueError, match="images"):
-        fit_nerf(imgs[..., :2], sils, cams)
+    with pytest.raises(TypeError, match="dataset"):
+        fit_nerf(imgs, progress=False)
+    with pytest.raises(ValueError, match="dataset"):
+        fit_nerf(MultiViewDataset(images=None, silhouettes=sils, cameras=cams), progress=False)
     with pytest.raises(TypeError, match="config"):
-        fit_nerf(imgs, sils, cams, config={"lr": 1})
+        fit_nerf(_ds(imgs, sils, cams), config={"lr": 1}, progress=False)
     with pytest.raises(ValueError, match="early_stopping"):
-        fit_nerf(imgs, sils, cams, held_out=(imgs, sils, cams), early_stopping=0)
+        fit_nerf(_ds(imgs, sils, cams), held_out=(imgs, sils, cams), early_stopping=0,
+                 progress=False)
+
+
+def test_fit_former_call_forms_warn_and_agree(toy_scene):
+    """fit_nerf(images, silhouettes, cameras) and preset= work for one release with a
+    DeprecationWarning and fit exactly as the current form; a dataset's held_out is the
+    default held_out, and False turns it off."""
+    imgs, sils, cams = toy_scene
+    cfg = small_config(n_iter=6)
+    new = fit_nerf(_ds(imgs, sils, cams), config=cfg, seed=0, progress=False)
+    assert new.method == "adam" and new.recipe == "default" and new.init is None
+    with pytest.warns(DeprecationWarning, match=r"fit_nerf\(images, silhouettes, cameras"):
+        old = fit_nerf(imgs, sils, cams, config=cfg, seed=0, progress=False)
+    np.testing.assert_array_equal(old.field.get_flat(), new.field.get_flat())
+    with pytest.warns(DeprecationWarning, match="preset='scene'"):
+        res = fit_nerf(_ds(imgs, sils, cams), preset="scene", config=cfg, progress=False)
+    assert res.recipe == "default"
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="silhouettes"):
+        fit_nerf(imgs, sils[:3], cams, progress=False)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="cameras"):
+        fit_nerf(imgs, sils, cams[:2], progress=False)
+    with pytest.warns(DeprecationWarning), pytest.raises(TypeError, match="cameras"):
+        fit_nerf(imgs, sils, "cams", progress=False)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="images"):
+        fit_nerf(imgs[..., :2], sils, cams, progress=False)
+    with pytest.raises(ValueError, match="preset"):
+        fit_nerf(_ds(imgs, sils, cams), preset="nerf", progress=False)
+    ds = _ds(imgs[:8], sils[:8], cams[:8])
+    ds.held_out = _ds(imgs[8:], sils[8:], cams[8:])
+    assert fit_nerf(ds, config=cfg, progress=False).images.shape == (2, 16, 16, 4)
+    assert fit_nerf(ds, config=cfg, held_out=False, progress=False).images is None
 
 
 @pytest.mark.parametrize("make, exc, match", [
@@ -591,6 +629,7 @@ def test_cli_fit_nerf_writes_outputs(tmp_path, capsys):
 
     code = main(["fit-nerf", "--views", "4", "--image-size", "16", "--time", "1",
                  "--iters", "5", "--frames", "2", "--width", "8", "--threads", "1", "--quiet",
+                 "--no-progress",
                  "--out", str(tmp_path)])
     assert code == 0
     summary = json.loads((tmp_path / "nerf_summary.json").read_text())
@@ -601,3 +640,17 @@ def test_cli_fit_nerf_writes_outputs(tmp_path, capsys):
     for name in ("nerf_heldout.png", "nerf_rotation.gif"):
         assert (tmp_path / name).stat().st_size > 0
     assert "fit-nerf" in capsys.readouterr().out
+
+
+def test_fit_same_seed_same_network_on_1_and_2_threads(toy_scene):
+    """The same seed gives the same network whatever the thread count: a training step is cut
+    into chunks independently of the threads, and the chunks' gradients are summed in order."""
+    imgs, sils, cams = toy_scene
+    fields = []
+    for n_threads in (1, 2):
+        res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(
+            n_iter=25, n_threads=n_threads), seed=3, progress=False)
+        fields.append(res.field)
+    p1, p2 = (np.concatenate([np.ravel(v) for v in f.params.values()]) for f in fields)
+    assert p1.size > 100
+    np.testing.assert_array_equal(p1, p2)

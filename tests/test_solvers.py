@@ -92,7 +92,7 @@ def test_adam_matches_pytorch_rule():
 
 
 @pytest.mark.parametrize("method,opts", [
-    ("scipy-lbfgs", {}), ("nlopt-lbfgs", {}),
+    ("lbfgs", {}), ("lbfgs-nlopt", {}),
     ("sgd", {"lr": 0.1, "momentum": 0.5, "n_iter": 200}),
     ("adam", {"lr": 0.05, "n_iter": 500}),
 ])
@@ -140,7 +140,7 @@ def test_time_budget_stops_solvers():
         time.sleep(0.01)
         return rosenbrock(x)
 
-    for method in ("scipy-lbfgs", "nlopt-lbfgs"):
+    for method in ("lbfgs", "lbfgs-nlopt"):
         res = minimize(slow, np.array([-1.2, 1.0]), method, time_budget=0.05)
         assert res.status == "time_budget", res.message
         assert 0.05 <= res.seconds < 0.5
@@ -149,7 +149,7 @@ def test_time_budget_stops_solvers():
 
 
 def test_max_eval_budget():
-    for method in ("scipy-lbfgs", "nlopt-lbfgs"):
+    for method in ("lbfgs", "lbfgs-nlopt"):
         res = minimize(rosenbrock, np.array([-1.2, 1.0]), method, max_eval=7)
         assert res.status == "max_eval", res.message
         assert res.n_evaluations == 7

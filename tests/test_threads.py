@@ -12,7 +12,6 @@ import shutil
 import subprocess
 import sys
 import threading
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +28,7 @@ COMPONENTS = {
     "mesh": "geofit.render.mesh._raycast",
     "soft": "geofit.render.soft.fragments",
     "points": "geofit.render.points.rasterizer",
-    "volume": "geofit.fit.volume",
+    "volume": "geofit.fit._volume_problem",
     "nerf": "geofit.fit.nerf",
 }
 
@@ -37,6 +36,7 @@ COMPONENTS = {
 def _workloads() -> dict:
     """Run each component once on a tiny input; return its thread-count attributes."""
     from geofit import FoVPerspectiveCameras, PointCloud, ico_sphere, look_at_view_transform
+    from geofit.datasets import MultiViewDataset
     from geofit.fit.nerf import render_nerf
     from geofit.fit.volume import fit_volume
     from geofit.render import (
@@ -62,10 +62,8 @@ def _workloads() -> dict:
     images = np.full((2, 8, 8, 3), 0.5)
     sils = np.zeros((2, 8, 8))
     sils[:, 2:6, 2:6] = 1.0
-    with warnings.catch_warnings():  # an old call form may warn while the fits are reworked
-        warnings.simplefilter("ignore", DeprecationWarning)
-        fit_volume(images, sils, cams, volume_size=8, levels=(8,), iterations=1,
-                   n_pts_per_ray=16)
+    fit_volume(MultiViewDataset(images=images, silhouettes=sils, cameras=cams), volume_size=8,
+               levels=(8,), iterations=1, n_pts_per_ray=16, progress=False)
     field = NeuralRadianceField(n_harmonic_functions=2, n_hidden_neurons=4,
                                 n_harmonic_functions_dir=1, n_hidden_color=4, seed=0)
     pool_before = id(_threads._POOL)

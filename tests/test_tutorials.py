@@ -386,7 +386,7 @@ def test_fit_mesh_stability_scenarios():
         elif mode == "nan_target":
             assert np.isnan(sc.target[0]).sum() == 1
         assert sc.reference is target or mode == "torus"
-    lb = fit_mesh_scenario("step_x100", target, {"method": "scipy-lbfgs"})
+    lb = fit_mesh_scenario("step_x100", target, {"method": "lbfgs"})
     assert len(lb.kwargs["weights"]) == 2
     with pytest.raises(ValueError, match="mode"):
         fit_mesh_scenario("flood", target, kw)

@@ -1,7 +1,6 @@
 """Capture folders in and out: NeRF transforms.json, COLMAP text models, OpenCV K/R/t."""
 from __future__ import annotations
 
-import inspect
 import json
 import math
 import time
@@ -33,11 +32,9 @@ class _Views:
 
 
 def _cow_renders(num_views: int, image_size: int):
-    """The volume tutorial's training renders (tutorial_views(5) once the unified dataset lands)."""
-    if hasattr(geofit.datasets, "tutorial_views"):
-        return geofit.datasets.tutorial_views(5, num_views=num_views, image_size=image_size,
-                                              num_held_out=0)
-    return geofit.datasets.generate_cow_renders(num_views=num_views, image_size=image_size)
+    """The volume tutorial's training renders."""
+    return geofit.datasets.tutorial_views(5, num_views=num_views, image_size=image_size,
+                                          num_held_out=0)
 
 
 def _dataset(off_centre: bool, n: int = 3, seed: int = 0) -> _Views:
@@ -354,12 +351,10 @@ def test_load_and_save_argument_errors(tmp_path):
 
 
 def _fit_volume(ds, **kw):
-    """``fit_volume(dataset, ...)`` once the unified dataset form lands, the array form before."""
+    """``fit_volume(dataset, ...)`` without a progress bar."""
     from geofit.fit.volume import fit_volume
 
-    if "dataset" in inspect.signature(fit_volume).parameters:
-        return fit_volume(ds, **kw)
-    return fit_volume(ds.images, ds.silhouettes, ds.cameras, **kw)
+    return fit_volume(ds, progress=False, **kw)
 
 
 def test_fit_volume_on_a_written_capture_matches_the_direct_fit(tmp_path):

@@ -178,32 +178,35 @@ def _tutorial5_views(path: Path, s: dict):
 
 # ------------------------------------------------------------------------------ adapters
 def _fit_mesh_call(target, **kwargs):
-    """geofit's mesh fit with its default start (the one line to update when its signature
-    changes to ``fit_mesh(target, ...)``)."""
+    """geofit's mesh fit with its default start."""
     from ..fit import fit_mesh
 
-    return fit_mesh(None, target, **kwargs)
+    return fit_mesh(target, **kwargs)
 
 
 def _fit_views_call(train, **kwargs):
     """geofit's mesh-from-views fit (tutorial 4) with its defaults."""
     from ..fit.views import fit_mesh_to_views
 
-    return fit_mesh_to_views(train, **kwargs)
+    return fit_mesh_to_views(train, progress=False, **kwargs)
 
 
 def _fit_volume_call(images, silhouettes, cameras, **kwargs):
     """geofit's volume fit (tutorial 5) with its defaults."""
+    from ..datasets import MultiViewDataset
     from ..fit.volume import fit_volume
 
-    return fit_volume(images, silhouettes, cameras, **kwargs)
+    return fit_volume(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
+                      progress=False, **kwargs)
 
 
 def _fit_nerf_call(images, silhouettes, cameras, **kwargs):
     """geofit's NeRF fit (tutorial 6) with its defaults."""
+    from ..datasets import MultiViewDataset
     from ..fit.nerf import fit_nerf
 
-    return fit_nerf(images, silhouettes, cameras, **kwargs)
+    return fit_nerf(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
+                    progress=False, **kwargs)
 
 
 def _given(s: dict, mapping: dict) -> dict:
@@ -212,13 +215,12 @@ def _given(s: dict, mapping: dict) -> dict:
 
 
 def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..fit import RECIPES
     from ..metrics import MeshEvaluator
 
     t = time.perf_counter()
     target = _load_mesh(path)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = dict(RECIPES[s["recipe"]]) if s.get("recipe") else {}
+    kw = {"recipe": s["recipe"]} if s.get("recipe") else {}
     kw.update(_given(s, {"time_budget": "time_budget", "n_iter": "n_iter"}))
     res = _fit_mesh_call(target, seed=s["seed"], evaluator=None, progress=False, **kw)
     clock["fit_seconds"] = res.seconds
@@ -286,18 +288,21 @@ def _task_render(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..fit.views import MultiViewData, ViewsEvaluator, render_multiview_dataset
+    from ..datasets import MultiViewDataset, tutorial_views
+    from ..fit._views_objective import dataset_lights
+    from ..fit.views import ViewsEvaluator
 
     t = time.perf_counter()
     if path.is_dir():
         (tr, te) = _split(*_load_capture(path, (1.0, 1.0, 1.0)))
-        train, heldout, truth = MultiViewData(tr[2], tr[1], tr[0]), \
-            MultiViewData(te[2], te[1], te[0]), None
+        train, heldout, truth = (MultiViewDataset(images=tr[0], silhouettes=tr[1], cameras=tr[2]),
+                                 MultiViewDataset(images=te[0], silhouettes=te[1],
+                                                  cameras=te[2]), None)
     else:
-        ds = render_multiview_dataset(_coloured(_load_mesh(path, textures=True)),
-                                      num_views=s["views"], image_size=s["image_size"],
-                                      num_heldout=s["heldout"], name=path.stem)
-        train, heldout, truth = ds.train, ds.heldout, ds.mesh
+        train = tutorial_views(4, mesh=_coloured(_load_mesh(path, textures=True)),
+                               num_views=s["views"], image_size=s["image_size"],
+                               num_held_out=s["heldout"], name=path.stem)
+        heldout, truth = train.held_out, train.mesh
     clock["load_seconds"] = time.perf_counter() - t
     kw = _given(s, {"time_budget": "silhouette_time", "iterations": "silhouette_iters"})
     fit = _fit_views_call(train, seed=s["seed"], **kw)
@@ -317,8 +322,8 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     cams = heldout.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=heldout.image_size))
     tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
-    pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=heldout.lights))(tm),
-                      np.float64)
+    shader = SoftPhongShader(cameras=cams, lights=dataset_lights(heldout))
+    pred = np.asarray(MeshRenderer(ras, shader)(tm), np.float64)
     target_rgb = heldout.images[:k] if heldout.images is not None else \
         np.repeat(heldout.silhouettes[:k, ..., None], 3, axis=-1)
     _save_png(dest / PICTURE_FILE, _rows(target_rgb, pred))
@@ -355,7 +360,7 @@ def _task_fit_nerf(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "time_budget", "preset": "preset", "n_iter": "n_iter"})
+    kw = _given(s, {"time_budget": "time_budget", "recipe": "recipe", "n_iter": "n_iter"})
     res = _fit_nerf_call(*tr, held_out=te, seed=s["seed"], **kw)
     clock["fit_seconds"] = res.seconds
     _save_npz(dest / "nerf_field.npz", **res.field.params, config=json.dumps(asdict(res.config)))

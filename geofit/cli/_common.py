@@ -15,14 +15,15 @@ def cow_views(args: argparse.Namespace):
     """The tutorial's training renders of the cow and held-out views between them.
 
     ``args.views`` training views of ``args.image_size`` pixels; held out: up to 8 azimuths
-    half-way between them (:func:`geofit.datasets.held_out_views`). Returns ``(train, test)``.
+    half-way between them (:func:`geofit.datasets.held_out_views`). Returns ``(train, test)``;
+    ``train.held_out`` is ``test``.
     """
-    from ..datasets import generate_cow_renders, held_out_views
+    from ..datasets import held_out_views, tutorial_views
 
-    train = generate_cow_renders(num_views=args.views, image_size=args.image_size)
-    test = held_out_views(num_views=args.views, image_size=args.image_size,
-                          n_azimuths=min(8, max(1, args.views - 1)))
-    return train, test
+    train = tutorial_views(5, num_views=args.views, image_size=args.image_size, num_held_out=0)
+    train.held_out = held_out_views(num_views=args.views, image_size=args.image_size,
+                                    n_azimuths=min(8, max(1, args.views - 1)))
+    return train, train.held_out
 
 
 def add_capture_arg(p: argparse.ArgumentParser) -> None:
@@ -53,7 +54,7 @@ def capture_views(path: str):
         raise ValueError(f"CAPTURE: {path} has {n} view; at least 2 are needed (every 8th "
                          "is held out)")
     held = np.arange(n) % 8 == 0
-    name = getattr(data, "name", None) or data.mesh_name
+    name = data.name
     train, test = (_make_dataset(data.images[m], data.silhouettes[m], data.cameras[m], name)
                    for m in (~held, held))
     train.held_out = test
@@ -85,6 +86,7 @@ def add_view_args(p: argparse.ArgumentParser) -> None:
 
 
 def add_output_args(p: argparse.ArgumentParser) -> None:
-    """``--quiet`` and ``--out``."""
+    """``--quiet``, ``--no-progress`` and ``--out``."""
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", default="out", help="output folder (default: out)")

@@ -105,14 +105,14 @@ class DemoResult(NamedTuple):
     mesh_file: Path
 
 
-def _fit(train, time_budget: float):
-    """The one call of the fit: tutorial 4's default in geofit (L-BFGS, large steps,
-    coarse-to-fine from ``ico_sphere(3)`` to level 4; least-squares colours)."""
-    from ..fit.views import fit_mesh_to_views
+def _fit(train, time_budget: float, progress: bool):
+    """The one call of the fit: tutorial 4 in geofit's best settings (L-BFGS on all views with
+    large steps, coarse-to-fine from ``ico_sphere(3)`` to level 4; least-squares colours)."""
+    from ..fit import fit_mesh_to_views
     from ..shapes import ico_sphere
 
     return fit_mesh_to_views(train, init=ico_sphere(3), silhouette_time=time_budget,
-                             large_steps=10.0, levels=[(0, 2), (1, 1)])
+                             large_steps=10.0, levels=[(0, 2), (1, 1)], progress=progress)
 
 
 def _label(img, text: str, xy, size: int, fill=(0, 0, 0)) -> None:
@@ -171,7 +171,8 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     DemoResult
     """
     from ..data import load_textured_mesh
-    from ..fit.views import ViewsEvaluator, render_multiview_dataset
+    from ..datasets import tutorial_views
+    from ..fit.views import ViewsEvaluator
     from ..io import save_mesh
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..structures import Mesh, TexturesVertex
@@ -190,20 +191,20 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     mesh = loaded.mesh.normalize().mesh
     where = f"from {loaded.path}" if loaded.path else "(procedural stand-in: the cow is missing)"
     say(f"geofit demo: {loaded.name} ({mesh.n_verts} vertices, {mesh.n_faces} faces) {where}")
-    ds = render_multiview_dataset(mesh, num_views=views, image_size=size, num_heldout=heldout,
-                                  name=loaded.name)
+    train = tutorial_views(4, mesh=mesh, num_views=views, image_size=size,
+                           num_held_out=heldout, name=loaded.name)
     t_data = time.perf_counter() - t0
     say(f"geofit demo: rendered {views} training and {heldout} held-out views of {size} px "
         f"in {t_data:.1f} s; fitting (silhouettes for {time_budget:g} s, then colours) ...")
     t1 = time.perf_counter()
-    fit = _fit(ds.train, float(time_budget))
+    fit = _fit(train, float(time_budget), verbose)
     t_fit = time.perf_counter() - t1
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
-    metrics = ViewsEvaluator(ds.heldout, ds.mesh, n_samples=20000, taus=(0.01,))(
+    metrics = ViewsEvaluator(train.held_out, mesh, n_samples=20000, taus=(0.01,))(
         fit.mesh, colors)
     fitted = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
 
-    h = ds.heldout
+    h = train.held_out
     k = min(4, len(h))
     cams = h.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))

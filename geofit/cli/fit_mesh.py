@@ -37,11 +37,11 @@ def _save(path: Path, mesh) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from ..fit.mesh import RECIPES, fit_mesh
+    from ..fit.mesh import fit_mesh
     from ..metrics import MeshEvaluator
 
     target, name = _load_target(args.target)
-    kwargs = dict(RECIPES[args.recipe])
+    kwargs = {"recipe": args.recipe}
     if args.method is not None:
         kwargs["method"] = args.method
     if args.large_steps is not None:
@@ -53,8 +53,8 @@ def run(args: argparse.Namespace) -> int:
     evaluator = MeshEvaluator(target, n_samples=args.metric_samples, taus=(0.01,),
                               normalize=True, seed=0)
     print(f"target: {name} ({target.n_verts} vertices, {target.n_faces} faces); "
-          f"recipe {args.recipe}: " + ", ".join(f"{k}={v}" for k, v in kwargs.items()))
-    res = fit_mesh(None, target, seed=args.seed, evaluator=None,
+          + ", ".join(f"{k}={v}" for k, v in kwargs.items()))
+    res = fit_mesh(target, seed=args.seed, evaluator=None,
                    progress=not args.no_progress, **kwargs)
     m = evaluator.evaluate(res.mesh)
     print(f"status: {res.status} ({res.message})")

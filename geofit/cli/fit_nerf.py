@@ -2,7 +2,7 @@
 
 Renders the tutorial's 40 training views of the cow with geofit (black background, silhouettes,
 cameras) and the held-out views between them, fits a NeRF with :func:`geofit.fit.nerf.fit_nerf`
-(the scene-sized recipe by default, ``--preset tutorial`` for the tutorial's network and recipe),
+(the scene-sized recipe by default, ``--recipe tutorial`` for the tutorial's network and recipe),
 and writes into ``--out``:
 
 * ``nerf_summary.json`` -- status, parameter count, samples per ray, held-out PSNR, times, the
@@ -48,10 +48,12 @@ def run(args: argparse.Namespace) -> int:
             overrides[key] = v
     if args.threads is not None:
         overrides["n_threads"] = args.threads
-    res = fit_nerf(train.images, train.silhouettes, train.cameras, preset=args.preset,
-                   held_out=(test.images, test.silhouettes, test.cameras),
-                   time_budget=args.time, early_stopping=args.early_stopping, seed=args.seed,
-                   verbose=not args.quiet, **overrides)
+    recipe = args.recipe
+    if args.preset is not None:  # the former option
+        recipe = "default" if args.preset == "scene" else "tutorial"
+    res = fit_nerf(train, recipe=recipe, held_out=test, time_budget=args.time,
+                   early_stopping=args.early_stopping, seed=args.seed, verbose=not args.quiet,
+                   progress=not args.no_progress, **overrides)
     summary = res.summary()
     summary["history"] = res.history.to_dict()
     (out / "nerf_summary.json").write_text(json.dumps(summary, indent=1) + "\n",
@@ -81,17 +83,19 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "fit-nerf", help="fit a neural radiance field to renders of the cow (tutorial 6)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", choices=("scene", "tutorial"), default="scene",
+    p.add_argument("--recipe", choices=("default", "tutorial"), default="default",
                    help="geofit's scene-sized recipe (default) or the tutorial's")
+    p.add_argument("--preset", choices=("scene", "tutorial"), default=None,
+                   help="deprecated spelling of --recipe (scene: default)")
     p.add_argument("--time", type=float, default=600.0,
                    help="solver time budget in seconds (default 600)")
     p.add_argument("--iters", dest="n_iter", type=int, default=None,
-                   help="maximum Adam steps (default: the preset's)")
-    p.add_argument("--lr", type=float, default=None, help="learning rate (default: preset)")
+                   help="maximum Adam steps (default: the recipe's)")
+    p.add_argument("--lr", type=float, default=None, help="learning rate (default: recipe)")
     p.add_argument("--width", dest="n_hidden_neurons", type=int, default=None,
-                   help="hidden width (default: preset)")
+                   help="hidden width (default: recipe)")
     p.add_argument("--frequencies", dest="n_harmonic_functions", type=int, default=None,
-                   help="harmonic frequencies of the point embedding (default: preset)")
+                   help="harmonic frequencies of the point embedding (default: recipe)")
     p.add_argument("--early-stopping", type=int, default=None,
                    help="stop when the held-out loss has not improved for this many checkpoints")
     add_capture_arg(p)

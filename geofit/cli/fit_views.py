@@ -5,8 +5,8 @@ tutorial data is found, else the procedural stand-in): ``--views`` views with so
 RGB, plus ``--heldout`` held-out views; deforms an ico-sphere to the silhouettes, then fits vertex
 colours (and, with ``--textured lbfgs``, positions). geofit's default: L-BFGS over all views in the
 large-steps parameterisation, coarse-to-fine (half resolution and one subdivision level less
-first), colours by one least-squares solve. ``--method tutorial --textured tutorial`` runs the
-tutorial's SGD recipe instead.
+first), colours by one least-squares solve. ``--recipe tutorial`` runs the tutorial's SGD recipe
+instead, ``--recipe contour`` the hard silhouette's contour gradients with Adam.
 
 Writes into ``--out``: ``fit_views.obj`` (the fitted surface), ``fit_views_colors.npz`` (verts,
 faces, vertex colours), ``fit_views.json`` (status, timings, held-out IoU / PSNR, chamfer-L2 and
@@ -35,11 +35,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
     from PIL import Image
 
-    from ..fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
+    from ..datasets import tutorial_views
+    from ..fit._views_objective import dataset_lights
+    from ..fit.views import ViewsEvaluator, fit_mesh_to_views
     from ..io import save_obj
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
     from ..structures import Mesh, TexturesVertex
+    from ._common import capture_views
 
     _int(args.views, "--views")
     _int(args.image_size, "--image-size", 8)
@@ -47,28 +50,29 @@ def run(args: argparse.Namespace) -> int:
     _int(args.init_level, "--init-level", 0)
     t0 = time.perf_counter()
     if args.capture:
-        ds = _capture_split(args.capture)
-        H, W = ds.train.image_size
-        args.views, args.heldout, args.image_size = len(ds.train), len(ds.heldout), H
+        ds, _ = capture_views(args.capture)   # ds.held_out: the held-out views
+        H, W = ds.image_size
+        args.views, args.heldout, args.image_size = len(ds), len(ds.held_out), H
         args.no_coarse_to_fine = args.no_coarse_to_fine or bool(H % 2 or W % 2)
     else:
-        ds = cow_multiview_dataset(num_views=args.views, image_size=args.image_size,
-                                   num_heldout=args.heldout)
+        ds = tutorial_views(4, num_views=args.views, image_size=args.image_size,
+                            num_held_out=args.heldout)
     t_data = time.perf_counter() - t0
     levels = None
     init_level = args.init_level
-    if not args.no_coarse_to_fine and args.method != "tutorial" and args.image_size % 2 == 0 \
+    stochastic = args.recipe == "tutorial" if args.method is None else args.method == "sgd"
+    if not args.no_coarse_to_fine and not stochastic and args.image_size % 2 == 0 \
             and init_level >= 1:
         levels = [(0, 2), (1, 1)]
         init_level -= 1
-    kw = {"silhouette_method": args.method, "textured_method": args.textured,
-          "silhouette_iters": args.silhouette_iters, "textured_iters": args.textured_iters,
-          "silhouette_time": args.time, "large_steps": (None if args.method == "tutorial"
-                                                        else args.large_steps),
-          "levels": levels, "seed": args.seed,
-          "textured_init": "sphere" if args.textured == "tutorial" else "silhouette"}
-    fit = fit_mesh_to_views(ds.train, init=ico_sphere(init_level), **kw)
-    ev = ViewsEvaluator(ds.heldout, ds.mesh, n_samples=20000)
+    kw = {"recipe": args.recipe, "silhouette_method": args.method,
+          "textured_method": args.textured, "silhouette_iters": args.silhouette_iters,
+          "textured_iters": args.textured_iters, "silhouette_time": args.time,
+          "large_steps": None if stochastic else args.large_steps, "levels": levels,
+          "seed": args.seed}
+    fit = fit_mesh_to_views(ds, init=ico_sphere(init_level), progress=not args.no_progress,
+                            **kw)
+    ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=20000)
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
     metrics = ev(fit.mesh, colors)
 
@@ -86,12 +90,13 @@ def run(args: argparse.Namespace) -> int:
                "dataset_seconds": t_data}
     (dest / "fit_views.json").write_text(json.dumps(summary, indent=1, default=float) + "\n",
                                          encoding="utf-8")
-    h = ds.heldout
+    h = ds.held_out
     k = min(4, len(h))
     cams = h.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
     tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
-    pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=h.lights))(tm)
+    lights = dataset_lights(h)   # a capture's: the tutorial's point light
+    pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=lights))(tm)
                       [..., :3], np.float64)
     grid = np.concatenate([np.concatenate(list(h.images[:k]), 1), np.concatenate(list(pred), 1)],
                           0)
@@ -113,20 +118,9 @@ def run(args: argparse.Namespace) -> int:
     return 0 if fit.ok else 1
 
 
-def _capture_split(path: str):
-    """A capture folder as the tutorial's split (no true mesh, the default light)."""
-    from ..fit.views import MultiViewData, MultiViewSplit
-    from ._common import capture_views
-
-    train, test = capture_views(path)
-    return MultiViewSplit(MultiViewData(train.cameras, train.silhouettes, train.images),
-                          MultiViewData(test.cameras, test.silhouettes, test.images),
-                          mesh=None, name=train.mesh_name)
-
-
 def register(subparsers) -> None:
     """Add the ``fit-views`` sub-command."""
-    from ..fit.views import SILHOUETTE_METHODS, TEXTURED_METHODS
+    from ..fit.views import RECIPES, SILHOUETTE_METHODS, TEXTURED_METHODS
 
     p = subparsers.add_parser(
         "fit-views",
@@ -140,10 +134,13 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
     p.add_argument("--heldout", type=int, default=16, help="held-out views (default 16)")
-    p.add_argument("--method", choices=SILHOUETTE_METHODS, default="scipy-lbfgs",
-                   help="silhouette stage (default scipy-lbfgs)")
-    p.add_argument("--textured", choices=TEXTURED_METHODS, default="lstsq",
-                   help="textured stage (default lstsq)")
+    p.add_argument("--recipe", choices=tuple(RECIPES), default="default",
+                   help="named settings (default: L-BFGS silhouettes, least-squares colours; "
+                        "tutorial: the tutorial's SGD; contour: contour gradients with Adam)")
+    p.add_argument("--method", choices=SILHOUETTE_METHODS + ("none",), default=None,
+                   help="override the recipe's silhouette-stage method")
+    p.add_argument("--textured", choices=TEXTURED_METHODS, default=None,
+                   help="override the recipe's textured-stage method")
     p.add_argument("--silhouette-iters", type=int, default=200,
                    help="silhouette iterations (default 200; the tutorial uses 2000 SGD steps)")
     p.add_argument("--textured-iters", type=int, default=50, help="textured iterations")
@@ -156,4 +153,5 @@ def register(subparsers) -> None:
     p.add_argument("--init-level", type=int, default=4,
                    help="ico-sphere level of the final mesh (default 4)")
     p.add_argument("--seed", type=int, default=0, help="random views of the SGD recipe")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

@@ -3,7 +3,7 @@
 Renders the tutorial's training views of the cow with geofit (40 azimuths at elevation 0, 128 px,
 black background, silhouettes) and held-out views between them (elevations 0 and 20), fits a
 grid of densities and colours with :func:`geofit.fit.volume.fit_volume` (geofit's reduced model
-with L-BFGS by default, ``--method tutorial`` for PyTorch3D's dense Adam recipe), and writes into
+with L-BFGS by default, ``--recipe tutorial`` for PyTorch3D's dense Adam recipe), and writes into
 ``--out``:
 
 * ``volume_summary.json`` -- status, active voxels, samples per ray, held-out PSNR and IoU,
@@ -59,12 +59,13 @@ def run(args: argparse.Namespace) -> int:
         kw["iterations"] = args.iters
     if args.smoothness is not None:
         kw["smoothness"] = args.smoothness
-    res = fit_volume(train.images, train.silhouettes, train.cameras, method=args.method,
+    res = fit_volume(train, recipe=args.recipe, method=args.method,
                      volume_size=args.size, time_budget=args.time, n_iter=args.steps,
-                     precision=args.precision, verbose=not args.quiet, **kw)
+                     precision=args.precision, verbose=not args.quiet,
+                     progress=not args.no_progress, **kw)
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
     summary = res.summary()
-    summary.update({"dataset": train.mesh_name, "views": len(train),
+    summary.update({"dataset": train.name, "views": len(train),
                     "image_size": args.image_size, "data_seconds": t_data,
                     "held_out": {"psnr": m.psnr, "iou": m.iou,
                                  "psnr_per_view": m.psnr_per_view, "iou_per_view":
@@ -92,14 +93,15 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``fit-volume`` sub-command."""
-    from ..fit.volume import FIT_VOLUME_METHODS
+    from ..fit.volume import FIT_VOLUME_METHODS, RECIPES
 
     p = subparsers.add_parser(
         "fit-volume", help="fit a voxel volume to renders of the cow by raymarching (tutorial 5)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--method", choices=FIT_VOLUME_METHODS, default="lbfgs",
-                   help="geofit's L-BFGS (default), nlopt L-BFGS, Adam, or the tutorial's "
-                        "dense Adam recipe")
+    p.add_argument("--recipe", choices=tuple(RECIPES), default="default",
+                   help="geofit's reduced model (default) or the tutorial's dense Adam recipe")
+    p.add_argument("--method", choices=FIT_VOLUME_METHODS, default=None,
+                   help="solver of the default recipe: L-BFGS (default), nlopt L-BFGS, Adam")
     p.add_argument("--size", type=int, default=128, help="final grid size (default 128)")
     p.add_argument("--levels", type=_ints, default=None,
                    help="coarse-to-fine grid sizes, e.g. 32,64,128 (default: halving to 32)")

@@ -315,6 +315,15 @@ class FitResult:
         Iterations (or SGD/Adam steps) over all stages.
     n_evaluations : int
         Objective evaluations over all stages.
+    method : str
+        The method (solver) used, in the vocabulary of :mod:`geofit.fit` (``"lbfgs"``,
+        ``"lbfgs-nlopt"``, ``"adam"``, ``"sgd"``; ``fit_mesh_to_views``: silhouette and textured
+        methods joined by ``"+"``).
+    recipe : str
+        The recipe the settings started from (``"default"``, ``"tutorial"``, ...).
+    init : object
+        The starting model the fit used (the initial mesh; the initial network; None when the
+        fit builds its own start, as ``fit_volume`` does from the visual hull).
     """
 
     status: str
@@ -325,6 +334,9 @@ class FitResult:
     cpu_seconds: float = 0.0
     n_iterations: int = 0
     n_evaluations: int = 0
+    method: str = ""
+    recipe: str = ""
+    init: Any = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -343,7 +355,8 @@ class FitResult:
     def summary(self) -> dict[str, Any]:
         """Status, message, sizes, time and the last metrics, JSON-ready."""
         return _json_safe({
-            "status": self.status, "message": self.message, "n_params": self.n_params,
+            "status": self.status, "message": self.message, "method": self.method,
+            "recipe": self.recipe, "n_params": self.n_params,
             "seconds": self.seconds, "cpu_seconds": self.cpu_seconds,
             "n_iterations": self.n_iterations,
             "n_evaluations": self.n_evaluations,

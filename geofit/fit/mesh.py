@@ -9,8 +9,9 @@ The objective is a weighted sum of a data term and three regularisers of the sou
   :func:`~geofit.loss.mesh_normal_consistency`, :func:`~geofit.loss.mesh_laplacian_smoothing`
   (uniform), PyTorch3D's definitions.
 * ``D`` with ``distance="points"``: PyTorch3D's ``chamfer_distance`` between ``n`` samples of the
-  source, ``P = B V`` (``B`` the sparse sampling matrix of :func:`geofit.ops.sample_points_from_meshes`),
-  and ``n`` samples ``Y`` of the target. ``dD/dV = B^T dD/dP``.
+  source, ``P = B V`` (``B`` the sparse sampling matrix of
+  :func:`geofit.ops.sample_points_from_meshes`), and ``n`` samples ``Y`` of the target.
+  ``dD/dV = B^T dD/dP``.
 * ``D`` with ``distance="surface"``: exact point-to-surface distances both ways, with no
   sample-to-sample bias: ``mean_i d(P_i, target)^2`` (:class:`geofit.loss.PointToSurface`) plus
   ``mean_j |Y_j - C_j|^2``, where ``C_j = Bc_j V`` is the closest point of the *source* surface
@@ -42,16 +43,20 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from .._validate import as_array, as_faces, as_rng, check_choice, check_positive
 from ..structures import Mesh, as_mesh
+from ._mesh_objective import TERMS, MeshObjective, mesh_weights
+from ._options import Recipes, check_int, method_name, recipe_name, warn_deprecated
+from ._progress import progress_bar
 from .history import Clock, FitHistory, FitResult
+from .large_steps import LargeSteps
 from .solvers import SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
 __all__ = [
     "FINE_WEIGHTS",
     "METHODS",
+    "RECIPES",
     "TUTORIAL_WEIGHTS",
     "CoarseToFine",
     "LargeSteps",
@@ -60,8 +65,8 @@ __all__ = [
     "fit_mesh",
 ]
 
-#: Solvers :func:`fit_mesh` accepts.
-METHODS = ("sgd", "adam", "scipy-lbfgs", "nlopt-lbfgs")
+#: Methods (solvers) :func:`fit_mesh` accepts.
+METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 #: The tutorial's weights (chamfer 1, edge 1, normal consistency 0.01, Laplacian 0.1).
 TUTORIAL_WEIGHTS = {"chamfer": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 0.1}
@@ -70,23 +75,22 @@ TUTORIAL_WEIGHTS = {"chamfer": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 0.
 #: point-to-surface distances there is no sampling noise for the regularisers to smooth out.
 FINE_WEIGHTS = {"chamfer": 1.0, "edge": 0.03, "normal": 0.003, "laplacian": 0.01}
 
-#: Named settings of :func:`fit_mesh` used by the benchmark, the command line and the notebook:
-#: ``fit_mesh(source, target, **RECIPES[name])``.
-RECIPES: dict[str, dict] = {
+#: Recipes of :func:`fit_mesh` (``fit_mesh(target, recipe=name)``; every entry is also a dict
+#: of keyword options).
+RECIPES: dict[str, dict] = Recipes({
+    # L-BFGS, deterministic stages, exact point-to-surface distances, large steps (lambda 10)
+    "default": {"method": "lbfgs"},
     # the tutorial exactly: SGD lr 1.0 momentum 0.9, 2000 steps, 5000 fresh samples a side
     "tutorial": {"method": "sgd"},
-    # the same stochastic objective with Adam
-    "adam": {"method": "adam", "lr": 0.01},
-    # quasi-Newton, deterministic stages, exact point-to-surface distances
-    "scipy-lbfgs": {"method": "scipy-lbfgs", "large_steps": None},
-    "nlopt-lbfgs": {"method": "nlopt-lbfgs", "large_steps": None},
-    # the same with the large-steps parameterisation
-    "large-steps": {"method": "scipy-lbfgs", "large_steps": 10.0},
     # ico 2 -> 3 -> 4, subdividing only while the accuracy asks for it
-    "coarse-to-fine": {"method": "scipy-lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
-}
+    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
+}, {
+    "adam": {"method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
+    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
+    "large-steps": {"method": "lbfgs", "large_steps": 10.0},
+}, fit="fit_mesh")
 
-_TERMS = ("chamfer", "edge", "normal", "laplacian")
 _STOCHASTIC = ("sgd", "adam")
 
 
@@ -143,260 +147,6 @@ def _repair_degenerate(mesh: Mesh, max_rounds: int = 10) -> tuple[Mesh, int, int
     return mesh, n_bad, int(moved.sum())
 
 
-def _check_weights(w, name="weights") -> dict[str, float]:
-    if not isinstance(w, Mapping):
-        raise TypeError(f"{name}: expected a dict of term weights, got {type(w)!r}")
-    unknown = set(w) - set(_TERMS)
-    if unknown:
-        raise ValueError(f"{name}: unknown terms {sorted(unknown)}; expected some of {_TERMS}")
-    out = {k: check_positive(w.get(k, 0.0), f"{name}[{k!r}]", strict=False) for k in _TERMS}
-    if out["chamfer"] == 0.0:
-        raise ValueError(f"{name}: the data term 'chamfer' needs a weight > 0")
-    return out
-
-
-def _check_int(v, name: str, lo: int = 1) -> int:
-    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
-    return int(v)
-
-
-# ------------------------------------------------------------------------------------ large steps
-class LargeSteps:
-    """The large-steps reparameterisation ``u = (I + lambda L) V`` of Nicolet et al. (2021).
-
-    Parameters
-    ----------
-    mesh : Mesh
-        Its topology defines ``L = D - A``, the combinatorial Laplacian of the edge graph
-        (``D`` the degrees, ``A`` the 0/1 adjacency).
-    lam : float
-        ``lambda > 0``; larger means smoother steps (19 in the paper's examples; 10 here by
-        default in :func:`fit_mesh`).
-
-    Notes
-    -----
-    ``M = I + lambda L`` is symmetric positive definite, factorised once with
-    ``scipy.sparse.linalg.splu``. The map ``V -> u`` is linear with Jacobian ``M``
-    (:attr:`matrix`), so ``dE/du = M^-T dE/dV = M^-1 dE/dV``.
-
-    Examples
-    --------
-    >>> from geofit import ico_sphere
-    >>> ls = LargeSteps(ico_sphere(2), 10.0)
-    >>> V = ico_sphere(2).verts
-    >>> bool(abs(ls.to_verts(ls.to_params(V)) - V).max() < 1e-12)
-    True
-    """
-
-    def __init__(self, mesh: Mesh, lam: float):
-        from scipy.sparse.linalg import splu
-
-        mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
-        self.lam = check_positive(lam, "large_steps")
-        A = mesh.topology.adjacency.astype(np.float64)
-        deg = np.asarray(A.sum(axis=1)).ravel()
-        L = sp.diags(deg) - A
-        self.matrix = (sp.identity(mesh.n_verts, format="csc") + self.lam * L).tocsc()
-        self._lu = splu(self.matrix)
-        self.n_verts = mesh.n_verts
-
-    def to_params(self, verts: np.ndarray) -> np.ndarray:
-        """(V, 3) vertices -> (V, 3) parameters ``u = M V``."""
-        return np.asarray(self.matrix @ verts)
-
-    def to_verts(self, u: np.ndarray) -> np.ndarray:
-        """(V, 3) parameters -> (V, 3) vertices ``V = M^-1 u``."""
-        return self._lu.solve(np.ascontiguousarray(u, dtype=np.float64))
-
-    def grad_params(self, grad_verts: np.ndarray) -> np.ndarray:
-        """(V, 3) ``dE/dV`` -> (V, 3) ``dE/du = M^-1 dE/dV`` (M is symmetric)."""
-        return self._lu.solve(np.ascontiguousarray(grad_verts, dtype=np.float64))
-
-    def __repr__(self) -> str:
-        return f"LargeSteps(n_verts={self.n_verts}, lam={self.lam:g})"
-
-
-# ------------------------------------------------------------------------------------ objective
-class MeshObjective:
-    """The fit objective as a function of a flat float64 vector: ``E(x) -> (value, grad)``.
-
-    Parameters
-    ----------
-    source : Mesh
-        The mesh being deformed (its faces are fixed; its vertices are the starting point).
-    target : Mesh
-        The target surface, in the frame the fit works in (normally normalised).
-    weights : dict
-        Weights of ``"chamfer"`` (the data term, whatever ``distance``), ``"edge"``,
-        ``"normal"`` and ``"laplacian"``; missing terms weigh 0 and are not computed.
-    distance : {"surface", "points"}
-        Data term (see the module docstring).
-    n_samples : int
-        Samples drawn on each surface (per step or per stage).
-    resample : {"stage", "step"}
-        ``"step"``: fresh samples at every call (stochastic, the tutorial); ``"stage"``: samples
-        fixed until :meth:`resample` is called (deterministic).
-    large_steps : LargeSteps, optional
-        When given, ``x`` holds the parameters ``u`` instead of the vertices.
-    seed : int or numpy.random.Generator
-        Sampling randomness.
-    target_distance : geofit.loss.PointToSurface, optional
-        A prebuilt closest-point structure of ``target`` to share between objectives.
-
-    Attributes
-    ----------
-    last_terms : dict
-        Unweighted values of all four terms at the last evaluation (the regularisers are
-        computed even at weight 0, so every history has the same columns).
-    n_evaluations : int
-        Calls so far.
-    """
-
-    def __init__(self, source: Mesh, target: Mesh, weights: Mapping[str, float], *,
-                 distance: str = "surface", n_samples: int = 5000, resample: str = "stage",
-                 large_steps: LargeSteps | None = None, seed=0, target_distance=None):
-        from ..loss import PointToSurface
-
-        check_choice(distance, "distance", ("surface", "points"))
-        check_choice(resample, "resample", ("stage", "step"))
-        self.source = source
-        self.target = target
-        self.weights = _check_weights(weights)
-        self.distance = distance
-        self.n_samples = _check_int(n_samples, "n_samples")
-        self.resample_mode = resample
-        self.large_steps = large_steps
-        self.rng = as_rng(seed)
-        self.n_verts = source.n_verts
-        if distance == "surface":
-            self._p2s = target_distance if target_distance is not None else PointToSurface(target)
-        else:
-            self._p2s = None
-        self.last_terms: dict[str, float] = {}
-        self.n_evaluations = 0
-        self._B = self._Y = self._target_cloud = None
-        if resample == "stage":
-            self.resample(source.verts)
-
-    # -- parameters
-    @property
-    def n_params(self) -> int:
-        return 3 * self.n_verts
-
-    def params_from_verts(self, verts: np.ndarray) -> np.ndarray:
-        """(V, 3) vertices -> (3V,) parameter vector."""
-        v = np.asarray(verts, dtype=np.float64)
-        if self.large_steps is not None:
-            v = self.large_steps.to_params(v)
-        return np.array(v, dtype=np.float64).ravel()  # a writable copy
-
-    def verts_from_params(self, x: np.ndarray) -> np.ndarray:
-        """(3V,) parameter vector -> (V, 3) vertices."""
-        v = np.asarray(x, dtype=np.float64).reshape(self.n_verts, 3)
-        if self.large_steps is not None:
-            v = self.large_steps.to_verts(v)
-        return v
-
-    # -- sampling
-    def resample(self, verts: np.ndarray | None = None) -> None:
-        """Draw new fixed samples: source barycentrics on ``verts`` (area-weighted there) and
-        target points (for ``resample="stage"``)."""
-        from ..loss import ChamferTarget
-        from ..ops import sample_points_from_meshes
-
-        mesh = self.source if verts is None else self.source.update_verts(verts)
-        self._B = sample_points_from_meshes(mesh, self.n_samples, seed=self.rng).B
-        self._Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng).points
-        self._target_cloud = ChamferTarget(self._Y) if self.distance == "points" else None
-
-    # -- evaluation
-    def _data(self, mesh: Mesh, V: np.ndarray):
-        from ..loss import chamfer_distance
-        from ..ops import barycentric_matrix, sample_points_from_meshes
-        from ..raycast import PointToMeshDistance
-
-        if self.resample_mode == "step":
-            B = sample_points_from_meshes(mesh, self.n_samples, seed=self.rng).B
-            Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng).points
-            cloud = None
-        else:
-            B, Y, cloud = self._B, self._Y, self._target_cloud
-        P = B @ V
-        if self.distance == "points":
-            if cloud is not None:
-                value, gP = cloud.loss(P)
-            else:
-                r = chamfer_distance(P, Y)
-                value, gP = r.loss, r.grad_x
-            return float(value), B.T @ gP
-        # exact point-to-surface: source samples -> target surface ...
-        v_pt, gP = self._p2s.loss(P)
-        grad = B.T @ gP
-        # ... and target samples -> source surface (closest point C = Bc V, envelope theorem)
-        c = PointToMeshDistance(mesh).query(Y)
-        r = Y - c.points
-        v_tp = float(np.einsum("ij,ij->", r, r)) / len(Y)
-        Bc = barycentric_matrix(mesh.faces, c.face_ids, c.bary, mesh.n_verts)
-        grad -= Bc.T @ ((2.0 / len(Y)) * r)
-        return float(v_pt) + v_tp, grad
-
-    def __call__(self, x: np.ndarray):
-        """``(value, grad)`` at the (3V,) parameter vector ``x``.
-
-        A non-finite ``x`` (a solver that blew up) gives ``(nan, zeros)``, which every geofit
-        solver turns into the status ``"nonfinite"``.
-        """
-        from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
-
-        self.n_evaluations += 1
-        x = np.asarray(x, dtype=np.float64)
-        V = self.verts_from_params(x) if np.all(np.isfinite(x)) else x
-        if not np.all(np.isfinite(V)):
-            self.last_terms = {k: math.nan for k in _TERMS}
-            return math.nan, np.zeros_like(x)
-        mesh = self.source.update_verts(V)
-        w = self.weights
-        d, grad = self._data(mesh, V)
-        grad = w["chamfer"] * grad
-        value = w["chamfer"] * d
-        terms = {"chamfer": d}
-        for name, fn in (("edge", mesh_edge_loss), ("normal", mesh_normal_consistency),
-                         ("laplacian", lambda m: mesh_laplacian_smoothing(m, "uniform"))):
-            t, g = fn(mesh)  # computed even at weight 0, so the history has every term
-            terms[name] = float(t)
-            if w[name] > 0:
-                value += w[name] * t
-                grad += w[name] * g
-        self.last_terms = terms
-        if self.large_steps is not None:
-            grad = self.large_steps.grad_params(grad)
-        return float(value), np.ascontiguousarray(grad).ravel()
-
-    def estimate_accuracy(self, verts: np.ndarray, *, tau: float = 0.01,
-                          seed=None) -> dict[str, float]:
-        """Chamfer-L2 and F-score at ``tau`` of ``verts`` from *fresh* samples (n_samples a side).
-
-        Exact point-to-surface distances both ways, as :mod:`geofit.metrics` does, but with
-        ``n_samples`` instead of 100 000 points: an unbiased, cheap estimate used by
-        coarse-to-fine to decide whether to subdivide.
-        """
-        from ..loss import PointToSurface
-        from ..ops import sample_points_from_meshes
-        from ..raycast import PointToMeshDistance
-
-        rng = self.rng if seed is None else as_rng(seed)
-        mesh = self.source.update_verts(verts)
-        P = sample_points_from_meshes(mesh, self.n_samples, seed=rng).points
-        Y = sample_points_from_meshes(self.target, self.n_samples, seed=rng).points
-        p2s = self._p2s if self._p2s is not None else PointToSurface(self.target)
-        d_pt = p2s.query(P).distances
-        d_tp = PointToMeshDistance(mesh).query(Y).distances
-        prec, rec = float(np.mean(d_pt < tau)), float(np.mean(d_tp < tau))
-        f = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
-        return {"chamfer_l2": float(np.mean(d_pt ** 2) + np.mean(d_tp ** 2)), "fscore": f}
-
-
 # ------------------------------------------------------------------------------------ config
 @dataclass
 class CoarseToFine:
@@ -446,19 +196,19 @@ class CoarseToFine:
     stall_rel: float = 0.01
 
     def __post_init__(self) -> None:
-        self.start_level = _check_int(self.start_level, "start_level", 0)
-        self.max_level = _check_int(self.max_level, "max_level", self.start_level)
+        self.start_level = check_int(self.start_level, "start_level", 0)
+        self.max_level = check_int(self.max_level, "max_level", self.start_level)
         self.chamfer_l2 = check_positive(self.chamfer_l2, "chamfer_l2", strict=False)
         self.fscore = float(self.fscore)
         if not 0.0 <= self.fscore <= 1.0:
             raise ValueError(f"fscore: expected a number in [0, 1], got {self.fscore!r}")
         self.tau = check_positive(self.tau, "tau")
         if self.max_verts is not None:
-            self.max_verts = _check_int(self.max_verts, "max_verts", 4)
+            self.max_verts = check_int(self.max_verts, "max_verts", 4)
         if self.coarse_weights is not None:
-            self.coarse_weights = _check_weights(self.coarse_weights, "coarse_weights")
+            self.coarse_weights = mesh_weights(self.coarse_weights, "coarse_weights")
         if self.stall_window is not None:
-            self.stall_window = _check_int(self.stall_window, "stall_window")
+            self.stall_window = check_int(self.stall_window, "stall_window")
         self.stall_rel = check_positive(self.stall_rel, "stall_rel", strict=False)
 
 
@@ -492,8 +242,6 @@ class MeshFitResult(FitResult):
         Normalisation centre: ``mesh.verts = mesh_normalized.verts * scale + center``.
     scale : float
         Normalisation scale.
-    method : str
-        The solver.
     metrics : MeshMetrics or None
         Final accuracy (the evaluator's, see :func:`fit_mesh`), None without an evaluator.
     stages : list of dict
@@ -505,7 +253,6 @@ class MeshFitResult(FitResult):
     mesh_normalized: Mesh
     center: np.ndarray
     scale: float
-    method: str = ""
     metrics: Any = None
     stages: list = field(default_factory=list)
 
@@ -533,7 +280,10 @@ class MeshFitResult(FitResult):
 _FAILED = ("nonfinite", "diverged", "failed")
 
 
-def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
+_UNSET = object()
+
+
+def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | None = None,
              weights: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
              distance: str | None = None, n_samples: int | None = None,
              n_iter: int | None = None,
@@ -543,23 +293,30 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
              time_budget: float | None = None, seed=0, evaluator: Any = "default",
              checkpoint_every: int | None = None, progress: bool = True,
              callback: Callable[[StepInfo], bool | None] | None = None,
-             solver_options: Mapping[str, Any] | None = None) -> MeshFitResult:
-    """Deform ``source`` into ``target`` (PyTorch3D's deform tutorial, and faster solvers).
+             solver_options: Mapping[str, Any] | None = None,
+             source=_UNSET) -> MeshFitResult:
+    """Deform a sphere (or ``init``) into ``target`` (PyTorch3D's deform tutorial, and faster
+    solvers).
 
     Parameters
     ----------
-    source : Mesh, (verts, faces), int or None
-        Starting mesh, an ico-sphere level, or None: ``ico_sphere(4)`` (the tutorial's), or
-        ``ico_sphere(coarse_to_fine.start_level)`` with coarse-to-fine. It is placed as given
-        in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
     target : Mesh or (verts, faces)
         Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
         the largest absolute coordinate) and returns the result in the original frame.
-    method : {"scipy-lbfgs", "nlopt-lbfgs", "sgd", "adam"}
-        Solver. ``"sgd"`` reproduces the tutorial exactly by default (5000 fresh samples a side
-        per step, point-to-point chamfer, weights 1 / 1 / 0.01 / 0.1, lr 1.0, momentum 0.9,
-        2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS solvers use
-        deterministic stages (fixed samples, redrawn between stages).
+    init : Mesh, (verts, faces), int or None
+        Starting mesh, an ico-sphere level, or None: ``ico_sphere(4)`` (the tutorial's), or
+        ``ico_sphere(coarse_to_fine.start_level)`` with coarse-to-fine. It is placed as given
+        in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
+    recipe : {"default", "tutorial", "coarse-to-fine"}
+        Named settings (:data:`RECIPES`) that the other options override: ``"default"`` is
+        L-BFGS with large steps, ``"tutorial"`` the tutorial's SGD, ``"coarse-to-fine"``
+        L-BFGS from ``ico_sphere(2)`` subdividing while the accuracy asks for it.
+    method : {"lbfgs", "lbfgs-nlopt", "sgd", "adam"}, optional
+        Solver (default: the recipe's). ``"lbfgs"`` is scipy's L-BFGS-B, ``"lbfgs-nlopt"``
+        nlopt's LD_LBFGS. ``"sgd"`` reproduces the tutorial exactly by default (5000 fresh
+        samples a side per step, point-to-point chamfer, weights 1 / 1 / 0.01 / 0.1, lr 1.0,
+        momentum 0.9, 2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS
+        solvers use deterministic stages (fixed samples, redrawn between stages).
     weights : dict or sequence of dict, optional
         Term weights (``"chamfer"``, ``"edge"``, ``"normal"``, ``"laplacian"``). A sequence gives
         the weights of stage 0, 1, ... (the last one repeats). Default: the tutorial's for
@@ -637,17 +394,118 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     --------
     >>> from geofit import ico_sphere
     >>> target = ico_sphere(3).scale_verts(2.0)
-    >>> res = fit_mesh(1, target, n_samples=500, n_stages=1, evaluator=None, progress=False)
+    >>> res = fit_mesh(target, init=1, n_samples=500, n_stages=1, evaluator=None,
+    ...                progress=False)
     >>> res.status in ("converged", "max_iter"), res.n_verts, bool(res.mesh.verts.max() > 1.5)
     (True, 42, True)
     """
-    from ..loss import PointToSurface
-    from ..metrics import MeshEvaluator
-    from ..shapes import ico_sphere, subdivide
+    target, init = _init_argument(target, args, init, source)
+    plan = _MeshPlan.validate(
+        target, init, recipe=recipe, method=method, weights=weights, distance=distance,
+        n_samples=n_samples, n_iter=n_iter, n_stages=n_stages, lr=lr, momentum=momentum,
+        large_steps=large_steps, coarse_to_fine=coarse_to_fine, time_budget=time_budget,
+        evaluator=evaluator, checkpoint_every=checkpoint_every,
+        solver_options=solver_options)
+    run = _Run(plan, seed=seed, callback=callback, progress=progress)
+    mesh, status, message = _fit_levels(plan, run)
+    return _mesh_result(plan, run, mesh, status, message)
 
-    # ---- validate once
-    check_choice(method, "method", METHODS)
-    stochastic = method in _STOCHASTIC
+
+@dataclass
+class _MeshPlan:
+    """The validated options of one :func:`fit_mesh` call (defaults resolved)."""
+
+    method: str
+    recipe: str
+    target: Mesh
+    init: Mesh
+    n_degenerate: int
+    n_moved: int
+    c2f: CoarseToFine | None
+    distance: str
+    n_samples: int | None
+    n_iter: int
+    n_stages: int
+    weights: list
+    lr: float
+    momentum: float
+    time_budget: float | None
+    lam: float | None
+    checkpoint_every: int | None
+    evaluator: Any
+    opts: dict
+
+    @property
+    def stochastic(self) -> bool:
+        return self.method in _STOCHASTIC
+
+    @classmethod
+    def validate(cls, target, init, *, recipe, method, weights, distance, n_samples, n_iter,
+                 n_stages, lr, momentum, large_steps, coarse_to_fine, time_budget, evaluator,
+                 checkpoint_every, solver_options) -> _MeshPlan:
+        """Check every option once and fill in the recipe's and the method's defaults."""
+        from ..metrics import MeshEvaluator
+
+        recipe = recipe_name(recipe, RECIPES, fit="fit_mesh")
+        settings = RECIPES[recipe]
+        method = method_name(method if method is not None else settings["method"], "method",
+                             METHODS, fit="fit_mesh", stacklevel=5)
+        stochastic = method in _STOCHASTIC
+        if coarse_to_fine is None:
+            coarse_to_fine = settings.get("coarse_to_fine")
+        if isinstance(large_steps, str) and large_steps == "auto" and "large_steps" in settings:
+            large_steps = settings["large_steps"]
+        c2f = _coarse_to_fine(coarse_to_fine, method)
+        target_mesh = _as_mesh(target, "target")
+        source, n_degenerate, n_moved = _repair_degenerate(_init_mesh(init, c2f))
+        distance = distance or ("points" if stochastic else "surface")
+        check_choice(distance, "distance", ("surface", "points"))
+        if n_samples is not None:
+            n_samples = check_int(n_samples, "n_samples")
+        n_iter = check_int(n_iter if n_iter is not None else (2000 if stochastic else 100),
+                           "n_iter")
+        default_stages = 1 if stochastic or c2f is not None else 3
+        n_stages = check_int(n_stages if n_stages is not None else default_stages, "n_stages")
+        if stochastic and n_stages != 1:
+            raise ValueError("n_stages: SGD/Adam redraw samples at every step; expected 1")
+        lr = check_positive(lr if lr is not None else (1.0 if method == "sgd" else 0.01), "lr")
+        if time_budget is not None:
+            time_budget = check_positive(time_budget, "time_budget")
+        if isinstance(large_steps, str):
+            check_choice(large_steps, "large_steps", ("auto",))
+            large_steps = None if stochastic else 10.0
+        lam = check_positive(large_steps, "large_steps") if large_steps is not None else None
+        if checkpoint_every is not None:
+            checkpoint_every = check_int(checkpoint_every, "checkpoint_every")
+        elif stochastic:
+            checkpoint_every = 200
+        if isinstance(evaluator, str):
+            check_choice(evaluator, "evaluator", ("default",))
+            evaluator = MeshEvaluator(target_mesh, n_samples=20_000, taus=0.01, normalize=True)
+        elif evaluator is not None and not callable(getattr(evaluator, "evaluate", None)):
+            raise TypeError(f"evaluator: expected a MeshEvaluator, 'default' or None, "
+                            f"got {type(evaluator)!r}")
+        return cls(method, recipe, target_mesh, source, n_degenerate, n_moved, c2f, distance,
+                   n_samples, n_iter, n_stages, _stage_weights(weights, stochastic), lr,
+                   float(momentum), time_budget, lam, checkpoint_every, evaluator,
+                   dict(solver_options or {}))
+
+    def stage_weights(self, level: int, stage: int) -> dict:
+        """The weights of one solve: per stage, or per coarse-to-fine level."""
+        if self.c2f is not None:
+            if level == 0 and self.c2f.coarse_weights is not None:
+                return self.c2f.coarse_weights
+            return self.weights[-1]
+        return self.weights[min(stage, len(self.weights) - 1)]
+
+    def stage_samples(self, mesh: Mesh) -> int:
+        """Samples a side of one solve (5000, or ``min(5000, max(1000, 8 V))`` for L-BFGS)."""
+        if self.n_samples:
+            return self.n_samples
+        return 5000 if self.stochastic else min(5000, max(1000, 8 * mesh.n_verts))
+
+
+def _coarse_to_fine(coarse_to_fine, method: str) -> CoarseToFine | None:
     if coarse_to_fine is True:
         coarse_to_fine = CoarseToFine()
     elif coarse_to_fine is False:
@@ -655,163 +513,192 @@ def fit_mesh(source, target, *, method: str = "scipy-lbfgs",
     elif coarse_to_fine is not None and not isinstance(coarse_to_fine, CoarseToFine):
         raise TypeError(f"coarse_to_fine: expected a CoarseToFine, bool or None, "
                         f"got {type(coarse_to_fine)!r}")
-    c2f = coarse_to_fine
-    if c2f is not None and stochastic:
-        raise ValueError(f"coarse_to_fine: needs a deterministic method (scipy-lbfgs or "
-                         f"nlopt-lbfgs), got method={method!r}")
-    target_mesh = _as_mesh(target, "target")
-    if source is None:
-        source = ico_sphere(c2f.start_level if c2f is not None else 4)
-    elif isinstance(source, (int, np.integer)) and not isinstance(source, bool):
-        source = ico_sphere(int(source))
-    source = _as_mesh(source, "source")
-    source, n_degenerate, n_moved = _repair_degenerate(source)
-    distance = distance or ("points" if stochastic else "surface")
-    check_choice(distance, "distance", ("surface", "points"))
-    if n_samples is not None:
-        n_samples = _check_int(n_samples, "n_samples")
-    n_iter = _check_int(n_iter if n_iter is not None else (2000 if stochastic else 100), "n_iter")
-    default_stages = 1 if stochastic or c2f is not None else 3
-    n_stages = _check_int(n_stages if n_stages is not None else default_stages, "n_stages")
-    if stochastic and n_stages != 1:
-        raise ValueError("n_stages: SGD/Adam redraw samples at every step; expected 1")
+    if coarse_to_fine is not None and method in _STOCHASTIC:
+        raise ValueError(f"coarse_to_fine: needs a deterministic method (lbfgs or "
+                         f"lbfgs-nlopt), got method={method!r}")
+    return coarse_to_fine
+
+
+def _init_mesh(init, c2f: CoarseToFine | None) -> Mesh:
+    """The starting mesh: ``init`` as a Mesh, an ico-sphere level, or the default sphere."""
+    from ..shapes import ico_sphere
+
+    if init is None:
+        init = ico_sphere(c2f.start_level if c2f is not None else 4)
+    elif isinstance(init, (int, np.integer)) and not isinstance(init, bool):
+        init = ico_sphere(int(init))
+    return _as_mesh(init, "init")
+
+
+def _stage_weights(weights, stochastic: bool) -> list[dict]:
     if weights is None:
         weights = [TUTORIAL_WEIGHTS] if stochastic else [TUTORIAL_WEIGHTS, FINE_WEIGHTS]
     elif isinstance(weights, Mapping):
         weights = [weights]
-    weights = [_check_weights(w, f"weights[{i}]") for i, w in enumerate(weights)]
+    weights = [mesh_weights(w, f"weights[{i}]") for i, w in enumerate(weights)]
     if not weights:
         raise ValueError("weights: expected at least one dict of weights")
-    lr = check_positive(lr if lr is not None else (1.0 if method == "sgd" else 0.01), "lr")
-    if time_budget is not None:
-        time_budget = check_positive(time_budget, "time_budget")
-    if isinstance(large_steps, str):
-        check_choice(large_steps, "large_steps", ("auto",))
-        large_steps = None if stochastic else 10.0
-    lam = check_positive(large_steps, "large_steps") if large_steps is not None else None
-    if checkpoint_every is not None:
-        checkpoint_every = _check_int(checkpoint_every, "checkpoint_every")
-    elif stochastic:
-        checkpoint_every = 200
-    if isinstance(evaluator, str):
-        check_choice(evaluator, "evaluator", ("default",))
-        evaluator = MeshEvaluator(target_mesh, n_samples=20_000, taus=0.01, normalize=True)
-    elif evaluator is not None and not callable(getattr(evaluator, "evaluate", None)):
-        raise TypeError(f"evaluator: expected a MeshEvaluator, 'default' or None, "
-                        f"got {type(evaluator)!r}")
-    opts = dict(solver_options or {})
+    return weights
 
-    # ---- set up (the fit works in the target's normalised frame)
-    norm = target_mesh.normalize()
-    tgt = norm.mesh
-    rng = as_rng(seed)
-    p2s = PointToSurface(tgt) if distance == "surface" or c2f is not None else None
-    clock = Clock()
-    history = FitHistory()
-    stages: list[dict] = []
-    run = _Run(clock, history, evaluator, norm, checkpoint_every, callback)
-    n_levels = c2f.max_level - c2f.start_level + 1 if c2f is not None else 1
-    run.bar = _progress(progress, n_iter * n_stages * n_levels, f"fit_mesh[{method}]")
 
-    if n_degenerate:
-        history.note(0, 0.0, f"source: {n_degenerate} zero-area triangles; moved {n_moved} "
-                             "vertices to their neighbours' centroid before fitting",
-                     n_degenerate=n_degenerate, n_moved=n_moved)
-    mesh = source
+def _fit_levels(plan: _MeshPlan, run: _Run) -> tuple[Mesh, str, str]:
+    """The solves: ``n_stages`` sample redraws, per coarse-to-fine level (one level without).
+
+    Returns the final mesh (normalised frame), status and message.
+    """
+    from ..shapes import subdivide
+
+    if plan.n_degenerate:
+        run.history.note(0, 0.0, f"source: {plan.n_degenerate} zero-area triangles; moved "
+                                 f"{plan.n_moved} vertices to their neighbours' centroid "
+                                 "before fitting", n_degenerate=plan.n_degenerate,
+                         n_moved=plan.n_moved)
+    mesh = plan.init
     status, message = "max_iter", ""
     level = 0
-    done = False
-    while not done:  # coarse-to-fine levels (a single pass without coarse-to-fine)
-        ls = LargeSteps(mesh, lam) if lam is not None else None
-        for s in range(n_stages):  # stages: sample redraws
-            if c2f is not None:
-                w = (c2f.coarse_weights if level == 0 and c2f.coarse_weights is not None
-                     else weights[-1])
-            else:
-                w = weights[min(s, len(weights) - 1)]
-            if time_budget is not None and clock.elapsed() >= time_budget:
-                status, message = "time_budget", f"time budget {time_budget:g} s used up"
-                done = True
-                break
-            ns = n_samples or (5000 if stochastic else min(5000, max(1000, 8 * mesh.n_verts)))
-            obj = MeshObjective(mesh, tgt, w, distance=distance, n_samples=ns,
-                                resample="step" if stochastic else "stage", large_steps=ls,
-                                seed=rng, target_distance=p2s)
-            remaining = None if time_budget is None else time_budget - clock.elapsed()
-            stall = (_Stall(c2f.stall_window, c2f.stall_rel)
-                     if c2f is not None and c2f.stall_window else None)
-            res = _solve(method, obj, obj.params_from_verts(mesh.verts), n_iter=n_iter, lr=lr,
-                         momentum=momentum, time_budget=remaining,
-                         callback=run.callback(obj, len(stages), stall), clock=clock, opts=opts)
-            if res.status == "callback" and run.stalled:
-                res.status = "converged"
-                res.message = (f"the data term improved by less than {c2f.stall_rel:.0%} over "
-                               f"the last {c2f.stall_window} iterations (coarse-to-fine stall "
-                               f"test)")
-            run.evals += res.n_evaluations
+    while True:  # coarse-to-fine levels (a single pass without coarse-to-fine)
+        ls = LargeSteps(mesh, plan.lam) if plan.lam is not None else None
+        for s in range(plan.n_stages):  # stages: sample redraws
+            if plan.time_budget is not None and run.clock.elapsed() >= plan.time_budget:
+                return mesh, "time_budget", f"time budget {plan.time_budget:g} s used up"
+            obj, res = _solve_stage(plan, run, mesh, ls, level, s)
             mesh = mesh.update_verts(obj.verts_from_params(res.x))
-            stages.append({"stage": len(stages), "level": level, "n_verts": mesh.n_verts,
-                           "status": res.status, "message": res.message,
-                           "n_iterations": res.n_iterations,
-                           "n_evaluations": res.n_evaluations, "seconds": res.seconds,
-                           "n_samples": ns, "large_steps": lam, "weights": dict(w)})
-            history.note(run.evals, clock.elapsed(),
-                         f"stage {len(stages) - 1} ended: {res.status}", n_verts=mesh.n_verts)
             status, message = res.status, res.message
-            if not stochastic and checkpoint_every is None:
-                run.checkpoint(mesh)
+            run.end_stage(plan, mesh, res, level, obj)
             if res.status in _FAILED or res.status in ("callback", "time_budget"):
-                done = True
-                break
-        if done or c2f is None:
-            break
-        # coarse-to-fine: subdivide only while the estimated accuracy asks for it
-        est = obj.estimate_accuracy(mesh.verts, tau=c2f.tau)
-        stages[-1]["estimate"] = est
-        ok = est["chamfer_l2"] <= c2f.chamfer_l2 and est["fscore"] >= c2f.fscore
-        at_max = level >= c2f.max_level - c2f.start_level
-        too_big = (c2f.max_verts is not None
-                   and mesh.n_verts + len(mesh.edges) > c2f.max_verts)
-        history.note(run.evals, clock.elapsed(),
-                     f"level {level}: estimated chamfer-L2 {est['chamfer_l2']:.3g}, "
-                     f"F@{c2f.tau:g} {est['fscore']:.4f} with {mesh.n_verts} vertices", **est)
-        if ok or at_max or too_big:
-            why = "accuracy reached" if ok else ("max level" if at_max else "max_verts")
-            message = f"coarse-to-fine stopped at {mesh.n_verts} vertices ({why}); {message}"
-            break
+                return mesh, status, message
+        if plan.c2f is None:
+            return mesh, status, message
+        stop = _coarse_to_fine_stop(plan, run, mesh, obj, level)
+        if stop is not None:
+            return mesh, status, f"coarse-to-fine stopped at {mesh.n_verts} vertices ({stop}); " \
+                                 f"{message}"
         mesh = subdivide(mesh)
         level += 1
-    run.bar.close()
 
+
+def _solve_stage(plan: _MeshPlan, run: _Run, mesh: Mesh, ls, level: int, stage: int):
+    """One solve with fixed (or per-step) samples; returns the objective and the solver's
+    result."""
+    c2f = plan.c2f
+    obj = MeshObjective(mesh, run.target, plan.stage_weights(level, stage),
+                        distance=plan.distance, n_samples=plan.stage_samples(mesh),
+                        resample="step" if plan.stochastic else "stage", large_steps=ls,
+                        seed=run.rng, target_distance=run.p2s)
+    remaining = None if plan.time_budget is None else plan.time_budget - run.clock.elapsed()
+    stall = (_Stall(c2f.stall_window, c2f.stall_rel)
+             if c2f is not None and c2f.stall_window else None)
+    res = _solve(plan.method, obj, obj.params_from_verts(mesh.verts), n_iter=plan.n_iter,
+                 lr=plan.lr, momentum=plan.momentum, time_budget=remaining,
+                 callback=run.callback(obj, len(run.stages), stall), clock=run.clock,
+                 opts=plan.opts)
+    if res.status == "callback" and run.stalled:
+        res.status = "converged"
+        res.message = (f"the data term improved by less than {c2f.stall_rel:.0%} over "
+                       f"the last {c2f.stall_window} iterations (coarse-to-fine stall "
+                       f"test)")
+    return obj, res
+
+
+def _coarse_to_fine_stop(plan: _MeshPlan, run: _Run, mesh: Mesh, obj: MeshObjective,
+                         level: int) -> str | None:
+    """Why coarse-to-fine stops at this level (None: subdivide): the estimated accuracy is
+    reached, or the last level or the vertex cap."""
+    c2f = plan.c2f
+    est = obj.estimate_accuracy(mesh.verts, tau=c2f.tau)
+    run.stages[-1]["estimate"] = est
+    ok = est["chamfer_l2"] <= c2f.chamfer_l2 and est["fscore"] >= c2f.fscore
+    at_max = level >= c2f.max_level - c2f.start_level
+    too_big = c2f.max_verts is not None and mesh.n_verts + len(mesh.edges) > c2f.max_verts
+    run.history.note(run.evals, run.clock.elapsed(),
+                     f"level {level}: estimated chamfer-L2 {est['chamfer_l2']:.3g}, "
+                     f"F@{c2f.tau:g} {est['fscore']:.4f} with {mesh.n_verts} vertices", **est)
+    if ok or at_max or too_big:
+        return "accuracy reached" if ok else ("max level" if at_max else "max_verts")
+    return None
+
+
+def _mesh_result(plan: _MeshPlan, run: _Run, mesh: Mesh, status: str,
+                 message: str) -> MeshFitResult:
+    """The final checkpoint and the result, in the target's original frame."""
+    run.bar.close()
     run.checkpoint(mesh)  # the final mesh (skipped if just evaluated)
-    if not len(history):  # no iteration completed (e.g. a non-finite first evaluation)
-        history.record(run.evals, clock.elapsed(), math.inf,
-                       {k: math.inf for k in _TERMS}, n_params=3 * mesh.n_verts)
-    if n_degenerate:
-        message = (f"{message}; the source had {n_degenerate} zero-area triangles "
-                   f"({n_moved} vertices moved to their neighbours' centroid first)")
+    if not len(run.history):  # no iteration completed (e.g. a non-finite first evaluation)
+        run.history.record(run.evals, run.clock.elapsed(), math.inf,
+                           {k: math.inf for k in TERMS}, n_params=3 * mesh.n_verts)
+    if plan.n_degenerate:
+        message = (f"{message}; the source had {plan.n_degenerate} zero-area triangles "
+                   f"({plan.n_moved} vertices moved to their neighbours' centroid first)")
+    norm = run.norm
     return MeshFitResult(
-        status=status, message=message, history=history, n_params=3 * mesh.n_verts,
-        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=run.iters,
-        n_evaluations=run.evals,
+        status=status, message=message, history=run.history, n_params=3 * mesh.n_verts,
+        seconds=run.clock.elapsed(), cpu_seconds=run.clock.cpu_elapsed(),
+        n_iterations=run.iters, n_evaluations=run.evals,
         mesh=mesh.update_verts(norm.undo(mesh.verts)), mesh_normalized=mesh,
-        center=norm.center.copy(), scale=float(norm.scale), method=method,
-        metrics=run.metrics, stages=stages,
+        center=norm.center.copy(), scale=float(norm.scale), method=plan.method,
+        recipe=plan.recipe, init=plan.init, metrics=run.metrics, stages=run.stages,
     )
 
 
-class _Run:
-    """Book-keeping shared by the stages of one fit: history rows, checkpoints, progress."""
+def _init_argument(target, args: tuple, init, source):
+    """``(target, init)`` from the current call form, or from the former ``fit_mesh(source,
+    target)`` and ``source=`` (with a DeprecationWarning)."""
+    if len(args) > 1:
+        raise TypeError(f"fit_mesh: expected one positional argument (target), got "
+                        f"{1 + len(args)}")
+    if args:
+        warn_deprecated("fit_mesh(source, target, ...)", "fit_mesh(target, init=source, ...)",
+                        4)
+        return args[0], target
+    if source is not _UNSET:
+        warn_deprecated("fit_mesh(source=...)", "fit_mesh(target, init=...)", 4)
+        return target, source
+    return target, init
 
-    def __init__(self, clock, history, evaluator, norm, checkpoint_every, user_callback):
-        self.clock, self.history, self.evaluator = clock, history, evaluator
-        self.norm, self.every, self.user_callback = norm, checkpoint_every, user_callback
+
+class _Run:
+    """The state shared by the solves of one fit: the normalised target, the clock, history
+    rows, checkpoints, stage records and the progress bar."""
+
+    def __init__(self, plan: _MeshPlan, *, seed, callback, progress: bool):
+        from ..loss import PointToSurface
+
+        # the fit works in the target's normalised frame
+        self.norm = plan.target.normalize()
+        self.target = self.norm.mesh
+        self.rng = as_rng(seed)
+        self.p2s = (PointToSurface(self.target)
+                    if plan.distance == "surface" or plan.c2f is not None else None)
+        self.clock = Clock()
+        self.history = FitHistory()
+        self.evaluator, self.every = plan.evaluator, plan.checkpoint_every
+        self.user_callback = callback
+        self.stages: list[dict] = []
         self.evals = 0
         self.iters = 0
         self.last_ckpt = -1
         self.metrics = None
         self.stalled = False
-        self.bar = _NoBar()
+        c2f = plan.c2f
+        n_levels = c2f.max_level - c2f.start_level + 1 if c2f is not None else 1
+        self.bar = progress_bar(progress, plan.n_iter * plan.n_stages * n_levels,
+                                f"fit_mesh[{plan.method}]")
+
+    def end_stage(self, plan: _MeshPlan, mesh: Mesh, res: SolveResult, level: int,
+                  obj: MeshObjective) -> None:
+        """Record a finished solve (stage list, history event, checkpoint for L-BFGS)."""
+        self.evals += res.n_evaluations
+        self.stages.append({"stage": len(self.stages), "level": level, "n_verts": mesh.n_verts,
+                            "status": res.status, "message": res.message,
+                            "n_iterations": res.n_iterations,
+                            "n_evaluations": res.n_evaluations, "seconds": res.seconds,
+                            "n_samples": obj.n_samples, "large_steps": plan.lam,
+                            "weights": dict(obj.weights)})
+        self.history.note(self.evals, self.clock.elapsed(),
+                          f"stage {len(self.stages) - 1} ended: {res.status}",
+                          n_verts=mesh.n_verts)
+        if not plan.stochastic and plan.checkpoint_every is None:
+            self.checkpoint(mesh)
 
     def _evaluate(self, mesh: Mesh) -> dict | None:
         """Metrics of ``mesh`` (normalised frame) at the current evaluation count, clock paused."""
@@ -866,27 +753,8 @@ def _solve(method, obj, x0, *, n_iter, lr, momentum, time_budget, callback, cloc
     if method == "adam":
         return adam(obj, x0, lr=lr, n_iter=n_iter, time_budget=time_budget, callback=callback,
                     clock=clock, **opts)
-    if method == "scipy-lbfgs":
+    if method == "lbfgs":
         return lbfgs_scipy(obj, x0, max_iter=n_iter, time_budget=time_budget,
                            callback=callback, clock=clock, **opts)
     return lbfgs_nlopt(obj, x0, max_eval=int(1.25 * n_iter) + 5, time_budget=time_budget,
                        callback=callback, clock=clock, **opts)
-
-
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def set_postfix(self, **kw):
-        pass
-
-    def close(self):
-        pass
-
-
-def _progress(enabled: bool, total: int, desc: str):
-    if not enabled:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True)

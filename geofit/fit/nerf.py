@@ -5,10 +5,10 @@ frequencies, two hidden layers of 256 with Softplus(beta=10), 317,188 parameters
 the cow: per step 6 random views, 750 Monte Carlo rays per view with 128 samples each over view
 depths [0.1, 3.0], Huber losses (scale 0.1) on the colours and the silhouettes (targets sampled
 bilinearly at the rays' xy), Adam with lr 1e-3 for 3000 steps and a new Adam at lr 1e-4 from 75 %.
-:func:`fit_nerf` with ``preset="tutorial"`` runs exactly that recipe, with the gradients of
+:func:`fit_nerf` with ``recipe="tutorial"`` runs exactly that recipe, with the gradients of
 :mod:`geofit.render.volume` (pixels -> raymarcher vjp -> density and colour heads -> trunk).
 
-geofit's scene-sized recipe (``preset="scene"``) fits the same kind of field but models no more
+geofit's scene-sized recipe (``recipe="default"``) fits the same kind of field but models no more
 than the scene needs:
 
 * **a smaller network**: 8 frequencies from ``omega0 = 1``, ReLU layers of 96, a colour head of
@@ -50,7 +50,6 @@ occupied and which rays are drawn are piecewise-constant choices that do not dep
 """
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -62,33 +61,37 @@ from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
-from ..metrics import psnr
-from ..nn.optim import Adam, exponential_decay, step_decay
 from ..render.volume import (
     EmissionAbsorptionRaymarcher,
     ImplicitRenderer,
-    MonteCarloRaysampler,
     NDCMultinomialRaysampler,
     NeuralRadianceField,
     OccupancyGrid,
     RayBundle,
 )
-from .history import Clock, FitHistory, FitResult
+from ._nerf_train import _NerfTraining
+from ._options import Recipes, dataset_argument, method_name, recipe_name, warn_deprecated
+from .history import Clock, FitResult
 
 __all__ = [
     "NERF_PRESETS",
+    "RECIPES",
     "NerfConfig",
     "NerfFitResult",
     "fit_nerf",
+    "huber",
     "render_nerf",
     "sample_images_at_xys",
 ]
 
-#: Presets of :func:`fit_nerf`.
-NERF_PRESETS = ("scene", "tutorial")
+#: Recipes of :func:`fit_nerf`: geofit's scene-sized field, or the tutorial's.
+RECIPES: dict[str, dict] = Recipes({"default": {"method": "adam", "config": "NerfConfig.scene"},
+                                    "tutorial": {"method": "adam",
+                                                 "config": "NerfConfig.tutorial"}},
+                                   fit="fit_nerf")
 
-#: Candidate samples per chunk of a training step (bounds the memory of the caches).
-_CHUNK_SAMPLES = 1 << 17
+#: Deprecated: the former ``preset`` names (``"scene"`` is the recipe ``"default"``).
+NERF_PRESETS = ("scene", "tutorial")
 
 
 # --------------------------------------------------------------------------------------------
@@ -98,7 +101,7 @@ _CHUNK_SAMPLES = 1 << 17
 
 @dataclass
 class NerfConfig:
-    """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the presets.
+    """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the recipes.
 
     Network (see :class:`~geofit.render.NeuralRadianceField`): ``n_harmonic_functions``,
     ``omega0``, ``append_input``, ``n_hidden_neurons``, ``n_hidden_layers``,
@@ -410,7 +413,7 @@ class _Data:
 
 
 def _held_out(held_out) -> _Data | None:
-    if held_out is None:
+    if held_out is None or held_out is False:
         return None
     if hasattr(held_out, "images") and hasattr(held_out, "cameras"):
         return _Data(held_out.images, held_out.silhouettes, held_out.cameras, "held_out.")
@@ -422,78 +425,40 @@ def _held_out(held_out) -> _Data | None:
     return _Data(images, silhouettes, cameras, "held_out.")
 
 
-def _silhouette_weights(silhouettes: np.ndarray, margin: int) -> np.ndarray:
-    """(N, H, W) 0/1 weights of the silhouette loss: 0 in a band ``margin`` pixels wide just
-    inside each silhouette's edge, 1 elsewhere."""
-    from scipy.ndimage import binary_erosion
-
-    inside = silhouettes > 0.5
-    core = np.stack([binary_erosion(m, structure=np.ones((3, 3), bool), iterations=margin,
-                                    border_value=1) for m in inside])  # views
-    return (~inside | core).astype(np.float64)
-
-
-class _DensityGrid:
-    """The coarse density grid: the network's opacity at a random point of each hull voxel."""
-
-    #: Per update, a voxel's opacity estimate keeps this fraction of its previous value (a
-    #: voxel is dropped only after several updates find it empty).
-    decay = 0.7
-
-    def __init__(self, hull: OccupancyGrid, cfg: NerfConfig):
-        self.hull = hull
-        self.cfg = cfg
-        self.cells = np.flatnonzero(hull.occupied.reshape(-1))
-        self.opacity = np.ones(hull.occupied.size, dtype=np.float32)  # unknown: occupied
-        self.opacity[~hull.occupied.reshape(-1)] = 0.0
-
-    def update(self, field: NeuralRadianceField, rng: np.random.Generator, n_threads: int
-               ) -> OccupancyGrid:
-        hull = self.hull
-        W, H, _ = hull.shape_xyz
-        cz, rem = np.divmod(self.cells, H * W)
-        cy, cx = np.divmod(rem, W)
-        ijk = np.stack([cx, cy, cz], axis=1) + rng.random((self.cells.size, 3))
-        pts = hull.bounds[0] + ijk * hull.voxel_size
-        dirs = np.array([[0.0, 0.0, 1.0]])
-        chunks = [pts[s:s + 65536] for s in range(0, len(pts), 65536)]
-
-        def work(p):
-            idx = np.zeros(len(p), dtype=np.int64)
-            return field._forward(p, dirs, idx, None, False)[0][:, 0]
-
-        new = np.concatenate(parallel_map(work, chunks, n_threads)) if len(pts) else \
-            np.zeros(0, np.float32)
-        old = self.opacity[self.cells]
-        self.opacity[self.cells] = np.maximum(new, self.decay * np.minimum(old, 1.0))
-        grid = self.opacity.reshape(hull.occupied.shape)
-        occ = OccupancyGrid(grid > self.cfg.density_threshold, hull.bounds).dilate(1)
-        return OccupancyGrid(occ.occupied & hull.occupied, hull.bounds, grid)
+def _recipe(recipe: str, preset: str | None) -> str:
+    """The recipe of :func:`fit_nerf` (the former ``preset=`` warns)."""
+    if preset is not None:
+        check_choice(preset, "preset", NERF_PRESETS)
+        new = "default" if preset == "scene" else "tutorial"
+        warn_deprecated(f"fit_nerf(preset={preset!r})", f"fit_nerf(dataset, recipe={new!r})", 5)
+        recipe = new
+    return recipe_name(recipe, RECIPES, fit="fit_nerf")
 
 
-def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene",
+def fit_nerf(dataset, *args, recipe: str = "default", method: str | None = None,
              config: NerfConfig | None = None, held_out=None, time_budget: float | None = None,
              eval_every: float | None = None, early_stopping: int | None = None,
              render_size: int | None = None, init: NeuralRadianceField | None = None, seed=0,
              callback: Callable[[dict], bool | None] | None = None, verbose: bool = False,
+             preset: str | None = None, progress: bool = True,
              **overrides) -> NerfFitResult:
     """Fit a neural radiance field to posed RGB images and silhouettes.
 
     Parameters
     ----------
-    images : (N, H, W, 3) float64
-        Training images in [0, 1] (black background, as the tutorial's renders).
-    silhouettes : (N, H, W) float64
-        Training silhouettes in [0, 1].
-    cameras : CamerasBase
-        The ``N`` cameras.
-    preset : {"scene", "tutorial"}
-        Base settings (:meth:`NerfConfig.scene` or :meth:`NerfConfig.tutorial`).
+    dataset : MultiViewDataset
+        Training images in [0, 1] (black background, as the tutorial's renders), silhouettes
+        in [0, 1] and the ``N`` cameras; ``dataset.held_out`` is the default ``held_out``.
+    recipe : {"default", "tutorial"}
+        Base settings: geofit's scene-sized recipe (:meth:`NerfConfig.scene`) or the tutorial's
+        (:meth:`NerfConfig.tutorial`).
+    method : {"adam"}, optional
+        The solver (Adam is the only one: the objective is stochastic).
     config : NerfConfig, optional
-        Settings to use instead of the preset.
-    held_out : (images, silhouettes, cameras) or object with those attributes, optional
+        Settings to use instead of the recipe's.
+    held_out : MultiViewDataset, (images, silhouettes, cameras), None or False
         Views not trained on: rendered in full at checkpoints (PSNR and Huber loss) and at the
-        end.
+        end. None: ``dataset.held_out``; False: none.
     time_budget : float, optional
         Seconds of solver time (checkpoints excluded); the fit stops with status
         ``"time_budget"`` when used up.
@@ -515,8 +480,12 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         ``loss``, and the held-out metrics); True stops the fit (status ``"callback"``).
     verbose : bool
         Print a line per checkpoint.
+    progress : bool
+        Show a tqdm progress bar (on stderr; steps, or seconds of the time budget).
+    preset : {"scene", "tutorial"}, optional
+        Deprecated: ``recipe`` (``"scene"`` is ``"default"``).
     **overrides
-        Fields of :class:`NerfConfig` replacing the preset's.
+        Fields of :class:`NerfConfig` replacing the recipe's.
 
     Returns
     -------
@@ -528,19 +497,19 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
         too large kills the network rather than making it NaN).
     """
     t_wall = time.perf_counter()
-    check_choice(preset, "preset", NERF_PRESETS)
-    if config is None:
-        config = NerfConfig.scene() if preset == "scene" else NerfConfig.tutorial()
-    elif not isinstance(config, NerfConfig):
-        raise TypeError(f"config: expected a NerfConfig, got {type(config)!r}")
-    try:
-        cfg = replace(config, **overrides).validate()
-    except TypeError as exc:
-        raise ValueError(f"overrides: {exc}") from None
-    data = _Data(images, silhouettes, cameras, "")
+    data = dataset_argument(dataset, args, fit="fit_nerf")
+    if held_out is None:
+        held_out = data.held_out
+    recipe = _recipe(recipe, preset)
+    method = method_name("adam" if method is None else method, "method", ("adam",),
+                         fit="fit_nerf")
+    cfg = _config(recipe, config, overrides)
+    data = _Data(data.images, data.silhouettes, data.cameras, "")
     test = _held_out(held_out)
     if time_budget is not None:
         time_budget = check_positive(time_budget, "time_budget")
+    if eval_every is not None:
+        eval_every = check_positive(eval_every, "eval_every")
     if early_stopping is not None:
         if test is None:
             raise ValueError("early_stopping: needs held_out views")
@@ -549,301 +518,63 @@ def fit_nerf(images, silhouettes, cameras: CamerasBase, *, preset: str = "scene"
     rng = as_rng(seed)
     clock = Clock()  # the set-up (hull, rays) is part of the method's time
     n_threads = get_num_threads() if cfg.n_threads is None else int(cfg.n_threads)
-    if init is None:
-        field = cfg.network(seed=rng)
-    elif isinstance(init, NeuralRadianceField):
-        field = init.astype(cfg.dtype)
-        c = field.config
-        cfg = replace(cfg, **{k: c[k] for k in (
-            "n_harmonic_functions", "omega0", "append_input", "n_hidden_neurons",
-            "n_hidden_layers", "n_harmonic_functions_dir", "omega0_dir", "n_hidden_color",
-            "activation", "beta")})
-    else:
-        raise TypeError(f"init: expected a NeuralRadianceField, got {type(init)!r}")
-    batch = min(cfg.batch_size, data.N)
-    from geofit._memory import check_allocation  # memory guard (issue 18), measured ~13
+    field, cfg = _initial_field(init, cfg, rng)
+    _check_step_memory(cfg, data.N, n_threads)
+    training = _NerfTraining(cfg, data, test, field, rng=rng, clock=clock, n_threads=n_threads,
+                             time_budget=time_budget, eval_every=eval_every,
+                             early_stopping=early_stopping, render_size=render_size,
+                             callback=callback, verbose=verbose, progress=progress)
+    status, message = training.run()
+    n_steps = len(training.history.steps)
+    images_out = p_final = None
+    if test is not None:
+        images_out, p_final, _ = training.evaluate()
+    return NerfFitResult(
+        status=status, message=message, history=training.history, n_params=field.n_params,
+        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_steps,
+        n_evaluations=n_steps, field=field, config=cfg, occupancy=training.hull,
+        samples_per_ray=training.spr_sum / max(n_steps, 1), psnr=p_final, images=images_out,
+        wall_seconds=time.perf_counter() - t_wall, method=method, recipe=recipe, init=init)
+
+
+def _check_step_memory(cfg: NerfConfig, n_views: int, n_threads: int) -> None:
+    """Memory guard (issue 18): one training step's samples and network activations
+    (measured ~13 B per hidden unit and sample)."""
+    from geofit._memory import check_allocation
+
+    from ._nerf_train import _CHUNK_SAMPLES
+
+    batch = min(cfg.batch_size, n_views)
     per, step = 13 * np.dtype(cfg.dtype).itemsize * cfg.n_hidden_neurons, batch * \
         cfg.n_rays_per_image * cfg.n_pts_per_ray  # B per sample, samples per step
     check_allocation(per * min(step, n_threads * max(_CHUNK_SAMPLES, cfg.n_pts_per_ray))
                      + 64 * step, "batch_size, n_rays_per_image and n_pts_per_ray",
                      "one training step's samples and network activations")
 
-    # ---- occupancy and rays ----------------------------------------------------------------
-    hull = None
-    if cfg.occupancy != "none":
-        hull = OccupancyGrid.from_silhouettes(
-            data.silhouettes, data.cameras, resolution=cfg.hull_resolution, bounds=cfg.bounds,
-            dilate_pixels=cfg.hull_dilate_pixels).dilate(1)
-    raymarcher = EmissionAbsorptionRaymarcher()
-    grid_sampler = NDCMultinomialRaysampler(
-        image_width=data.W, image_height=data.H, n_pts_per_ray=cfg.n_pts_per_ray,
-        min_depth=cfg.min_depth, max_depth=cfg.max_depth, stratified_sampling=cfg.stratified)
-    if cfg.ray_sampling == "montecarlo":
-        sampler = MonteCarloRaysampler(-1.0, 1.0, -1.0, 1.0, cfg.n_rays_per_image,
-                                       cfg.n_pts_per_ray, cfg.min_depth, cfg.max_depth,
-                                       stratified_sampling=cfg.stratified)
-    else:
-        sampler = grid_sampler
-    density = _DensityGrid(hull, cfg) if cfg.occupancy == "density" else None
-    renderer = ImplicitRenderer(
-        sampler, raymarcher, occupancy=hull,
-        min_transmittance=cfg.min_transmittance if density is not None else 0.0,
-        occlusion_margin=cfg.occlusion_margin)
-    pixel_rays = hit_pixels = None
-    if cfg.ray_sampling == "pixels":
-        full = grid_sampler(data.cameras, stratified_sampling=False)
-        pixel_rays = RayBundle(full.origins.reshape(data.N, -1, 3),
-                               full.directions.reshape(data.N, -1, 3), None,
-                               full.xys.reshape(data.N, -1, 2))
-        # every ray that meets the hull passes through the view's dilated silhouette (the hull
-        # was carved from it, then grown by one voxel: allow two more pixels for that)
-        from scipy.ndimage import binary_dilation
 
-        grow = cfg.hull_dilate_pixels + 2
-        hit_pixels = [np.flatnonzero(binary_dilation(data.silhouettes[i] > 0.5,
-                                                     structure=np.ones((3, 3), bool),
-                                                     iterations=grow))
-                      for i in range(data.N)]  # views
-        if any(h.size == 0 for h in hit_pixels):
-            empty = [i for i, h in enumerate(hit_pixels) if h.size == 0]
-            raise ValueError(f"silhouettes: no ray of view(s) {empty} meets the visual hull; "
-                             "check the silhouettes and cameras")
-    base_lengths = np.linspace(cfg.min_depth, cfg.max_depth, cfg.n_pts_per_ray)
-    img_flat = data.images.reshape(data.N, -1, 3)
-    sil_flat = data.silhouettes.reshape(data.N, -1)
-    sil_weight = None
-    if cfg.silhouette_margin > 0 and cfg.ray_sampling == "pixels":
-        sil_weight = _silhouette_weights(data.silhouettes, cfg.silhouette_margin).reshape(
-            data.N, -1)
+def _config(recipe: str, config, overrides) -> NerfConfig:
+    """The recipe's configuration (or ``config``) with ``overrides``, validated."""
+    if config is None:
+        config = NerfConfig.scene() if recipe == "default" else NerfConfig.tutorial()
+    elif not isinstance(config, NerfConfig):
+        raise TypeError(f"config: expected a NerfConfig, got {type(config)!r}")
+    try:
+        return replace(config, **overrides).validate()
+    except TypeError as exc:
+        raise ValueError(f"overrides: {exc}") from None
 
-    # ---- schedule ---------------------------------------------------------------------------
-    if cfg.lr_schedule == "step":
-        schedule = step_decay(cfg.lr, cfg.n_iter, at=cfg.lr_decay_at, factor=cfg.lr_decay_factor,
-                              reset=True)
-    else:
-        schedule = exponential_decay(cfg.lr, cfg.lr * cfg.lr_decay_factor, 10 ** 6)
 
-    def lr_at(step: int, seconds: float) -> tuple[float, bool]:
-        if cfg.lr_schedule == "step":
-            return schedule(step)
-        frac = step / cfg.n_iter
-        if time_budget is not None:
-            frac = max(frac, seconds / time_budget)
-        return schedule(int(min(frac, 1.0) * 10 ** 6))
-
-    opt = Adam(field.params, lr=cfg.lr)
-
-    # ---- one step ---------------------------------------------------------------------------
-    def draw_batch():
-        views = rng.choice(data.N, size=batch, replace=False)
-        if cfg.ray_sampling == "montecarlo":
-            bundle = sampler(data.cameras[views], seed=rng)
-            xys = bundle.xys
-            tgt_rgb = sample_images_at_xys(data.images[views], xys)
-            tgt_sil = sample_images_at_xys(data.silhouettes[views][..., None], xys)[..., 0]
-            flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
-            return flat, tgt_rgb.reshape(-1, 3), tgt_sil.reshape(-1), None
-        pix = np.stack([rng.choice(hit_pixels[v], size=cfg.n_rays_per_image,
-                                   replace=hit_pixels[v].size < cfg.n_rays_per_image)
-                        for v in views])  # views
-        o = pixel_rays.origins[views[:, None], pix].reshape(-1, 3)
-        d = pixel_rays.directions[views[:, None], pix].reshape(-1, 3)
-        xys = pixel_rays.xys[views[:, None], pix].reshape(-1, 2)
-        lengths = np.broadcast_to(base_lengths, (o.shape[0], cfg.n_pts_per_ray))
-        if cfg.stratified:
-            step = (cfg.max_depth - cfg.min_depth) / max(cfg.n_pts_per_ray - 1, 1)
-            lengths = lengths + (rng.random((o.shape[0], 1)) - 0.5) * step
-        flat = RayBundle(o, d, np.ascontiguousarray(lengths), xys)
-        w = None if sil_weight is None else sil_weight[views[:, None], pix].reshape(-1)
-        return (flat, img_flat[views[:, None], pix].reshape(-1, 3),
-                sil_flat[views[:, None], pix].reshape(-1), w)
-
-    # the opacity regulariser starts with the density grid (after the warm-up), once the
-    # network has found the object: from the start it would empty the hull before that
-    reg_on = [cfg.opacity_regularization > 0 and (density is None
-                                                  or cfg.density_grid_warmup == 0)]
-
-    def loss_and_grads(flat: RayBundle, tgt_rgb, tgt_sil, sil_w):
-        R = flat.origins.shape[0]
-        # chunks of at most _CHUNK_SAMPLES candidate samples (bounded memory), a multiple of
-        # the thread count; every chunk's gradients are summed
-        n_parts = max(n_threads, -(-R * cfg.n_pts_per_ray // _CHUNK_SAMPLES))
-        n_parts = -(-n_parts // n_threads) * n_threads
-        parts = [slice(i * R // n_parts, (i + 1) * R // n_parts) for i in range(n_parts)]
-
-        def work(sl):
-            sub = RayBundle(*(a[sl] for a in flat))
-            img, _, cache = renderer.render(None, field, ray_bundle=sub)
-            lc, gc = huber(img[:, :3], tgt_rgb[sl], cfg.huber_scale)
-            ls, gs = huber(img[:, 3], tgt_sil[sl], cfg.huber_scale)
-            if sil_w is not None:
-                ls, gs = ls * sil_w[sl], gs * sil_w[sl]
-            G = np.empty_like(img)
-            G[:, :3] = gc / (3 * R)
-            G[:, 3] = gs / R
-            lo, gd = 0.0, None
-            if reg_on[0] and cache.ray_index.size:
-                a = cache.sample_densities()
-                w = cfg.opacity_regularization / R
-                lo = w * float(np.sum(a * (1.0 - a)))
-                gd = w * (1.0 - 2.0 * a)
-            grads = renderer.backward(field, cache, G, gd)
-            k = cache.ray_index.size
-            return lc.sum() / (3 * R), ls.sum() / R, lo, grads, k
-
-        outs = parallel_map(work, [p for p in parts if p.stop > p.start], n_threads)
-        terms = {"color": sum(o[0] for o in outs), "silhouette": sum(o[1] for o in outs)}
-        if cfg.opacity_regularization > 0:
-            terms["opacity"] = sum(o[2] for o in outs)
-        grads = {k: sum(o[3][k] for o in outs) for k in outs[0][3]}
-        return terms, grads, sum(o[4] for o in outs) / R
-
-    # ---- held-out evaluation -----------------------------------------------------------------
-    size = None
-    test_sil_weight = None
-    if test is not None and sil_weight is not None:
-        test_sil_weight = _silhouette_weights(test.silhouettes, cfg.silhouette_margin)
-    if test is not None:
-        size = (test.H, test.W) if render_size is None else (int(render_size),) * 2
-
-    def evaluate():
-        imgs = render_nerf(field, test.cameras, size, n_pts_per_ray=cfg.n_pts_per_ray,
-                           min_depth=cfg.min_depth, max_depth=cfg.max_depth, occupancy=hull,
-                           chunk_rays=cfg.chunk_rays, n_threads=n_threads)
-        if size != (test.H, test.W):
-            return imgs, None, None
-        rgb = np.clip(imgs[..., :3], 0.0, 1.0)
-        lc = huber(imgs[..., :3], test.images, cfg.huber_scale)[0].mean()
-        ls = huber(imgs[..., 3], test.silhouettes, cfg.huber_scale)[0]
-        if test_sil_weight is not None:
-            ls = ls * test_sil_weight
-        return imgs, psnr(rgb, test.images), float(lc + ls.mean())
-
-    # ---- loop -------------------------------------------------------------------------------
-    history = FitHistory()
-    n_params = field.n_params
-    if eval_every is None:
-        every = (time_budget / 20.0) if time_budget is not None else max(cfg.n_iter // 20, 1)
-    else:
-        every = check_positive(eval_every, "eval_every")
-    next_eval = every
-    status, message = "max_iter", f"completed {cfg.n_iter} steps"
-    best = {"loss": math.inf, "params": None, "step": 0, "since": 0}
-    last_good = {k: v.copy() for k, v in field.params.items()}
-    spr_sum = 0.0
-    step = 0
-    stage = 0
-    if density is not None and cfg.density_grid_warmup == 0:
-        renderer.occupancy = density.update(field, rng, n_threads)
-    initial = None
-    if test is not None:
-        with clock.paused():  # the untrained network's held-out loss: the reference for progress
-            initial = evaluate()[2]
-
-    def checkpoint(step: int, loss: float) -> bool:
-        """Record metrics (clock paused); True to stop."""
-        with clock.paused():
-            info = {"step": step, "seconds": clock.elapsed(), "loss": loss}
-            metrics = None
-            if test is not None:
-                _, p, hl = evaluate()
-                metrics = {"psnr": p, "held_out_loss": hl}
-                info.update(metrics)
-                if hl < best["loss"]:
-                    best.update(loss=hl, params={k: v.copy() for k, v in field.params.items()},
-                                step=step, since=0)
-                else:
-                    best["since"] += 1
-            history.checkpoint(step, info["seconds"], metrics or {"loss": loss})
-            if verbose:
-                extra = "" if test is None else (f" held-out PSNR {info['psnr']:.2f} dB, "
-                                                 f"loss {info['held_out_loss']:.4f}")
-                print(f"fit_nerf: step {step}, {info['seconds']:.1f} s, loss {loss:.4f}, "
-                      f"samples/ray {spr_sum / max(step, 1):.1f}{extra}", flush=True)
-            stop = bool(callback(info)) if callback is not None else False
-        return stop
-
-    for step in range(1, cfg.n_iter + 1):  # Adam steps
-        lr, reset = lr_at(step - 1, clock.elapsed())
-        opt.set_lr(lr, reset=reset)
-        if density is not None and step > cfg.density_grid_warmup and \
-                (step - cfg.density_grid_warmup - 1) % cfg.density_grid_every == 0:
-            renderer.occupancy = density.update(field, rng, n_threads)
-            reg_on[0] = cfg.opacity_regularization > 0
-            if stage == 0:
-                stage = 1
-                history.note(step, clock.elapsed(), "density grid: skipping empty and occluded "
-                             "samples", occupied=renderer.occupancy.fraction_occupied)
-        flat, tgt_rgb, tgt_sil, sil_w = draw_batch()
-        terms, grads, spr = loss_and_grads(flat, tgt_rgb, tgt_sil, sil_w)
-        loss = sum(terms.values())
-        finite = math.isfinite(loss) and all(np.all(np.isfinite(g)) for g in grads.values())
-        if not finite:
-            field.set_params(last_good)
-            status = "nonfinite"
-            message = (f"the loss or its gradient became NaN or inf at step {step}; returning "
-                       "the last finite parameters")
-            history.record(step, clock.elapsed(), loss if math.isfinite(loss) else math.nan,
-                           terms, n_params=n_params, stage=stage)
-            break
-        for k, v in field.params.items():  # parameter arrays
-            last_good[k][...] = v
-        opt.step(grads)
-        if not all(np.all(np.isfinite(v)) for v in field.params.values()):
-            field.set_params(last_good)
-            status = "nonfinite"
-            message = (f"the parameters became NaN or inf at step {step} (learning rate "
-                       f"{lr:g} too large?); returning the last finite parameters")
-            break
-        spr_sum += spr
-        seconds = clock.elapsed()
-        history.record(step, seconds, loss, terms, n_params=n_params, stage=stage)
-        out_of_time = time_budget is not None and seconds >= time_budget
-        due = (seconds >= next_eval) if time_budget is not None else (step >= next_eval)
-        if due or out_of_time or step == cfg.n_iter:
-            next_eval += every
-            if checkpoint(step, loss):
-                status, message = "callback", f"the callback stopped the fit at step {step}"
-                break
-            if early_stopping is not None and best["since"] >= early_stopping:
-                status = "converged"
-                message = (f"the held-out loss has not improved for {early_stopping} "
-                           f"checkpoints; returning the best one (step {best['step']})")
-                break
-        if out_of_time:
-            status, message = "time_budget", (f"stopped after {seconds:.1f} s (time budget "
-                                              f"{time_budget:g} s) at step {step}")
-            break
-    n_steps = len(history.steps)
-    if status in ("max_iter", "time_budget"):
-        # no progress (a learning rate far too large kills the network rather than making it
-        # NaN): the held-out loss no better than the untrained network's, or the training
-        # loss of the last tenth of the steps above 80 % of that of the first ten steps
-        L = np.asarray(history.loss)
-        tail = L[-max(n_steps // 10, 1):].mean() if n_steps else math.nan
-        head = L[:10].mean() if n_steps else math.nan
-        last = history.checkpoints[-1].get("held_out_loss") if history.checkpoints else None
-        if initial is not None and last is not None and last >= initial:
-            status = "diverged"
-            message = (f"no progress: the held-out loss went from {initial:.4g} (initial "
-                       f"network) to {last:.4g} after {n_steps} steps; learning rate "
-                       f"{cfg.lr:g} too large?")
-        elif n_steps >= 50 and tail > 0.8 * head:
-            status = "diverged"
-            message = (f"no progress: the training loss went from {head:.4g} (first 10 steps) "
-                       f"to {tail:.4g} (last {max(n_steps // 10, 1)} steps); learning rate "
-                       f"{cfg.lr:g} too large?")
-        if status == "diverged" and best["params"] is not None and last is not None and \
-                best["loss"] < last:
-            field.set_params(best["params"])
-            message += f"; returning the best checkpoint (step {best['step']})"
-    if early_stopping is not None and best["params"] is not None:
-        field.set_params(best["params"])
-    images_out = p_final = None
-    if test is not None:
-        images_out, p_final, _ = evaluate()
-    return NerfFitResult(
-        status=status, message=message, history=history, n_params=n_params,
-        seconds=clock.elapsed(), n_iterations=n_steps, n_evaluations=n_steps, field=field,
-        config=cfg, occupancy=hull, samples_per_ray=spr_sum / max(n_steps, 1), psnr=p_final,
-        images=images_out, wall_seconds=time.perf_counter() - t_wall)
+def _initial_field(init, cfg: NerfConfig, rng) -> tuple[NeuralRadianceField, NerfConfig]:
+    """A new network of the configuration, or a copy of ``init`` (whose architecture then
+    replaces the configuration's)."""
+    if init is None:
+        return cfg.network(seed=rng), cfg
+    if not isinstance(init, NeuralRadianceField):
+        raise TypeError(f"init: expected a NeuralRadianceField, got {type(init)!r}")
+    field = init.astype(cfg.dtype)
+    c = field.config
+    cfg = replace(cfg, **{k: c[k] for k in (
+        "n_harmonic_functions", "omega0", "append_input", "n_hidden_neurons",
+        "n_hidden_layers", "n_harmonic_functions_dir", "omega0_dir", "n_hidden_color",
+        "activation", "beta")})
+    return field, cfg

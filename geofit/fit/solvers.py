@@ -34,7 +34,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, check_choice, check_positive
+from .._validate import as_array, check_positive
+from ._options import check_int
 from .history import STATUSES, Clock
 
 __all__ = [
@@ -50,8 +51,8 @@ __all__ = [
 
 Objective = Callable[[np.ndarray], "tuple[float, np.ndarray]"]
 
-#: Solver names accepted by :func:`minimize`.
-SOLVERS = ("scipy-lbfgs", "nlopt-lbfgs", "sgd", "adam")
+#: Solver names accepted by :func:`minimize` (the method names of :mod:`geofit.fit`).
+SOLVERS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 
 class StepInfo(NamedTuple):
@@ -241,8 +242,7 @@ def lbfgs_scipy(fun: Objective, x0, *, max_iter: int | None = 1000, max_eval: in
                                      time_budget, clock)
     ftol = check_positive(ftol, "ftol", strict=False)
     gtol = check_positive(gtol, "gtol", strict=False)
-    if not isinstance(memory, (int, np.integer)) or memory < 1:
-        raise ValueError(f"memory: expected an integer >= 1, got {memory!r}")
+    memory = check_int(memory, "memory")
     tr = _Tracker(fun, x0, clock=clock, max_eval=max_eval, time_budget=time_budget,
                   callback=callback)
 
@@ -318,8 +318,7 @@ def lbfgs_nlopt(fun: Objective, x0, *, max_eval: int | None = 1000,
     x0, clock, time_budget = _common(x0, {"max_eval": max_eval}, time_budget, clock)
     ftol_rel = check_positive(ftol_rel, "ftol_rel", strict=False)
     xtol_rel = check_positive(xtol_rel, "xtol_rel", strict=False)
-    if not isinstance(memory, (int, np.integer)) or memory < 1:
-        raise ValueError(f"memory: expected an integer >= 1, got {memory!r}")
+    memory = check_int(memory, "memory")
     tr = _Tracker(fun, x0, clock=clock, max_eval=max_eval, time_budget=time_budget,
                   callback=callback)
     opt = nlopt.opt(nlopt.LD_LBFGS, x0.size)
@@ -527,7 +526,7 @@ def adam(fun: Objective, x0, *, lr: float = 1e-3, betas: tuple[float, float] = (
                         clock=clock, name="Adam")
 
 
-def minimize(fun: Objective, x0, method: str = "scipy-lbfgs", **options) -> SolveResult:
+def minimize(fun: Objective, x0, method: str = "lbfgs", **options) -> SolveResult:
     """Dispatch to one of :data:`SOLVERS` by name.
 
     Parameters
@@ -537,7 +536,8 @@ def minimize(fun: Objective, x0, method: str = "scipy-lbfgs", **options) -> Solv
     x0 : (n,) float64
         Starting point.
     method : str
-        ``"scipy-lbfgs"``, ``"nlopt-lbfgs"``, ``"sgd"`` or ``"adam"``.
+        ``"lbfgs"`` (scipy), ``"lbfgs-nlopt"``, ``"sgd"`` or ``"adam"`` (the former
+        ``"scipy-lbfgs"`` and ``"nlopt-lbfgs"`` warn).
     **options
         Keyword options of the chosen solver.
 
@@ -548,7 +548,8 @@ def minimize(fun: Objective, x0, method: str = "scipy-lbfgs", **options) -> Solv
     >>> res.status, bool(np.allclose(res.x, 0))
     ('converged', True)
     """
-    check_choice(method, "method", SOLVERS)
-    solver = {"scipy-lbfgs": lbfgs_scipy, "nlopt-lbfgs": lbfgs_nlopt, "sgd": sgd,
-              "adam": adam}[method]
+    from ._options import method_name
+
+    method = method_name(method, "method", SOLVERS, fit="minimize", stacklevel=4)
+    solver = {"lbfgs": lbfgs_scipy, "lbfgs-nlopt": lbfgs_nlopt, "sgd": sgd, "adam": adam}[method]
     return solver(fun, x0, **options)

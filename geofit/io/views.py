@@ -60,10 +60,8 @@ _COLMAP_MODELS = {"PINHOLE": 4, "SIMPLE_PINHOLE": 3}
 def _make_dataset(images: np.ndarray, silhouettes: np.ndarray, cameras, name: str):
     """The one place a loaded capture becomes a :class:`geofit.datasets.MultiViewDataset`.
 
-    The unified dataset's contract is ``MultiViewDataset(images=, silhouettes=, cameras=,
-    name=)`` (plus the optional ``azim``, ``elev``); the former dataclass takes ``mesh_name``
-    and requires the angles and distance. Both get the cameras' azimuth and elevation (degrees,
-    about the origin) computed from the camera centres.
+    ``MultiViewDataset(images=, silhouettes=, cameras=, name=)`` with the cameras' azimuth and
+    elevation (degrees, about the origin) computed from the camera centres.
     """
     from ..datasets import MultiViewDataset
 
@@ -71,11 +69,8 @@ def _make_dataset(images: np.ndarray, silhouettes: np.ndarray, cameras, name: st
     r = np.linalg.norm(C, axis=1)
     elev = np.degrees(np.arcsin(np.clip(C[:, 1] / np.maximum(r, 1e-300), -1.0, 1.0)))
     azim = np.degrees(np.arctan2(C[:, 0], C[:, 2]))
-    if "name" in getattr(MultiViewDataset, "__dataclass_fields__", {}):
-        return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras,
-                                name=name, azim=azim, elev=elev)
-    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras, azim=azim,
-                            elev=elev, dist=float(np.median(r)), mesh_name=name)
+    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras, name=name,
+                            azim=azim, elev=elev)
 
 
 # --------------------------------------------------------------------------------------------

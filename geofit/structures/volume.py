@@ -14,17 +14,25 @@ Sampling is linear in the voxel values, so it is a sparse matrix: :func:`triline
 returns ``M (k, D*H*W)`` with ``values_at_points = M @ grid.ravel()``; its transpose carries a
 gradient on the samples back to the voxels. Which voxels a point reads (the floor of its
 coordinates) is piecewise constant: no gradient flows with respect to the point positions here.
+
+:func:`visual_hull` (space carving of a grid by silhouettes, :func:`carve` for any points) is
+geofit's one visual hull: :func:`geofit.fit.volume.fit_volume` and
+:meth:`geofit.render.OccupancyGrid.from_silhouettes` both use it.
 """
 from __future__ import annotations
 
+import math
+import numbers
 from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
+from scipy import ndimage
 
-from .._validate import as_array, check_choice
+from .._validate import as_array, check_choice, check_positive
 
-__all__ = ["Volume", "VolumeSamples", "trilinear_matrix", "voxel_footprint"]
+__all__ = ["Volume", "VolumeSamples", "carve", "silhouette_distances", "trilinear_matrix",
+           "visual_hull", "voxel_footprint"]
 
 #: Corner offsets (dz, dy, dx) of a trilinear cell, in increasing flat-index order.
 _CORNERS = np.array([(dz, dy, dx) for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)],
@@ -416,3 +424,153 @@ class Volume:
         return Volume(self.densities if densities is None else densities,
                       self.features if features is None else features,
                       self.voxel_size, self.volume_translation, self.align_corners)
+
+
+# --------------------------------------------------------------------------------------------
+# Visual hull (the one of geofit: fit_volume and OccupancyGrid.from_silhouettes use it)
+# --------------------------------------------------------------------------------------------
+
+
+def _check_cameras(cameras, n: int):
+    # duck-typed: the structures layer does not import geofit.cameras
+    if not callable(getattr(cameras, "get_full_projection_transform", None)):
+        raise TypeError(f"cameras: expected a geofit cameras batch, got {type(cameras)!r}")
+    if len(cameras) != n:
+        raise ValueError(f"cameras: expected {n} cameras (one per image), got {len(cameras)}")
+    return cameras
+
+
+def _grid_size3(volume_size) -> tuple[int, int, int]:
+    if isinstance(volume_size, (numbers.Integral, np.integer)) and not isinstance(volume_size,
+                                                                                   bool):
+        volume_size = (int(volume_size),) * 3
+    a = as_array(volume_size, "volume_size", (3,), np.int64)
+    if np.any(a < 2):
+        raise ValueError(f"volume_size: expected sizes >= 2, got {a.tolist()}")
+    return int(a[0]), int(a[1]), int(a[2])
+
+
+def visual_hull(silhouettes, cameras, volume_size, voxel_size: float, *,
+                volume_translation=(0.0, 0.0, 0.0), threshold: float = 0.5,
+                tolerance: int = 0, margin: float = 0.0) -> np.ndarray:
+    """Voxels of a grid that can be occupied given the silhouettes (space carving).
+
+    A voxel is kept unless more than ``tolerance`` views rule it out. A view rules a voxel out
+    when the voxel's trilinear footprint (the ball of radius ``sqrt(3) * voxel_size`` around its
+    centre, which contains every point whose sample reads it) projects entirely outside the
+    silhouette: the distance in pixels from the projected centre to the nearest silhouette pixel
+    exceeds the ball's projected radius plus half a pixel diagonal plus ``margin``. The object is
+    assumed to be inside every image (as in the tutorials): a voxel whose centre projects outside
+    the image, or lies behind the camera, is ruled out too (no view could show what it holds).
+
+    Parameters
+    ----------
+    silhouettes : (N, H, W) float64
+        Silhouettes in [0, 1]; pixels above ``threshold`` are inside.
+    cameras : geofit.cameras.CamerasBase
+        The ``N`` cameras.
+    volume_size : int or (3,) int
+        Grid size ``(D, H, W)`` (an int means a cube).
+    voxel_size : float
+        Voxel edge length (world units); the grid is placed as a
+        :class:`~geofit.structures.volume.Volume` with ``align_corners=True``.
+    volume_translation : (3,) float64
+        As in :class:`~geofit.structures.volume.Volume`.
+    threshold : float
+        Silhouette threshold in [0, 1).
+    tolerance : int
+        Number of views allowed to rule a voxel out before it is carved (robustness to a bad
+        view); 0 is the classical hull.
+    margin : float
+        Extra dilation of every silhouette, in pixels (>= 0).
+
+    Returns
+    -------
+    hull : (D, H, W) bool
+        True for voxels that may be occupied.
+
+    Examples
+    --------
+    Two views (front and side) of a centred disc carve a cylinder-like hull out of a 16^3 grid:
+
+    >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+    >>> R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
+    >>> yy, xx = np.mgrid[:32, :32]
+    >>> disc = ((xx - 15.5) ** 2 + (yy - 15.5) ** 2 < 8 ** 2).astype(float)
+    >>> from geofit.structures.volume import visual_hull
+    >>> hull = visual_hull(np.stack([disc, disc]), FoVPerspectiveCameras(R=R, T=T), 16, 0.15)
+    >>> hull.shape, bool(hull[8, 8, 8]), bool(hull[0, 0, 0]), int(hull.sum()) < 16 ** 3
+    ((16, 16, 16), True, False, True)
+    """
+    sil = as_array(silhouettes, "silhouettes", (None, None, None))
+    N = sil.shape[0]
+    if N == 0:
+        raise ValueError(f"silhouettes: expected at least one view, got shape {sil.shape}")
+    cameras = _check_cameras(cameras, N)
+    size = _grid_size3(volume_size)
+    vs = check_positive(voxel_size, "voxel_size")
+    thr = float(threshold)
+    if not 0.0 <= thr < 1.0:
+        raise ValueError(f"threshold: expected a number in [0, 1), got {threshold!r}")
+    if not isinstance(tolerance, (numbers.Integral, np.integer)) or tolerance < 0:
+        raise ValueError(f"tolerance: expected an integer >= 0, got {tolerance!r}")
+    margin = check_positive(margin, "margin", strict=False)
+    vol = Volume(np.zeros(size), voxel_size=vs, volume_translation=volume_translation)
+    centres = vol.get_coord_grid().reshape(-1, 3)
+    return carve(silhouette_distances(sil > thr), cameras, centres, math.sqrt(3.0) * vs,
+                 int(tolerance), margin).reshape(size)
+
+
+def silhouette_distances(inside: np.ndarray) -> np.ndarray:
+    """(N, H, W) distance in pixels from each pixel centre to the nearest inside pixel."""
+    N, H, W = inside.shape
+    out = np.empty((N, H, W))
+    for i in range(N):  # views
+        out[i] = ndimage.distance_transform_edt(~inside[i]) if inside[i].any() else np.inf
+    return out
+
+
+def carve(dist: np.ndarray, cameras, centres: np.ndarray, radius: float, tolerance: int,
+          margin: float, candidates: np.ndarray | None = None, *,
+          slack: float = 0.71) -> np.ndarray:
+    """Boolean (k,) keep-mask of balls (``centres``, ``radius``) against silhouettes.
+
+    ``dist`` holds, per view, the distance from each pixel to the silhouette
+    (:func:`silhouette_distances`). A view rules a ball out when the distance at the pixel of
+    its projected centre exceeds its projected radius plus ``slack`` (half a pixel diagonal:
+    the ball may cover the pixel's corner) plus ``margin``; a ball is carved once more than
+    ``tolerance`` views rule it out. The projected radius uses
+    ``|J|_F <= (|M[:3, :2]|_F + |xy| |M[:3, 3]|) / |w|`` for the Jacobian of the projection
+    ``[p, 1] @ M`` (an upper bound, so carving stays conservative). With ``radius = slack =
+    margin = 0`` a point is kept when its centre's pixel is inside every silhouette.
+    """
+    N, H, W = dist.shape
+    s = min(H, W) / 2.0
+    votes = np.zeros(len(centres), dtype=np.int64)
+    alive = np.ones(len(centres), bool) if candidates is None else candidates.copy()
+    Ms = cameras.get_full_projection_transform()
+    Rz, Tz = cameras.R[:, :, 2], cameras.T[:, 2]
+    for i in range(N):  # views
+        idx = np.flatnonzero(alive)
+        if idx.size == 0:
+            break
+        M = Ms[i]
+        P = centres[idx]
+        h = P @ M[:3, :] + M[3]
+        w = h[:, 3]
+        depth = P @ Rz[i] + Tz[i]
+        ok = (depth > 0) & (w != 0)
+        wsafe = np.where(ok, w, 1.0)
+        xy = h[:, :2] / wsafe[:, None]
+        a = np.linalg.norm(M[:3, :2])
+        b = np.linalg.norm(M[:3, 3])
+        r_px = s * radius * (a + np.linalg.norm(xy, axis=1) * b) / np.abs(wsafe) + slack + margin
+        ix = np.rint(W / 2.0 - s * xy[:, 0] - 0.5)
+        iy = np.rint(H / 2.0 - s * xy[:, 1] - 0.5)
+        seen = ok & (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+        sidx = np.flatnonzero(seen)
+        out = ~seen   # behind the camera or outside the image: outside the silhouette
+        out[sidx] = dist[i, iy[sidx].astype(np.int64), ix[sidx].astype(np.int64)] > r_px[sidx]
+        votes[idx[out]] += 1
+        alive[idx[votes[idx] > tolerance]] = False
+    return alive

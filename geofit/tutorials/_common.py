@@ -349,18 +349,18 @@ def _fit_row(method: str, case: str, fit, err: str | None,
 def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
     """Training and held-out renders of the volume and NeRF tutorials (:mod:`geofit.datasets`).
 
-    Training: ``generate_cow_renders`` (elevation 0, azimuths around the cow, black background,
+    Training: ``tutorial_views(5)`` (elevation 0, azimuths around the cow, black background,
     0/1 silhouettes). Held out: views half-way between the training azimuths, at elevations 0
     and 20 degrees (20 only when a single view is asked for).
     """
-    from ..datasets import generate_cow_renders, held_out_views
+    from ..datasets import held_out_views, tutorial_views
 
-    train = generate_cow_renders(num_views=n_views, image_size=image_size)
+    train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     elevations = (0.0, 20.0) if n_heldout >= 2 else (20.0,)
     test = held_out_views(num_views=n_views, elevations=elevations,
                           n_azimuths=max(1, n_heldout // len(elevations)),
                           image_size=heldout_size)
-    return train, test, train.mesh_name
+    return train, test, train.name
 
 
 def _render_volume(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:

@@ -28,10 +28,20 @@ _FIT_MESH_LABELS = {
 }
 
 
-def _fit_mesh_settings(name: str, size: str) -> dict:
-    from ..fit import RECIPES, CoarseToFine
+_FIT_MESH_RUNS = {
+    "tutorial": {"method": "sgd"},
+    "adam": {"method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
+    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
+    "large-steps": {"method": "lbfgs", "large_steps": 10.0},
+    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
+}
 
-    kw = dict(RECIPES[name])
+
+def _fit_mesh_settings(name: str, size: str) -> dict:
+    from ..fit import CoarseToFine
+
+    kw = dict(_FIT_MESH_RUNS[name])
     stochastic = kw["method"] in ("sgd", "adam")
     if size == "full":
         kw["checkpoint_every"] = 100 if stochastic else 10
@@ -87,7 +97,8 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
             if kw["method"] in ("sgd", "adam"):
                 kw["n_iter"] = min(kw["n_iter"], _pick(size, 10, 100, 500))
             sc = fit_mesh_scenario(mode, target, kw, source_level=source, seed=seed + 7)
-            res, err = _try(fit_mesh, sc.source if sc.source is not None else source, sc.target,
+            res, err = _try(lambda **k: fit_mesh(sc.target, init=sc.source if sc.source is not None
+                                              else source, **k),
                             evaluator=None, progress=False, time_budget=budget, seed=seed,
                             **sc.kwargs)
             rows.append(_fit_row(name, case, res, err, measure))
@@ -128,7 +139,8 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     for name in names:  # methods
         kw = _fit_mesh_settings(name, size)
         source = kw.pop("source", None)
-        fit = fit_mesh(source, target, evaluator=evaluator, progress=progress, seed=seed, **kw)
+        fit = fit_mesh(target, init=source, evaluator=evaluator, progress=progress, seed=seed,
+                       **kw)
         results[name] = fit
         m = fit.metrics
         final = {"seconds": fit.seconds, "n_verts": fit.n_verts, "n_params": fit.n_params,

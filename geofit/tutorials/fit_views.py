@@ -27,13 +27,13 @@ def _views_settings(size: str) -> dict:
         "num_heldout": _pick(size, 2, 8, 16),
         # PyTorch3D's recipe (fit_textured_mesh): SGD on 2 random views, then the textured
         # stage from the sphere
-        "tutorial": {"silhouette_method": "tutorial", "textured_method": "tutorial",
+        "tutorial": {"silhouette_method": "sgd", "textured_method": "sgd",
                      "textured_init": "sphere",
                      "silhouette_iters": _pick(size, 4, 150, 2000),
                      "textured_iters": _pick(size, 4, 150, 2000)},
         # geofit's best (benchmarks/fit_views.py "best"): L-BFGS on all views, large steps,
         # coarse-to-fine; least-squares colours, then joint L-BFGS
-        "geofit": {"silhouette_method": "scipy-lbfgs", "textured_method": "lbfgs",
+        "geofit": {"silhouette_method": "lbfgs", "textured_method": "lbfgs",
                    "large_steps": 10.0,
                    "levels": _pick(size, None, [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
                    "silhouette_iters": _pick(size, 4, 60, 2000),
@@ -53,7 +53,8 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     stages; seed: random view choices of the SGD recipe. Writes into ``out/fit_views``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..fit.views import ViewsEvaluator, cow_multiview_dataset, fit_mesh_to_views
+    from ..datasets import tutorial_views
+    from ..fit.views import ViewsEvaluator, fit_mesh_to_views
     from ..io import save_obj
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
@@ -61,8 +62,8 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
 
     res, d, t0 = _begin(out, "fit_views", size)
     cfg = _views_settings(size)
-    ds = cow_multiview_dataset(num_views=cfg["num_views"], image_size=cfg["image_size"],
-                               num_heldout=cfg["num_heldout"])
+    ds = tutorial_views(4, num_views=cfg["num_views"], image_size=cfg["image_size"],
+                        num_held_out=cfg["num_heldout"])
     res.config = {"object": ds.name, "training views": cfg["num_views"],
                   "held-out views": cfg["num_heldout"], "image size": cfg["image_size"],
                   "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
@@ -72,7 +73,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
         "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "
         "views: silhouette IoU and RGB PSNR (hard renders), and chamfer-L2 / F-score at 0.01 "
         "against the true mesh. Times are solver times (the clock is paused at checkpoints).")
-    ev = ViewsEvaluator(ds.heldout, ds.mesh, n_samples=_pick(size, 2000, 10_000, 20_000),
+    ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=_pick(size, 2000, 10_000, 20_000),
                         taus=(0.01,))
     labels = {"tutorial": "PyTorch3D recipe: SGD, 2 random views per step",
               "geofit": "geofit: L-BFGS on all views, large steps, coarse-to-fine; "
@@ -90,7 +91,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     for name, label in labels.items():  # methods
         kw = dict(cfg[name])
         init = ico_sphere(cfg["init_level"] - (1 if kw.get("levels") else 0))
-        fit = fit_mesh_to_views(ds.train, init=init, evaluate=evaluate,
+        fit = fit_mesh_to_views(ds, init=init, evaluate=evaluate,
                                 eval_every=cfg["eval_every"], seed=seed, **kw)
         fits[name] = fit
         final = ev(fit.mesh, fit.colors)
@@ -110,7 +111,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     bar.close()
 
     # held-out renders of each result next to the held-out targets
-    h = ds.heldout
+    h = ds.held_out
     k = min(3, len(h))
     cams = h.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
@@ -143,28 +144,33 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
 
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:
-    from ..fit.views import MultiViewData, fit_mesh_to_views
+    from ..datasets import MultiViewDataset
+    from ..fit.views import fit_mesh_to_views
     from ..shapes import ico_sphere
 
-    tr = ds.train
+    tr = ds
     iters = _pick(size, 2, 10, 40)
     nan_sil = tr.silhouettes.copy()
     nan_sil[0, 0, 0] = np.nan
     rng = np.random.default_rng(seed + 3)
     cases = {
-        "one view only": lambda: MultiViewData(tr.cameras[[0]], tr.silhouettes[:1],
-                                               tr.images[:1], tr.lights),
-        "empty silhouettes": lambda: MultiViewData(tr.cameras, np.zeros_like(tr.silhouettes),
-                                                   tr.images, tr.lights),
-        "noisy silhouettes (20% pixels flipped)": lambda: MultiViewData(
-            tr.cameras, np.where(rng.random(tr.silhouettes.shape) < 0.2,
-                                 1.0 - tr.silhouettes, tr.silhouettes), tr.images, tr.lights),
-        "NaN in a silhouette": lambda: MultiViewData(tr.cameras, nan_sil, tr.images, tr.lights),
+        "one view only": lambda: MultiViewDataset(
+            images=tr.images[:1], silhouettes=tr.silhouettes[:1],
+            cameras=tr.cameras[[0]], lights=tr.lights),
+        "empty silhouettes": lambda: MultiViewDataset(
+            images=tr.images, silhouettes=np.zeros_like(tr.silhouettes),
+            cameras=tr.cameras, lights=tr.lights),
+        "noisy silhouettes (20% pixels flipped)": lambda: MultiViewDataset(
+            images=tr.images, silhouettes=np.where(rng.random(tr.silhouettes.shape) < 0.2,
+                                                   1.0 - tr.silhouettes, tr.silhouettes),
+            cameras=tr.cameras, lights=tr.lights),
+        "NaN in a silhouette": lambda: MultiViewDataset(
+            images=tr.images, silhouettes=nan_sil, cameras=tr.cameras, lights=tr.lights),
     }
     rows = []
-    for method, kw in (("tutorial", {"silhouette_method": "tutorial",
+    for method, kw in (("tutorial", {"silhouette_method": "sgd",
                                      "textured_method": "none"}),
-                       ("geofit", {"silhouette_method": "scipy-lbfgs", "textured_method": "none",
+                       ("geofit", {"silhouette_method": "lbfgs", "textured_method": "none",
                                    "large_steps": 10.0})):
         for case, make in cases.items():  # failure cases
             def run(make=make, kw=kw):

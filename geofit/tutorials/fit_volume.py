@@ -26,7 +26,7 @@ def _volume_settings(size: str) -> dict:
         "n_views": _pick(size, 6, 20, 40), "image_size": _pick(size, 32, 64, 128),
         "n_heldout": _pick(size, 2, 4, 8), "volume_size": _pick(size, 16, 64, 128),
         "n_pts_per_ray": _pick(size, 32, 75, 150),
-        "tutorial": {"method": "tutorial", "n_iter": _pick(size, 4, 300, 300),
+        "tutorial": {"recipe": "tutorial", "n_iter": _pick(size, 4, 300, 300),
                      "batch_size": _pick(size, 2, 10, 10), "time_budget": budget},
         "lbfgs": {"method": "lbfgs", "levels": _pick(size, (8, 16), (32, 64), (32, 64, 128)),
                   "iterations": _pick(size, (4, 4), (60, 40), None), "time_budget": budget},
@@ -74,7 +74,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     fits, renders = {}, {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
-        fit = fit_volume(train.images, train.silhouettes, train.cameras, volume_size=S,
+        fit = fit_volume(train, volume_size=S,
                          n_pts_per_ray=n_pts, seed=seed, monitor=monitor,
                          monitor_every=cfg["monitor_every"], **kw)
         fits[key] = fit
@@ -132,15 +132,22 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
         "silhouettes of the wrong size": (imgs, sils[:, :-1], cams),
     }
     rows = []
-    for method, kw in (("tutorial", {"method": "tutorial", "n_iter": _pick(size, 2, 10, 30),
+    for method, kw in (("tutorial", {"recipe": "tutorial", "n_iter": _pick(size, 2, 10, 30),
                                      "batch_size": 1}),
                        ("lbfgs", {"method": "lbfgs", "levels": (small,),
                                   "iterations": _pick(size, 2, 10, 30)})):
         for case, (i_, s_, c_) in cases.items():  # failure cases
-            fit, err = _try(fit_volume, i_, s_, c_, volume_size=small,
+            fit, err = _try(lambda **k: fit_volume(_views(i_, s_, c_), **k), volume_size=small,
                             n_pts_per_ray=max(16, n_pts // 4), seed=seed, **kw)
             rows.append(_fit_row(method, case, fit, err, lambda f: {
                 "NaN in volume": bool(np.isnan(f.volume.densities).any()),
                 "occupied voxels": int(f.n_occupied_voxels),
                 "seconds": round(f.seconds, 2)}))
     return rows
+
+
+def _views(images, silhouettes, cameras):
+    """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
+    from ..datasets import MultiViewDataset
+
+    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

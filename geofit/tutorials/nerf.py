@@ -22,14 +22,14 @@ __all__ = ["step_nerf"]
 
 def _nerf_settings(size: str) -> dict:
     budget = _pick(size, None, 20.0, None)
-    scene = {"preset": "scene", "n_iter": _pick(size, 2, 20000, 20000),
+    scene = {"recipe": "default", "n_iter": _pick(size, 2, 20000, 20000),
              "n_pts_per_ray": _pick(size, 8, 64, 128)}
     if size == "tiny":
         scene.update(n_rays_per_image=32, hull_resolution=24)
     return {
         "n_views": _pick(size, 4, 20, 40), "image_size": _pick(size, 24, 64, 128),
         "n_heldout": _pick(size, 1, 2, 8), "heldout_size": _pick(size, 24, 32, 128),
-        "tutorial": {"preset": "tutorial", "n_iter": _pick(size, 2, 3000, 3000),
+        "tutorial": {"recipe": "tutorial", "n_iter": _pick(size, 2, 3000, 3000),
                      "n_rays_per_image": _pick(size, 32, 128, 750),
                      "n_pts_per_ray": _pick(size, 8, 64, 128)},
         "scene": scene,
@@ -71,7 +71,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     fits = {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
-        fit = fit_nerf(train.images, train.silhouettes, train.cameras, held_out=test,
+        fit = fit_nerf(train, held_out=test,
                        time_budget=cfg["time_budget"], eval_every=cfg["eval_every"], seed=seed,
                        **kw)
         fits[key] = fit
@@ -126,12 +126,20 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
     rows = []
     for method in ("tutorial", "scene"):
         for case, (i_, s_, c_, extra) in cases.items():  # failure cases
-            kw = {"preset": method, "n_iter": n_iter, "n_pts_per_ray": 16,
+            kw = {"recipe": "default" if method == "scene" else method, "n_iter": n_iter,
+                  "n_pts_per_ray": 16,
                   "n_rays_per_image": 64}
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
-            fit, err = _try(fit_nerf, i_, s_, c_, seed=seed, **kw)
+            fit, err = _try(lambda: fit_nerf(_views(i_, s_, c_), seed=seed, **kw))
             rows.append(_fit_row(method, case, fit, err, lambda f: {
                 "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
                 "seconds": round(f.seconds, 2)}))
     return rows
+
+
+def _views(images, silhouettes, cameras):
+    """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
+    from ..datasets import MultiViewDataset
+
+    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

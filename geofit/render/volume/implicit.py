@@ -21,6 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..._validate import as_array
+from ...structures.volume import carve
 from .radiance_field import ACTIVATIONS, NeuralRadianceField, _check_bundle, _int_at_least
 from .raysampling import RayBundle
 
@@ -167,7 +168,7 @@ class OccupancyGrid:
         from scipy.ndimage import binary_dilation
 
         sil = as_array(silhouettes, "silhouettes", (None, None, None))
-        n, Hs, Ws = sil.shape
+        n = sil.shape[0]
         if len(cameras) != n:
             raise ValueError(f"cameras: expected {n} cameras (one per silhouette), got "
                              f"{len(cameras)}")
@@ -179,40 +180,10 @@ class OccupancyGrid:
                               for m in masks])  # views
         grid = cls(np.ones((res, res, res), bool), bounds)
         pts = grid.centers().reshape(-1, 3)
-        alive = np.arange(len(pts))
-        S = min(Hs, Ws)
-        M = cameras.get_full_projection_transform()      # (n, 4, 4), row vectors
-        # visit the views in a spread order (0, n/2, n/4, 3n/4, ...): the first few carve most
-        order = sorted(range(n), key=lambda i: (_bit_reverse_rank(i, n), i))
-        for v in order:  # views
-            if alive.size == 0:
-                break
-            h = pts[alive] @ M[v, :3] + M[v, 3]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                x = h[:, 0] / h[:, 3]
-                y = h[:, 1] / h[:, 3]
-            # NDC -> pixel (column i has x = (Ws - 1 - 2 i) / S)
-            col = np.rint((Ws - 1 - x * S) / 2.0)
-            row = np.rint((Hs - 1 - y * S) / 2.0)
-            ok = (col >= 0) & (col < Ws) & (row >= 0) & (row < Hs) & (h[:, 3] > 0)
-            keep = np.zeros(alive.size, bool)
-            ci, ri = col[ok].astype(np.int64), row[ok].astype(np.int64)
-            keep[ok] = masks[v, ri, ci]
-            alive = alive[keep]
-        occ = np.zeros(len(pts), bool)
-        occ[alive] = True
+        # geofit's one visual hull, on points: kept when the pixel of the centre is inside
+        # every (dilated) silhouette
+        occ = carve(np.where(masks, 0.0, np.inf), cameras, pts, 0.0, 0, 0.0, slack=0.0)
         return cls(occ.reshape(res, res, res), bounds)
-
-
-def _bit_reverse_rank(i: int, n: int) -> float:
-    """A low-discrepancy position of ``i / n`` (van der Corput order) for spreading views."""
-    x, f, k = 0.0, 0.5, i
-    bits = max(int(n - 1).bit_length(), 1)
-    for _ in range(bits):  # bits of i
-        x += f * (k & 1)
-        k >>= 1
-        f *= 0.5
-    return x
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,369 @@
+"""The per-level problem of :func:`geofit.fit.volume.fit_volume`: grids, rays, the sparse
+sampling operator and the emission-absorption objective with its analytic gradient.
+
+:class:`_Problem` holds one level: the free voxels (inside the hull, not pruned), the rays and
+the contiguous sample ranges that can meet them (empty-space skipping, early termination), the
+sparse trilinear operator from free voxels to samples (built once per level), and
+``evaluate(x) -> (value, grad, terms)`` for the flat parameter vector ``x`` of density and
+colour logits. The chain rule is composed in plain sight: Huber losses on the pixels, the
+raymarcher's vector-Jacobian product, the transposed sampling operator, the sigmoids.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy import ndimage
+
+from .._threads import get_num_threads, parallel_map
+from ..cameras import CamerasBase
+from ..loss.robust import huber, huber_residual
+from ..render.volume.raymarching import (
+    _exclusive_product,
+    _shifted_cumprod,
+    _suffix_from,
+    _through_transmittance,
+)
+from ..render.volume.raysampling import NDCMultinomialRaysampler
+from ..render.volume.renderer import (
+    _cell_table,
+    _range_layout,
+    _range_operator,
+    _ray_pixel_affine,
+    _sample_ranges,
+)
+from ..structures.volume import Volume
+
+_EPS = 1e-10          # PyTorch3D's EA eps
+_LOGIT_CLIP = 1e-6    # opacities/colours are kept in [clip, 1 - clip] when converted to logits
+
+
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    out = np.empty_like(x)
+    pos = x >= 0
+    out[pos] = 1.0 / (1.0 + np.exp(-x[pos]))
+    e = np.exp(x[~pos])
+    out[~pos] = e / (1.0 + e)
+    return out
+
+
+def _logit(p: np.ndarray) -> np.ndarray:
+    p = np.clip(p, _LOGIT_CLIP, 1.0 - _LOGIT_CLIP)
+    return np.log(p) - np.log1p(-p)
+
+
+def _downsample(a: np.ndarray, f: int) -> np.ndarray:
+    """Block mean over f x f pixels of (N, H, W, ...)."""
+    if f == 1:
+        return a
+    N, H, W = a.shape[:3]
+    return a.reshape(N, H // f, f, W // f, f, *a.shape[3:]).mean(axis=(2, 4))
+
+
+class _Grid:
+    """The placement of one level's grid (a Volume without values)."""
+
+    def __init__(self, size, voxel_size: float, translation: np.ndarray):
+        self.size = tuple(int(s) for s in size)
+        self.voxel_size = float(voxel_size)
+        self.translation = np.asarray(translation, dtype=np.float64)
+        size_xyz = np.array(self.size[::-1], dtype=np.float64)
+        self.scale = 0.5 * (size_xyz - 1.0) * self.voxel_size
+        self.n = int(np.prod(self.size))
+
+    def local(self, P: np.ndarray) -> np.ndarray:
+        return (P + self.translation) / self.scale
+
+    def volume(self, densities, features=None) -> Volume:
+        return Volume(densities, features, self.voxel_size, -0.0 + self.translation)
+
+    def centres(self) -> np.ndarray:
+        return Volume(np.zeros(self.size), voxel_size=self.voxel_size,
+                      volume_translation=self.translation).get_coord_grid().reshape(-1, 3)
+
+
+def _ray_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Slab test: parameter interval [t0, t1] of o + t d inside the box (t0 > t1: miss)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta = (lo - o) * inv
+        tb = (hi - o) * inv
+    tmin = np.where(np.isnan(ta), -np.inf, np.minimum(ta, tb))
+    tmax = np.where(np.isnan(ta), np.inf, np.maximum(ta, tb))
+    # a zero direction component: inside the slab or not at all
+    flat_ok = np.where(d == 0.0, (o >= lo) & (o <= hi), True)
+    t0 = tmin.max(axis=1)
+    t1 = tmax.min(axis=1)
+    t1 = np.where(flat_ok.all(axis=1), t1, -np.inf)
+    return t0, t1
+
+
+class _Problem:
+    """One level: rays, kept sample ranges, the sparse operator and the loss.
+
+    Parameters are ``[log-density of the free density voxels, colour logits (3 per column)]``;
+    the columns are the voxels read by at least one kept sample.
+    """
+
+    def __init__(self, grid: _Grid, origins, directions, lengths, rgb, sil, dens_grid,
+                 allowed, *, termination: float | None, n_pixels: int, huber_scale: float,
+                 chunk_samples: int = 1 << 19, dtype=np.float64, smoothness=(0.0, 0.0)):
+        self.grid = grid
+        self.dtype = np.dtype(dtype)
+        self.smoothness = (float(smoothness[0]), float(smoothness[1]))
+        self.n_pts = n = len(lengths)
+        self.huber_scale = huber_scale
+        self.n_pixels = n_pixels
+        self.n_rays_total = len(origins)
+        l0 = float(lengths[0])
+        dl = float(lengths[-1] - lengths[0]) / (n - 1)
+        A, B = _ray_pixel_affine(origins, directions, l0, dl, grid.size, grid.scale,
+                                 grid.translation)
+        # 1. candidate samples: those inside the box of the allowed voxels (+ one voxel)
+        zz, yy, xx = np.nonzero(allowed)
+        if zz.size == 0:
+            k_range = (np.zeros(len(A), np.int64), np.full(len(A), -1, np.int64))
+        else:
+            lo = np.array([xx.min(), yy.min(), zz.min()], dtype=np.float64) - 1.0
+            hi = np.array([xx.max(), yy.max(), zz.max()], dtype=np.float64) + 1.0
+            t0, t1 = _ray_box(A, B, lo, hi)   # in units of samples
+            k_range = (np.clip(np.ceil(t0 - 1e-9), 0, n).astype(np.int64),
+                       np.clip(np.floor(t1 + 1e-9), -1, n - 1).astype(np.int64))
+        # 2. contiguous ranges: first sample reading an allowed voxel .. last one still visible
+        if termination is None and allowed.all():
+            # dense grid: the samples inside the box are exactly those that read a voxel
+            first = np.where(k_range[1] >= k_range[0], k_range[0], -1)
+            last = np.where(k_range[1] >= k_range[0], k_range[1], -1)
+        else:
+            cell_any = _cell_table(allowed, "any")
+            cell_min = None
+            if termination is not None:
+                cell_min = _cell_table(np.where(allowed, dens_grid, 0.0), "min")
+            first, last = _sample_ranges(A, B, n, grid.size, cell_any, cell_min=cell_min,
+                                         termination=termination, k_range=k_range,
+                                         chunk_samples=2 * chunk_samples)
+        lay = _range_layout(first, last, chunk_samples)
+        self.layout = lay
+        self.ray_ids = lay.ray_ids
+        self.n_samples = int(lay.count.sum())
+        # 3. the sparse operator over the voxels the kept samples read
+        self.W, self.columns = _range_operator(A, B, lay, grid.size, dtype=self.dtype,
+                                               all_columns=bool(termination is None
+                                                                and allowed.all()))
+        # free densities: columns that are allowed; the others are fixed empty
+        self.free_idx = np.flatnonzero(allowed.reshape(-1)[self.columns])
+        self.n_free_density = int(self.free_idx.size)
+        self.n_columns = int(self.columns.size)
+        # targets of the kept rays, and the constant loss of the others (rendered as 0)
+        self.rgb = rgb[self.ray_ids].astype(self.dtype)
+        self.sil = sil[self.ray_ids].astype(self.dtype)
+        miss = np.ones(len(origins), bool)
+        miss[self.ray_ids] = False
+        miss_c = huber(0.0 * rgb[miss], rgb[miss], huber_scale)[0]
+        miss_s = huber(0.0 * sil[miss], sil[miss], huber_scale)[0]
+        self.const_colour = float(miss_c.sum())
+        self.const_sil = float(miss_s.sum())
+        self._miss = (np.flatnonzero(miss), miss_c.mean(axis=1) + miss_s)
+        # (1 + eps)^first: the factor of the skipped empty samples in front of each ray
+        self.lead = ((1.0 + _EPS) ** lay.first).astype(self.dtype)
+        self._blocks = None
+        # smoothness: squared differences between face-neighbouring free voxels
+        self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
+        self.D_colour = _difference_operator(self.columns, grid.size)
+
+    @property
+    def n_params(self) -> int:
+        return self.n_free_density + 3 * self.n_columns
+
+    # ---- parameters <-> grids ---------------------------------------------------------------
+
+    def pack(self, ld_grid: np.ndarray, lc_grid: np.ndarray) -> np.ndarray:
+        """Flat parameter vector from logit grids (D*H*W,) and (3, D*H*W)."""
+        cols = self.columns
+        return np.concatenate([ld_grid[cols[self.free_idx]], lc_grid[:, cols].reshape(-1)])
+
+    def unpack_into(self, x: np.ndarray, ld_grid: np.ndarray, lc_grid: np.ndarray) -> None:
+        cols = self.columns
+        nd = self.n_free_density
+        ld_grid[cols[self.free_idx]] = x[:nd]
+        lc_grid[:, cols] = x[nd:].reshape(3, -1)
+
+    # ---- objective ---------------------------------------------------------------------------
+
+    def _values(self, x: np.ndarray):
+        nd = self.n_free_density
+        X = np.zeros((self.n_columns, 4), dtype=self.dtype)
+        sd = _sigmoid(x[:nd])
+        X[self.free_idx, 0] = sd
+        sc = _sigmoid(x[nd:].reshape(3, -1))
+        X[:, 1:] = sc.T
+        return X, sd, sc
+
+    def _split(self):
+        """Row blocks of W at chunk boundaries, one per thread (built once)."""
+        if self._blocks is None:
+            n_t = get_num_threads()
+            chunks = self.layout.chunks
+            if n_t < 2 or len(chunks) < 2:
+                self._blocks = [(0, self.layout.n_rows, self.W)]
+            else:
+                starts = np.array([row for row, a, b, K in chunks])
+                nnz_at = self.W.indptr[starts]  # nonzeros before each chunk
+                targets = self.W.nnz * np.arange(1, n_t) / n_t
+                cuts = np.unique(np.clip(np.searchsorted(nnz_at, targets), 1, len(chunks) - 1))
+                rows = [0, *starts[cuts].tolist(), self.layout.n_rows]
+                self._blocks = [(r0, r1, self.W[r0:r1]) for r0, r1 in zip(rows, rows[1:])]
+        return self._blocks
+
+    def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
+        """Loss sums over chunks lo:hi; writes their sample gradients into G (if given).
+
+        With ``per_ray`` (n_kept,), each kept ray's colour mean plus silhouette loss is stored
+        there (for per-view diagnostics).
+        """
+        s = self.huber_scale
+        n_col = 3.0 * self.n_pixels
+        n_sil = float(self.n_pixels)
+        col_sum = sil_sum = 0.0
+        for row, a, b, K in self.layout.chunks[lo:hi]:  # chunks of rays
+            r = b - a
+            rays = slice(a, b)
+            blk = Y[row:row + r * K].reshape(r, K, 4)
+            d = blk[:, :, 0]
+            f = blk[:, :, 1:]
+            c = (1.0 + _EPS) - d
+            T = _shifted_cumprod(c, 1) * self.lead[rays, None]
+            w = d * T
+            rgb = np.einsum("rk,rkc->rc", w, f)
+            op = 1.0 - np.prod(1.0 - d, axis=1)
+            hc, gc = huber_residual(rgb - self.rgb[rays], s)
+            hs, gs = huber_residual(op - self.sil[rays], s)
+            col_sum += float(hc.sum(dtype=np.float64))
+            sil_sum += float(hs.sum(dtype=np.float64))
+            if per_ray is not None:
+                per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
+            if G is not None:
+                g_rgb = gc / n_col
+                g_op = gs / n_sil
+                h = np.einsum("rkc,rc->rk", f, g_rgb)
+                S = _suffix_from(w * h, 1)
+                gblk = G[row:row + r * K].reshape(r, K, 4)
+                through = _through_transmittance(S, c, d, h * self.lead[rays, None], 1)
+                gblk[:, :, 0] = T * h - through + _exclusive_product(1.0 - d) * g_op[:, None]
+                gblk[:, :, 1:] = w[:, :, None] * g_rgb[:, None, :]
+        return col_sum, sil_sum
+
+    def ray_losses(self, x: np.ndarray) -> np.ndarray:
+        """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
+        X, _, _ = self._values(x)
+        Y = self.W @ X
+        kept = np.zeros(len(self.ray_ids))
+        self._march_chunks(Y, None, 0, len(self.layout.chunks), kept)
+        out = np.empty(self.n_rays_total)
+        out[self.ray_ids] = kept
+        out[self._miss[0]] = self._miss[1]
+        return out
+
+    def evaluate(self, x: np.ndarray, *, want_grad: bool = True):
+        """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
+
+        Sparse products and ray chunks run on geofit's threads (numpy and scipy release the GIL).
+        """
+        X, sd, sc = self._values(x)
+        blocks = self._split()
+        Y = np.empty((self.layout.n_rows, 4), dtype=self.dtype)
+
+        def fwd(blk):
+            r0, r1, Wb = blk
+            Y[r0:r1] = Wb @ X
+        parallel_map(fwd, blocks)
+        G = np.empty_like(Y) if want_grad else None
+        nch = len(self.layout.chunks)
+        bounds = np.linspace(0, nch, len(blocks) + 1).astype(int).tolist()
+        parts = list(zip(bounds, bounds[1:]))
+        sums = parallel_map(lambda p: self._march_chunks(Y, G, *p), parts)
+        n_col = 3.0 * self.n_pixels
+        loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
+        loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
+        terms = {"colour": loss_c, "silhouette": loss_s}
+        lam_d, lam_c = self.smoothness
+        smooth = lam_d > 0 or lam_c > 0
+        if smooth:
+            dd = self.D_density @ sd
+            dc = self.D_colour @ sc.T
+            e_d = max(dd.size, 1)
+            e_c = max(dc.size, 1)
+            terms["smoothness"] = lam_d * float(dd @ dd) / e_d + lam_c * float(
+                np.sum(dc * dc)) / e_c
+        value = sum(terms.values())
+        if not want_grad:
+            return value, terms
+        Zs = parallel_map(lambda blk: blk[2].T @ G[blk[0]:blk[1]], blocks)
+        Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
+        nd = self.n_free_density
+        grad = np.empty_like(x)
+        Z = Z.astype(np.float64, copy=False)
+        g_sd = Z[self.free_idx, 0]
+        g_sc = Z[:, 1:].T
+        if smooth:
+            g_sd = g_sd + (2.0 * lam_d / e_d) * (self.D_density.T @ dd)
+            g_sc = g_sc + (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T
+        grad[:nd] = g_sd * sd * (1.0 - sd)
+        grad[nd:] = (g_sc * sc * (1.0 - sc)).reshape(-1)
+        return value, grad, terms
+
+
+def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
+    """(E, n) forward differences between the voxels ``flat`` (sorted) that are face neighbours.
+
+    Row ``e`` of the result is ``+1`` at voxel ``i`` and ``-1`` at its neighbour ``j`` along x, y
+    or z, for every pair of listed voxels.
+    """
+    D, H, W = size
+    n = len(flat)
+    lookup = np.full(D * H * W, -1, np.int64)
+    lookup[flat] = np.arange(n)
+    z, rem = np.divmod(flat, H * W)
+    y, x = np.divmod(rem, W)
+    rows_i, rows_j = [], []
+    for coord, extent, off in ((x, W, 1), (y, H, W), (z, D, H * W)):  # axes
+        ok = coord + 1 < extent
+        j = np.full(n, -1, np.int64)
+        j[ok] = lookup[flat[ok] + off]
+        keep = np.flatnonzero(j >= 0)
+        rows_i.append(keep)
+        rows_j.append(j[keep])
+    i = np.concatenate(rows_i)
+    j = np.concatenate(rows_j)
+    e = len(i)
+    data = np.concatenate([np.ones(e), -np.ones(e)])
+    return sp.csr_matrix((data, (np.concatenate([np.arange(e), np.arange(e)]),
+                                 np.concatenate([i, j]))), shape=(e, n))
+
+
+def _resample(values: np.ndarray, coarse: _Grid, fine: _Grid) -> np.ndarray:
+    """Trilinear resampling (zero padding) of coarse values ``(..., D, H, W)`` at fine centres."""
+    # fine voxel centres in coarse voxel-index coordinates, per axis (the grids are separable)
+    axes = []
+    for ax in range(3):  # z, y, x
+        nf, nc = fine.size[ax], coarse.size[ax]
+        t = 2 - ax
+        world = np.linspace(-1.0, 1.0, nf) * fine.scale[t] - fine.translation[t]
+        axes.append(((world + coarse.translation[t]) / coarse.scale[t] + 1.0) * 0.5 * (nc - 1))
+    zz, yy, xx = np.meshgrid(*axes, indexing="ij")
+    coords = np.stack([zz, yy, xx])
+    lead = values.shape[:-3]
+    flat = values.reshape((-1,) + coarse.size)
+    out = np.stack([ndimage.map_coordinates(v, coords, order=1, mode="grid-constant", cval=0.0)
+                    for v in flat])  # channels
+    return out.reshape(lead + fine.size)
+
+
+def _rays(cameras: CamerasBase, R_h: int, R_w: int, n_pts: int, min_depth: float,
+          max_depth: float):
+    sampler = NDCMultinomialRaysampler(image_width=R_w, image_height=R_h, n_pts_per_ray=n_pts,
+                                       min_depth=min_depth, max_depth=max_depth)
+    b = sampler(cameras)
+    return b.origins.reshape(-1, 3), b.directions.reshape(-1, 3), b.lengths.reshape(
+        -1, n_pts)[0]
