@@ -538,10 +538,10 @@ def test_fit_mesh_takes_library_meshes():
 
     target = trimesh.creation.icosphere(2, radius=0.8)
     source = ico_sphere(1).to_open3d()
-    res = fit_mesh(source, target, n_samples=300, n_stages=1, n_iter=5, progress=False)
+    res = fit_mesh(target, init=source, n_samples=300, n_stages=1, n_iter=5, progress=False)
     assert res.mesh.n_verts == 42
     with pytest.raises(TypeError, match="target: expected a geofit Mesh, trimesh.Trimesh"):
-        fit_mesh(source, "sphere.obj", n_iter=1, progress=False)
+        fit_mesh("sphere.obj", init=source, n_iter=1, progress=False)
 
 
 def test_docstring_examples_run():
