@@ -1,7 +1,8 @@
 """geofit: fit and render 3D geometry on the CPU in plain numpy.
 
 The six workflows of PyTorch3D's introductory tutorials, without PyTorch, built on Embree ray
-casting, Open3D KD-trees and scipy.sparse operators with analytic gradients.
+casting, exact KD-tree searches (Open3D's and scipy's) and scipy.sparse operators with analytic
+gradients.
 """
 from __future__ import annotations
 
@@ -48,6 +49,7 @@ from .ops import (
     cot_laplacian,
     norm_laplacian,
     sample_points_from_meshes,
+    sample_points_with_jacobian,
     uniform_laplacian,
 )
 from .raycast import (
@@ -155,6 +157,7 @@ __all__ = [
     "cot_laplacian",
     "norm_laplacian",
     "sample_points_from_meshes",
+    "sample_points_with_jacobian",
     "uniform_laplacian",
     # ray casting
     "ClosestPoints",

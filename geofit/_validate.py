@@ -18,6 +18,8 @@ __all__ = [
     "as_rng",
     "as_unit_images",
     "check_choice",
+    "check_finite",
+    "check_int",
     "check_positive",
     "shape_str",
 ]
@@ -153,13 +155,58 @@ def check_choice(value, name: str, choices: Iterable) -> None:
         raise ValueError(f"{name}: expected one of {choices}, got {value!r}")
 
 
-def check_positive(value, name: str, *, strict: bool = True) -> float:
-    """Return ``float(value)`` after checking it is finite and positive (or >= 0)."""
+def _as_float(value, name: str) -> float:
     try:
-        v = float(value)
+        return float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name}: expected a number, got {value!r}") from None
+
+
+def check_finite(value, name: str) -> float:
+    """Return ``float(value)`` after checking it is a finite number."""
+    v = _as_float(value, name)
+    if not np.isfinite(v):
+        raise ValueError(f"{name}: expected a finite number, got {value!r}")
+    return v
+
+
+def check_positive(value, name: str, *, strict: bool = True) -> float:
+    """Return ``float(value)`` after checking it is finite and positive (or >= 0)."""
+    v = _as_float(value, name)
     if not np.isfinite(v) or (v <= 0 if strict else v < 0):
         rel = "> 0" if strict else ">= 0"
         raise ValueError(f"{name}: expected a finite number {rel}, got {value!r}")
     return v
+
+
+def check_int(value, name: str, low: int = 1, *, allow_none: bool = False,
+              error: type[Exception] = ValueError) -> int | None:
+    """Return ``int(value)`` after checking it is an integer (not a bool) ``>= low``.
+
+    Parameters
+    ----------
+    value : object
+        The input; Python and numpy integers are accepted.
+    name : str
+        The argument's name, used in error messages.
+    low : int
+        Smallest allowed value.
+    allow_none : bool
+        Pass None through (an optional count).
+    error : {ValueError, TypeError}
+        Raised for a value that is not an integer; a value below ``low`` is a ValueError.
+
+    Raises
+    ------
+    ValueError or TypeError
+        ``"{name}: expected an integer >= {low}, got {value!r}"``.
+    """
+    if value is None and allow_none:
+        return None
+    message = f"{name}: expected an integer >= {low}, got {value!r}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral,
+                                                                     np.integer)):
+        raise error(message)
+    if value < low:
+        raise ValueError(message)
+    return int(value)

@@ -34,7 +34,6 @@ procedural textured stand-in is used and ``name`` says so.
 from __future__ import annotations
 
 import math
-import numbers
 import warnings
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -42,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_array, as_unit_images, check_positive
+from ._validate import check_int as _count
 from .cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
 from .io.views import load_views, save_views
 from .structures.mesh import Mesh, as_mesh
@@ -261,13 +261,6 @@ def training_azimuths(num_views: int = 40, azimuth_range: float = 180.0) -> np.n
     if not np.isfinite(r):
         raise ValueError(f"azimuth_range: expected a finite number, got {azimuth_range!r}")
     return np.linspace(-r, r, n) + 180.0
-
-
-def _count(value, name: str, lo: int = 1) -> int:
-    if not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, bool) \
-            or value < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {value!r}")
-    return int(value)
 
 
 def _background(background) -> np.ndarray:

@@ -330,37 +330,47 @@ def normal_consistency(pred: Mesh, target: Mesh, *, n_samples: int = 100_000, se
 # --------------------------------------------------------------------------------------------
 
 
-def psnr(pred, target, max_value: float = 1.0) -> float:
+def psnr(pred, target, max_value: float = 1.0, *, per_image: bool = False):
     """Peak signal-to-noise ratio ``10 log10(max_value^2 / MSE)`` in dB over all pixels and channels.
 
     Parameters
     ----------
     pred : (...) float64
-        Prediction.
+        Prediction; with ``per_image``, a stack ``(N, ...)`` (e.g. ``(N, H, W, C)`` images).
     target : (...) float64
         Reference, of ``pred``'s shape.
     max_value : float
         The largest possible value (1 for images in [0, 1]).
+    per_image : bool
+        One PSNR per entry of the first axis (the MSE is averaged over the other axes).
 
     Returns
     -------
-    float
-        inf when the images are identical.
+    float, or (N,) float64 with ``per_image``
+        inf where the images are identical.
 
     Raises
     ------
     ValueError
-        If the shapes differ.
+        If the shapes differ, or ``per_image`` is set on a 0-d input.
 
     Examples
     --------
     >>> round(psnr(np.full(4, 0.1), np.zeros(4)), 6)
     20.0
+    >>> psnr(np.stack([np.full(4, 0.1), np.zeros(4)]), np.zeros((2, 4)), per_image=True)
+    array([20., inf])
     """
     p = np.asarray(pred, np.float64)
     t = np.asarray(target, np.float64)
     if p.shape != t.shape:
         raise ValueError(f"pred, target: expected equal shapes, got {p.shape} and {t.shape}")
+    if per_image:
+        if p.ndim == 0:
+            raise ValueError("pred: per_image needs a leading image axis, got a scalar")
+        mse = np.mean((p - t).reshape(len(p), -1) ** 2, axis=1)
+        with np.errstate(divide="ignore"):
+            return np.where(mse == 0.0, np.inf, 10.0 * np.log10(max_value ** 2 / mse))
     mse = float(np.mean((p - t) ** 2))
     return math.inf if mse == 0.0 else 10.0 * math.log10(max_value ** 2 / mse)
 

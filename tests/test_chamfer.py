@@ -270,14 +270,16 @@ def test_chamfer_target_reuses_its_tree():
     rng = np.random.default_rng(9)
     y = rng.normal(size=(300, 3))
     t = ChamferTarget(y)
-    tree = t._tree
+    index = t._index
     for k in range(3):
         x = rng.normal(size=(200, 3)) + 0.1 * k
         v, g = t.loss(x)
+        if k == 0:
+            tree = index._scipy
         r = chamfer_distance(x, y)
         assert_allclose(v, r.loss, rtol=1e-14)
         assert_allclose(g, r.grad_x, rtol=1e-14, atol=1e-18)
-    assert t._tree is tree and len(t) == 300
+    assert t._index is index and index._scipy is tree and tree is not None and len(t) == 300
     assert "300" in repr(t)
 
 
@@ -382,8 +384,8 @@ def test_point_to_surface_has_no_sampling_noise():
 
     m = ico_sphere(2)
     t = PointToSurface(m)
-    a = sample_points_from_meshes(m, 2000, seed=0).points
-    b = sample_points_from_meshes(m, 2000, seed=1).points
+    a = sample_points_from_meshes(m, 2000, seed=0)
+    b = sample_points_from_meshes(m, 2000, seed=1)
     v, g = t.loss(a)
     assert v < 1e-24 and np.abs(g).max() < 1e-11
     assert chamfer_distance(a, b).loss > 1e-4
@@ -393,11 +395,11 @@ def test_point_to_surface_chain_rule_through_sampling():
     """d/dV loss(B V) = B^T grad: finite differences over the vertices of a source mesh."""
     from geofit import ico_sphere
     from geofit.loss import PointToSurface
-    from geofit.ops import sample_points_from_meshes
+    from geofit.ops import sample_points_with_jacobian
 
     target = PointToSurface(ico_sphere(2))
     src = ico_sphere(0).scale_verts(1.4)
-    s = sample_points_from_meshes(src, 60, seed=3)
+    s = sample_points_with_jacobian(src, 60, seed=3)
     _v, g = target.loss(s.B @ src.verts)
     gV = s.B.T @ g
     fd = _fd(lambda V: target.loss(s.B @ V)[0], src.verts.copy())
@@ -448,3 +450,127 @@ def test_point_to_surface_validation():
         t.symmetric_loss(np.zeros((0, 3)), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="target_samples"):
         t.symmetric_loss(np.zeros((2, 3)), np.zeros((2, 4)))
+
+
+def test_unpacks_like_pytorch3d():
+    """``loss, loss_normals = chamfer_distance(x, y)`` as in PyTorch3D; gradients stay attributes."""
+    x = [[0.0, 0, 0]]
+    y = [[3.0, 0, 0]]
+    loss, loss_normals = chamfer_distance(x, y)
+    assert loss == 18.0 and loss_normals is None
+    r = chamfer_distance(x, y)
+    assert len(r) == 2 and r[0] == 18.0 and r[1] is None and tuple(r) == (18.0, None)
+    assert_array_equal(r.grad_x, [[-12.0, 0, 0]])
+    n = [[0.0, 0, 1]]
+    loss, loss_normals = chamfer_distance(x, y, x_normals=n, y_normals=n)
+    assert loss == 18.0 and loss_normals == 0.0
+    target_loss, target_normals = ChamferTarget(y).chamfer(x)
+    assert target_loss == 18.0 and target_normals is None
+
+
+def test_docstring_examples_run():
+    """The Examples sections of geofit.loss.chamfer run as doctests."""
+    import doctest
+
+    import geofit.loss.chamfer as mod
+
+    result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
+
+
+def _brute_nearest_sqdist(p, q):
+    """Reference: squared distance from each p to its nearest q, by a full distance matrix."""
+    d = ((p[:, None, :] - q[None, :, :]) ** 2).sum(-1)
+    return d.min(axis=1)
+
+
+@pytest.mark.parametrize("backend", ["scipy", "open3d", "auto"])
+@pytest.mark.parametrize("offset", [0.0, 3.0])
+def test_backends_find_the_exact_nearest_neighbours(backend, offset):
+    """Each backend's neighbours have the brute-force distances, overlapping or far apart."""
+    from geofit.loss.chamfer import _NearestIndex
+
+    rng = np.random.default_rng(4)
+    y = rng.normal(size=(700, 3))
+    y /= np.linalg.norm(y, axis=1, keepdims=True)  # a sphere: far queries are hard for trees
+    x = 0.3 * rng.normal(size=(500, 3)) + [offset, 0.0, 0.0]
+    for p, q in ((x, y), (y, x)):
+        idx = _NearestIndex(q, backend).nearest(p, 2)
+        d = ((p - q[idx]) ** 2).sum(1)
+        assert_array_equal(d, _brute_nearest_sqdist(p, q))
+    r = chamfer_distance(x, y, backend=backend)
+    want = _brute_nearest_sqdist(x, y).mean() + _brute_nearest_sqdist(y, x).mean()
+    assert_allclose(r.loss, want, rtol=1e-14)
+
+
+def test_backends_agree_on_values_and_gradients():
+    """Open3D and scipy give the same loss and gradients; 'auto' switches to Open3D when large."""
+    from geofit.loss import chamfer as ch
+
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(ch._OPEN3D_FROM, 3))
+    y = rng.normal(size=(ch._OPEN3D_FROM + 10, 3)) + [0.5, 0, 0]
+    a = chamfer_distance(x, y, backend="scipy")
+    b = chamfer_distance(x, y, backend="open3d")
+    assert_allclose(a.loss, b.loss, rtol=1e-13)
+    assert_allclose(a.grad_x, b.grad_x, rtol=0, atol=1e-15)
+    assert_allclose(a.grad_y, b.grad_y, rtol=0, atol=1e-15)
+    big = ch._NearestIndex(y, "auto")
+    big.nearest(x, 2)
+    assert big._open3d is not None and big._scipy is None
+    small = ch._NearestIndex(y[:100], "auto")
+    small.nearest(x[:100], 2)
+    assert small._scipy is not None and small._open3d is None
+    l1 = ch._NearestIndex(y, "auto")
+    l1.nearest(x, 1)  # L1: scipy only
+    assert l1._scipy is not None and l1._open3d is None
+
+
+def test_backend_validation():
+    """An unknown backend, or Open3D with the L1 norm, raises naming the backend."""
+    x = np.zeros((2, 3))
+    with pytest.raises(ValueError, match="backend"):
+        chamfer_distance(x, x, backend="faiss")
+    with pytest.raises(ValueError, match="backend: 'open3d' has no L1"):
+        chamfer_distance(x, x, backend="open3d", norm=1)
+    with pytest.raises(ValueError, match="backend"):
+        ChamferTarget(x, backend="kd")
+    with pytest.raises(ValueError, match="backend"):
+        ChamferTarget(x, backend="open3d").loss(x, norm=1)
+
+
+def test_morton_order_is_a_local_permutation():
+    """The Z-order is a permutation; on an 8^3 grid its first 8 points are the corner 2^3 cube."""
+    from geofit.loss.chamfer import morton_order
+
+    g = np.stack(np.meshgrid(*[np.arange(8.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    shuffled = g[np.random.default_rng(0).permutation(len(g))]
+    o = morton_order(shuffled)
+    assert_array_equal(np.sort(o), np.arange(len(g)))
+    first = shuffled[o[:8]]
+    assert_array_equal(np.sort(first, axis=0).max(axis=0), [1.0, 1.0, 1.0])
+    assert len(np.unique(first, axis=0)) == 8
+    assert_array_equal(morton_order(np.zeros((5, 3))), np.arange(5))  # no extent: stable
+
+
+@pytest.mark.parametrize("backend", ["scipy", "open3d"])
+def test_z_ordered_search_is_exact(monkeypatch, backend):
+    """Above _MORTON_FROM points the tree and the queries are sorted: answers stay exact."""
+    from geofit.loss import chamfer as ch
+
+    monkeypatch.setattr(ch, "_MORTON_FROM", 16)
+    rng = np.random.default_rng(8)
+    y = rng.normal(size=(600, 3))
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    x = 0.4 * rng.normal(size=(450, 3)) + [0.2, 3.0, 0.0]
+    for p, q in ((x, y), (y, x), (x, x + 1e-3)):
+        index = ch._NearestIndex(q, backend)
+        assert index._order is not None
+        idx = index.nearest(p, 2)
+        assert_array_equal(((p - q[idx]) ** 2).sum(1), _brute_nearest_sqdist(p, q))
+    r = chamfer_distance(x, y, backend=backend)
+    monkeypatch.setattr(ch, "_MORTON_FROM", 10 ** 9)
+    plain = chamfer_distance(x, y, backend=backend)
+    assert r.loss == plain.loss
+    assert_array_equal(r.grad_x, plain.grad_x)
+    assert_array_equal(r.grad_y, plain.grad_y)

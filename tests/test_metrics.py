@@ -152,3 +152,24 @@ def test_image_metric_and_huber_docstring_examples():
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0, mod.__name__
         assert result.attempted > 0, mod.__name__
+
+
+def test_psnr_per_image_matches_one_call_per_image():
+    """per_image=True equals psnr of each image on its own; identical images give inf, not NaN."""
+    from numpy.testing import assert_allclose
+
+    from geofit.metrics import psnr
+
+    rng = np.random.default_rng(3)
+    a = rng.random((3, 5, 4, 3))
+    b = a + rng.normal(scale=[[[[0.01]]], [[[0.1]]], [[[0.0]]]], size=a.shape)
+    got = psnr(a, b, per_image=True)
+    assert got.shape == (3,) and got[2] == np.inf
+    for i in range(2):
+        assert_allclose(got[i], psnr(a[i], b[i]), rtol=1e-14)
+    assert_allclose(psnr(a[:1], b[:1], max_value=2.0, per_image=True),
+                    psnr(a[0], b[0]) + 20 * np.log10(2.0), rtol=1e-14)
+    with pytest.raises(ValueError, match="pred"):
+        psnr(1.0, 1.0, per_image=True)
+    with pytest.raises(ValueError, match="shapes"):
+        psnr(a, b[:2], per_image=True)

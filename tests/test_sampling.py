@@ -6,7 +6,15 @@ from numpy.testing import assert_allclose, assert_array_equal
 from scipy.stats import chi2
 
 from geofit import Mesh, Meshes, TexturesUV, TexturesVertex, box, ico_sphere, plane
-from geofit.ops import SampledPoints, barycentric_matrix, sample_points_from_meshes
+from geofit.ops import (
+    PointsNormals,
+    PointsNormalsTextures,
+    PointsTextures,
+    SampledPoints,
+    barycentric_matrix,
+    sample_points_from_meshes,
+    sample_points_with_jacobian,
+)
 
 
 def torus():
@@ -24,9 +32,9 @@ def _points_from(verts, faces, face_idx, bary):
 def test_seed_reproducible_and_seeds_differ():
     """The same int seed (or an equally seeded Generator) gives identical samples; another differs."""
     m = ico_sphere(2)
-    a = sample_points_from_meshes(m, 500, seed=7, return_normals=True)
-    b = sample_points_from_meshes(m, 500, seed=np.random.default_rng(7), return_normals=True)
-    c = sample_points_from_meshes(m, 500, seed=8)
+    a = sample_points_with_jacobian(m, 500, seed=7, return_normals=True)
+    b = sample_points_with_jacobian(m, 500, seed=np.random.default_rng(7), return_normals=True)
+    c = sample_points_with_jacobian(m, 500, seed=8)
     assert isinstance(a, SampledPoints)
     assert_array_equal(a.points, b.points)
     assert_array_equal(a.face_idx, b.face_idx)
@@ -37,7 +45,7 @@ def test_seed_reproducible_and_seeds_differ():
 def test_shapes_dtypes_and_B_reproduces_points():
     """points == B @ verts; B has three barycentric weights per row, summing to one."""
     m = torus()
-    s = sample_points_from_meshes(m, 2000, seed=0)
+    s = sample_points_with_jacobian(m, 2000, seed=0)
     assert s.points.shape == (2000, 3) and s.points.dtype == np.float64
     assert s.face_idx.dtype == np.int64 and s.bary.shape == (2000, 3)
     assert s.normals is None and s.textures is None
@@ -53,7 +61,7 @@ def test_shapes_dtypes_and_B_reproduces_points():
 def test_B_is_the_finite_difference_jacobian():
     """Central differences of the points w.r.t. every vertex coordinate equal B (fixed faces/bary)."""
     m = box((1.0, 2.0, 0.5))
-    s = sample_points_from_meshes(m, 40, seed=3)
+    s = sample_points_with_jacobian(m, 40, seed=3)
     V = m.verts.copy()
     h = 1e-6
     J = np.zeros((40 * 3, V.size))
@@ -76,7 +84,7 @@ def test_points_lie_on_the_surface():
     from geofit.raycast import PointToMeshDistance
 
     m = ico_sphere(3)
-    s = sample_points_from_meshes(m, 3000, seed=1, return_normals=True)
+    s = sample_points_with_jacobian(m, 3000, seed=1, return_normals=True)
     d = PointToMeshDistance(m).query(s.points).distances
     assert d.max() < 1e-12
     v0 = m.verts[m.faces[s.face_idx, 0]]
@@ -87,7 +95,7 @@ def test_points_lie_on_the_surface():
 def test_normals_are_unit_face_normals_pointing_out():
     """Returned normals are the sampled faces' unit normals; on a sphere they point outwards."""
     m = ico_sphere(2)
-    s = sample_points_from_meshes(m, 1000, seed=2, return_normals=True)
+    s = sample_points_with_jacobian(m, 1000, seed=2, return_normals=True)
     assert_allclose(np.linalg.norm(s.normals, axis=1), 1.0, rtol=0, atol=1e-14)
     assert_array_equal(s.normals, m.face_normals[s.face_idx])
     assert np.all(np.einsum("ij,ij->i", s.normals, s.points) > 0.9)
@@ -100,7 +108,7 @@ def test_face_choice_follows_area_ratio_1_to_3():
     m = Mesh(verts, faces)
     assert_allclose(m.face_areas, [0.5, 1.5])
     n = 40000
-    s = sample_points_from_meshes(m, n, seed=11)
+    s = sample_points_with_jacobian(m, n, seed=11)
     counts = np.bincount(s.face_idx, minlength=2)
     expected = n * np.array([0.25, 0.75])
     stat = np.sum((counts - expected) ** 2 / expected)
@@ -114,7 +122,7 @@ def test_uniform_density_inside_a_face():
     """Chi-square over the 16 sub-triangles of a twice-subdivided triangle: equal counts."""
     m = Mesh(np.array([[0.0, 0, 0], [2, 0, 0], [0.5, 1.5, 0]]), [[0, 1, 2]])
     n = 32000
-    s = sample_points_from_meshes(m, n, seed=5)
+    s = sample_points_with_jacobian(m, n, seed=5)
     # sub-triangle index from barycentrics on a 4x4 grid: cell (i, j) of w1, w2 and its parity
     g = 4
     a = s.bary[:, 1] * g
@@ -148,7 +156,7 @@ def test_zero_area_faces_are_never_sampled():
     """Degenerate faces (repeated or collinear vertices) get no samples."""
     verts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]])
     faces = np.array([[0, 1, 3], [0, 1, 2], [1, 1, 2]])
-    s = sample_points_from_meshes(Mesh(verts, faces), 5000, seed=0)
+    s = sample_points_with_jacobian(Mesh(verts, faces), 5000, seed=0)
     assert_array_equal(np.unique(s.face_idx), [1])
 
 
@@ -156,7 +164,7 @@ def test_vertex_textures_interpolate_linearly():
     """TexturesVertex colours equal to the positions give colours equal to the sample points."""
     m0 = ico_sphere(1)
     m = Mesh(m0.verts, m0.faces, TexturesVertex(m0.verts))
-    s = sample_points_from_meshes(m, 300, seed=4, return_textures=True)
+    s = sample_points_with_jacobian(m, 300, seed=4, return_textures=True)
     assert s.textures.shape == (300, 3)
     assert_allclose(s.textures, s.points, rtol=0, atol=1e-15)
 
@@ -169,19 +177,19 @@ def test_uv_textures_linear_image():
     img = np.broadcast_to(np.linspace(0, 1, W)[None, :, None], (H, W, 1))
     tex = TexturesUV(img, p.faces, verts[:, :2])
     m = Mesh(verts, p.faces, tex)
-    s = sample_points_from_meshes(m, 500, seed=9, return_textures=True)
+    s = sample_points_with_jacobian(m, 500, seed=9, return_textures=True)
     assert_allclose(s.textures[:, 0], s.points[:, 0], rtol=0, atol=1e-12)
 
 
 def test_meshes_batch_gives_one_result_per_mesh():
     """A Meshes batch returns a list whose B matrices address each mesh's own vertices."""
     batch = Meshes([ico_sphere(1), box()])
-    out = sample_points_from_meshes(batch, 100, seed=0, return_normals=True)
+    out = sample_points_with_jacobian(batch, 100, seed=0, return_normals=True)
     assert isinstance(out, list) and len(out) == 2
     for s, m in zip(out, batch):
         assert s.B.shape == (100, m.n_verts)
         assert_allclose(s.points, s.B @ m.verts, rtol=0, atol=1e-15)
-    again = sample_points_from_meshes(batch, 100, seed=0)
+    again = sample_points_with_jacobian(batch, 100, seed=0)
     assert_array_equal(again[1].points, out[1].points)
 
 
@@ -194,10 +202,50 @@ def test_barycentric_matrix_public_helper():
     assert_allclose(B @ m.verts, _points_from(m.verts, m.faces, fi, w), rtol=0, atol=1e-15)
 
 
+def test_pytorch3d_return_values():
+    """sample_points_from_meshes returns PyTorch3D's values: points, or (points, normals[, textures])."""
+    m0 = ico_sphere(1)
+    m = Mesh(m0.verts, m0.faces, TexturesVertex(m0.verts))
+    full = sample_points_with_jacobian(m, 200, seed=3, return_normals=True, return_textures=True)
+    points = sample_points_from_meshes(m, 200, seed=3)
+    assert isinstance(points, np.ndarray) and points.shape == (200, 3)
+    assert_array_equal(points, full.points)  # same seed, same samples
+    p, n = sample_points_from_meshes(m, 200, seed=3, return_normals=True)
+    assert_array_equal(p, full.points)
+    assert_array_equal(n, full.normals)
+    out = sample_points_from_meshes(m, 200, seed=3, return_textures=True)
+    assert isinstance(out, PointsTextures) and len(out) == 2
+    assert_array_equal(out.textures, full.textures)
+    p, n, t = sample_points_from_meshes(m, 200, seed=3, return_normals=True, return_textures=True)
+    assert_array_equal(t, full.textures)
+    both = sample_points_from_meshes(m, 200, seed=3, return_normals=True, return_textures=True)
+    assert isinstance(both, PointsNormalsTextures)
+    assert isinstance(sample_points_from_meshes(m, 5, seed=0, return_normals=True), PointsNormals)
+
+
+def test_pytorch3d_batch_is_stacked():
+    """A Meshes batch gives (N, n, 3) points (and normals, textures), as PyTorch3D's tensors."""
+    batch = Meshes([ico_sphere(1), box()])
+    per_mesh = sample_points_with_jacobian(batch, 100, seed=0, return_normals=True)
+    points, normals = sample_points_from_meshes(batch, 100, seed=0, return_normals=True)
+    assert points.shape == (2, 100, 3) and normals.shape == (2, 100, 3)
+    for i, s in enumerate(per_mesh):
+        assert_array_equal(points[i], s.points)
+        assert_array_equal(normals[i], s.normals)
+    assert sample_points_from_meshes(batch, 7, seed=0).shape == (2, 7, 3)
+    # textures of different channel counts cannot be stacked
+    a = Mesh(ico_sphere(0).verts, ico_sphere(0).faces, TexturesVertex(np.ones((12, 3))))
+    b = Mesh(ico_sphere(0).verts, ico_sphere(0).faces, TexturesVertex(np.ones((12, 2))))
+    with pytest.raises(ValueError, match="channel counts"):
+        sample_points_from_meshes(Meshes([a, b]), 5, return_textures=True)
+
+
 @pytest.mark.parametrize("n", [0, -3, 2.5, True, "10", None])
 def test_bad_num_samples(n):
     with pytest.raises(ValueError, match="num_samples"):
         sample_points_from_meshes(ico_sphere(0), n)
+    with pytest.raises(ValueError, match="num_samples"):
+        sample_points_with_jacobian(ico_sphere(0), n)
 
 
 def test_validation_errors():
@@ -227,3 +275,13 @@ def test_validation_errors():
         sample_points_from_meshes(ico_sphere(0), 10, return_textures=True)
     with pytest.raises(ValueError, match=r"mesh\[1\]"):
         sample_points_from_meshes(Meshes([ico_sphere(0), flat]), 10)
+
+
+def test_docstring_examples_run():
+    """The Examples sections of geofit.ops.sampling run as doctests."""
+    import doctest
+
+    import geofit.ops.sampling as mod
+
+    result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0

@@ -334,3 +334,25 @@ def test_clock_cpu_time_excludes_paused_work():
     assert c.cpu_elapsed() < 0.02
     burn(0.05)
     assert c.cpu_elapsed() >= 0.05
+
+
+def test_adam_solver_and_nn_adam_take_the_same_steps():
+    """fit.solvers.adam and geofit.nn.Adam share one update rule: identical iterates."""
+    from geofit.fit.solvers import adam
+    from geofit.nn import Adam
+
+    A = np.diag([1.0, 4.0, 0.25])
+
+    def fun(x):
+        return 0.5 * float(x @ A @ x), A @ x
+
+    x0 = np.array([1.0, -2.0, 3.0])
+    iterates = []
+    adam(fun, x0, lr=0.05, betas=(0.8, 0.95), eps=1e-6, n_iter=6,
+         callback=lambda info: iterates.append(info.x.copy()))
+    p = {"x": x0.copy()}
+    opt = Adam(p, lr=0.05, betas=(0.8, 0.95), eps=1e-6)
+    for want in iterates:
+        opt.step({"x": fun(p["x"])[1]})
+        np.testing.assert_array_equal(p["x"], want)
+    assert len(iterates) == 6

@@ -22,13 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import check_int as _int
+
 __all__ = ["register", "run"]
-
-
-def _int(v: int, name: str, lo: int = 1) -> int:
-    if v < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {v}")
-    return v
 
 
 def run(args: argparse.Namespace) -> int:

@@ -112,22 +112,23 @@ class MeshObjective:
         """Draw new fixed samples: source barycentrics on ``verts`` (area-weighted there) and
         target points (for ``resample="stage"``)."""
         from ..loss import ChamferTarget
-        from ..ops import sample_points_from_meshes
+        from ..ops import sample_points_from_meshes, sample_points_with_jacobian
 
         mesh = self.source if verts is None else self.source.update_verts(verts)
-        self._B = sample_points_from_meshes(mesh, self.n_samples, seed=self.rng).B
-        self._Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng).points
+        self._B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
+        self._Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng)
         self._target_cloud = ChamferTarget(self._Y) if self.distance == "points" else None
 
     # -- evaluation
     def _data(self, mesh: Mesh, V: np.ndarray):
         from ..loss import chamfer_distance
         from ..ops import barycentric_matrix, sample_points_from_meshes
+        from ..ops import sample_points_with_jacobian
         from ..raycast import PointToMeshDistance
 
         if self.resample_mode == "step":
-            B = sample_points_from_meshes(mesh, self.n_samples, seed=self.rng).B
-            Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng).points
+            B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
+            Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng)
             cloud = None
         else:
             B, Y, cloud = self._B, self._Y, self._target_cloud
@@ -196,8 +197,8 @@ class MeshObjective:
 
         rng = self.rng if seed is None else as_rng(seed)
         mesh = self.source.update_verts(verts)
-        P = sample_points_from_meshes(mesh, self.n_samples, seed=rng).points
-        Y = sample_points_from_meshes(self.target, self.n_samples, seed=rng).points
+        P = sample_points_from_meshes(mesh, self.n_samples, seed=rng)
+        Y = sample_points_from_meshes(self.target, self.n_samples, seed=rng)
         p2s = self._p2s if self._p2s is not None else PointToSurface(self.target)
         d_pt = p2s.query(P).distances
         d_tp = PointToMeshDistance(mesh).query(Y).distances

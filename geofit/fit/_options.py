@@ -7,11 +7,12 @@ the previous release (``"scipy-lbfgs"``, ``"nlopt-lbfgs"``, ``method="tutorial"`
 """
 from __future__ import annotations
 
-import numbers
 import warnings
 from collections.abc import Mapping
 
 import numpy as np
+
+from .._validate import check_int  # the one integer check, re-exported for the fits
 
 __all__ = ["METHODS", "RECIPE_NAMES", "Recipes", "check_int", "check_weights", "dataset_argument",
            "method_name", "recipe_name", "warn_deprecated"]
@@ -76,13 +77,6 @@ class Recipes(dict):
                             f"(see geofit.fit): {self._deprecated[key]}")
             return dict(self._deprecated[key])
         raise KeyError(key)
-
-
-def check_int(v, name: str, lo: int = 1) -> int:
-    """``v`` as an int, ``>= lo`` (bools refused)."""
-    if not isinstance(v, (numbers.Integral, np.integer)) or isinstance(v, bool) or v < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
-    return int(v)
 
 
 def dataset_argument(dataset, args: tuple, *, fit: str, images_required: bool = True):

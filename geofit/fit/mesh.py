@@ -10,7 +10,7 @@ The objective is a weighted sum of a data term and three regularisers of the sou
   (uniform), PyTorch3D's definitions.
 * ``D`` with ``distance="points"``: PyTorch3D's ``chamfer_distance`` between ``n`` samples of the
   source, ``P = B V`` (``B`` the sparse sampling matrix of
-  :func:`geofit.ops.sample_points_from_meshes`), and ``n`` samples ``Y`` of the target.
+  :func:`geofit.ops.sample_points_with_jacobian`), and ``n`` samples ``Y`` of the target.
   ``dD/dV = B^T dD/dP``.
 * ``D`` with ``distance="surface"``: exact point-to-surface distances both ways, with no
   sample-to-sample bias: ``mean_i d(P_i, target)^2`` (:class:`geofit.loss.PointToSurface`) plus

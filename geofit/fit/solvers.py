@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._validate import as_array, check_positive
+from ..nn.optim import adam_step, check_betas
 from ._options import check_int
 from .history import STATUSES, Clock
 
@@ -426,20 +427,14 @@ class _SGDRule:
 
 class _AdamRule:
     def __init__(self, lr, betas, eps):
-        self.lr, (self.b1, self.b2), self.eps = lr, betas, eps
+        self.lr, self.betas, self.eps = lr, betas, eps
 
     def init(self, x):
         return {"m": np.zeros_like(x), "v": np.zeros_like(x), "t": 0}
 
     def step(self, state, g):
-        # PyTorch's Adam: bias-corrected moments, eps added to the corrected sqrt(v)
-        state["t"] += 1
-        t = state["t"]
-        state["m"] = self.b1 * state["m"] + (1.0 - self.b1) * g
-        state["v"] = self.b2 * state["v"] + (1.0 - self.b2) * g * g
-        mhat = state["m"] / (1.0 - self.b1 ** t)
-        vhat = state["v"] / (1.0 - self.b2 ** t)
-        return self.lr * mhat / (np.sqrt(vhat) + self.eps)
+        state["t"] += 1  # the rule is geofit.nn.optim's (PyTorch's Adam)
+        return adam_step(g, state["m"], state["v"], state["t"], self.lr, self.betas, self.eps)
 
 
 def sgd(fun: Objective, x0, *, lr: float = 1.0, momentum: float = 0.9, nesterov: bool = False,
@@ -515,13 +510,7 @@ def adam(fun: Objective, x0, *, lr: float = 1e-3, betas: tuple[float, float] = (
     """
     lr = check_positive(lr, "lr")
     eps = check_positive(eps, "eps")
-    try:
-        b1, b2 = (float(b) for b in betas)
-    except (TypeError, ValueError):
-        raise ValueError(f"betas: expected two numbers, got {betas!r}") from None
-    if not (0.0 <= b1 < 1.0 and 0.0 <= b2 < 1.0):
-        raise ValueError(f"betas: expected two numbers in [0, 1), got {betas!r}")
-    return _first_order(fun, x0, _AdamRule(lr, (b1, b2), eps), n_iter=n_iter,
+    return _first_order(fun, x0, _AdamRule(lr, check_betas(betas), eps), n_iter=n_iter,
                         time_budget=time_budget, divergence=divergence, callback=callback,
                         clock=clock, name="Adam")
 

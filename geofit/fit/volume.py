@@ -57,6 +57,7 @@ from .._threads import one_blas_thread
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
 from ..loss.robust import huber
+from ..metrics import psnr as image_psnr
 from ..render.volume.raysampling import NDCMultinomialRaysampler
 from ..structures.volume import Volume, visual_hull
 from ._options import (
@@ -157,7 +158,8 @@ class VolumeMetrics:
     ----------
     psnr : float
         Mean over views of the per-view PSNR (dB) of the RGB render against the target,
-        ``10 log10(1 / MSE)`` over all pixels and channels (black background included).
+        ``10 log10(1 / MSE)`` over all pixels and channels (black background included;
+        :func:`geofit.metrics.psnr`, inf for a view rendered exactly).
     iou : float
         Mean over views of the IoU between ``opacity > 0.5`` and ``silhouette > 0.5``.
     psnr_per_view, iou_per_view : (N,) float64
@@ -202,8 +204,7 @@ def volume_metrics(volume: Volume, images, silhouettes, cameras: CamerasBase, *,
     cameras = _check_cameras(cameras, N)
     out = render_volume(volume, cameras, (H, W), n_pts_per_ray=n_pts_per_ray,
                         min_depth=min_depth, max_depth=max_depth)
-    mse = np.mean((out[..., :3] - imgs) ** 2, axis=(1, 2, 3))
-    psnr = 10.0 * np.log10(1.0 / np.maximum(mse, 1e-20))
+    psnr = image_psnr(out[..., :3], imgs, per_image=True)
     pred = out[..., 3] > 0.5
     gt = sils > 0.5
     union = (pred | gt).sum(axis=(1, 2))

@@ -1,6 +1,7 @@
 """Losses with analytic gradients: each returns ``(value, grad)`` with ``grad`` shaped like its input.
 
-- :func:`chamfer_distance` and :class:`ChamferTarget` (a KD-tree over a fixed target);
+- :func:`chamfer_distance` and :class:`ChamferTarget` (a KD-tree over a fixed target, Open3D's
+  or scipy's: ``backend=``);
 - :class:`PointToSurface`: exact squared distance to a fixed target surface (no sampling noise);
 - :func:`huber`: the volume and NeRF tutorials' pseudo-Huber image loss;
 - mesh regularisers (:mod:`geofit.loss.mesh`): :func:`mesh_edge_loss`,

@@ -1,9 +1,9 @@
 """Chamfer distance between point clouds with analytic gradients (PyTorch3D's ``chamfer_distance``).
 
-For every point of ``x`` the nearest point of ``y`` is found (and vice versa) with an exact
-KD-tree (``scipy.spatial.cKDTree``); the distances are then recomputed in float64 from the
-coordinate differences, so values and gradients are exact for the neighbours found. The choice of
-neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
+For every point of ``x`` the nearest point of ``y`` is found (and vice versa) by an exact
+KD-tree search (Open3D's or scipy's, see below); the distances are then recomputed in float64 from
+the coordinate differences, so values and gradients are exact for the neighbours found. The choice
+of neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
 ``knn_points`` indices are constants), and the gradient is exact wherever the nearest neighbours
 are unique.
 
@@ -12,19 +12,36 @@ Gradients (squared distances, ``point_reduction="mean"``, one direction): with `
 ``y_j`` (``np.bincount``); the other direction is the mirror image. The two directions are
 **summed** (PyTorch3D's convention): one point at (0, 0) against one at (3, 0) gives 18.
 
-Why cKDTree: measured on this 2-core machine (shared with other jobs, so +-30%) for both
-directions of a chamfer distance between two uniform clouds, tree builds included,
-``cKDTree(balanced_tree=False, compact_nodes=False)`` took 1.3 / 5.9 / 20 / 122 ms for
-1k / 5k / 20k / 100k points per cloud; Open3D's ``core.nns.NearestNeighborSearch`` (float64
-tensors, knn_index + knn_search) took 0.7 / 4.9 / 27 / 166 ms, and ``KDTreeFlann`` needs a
-Python loop per query point. Both are exact and returned identical neighbours; cKDTree is the
-faster one from ~10k points, equal at the tutorial's 5k, and it also supports the L1 metric
-(``norm=1``) that PyTorch3D's ``knn_points(norm=1)`` uses. Queries of fewer than 4096 points run
-on one thread: scipy starts its worker threads on every call, which costs more than it saves
-there (measured: 0.15 ms vs 2 ms for 500 points).
+Search backends (``backend=``): ``"open3d"`` is Open3D's ``core.nns.NearestNeighborSearch``
+(``knn_index`` + ``knn_search`` with k = 1 on float64 tensors, on all cores); ``"scipy"`` is
+scipy's ``cKDTree(balanced_tree=False, compact_nodes=False)``, whose queries of fewer than 4096
+points run on one thread (scipy starts its worker threads on every call, which costs more than it
+saves there: 0.15 ms against 2 ms for 500 points). From 20 000 points the tree is built over the
+points sorted along a Z-order curve and the queries are searched in that order too
+(:func:`morton_order`; the answers are mapped back), which saves cache misses: at 1M points a
+side on overlapping clouds it took Open3D's search from 62 s to 24 s and scipy's from 54 s to
+29 s, sorting included (load about 15). Every path is
+exact (tests compare them with brute force, and ``benchmarks/chamfer.py`` checks that every
+method returns scipy's distances); only scipy has the L1 metric of ``norm=1``. ``"auto"``, the
+default, takes scipy below 20 000 points a side and Open3D from there, after
+``benchmarks/chamfer.py`` (``benchmarks/results/chamfer.json``: both directions, tree builds
+included, 2 shared cores at a load of 15 to 18, so read ratios rather than seconds): at 100k
+points a side ``chamfer_distance`` took 3.9 s with scipy and 2.8 s with Open3D on two samplings
+of the dolphin, and 58 s and 24 s at the mesh-fitting tutorial's start (sphere samples around
+the dolphin); at 10k all backends are within the noise (0.1 to 1.5 s).
+
+Far-apart clouds are slow for every exact KD-tree, Open3D's included: a query that is almost
+equally far from many points (a dolphin point near the centre of the sphere) must visit all of
+them to prove which one is nearest, so the time grows faster than ``n log n`` (at 100k points the
+tutorial's start took 7 times as long as two overlapping clouds with the default, 15 times with
+scipy; at 1M points the overlapping clouds took 33 s with the default and the tutorial's start
+did not finish within the benchmark's 150 s with any backend: more than 4.6 times). The default
+does not keep far-apart clouds within twice the time of overlapping ones.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -34,16 +51,24 @@ from .._validate import as_array, as_points, check_choice
 from ..structures._foreign import foreign_kind
 from ..structures.pointcloud import PointCloud, as_pointcloud
 
-__all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance"]
+__all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]
 
 _BATCH_REDUCTIONS = ("mean", "sum", None)
 _POINT_REDUCTIONS = ("mean", "sum", "max")
 _COS_EPS = 1e-6  # PyTorch3D's cosine_similarity eps in chamfer_distance
 _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (measured break-even)
+_BACKENDS = ("auto", "open3d", "scipy")
+_OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is used (measured)
+_MORTON_FROM = 20_000  # clouds and queries from this size are searched in Z-order (measured)
 
 
-class ChamferResult(NamedTuple):
-    """Chamfer distance, its normal term, and their gradients.
+@dataclass(frozen=True, eq=False)
+class ChamferResult:
+    """Chamfer distance, its normal term, and their gradients; unpacks as PyTorch3D's 2-tuple.
+
+    ``loss, loss_normals = chamfer_distance(x, y)`` works as in PyTorch3D (iteration, ``len``
+    and indexing see only ``(loss, loss_normals)``); the analytic gradients, which PyTorch3D
+    leaves to autograd, are attributes.
 
     Attributes
     ----------
@@ -63,21 +88,107 @@ class ChamferResult(NamedTuple):
     loss_normals: float | np.ndarray | None
     grad_x: np.ndarray
     grad_y: np.ndarray
-    grad_x_normals: np.ndarray | None
-    grad_y_normals: np.ndarray | None
+    grad_x_normals: np.ndarray | None = None
+    grad_y_normals: np.ndarray | None = None
+
+    def __iter__(self) -> Iterator:
+        """``(loss, loss_normals)``, PyTorch3D's return value."""
+        return iter((self.loss, self.loss_normals))
+
+    def __len__(self) -> int:
+        return 2
+
+    def __getitem__(self, i):
+        return (self.loss, self.loss_normals)[i]
 
 
-def _make_tree(points: np.ndarray) -> cKDTree:
-    # Unbalanced, non-compact trees build faster and query as fast (measured: see module doc).
-    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+def morton_order(points: np.ndarray) -> np.ndarray:
+    """(n,) int64 permutation that sorts ``points`` (n, 3) along a Z-order (Morton) curve.
+
+    Points close in space get close positions, so a KD-tree built over sorted points, queried by
+    sorted queries, reads memory in order: measured in ``benchmarks/chamfer.py`` (``*_morton``
+    rows). 21 bits per axis over the points' bounding cube.
+    """
+    lo = points.min(axis=0)
+    span = float((points.max(axis=0) - lo).max())
+    scale = (2 ** 21 - 1) / span if span > 0 else 0.0
+    q = ((points - lo) * scale).astype(np.uint64)
+    code = np.zeros(len(points), np.uint64)
+    for axis in range(3):  # the three coordinates: spread 21 bits to every third bit
+        v = q[:, axis]
+        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF),
+                            (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3),
+                            (2, 0x1249249249249249)):
+            v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+        code |= v << np.uint64(axis)
+    return np.argsort(code, kind="stable").astype(np.int64, copy=False)
 
 
-def _nearest(tree: cKDTree, tree_points: np.ndarray, q: np.ndarray, norm: int):
-    """Nearest tree point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
-    # Threads pay off only for large queries (scipy starts them on every call).
-    _, idx = tree.query(q, k=1, p=norm, workers=-1 if len(q) >= _PARALLEL_QUERY else 1)
-    idx = np.asarray(idx, dtype=np.int64)
-    diff = q - tree_points[idx]
+class _NearestIndex:
+    """Exact nearest neighbours in a fixed cloud: Open3D's ``core.nns`` or scipy's cKDTree.
+
+    The search structure is built on the first query (one per backend actually used) and reused;
+    ``backend`` is ``"open3d"``, ``"scipy"`` or ``"auto"`` (see :meth:`_pick`). From
+    ``_MORTON_FROM`` points the tree is built over the points in Z-order and the queries are
+    searched in Z-order too (the answers are mapped back): the same exact neighbours, read with
+    far fewer cache misses.
+    """
+
+    def __init__(self, points: np.ndarray, backend: str):
+        self.points = points
+        self.backend = backend
+        self._scipy = None
+        self._open3d = None
+        self._order = morton_order(points) if len(points) >= _MORTON_FROM else None
+        self._tree_points = (points if self._order is None
+                             else np.ascontiguousarray(points[self._order]))
+
+    def _pick(self, n_queries: int, norm: int) -> str:
+        if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
+            return "scipy"
+        if self.backend != "auto":
+            return self.backend
+        # Measured in benchmarks/chamfer.py: scipy for small clouds, where Open3D's tensor
+        # set-up dominates; Open3D from _OPEN3D_FROM points, where it is faster on far clouds.
+        return "open3d" if min(len(self.points), n_queries) >= _OPEN3D_FROM else "scipy"
+
+    def nearest(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
+        q_order = morton_order(q) if len(q) >= _MORTON_FROM else None
+        qs = q if q_order is None else np.ascontiguousarray(q[q_order])
+        idx = self._search(qs, norm)
+        if self._order is not None:
+            idx = self._order[idx]
+        if q_order is not None:
+            out = np.empty_like(idx)
+            out[q_order] = idx
+            idx = out
+        return idx
+
+    def _search(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """Indices into ``self._tree_points`` of the nearest point of each query."""
+        if self._pick(len(q), norm) == "open3d":
+            import open3d as o3d
+
+            if self._open3d is None:
+                self._open3d = o3d.core.nns.NearestNeighborSearch(
+                    o3d.core.Tensor(self._tree_points))
+                self._open3d.knn_index()
+            idx, _ = self._open3d.knn_search(o3d.core.Tensor(np.ascontiguousarray(q)), 1)
+            return idx.numpy()[:, 0].astype(np.int64, copy=False)
+        if self._scipy is None:
+            # Unbalanced, non-compact trees build faster and query as fast (benchmarks/chamfer)
+            self._scipy = cKDTree(self._tree_points, balanced_tree=False, compact_nodes=False)
+        # Threads pay off only for large queries (scipy starts them on every call).
+        _, idx = self._scipy.query(q, k=1, p=norm,
+                                   workers=-1 if len(q) >= _PARALLEL_QUERY else 1)
+        return np.asarray(idx, dtype=np.int64)
+
+
+def _nearest(index: _NearestIndex, q: np.ndarray, norm: int):
+    """Nearest index point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
+    idx = index.nearest(q, norm)
+    diff = q - index.points[idx]
     if norm == 2:
         d = np.einsum("ij,ij->i", diff, diff)
         dd = 2.0 * diff
@@ -126,14 +237,14 @@ class _Direction(NamedTuple):
     dn_q: np.ndarray | None  # (k, 3) d nterm / d q_normal[idx]
 
 
-def _direction(p, q, tree_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
+def _direction(p, q, index_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
     if len(p) == 0 or len(q) == 0:  # nothing to match: this direction contributes 0
         z = np.zeros(len(p))
         zz = np.zeros((len(p), 3))
         with_n = p_normals is not None
         return _Direction(z, np.zeros(len(p), np.int64), zz, z if with_n else None,
                           zz if with_n else None, zz if with_n else None)
-    idx, d, dd = _nearest(tree_q, q, p, norm)
+    idx, d, dd = _nearest(index_q, p, norm)
     if p_normals is None:
         return _Direction(d, idx, dd, None, None, None)
     cos, ga, gb = _cos_and_grads(p_normals, q_normals[idx])
@@ -182,15 +293,15 @@ def _reduce_direction(dr: _Direction, point_reduction: str, w: float, n_q: int) 
     return _Reduced(float(value), value_n, g_p, g_q, gpn, gqn)
 
 
-def _member(xb, yb, tree_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
-            abs_cosine):
+def _member(xb, yb, index_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
+            abs_cosine, backend):
     """Both directions of one batch member combined: (loss, loss_n, gx, gy, gxn, gyn)."""
-    rx = _reduce_direction(_direction(xb, yb, tree_y, norm, xnb, ynb, abs_cosine),
+    rx = _reduce_direction(_direction(xb, yb, index_y, norm, xnb, ynb, abs_cosine),
                            point_reduction, w, len(yb))
     if single_directional:
         return rx.value, rx.value_n, rx.g_p, rx.g_q, rx.gn_p, rx.gn_q
-    tree_x = _make_tree(xb) if len(xb) else None  # x moves: its tree is rebuilt per call
-    ry = _reduce_direction(_direction(yb, xb, tree_x, norm, ynb, xnb, abs_cosine),
+    index_x = _NearestIndex(xb, backend)  # x moves: its tree is rebuilt per call
+    ry = _reduce_direction(_direction(yb, xb, index_x, norm, ynb, xnb, abs_cosine),
                            point_reduction, w, len(xb))
     if point_reduction == "max":
         # torch.maximum: the gradient goes to the larger term, split evenly on a tie
@@ -235,7 +346,11 @@ def _as_lengths(lengths, name: str, N: int, P: int) -> np.ndarray:
     return arr
 
 
-def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals):
+def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals, backend):
+    check_choice(backend, "backend", _BACKENDS)
+    if backend == "open3d" and norm == 1:
+        raise ValueError("backend: 'open3d' has no L1 search, use norm=2 or backend='scipy' "
+                         "(or 'auto')")
     check_choice(batch_reduction, "batch_reduction", _BATCH_REDUCTIONS)
     check_choice(point_reduction, "point_reduction", _POINT_REDUCTIONS)
     if isinstance(norm, bool) or norm not in (1, 2):
@@ -251,7 +366,8 @@ def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals)
 def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_normals=None,
                      weights=None, batch_reduction: str | None = "mean",
                      point_reduction: str = "mean", norm: int = 2,
-                     single_directional: bool = False, abs_cosine: bool = True) -> ChamferResult:
+                     single_directional: bool = False, abs_cosine: bool = True,
+                     backend: str = "auto") -> ChamferResult:
     """Chamfer distance between two point clouds (or padded batches), PyTorch3D's semantics.
 
     Parameters
@@ -283,20 +399,28 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         Only the x -> y term.
     abs_cosine : bool
         Normal term ``1 - |cos|`` (orientation ignored) or ``1 - cos``.
+    backend : {"auto", "open3d", "scipy"}
+        The exact nearest-neighbour search: Open3D's ``core.nns`` (knn) or scipy's ``cKDTree``;
+        ``"auto"`` takes the faster one as measured by ``benchmarks/chamfer.py`` (see the
+        module notes). ``norm=1`` needs scipy (``"auto"`` picks it). Every backend returns the
+        exact nearest neighbours; values agree to rounding.
 
     Returns
     -------
     ChamferResult
-        ``(loss, loss_normals, grad_x, grad_y, grad_x_normals, grad_y_normals)``; the gradients
-        have the shapes of the inputs (2-D in, 2-D out). With ``batch_reduction=None`` the
-        gradients are those of ``loss.sum()`` (and ``loss_normals.sum()``).
+        Unpacks as PyTorch3D's ``(loss, loss_normals)`` (``loss_normals`` None without
+        normals) and carries ``grad_x``, ``grad_y``, ``grad_x_normals``, ``grad_y_normals``;
+        the gradients have the shapes of the inputs (2-D in, 2-D out). With
+        ``batch_reduction=None`` the gradients are those of ``loss.sum()`` (and
+        ``loss_normals.sum()``).
 
     Raises
     ------
     ValueError
         On bad shapes, mismatched batch sizes, non-finite coordinates, lengths out of range,
-        negative weights, an unknown reduction or norm, normals with ``point_reduction="max"``
-        or only one of the two normals arrays.
+        negative weights, an unknown reduction, norm or backend, ``backend="open3d"`` with
+        ``norm=1``, normals with ``point_reduction="max"`` or only one of the two normals
+        arrays.
 
     Notes
     -----
@@ -312,11 +436,14 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     Examples
     --------
     >>> from geofit.loss import chamfer_distance
-    >>> r = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])
+    >>> loss, loss_normals = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])  # as PyTorch3D
+    >>> loss, loss_normals
+    (18.0, None)
+    >>> r = chamfer_distance([[0.0, 0, 0]], [[3.0, 0, 0]])  # the gradients are attributes
     >>> r.loss, r.grad_x.tolist(), r.grad_y.tolist()
     (18.0, [[-12.0, 0.0, 0.0]], [[12.0, 0.0, 0.0]])
     """
-    _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals)
+    _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals, backend)
     X, x2d = _as_cloud(x, "x")
     Y, y2d = _as_cloud(y, "y")
     N, P1, _ = X.shape
@@ -359,10 +486,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         nx, ny = lx[b], ly[b]
         xb = X[b, :nx]
         yb = Y[b, :ny]
-        out = _member(xb, yb, _make_tree(yb) if ny else None,
+        out = _member(xb, yb, _NearestIndex(yb, backend),
                       XN[b, :nx] if with_n else None, YN[b, :ny] if with_n else None,
                       w=w[b] / div, point_reduction=point_reduction, norm=norm,
-                      single_directional=single_directional, abs_cosine=abs_cosine)
+                      single_directional=single_directional, abs_cosine=abs_cosine,
+                      backend=backend)
         loss[b] = out[0]
         gx[b, :nx] = out[2]
         gy[b, :ny] = out[3]
@@ -387,7 +515,7 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
 
 
 class ChamferTarget:
-    """A fixed target cloud with a prebuilt KD-tree, for repeated chamfer distances to it.
+    """A fixed target cloud whose KD-tree is built once, for repeated chamfer distances to it.
 
     Parameters
     ----------
@@ -396,10 +524,13 @@ class ChamferTarget:
         as its points.
     y_normals : (m, 3) float64, optional
         Target normals, for the normal term of :meth:`chamfer`.
+    backend : {"auto", "open3d", "scipy"}
+        The nearest-neighbour search, as in :func:`chamfer_distance`.
 
     Notes
     -----
-    The x -> y direction queries the tree built here once. The y -> x direction needs a tree
+    The x -> y direction queries one tree over ``y``, built at the first query and reused
+    (scipy's or Open3D's, as ``backend`` picks for the sizes). The y -> x direction needs a tree
     over ``x``, which moves between calls, so it is rebuilt on every call (as PyTorch3D's
     ``knn_points`` does for both directions). Values equal ``chamfer_distance(x, y)`` with the
     same options.
@@ -416,20 +547,23 @@ class ChamferTarget:
     True
     """
 
-    def __init__(self, y, *, y_normals=None):
+    def __init__(self, y, *, y_normals=None, backend: str = "auto"):
         self.points = as_points(_cloud_points(y, "y"), "y", allow_empty=False)
         self.points.setflags(write=False)
         self.normals = None
         if y_normals is not None:
             self.normals = as_array(y_normals, "y_normals", (len(self.points), 3))
             self.normals.setflags(write=False)
-        self._tree = _make_tree(self.points)
+        check_choice(backend, "backend", _BACKENDS)
+        self.backend = backend
+        self._index = _NearestIndex(self.points, self.backend)
 
     def __len__(self) -> int:
         return len(self.points)
 
     def __repr__(self) -> str:
-        return f"ChamferTarget(n_points={len(self.points)}, normals={self.normals is not None})"
+        return (f"ChamferTarget(n_points={len(self.points)}, normals={self.normals is not None}, "
+                f"backend={self.backend!r})")
 
     def chamfer(self, x, *, x_normals=None, point_reduction: str = "mean", norm: int = 2,
                 single_directional: bool = False, abs_cosine: bool = True) -> ChamferResult:
@@ -453,12 +587,13 @@ class ChamferTarget:
         y_normals = self.normals if x_normals is not None else None
         if x_normals is not None and self.normals is None:
             raise ValueError("x_normals: the target was built without y_normals")
-        _check_options("mean", point_reduction, norm, x_normals, y_normals)
+        _check_options("mean", point_reduction, norm, x_normals, y_normals, self.backend)
         xp = as_points(x, "x")
         xn = as_array(x_normals, "x_normals", (len(xp), 3)) if x_normals is not None else None
-        out = _member(xp, self.points, self._tree, xn, y_normals, w=1.0,
+        out = _member(xp, self.points, self._index, xn, y_normals, w=1.0,
                       point_reduction=point_reduction, norm=norm,
-                      single_directional=single_directional, abs_cosine=abs_cosine)
+                      single_directional=single_directional, abs_cosine=abs_cosine,
+                      backend=self.backend)
         loss_n = None if out[1] is None else float(out[1])
         return ChamferResult(float(out[0]), loss_n, out[2], out[3], out[4], out[5])
 

@@ -17,7 +17,7 @@ import threading
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import check_choice
+from .._validate import check_choice, check_finite
 from ..ops.laplacian import _cot_laplacian, _uniform_laplacian_topology, topology_cache
 from ..structures.mesh import Mesh, Meshes, Topology, as_mesh
 
@@ -134,13 +134,7 @@ def mesh_edge_loss(mesh, target_length: float = 0.0):
     >>> round(value, 12)
     0.25
     """
-    try:
-        t = float(target_length)
-    except (TypeError, ValueError):
-        raise ValueError(f"target_length: expected a number, got {target_length!r}") from None
-    if not np.isfinite(t):
-        raise ValueError(f"target_length: expected a finite number, got {target_length!r}")
-    return _batched(_edge_loss_one, mesh, "mesh", t)
+    return _batched(_edge_loss_one, mesh, "mesh", check_finite(target_length, "target_length"))
 
 
 # --------------------------------------------------------------------------- normal consistency

@@ -26,7 +26,7 @@ import numpy as np
 from .._validate import as_points, check_choice
 from ..raycast import ClosestPoints, PointToMeshDistance
 from ..structures.mesh import Mesh
-from .chamfer import _make_tree, _nearest, _scatter
+from .chamfer import _NearestIndex, _nearest, _scatter
 
 __all__ = ["PointToSurface"]
 
@@ -126,7 +126,7 @@ class PointToSurface:
         value, grad = self.loss(P, reduction=reduction)
         if len(T) == 0:
             return value, grad
-        idx, d, dd = _nearest(_make_tree(P), P, T, 2)  # dd = 2 (t - p_nn)
+        idx, d, dd = _nearest(_NearestIndex(P, "auto"), T, 2)  # dd = 2 (t - p_nn)
         scale = 1.0 / len(T) if reduction == "mean" else 1.0
         value += float(d.sum() * scale)
         grad = grad - _scatter(idx, dd * scale, len(P))

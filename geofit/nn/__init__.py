@@ -9,31 +9,8 @@
 """
 from __future__ import annotations
 
-from .layers import (
-    Layer,
-    Linear,
-    ReLU,
-    Sequential,
-    Sigmoid,
-    Softplus,
-    concat,
-    concat_backward,
-    count_parameters,
-)
-from .optim import Adam, LRSchedule, exponential_decay, step_decay
+from . import layers, optim
+from .layers import *  # noqa: F403 - the public names are the submodules' __all__
+from .optim import *  # noqa: F403
 
-__all__ = [
-    "Adam",
-    "LRSchedule",
-    "Layer",
-    "Linear",
-    "ReLU",
-    "Sequential",
-    "Sigmoid",
-    "Softplus",
-    "concat",
-    "concat_backward",
-    "count_parameters",
-    "exponential_decay",
-    "step_decay",
-]
+__all__ = sorted([*layers.__all__, *optim.__all__])

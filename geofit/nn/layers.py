@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import as_rng, check_positive
+from .._validate import as_rng, check_finite, check_positive
 
 __all__ = [
     "Layer",
@@ -169,7 +169,20 @@ class Linear(Layer):
         return (grad_y @ W if need_input_grad else None), grads
 
 
-class Softplus(Layer):
+class _Activation(Layer):
+    """A parameter-free elementwise map whose forward cache is ``dy/dx``; backward multiplies."""
+
+    def __init__(self, *, dtype=np.float32):
+        self.dtype = _check_dtype(dtype)
+        self.params = {}
+
+    def backward(self, cache, grad_y, *, need_input_grad=True):
+        if not need_input_grad:
+            return None, {}
+        return np.multiply(grad_y, cache, dtype=self.dtype), {}
+
+
+class Softplus(_Activation):
     """``y = log(1 + exp(beta x)) / beta``, linear above ``beta x > threshold`` (PyTorch's).
 
     Parameters
@@ -187,20 +200,12 @@ class Softplus(Layer):
 
     def __init__(self, beta: float = 1.0, threshold: float = 20.0, *, dtype=np.float32):
         self.beta = check_positive(beta, "beta")
-        self.threshold = float(threshold)
-        if not np.isfinite(self.threshold):
-            raise ValueError(f"threshold: expected a finite number, got {threshold!r}")
-        self.dtype = _check_dtype(dtype)
-        self.params = {}
+        self.threshold = check_finite(threshold, "threshold")
+        super().__init__(dtype=dtype)
 
     def forward(self, x, *, cache=True):
         x = _check_input(x, "x", None, self.dtype)
         return _softplus(x, self.beta, self.threshold, cache)
-
-    def backward(self, cache, grad_y, *, need_input_grad=True):
-        if not need_input_grad:
-            return None, {}
-        return np.multiply(grad_y, cache, dtype=self.dtype), {}
 
 
 def _softplus(x: np.ndarray, beta: float, threshold: float, cache: bool):
@@ -228,41 +233,22 @@ def _softplus(x: np.ndarray, beta: float, threshold: float, cache: bool):
     return y, d
 
 
-class ReLU(Layer):
+class ReLU(_Activation):
     """``y = max(x, 0)``; the derivative at 0 is taken as 0 (PyTorch's convention)."""
-
-    def __init__(self, *, dtype=np.float32):
-        self.dtype = _check_dtype(dtype)
-        self.params = {}
 
     def forward(self, x, *, cache=True):
         x = _check_input(x, "x", None, self.dtype)
         y = np.maximum(x, 0)
         return y, ((y > 0) if cache else None)
 
-    def backward(self, cache, grad_y, *, need_input_grad=True):
-        if not need_input_grad:
-            return None, {}
-        return np.multiply(grad_y, cache, dtype=self.dtype), {}
 
-
-class Sigmoid(Layer):
+class Sigmoid(_Activation):
     """``y = 1 / (1 + exp(-x))``, computed without overflow; ``dy/dx = y (1 - y)``."""
-
-    def __init__(self, *, dtype=np.float32):
-        self.dtype = _check_dtype(dtype)
-        self.params = {}
 
     def forward(self, x, *, cache=True):
         x = _check_input(x, "x", None, self.dtype)
         y = _sigmoid(x)
-        return y, (y if cache else None)
-
-    def backward(self, cache, grad_y, *, need_input_grad=True):
-        if not need_input_grad:
-            return None, {}
-        y = cache
-        return np.asarray(grad_y, dtype=self.dtype) * (y * (1 - y)), {}
+        return y, ((y * (1 - y)) if cache else None)
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:

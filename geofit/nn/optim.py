@@ -16,10 +16,62 @@ import numpy as np
 
 from .._validate import check_positive
 
-__all__ = ["Adam", "LRSchedule", "exponential_decay", "step_decay"]
+__all__ = ["Adam", "LRSchedule", "adam_step", "check_betas", "exponential_decay", "step_decay"]
 
 #: A schedule: ``schedule(step) -> (learning rate, reset)``; ``reset`` restarts the moments.
 LRSchedule = Callable[[int], "tuple[float, bool]"]
+
+
+def check_betas(betas) -> tuple[float, float]:
+    """Adam's ``(b1, b2)`` as two floats in [0, 1); ValueError naming ``betas`` otherwise."""
+    try:
+        b1, b2 = (float(b) for b in betas)
+    except (TypeError, ValueError):
+        raise ValueError(f"betas: expected two numbers, got {betas!r}") from None
+    if not (0.0 <= b1 < 1.0 and 0.0 <= b2 < 1.0):
+        raise ValueError(f"betas: expected two numbers in [0, 1), got {betas!r}")
+    return b1, b2
+
+
+def adam_step(g: np.ndarray, m: np.ndarray, v: np.ndarray, t: int, lr: float,
+              betas: tuple[float, float], eps: float) -> np.ndarray:
+    """PyTorch's Adam update at step ``t``: moves the moments in place, returns the step.
+
+    The one implementation of the rule: :class:`Adam` subtracts the step from its arrays in
+    place, :func:`geofit.fit.solvers.adam` from its parameter vector.
+
+    Parameters
+    ----------
+    g : ndarray
+        Gradient (the dtype of ``m`` and ``v``).
+    m, v : ndarray
+        First and second moments, shaped like ``g``; updated in place.
+    t : int
+        Step number, >= 1 (the bias corrections use it).
+    lr : float
+        Learning rate.
+    betas : (float, float)
+        Moment decay rates (checked by :func:`check_betas`).
+    eps : float
+        Added to the bias-corrected ``sqrt(v)``.
+
+    Returns
+    -------
+    ndarray
+        ``lr (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps)``; the update is ``p -= step``.
+
+    Notes
+    -----
+    ``m = b1 m + (1 - b1) g``, ``v = b2 v + (1 - b2) g^2`` before the step is formed.
+    """
+    b1, b2 = betas
+    m *= b1
+    m += (1.0 - b1) * g
+    v *= b2
+    v += (1.0 - b2) * (g * g)
+    denom = np.sqrt(v / (1.0 - b2 ** t))
+    denom += eps
+    return (lr / (1.0 - b1 ** t)) * m / denom
 
 
 class Adam:
@@ -39,7 +91,8 @@ class Adam:
     Notes
     -----
     ``m = b1 m + (1 - b1) g``, ``v = b2 v + (1 - b2) g^2``,
-    ``p -= lr (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps)``.
+    ``p -= lr (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps)`` (:func:`adam_step`, which
+    :func:`geofit.fit.solvers.adam` uses too).
 
     Examples
     --------
@@ -59,13 +112,7 @@ class Adam:
                 raise ValueError(f"params[{k!r}]: expected a float ndarray, got {type(v)!r}")
         self.params = params
         self.lr = check_positive(lr, "lr")
-        try:
-            b1, b2 = (float(b) for b in betas)
-        except (TypeError, ValueError):
-            raise ValueError(f"betas: expected two numbers, got {betas!r}") from None
-        if not (0.0 <= b1 < 1.0 and 0.0 <= b2 < 1.0):
-            raise ValueError(f"betas: expected two numbers in [0, 1), got {betas!r}")
-        self.betas = (b1, b2)
+        self.betas = check_betas(betas)
         self.eps = check_positive(eps, "eps")
         self.reset()
 
@@ -87,22 +134,11 @@ class Adam:
             raise ValueError(f"grads: expected the names {sorted(self.params)}, got "
                              f"{sorted(grads)}")
         self.t += 1
-        b1, b2 = self.betas
-        c1 = 1.0 - b1 ** self.t
-        c2 = 1.0 - b2 ** self.t
-        step = self.lr / c1
         for k, p in self.params.items():  # parameter arrays
             g = np.asarray(grads[k], dtype=p.dtype)
             if g.shape != p.shape:
                 raise ValueError(f"grads[{k!r}]: expected shape {p.shape}, got {g.shape}")
-            m, v = self.m[k], self.v[k]
-            m *= b1
-            m += (1.0 - b1) * g
-            v *= b2
-            v += (1.0 - b2) * (g * g)
-            denom = np.sqrt(v / c2)
-            denom += self.eps
-            p -= step * m / denom
+            p -= adam_step(g, self.m[k], self.v[k], self.t, self.lr, self.betas, self.eps)
 
 
 @dataclass(frozen=True)

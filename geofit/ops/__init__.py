@@ -1,12 +1,6 @@
 """Geometric operators: surface sampling (with its sparse Jacobian) and Laplacian matrices."""
-from .laplacian import cot_laplacian, norm_laplacian, uniform_laplacian
-from .sampling import SampledPoints, barycentric_matrix, sample_points_from_meshes
+from . import laplacian, sampling
+from .laplacian import *  # noqa: F403 - the public names are the submodules' __all__
+from .sampling import *  # noqa: F403
 
-__all__ = [
-    "SampledPoints",
-    "barycentric_matrix",
-    "cot_laplacian",
-    "norm_laplacian",
-    "sample_points_from_meshes",
-    "uniform_laplacian",
-]
+__all__ = sorted([*laplacian.__all__, *sampling.__all__])

@@ -7,19 +7,34 @@ drawn the samples are a *linear* function of the vertices, ``points = B @ verts`
 ``(n, V)`` matrix ``B`` holding three weights per row, so a loss on the samples reaches the
 vertices through ``dL/dV = B.T @ dL/dP``. No gradient flows through the random choice of faces
 (PyTorch3D does the same: ``multinomial`` is not differentiable).
+
+Two entry points draw the same samples from the same seed:
+
+* :func:`sample_points_from_meshes` returns what PyTorch3D's does: the points alone, or a tuple
+  ``(points, normals)``, ``(points, textures)`` or ``(points, normals, textures)`` whose parts are
+  also attributes (``out.points``, ``out.normals``, ``out.textures``);
+* :func:`sample_points_with_jacobian` returns :class:`SampledPoints`, which adds the face of each
+  sample, its barycentric weights and the sparse Jacobian ``B``: what fitting code needs.
 """
 from __future__ import annotations
 
-import numbers
 from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_rng
+from .._validate import as_rng, check_int
 from ..structures.mesh import Mesh, Meshes, as_mesh
 
-__all__ = ["SampledPoints", "barycentric_matrix", "sample_points_from_meshes"]
+__all__ = [
+    "PointsNormals",
+    "PointsNormalsTextures",
+    "PointsTextures",
+    "SampledPoints",
+    "barycentric_matrix",
+    "sample_points_from_meshes",
+    "sample_points_with_jacobian",
+]
 
 
 class SampledPoints(NamedTuple):
@@ -49,6 +64,28 @@ class SampledPoints(NamedTuple):
     bary: np.ndarray
     B: sp.csr_matrix
     textures: np.ndarray | None = None
+
+
+class PointsNormals(NamedTuple):
+    """``(points, normals)``: PyTorch3D's return with ``return_normals=True``."""
+
+    points: np.ndarray
+    normals: np.ndarray
+
+
+class PointsTextures(NamedTuple):
+    """``(points, textures)``: PyTorch3D's return with ``return_textures=True``."""
+
+    points: np.ndarray
+    textures: np.ndarray
+
+
+class PointsNormalsTextures(NamedTuple):
+    """``(points, normals, textures)``: PyTorch3D's return with both flags."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    textures: np.ndarray
 
 
 def barycentric_matrix(faces: np.ndarray, face_idx: np.ndarray, bary: np.ndarray,
@@ -83,13 +120,6 @@ def barycentric_matrix(faces: np.ndarray, face_idx: np.ndarray, bary: np.ndarray
     )
 
 
-def _check_num_samples(num_samples) -> int:
-    if (not isinstance(num_samples, (numbers.Integral, np.integer)) or isinstance(num_samples, bool)
-            or num_samples < 1):
-        raise ValueError(f"num_samples: expected an integer >= 1, got {num_samples!r}")
-    return int(num_samples)
-
-
 def _sample_one(mesh: Mesh, n: int, rng: np.random.Generator, return_normals: bool,
                 return_textures: bool, name: str) -> SampledPoints:
     if mesh.n_faces == 0:
@@ -122,10 +152,10 @@ def _sample_one(mesh: Mesh, n: int, rng: np.random.Generator, return_normals: bo
     return SampledPoints(points, normals, face_idx, bary, B, textures)
 
 
-def sample_points_from_meshes(mesh, num_samples: int = 10000, *, seed=None,
+def sample_points_with_jacobian(mesh, num_samples: int = 10000, *, seed=None,
                               return_normals: bool = False,
                               return_textures: bool = False):
-    """Sample points uniformly (by area) on the surface of a mesh or a batch of meshes.
+    """Samples of :func:`sample_points_from_meshes` with their faces, barycentrics and Jacobian.
 
     Parameters
     ----------
@@ -169,18 +199,19 @@ def sample_points_from_meshes(mesh, num_samples: int = 10000, *, seed=None,
     uniform in area: the face is chosen proportionally to its area and the square-root warp makes
     the point uniform within the face. The torch random stream itself is not reproduced.
     Unlike PyTorch3D, an empty mesh inside a batch raises instead of returning zeros.
+    :func:`sample_points_from_meshes` with the same arguments returns the same points.
 
     Examples
     --------
     >>> from geofit import ico_sphere
-    >>> from geofit.ops import sample_points_from_meshes
-    >>> s = sample_points_from_meshes(ico_sphere(2), 1000, seed=0, return_normals=True)
+    >>> from geofit.ops import sample_points_with_jacobian
+    >>> s = sample_points_with_jacobian(ico_sphere(2), 1000, seed=0, return_normals=True)
     >>> s.points.shape, s.B.shape
     ((1000, 3), (1000, 162))
     >>> bool(abs(s.points - s.B @ ico_sphere(2).verts).max() < 1e-15)
     True
     """
-    n = _check_num_samples(num_samples)
+    n = check_int(num_samples, "num_samples")
     rng = as_rng(seed)
     if not isinstance(mesh, (Mesh, Meshes)):
         mesh = as_mesh(mesh, "mesh")  # a trimesh or Open3D mesh
@@ -190,3 +221,73 @@ def sample_points_from_meshes(mesh, num_samples: int = 10000, *, seed=None,
         return [_sample_one(m, n, rng, bool(return_normals), bool(return_textures), f"mesh[{i}]")
                 for i, m in enumerate(mesh)]  # loop over batch members
     raise TypeError(f"mesh: expected a Mesh or Meshes, got {type(mesh)!r}")
+
+
+def sample_points_from_meshes(mesh, num_samples: int = 10000, *, seed=None,
+                              return_normals: bool = False, return_textures: bool = False):
+    """Sample points uniformly (by area) on a mesh or a batch: PyTorch3D's return values.
+
+    Parameters
+    ----------
+    mesh, num_samples, seed, return_normals, return_textures
+        As in :func:`sample_points_with_jacobian`; the same arguments give the same samples.
+
+    Returns
+    -------
+    points : (n, 3) float64, or (N, n, 3) for a ``Meshes`` batch of N
+        Alone when neither flag is set, as in PyTorch3D.
+    PointsNormals, PointsTextures or PointsNormalsTextures
+        With ``return_normals`` and/or ``return_textures``: the tuple PyTorch3D returns,
+        ``(points, normals)``, ``(points, textures)`` or ``(points, normals, textures)``
+        (normals (n, 3), textures (n, C); a leading N for a batch), also readable by name.
+
+    Raises
+    ------
+    ValueError, TypeError
+        As :func:`sample_points_with_jacobian`; also ValueError if the textures of a batch have
+        different channel counts.
+
+    See Also
+    --------
+    sample_points_with_jacobian : the same samples with faces, barycentrics and the sparse
+        Jacobian ``B`` (``points == B @ verts``), for gradients.
+
+    Notes
+    -----
+    A single :class:`Mesh` (which PyTorch3D does not have: its ``Meshes`` is always a batch) gives
+    2-D arrays; a ``Meshes`` batch gives PyTorch3D's stacked (N, n, ...) arrays.
+
+    Examples
+    --------
+    >>> from geofit import ico_sphere
+    >>> from geofit.ops import sample_points_from_meshes
+    >>> points = sample_points_from_meshes(ico_sphere(2), 1000, seed=0)
+    >>> points.shape
+    (1000, 3)
+    >>> points, normals = sample_points_from_meshes(ico_sphere(2), 1000, seed=0,
+    ...                                             return_normals=True)
+    >>> normals.shape
+    (1000, 3)
+    """
+    out = sample_points_with_jacobian(mesh, num_samples, seed=seed,
+                                      return_normals=return_normals,
+                                      return_textures=return_textures)
+    if isinstance(out, list):  # a batch: stack as PyTorch3D's padded tensors
+        points = np.stack([s.points for s in out])
+        normals = np.stack([s.normals for s in out]) if return_normals else None
+        textures = None
+        if return_textures:
+            channels = {s.textures.shape[1] for s in out}
+            if len(channels) > 1:
+                raise ValueError(f"mesh: the textures of the batch have different channel "
+                                 f"counts {sorted(channels)}, cannot stack them")
+            textures = np.stack([s.textures for s in out])
+    else:
+        points, normals, textures = out.points, out.normals, out.textures
+    if return_normals and return_textures:
+        return PointsNormalsTextures(points, normals, textures)
+    if return_normals:
+        return PointsNormals(points, normals)
+    if return_textures:
+        return PointsTextures(points, textures)
+    return points

@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._threads import get_num_threads, parallel_map
-from ..._validate import as_array, check_choice
+from ..._validate import as_array, check_choice, check_int
 from ...cameras import CamerasBase
 from ...structures.pointcloud import Pointclouds, as_pointclouds
 from .compositing import AlphaCompositor, NormWeightedCompositor
@@ -56,12 +56,7 @@ _THREAD_MIN_POINTS = 50_000
 
 
 def _check_int(value, name: str, minimum: int) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral,
-                                                                     np.integer)):
-        raise TypeError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-    return int(value)
+    return check_int(value, name, minimum, error=TypeError)  # not an integer: TypeError here
 
 
 def _image_hw(image_size) -> tuple[int, int]:

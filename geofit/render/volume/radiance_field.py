@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..._validate import as_array, as_rng, check_choice
+from ..._validate import check_int as _int_at_least
 from ...nn.layers import Linear, ReLU, Sequential, Sigmoid, Softplus
 from .harmonic import HarmonicEmbedding
 from .raysampling import RayBundle
@@ -415,16 +416,6 @@ class NeuralRadianceField:
         return dens.reshape(*lead, n, 1), cols.reshape(*lead, n, 3)
 
     batched_forward = forward_batched
-
-
-def _int_at_least(value, name: str, low: int) -> int:
-    try:
-        v = int(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}") from None
-    if v < low or v != value:
-        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
-    return v
 
 
 def _check_bundle(ray_bundle) -> RayBundle:

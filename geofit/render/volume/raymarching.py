@@ -27,13 +27,13 @@ recomputed with the factor left out of the product.
 """
 from __future__ import annotations
 
-import numbers
 import warnings
 from typing import NamedTuple
 
 import numpy as np
 
 from ..._validate import as_array
+from ..._validate import check_int as _as_int_at_least
 
 __all__ = [
     "AbsorptionOnlyRaymarcher",
@@ -152,13 +152,6 @@ def _through_transmittance(S: np.ndarray, c: np.ndarray, alpha: np.ndarray, h: n
     out = np.divide(S, c, out=np.zeros_like(S), where=~zero)
     out[zero] = _suffix_excluding(c, alpha, h, np.nonzero(zero), shift)
     return out
-
-
-def _as_int_at_least(value, name: str, low: int) -> int:
-    if (not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, bool)
-            or value < low):
-        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
-    return int(value)
 
 
 def _density_layout(rays_densities, feature_shape: tuple | None, name="rays_densities"):

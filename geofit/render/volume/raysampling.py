@@ -16,12 +16,13 @@ not reproduced, only the distribution.
 """
 from __future__ import annotations
 
-import numbers
 from typing import NamedTuple
 
 import numpy as np
 
 from ..._validate import as_array, as_rng
+from ..._validate import check_finite as _finite_float
+from ..._validate import check_int as _positive_int
 from ...cameras import CamerasBase, ndc_grid
 
 __all__ = [
@@ -96,31 +97,12 @@ def _check_cameras(cameras) -> CamerasBase:
     return cameras
 
 
-def _positive_int(value, name: str, *, allow_none: bool = False) -> int | None:
-    if value is None and allow_none:
-        return None
-    if (not isinstance(value, (numbers.Integral, np.integer)) or isinstance(value, bool)
-            or value < 1):
-        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
-    return int(value)
-
-
 def _depth_range(min_depth, max_depth) -> tuple[float, float]:
     lo = _finite_float(min_depth, "min_depth")
     hi = _finite_float(max_depth, "max_depth")
     if hi < lo:
         raise ValueError(f"max_depth: expected >= min_depth = {lo:g}, got {hi:g}")
     return lo, hi
-
-
-def _finite_float(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number, got {value!r}") from None
-    if not np.isfinite(v):
-        raise ValueError(f"{name}: expected a finite number, got {value!r}")
-    return v
 
 
 def _jiggle_within_stratas(bin_centers: np.ndarray, rng: np.random.Generator) -> np.ndarray:
