@@ -515,8 +515,8 @@ def test_library_meshes_accepted_at_public_boundaries():
         assert_array_equal(RayCaster(obj).cast(rays_o, rays_d).face_id,
                            RayCaster(mesh).cast(rays_o, rays_d).face_id)
         assert_allclose(mesh_laplacian_smoothing(obj)[0], mesh_laplacian_smoothing(mesh)[0])
-        assert_array_equal(sample_points_from_meshes(obj, 20, seed=1).points,
-                           sample_points_from_meshes(mesh, 20, seed=1).points)
+        assert_array_equal(sample_points_from_meshes(obj, 20, seed=1),
+                           sample_points_from_meshes(mesh, 20, seed=1))
         assert evaluate_mesh(obj, mesh, n_samples=2000).chamfer_l2 < 1e-20
     pts = np.array(mesh.verts)
     oc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
