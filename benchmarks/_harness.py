@@ -251,6 +251,31 @@ def plot_accuracy_vs_time(methods: Sequence[MethodRun], panels: Sequence[Mapping
                                   reference_points=reference_points)
 
 
+def chart_with_images(path: str | Path, draw_chart: Callable[[Any], None],
+                      images: Mapping[str, np.ndarray], *, chart_width: float = 1.0) -> Path:
+    """Write one PNG: a chart on the left, drawn by ``draw_chart(ax)``, and ``images``
+    (title -> ``(H, W, 3)`` in [0, 1]) beside it; returns ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = len(images)
+    fig, axes = plt.subplots(1, 1 + n, figsize=(4.2 * (chart_width + n), 4.2),
+                             gridspec_kw={"width_ratios": [chart_width] + [1] * n})
+    draw_chart(axes[0])
+    for ax, (title, img) in zip(axes[1:], images.items()):
+        ax.imshow(np.clip(img, 0, 1))
+        ax.set_title(title, fontsize=9)
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def load_runs(path: str | Path) -> tuple[dict, list[MethodRun]]:
     """Read a benchmark JSON back: the dict and its methods as :class:`MethodRun` (to re-plot)."""
     d = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -288,3 +313,13 @@ def parser(description: str, *, reference: Path | None = None) -> argparse.Argum
         p.add_argument("--repeat", type=int, default=5)
         p.add_argument("--reference", type=Path, default=reference)
     return p
+
+
+def parse_args(p: argparse.ArgumentParser, **quick) -> argparse.Namespace:
+    """``p.parse_args()``, with the ``quick`` values (option name -> value) replacing the
+    given ones under ``--quick``."""
+    args = p.parse_args()
+    if args.quick:
+        for name, value in quick.items():
+            setattr(args, name, value)
+    return args

@@ -30,14 +30,15 @@ Writes ``benchmarks/results/render_mesh.json`` and ``render_mesh.png``.
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport, MethodRun, markdown_table, parser, print_machine, print_parity, record_load,
-    result_paths,
+    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parse_args, parser,
+    print_machine, print_parity, record_load, result_paths,
 )
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
@@ -83,20 +84,12 @@ def timed_render(mesh, cameras, size, repeat, lights, **settings):
 def parity(reference: Path, mesh) -> tuple[list, dict]:
     """Every stored variant of render_mesh.npz against geofit."""
     d = np.load(reference)
-    green = Materials(specular_color=[[0.0, 1.0, 0.0]], shininess=10.0)
-    variants = {  # name: (view, size, light, materials, batch, fragments key, soft)
-        "soft_128": ("base", 128, (0, 0, -3), None, 1, "base_128", True),
-        "hard_128": ("base", 128, (0, 0, -3), None, 1, "base_128", False),
-        "light2_128": ("base", 128, (0, 0, 1), None, 1, "base_128", True),
-        "view2_128": ("view2", 128, (2, 2, -2), green, 1, "view2_128", True),
-        "batch_128": ("batch", 128, (0, 0, -3), None, 4, "batch_128", True),
-        "soft_256": ("base", 256, (0, 0, -3), None, 1, "base_256", True),
-        "hard_256": ("base", 256, (0, 0, -3), None, 1, "base_256", False),
-        "light2_256": ("base", 256, (0, 0, 1), None, 1, "base_256", True),
-        "view2_256": ("view2", 256, (2, 2, -2), green, 1, "view2_256", True),
-        "batch_256": ("batch", 256, (0, 0, -3), None, 4, "batch_256", True),
-        "nonsquare": ("base", (96, 128), (0, 0, -3), None, 1, "nonsquare", True),
-    }
+    table = json.loads((REPO / "tests" / "data" / "render_mesh_variants.json").read_text())
+    materials = {k: Materials(**v) for k, v in table["materials"].items()}
+    variants = {name: (v["view"], v["image_size"] if isinstance(v["image_size"], int)
+                       else tuple(v["image_size"]), v["light"], materials.get(v["materials"]),
+                       v["batch"], v["fragments"], v["soft"])
+                for name, v in table["variants"].items()}
     rows = []
     worst = {"face_agree_min": 1.0, "rgb_mean_abs_max": 0.0, "rgb_max_abs_max": 0.0,
              "alpha_max_abs_max": 0.0}
@@ -149,10 +142,8 @@ def open3d_iou(mesh, size: int) -> float | None:
 def main() -> None:
     p = parser(__doc__.split("\n\n")[0], reference=DEFAULT_REFERENCE)
     p.add_argument("--views", type=int, default=20)
-    args = p.parse_args()
+    args = parse_args(p, image_size=128, views=4, repeat=2)
     size, n_views, repeat = args.image_size, args.views, args.repeat
-    if args.quick:
-        size, n_views, repeat = 128, 4, 2
     load_before = os.getloadavg()
 
     data = load_textured_mesh()
@@ -246,46 +237,34 @@ def main() -> None:
 
 
 def _plot(report: BenchmarkReport, images: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from geofit.render import make_grid
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4), gridspec_kw={"width_ratios": [1.4, 1, 1]})
     ms = [m for m in report.methods if "raycast_seconds" in m.final]
     labels = [m.name for m in ms]
     cast = np.array([m.final["raycast_seconds"] for m in ms])
     shade = np.array([m.final["shading_seconds"] for m in ms])
-    ax = axes[0]
-    y = np.arange(len(ms))
-    ax.barh(y, cast, color="tab:blue", label="ray cast")
-    ax.barh(y, shade, left=cast, color="tab:orange", label="shading")
-    for i, m in enumerate(ms):
-        ax.text(cast[i] + shade[i], i, f" {m.final['render_seconds']:.3f} s", va="center",
-                fontsize=8)
-    for k, tgt in TARGET_SECONDS.items():
-        if k in labels:
-            i = labels.index(k)
-            ax.plot([tgt, tgt], [i - 0.4, i + 0.4], color="crimson", lw=1.2)
-    ax.set_yticks(y, labels)
-    ax.set_xlabel("wall time (s); red tick: 1/50 of PyTorch3D's time")
-    ax.legend(fontsize=8, frameon=False)
     cfg = report.config
-    ax.set_title(f"{cfg['mesh']}, {cfg['image_size']}^2, load {cfg['loadavg_before'][0]:.1f}",
-                 fontsize=9)
-    axes[1].imshow(np.clip(images["one_view"][0, ..., :3], 0, 1))
-    axes[1].set_title("one view", fontsize=9)
-    axes[2].imshow(make_grid(images["batch20"]))
-    axes[2].set_title(f"{cfg['views']}-view batch", fontsize=9)
-    for a in axes[1:]:
-        a.axis("off")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+
+    def chart(ax):
+        y = np.arange(len(ms))
+        ax.barh(y, cast, color="tab:blue", label="ray cast")
+        ax.barh(y, shade, left=cast, color="tab:orange", label="shading")
+        for i, m in enumerate(ms):
+            ax.text(cast[i] + shade[i], i, f" {m.final['render_seconds']:.3f} s", va="center",
+                    fontsize=8)
+        for k, tgt in TARGET_SECONDS.items():
+            if k in labels:
+                i = labels.index(k)
+                ax.plot([tgt, tgt], [i - 0.4, i + 0.4], color="crimson", lw=1.2)
+        ax.set_yticks(y, labels)
+        ax.set_xlabel("wall time (s); red tick: 1/50 of PyTorch3D's time")
+        ax.legend(fontsize=8, frameon=False)
+        ax.set_title(f"{cfg['mesh']}, {cfg['image_size']}^2, load "
+                     f"{cfg['loadavg_before'][0]:.1f}", fontsize=9)
+
+    return chart_with_images(path, chart, {
+        "one view": images["one_view"][0, ..., :3],
+        f"{cfg['views']}-view batch": make_grid(images["batch20"])}, chart_width=1.4)
 
 
 if __name__ == "__main__":

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport, MethodRun, markdown_table, parser, print_machine, print_parity, record_load,
-    result_paths, time_call,
+    BenchmarkReport, MethodRun, chart_with_images, markdown_table, parse_args, parser,
+    print_machine, print_parity, record_load, result_paths, time_call,
 )
 
 from geofit import PointCloud
@@ -77,10 +77,8 @@ def parity(reference: Path) -> tuple[list, dict]:
 def main() -> None:
     p = parser(__doc__.split("\n\n")[0], reference=DEFAULT_REFERENCE)
     p.add_argument("--points", type=int, default=500_000, help="cloud size (default 500000)")
-    args = p.parse_args()
+    args = parse_args(p, points=50_000, image_size=128, repeat=2)
     n_points, size, repeat = args.points, args.image_size, args.repeat
-    if args.quick:
-        n_points, size, repeat = 50_000, 128, 2
     load_before = os.getloadavg()
 
     data = load_textured_mesh()
@@ -147,34 +145,22 @@ def main() -> None:
 
 
 def _plot(report: BenchmarkReport, images: dict, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, 1 + len(images), figsize=(4.2 * (1 + len(images)), 4.0))
     labels = [m.label for m in report.methods] + ["PyTorch3D (quoted)"]
     secs = [m.final["render_seconds"] for m in report.methods] + [PYTORCH3D_SECONDS]
-    ax = axes[0]
-    ax.barh(labels, secs, color=["tab:blue"] * len(report.methods) + ["tab:gray"])
-    ax.axvline(TARGET_SECONDS, color="crimson", ls="--", lw=0.8,
-               label=f"target {TARGET_SECONDS:g} s")
-    ax.set_xscale("log")
-    ax.set_xlabel("render wall time (s, log)")
-    for i, s in enumerate(secs):
-        ax.text(s, i, f" {s:.2f} s", va="center", fontsize=8)
-    ax.legend(fontsize=8, frameon=False)
     cfg = report.config
-    ax.set_title(f"{cfg['points']} points, {cfg['image_size']}^2, K = 10", fontsize=9)
-    for a, (name, img) in zip(axes[1:], images.items()):
-        a.imshow(np.clip(img, 0, 1))
-        a.set_title(name, fontsize=9)
-        a.axis("off")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+
+    def chart(ax):
+        ax.barh(labels, secs, color=["tab:blue"] * len(report.methods) + ["tab:gray"])
+        ax.axvline(TARGET_SECONDS, color="crimson", ls="--", lw=0.8,
+                   label=f"target {TARGET_SECONDS:g} s")
+        ax.set_xscale("log")
+        ax.set_xlabel("render wall time (s, log)")
+        for i, s in enumerate(secs):
+            ax.text(s, i, f" {s:.2f} s", va="center", fontsize=8)
+        ax.legend(fontsize=8, frameon=False)
+        ax.set_title(f"{cfg['points']} points, {cfg['image_size']}^2, K = 10", fontsize=9)
+
+    return chart_with_images(path, chart, images)
 
 
 if __name__ == "__main__":

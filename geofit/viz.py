@@ -211,6 +211,7 @@ def plot_model_sizes(sizes: Mapping[str, float], path: str | Path, *, title: str
     Returns
     -------
     Path
+        ``path``, the chart written.
 
     Raises
     ------
@@ -340,6 +341,7 @@ def image_panel(rows: Sequence[Sequence[Any]], path: str | Path, *,
     Returns
     -------
     Path
+        ``path``, the labelled grid written.
 
     Raises
     ------

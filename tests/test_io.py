@@ -9,17 +9,8 @@ from PIL import Image
 
 import geofit.data
 from geofit import Mesh, PointCloud, TexturesUV, TexturesVertex, ico_sphere
-from geofit.io import (
-    Material,
-    ObjData,
-    load_mesh,
-    load_obj,
-    load_objs_as_meshes,
-    load_pointcloud,
-    save_mesh,
-    save_obj,
-    save_pointcloud,
-)
+from geofit.io import (Material, ObjData, load_mesh, load_obj, load_objs_as_meshes,
+                       load_pointcloud, save_mesh, save_obj, save_pointcloud)
 
 DATA = Path(__file__).parent / "data"
 

@@ -6,19 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geofit.nn import (
-    Adam,
-    Linear,
-    ReLU,
-    Sequential,
-    Sigmoid,
-    Softplus,
-    concat,
-    concat_backward,
-    count_parameters,
-    exponential_decay,
-    step_decay,
-)
+from geofit.nn import (Adam, Linear, ReLU, Sequential, Sigmoid, Softplus, concat, concat_backward,
+                       count_parameters, exponential_decay, step_decay)
 
 
 def fd_input_grad(layer, x, G, h=1e-6):

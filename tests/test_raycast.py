@@ -4,14 +4,8 @@ import numpy as np
 import pytest
 
 from geofit import Mesh, Meshes, ico_sphere, plane, torus
-from geofit.raycast import (
-    ClosestPoints,
-    PointToMeshDistance,
-    RayCaster,
-    RayHits,
-    closest_point_on_triangles,
-    intersect_rays_triangles,
-)
+from geofit.raycast import (ClosestPoints, PointToMeshDistance, RayCaster, RayHits,
+                            closest_point_on_triangles, intersect_rays_triangles)
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -517,3 +511,17 @@ def test_embree_scene_is_the_shared_wrapper():
     assert isinstance(rast._scene(m), EmbreeScene)
     with pytest.raises(ValueError, match="meshes"):
         EmbreeScene([empty])
+
+
+def test_unit_box_maps_the_used_points_into_the_unit_cube():
+    """Both float32 scenes (Embree's, Open3D's) normalise with one box: the longest side spans
+    [-1, 1] and a single point gets scale 1."""
+    from geofit.raycast.embree import unit_box
+
+    P = np.array([[1.0, 2.0, 3.0], [5.0, 3.0, 4.0], [2.0, 2.5, 3.5]])
+    c, s = unit_box(P)
+    q = (P - c) / s
+    assert np.isclose(s, 2.0) and np.allclose(q.min(0)[0], -1.0) and np.allclose(q.max(0)[0], 1.0)
+    assert np.all(np.abs(q) <= 1.0)
+    c1, s1 = unit_box(P[:1])
+    assert s1 == 1.0 and np.array_equal(c1, P[0])

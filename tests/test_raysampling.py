@@ -9,20 +9,15 @@ import numpy as np
 import pytest
 
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-from geofit.render.volume.raysampling import (
-    MonteCarloRaysampler,
-    NDCMultinomialRaysampler,
-    RayBundle,
-    ray_bundle_to_ray_points,
-)
+from geofit.render.volume.raysampling import (MonteCarloRaysampler, NDCMultinomialRaysampler,
+                                              RayBundle, ray_bundle_to_ray_points)
 
 CAMERAS = Path(__file__).parent / "data" / "cameras.npz"
 
 
 @pytest.fixture(scope="module")
-def ref():
-    d = np.load(CAMERAS)
-    return {k: d[k] for k in d.files}
+def ref(reference_arrays):
+    return reference_arrays(CAMERAS.name)
 
 
 def _camera(ref, which):

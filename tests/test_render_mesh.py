@@ -1,4 +1,5 @@
 """Mesh rendering by ray casting: PyTorch3D parity, analytic cases, shading, batches, bad input."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -8,30 +9,12 @@ from numpy.testing import assert_allclose, assert_array_equal
 from geofit import Mesh, Meshes, TexturesUV, TexturesVertex, ico_sphere, plane, torus
 from geofit.cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
 from geofit.raycast import RayCaster
-from geofit.render import (
-    AmbientLights,
-    BlendParams,
-    DirectionalLights,
-    Fragments,
-    HardFlatShader,
-    HardGouraudShader,
-    HardPhongShader,
-    Materials,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    PointLights,
-    RasterizationSettings,
-    SoftGouraudShader,
-    SoftPhongShader,
-    TexturesFlat,
-    apply_lighting,
-    flat_shading,
-    gouraud_shading,
-    make_grid,
-    phong_shading,
-    sample_textures,
-)
+from geofit.render import (AmbientLights, BlendParams, DirectionalLights, Fragments,
+                           HardFlatShader, HardGouraudShader, HardPhongShader, Materials,
+                           MeshRasterizer, MeshRenderer, MeshRendererWithFragments, PointLights,
+                           RasterizationSettings, SoftGouraudShader, SoftPhongShader, TexturesFlat,
+                           apply_lighting, flat_shading, gouraud_shading, make_grid, phong_shading,
+                           sample_textures)
 from geofit.render.lighting import diffuse, specular
 from geofit.render.mesh.textures import sample_texels
 
@@ -39,21 +22,14 @@ DATA = Path(__file__).parent / "data"
 REF = np.load(DATA / "render_mesh.npz")
 F_COW = 5856
 
-# The stored variants: name -> (R key, T key, image size, light, material, batch, p2f key)
-GREEN = {"specular_color": [[0.0, 1.0, 0.0]], "shininess": 10.0}
-VARIANTS = {
-    "soft_128": ("base", 128, (0, 0, -3), None, 1, "base_128", True),
-    "hard_128": ("base", 128, (0, 0, -3), None, 1, "base_128", False),
-    "light2_128": ("base", 128, (0, 0, 1), None, 1, "base_128", True),
-    "view2_128": ("view2", 128, (2, 2, -2), GREEN, 1, "view2_128", True),
-    "batch_128": ("batch", 128, (0, 0, -3), None, 4, "batch_128", True),
-    "soft_256": ("base", 256, (0, 0, -3), None, 1, "base_256", True),
-    "hard_256": ("base", 256, (0, 0, -3), None, 1, "base_256", False),
-    "light2_256": ("base", 256, (0, 0, 1), None, 1, "base_256", True),
-    "view2_256": ("view2", 256, (2, 2, -2), GREEN, 1, "view2_256", True),
-    "batch_256": ("batch", 256, (0, 0, -3), None, 4, "batch_256", True),
-    "nonsquare": ("base", (96, 128), (0, 0, -3), None, 1, "nonsquare", True),
-}
+# The stored variants (tests/data/render_mesh_variants.json): name -> (view, image size, light,
+# materials, batch, pix_to_face key, soft)
+_TABLE = json.loads((DATA / "render_mesh_variants.json").read_text(encoding="utf-8"))
+VARIANTS = {name: (v["view"], v["image_size"] if isinstance(v["image_size"], int)
+                   else tuple(v["image_size"]), tuple(v["light"]),
+                   v["materials"] and _TABLE["materials"][v["materials"]], v["batch"],
+                   v["fragments"], v["soft"])
+            for name, v in _TABLE["variants"].items()}
 
 
 def _cow(textures=None) -> Mesh:
@@ -693,38 +669,48 @@ def test_rasterization_settings_validation(kw, match):
         RasterizationSettings(**kw)
 
 
-def test_rasterizer_and_shader_validation():
+# Each row: the error, the text naming the bad argument, and the call given the sphere ``mesh``
+# and its fragments ``fr``.
+_BAD_RENDER_CALLS = [
+    (ValueError, "cameras", lambda mesh, fr: MeshRasterizer()(mesh)),
+    (TypeError, "cameras", lambda mesh, fr: MeshRasterizer(cameras="cam")(mesh)),
+    (TypeError, "meshes", lambda mesh, fr: MeshRasterizer(_look())(np.zeros((3, 3)))),
+    (TypeError, "raster_settings",
+     lambda mesh, fr: MeshRasterizer(_look(), raster_settings={"image_size": 8})(mesh)),
+    (ValueError, "at least one mesh", lambda mesh, fr: MeshRasterizer(_look())(Meshes([]))),
+    (TypeError, "fragments", lambda mesh, fr: HardPhongShader()(np.zeros(3), mesh)),
+    (ValueError, "lights",
+     lambda mesh, fr: HardPhongShader(lights=PointLights(location=np.zeros((2, 3))))(fr, mesh)),
+    (TypeError, "lights", lambda mesh, fr: HardPhongShader(lights="sun")(fr, mesh)),
+    (ValueError, "materials",
+     lambda mesh, fr: HardPhongShader(materials=Materials(shininess=[1.0, 2.0]))(fr, mesh)),
+    (ValueError, "sigma",
+     lambda mesh, fr: SoftPhongShader(blend_params=BlendParams(sigma=0.0))(fr, mesh)),
+    (ValueError, "background_color",
+     lambda mesh, fr: HardPhongShader(blend_params=BlendParams(background_color=(1, 1)))(
+         fr, mesh)),
+    (TypeError, "shadows", lambda mesh, fr: HardPhongShader(shadows="yes")),
+    (TypeError, "rasterizer", lambda mesh, fr: MeshRenderer("r", HardPhongShader())),
+    (TypeError, "shader", lambda mesh, fr: MeshRenderer(MeshRasterizer(), None)),
+]
+
+
+@pytest.fixture(scope="module")
+def sphere_fragments():
     mesh = ico_sphere(1)
-    with pytest.raises(ValueError, match="cameras"):
-        MeshRasterizer()(mesh)
-    with pytest.raises(TypeError, match="cameras"):
-        MeshRasterizer(cameras="cam")(mesh)
-    with pytest.raises(TypeError, match="meshes"):
-        MeshRasterizer(_look())(np.zeros((3, 3)))
-    with pytest.raises(TypeError, match="raster_settings"):
-        MeshRasterizer(_look(), raster_settings={"image_size": 8})(mesh)
-    with pytest.raises(ValueError, match="at least one mesh"):
-        MeshRasterizer(_look())(Meshes([]))
-    fr = MeshRasterizer(_look(), RasterizationSettings(image_size=8))(mesh)
-    with pytest.raises(TypeError, match="fragments"):
-        HardPhongShader()(np.zeros(3), mesh)
-    with pytest.raises(ValueError, match="lights"):
-        HardPhongShader(lights=PointLights(location=np.zeros((2, 3))))(fr, mesh)
-    with pytest.raises(TypeError, match="lights"):
-        HardPhongShader(lights="sun")(fr, mesh)
-    with pytest.raises(ValueError, match="materials"):
-        HardPhongShader(materials=Materials(shininess=[1.0, 2.0]))(fr, mesh)
-    with pytest.raises(ValueError, match="sigma"):
-        SoftPhongShader(blend_params=BlendParams(sigma=0.0))(fr, mesh)
-    with pytest.raises(ValueError, match="background_color"):
-        HardPhongShader(blend_params=BlendParams(background_color=(1, 1)))(fr, mesh)
-    with pytest.raises(TypeError, match="shadows"):
-        HardPhongShader(shadows="yes")
-    with pytest.raises(TypeError, match="rasterizer"):
-        MeshRenderer("r", HardPhongShader())
-    with pytest.raises(TypeError, match="shader"):
-        MeshRenderer(MeshRasterizer(), None)
-    assert isinstance(fr, Fragments)
+    return mesh, MeshRasterizer(_look(), RasterizationSettings(image_size=8))(mesh)
+
+
+def test_sphere_fragments(sphere_fragments):
+    assert isinstance(sphere_fragments[1], Fragments)
+
+
+@pytest.mark.parametrize("error, match, call", _BAD_RENDER_CALLS,
+                         ids=[f"{i}-{r[1]}" for i, r in enumerate(_BAD_RENDER_CALLS)])
+def test_rasterizer_and_shader_validation(sphere_fragments, error, match, call):
+    """Each invalid rasterizer, shader or renderer argument raises, naming the argument."""
+    with pytest.raises(error, match=match):
+        call(*sphere_fragments)
 
 
 def test_lights_and_materials_validation():

@@ -208,48 +208,41 @@ def test_bad_x0(x0, match):
         lbfgs_scipy(quadratic, x0)
 
 
-def test_bad_options():
-    x0 = np.ones(2)
-    with pytest.raises(ValueError, match="method"):
-        minimize(quadratic, x0, "bfgs")
-    with pytest.raises(ValueError, match="lr"):
-        sgd(quadratic, x0, lr=0.0)
-    with pytest.raises(ValueError, match="momentum"):
-        sgd(quadratic, x0, momentum=1.0)
-    with pytest.raises(ValueError, match="n_iter"):
-        sgd(quadratic, x0, n_iter=0)
-    with pytest.raises(ValueError, match="n_iter"):
-        adam(quadratic, x0, n_iter=None)
-    with pytest.raises(ValueError, match="betas"):
-        adam(quadratic, x0, betas=(0.9, 1.0))
-    with pytest.raises(ValueError, match="betas"):
-        adam(quadratic, x0, betas=0.9)
-    with pytest.raises(ValueError, match="eps"):
-        adam(quadratic, x0, eps=-1.0)
-    with pytest.raises(ValueError, match="max_iter"):
-        lbfgs_scipy(quadratic, x0, max_iter=0)
-    with pytest.raises(ValueError, match="max_eval"):
-        lbfgs_nlopt(quadratic, x0, max_eval=1.5)
-    with pytest.raises(ValueError, match="time_budget"):
-        lbfgs_nlopt(quadratic, x0, time_budget=-1)
-    with pytest.raises(ValueError, match="memory"):
-        lbfgs_scipy(quadratic, x0, memory=0)
-    with pytest.raises(ValueError, match="memory"):
-        lbfgs_nlopt(quadratic, x0, memory=0)
-    with pytest.raises(ValueError, match="ftol"):
-        lbfgs_scipy(quadratic, x0, ftol=-1)
-    with pytest.raises(ValueError, match="ftol_rel"):
-        lbfgs_nlopt(quadratic, x0, ftol_rel=np.nan)
-    with pytest.raises(ValueError, match="xtol_rel"):
-        lbfgs_nlopt(quadratic, x0, xtol_rel=-1)
-    with pytest.raises(ValueError, match="gtol"):
-        lbfgs_scipy(quadratic, x0, gtol=-1)
-    with pytest.raises(ValueError, match="divergence"):
-        sgd(quadratic, x0, divergence=0)
-    with pytest.raises(TypeError, match="clock"):
-        sgd(quadratic, x0, clock=time.perf_counter)
+# Each row: a solver, one invalid option, the error and the text naming the option.
+_BAD_OPTIONS = [
+    (minimize, {"method": "bfgs"}, ValueError, "method"),
+    (sgd, {"lr": 0.0}, ValueError, "lr"),
+    (sgd, {"momentum": 1.0}, ValueError, "momentum"),
+    (sgd, {"n_iter": 0}, ValueError, "n_iter"),
+    (adam, {"n_iter": None}, ValueError, "n_iter"),
+    (adam, {"betas": (0.9, 1.0)}, ValueError, "betas"),
+    (adam, {"betas": 0.9}, ValueError, "betas"),
+    (adam, {"eps": -1.0}, ValueError, "eps"),
+    (lbfgs_scipy, {"max_iter": 0}, ValueError, "max_iter"),
+    (lbfgs_nlopt, {"max_eval": 1.5}, ValueError, "max_eval"),
+    (lbfgs_nlopt, {"time_budget": -1}, ValueError, "time_budget"),
+    (lbfgs_scipy, {"memory": 0}, ValueError, "memory"),
+    (lbfgs_nlopt, {"memory": 0}, ValueError, "memory"),
+    (lbfgs_scipy, {"ftol": -1}, ValueError, "ftol"),
+    (lbfgs_nlopt, {"ftol_rel": np.nan}, ValueError, "ftol_rel"),
+    (lbfgs_nlopt, {"xtol_rel": -1}, ValueError, "xtol_rel"),
+    (lbfgs_scipy, {"gtol": -1}, ValueError, "gtol"),
+    (sgd, {"divergence": 0}, ValueError, "divergence"),
+    (sgd, {"clock": time.perf_counter}, TypeError, "clock"),
+]
+
+
+@pytest.mark.parametrize("solver, option, error, match", _BAD_OPTIONS,
+                         ids=[f"{i}-{r[0].__name__}-{r[3]}" for i, r in enumerate(_BAD_OPTIONS)])
+def test_bad_options(solver, option, error, match):
+    """Every invalid option raises, naming the option."""
+    with pytest.raises(error, match=match):
+        solver(quadratic, np.ones(2), **option)
+
+
+def test_bad_gradient_shape():
     with pytest.raises(ValueError, match="gradient must have shape"):
-        lbfgs_scipy(lambda x: (0.0, np.zeros(3)), x0)
+        lbfgs_scipy(lambda x: (0.0, np.zeros(3)), np.ones(2))
 
 
 # ------------------------------------------------------------------------------------ history

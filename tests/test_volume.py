@@ -10,11 +10,8 @@ import pytest
 import scipy.sparse as sp
 
 from geofit.cameras import FoVPerspectiveCameras
-from geofit.render.volume.raymarching import (
-    AbsorptionOnlyRaymarcher,
-    EmissionAbsorptionRaymarcher,
-    sample_deltas,
-)
+from geofit.render.volume.raymarching import (AbsorptionOnlyRaymarcher,
+                                              EmissionAbsorptionRaymarcher, sample_deltas)
 from geofit.render.volume import MonteCarloRaysampler, NDCMultinomialRaysampler, RayBundle
 from geofit.render.volume import VolumeRenderer
 from geofit.structures.volume import Volume, trilinear_matrix, voxel_footprint
@@ -23,9 +20,8 @@ DATA = Path(__file__).parent / "data" / "volume.npz"
 
 
 @pytest.fixture(scope="module")
-def ref():
-    d = np.load(DATA)
-    return {k: d[k].astype(np.float64) for k in d.files}
+def ref(reference_arrays):
+    return reference_arrays(DATA.name, np.float64)
 
 
 def _rel(a, b):

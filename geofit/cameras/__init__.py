@@ -21,41 +21,14 @@ Modules: :mod:`~geofit.cameras.base` (``CamerasBase``, rays, the NDC grid),
 :mod:`~geofit.cameras.perspective` (the camera models), :mod:`~geofit.cameras.look_at`,
 :mod:`~geofit.cameras.conversions`.
 """
+from . import base, conversions, look_at, perspective
 from .base import CamerasBase, ProjectedPoints, Rays, ndc_grid
-from .conversions import (
-    cameras_from_colmap,
-    cameras_from_opencv_projection,
-    cameras_from_opengl,
-    colmap_from_cameras,
-    from_open3d,
-    matrix_to_quaternion,
-    opencv_from_cameras_projection,
-    opengl_from_cameras,
-    quaternion_to_matrix,
-    to_open3d,
-)
+from .conversions import (cameras_from_colmap, cameras_from_opencv_projection,
+                          cameras_from_opengl, colmap_from_cameras, from_open3d,
+                          matrix_to_quaternion, opencv_from_cameras_projection,
+                          opengl_from_cameras, quaternion_to_matrix, to_open3d)
 from .look_at import camera_position_from_spherical_angles, look_at_rotation, look_at_view_transform
 from .perspective import FoVOrthographicCameras, FoVPerspectiveCameras, PerspectiveCameras
 
-__all__ = [
-    "CamerasBase",
-    "FoVOrthographicCameras",
-    "FoVPerspectiveCameras",
-    "PerspectiveCameras",
-    "ProjectedPoints",
-    "Rays",
-    "camera_position_from_spherical_angles",
-    "cameras_from_colmap",
-    "cameras_from_opencv_projection",
-    "cameras_from_opengl",
-    "colmap_from_cameras",
-    "from_open3d",
-    "look_at_rotation",
-    "look_at_view_transform",
-    "matrix_to_quaternion",
-    "ndc_grid",
-    "opencv_from_cameras_projection",
-    "opengl_from_cameras",
-    "quaternion_to_matrix",
-    "to_open3d",
-]
+# Each module lists its public names once, in its own __all__.
+__all__ = sorted(base.__all__ + conversions.__all__ + look_at.__all__ + perspective.__all__)

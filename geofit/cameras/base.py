@@ -505,7 +505,7 @@ class CamerasBase:
         Parameters
         ----------
         image_size : (2,) int
-            ``(H, W)`` in pixels.
+            ``(H, W)`` in pixels; the rays pass through the centres of :func:`ndc_grid`.
 
         Returns
         -------

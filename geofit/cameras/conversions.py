@@ -46,6 +46,37 @@ _GL_FLIP = np.array([1.0, -1.0, -1.0])
 _CENTRE_RTOL = 1e-6
 
 
+# Parameter descriptions shared by the docstrings below: a line ``%(name)s`` stands for
+# ``_DOC[name]`` (as scipy's ``doccer``), so each convention is described once.
+_DOC = {
+    "cameras_parameters": """Parameters
+    ----------
+    cameras : FoVPerspectiveCameras or PerspectiveCameras
+        ``N`` cameras.
+    image_size : (2,) or (N, 2) int
+        ``(H, W)`` in pixels.""",
+    "image_size": """image_size : (2,) or (N, 2) int
+        ``(H, W)`` in pixels.""",
+    "clip": """znear, zfar : float or (N,) float64
+        Clipping planes of the returned cameras.""",
+    "returns_cameras": """Returns
+    -------
+    FoVPerspectiveCameras or PerspectiveCameras
+        As :func:`cameras_from_opencv_projection`.""",
+    "as_opencv_errors": """Raises
+    ------
+    TypeError, ValueError
+        As :func:`opencv_from_cameras_projection`.""",
+}
+
+
+def _filldoc(func):
+    """Expand the ``%(name)s`` lines of ``func``'s docstring from ``_DOC``."""
+    for key, text in _DOC.items():
+        func.__doc__ = func.__doc__.replace(f"%({key})s", text)
+    return func
+
+
 def _intrinsics(K: np.ndarray, name: str = "camera_matrix"):
     """``fx, fy, cx, cy`` of ``(N, 3, 3)`` pinhole matrices, validated."""
     if np.any(K[:, 1, 0] != 0) or np.any(K[:, 2] != np.array([0.0, 0.0, 1.0])):
@@ -62,6 +93,7 @@ def _intrinsics(K: np.ndarray, name: str = "camera_matrix"):
     return fx, fy, cx, cy
 
 
+@_filldoc
 def cameras_from_opencv_projection(R, tvec, camera_matrix, image_size, *, znear=1.0,
                                    zfar=100.0):
     """geofit cameras equivalent to OpenCV pinhole cameras (PyTorch3D's function).
@@ -72,8 +104,7 @@ def cameras_from_opencv_projection(R, tvec, camera_matrix, image_size, *, znear=
 
     * if every principal point is the image centre ``(W/2, H/2)`` (to 1e-6 W, 1e-6 H), the
       result is a :class:`FoVPerspectiveCameras` with ``fov = 2 atan(s / fy)`` degrees and
-      ``aspect_ratio = fy / fx`` (the cameras that every geofit renderer, Open3D's included,
-      accepts);
+      ``aspect_ratio = fy / fx`` (the cameras that every geofit renderer accepts);
     * otherwise a :class:`PerspectiveCameras` with ``focal_length = (fx, fy) / s`` and
       ``principal_point = ((W/2 - cx) / s, (H/2 - cy) / s)``, as PyTorch3D's function does.
 
@@ -86,8 +117,7 @@ def cameras_from_opencv_projection(R, tvec, camera_matrix, image_size, *, znear=
     camera_matrix : (N, 3, 3) or (3, 3) float64
         Intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` in pixels, (0, 0) at the corner of
         the top-left pixel (see the module notes).
-    image_size : (2,) or (N, 2) int
-        ``(H, W)`` in pixels.
+    %(image_size)s
     znear, zfar : float or (N,) float64
         Clipping planes of the returned cameras (OpenCV has none).
 
@@ -141,6 +171,7 @@ def _pinhole(cameras, image_size, name: str = "cameras") -> np.ndarray:
     return np.broadcast_to(sizes.astype(np.float64), (n, 2))
 
 
+@_filldoc
 def opencv_from_cameras_projection(cameras, image_size
                                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """OpenCV ``(R, tvec, camera_matrix)`` of perspective cameras (PyTorch3D's function).
@@ -150,12 +181,7 @@ def opencv_from_cameras_projection(cameras, image_size
     matrix), ``R = (R_p3d with columns 0, 1 negated)^T`` and ``tvec = T_p3d`` with entries 0, 1
     negated. The inverse of :func:`cameras_from_opencv_projection`.
 
-    Parameters
-    ----------
-    cameras : FoVPerspectiveCameras or PerspectiveCameras
-        ``N`` cameras.
-    image_size : (2,) or (N, 2) int
-        ``(H, W)`` in pixels.
+    %(cameras_parameters)s
 
     Returns
     -------
@@ -195,6 +221,7 @@ def opencv_from_cameras_projection(cameras, image_size
 # --------------------------------------------------------------------------------------------
 
 
+@_filldoc
 def cameras_from_opengl(camera_to_world, camera_matrix, image_size, *, znear=1.0, zfar=100.0):
     """geofit cameras from OpenGL camera-to-world poses (NeRF/Blender ``transform_matrix``).
 
@@ -211,15 +238,10 @@ def cameras_from_opengl(camera_to_world, camera_matrix, image_size, *, znear=1.0
     camera_matrix : (N, 3, 3) or (3, 3) float64
         Pixel intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` with y *down* from the
         top-left image corner (NeRF's ``fl_x, fl_y, cx, cy``).
-    image_size : (2,) or (N, 2) int
-        ``(H, W)`` in pixels.
-    znear, zfar : float or (N,) float64
-        Clipping planes of the returned cameras.
+    %(image_size)s
+    %(clip)s
 
-    Returns
-    -------
-    FoVPerspectiveCameras or PerspectiveCameras
-        As :func:`cameras_from_opencv_projection`.
+    %(returns_cameras)s
 
     Raises
     ------
@@ -258,17 +280,13 @@ def _camera_to_world(camera_to_world, name: str) -> np.ndarray:
     return M[:, :3, :]
 
 
+@_filldoc
 def opengl_from_cameras(cameras, image_size) -> tuple[np.ndarray, np.ndarray]:
     """OpenGL camera-to-world poses and pixel intrinsics of perspective cameras.
 
     The inverse of :func:`cameras_from_opengl` (via :func:`opencv_from_cameras_projection`).
 
-    Parameters
-    ----------
-    cameras : FoVPerspectiveCameras or PerspectiveCameras
-        ``N`` cameras.
-    image_size : (2,) or (N, 2) int
-        ``(H, W)`` in pixels.
+    %(cameras_parameters)s
 
     Returns
     -------
@@ -278,10 +296,7 @@ def opengl_from_cameras(cameras, image_size) -> tuple[np.ndarray, np.ndarray]:
     camera_matrix : (N, 3, 3) float64
         Pixel intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (y down).
 
-    Raises
-    ------
-    TypeError, ValueError
-        As :func:`opencv_from_cameras_projection`.
+    %(as_opencv_errors)s
     """
     R, tvec, K = opencv_from_cameras_projection(cameras, image_size)
     M = np.zeros((len(cameras), 4, 4))
@@ -359,6 +374,7 @@ def matrix_to_quaternion(matrix) -> np.ndarray:
     return q * np.where(q[:, :1] < 0, -1.0, 1.0)
 
 
+@_filldoc
 def cameras_from_colmap(qvec, tvec, camera_matrix, image_size, *, znear=1.0, zfar=100.0):
     """geofit cameras from COLMAP poses (``images.txt``) and pinhole intrinsics (``cameras.txt``).
 
@@ -375,27 +391,19 @@ def cameras_from_colmap(qvec, tvec, camera_matrix, image_size, *, znear=1.0, zfa
         Pixel intrinsics (``PINHOLE fx fy cx cy``, or ``SIMPLE_PINHOLE f cx cy`` with fx = fy).
     image_size : (2,) or (N, 2) int
         ``(H, W)``: COLMAP's ``HEIGHT``, ``WIDTH``.
-    znear, zfar : float or (N,) float64
-        Clipping planes of the returned cameras.
+    %(clip)s
 
-    Returns
-    -------
-    FoVPerspectiveCameras or PerspectiveCameras
-        As :func:`cameras_from_opencv_projection`.
+    %(returns_cameras)s
     """
     return cameras_from_opencv_projection(quaternion_to_matrix(qvec), tvec, camera_matrix,
                                           image_size, znear=znear, zfar=zfar)
 
 
+@_filldoc
 def colmap_from_cameras(cameras, image_size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """COLMAP ``(qvec, tvec, camera_matrix)`` of perspective cameras.
 
-    Parameters
-    ----------
-    cameras : FoVPerspectiveCameras or PerspectiveCameras
-        ``N`` cameras.
-    image_size : (2,) or (N, 2) int
-        ``(H, W)`` in pixels.
+    %(cameras_parameters)s
 
     Returns
     -------
@@ -406,10 +414,7 @@ def colmap_from_cameras(cameras, image_size) -> tuple[np.ndarray, np.ndarray, np
     camera_matrix : (N, 3, 3) float64
         Pixel intrinsics (``PINHOLE fx fy cx cy``).
 
-    Raises
-    ------
-    TypeError, ValueError
-        As :func:`opencv_from_cameras_projection`.
+    %(as_opencv_errors)s
     """
     R, tvec, K = opencv_from_cameras_projection(cameras, image_size)
     return matrix_to_quaternion(R), tvec, K
@@ -420,15 +425,11 @@ def colmap_from_cameras(cameras, image_size) -> tuple[np.ndarray, np.ndarray, np
 # --------------------------------------------------------------------------------------------
 
 
+@_filldoc
 def to_open3d(cameras, image_size) -> list:
     """Open3D pinhole parameters (OpenCV convention) of perspective cameras.
 
-    Parameters
-    ----------
-    cameras : FoVPerspectiveCameras or PerspectiveCameras
-        ``N`` cameras.
-    image_size : (2,) or (N, 2) int
-        ``(H, W)`` in pixels.
+    %(cameras_parameters)s
 
     Returns
     -------
@@ -459,6 +460,7 @@ def to_open3d(cameras, image_size) -> list:
     return out
 
 
+@_filldoc
 def from_open3d(params_list, image_size=None, *, znear=1.0, zfar=100.0
                 ):
     """geofit cameras from Open3D pinhole parameters.
@@ -469,8 +471,7 @@ def from_open3d(params_list, image_size=None, *, znear=1.0, zfar=100.0
         ``N`` cameras (a single object is accepted too).
     image_size : (2,) or (N, 2) int, optional
         ``(H, W)``; by default each intrinsic's ``(height, width)``.
-    znear, zfar : float or (N,) float64
-        Clipping planes of the returned cameras.
+    %(clip)s
 
     Returns
     -------

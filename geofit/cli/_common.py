@@ -1,4 +1,5 @@
-"""Pieces shared by the sub-commands that fit the cow's renders (``fit-volume``, ``fit-nerf``).
+"""Pieces shared by the sub-commands: parser set-up, the cow's renders or a capture as data,
+option overrides and the files they write (JSON summaries, PNG grids, rotating GIFs).
 
 A private module: the command line skips modules whose name starts with ``_`` when it looks for
 ``register(subparsers)``.
@@ -6,6 +7,7 @@ A private module: the command line skips modules whose name starts with ``_`` wh
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -85,8 +87,70 @@ def add_view_args(p: argparse.ArgumentParser) -> None:
                    help="frames of the rotating render (0: none; default 24)")
 
 
-def add_output_args(p: argparse.ArgumentParser) -> None:
-    """``--quiet``, ``--no-progress`` and ``--out``."""
+def add_quiet_arg(p: argparse.ArgumentParser) -> None:
+    """``--quiet`` (no progress lines) and ``--no-progress`` (no progress bar)."""
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def add_command(subparsers, name: str, help: str, doc: str | None, func,
+                input: tuple[str, str] | None = None) -> argparse.ArgumentParser:
+    """A sub-command's parser with its ``--out`` folder option.
+
+    ``help`` is its line in the command list, the module docstring ``doc`` (without its first
+    paragraph, the title) its description, ``func(args)`` runs it; ``input = (name, help)``
+    adds an optional positional input file (``None`` when not given).
+    """
+    p = subparsers.add_parser(name, help=help,
+                              description=doc.split("\n\n", 1)[-1] if doc else None,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.set_defaults(func=func)
+    if input is not None:
+        p.add_argument(input[0], nargs="?", type=Path, default=None, help=input[1])
     p.add_argument("--out", default="out", help="output folder (default: out)")
+    return p
+
+
+def options(args: argparse.Namespace, names: dict[str, str]) -> dict:
+    """``{keyword: getattr(args, attribute)}`` for each ``attribute: keyword`` of ``names``
+    whose value was given (is not None): the options a sub-command passes on as overrides."""
+    return {kw: getattr(args, a) for a, kw in names.items() if getattr(args, a) is not None}
+
+
+def out_dir(args: argparse.Namespace) -> Path:
+    """The ``--out`` folder, created if missing."""
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def wrote(*paths) -> int:
+    """Print ``wrote PATH, PATH...``; the exit code 0."""
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def finish(command: str, res, details: str, out: Path) -> int:
+    """Print ``geofit COMMAND: status (message); details; wrote OUT``; the exit code: 0 when
+    the fit ``res`` succeeded, else 1."""
+    print(f"geofit {command}: {res.status} ({res.message}); {details}; wrote {out}")
+    return 0 if res.ok else 1
+
+
+def write_json(path: Path, obj) -> None:
+    """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain)."""
+    from ..fit.history import _json_safe
+
+    path.write_text(json.dumps(_json_safe(obj), indent=1) + "\n", encoding="utf-8")
+
+
+def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float = 180.0) -> None:
+    """Write a GIF of ``n_frames`` views around the origin (distance 2.7, elevation ``elev``,
+    azimuths from ``azim0``); ``render(cameras)`` returns their ``(n, H, W, >=3)`` images."""
+    if n_frames <= 0:
+        return
+    from ..cameras import FoVPerspectiveCameras, look_at_view_transform
+
+    azim = np.linspace(0.0, 360.0, n_frames, endpoint=False) + azim0
+    R, T = look_at_view_transform(2.7, elev, azim)
+    save_gif(path, render(FoVPerspectiveCameras(R=R, T=T))[..., :3])

@@ -9,8 +9,9 @@ the target's original frame) and ``fit_mesh_history.json`` into ``--out``.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from ._common import add_command, options, out_dir, write_json, wrote
 
 __all__ = ["register", "run"]
 
@@ -42,14 +43,10 @@ def run(args: argparse.Namespace) -> int:
 
     target, name = _load_target(args.target)
     kwargs = {"recipe": args.recipe}
-    if args.method is not None:
-        kwargs["method"] = args.method
-    if args.large_steps is not None:
-        kwargs["large_steps"] = args.large_steps if args.large_steps > 0 else None
-    if args.n_iter is not None:
-        kwargs["n_iter"] = args.n_iter
-    if args.time_budget is not None:
-        kwargs["time_budget"] = args.time_budget
+    kwargs.update(options(args, {"method": "method", "large_steps": "large_steps",
+                                 "n_iter": "n_iter", "time_budget": "time_budget"}))
+    if kwargs.get("large_steps") == 0:
+        kwargs["large_steps"] = None
     evaluator = MeshEvaluator(target, n_samples=args.metric_samples, taus=(0.01,),
                               normalize=True, seed=0)
     print(f"target: {name} ({target.n_verts} vertices, {target.n_faces} faces); "
@@ -65,30 +62,23 @@ def run(args: argparse.Namespace) -> int:
     print(f"accuracy (normalised frame, {args.metric_samples} samples a side, exact distances): "
           f"chamfer-L2 {m.chamfer_l2:.3e}, chamfer-L1 {m.chamfer_l1:.4f}, "
           f"F@0.01 {m.fscore[0.01]:.4f}, normal consistency {m.normal_consistency:.4f}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir(args)
     obj_path = out / "fit_mesh.obj"
     _save(obj_path, res.mesh)
     hist = res.to_dict()
     hist["final_metrics"] = m.to_dict()
-    (out / "fit_mesh_history.json").write_text(json.dumps(hist, indent=1) + "\n",
-                                               encoding="utf-8")
-    print(f"wrote {obj_path} and {out / 'fit_mesh_history.json'}")
-    return 0
+    write_json(out / "fit_mesh_history.json", hist)
+    return wrote(obj_path, out / "fit_mesh_history.json")
 
 
 def register(subparsers) -> None:
     """Add the ``fit-mesh`` sub-command."""
     from ..fit.mesh import METHODS, RECIPES
 
-    p = subparsers.add_parser(
-        "fit-mesh",
-        help="deform a sphere into a target mesh (PyTorch3D's deform_source_mesh tutorial)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
-    p.add_argument("target", nargs="?", type=Path, default=None,
-                   help="target mesh (.obj); default: the tutorial dolphin if found, else the "
-                        "procedural stand-in")
+    p = add_command(subparsers, "fit-mesh",
+                    "deform a sphere into a target mesh (PyTorch3D's deform_source_mesh tutorial)",
+                    __doc__, run, input=("target", "target mesh (.obj); default: the tutorial "
+                                         "dolphin if found, else the procedural stand-in"))
     p.add_argument("--recipe", choices=tuple(RECIPES), default="coarse-to-fine",
                    help="preset (default coarse-to-fine: L-BFGS, large steps, ico 2 -> 3 -> 4 "
                         "as needed; tutorial: the tutorial's SGD exactly)")
@@ -103,5 +93,3 @@ def register(subparsers) -> None:
                    help="samples a side for the final accuracy (default 100000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
-    p.set_defaults(func=run)

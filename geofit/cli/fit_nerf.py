@@ -17,37 +17,23 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    add_capture_arg,
-    add_output_args,
-    add_view_args,
-    capture_views,
-    cow_views,
-    save_gif,
-    save_png,
-)
+from ._common import (add_capture_arg, add_command, add_quiet_arg, add_view_args, capture_views,
+                      cow_views, finish, options, out_dir, save_png, save_rotation, write_json)
 
 __all__ = ["register", "run"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..cameras import FoVPerspectiveCameras, look_at_view_transform
     from ..fit.nerf import fit_nerf, render_nerf
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir(args)
     train, test = capture_views(args.capture) if args.capture else cow_views(args)
-    overrides = {}
-    for key in ("lr", "n_hidden_neurons", "n_harmonic_functions", "n_iter"):
-        v = getattr(args, key)
-        if v is not None:
-            overrides[key] = v
-    if args.threads is not None:
-        overrides["n_threads"] = args.threads
+    overrides = options(args, {"lr": "lr", "n_hidden_neurons": "n_hidden_neurons",
+                               "n_harmonic_functions": "n_harmonic_functions",
+                               "n_iter": "n_iter", "threads": "n_threads"})
     recipe = args.recipe
     if args.preset is not None:  # the former option
         recipe = "default" if args.preset == "scene" else "tutorial"
@@ -56,33 +42,25 @@ def run(args: argparse.Namespace) -> int:
                    progress=not args.no_progress, **overrides)
     summary = res.summary()
     summary["history"] = res.history.to_dict()
-    (out / "nerf_summary.json").write_text(json.dumps(summary, indent=1) + "\n",
-                                           encoding="utf-8")
+    write_json(out / "nerf_summary.json", summary)
     np.savez_compressed(out / "nerf_field.npz", **res.field.params,
                         config=json.dumps(asdict(res.config)))
     if res.images is not None:
         save_png(out / "nerf_heldout.png", [test.images, res.images[..., :3]])
-    if args.frames > 0:
-        azim = np.linspace(-180.0, 180.0, args.frames, endpoint=False) + 180.0
-        R, T = look_at_view_transform(2.7, 10.0, azim)
-        frames = render_nerf(res.field, FoVPerspectiveCameras(R=R, T=T), args.image_size,
-                             n_pts_per_ray=res.config.n_pts_per_ray,
-                             min_depth=res.config.min_depth, max_depth=res.config.max_depth,
-                             occupancy=res.occupancy)
-        save_gif(out / "nerf_rotation.gif", frames[..., :3])
+    save_rotation(out / "nerf_rotation.gif", lambda cameras: render_nerf(
+        res.field, cameras, args.image_size, n_pts_per_ray=res.config.n_pts_per_ray,
+        min_depth=res.config.min_depth, max_depth=res.config.max_depth,
+        occupancy=res.occupancy), args.frames, elev=10.0, azim0=0.0)
     psnr = "n/a" if res.psnr is None else f"{res.psnr:.2f} dB"
-    print(f"geofit fit-nerf: {res.status} ({res.message}); {res.n_params} parameters, "
-          f"{res.samples_per_ray:.1f} samples/ray, {res.n_iterations} steps in "
-          f"{res.seconds:.1f} s (wall {res.wall_seconds:.1f} s); held-out PSNR {psnr}; "
-          f"wrote {out}")
-    return 0 if res.ok else 1
+    return finish("fit-nerf", res, f"{res.n_params} parameters, {res.samples_per_ray:.1f} "
+                  f"samples/ray, {res.n_iterations} steps in {res.seconds:.1f} s (wall "
+                  f"{res.wall_seconds:.1f} s); held-out PSNR {psnr}", out)
 
 
 def register(subparsers) -> None:
     """Add the ``fit-nerf`` sub-command."""
-    p = subparsers.add_parser(
-        "fit-nerf", help="fit a neural radiance field to renders of the cow (tutorial 6)",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "fit-nerf",
+                    "fit a neural radiance field to renders of the cow (tutorial 6)", __doc__, run)
     p.add_argument("--recipe", choices=("default", "tutorial"), default="default",
                    help="geofit's scene-sized recipe (default) or the tutorial's")
     p.add_argument("--preset", choices=("scene", "tutorial"), default=None,
@@ -102,5 +80,4 @@ def register(subparsers) -> None:
     add_view_args(p)
     p.add_argument("--threads", type=int, default=None, help="threads (default: up to 2)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    add_output_args(p)
-    p.set_defaults(func=run)
+    add_quiet_arg(p)

@@ -16,21 +16,19 @@ targets above the fitted mesh's renders).
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
 from .._validate import check_int as _int
+from ._common import (add_capture_arg, add_command, capture_views, out_dir, save_png,
+                      write_json)
 
 __all__ = ["register", "run"]
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from PIL import Image
-
     from ..datasets import tutorial_views
     from ..fit._views_objective import dataset_lights
     from ..fit.views import ViewsEvaluator, fit_mesh_to_views
@@ -38,7 +36,6 @@ def run(args: argparse.Namespace) -> int:
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
     from ..structures import Mesh, TexturesVertex
-    from ._common import capture_views
 
     _int(args.views, "--views")
     _int(args.image_size, "--image-size", 8)
@@ -72,8 +69,7 @@ def run(args: argparse.Namespace) -> int:
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
     metrics = ev(fit.mesh, colors)
 
-    dest = Path(args.out)
-    dest.mkdir(parents=True, exist_ok=True)
+    dest = out_dir(args)
     save_obj(dest / "fit_views.obj", Mesh(fit.mesh.verts, fit.mesh.faces))
     np.savez_compressed(dest / "fit_views_colors.npz", verts=fit.mesh.verts,
                         faces=fit.mesh.faces, colors=colors)
@@ -84,8 +80,7 @@ def run(args: argparse.Namespace) -> int:
                                                "init_level": args.init_level},
                **fit.summary(), "stages": fit.stages, "heldout": metrics,
                "dataset_seconds": t_data}
-    (dest / "fit_views.json").write_text(json.dumps(summary, indent=1, default=float) + "\n",
-                                         encoding="utf-8")
+    write_json(dest / "fit_views.json", summary)
     h = ds.held_out
     k = min(4, len(h))
     cams = h.cameras[np.arange(k)]
@@ -94,10 +89,7 @@ def run(args: argparse.Namespace) -> int:
     lights = dataset_lights(h)   # a capture's: the tutorial's point light
     pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=lights))(tm)
                       [..., :3], np.float64)
-    grid = np.concatenate([np.concatenate(list(h.images[:k]), 1), np.concatenate(list(pred), 1)],
-                          0)
-    Image.fromarray((np.clip(grid, 0, 1) * 255 + 0.5).astype(np.uint8)).save(
-        dest / "fit_views.png")
+    save_png(dest / "fit_views.png", [h.images[:k], pred])
     print(f"object: {ds.name}; {args.views} views of {args.image_size} px, "
           f"{args.heldout} held-out views (dataset rendered in {t_data:.1f} s)")
     for s in fit.stages:
@@ -118,15 +110,10 @@ def register(subparsers) -> None:
     """Add the ``fit-views`` sub-command."""
     from ..fit.views import RECIPES, SILHOUETTE_METHODS, TEXTURED_METHODS
 
-    p = subparsers.add_parser(
-        "fit-views",
-        help="fit a mesh and its colours to multi-view images (PyTorch3D's fit_textured_mesh)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
-    from ._common import add_capture_arg
-
+    p = add_command(subparsers, "fit-views",
+                    "fit a mesh and its colours to multi-view images (PyTorch3D's "
+                    "fit_textured_mesh)", __doc__, run)
     add_capture_arg(p)
-    p.add_argument("--out", default="out", help="output folder (default: out)")
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
     p.add_argument("--heldout", type=int, default=16, help="held-out views (default 16)")
@@ -150,4 +137,3 @@ def register(subparsers) -> None:
                    help="ico-sphere level of the final mesh (default 4)")
     p.add_argument("--seed", type=int, default=0, help="random views of the SGD recipe")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)

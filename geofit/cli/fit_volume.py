@@ -16,21 +16,12 @@ with L-BFGS by default, ``--recipe tutorial`` for PyTorch3D's dense Adam recipe)
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
-from ._common import (
-    add_capture_arg,
-    add_output_args,
-    add_view_args,
-    capture_views,
-    cow_views,
-    save_gif,
-    save_png,
-)
+from ._common import (add_capture_arg, add_command, add_quiet_arg, add_view_args, capture_views,
+                      cow_views, finish, options, out_dir, save_png, save_rotation, write_json)
 
 __all__ = ["register", "run"]
 
@@ -44,21 +35,13 @@ def _ints(text: str) -> tuple[int, ...]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from ..cameras import FoVPerspectiveCameras, look_at_view_transform
     from ..fit.volume import fit_volume, render_volume, volume_metrics
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir(args)
     t0 = time.perf_counter()
     train, test = capture_views(args.capture) if args.capture else cow_views(args)
     t_data = time.perf_counter() - t0
-    kw = {}
-    if args.levels is not None:
-        kw["levels"] = args.levels
-    if args.iters is not None:
-        kw["iterations"] = args.iters
-    if args.smoothness is not None:
-        kw["smoothness"] = args.smoothness
+    kw = options(args, {"levels": "levels", "iters": "iterations", "smoothness": "smoothness"})
     res = fit_volume(train, recipe=args.recipe, method=args.method,
                      volume_size=args.size, time_budget=args.time, n_iter=args.steps,
                      precision=args.precision, verbose=not args.quiet,
@@ -71,33 +54,27 @@ def run(args: argparse.Namespace) -> int:
                                  "psnr_per_view": m.psnr_per_view, "iou_per_view":
                                  m.iou_per_view, "azim": test.azim, "elev": test.elev}})
     summary["history"] = res.history.to_dict()
-    from ..fit.history import _json_safe
-
-    (out / "volume_summary.json").write_text(json.dumps(_json_safe(summary), indent=1) + "\n",
-                                             encoding="utf-8")
+    write_json(out / "volume_summary.json", summary)
     vol = res.volume
     np.savez_compressed(out / "volume.npz", densities=vol.densities, features=vol.features,
                         voxel_size=vol.voxel_size, volume_translation=vol.volume_translation)
     save_png(out / "volume_heldout.png", [test.images, m.images[..., :3]])
-    if args.frames > 0:
-        azim = np.linspace(0.0, 360.0, args.frames, endpoint=False) + 180.0
-        R, T = look_at_view_transform(2.7, 15.0, azim)
-        frames = render_volume(vol, FoVPerspectiveCameras(R=R, T=T), args.image_size)
-        save_gif(out / "volume_rotation.gif", frames[..., :3])
-    print(f"geofit fit-volume: {res.status} ({res.message}); {res.n_active_voxels} active "
-          f"voxels of {vol.n_voxels}, {res.samples_per_ray:.1f} samples/ray of "
-          f"{res.n_pts_per_ray}, {res.n_iterations} iterations in {res.seconds:.1f} s; held-out "
-          f"PSNR {m.psnr:.2f} dB, IoU {m.iou:.4f}; wrote {out}")
-    return 0 if res.ok else 1
+    save_rotation(out / "volume_rotation.gif",
+                  lambda cameras: render_volume(vol, cameras, args.image_size), args.frames,
+                  elev=15.0)
+    return finish("fit-volume", res, f"{res.n_active_voxels} active voxels of {vol.n_voxels}, "
+                  f"{res.samples_per_ray:.1f} samples/ray of {res.n_pts_per_ray}, "
+                  f"{res.n_iterations} iterations in {res.seconds:.1f} s; held-out PSNR "
+                  f"{m.psnr:.2f} dB, IoU {m.iou:.4f}", out)
 
 
 def register(subparsers) -> None:
     """Add the ``fit-volume`` sub-command."""
     from ..fit.volume import FIT_VOLUME_METHODS, RECIPES
 
-    p = subparsers.add_parser(
-        "fit-volume", help="fit a voxel volume to renders of the cow by raymarching (tutorial 5)",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "fit-volume",
+                    "fit a voxel volume to renders of the cow by raymarching (tutorial 5)",
+                    __doc__, run)
     p.add_argument("--recipe", choices=tuple(RECIPES), default="default",
                    help="geofit's reduced model (default) or the tutorial's dense Adam recipe")
     p.add_argument("--method", choices=FIT_VOLUME_METHODS, default=None,
@@ -116,5 +93,4 @@ def register(subparsers) -> None:
                    help="arithmetic of the ray marching (default float32)")
     add_capture_arg(p)
     add_view_args(p)
-    add_output_args(p)
-    p.set_defaults(func=run)
+    add_quiet_arg(p)

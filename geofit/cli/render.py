@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
+
+from ._common import add_command, out_dir, wrote
 
 __all__ = ["register", "run"]
 
@@ -84,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
     images, fragments = renderer(batch)
     t_render = time.perf_counter() - t1
 
-    dest = Path(args.out)
-    dest.mkdir(parents=True, exist_ok=True)
+    dest = out_dir(args)
     paths = [dest / "render.png", dest / "render_depth.png", dest / "render_normals.png"]
     Image.fromarray(_to_uint8(make_grid(images))).save(paths[0])
     depth = _depth_to_unit(fragments.depth_image(np.inf))[..., None]
@@ -111,21 +111,16 @@ def run(args: argparse.Namespace) -> int:
         if mask is not None:
             iou = (mask & o3d.mask).sum() / max((mask | o3d.mask).sum(), 1)
             print(f"Open3D: silhouette IoU {iou:.4f} (left geofit, right Open3D)")
-    print("wrote " + ", ".join(str(p) for p in paths))
-    return 0
+    return wrote(*paths)
 
 
 def register(subparsers) -> None:
     """Add the ``render`` sub-command."""
-    p = subparsers.add_parser(
-        "render",
-        help="render a textured mesh by ray casting (PyTorch3D's render_textured_meshes)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
-    p.add_argument("mesh", nargs="?", type=Path, default=None,
-                   help=".obj (with MTL and texture), .ply, .stl or .off; default: the textured "
-                        "default mesh (the cow if found)")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    p = add_command(subparsers, "render",
+                    "render a textured mesh by ray casting (PyTorch3D's render_textured_meshes)",
+                    __doc__, run, input=("mesh", ".obj (with MTL and texture), .ply, .stl or "
+                                         ".off; default: the textured default mesh (the cow if "
+                                         "found)"))
     p.add_argument("--image-size", type=int, default=512, help="pixels per side (default 512)")
     p.add_argument("--views", type=int, default=1,
                    help="number of views; >1 renders the tutorial's batch (default 1)")
@@ -144,4 +139,3 @@ def register(subparsers) -> None:
                    help="centre the mesh and scale its largest coordinate to 1 first")
     p.add_argument("--open3d", action="store_true",
                    help="also render with Open3D and write the two side by side")
-    p.set_defaults(func=run)

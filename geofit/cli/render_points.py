@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
+
+from ._common import add_command, out_dir, wrote
 
 __all__ = ["BRIDGE", "default_cloud", "register", "run"]
 
@@ -109,8 +110,7 @@ def run(args: argparse.Namespace) -> int:
     out = renderer.render(cloud)
     t_render = time.perf_counter() - t1
 
-    dest = Path(args.out)
-    dest.mkdir(parents=True, exist_ok=True)
+    dest = out_dir(args)
     img_path = dest / "render_points.png"
     depth_path = dest / "render_points_depth.png"
     Image.fromarray(_to_uint8(out.images[0, ..., :3])).save(img_path)
@@ -122,22 +122,17 @@ def run(args: argparse.Namespace) -> int:
           f"({args.radius_units}), {args.points_per_pixel} points per pixel, "
           f"{args.compositor} compositor")
     print(f"rendered in {t_render:.3f} s; {100 * covered:.1f}% of the pixels covered")
-    print(f"wrote {img_path} and {depth_path}")
-    return 0
+    return wrote(img_path, depth_path)
 
 
 def register(subparsers) -> None:
     """Add the ``render-points`` sub-command."""
-    p = subparsers.add_parser(
-        "render-points",
-        help="render a coloured point cloud (PyTorch3D's render_colored_points tutorial)",
-        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-    )
-    p.add_argument("cloud", nargs="?", type=Path, default=None,
-                   help=".npz (verts, rgb) or .ply point cloud; default: the tutorial's "
-                        f"{BRIDGE} if in the data folder, else samples of the textured "
-                        "default mesh (the cow if found)")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
+    p = add_command(subparsers, "render-points",
+                    "render a coloured point cloud (PyTorch3D's render_colored_points tutorial)",
+                    __doc__, run, input=("cloud", ".npz (verts, rgb) or .ply point cloud; "
+                                         f"default: the tutorial's {BRIDGE} if in the data "
+                                         "folder, else samples of the textured default mesh "
+                                         "(the cow if found)"))
     p.add_argument("--image-size", type=int, default=512)
     p.add_argument("--radius", type=float, default=0.003,
                    help="point radius (NDC units unless --radius-units world; default 0.003)")
@@ -157,4 +152,3 @@ def register(subparsers) -> None:
     p.add_argument("--n-points", type=int, default=300_000,
                    help="samples in the default cloud (default 300000)")
     p.add_argument("--seed", type=int, default=0, help="sampling seed of the default cloud")
-    p.set_defaults(func=run)

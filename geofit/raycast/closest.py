@@ -21,6 +21,7 @@ import numpy as np
 from .._threads import open3d_threads
 from .._validate import as_array, as_points
 from ..structures import Mesh, as_mesh
+from .embree import unit_box
 
 __all__ = ["ClosestPoints", "PointToMeshDistance", "closest_point_on_triangles"]
 
@@ -245,11 +246,7 @@ class PointToMeshDistance:
 
         open3d_threads()  # geofit's thread count, if overridden, bounds Open3D's TBB threads
 
-        used = verts[np.unique(self._faces)]
-        lo, hi = used.min(axis=0), used.max(axis=0)
-        self._center = 0.5 * (lo + hi)
-        half = 0.5 * float(np.max(hi - lo))
-        self._scale = half if half > 0 else 1.0
+        self._center, self._scale = unit_box(verts[np.unique(self._faces)])
         self._verts = verts
         v32 = ((verts - self._center) / self._scale).astype(np.float32)
         scene = o3d.t.geometry.RaycastingScene()

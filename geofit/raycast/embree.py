@@ -29,6 +29,18 @@ _R = 1.75
 _DEFAULT_PARALLEL_MIN = 50_000
 
 
+def unit_box(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre ``(3,)`` and half the largest side of the bounding box of ``points (k, 3)``.
+
+    The float32 scenes (Embree's, Open3D's) store ``(v - centre) / scale``, so every used
+    coordinate lies in [-1, 1] and float32 keeps the same relative accuracy wherever the mesh
+    sits; ray offsets and distances are scaled back by ``scale``. A single point gets scale 1.
+    """
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    half = 0.5 * float(np.max(hi - lo))
+    return 0.5 * (lo + hi), (half if half > 0 else 1.0)
+
+
 class RayHits(NamedTuple):
     """First intersection of each of ``r`` rays (see :meth:`RayCaster.cast`).
 
@@ -184,9 +196,7 @@ class EmbreeScene:
             raise ValueError("meshes: expected at least one face, got 0 faces")
         used = np.concatenate(used)
         self.lo, self.hi = used.min(axis=0), used.max(axis=0)
-        self.center = 0.5 * (self.lo + self.hi)
-        half = 0.5 * float(np.max(self.hi - self.lo))
-        self.scale = half if half > 0 else 1.0
+        self.center, self.scale = unit_box(used)
         scene = rtcore_scene.EmbreeScene(robust=bool(robust))
         geom_to_mesh = []
         for i, (v, f) in enumerate(meshes):  # loop over meshes

@@ -167,6 +167,9 @@ def specular(points: np.ndarray, normals: np.ndarray, direction: np.ndarray,
                      np.asarray(color, dt).T).T
 
 
+_COLORS = ("ambient_color", "diffuse_color", "specular_color")
+
+
 class _Lights:
     """Shared batch machinery of the light classes."""
 
@@ -262,12 +265,10 @@ class _Lights:
 
         Parameters
         ----------
-        normals : (k, 3) float
-            Surface normals.
-        points : (k, 3) float
-            Surface points, world coordinates.
+        normals, points : (k, 3) float
+            Surface normals and points (world coordinates).
         batch_idx : (k,) int64, optional
-            View of each point; needed when the batch holds more than one light.
+            View of each point, as in :meth:`light_vector`.
 
         Returns
         -------
@@ -301,7 +302,22 @@ class _Lights:
                                 np.asarray(shininess, dt), batch_idx).T
 
 
-class PointLights(_Lights):
+class _PhongLights(_Lights):
+    """Lights with ambient, diffuse and specular colours and one geometric parameter, the last
+    name in ``_PARAMS`` (``location`` or ``direction``, default (0, 1, 0)); PyTorch3D's
+    defaults for the colours."""
+
+    def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
+                 specular_color=((0.2, 0.2, 0.2),), **geometry):
+        name = self._PARAMS[-1]
+        unknown = sorted(set(geometry) - {name})
+        if unknown:
+            raise TypeError(f"{type(self).__name__}: unexpected argument {unknown[0]!r}")
+        self._set(ambient_color=ambient_color, diffuse_color=diffuse_color,
+                  specular_color=specular_color, **{name: geometry.get(name, ((0.0, 1.0, 0.0),))})
+
+
+class PointLights(_PhongLights):
     """Point lights (PyTorch3D's ``PointLights``), one per view of the batch.
 
     Parameters
@@ -324,19 +340,14 @@ class PointLights(_Lights):
     array([[0.3, 0.3, 0.3]])
     """
 
-    _PARAMS = ("ambient_color", "diffuse_color", "specular_color", "location")
-
-    def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
-                 specular_color=((0.2, 0.2, 0.2),), location=((0.0, 1.0, 0.0),)):
-        self._set(ambient_color=ambient_color, diffuse_color=diffuse_color,
-                  specular_color=specular_color, location=location)
+    _PARAMS = _COLORS + ("location",)
 
     def _light_vector(self, p, batch_idx):
         d = per_point_t(self.location, batch_idx, p.dtype) - p
         return d, np.sqrt(_dot(d, d))
 
 
-class DirectionalLights(_Lights):
+class DirectionalLights(_PhongLights):
     """Directional lights (PyTorch3D's ``DirectionalLights``), one per view of the batch.
 
     Parameters
@@ -347,12 +358,7 @@ class DirectionalLights(_Lights):
         Direction *towards* the light (from the surface), world coordinates; default (0, 1, 0).
     """
 
-    _PARAMS = ("ambient_color", "diffuse_color", "specular_color", "direction")
-
-    def __init__(self, ambient_color=((0.5, 0.5, 0.5),), diffuse_color=((0.3, 0.3, 0.3),),
-                 specular_color=((0.2, 0.2, 0.2),), direction=((0.0, 1.0, 0.0),)):
-        self._set(ambient_color=ambient_color, diffuse_color=diffuse_color,
-                  specular_color=specular_color, direction=direction)
+    _PARAMS = _COLORS + ("direction",)
 
     def _light_vector(self, p, batch_idx):
         d = per_point_t(self.direction, batch_idx, p.dtype)
@@ -368,7 +374,7 @@ class AmbientLights(_Lights):
         Default white (1, 1, 1), which with the default materials shows the raw texture.
     """
 
-    _PARAMS = ("ambient_color", "diffuse_color", "specular_color")
+    _PARAMS = _COLORS
 
     def __init__(self, ambient_color=((1.0, 1.0, 1.0),)):
         a = _batched(ambient_color, "ambient_color", (3,))

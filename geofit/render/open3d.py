@@ -15,11 +15,21 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..cameras import FoVPerspectiveCameras, to_open3d
+from ..cameras import FoVPerspectiveCameras, PerspectiveCameras, to_open3d
 from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex, as_mesh, as_meshes
 from .mesh.textures import TexturesFlat
 
 __all__ = ["Open3DRender", "mesh_to_open3d", "render_open3d", "show_open3d"]
+
+# The cameras with an Open3D (pinhole) equivalent: FoV cameras and calibrated ones, whose
+# principal point may lie off the image centre (captures).
+_PINHOLE = (FoVPerspectiveCameras, PerspectiveCameras)
+
+
+def _check_pinhole(cameras, name: str = "cameras") -> None:
+    if not isinstance(cameras, _PINHOLE):
+        raise TypeError(f"{name}: expected FoVPerspectiveCameras or PerspectiveCameras (Open3D "
+                        f"has pinhole cameras only), got {type(cameras)!r}")
 
 
 class Open3DRender(NamedTuple):
@@ -88,9 +98,7 @@ def mesh_to_open3d(mesh: Mesh):
 
 def _as_views(meshes, cameras):
     meshes = as_meshes(meshes)  # geofit, trimesh or Open3D meshes
-    if not isinstance(cameras, FoVPerspectiveCameras):
-        raise TypeError(f"cameras: expected FoVPerspectiveCameras (Open3D has pinhole cameras "
-                        f"only), got {type(cameras)!r}")
+    _check_pinhole(cameras)
     nm, nc = len(meshes), len(cameras)
     N = max(nm, nc)
     if nm == 0 or nm not in (1, N) or nc not in (1, N):
@@ -144,8 +152,9 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     ----------
     meshes : Mesh or Meshes
         One mesh per view, or one mesh for every camera.
-    cameras : FoVPerspectiveCameras
-        ``N`` cameras (or one for every mesh), converted with :func:`geofit.cameras.to_open3d`.
+    cameras : FoVPerspectiveCameras or PerspectiveCameras
+        ``N`` cameras (or one for every mesh), converted with :func:`geofit.cameras.to_open3d`
+        (Open3D's pinhole intrinsics keep a principal point off the image centre).
     image_size : int or (H, W)
     background_color : (3,) float
         RGB of the background.
@@ -208,7 +217,7 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     Parameters
     ----------
     mesh : Mesh
-    cameras : FoVPerspectiveCameras
+    cameras : FoVPerspectiveCameras or PerspectiveCameras
     image_size : int or (H, W)
         Window size (the camera's field of view is kept).
     index : int
@@ -233,8 +242,7 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     import open3d as o3d
 
     mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
-    if not isinstance(cameras, FoVPerspectiveCameras):
-        raise TypeError(f"cameras: expected FoVPerspectiveCameras, got {type(cameras)!r}")
+    _check_pinhole(cameras)
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)

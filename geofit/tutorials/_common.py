@@ -203,23 +203,11 @@ def _try(fn: Callable[..., Any], *args, **kwargs) -> tuple[Any, str | None]:
         return None, _failure(exc)
 
 
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def set_postfix_str(self, s="", refresh=True):
-        pass
-
-    def close(self):
-        pass
-
-
 def _bar(progress: bool, total: int, desc: str):
-    if not progress:
-        return _NoBar()
+    """A tqdm progress bar over ``total`` steps; a disabled one (no output) without ``progress``."""
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True)
+    return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True, disable=not progress)
 
 
 def _cameras(dist, elev, azim, *, ortho: bool = False, **kw):
@@ -273,6 +261,16 @@ def _accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list
     return a["checkpoint_seconds"].tolist(), curve
 
 
+def _begin_textured(out, name: str, size: str):
+    """:func:`_begin` for the rendering steps, plus the textured default mesh (the cow when
+    found): ``(res, folder, t0, data, mesh)``, ``mesh`` normalised as the tutorials do."""
+    from ..data import load_textured_mesh
+
+    res, d, t0 = _begin(out, name, size)
+    data = load_textured_mesh()
+    return res, d, t0, data, data.mesh.normalize().mesh
+
+
 def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
     """Check ``size``, start the clock, create ``out/<name>``: the empty result, folder, start."""
     check_choice(size, "size", SIZES)
@@ -288,6 +286,15 @@ def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
 def _settings_text(settings: Mapping) -> str:
     """``"k=v, k=v"`` of a settings dict (the report's config cells)."""
     return ", ".join(f"{k}={v}" for k, v in settings.items())
+
+
+def _views_config(name: str, n_train: int, n_heldout: int, image_size, tutorial: Mapping,
+                  geofit: Mapping, **extra) -> dict:
+    """The configuration table of a multi-view step: the object, the views, the image size,
+    both recipes' settings and ``extra`` rows (label -> value), in that order."""
+    return {"object": name, "training views": n_train, "held-out views": n_heldout,
+            "image size": image_size, **extra, "PyTorch3D recipe": _settings_text(tutorial),
+            "geofit": _settings_text(geofit)}
 
 
 def _record_fit(res: StepResult, d: Path, key: str, label: str, fit, metrics: Sequence[str], *,
@@ -318,6 +325,22 @@ def _heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: 
         col_labels=["held-out target"] + [f"{key}\n{fits[key].seconds:.1f} s" for key in fits],
         row_labels=[f"view {i + 1}" for i in range(k)])
     res.comparison_caption = caption
+
+
+def _close_comparison(res: StepResult, d: Path, t0: float, *, chart: str, panels: list,
+                      title: str, stability: list, headline: Callable[[dict, int], str]
+                      ) -> StepResult:
+    """Finish a recipe-against-method step: the speed/accuracy chart of ``res.methods``
+    (``chart`` its heading, ``panels`` as :func:`geofit.viz.plot_accuracy_vs_time`), the
+    stability rows, one headline per recipe (``headline(metrics, index)``) and the seconds."""
+    from ..viz import plot_accuracy_vs_time
+
+    res.charts[f"Speed and accuracy: {chart} against solver time"] = plot_accuracy_vs_time(
+        _series(res.methods), panels, d / "speed_accuracy.png", title=title)
+    res.stability = stability
+    res.headline = {_P3D: headline(res.metrics[0], 0), _GF: headline(res.metrics[1], 1)}
+    res.seconds = time.perf_counter() - t0
+    return res
 
 
 def _run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:

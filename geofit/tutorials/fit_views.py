@@ -2,14 +2,12 @@
 next to geofit's methods, and the stability cases."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
-from ..viz import plot_accuracy_vs_time
 from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin, _fit_row, _heldout_comparison, _pick, _record_fit, _series,
-    _settings_text, _try,
+    StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _record_fit,
+    _try, _views_config,
 )
 
 __all__ = ["step_fit_views"]
@@ -64,10 +62,8 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     cfg = _views_settings(size)
     ds = tutorial_views(4, num_views=cfg["num_views"], image_size=cfg["image_size"],
                         num_held_out=cfg["num_heldout"])
-    res.config = {"object": ds.name, "training views": cfg["num_views"],
-                  "held-out views": cfg["num_heldout"], "image size": cfg["image_size"],
-                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
-                  "geofit": _settings_text(cfg["geofit"])}
+    res.config = _views_config(ds.name, cfg["num_views"], cfg["num_heldout"], cfg["image_size"],
+                               cfg["tutorial"], cfg["geofit"])
     res.description = (
         "A sphere is deformed to match the soft silhouettes of the training views, then its "
         "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "
@@ -129,18 +125,12 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     if any("chamfer_l2" in m["curve"] for m in res.methods):
         panels.append({"metric": "chamfer_l2", "label": "chamfer-L2 vs true mesh (log)",
                        "logy": True})
-    res.charts["Speed and accuracy: held-out IoU and chamfer-L2 against solver time"] = \
-        plot_accuracy_vs_time(_series(res.methods), panels, d / "speed_accuracy.png",
-                              title=f"fit_mesh_to_views on the {ds.name} ({size} size)")
-    res.stability = _views_stability(ds, size, seed)
-    pt, gf = res.metrics[0], res.metrics[1]
-    res.headline = {
-        _P3D: f"IoU {pt.get('iou', float('nan')):.3f}, PSNR "
-              f"{pt.get('psnr', float('nan')):.1f} dB in {pt['seconds']:.1f} s",
-        _GF: f"IoU {gf.get('iou', float('nan')):.3f}, PSNR "
-             f"{gf.get('psnr', float('nan')):.1f} dB in {gf['seconds']:.1f} s"}
-    res.seconds = time.perf_counter() - t0
-    return res
+    return _close_comparison(
+        res, d, t0, chart="held-out IoU and chamfer-L2", panels=panels,
+        title=f"fit_mesh_to_views on the {ds.name} ({size} size)",
+        stability=_views_stability(ds, size, seed),
+        headline=lambda m, _: (f"IoU {m.get('iou', float('nan')):.3f}, PSNR "
+                               f"{m.get('psnr', float('nan')):.1f} dB in {m['seconds']:.1f} s"))
 
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:

@@ -6,10 +6,9 @@ import time
 
 import numpy as np
 
-from ..viz import plot_accuracy_vs_time
 from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin, _cow_views, _fit_row, _heldout_comparison, _iou, _pick,
-    _psnr, _record_fit, _render_volume, _series, _settings_text, _try,
+    StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _iou,
+    _pick, _psnr, _record_fit, _render_volume, _try, _views_config,
 )
 
 __all__ = ["step_fit_volume"]
@@ -50,11 +49,8 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     cfg = _volume_settings(size)
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
     train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
-    res.config = {"object": name, "training views": cfg["n_views"],
-                  "held-out views": cfg["n_heldout"], "image size": img,
-                  "grid": f"{S}^3", "samples per ray": n_pts,
-                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
-                  "geofit": _settings_text(cfg["lbfgs"])}
+    res.config = _views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+                               cfg["lbfgs"], grid=f"{S}^3", **{"samples per ray": n_pts})
     res.description = (
         "A grid of densities and colours is fitted to the renders (black background) with "
         "the emission-absorption raymarcher. Accuracy: PSNR of the RGB and IoU of the "
@@ -101,21 +97,14 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     bar.close()
     _heldout_comparison(res, d, test.images[:3], renders, fits,
                         f"Held-out views of the {name} and the fitted volumes rendered from them.")
-    res.charts["Speed and accuracy: held-out PSNR and IoU against solver time"] = \
-        plot_accuracy_vs_time(_series(res.methods),
-                              [{"metric": "psnr", "label": "held-out PSNR (dB)"},
-                               {"metric": "iou", "label": "held-out silhouette IoU"}],
-                              d / "speed_accuracy.png",
-                              title=f"fit_volume on the {name} ({size} size)")
-    res.stability = _volume_stability(train, S, n_pts, size, seed)
-    pt, gf = res.metrics
-    res.headline = {
-        _P3D: f"PSNR {pt['held-out PSNR (dB)']:.1f} dB in {pt['seconds']:.1f} s, "
-              f"{res.param_counts[0]['free parameters']:,} params",
-        _GF: f"PSNR {gf['held-out PSNR (dB)']:.1f} dB in {gf['seconds']:.1f} s, "
-             f"{res.param_counts[1]['free parameters']:,} params"}
-    res.seconds = time.perf_counter() - t0
-    return res
+    return _close_comparison(
+        res, d, t0, chart="held-out PSNR and IoU",
+        panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"},
+                {"metric": "iou", "label": "held-out silhouette IoU"}],
+        title=f"fit_volume on the {name} ({size} size)",
+        stability=_volume_stability(train, S, n_pts, size, seed),
+        headline=lambda m, i: (f"PSNR {m['held-out PSNR (dB)']:.1f} dB in {m['seconds']:.1f} s, "
+                               f"{res.param_counts[i]['free parameters']:,} params"))
 
 
 def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[dict]:

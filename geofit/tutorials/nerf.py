@@ -6,10 +6,9 @@ import time
 
 import numpy as np
 
-from ..viz import plot_accuracy_vs_time
 from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin, _cow_views, _fit_row, _heldout_comparison, _pick,
-    _record_fit, _series, _settings_text, _try,
+    StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _pick,
+    _record_fit, _try, _views_config,
 )
 
 __all__ = ["step_nerf"]
@@ -54,12 +53,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     cfg = _nerf_settings(size)
     img = cfg["image_size"]
     train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
-    res.config = {"object": name, "training views": cfg["n_views"],
-                  "held-out views": cfg["n_heldout"], "image size": img,
-                  "held-out image size": cfg["heldout_size"],
-                  "PyTorch3D recipe": _settings_text(cfg["tutorial"]),
-                  "geofit": _settings_text(cfg["scene"]),
-                  "time budget per method (s)": cfg["time_budget"]}
+    res.config = _views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+                               cfg["scene"], **{"held-out image size": cfg["heldout_size"],
+                                                "time budget per method (s)": cfg["time_budget"]})
     res.description = (
         "A radiance field (MLP on harmonic embeddings) is fitted to the renders with the "
         "emission-absorption raymarcher. Accuracy: PSNR of full renders of held-out views "
@@ -94,20 +90,13 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
             occupancy=fit.occupancy)
     _heldout_comparison(res, d, test.images[:3], renders, fits,
                         f"Held-out views of the {name} and the fitted fields rendered from them.")
-    res.charts["Speed and accuracy: held-out PSNR against solver time"] = \
-        plot_accuracy_vs_time(_series(res.methods),
-                              [{"metric": "psnr", "label": "held-out PSNR (dB)"}],
-                              d / "speed_accuracy.png",
-                              title=f"fit_nerf on the {name} ({size} size)")
-    res.stability = _nerf_stability(train, size, seed)
-    pt, gf = res.metrics
-    res.headline = {
-        _P3D: f"PSNR {pt['held-out PSNR (dB)'] or float('nan'):.1f} dB in {pt['seconds']:.1f} s, "
-              f"{res.param_counts[0]['network parameters']:,} params",
-        _GF: f"PSNR {gf['held-out PSNR (dB)'] or float('nan'):.1f} dB in {gf['seconds']:.1f} s, "
-             f"{res.param_counts[1]['network parameters']:,} params"}
-    res.seconds = time.perf_counter() - t0
-    return res
+    return _close_comparison(
+        res, d, t0, chart="held-out PSNR",
+        panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"}],
+        title=f"fit_nerf on the {name} ({size} size)", stability=_nerf_stability(train, size, seed),
+        headline=lambda m, i: (f"PSNR {m['held-out PSNR (dB)'] or float('nan'):.1f} dB in "
+                               f"{m['seconds']:.1f} s, "
+                               f"{res.param_counts[i]['network parameters']:,} params"))
 
 
 def _nerf_stability(train, size: str, seed: int) -> list[dict]:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin, _cameras, _method, _pick, _run_cases, _series,
+    _GF, _P3D, StepResult, _bar, _begin_textured, _cameras, _method, _pick, _run_cases, _series,
 )
 
 __all__ = ["step_render_mesh"]
@@ -65,15 +65,10 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
     (rendering is deterministic); kept for a common signature. Writes into ``out/render_mesh``;
     the signature and the StepResult are :func:`run_step`'s.
     """
-    from ..data import load_textured_mesh
-    from ..render import (
-        Materials, MeshRasterizer, MeshRenderer, PointLights, RasterizationSettings,
-        SoftPhongShader, make_grid,
-    )
+    from ..render import (Materials, MeshRasterizer, MeshRenderer, PointLights,
+                          RasterizationSettings, SoftPhongShader, make_grid)
 
-    res, d, t0 = _begin(out, "render_mesh", size)
-    data = load_textured_mesh()
-    mesh = data.mesh.normalize().mesh
+    res, d, t0, data, mesh = _begin_textured(out, "render_mesh", size)
     S = _pick(size, 64, 512, 512)
     SB = _pick(size, 64, 256, 512)
     NB = _pick(size, 4, 20, 20)

@@ -8,7 +8,8 @@ import numpy as np
 
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin, _cameras, _iou, _method, _pick, _run_cases, _series,
+    _GF, _P3D, StepResult, _bar, _begin_textured, _cameras, _iou, _method, _pick, _run_cases,
+    _series,
 )
 
 __all__ = ["step_render_points"]
@@ -63,7 +64,7 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     a progress bar over the renders; seed: sampling seed. Writes into ``out/render_points``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..data import find, load_textured_mesh
+    from ..data import find
     from ..io import load_pointcloud
     from ..ops import sample_points_from_meshes
     from ..render import (
@@ -73,9 +74,7 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     )
     from ..structures import PointCloud
 
-    res, d, t0 = _begin(out, "render_points", size)
-    data = load_textured_mesh()
-    mesh = data.mesh.normalize().mesh
+    res, d, t0, data, mesh = _begin_textured(out, "render_points", size)
     N = _pick(size, 5_000, 100_000, 500_000)
     S = _pick(size, 64, 256, 512)
     res.config = {"cloud": f"{N} samples of the {data.name} with texture colours",

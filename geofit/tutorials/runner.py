@@ -43,12 +43,15 @@ def run_step(name: str, out, size: str = "default", *, progress: bool = True,
     Parameters
     ----------
     name : str
-        A key of :data:`STEPS`.
+        A key of :data:`STEPS` (the step writes into ``out/<name>``).
     out : path
         The run's output folder.
     size : {"tiny", "default", "full"}
+        Problem sizes: a smoke test, the default run (minutes) or the tutorials' own sizes.
     progress : bool
+        Show tqdm progress bars.
     seed : int
+        Seed of the step's random sampling.
 
     Returns
     -------

@@ -24,6 +24,7 @@ from ...cameras import CamerasBase, ndc_grid
 from ...raycast.embree import EmbreeScene
 from ...structures import Mesh, Meshes, as_meshes
 from . import _raycast
+from .._fragments import DenseFragmentImages
 from .._settings import image_hw
 
 __all__ = ["Fragments", "MeshRasterizer", "RasterizationSettings"]
@@ -122,7 +123,7 @@ class RasterizationSettings:
 
 
 @dataclass(eq=False)
-class Fragments:
+class Fragments(DenseFragmentImages):
     """Per-pixel results of ray casting a batch of ``N`` views (K = 1 face per pixel).
 
     The covered pixels are stored compactly (``k`` of them, sorted by flat pixel index); the
@@ -304,32 +305,10 @@ class Fragments:
         return np.concatenate(parts) if parts else np.zeros(0)
 
     # -------------------------------------------------------------- PyTorch3D images
-    def _image(self, values: np.ndarray, fill, dtype) -> np.ndarray:
-        H, W = self.image_size
-        tail = values.shape[1:]
-        out = np.full((self.n_views * H * W,) + tail, fill, dtype=dtype)
-        out[self.pixel] = values
-        return out.reshape((self.n_views, H, W, 1) + tail)
+    _ENTRY_DISTS = "hit_dists"
 
-    @cached_property
-    def pix_to_face(self) -> np.ndarray:
-        """(N, H, W, 1) int64 packed face index per pixel, -1 where no face is seen."""
-        return self._image(self.face, -1, np.int64)
-
-    @cached_property
-    def zbuf(self) -> np.ndarray:
-        """(N, H, W, 1) float64 view depth per pixel, -1 where empty."""
-        return self._image(self.depth, -1.0, np.float64)
-
-    @cached_property
-    def bary_coords(self) -> np.ndarray:
-        """(N, H, W, 1, 3) float64 barycentrics per pixel, -1 where empty."""
-        return self._image(self.bary, -1.0, np.float64)
-
-    @cached_property
-    def dists(self) -> np.ndarray:
-        """(N, H, W, 1) float64 signed squared NDC edge distance, -1 where empty."""
-        return self._image(self.hit_dists, -1.0, np.float64)
+    def _slots(self):
+        return self.pixel, 0, 1
 
     @cached_property
     def normals(self) -> np.ndarray:

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..._threads import get_num_threads, parallel_map
 from ..._validate import as_array
+from .._fragments import DenseFragmentImages
 
 __all__ = [
     "SoftFragments",
@@ -44,7 +45,7 @@ def _map_views(fn, n_views: int, n_threads: int) -> list:
 
 
 @dataclass(eq=False)
-class SoftFragments:
+class SoftFragments(DenseFragmentImages):
     """Sparse output of :func:`rasterize_soft`: one entry per kept (pixel, face) pair.
 
     Entries are grouped by view (view ``n`` holds ``view_offsets[n]:view_offsets[n + 1]``); within
@@ -146,32 +147,8 @@ class SoftFragments:
         rank[order] = rank_sorted
         return rank
 
-    def _dense(self, values, fill, dtype, trailing=()) -> np.ndarray:
-        H, W = self.image_size
-        K = self.faces_per_pixel
-        out = np.full((self.n_views * H * W, K) + trailing, fill, dtype=dtype)
-        out[self.global_pixel, self.k] = values
-        return out.reshape((self.n_views, H, W, K) + trailing)
-
-    @property
-    def pix_to_face(self) -> np.ndarray:
-        """(N, H, W, K) int64 face index per slot, -1 where unused (not packed: local faces)."""
-        return self._dense(self.face, -1, np.int64)
-
-    @property
-    def zbuf(self) -> np.ndarray:
-        """(N, H, W, K) float64 view depth per slot, -1 where unused."""
-        return self._dense(self.depth, -1.0, np.float64)
-
-    @property
-    def dists(self) -> np.ndarray:
-        """(N, H, W, K) float64 signed squared NDC distance per slot, -1 where unused."""
-        return self._dense(self.dist, -1.0, np.float64)
-
-    @property
-    def bary_coords(self) -> np.ndarray:
-        """(N, H, W, K, 3) float64 barycentrics per slot, -1 where unused."""
-        return self._dense(self.bary, -1.0, np.float64, (3,))
+    def _slots(self):
+        return self.global_pixel, self.k, self.faces_per_pixel
 
     # ------------------------------------------------------------------ backward
     def vjp(self, grad_dists=None, grad_zbuf=None, grad_bary=None) -> np.ndarray:
