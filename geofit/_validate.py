@@ -69,7 +69,7 @@ def as_array(
         For a mesh or point cloud object (geofit, trimesh, Open3D), saying how to convert it.
     """
     if not isinstance(x, (np.ndarray, list, tuple, numbers.Number)):
-        from .structures._foreign import ARRAY_HINTS, geometry_kind
+        from ._foreign import ARRAY_HINTS, geometry_kind
 
         kind = geometry_kind(x)
         if kind is not None:

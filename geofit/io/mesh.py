@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..structures._foreign import scene_to_mesh
+from .._foreign import scene_to_mesh
 from ..structures.mesh import Mesh, _corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff

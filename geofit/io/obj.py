@@ -18,7 +18,7 @@ import numpy as np
 from .._memory import check_allocation
 from .._validate import as_array, as_faces, as_points
 from ._formats import EXTENSIONS, not_obj_error, sniff
-from ..structures._foreign import foreign_kind
+from .._foreign import foreign_kind
 from ..structures.mesh import Mesh, Meshes, as_mesh
 from ..structures.textures import TexturesUV
 

@@ -48,7 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._validate import as_array, as_points, check_choice
-from ..structures._foreign import foreign_kind
+from .._foreign import foreign_kind
 from ..structures.pointcloud import PointCloud, as_pointcloud
 
 __all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]

@@ -352,7 +352,7 @@ class Mesh:
         at UV seams and the unquantised colours, and this method uses that record while it
         still agrees with the trimesh object (same vertex count, same 8-bit colours).
         """
-        from . import _foreign
+        from .. import _foreign
 
         kind = _foreign.foreign_kind(mesh)
         if kind == "trimesh.Scene":
@@ -414,7 +414,7 @@ class Mesh:
             the distinct per-corner UVs in order of first use), else a :class:`TexturesVertex`
             from ``vertex_colors`` when present, else no textures.
         """
-        from . import _foreign
+        from .. import _foreign
 
         if _foreign.foreign_kind(mesh) != "open3d.TriangleMesh":
             raise TypeError(f"mesh: expected an open3d.geometry.TriangleMesh, got {type(mesh)!r}")
@@ -453,7 +453,7 @@ class Mesh:
         """
         import trimesh
 
-        from ._foreign import to_uint8
+        from .._foreign import to_uint8
 
         tex = self.textures
         info: dict = {}
@@ -493,7 +493,7 @@ class Mesh:
         """
         import open3d as o3d
 
-        from ._foreign import to_uint8
+        from .._foreign import to_uint8
 
         # Open3D's Vector3dVector rejects read-only arrays: pass copies.
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.array(self._verts)),
@@ -753,7 +753,7 @@ def as_mesh(mesh, name: str = "mesh") -> Mesh:
     """
     if isinstance(mesh, Mesh):
         return mesh
-    from ._foreign import foreign_kind
+    from .._foreign import foreign_kind
 
     kind = foreign_kind(mesh)
     if kind in ("trimesh.Trimesh", "trimesh.Scene"):

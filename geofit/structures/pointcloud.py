@@ -95,7 +95,7 @@ class PointCloud:
             normals are kept in ``cloud.metadata["geofit"]``, and used while they still agree
             with the trimesh object).
         """
-        from ._foreign import foreign_kind, from_uint8, geofit_record, stash_matches
+        from .._foreign import foreign_kind, from_uint8, geofit_record, stash_matches
 
         if foreign_kind(cloud) != "trimesh.PointCloud":
             raise TypeError(f"cloud: expected a trimesh.PointCloud, got {type(cloud)!r}")
@@ -128,7 +128,7 @@ class PointCloud:
         cloud : open3d.geometry.PointCloud
             Its ``colors`` (float64 RGB) become ``features``, its ``normals`` ``normals``.
         """
-        from ._foreign import foreign_kind
+        from .._foreign import foreign_kind
 
         if foreign_kind(cloud) != "open3d.PointCloud":
             raise TypeError(f"cloud: expected an open3d.geometry.PointCloud, got {type(cloud)!r}")
@@ -145,7 +145,7 @@ class PointCloud:
         """
         import trimesh
 
-        from ._foreign import to_uint8
+        from .._foreign import to_uint8
 
         colors = None
         info: dict = {}
@@ -284,7 +284,7 @@ def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
     """
     if isinstance(cloud, PointCloud):
         return cloud
-    from ._foreign import foreign_kind
+    from .._foreign import foreign_kind
 
     kind = foreign_kind(cloud)
     if kind == "trimesh.PointCloud":
