@@ -1,4 +1,5 @@
-"""Procedural shapes: ico-spheres (PyTorch3D's exact vertex and face order), tori, boxes, planes.
+"""Procedural shapes: ico-spheres (PyTorch3D's exact vertex and face order), tori, boxes, planes,
+and test shapes of other topologies (double torus, open cylinder, thin plate, two spheres).
 
 Every function returns a :class:`~geofit.structures.Mesh` in float64, deterministic, with
 counter-clockwise faces seen from outside.
@@ -9,7 +10,8 @@ import numpy as np
 
 from .structures.mesh import Mesh, as_meshes
 
-__all__ = ["ico_sphere", "subdivide", "torus", "box", "plane", "tetrahedron"]
+__all__ = ["ico_sphere", "subdivide", "torus", "box", "plane", "tetrahedron", "double_torus",
+           "open_cylinder", "thin_plate", "two_spheres", "implicit_surface", "TEST_SHAPES"]
 
 # PyTorch3D's level-0 icosahedron (pytorch3d/utils/ico_sphere.py): the rounded coordinates are
 # kept as they are, so level 0 is not exactly on the unit sphere (|v| = 0.99998...).
@@ -189,3 +191,114 @@ def tetrahedron() -> Mesh:
     v = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64) / np.sqrt(3)
     faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
     return Mesh(v, faces)
+
+
+def implicit_surface(sdf, bounds: float = 1.0, resolution: int = 64) -> Mesh:
+    """The zero level set of a vectorised signed distance function, by marching cubes.
+
+    Parameters
+    ----------
+    sdf : callable
+        ``sdf((N, 3) float64) -> (N,) float64``, negative inside.
+    bounds : float
+        The grid spans ``[-bounds, bounds]^3`` (the surface must lie strictly inside).
+    resolution : int
+        Grid points per axis (>= 8).
+
+    Returns
+    -------
+    Mesh
+        Outward-oriented faces (scikit-image's ``marching_cubes``), deterministic.
+    """
+    from skimage.measure import marching_cubes
+
+    if not isinstance(resolution, (int, np.integer)) or resolution < 8:
+        raise ValueError(f"resolution: expected an integer >= 8, got {resolution!r}")
+    t = np.linspace(-bounds, bounds, resolution)
+    X = np.stack(np.meshgrid(t, t, t, indexing="ij"), -1).reshape(-1, 3)
+    vol = np.asarray(sdf(X), dtype=np.float64).reshape(resolution, resolution, resolution)
+    h = t[1] - t[0]
+    verts, faces, _, _ = marching_cubes(vol, 0.0, spacing=(h, h, h))
+    verts = verts - bounds
+    faces = faces.astype(np.int64)
+    mesh = Mesh(verts, faces)
+    # orient outwards: positive signed volume
+    v = verts[faces]
+    if np.einsum("ij,ij->", v[:, 0], np.cross(v[:, 1], v[:, 2])) < 0:
+        mesh = Mesh(verts, faces[:, ::-1].copy())
+    return mesh
+
+
+def _torus_sdf(P, center, R, r):
+    q = P - center
+    return np.hypot(np.hypot(q[:, 0], q[:, 2]) - R, q[:, 1]) - r
+
+
+def double_torus(resolution: int = 72) -> Mesh:
+    """A genus-2 surface: two overlapping tori (ring radius 0.45, tube 0.18) side by side.
+
+    Marching cubes of the union of their signed distances on a ``resolution``-cube grid over
+    ``[-1.25, 1.25]^3``; watertight, one part, genus 2.
+    """
+    def sdf(P):
+        return np.minimum(_torus_sdf(P, np.array([-0.48, 0.0, 0.0]), 0.45, 0.18),
+                          _torus_sdf(P, np.array([0.48, 0.0, 0.0]), 0.45, 0.18))
+
+    return implicit_surface(sdf, 1.25, resolution)
+
+
+def open_cylinder(radius: float = 0.5, height: float = 1.5, n_around: int = 48,
+                  n_height: int = 36) -> Mesh:
+    """A tube around the y axis, open at both ends (two boundary loops, genus 0).
+
+    ``n_around * (n_height + 1)`` vertices; faces oriented outwards.
+    """
+    for name, n in (("n_around", n_around), ("n_height", n_height)):
+        if not isinstance(n, (int, np.integer)) or n < 3:
+            raise ValueError(f"{name}: expected an integer >= 3, got {n!r}")
+    if not (np.isfinite(radius) and np.isfinite(height) and radius > 0 and height > 0):
+        raise ValueError(f"open_cylinder: expected radius, height > 0, got {radius!r}, {height!r}")
+    u = 2 * np.pi * np.arange(n_around) / n_around
+    y = np.linspace(-height / 2, height / 2, n_height + 1)
+    U, Y = np.meshgrid(u, y, indexing="ij")
+    verts = np.stack([radius * np.cos(U), Y, radius * np.sin(U)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_around), np.arange(n_height), indexing="ij")
+    a = i * (n_height + 1) + j
+    b = ((i + 1) % n_around) * (n_height + 1) + j
+    faces = np.concatenate([np.stack([a, a + 1, b], -1).reshape(-1, 3),
+                            np.stack([b, a + 1, b + 1], -1).reshape(-1, 3)])
+    return Mesh(verts, faces)
+
+
+def thin_plate(thickness: float = 0.06, resolution: int = 96) -> Mesh:
+    """A closed thin square plate (1.6 x 1.6 x ``thickness``, rounded rims), by marching cubes."""
+    if not (np.isfinite(thickness) and 0 < thickness < 1):
+        raise ValueError(f"thickness: expected a number in (0, 1), got {thickness!r}")
+    half = np.array([0.8, thickness / 2, 0.8])
+    rr = thickness / 2
+
+    def sdf(P):
+        q = np.abs(P) - (half - rr)
+        return (np.linalg.norm(np.maximum(q, 0.0), axis=1)
+                + np.minimum(q.max(axis=1), 0.0) - rr)
+
+    return implicit_surface(sdf, 0.9, resolution)
+
+
+def two_spheres(level: int = 3, radius: float = 0.45, gap: float = 0.2) -> Mesh:
+    """Two separate ico-spheres on the x axis, ``gap`` apart (two parts, genus 0)."""
+    s = ico_sphere(level)
+    off = radius + gap / 2
+    v = np.concatenate([s.verts * radius - [off, 0, 0], s.verts * radius + [off, 0, 0]])
+    f = np.concatenate([s.faces, s.faces + s.n_verts])
+    return Mesh(v, f)
+
+
+#: The procedural test shapes, name -> generator (no arguments).
+TEST_SHAPES = {
+    "torus": lambda: torus(1.0, 0.35, 64, 32),
+    "double_torus": double_torus,
+    "open_cylinder": open_cylinder,
+    "thin_plate": thin_plate,
+    "two_spheres": two_spheres,
+}

@@ -358,7 +358,9 @@ def test_validation():
     with pytest.raises(TypeError, match="evaluator"):
         fit_mesh(tgt, init=1, evaluator=3, progress=False)
     with pytest.raises(TypeError, match="init"):
-        fit_mesh(tgt, init="sphere", progress=False)
+        fit_mesh(tgt, init=object(), progress=False)
+    with pytest.raises(ValueError, match="init"):  # strings: "auto" or "sphere" only
+        fit_mesh(tgt, init="cube", progress=False)
     with pytest.raises(TypeError, match="target"):
         fit_mesh(tgt.verts, init=1, progress=False)
     with pytest.raises(ValueError, match="init: the surface has zero area"):

@@ -114,7 +114,8 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     m = m.update_verts(m.verts * 0.7)
     param = LargeSteps(m, large) if large else IdentityParameterization(m)
     weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
-    st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None)
+    st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None,
+                                            dtype=np.float64)  # exact to float64
     obj = _Objective(m, data, weights, textured=textured, param=param, settings=st)
     x = param.to_params(m.verts).ravel()
     if textured:

@@ -212,7 +212,8 @@ def test_fragment_invariants():
     """Hits lie strictly inside the disc, depths ascend along K, -1 slots are trailing."""
     rng = np.random.default_rng(4)
     cloud = PointCloud(_random_cloud(rng, 3000, 0.8, (0.5, 2.0)))
-    s = PointsRasterizationSettings(image_size=(24, 32), radius=0.08, points_per_pixel=5)
+    s = PointsRasterizationSettings(image_size=(24, 32), radius=0.08, points_per_pixel=5,
+                                    dtype=np.float64)
     f = PointsRasterizer(FoVOrthographicCameras(), s)(cloud)
     v = f.idx >= 0
     assert v.any() and (~v).any()
@@ -469,7 +470,33 @@ def test_fragments_are_a_dataclass_with_documented_fields():
     assert isinstance(f, PointFragments)
     for a in (f.idx, f.zbuf, f.dists, f.radius):
         assert a.shape == (1, 4, 4, 2)
-    assert f.idx.dtype == np.int64 and f.zbuf.dtype == np.float64
+    assert f.idx.dtype == np.int64
+    assert f.zbuf.dtype == f.dists.dtype == f.radius.dtype == np.float32   # as PyTorch3D
+
+
+def test_float32_fragments_and_images_by_default_float64_on_request():
+    """Fragments and images are float32 by default; dtype=np.float64 gives float64 arrays with
+    the same hits, and the float32 values are the float64 ones rounded."""
+    rng = np.random.default_rng(5)
+    cloud = PointCloud(_random_cloud(rng, 2000, 0.8, (0.5, 2.0)), rng.random((2000, 3)))
+    ren = PointsRenderer(PointsRasterizer(FoVOrthographicCameras()), AlphaCompositor())
+    out = {dt: ren.render(cloud, raster_settings=PointsRasterizationSettings(
+        image_size=(24, 32), radius=0.08, points_per_pixel=5, dtype=dt))
+        for dt in (np.float32, np.float64)}
+    f32, f64 = out[np.float32].fragments, out[np.float64].fragments
+    assert out[np.float32].images.dtype == np.float32
+    assert out[np.float64].images.dtype == np.float64
+    assert_array_equal(f32.idx, f64.idx)
+    assert_array_equal(f32.zbuf, f64.zbuf.astype(np.float32))
+    assert_array_equal(f32.dists, f64.dists.astype(np.float32))
+    assert_allclose(out[np.float32].images, out[np.float64].images, rtol=0, atol=1e-6)
+    assert f32.zbuf.nbytes * 2 == f64.zbuf.nbytes
+
+
+@pytest.mark.parametrize("dtype", ["float16", np.int64, None, "nope"])
+def test_points_settings_dtype_validation(dtype):
+    with pytest.raises(ValueError, match="dtype: expected numpy.float32 or numpy.float64"):
+        PointsRasterizationSettings(dtype=dtype)
 
 
 def test_docstring_examples():

@@ -166,8 +166,9 @@ class CamerasBase:
         self._R_inv = np.linalg.inv(self.R)
 
     def __setattr__(self, name, value):
-        """Assigning ``R``, ``T`` or a per-camera parameter re-runs the constructor's checks."""
-        if "_R_inv" in self.__dict__ and name in ("R", "T") + self._FIELDS:
+        """Assigning ``R``, ``T``, a per-camera parameter or a batch-wide setting (``degrees``)
+        re-runs the constructor's checks."""
+        if "_R_inv" in self.__dict__ and name in ("R", "T") + self._FIELDS + tuple(self._shared()):
             params = {**self._shared(), **self._fields(), name: value}
             self.__dict__.update(type(self)(**params).__dict__)
         else:
@@ -478,6 +479,7 @@ class CamerasBase:
 
         Examples
         --------
+        >>> from geofit.cameras import FoVPerspectiveCameras
         >>> cam = FoVPerspectiveCameras(fov=90.0)
         >>> xy, J = cam.projection_jacobian([[0.5, 0.0, 2.0]])
         >>> xy[0, 0], J[0, 0].round(12) + 0.0

@@ -83,6 +83,7 @@ class FoVPerspectiveCameras(_PinholeCameras):
 
     Examples
     --------
+    >>> from geofit.cameras import look_at_view_transform
     >>> R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
     >>> cams = FoVPerspectiveCameras(fov=60.0, R=R, T=T)
     >>> len(cams), cams.transform_points([[0.0, 0.0, 0.0]]).shape

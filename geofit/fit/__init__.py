@@ -37,6 +37,8 @@ release with a :class:`DeprecationWarning`.
   flat float64 vector, with budgets, statuses and non-finite guards.
 * :mod:`geofit.fit.mesh` -- :func:`fit_mesh` (PyTorch3D's deform tutorial and faster solvers)
   and coarse-to-fine; :mod:`geofit.fit.large_steps` -- the large-steps parameterisation.
+* :mod:`geofit.fit.adaptive` -- :func:`fit_mesh_adaptive`, the default of ``fit_mesh(target)``:
+  initial mesh from the data (:mod:`geofit.fit.init`), error-driven remeshing.
 * :mod:`geofit.fit.views` -- :func:`fit_mesh_to_views`: a mesh and its colours fitted to
   multi-view silhouettes and images (tutorial 4).
 * :mod:`geofit.fit.volume` -- :func:`fit_volume`: a voxel grid of densities and colours fitted by
@@ -51,6 +53,7 @@ from __future__ import annotations
 
 from ._options import METHODS as METHOD_NAMES
 from ._options import RECIPE_NAMES
+from .adaptive import ADAPTIVE_WEIGHTS, AdaptiveMeshFitResult, fit_mesh_adaptive
 from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
 from .mesh import (
     FINE_WEIGHTS,
@@ -69,6 +72,8 @@ from .views import MultiViewData, ViewsFitResult, fit_mesh_to_views  # MultiView
 from .volume import VolumeFitResult, fit_volume
 
 __all__ = [
+    "ADAPTIVE_WEIGHTS",
+    "AdaptiveMeshFitResult",
     "CONVERGED_STATUSES",
     "FINE_WEIGHTS",
     "METHODS",
@@ -94,6 +99,7 @@ __all__ = [
     "VolumeFitResult",
     "adam",
     "fit_mesh",
+    "fit_mesh_adaptive",
     "fit_mesh_to_views",
     "fit_nerf",
     "fit_volume",

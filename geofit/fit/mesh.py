@@ -303,9 +303,13 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
     target : Mesh or (verts, faces)
         Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
         the largest absolute coordinate) and returns the result in the original frame.
-    init : Mesh, (verts, faces), int or None
-        Starting mesh, an ico-sphere level, or None: ``ico_sphere(4)`` (the tutorial's), or
-        ``ico_sphere(coarse_to_fine.start_level)`` with coarse-to-fine. It is placed as given
+    init : Mesh, (verts, faces), int, "auto", "sphere" or None
+        Starting mesh, an ico-sphere level, or None / ``"auto"``: with no other option (the
+        default recipe), :func:`geofit.fit.adaptive.fit_mesh_adaptive`, geofit's best fit for any
+        shape (initial mesh from the target's own topology, error-driven remeshing; its result
+        also reports ``init`` and ``topology``); otherwise, and with ``"sphere"``,
+        ``ico_sphere(4)`` (the tutorial's), or ``ico_sphere(coarse_to_fine.start_level)`` with
+        coarse-to-fine. It is placed as given
         in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
     recipe : {"default", "tutorial", "coarse-to-fine"}
         Named settings (:data:`RECIPES`) that the other options override: ``"default"`` is
@@ -400,6 +404,19 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
     (True, 42, True)
     """
     target, init = _init_argument(target, args, init, source)
+    # the default call: the adaptive fit (initial mesh and topology from the data, remeshing)
+    if isinstance(init, str):
+        check_choice(init, "init", ("auto", "sphere"))
+    if (init is None or init == "auto") and recipe == "default" and method is None \
+            and weights is None and distance is None and n_samples is None and n_iter is None \
+            and n_stages is None and large_steps == "auto" and coarse_to_fine in (None, False) \
+            and callback is None and checkpoint_every is None and not solver_options:
+        from .adaptive import fit_mesh_adaptive
+
+        return fit_mesh_adaptive(target, seed=seed, evaluator=evaluator,
+                                 **({} if time_budget is None else {"time_budget": time_budget}))
+    if isinstance(init, str):  # "sphere": the tutorial's start
+        init = None
     plan = _MeshPlan.validate(
         target, init, recipe=recipe, method=method, weights=weights, distance=distance,
         n_samples=n_samples, n_iter=n_iter, n_stages=n_stages, lr=lr, momentum=momentum,

@@ -32,3 +32,15 @@ def image_hw(image_size) -> tuple[int, int]:
     if bad or H < 1 or W < 1:
         raise ValueError(f"image_size: expected positive integers, got {image_size!r}")
     return H, W
+
+
+def float_dtype(value, name: str = "dtype"):
+    """``numpy.float32`` or ``numpy.float64`` from a dtype-like ``value``; ValueError otherwise
+    (None, other types, names numpy does not know)."""
+    try:
+        dt = None if value is None else np.dtype(value)
+    except TypeError:
+        dt = None
+    if dt is None or dt.type not in (np.float32, np.float64):
+        raise ValueError(f"{name}: expected numpy.float32 or numpy.float64, got {value!r}")
+    return dt.type

@@ -176,6 +176,15 @@ def _pick(size: str, tiny, default, full):
     return {"tiny": tiny, "default": default, "full": full}[size]
 
 
+def _recipe_cut(done, full, unit: str = "steps") -> str:
+    """``" (recipe cut to 300 of 2000 steps)"`` when fewer than the recipe's ``full`` ran (a
+    smaller size or a time budget), else ``""``: appended to a baseline's row in the table and
+    the summary, so a shortened baseline is marked where its numbers are."""
+    if done is None or full is None or int(done) >= int(full):
+        return ""
+    return f" (recipe cut to {int(done)} of {int(full)} {unit})"
+
+
 def _method(name: str, label: str, *, seconds=(), curve=None, final=None, status="",
             message="", config=None) -> dict:
     """A benchmark-style method record (the layout of benchmarks/_harness.py's MethodRun)."""

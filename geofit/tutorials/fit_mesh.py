@@ -9,7 +9,7 @@ import numpy as np
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from ._common import (
     _GF, _P3D, StepResult, _bar, _begin, _cameras, _fit_row, _pick, _record_fit, _series,
-    _settings_text, _shade_mesh, _try,
+    _recipe_cut, _settings_text, _shade_mesh, _try,
 )
 from .stability import fit_mesh_scenario
 
@@ -19,6 +19,8 @@ __all__ = ["step_fit_mesh"]
 # --------------------------------------------------------------------------------------------
 # 1. fit a mesh to a mesh
 # --------------------------------------------------------------------------------------------
+
+_TUTORIAL_STEPS = 2000  # deform_source_mesh_to_target_mesh: Niter = 2000 SGD steps
 
 _FIT_MESH_LABELS = {
     "tutorial": "PyTorch3D recipe: SGD lr 1, momentum 0.9, ico4, sampled chamfer",
@@ -47,7 +49,8 @@ def _fit_mesh_settings(name: str, size: str) -> dict:
         kw["checkpoint_every"] = 100 if stochastic else 10
         return kw
     if stochastic:
-        kw.update(n_iter=_pick(size, 20, 300, 2000), checkpoint_every=_pick(size, 10, 50, 100))
+        kw.update(n_iter=_pick(size, 20, 300, _TUTORIAL_STEPS),
+                  checkpoint_every=_pick(size, 10, 50, 100))
         if size == "tiny":
             kw.update(n_samples=500)
     else:
@@ -151,7 +154,8 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
         _record_fit(res, d, name, _FIT_MESH_LABELS[name], fit, ("chamfer_l2", "fscore@0.01"),
                     final=final, config={k: repr(v) if not isinstance(v, (int, float, str))
                                          else v for k, v in kw.items()})
-        res.metrics.append({"method": _FIT_MESH_LABELS[name], "status": fit.status,
+        cut = _recipe_cut(fit.n_iterations, _TUTORIAL_STEPS) if name == "tutorial" else ""
+        res.metrics.append({"method": _FIT_MESH_LABELS[name] + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
                             "chamfer-L2": m.chamfer_l2, "F@0.01": m.fscore[0.01],
                             "normal consistency": m.normal_consistency})
@@ -194,7 +198,8 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
                                         progress)
     res.headline = {
         _P3D: f"chamfer-L2 {pt.metrics.chamfer_l2:.3g}, F {pt.metrics.fscore[0.01]:.3f} in "
-              f"{pt.seconds:.1f} s, {pt.n_params:,} params",
+              f"{pt.seconds:.1f} s, {pt.n_params:,} params"
+              + _recipe_cut(pt.n_iterations, _TUTORIAL_STEPS),
         _GF: f"{best}: chamfer-L2 {results[best].metrics.chamfer_l2:.3g}, "
              f"F {results[best].metrics.fscore[0.01]:.3f} in "
              f"{results[best].seconds:.1f} s, {results[best].n_params:,} params",

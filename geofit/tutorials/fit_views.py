@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import (
-    StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _record_fit,
-    _try, _views_config,
+    StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _recipe_cut,
+    _record_fit, _try, _views_config,
 )
 
 __all__ = ["step_fit_views"]
@@ -97,7 +97,12 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
         _record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
                     final={"seconds": fit.seconds, **final,
                            "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
-        res.metrics.append({"method": label, "status": fit.status,
+        cut = ""
+        if name == "tutorial":
+            full = _views_settings("full")["tutorial"]
+            cut = _recipe_cut(kw["silhouette_iters"] + kw["textured_iters"],
+                              full["silhouette_iters"] + full["textured_iters"])
+        res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), **final})
         res.param_counts.append({"method": label, "vertices": fit.mesh.n_verts,
                                  "position parameters": 3 * fit.mesh.n_verts,
@@ -129,8 +134,9 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
         res, d, t0, chart="held-out IoU and chamfer-L2", panels=panels,
         title=f"fit_mesh_to_views on the {ds.name} ({size} size)",
         stability=_views_stability(ds, size, seed),
-        headline=lambda m, _: (f"IoU {m.get('iou', float('nan')):.3f}, PSNR "
-                               f"{m.get('psnr', float('nan')):.1f} dB in {m['seconds']:.1f} s"))
+        headline=lambda m, i: (f"IoU {m.get('iou', float('nan')):.3f}, PSNR "
+                               f"{m.get('psnr', float('nan')):.1f} dB in {m['seconds']:.1f} s"
+                               + (m["method"][len(labels["tutorial"]):] if i == 0 else "")))
 
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._common import (
     StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _iou,
-    _pick, _psnr, _record_fit, _render_volume, _try, _views_config,
+    _pick, _psnr, _recipe_cut, _record_fit, _render_volume, _try, _views_config,
 )
 
 __all__ = ["step_fit_volume"]
@@ -84,7 +84,9 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                             features=vol.features, voxel_size=vol.voxel_size,
                             volume_translation=vol.volume_translation)
         res.files[f"{key} volume"] = d / f"{key}_volume.npz"
-        res.metrics.append({"method": label, "status": fit.status,
+        cut = _recipe_cut(fit.n_iterations, _volume_settings("full")["tutorial"]["n_iter"]) \
+            if key == "tutorial" else ""
+        res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "held-out PSNR (dB)": final["psnr"],
                             "held-out IoU": final["iou"],
                             "samples per ray": round(fit.samples_per_ray, 1)})
@@ -97,6 +99,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     bar.close()
     _heldout_comparison(res, d, test.images[:3], renders, fits,
                         f"Held-out views of the {name} and the fitted volumes rendered from them.")
+    cut = _recipe_cut(fits["tutorial"].n_iterations, _volume_settings("full")["tutorial"]["n_iter"])
     return _close_comparison(
         res, d, t0, chart="held-out PSNR and IoU",
         panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"},
@@ -104,7 +107,8 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
         title=f"fit_volume on the {name} ({size} size)",
         stability=_volume_stability(train, S, n_pts, size, seed),
         headline=lambda m, i: (f"PSNR {m['held-out PSNR (dB)']:.1f} dB in {m['seconds']:.1f} s, "
-                               f"{res.param_counts[i]['free parameters']:,} params"))
+                               f"{res.param_counts[i]['free parameters']:,} params"
+                               + (cut if i == 0 else "")))
 
 
 def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[dict]:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._common import (
     StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _pick,
-    _record_fit, _try, _views_config,
+    _recipe_cut, _record_fit, _try, _views_config,
 )
 
 __all__ = ["step_nerf"]
@@ -76,7 +76,9 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
                     config={k: repr(v) for k, v in kw.items()})
         np.savez_compressed(d / f"{key}_weights.npz", **fit.field.params)
         res.files[f"{key} weights"] = d / f"{key}_weights.npz"
-        res.metrics.append({"method": label, "status": fit.status,
+        cut = _recipe_cut(fit.n_iterations, _nerf_settings("full")["tutorial"]["n_iter"]) \
+            if key == "tutorial" else ""
+        res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
                             "held-out PSNR (dB)": fit.psnr,
                             "samples per ray": round(fit.samples_per_ray, 1)})
@@ -90,13 +92,15 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
             occupancy=fit.occupancy)
     _heldout_comparison(res, d, test.images[:3], renders, fits,
                         f"Held-out views of the {name} and the fitted fields rendered from them.")
+    cut = _recipe_cut(fits["tutorial"].n_iterations, _nerf_settings("full")["tutorial"]["n_iter"])
     return _close_comparison(
         res, d, t0, chart="held-out PSNR",
         panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"}],
         title=f"fit_nerf on the {name} ({size} size)", stability=_nerf_stability(train, size, seed),
         headline=lambda m, i: (f"PSNR {m['held-out PSNR (dB)'] or float('nan'):.1f} dB in "
                                f"{m['seconds']:.1f} s, "
-                               f"{res.param_counts[i]['network parameters']:,} params"))
+                               f"{res.param_counts[i]['network parameters']:,} params"
+                               + (cut if i == 0 else "")))
 
 
 def _nerf_stability(train, size: str, seed: int) -> list[dict]:

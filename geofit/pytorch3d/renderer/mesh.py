@@ -81,7 +81,8 @@ class RasterizationSettings:
             faces_per_pixel=int(self.faces_per_pixel),
             perspective_correct=self.perspective_correct,
             clip_barycentric_coords=self.clip_barycentric_coords,
-            cull_backfaces=self.cull_backfaces, z_clip_value=self.z_clip_value)
+            cull_backfaces=self.cull_backfaces, z_clip_value=self.z_clip_value,
+            dtype=np.float64)  # the tape's tensors are float64: store the render in float64
 
 
 def _settings(s) -> RasterizationSettings:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import itertools
 import numbers
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from ..._threads import get_num_threads, parallel_map
 from ..._validate import as_array, check_choice, check_int
 from ...cameras import CamerasBase
 from ...structures.pointcloud import Pointclouds, as_pointclouds
+from .._settings import float_dtype
 from .compositing import AlphaCompositor, NormWeightedCompositor
 
 __all__ = [
@@ -90,6 +91,9 @@ class PointsRasterizationSettings:
         ``"world"``: the radius is a world-space length; a point at view depth ``z`` gets the NDC
         radius ``radius * K00 / z`` for a perspective camera and ``radius * K00`` for an
         orthographic one (``K00`` the camera's x scale, ``get_projection_transform()[:, 0, 0]``).
+    dtype : numpy.float32 or numpy.float64
+        Type of the fragments' ``zbuf``, ``dists`` and ``radius`` and of the rendered images
+        (default float32, as PyTorch3D; projection and distances are computed in float64).
 
     Examples
     --------
@@ -102,9 +106,11 @@ class PointsRasterizationSettings:
     radius: float | np.ndarray = 0.01
     points_per_pixel: int = 8
     radius_units: str = "ndc"
+    dtype: Any = np.float32
 
     def __post_init__(self):
         _image_hw(self.image_size)
+        object.__setattr__(self, "dtype", float_dtype(self.dtype))
         _check_int(self.points_per_pixel, "points_per_pixel", 1)
         check_choice(self.radius_units, "radius_units", ("ndc", "world"))
         r = np.asarray(self.radius)
@@ -138,12 +144,12 @@ class PointFragments:
         If ``idx[n, j, i, k] = p >= 0`` then packed point ``p`` of the clouds is the ``k``-th
         nearest (in view depth) point covering pixel row ``j``, column ``i`` of image ``n``.
         Slots past the last hit are -1; entries are sorted front to back.
-    zbuf : (N, H, W, K) float64
+    zbuf : (N, H, W, K) float32 (the settings' ``dtype``)
         View depth of that point; -1 where ``idx`` is -1.
-    dists : (N, H, W, K) float64
+    dists : (N, H, W, K) float32 (the settings' ``dtype``)
         Squared NDC distance from the pixel centre to the point's projection, ``< radius**2``;
         -1 where ``idx`` is -1.
-    radius : (N, H, W, K) float64
+    radius : (N, H, W, K) float32 (the settings' ``dtype``)
         NDC radius of that point's disc (the settings' radius, or per point / world-scaled);
         0 where ``idx`` is -1.
     """
@@ -164,11 +170,12 @@ class PointFragments:
         return self.idx[..., 0] >= 0
 
     def weights(self) -> np.ndarray:
-        """(N, H, W, K) float64 compositing weights ``1 - dists / radius**2``; 0 where empty.
+        """(N, H, W, K) compositing weights ``1 - dists / radius**2`` (the fragments' dtype);
+        0 where empty.
 
         The weights of ``pytorch3d.renderer.PointsRenderer`` (SynSin's), in ``(0, 1]``.
         """
-        w = np.zeros(self.dists.shape)
+        w = np.zeros(self.dists.shape, self.dists.dtype)
         valid = self.idx >= 0
         w[valid] = 1.0 - self.dists[valid] / (self.radius[valid] ** 2)
         return w
@@ -280,15 +287,15 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
                       _check_int(K, "K", 1))
 
 
-def _rasterize(xy, z, radius, image_index, n_images, image_size, K):
-    """``rasterize_points`` on validated inputs."""
+def _rasterize(xy, z, radius, image_index, n_images, image_size, K, dtype=np.float64):
+    """``rasterize_points`` on validated inputs; ``zbuf`` and ``dists`` of type ``dtype``."""
     H, W = image_size
     from geofit._memory import check_allocation  # memory guard (issue 18): ~64 B per slot
     check_allocation(64 * n_images * H * W * K, "points_per_pixel and image_size",
                      f"the ({n_images}, {H}, {W}, K={K}) point fragments")
     n_pix = n_images * H * W
     entry_out = np.full(n_pix * K, -1, dtype=np.int64)
-    dist_out = np.full(n_pix * K, -1.0)
+    dist_out = np.full(n_pix * K, -1.0, dtype)
     filled = np.zeros(n_pix, dtype=np.int64)
     keep = (z >= 0) & (radius > 0)
     sel = np.flatnonzero(keep)
@@ -349,7 +356,7 @@ def _rasterize(xy, z, radius, image_index, n_images, image_size, K):
     shape = (n_images, H, W, K)
     entry_out = entry_out.reshape(shape)
     valid = entry_out >= 0
-    zbuf = np.full(shape, -1.0)
+    zbuf = np.full(shape, -1.0, dtype)
     zbuf[valid] = z[entry_out[valid]]
     return entry_out, zbuf, dist_out.reshape(shape)
 
@@ -513,11 +520,11 @@ class PointsRasterizer:
         s = self._settings(raster_settings)
         xy, z, r, img, pt, n_images = self.transform(point_clouds, cameras, raster_settings=s)
         K = s.points_per_pixel
-        entry, zbuf, dists = _rasterize(xy, z, r, img, n_images, s.hw, K)
+        entry, zbuf, dists = _rasterize(xy, z, r, img, n_images, s.hw, K, s.dtype)
         valid = entry >= 0
         idx = np.full(entry.shape, -1, dtype=np.int64)
         idx[valid] = pt[entry[valid]]
-        radius = np.zeros(entry.shape)
+        radius = np.zeros(entry.shape, s.dtype)
         radius[valid] = r[entry[valid]]
         return PointFragments(idx=idx, zbuf=zbuf, dists=dists, radius=radius)
 
@@ -527,9 +534,9 @@ class PointsRendering(NamedTuple):
 
     Attributes
     ----------
-    images : (N, H, W, C) float64
+    images : (N, H, W, C) float32 (the settings' ``dtype``)
         The composited features (C channels, or C + 1 with a background of C channels).
-    depth : (N, H, W) float64
+    depth : (N, H, W) float32 (the settings' ``dtype``)
         View depth of the nearest point per pixel; -1 where no point.
     fragments : PointFragments
         The rasterizer's output.
@@ -603,7 +610,7 @@ class PointsRenderer:
         frags = self.rasterizer(clouds, cameras, raster_settings=raster_settings)
         kw = {} if background_color is self._UNSET else {"background_color": background_color}
         images = self.compositor(frags.idx, frags.weights(), features, **kw)
-        return PointsRendering(images, frags.depth, frags)
+        return PointsRendering(images.astype(frags.dists.dtype, copy=False), frags.depth, frags)
 
     def __call__(self, point_clouds, cameras: CamerasBase | None = None, *,
                  raster_settings: PointsRasterizationSettings | None = None,

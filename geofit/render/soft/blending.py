@@ -36,9 +36,11 @@ def _sigmoid_terms(fr: SoftFragments, sigma: float):
     """
     cache = fr.__dict__.setdefault("_sigmoid_cache", {})
     if sigma not in cache:
-        e = np.exp(np.minimum(fr.dist * (-1.0 / sigma), 700.0))
+        e = np.exp(np.minimum(fr.dist.astype(np.float64) * (-1.0 / sigma), 700.0))
+        dtype = fr.dist.dtype
         cache.clear()
-        cache[sigma] = (e / (1.0 + e), -np.log1p(e))
+        cache[sigma] = ((e / (1.0 + e)).astype(dtype, copy=False),
+                        (-np.log1p(e)).astype(dtype, copy=False))
     return cache[sigma]
 
 
@@ -181,52 +183,86 @@ class SoftBlend:
         g_D = -(g[:, 0] * out[:, 0] + g[:, 1] * out[:, 1] + g[:, 2] * out[:, 2]) * inv_D
         w = s["w"]
         cols = s["colors"]
-        gn_e = [gn[gp] for gn in g_num]                        # per entry
-        g_col = np.empty((len(w), 3))
+        dt = w.dtype  # per-entry work in the fragments' storage type (float32 by default)
+        gn_e = [gn.astype(dt)[gp] for gn in g_num]             # per entry
+        g_col = np.empty((len(w), 3), dt)
         for c in range(3):  # colour channels
             g_col[:, c] = w * gn_e[c]
-        g_w = gn_e[0] * cols[:, 0] + gn_e[1] * cols[:, 1] + gn_e[2] * cols[:, 2] + g_D[gp]
+        # (the per-entry temporaries are freed as soon as they are used: they are the size of
+        # the fragments)
+        g_w = gn_e[0] * cols[:, 0]
+        g_w += gn_e[1] * cols[:, 1]
+        g_w += gn_e[2] * cols[:, 2]
+        del gn_e
+        g_w += g_D.astype(dt)[gp]
         bg = s["bg"]
         g_delta = g_num[0] * bg[0] + g_num[1] * bg[1] + g_num[2] * bg[2] + g_D
         p = s["p"]
         gamma = s["gamma"]
         g_p = g_w * s["E"]
-        gww = g_w * w
-        g_zinv = gww / gamma
+        g_w *= w                                               # d/d w_k * w_k
         G = len(D)
-        g_zm = -np.bincount(gp, gww, G) / gamma
+        g_zm = -np.bincount(gp, g_w, G) / gamma
         g_zm += np.where(s["delta_free"], -g_delta * s["delta"] / gamma, 0.0)
+        g_zbuf = g_w
+        del g_w
+        g_zbuf /= gamma                                        # now d/d z_inv
         # zm = max(z_inv) (one entry per pixel holds it), clamped at 1e-10
         first = s["first"]
-        g_zinv[first] += np.where(s["zm_free"], g_zm, 0.0)[gp[first]]
-        g_zbuf = -g_zinv / s["zrange"]
+        g_zbuf[first] += np.where(s["zm_free"], g_zm, 0.0)[gp[first]]
+        g_zbuf /= s["zrange"]
+        np.negative(g_zbuf, out=g_zbuf)                        # z_inv = (zfar - zbuf) / range
         sigma = s["sigma"]
         # p = sigmoid(-d / sigma); alpha = 1 - prod(1 - p): dA/dd_k = -(p_k / sigma)(1 - A)
-        g_d = (g_p * (1.0 - p) + g[gp, 3] * (1.0 - out[gp, 3])) * (-p / sigma)
+        ga = (g[:, 3] * (1.0 - out[:, 3])).astype(dt)         # per pixel
+        g_d = 1.0 - p
+        g_d *= g_p
+        del g_p
+        g_d += ga[gp]
+        g_d *= p
+        g_d *= -1.0 / sigma
         return g_col, g_d, g_zbuf
 
 
 def _softmax_weights(fr: SoftFragments, bp: BlendParams, znear, zfar) -> dict:
-    """The colour-independent part of softmax_rgb_blend: weights, normaliser, alpha."""
+    """The colour-independent part of softmax_rgb_blend: weights, normaliser, alpha.
+
+    Computed one view at a time in float64 (the per-entry temporaries are a view's), stored in
+    the fragments' dtype.
+    """
     H, W = fr.image_size
-    G = fr.n_views * H * W
+    HW = H * W
+    G = fr.n_views * HW
     gp = fr.global_pixel
-    zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (fr.n_views,))[fr.view]
-    zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (fr.n_views,))[fr.view]
+    zn = np.broadcast_to(np.asarray(znear, np.float64).reshape(-1), (fr.n_views,))
+    zf = np.broadcast_to(np.asarray(zfar, np.float64).reshape(-1), (fr.n_views,))
     sigma, gamma = float(bp.sigma), float(bp.gamma)
     p, log1mp = _sigmoid_terms(fr, sigma)
-    zrange = zf - zn
-    zinv = (zf - fr.depth) / zrange
+    dt = fr.dist.dtype
+    m = len(fr)
+    w, E, zrange = np.empty(m, dt), np.empty(m, dt), np.empty(m, dt)
     zmax = np.full(G, -np.inf)
-    np.maximum.at(zmax, gp, zinv)
-    # the entry holding each pixel's maximum (torch.max sends the gradient to one of them)
-    cand = np.flatnonzero(zinv == zmax[gp])
-    _, first_idx = np.unique(gp[cand], return_index=True)
-    first = cand[first_idx]
+    firsts = []
+    depth = fr.depth
+    for n, s in fr._views():  # loop over views
+        if s.start == s.stop:
+            continue
+        pix = fr.pixel[s]
+        zr = zf[n] - zn[n]
+        zinv = (zf[n] - depth[s].astype(np.float64)) / zr
+        zmax_n = zmax[n * HW:(n + 1) * HW]
+        np.maximum.at(zmax_n, pix, zinv)
+        # the entry holding each pixel's maximum (torch.max sends the gradient to one of them)
+        cand = np.flatnonzero(zinv == zmax_n[pix])
+        _, first_idx = np.unique(pix[cand], return_index=True)
+        firsts.append(s.start + cand[first_idx])
+        En = np.exp((zinv - np.maximum(zmax_n, _BLEND_EPS)[pix]) / gamma)
+        E[s] = En
+        w[s] = p[s] * En
+        zrange[s] = zr
+    first = np.concatenate(firsts) if firsts else np.zeros(0, np.int64)
     zm = np.maximum(zmax, _BLEND_EPS)
     zm_free = zmax > _BLEND_EPS
-    E = np.exp((zinv - zm[gp]) / gamma)
-    w = p * E
     delta_raw = np.exp((_BLEND_EPS - zm) / gamma)
     delta = np.maximum(delta_raw, _BLEND_EPS)
     delta_free = delta_raw > _BLEND_EPS
@@ -264,7 +300,7 @@ def softmax_rgb_blend_soft(colors, fragments: SoftFragments,
     fr = _check_fragments(fragments)
     bp = _check_blend(blend_params)
     m = len(fr)
-    col = as_array(colors, "colors", (m, 3))
+    col = as_array(colors, "colors", (m, 3), fr.dist.dtype)
     pre = _softmax_weights(fr, bp, znear, zfar)
     H, W = fr.image_size
     G = fr.n_views * H * W
@@ -275,5 +311,7 @@ def softmax_rgb_blend_soft(colors, fragments: SoftFragments,
     for c in range(3):  # colour channels
         out[:, c] = (np.bincount(gp, w * col[:, c], G) + delta * bg[c]) / D
     out[:, 3] = pre["alpha"]
+    dtype = fr.dist.dtype
     saved = dict(pre, fragments=fr, colors=col, bg=bg)
-    return SoftBlend(out.reshape(fr.n_views, H, W, 4), w / D[gp], delta / D, saved)
+    return SoftBlend(out.reshape(fr.n_views, H, W, 4).astype(dtype, copy=False),
+                     (w / D[gp]).astype(dtype, copy=False), delta / D, saved)

@@ -32,6 +32,9 @@ _NEGLIGIBLE = 1e-20  # softmax weight ratio below which an entry's colour is not
 # ------------------------------------------------------------------------------------------
 
 
+_VJP_CHUNK = 65536  # entries per chunk of the backward pass
+
+
 def _n_threads(n) -> int:
     if n is None:
         return get_num_threads()
@@ -65,7 +68,7 @@ class SoftFragments(DenseFragmentImages):
         Row-major pixel index ``row * W + col`` within its view (row 0 at the top).
     face : (m,) int64
         Face index (into the mesh's faces, not packed over views).
-    dist : (m,) float64
+    dist : (m,) float32 (the settings' ``dtype``)
         Signed squared NDC distance from the pixel centre to the projected triangle, negative
         inside (PyTorch3D's ``dists``).
     view_offsets : (N + 1,) int64
@@ -110,9 +113,10 @@ class SoftFragments(DenseFragmentImages):
 
     @cached_property
     def _bary_depth(self) -> tuple[np.ndarray, np.ndarray]:
-        bary = np.empty((len(self), 3))
-        depth = np.empty(len(self))
         c = self._ctx
+        dtype = c.get("dtype", np.float64)
+        bary = np.empty((len(self), 3), dtype)
+        depth = np.empty(len(self), dtype)
         for n, s in self._views():
             if s.start == s.stop:
                 continue
@@ -124,14 +128,14 @@ class SoftFragments(DenseFragmentImages):
 
     @property
     def bary(self) -> np.ndarray:
-        """(m, 3) float64 barycentrics as PyTorch3D outputs them (perspective-corrected and
-        clipped per the settings)."""
+        """(m, 3) barycentrics (the settings' ``dtype``) as PyTorch3D outputs them
+        (perspective-corrected and clipped per the settings)."""
         return self._bary_depth[0]
 
     @property
     def depth(self) -> np.ndarray:
-        """(m,) float64 view depth of the pixel's point on the face (PyTorch3D's ``zbuf``),
-        interpolated with :attr:`bary`."""
+        """(m,) view depth (the settings' ``dtype``) of the pixel's point on the face
+        (PyTorch3D's ``zbuf``), interpolated with :attr:`bary`."""
         return self._bary_depth[1]
 
     @cached_property
@@ -174,21 +178,19 @@ class SoftFragments(DenseFragmentImages):
         m = len(self)
         if m == 0 or (grad_dists is None and grad_zbuf is None and grad_bary is None):
             return np.zeros((V, 3))
-        gd_all = None if grad_dists is None else as_array(grad_dists, "grad_dists", (m,))
-        gz_all = None if grad_zbuf is None else as_array(grad_zbuf, "grad_zbuf", (m,))
-        gb_all = None if grad_bary is None else as_array(grad_bary, "grad_bary", (m, 3))
+        gd_all = None if grad_dists is None else _grad(grad_dists, "grad_dists", (m,))
+        gz_all = None if grad_zbuf is None else _grad(grad_zbuf, "grad_zbuf", (m,))
+        gb_all = None if grad_bary is None else _grad(grad_bary, "grad_bary", (m, 3))
         faces = ctx["faces"]
 
-        def one(n):
-            s = slice(int(self.view_offsets[n]), int(self.view_offsets[n + 1]))
-            if s.start == s.stop:
-                return None
+        def chunk(n, s):
+            def part(a):  # this chunk's gradient, in float64
+                return None if a is None else a[s].astype(np.float64, copy=False)
+
             if gz_all is None and gb_all is None:
-                return _dist_vjp(self, n, s, gd_all[s], V)
+                return _dist_vjp(self, n, s, part(gd_all), V)
             g = _EntryGeometry(self, n, s)
-            gx, gy, gz = g.vjp(None if gd_all is None else gd_all[s],
-                               None if gz_all is None else gz_all[s],
-                               None if gb_all is None else gb_all[s],
+            gx, gy, gz = g.vjp(part(gd_all), part(gz_all), part(gb_all),
                                ctx["perspective_correct"], ctx["clip"])
             f = self.face[s]
             J = ctx["J"][n]
@@ -202,8 +204,24 @@ class SoftFragments(DenseFragmentImages):
                     out += np.bincount(vid, gz[c], V)[:, None] * ctx["R"][n][:, 2][None, :]
             return out
 
+        def one(n):
+            # a view in chunks of at most _VJP_CHUNK entries (bounded float64 temporaries)
+            lo, hi = int(self.view_offsets[n]), int(self.view_offsets[n + 1])
+            out = None
+            for a in range(lo, hi, _VJP_CHUNK):  # chunks of the view's entries
+                g = chunk(n, slice(a, min(a + _VJP_CHUNK, hi)))
+                out = g if out is None else out + g
+            return out
+
         parts = _map_views(one, self.n_views, ctx["n_threads"])
         return sum((p for p in parts if p is not None), np.zeros((V, 3)))
+
+
+def _grad(x, name, shape):
+    """A per-entry gradient as float64, or as float32 if given so (no float64 copy of a
+    float32 gradient the size of the fragments; views are upcast one at a time)."""
+    keep = isinstance(x, np.ndarray) and x.dtype == np.float32
+    return as_array(x, name, shape, np.float32 if keep else np.float64)
 
 
 _EDGE_ENDS = np.array([[0, 1], [0, 2], [1, 2]])

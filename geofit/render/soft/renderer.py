@@ -55,8 +55,8 @@ class SoftRender:
 
     Attributes
     ----------
-    images : (N, H, W, 4) float64
-        RGBA (RGB = 1 for silhouettes).
+    images : (N, H, W, 4) float32 or float64
+        RGBA (RGB = 1 for silhouettes); Phong images in the settings' ``dtype``.
     fragments : SoftFragments
     """
 
@@ -97,9 +97,12 @@ class SoftRender:
         blend: SoftBlend = self._saved["blend"]
         shading: PhongColors = self._saved["shading"]
         g_col, g_d, g_z = blend.vjp(g)
-        gv, gcol, gb = shading.vjp(g_col[shading.entries])
-        gbary = np.zeros((len(fr), 3))
+        g_col = g_col[shading.entries]
+        gv, gcol, gb = shading.vjp(g_col)
+        del g_col
+        gbary = np.zeros((len(fr), 3), g_d.dtype)
         gbary[shading.entries] = gb
+        del gb
         gv = gv + fr.vjp(grad_dists=g_d, grad_zbuf=g_z, grad_bary=gbary)
         return SoftGrads(gv, gcol)
 
@@ -274,7 +277,7 @@ def shade_soft_phong(fragments: SoftFragments, mesh: Mesh, vertex_colors, lights
     active = np.flatnonzero(E >= _NEGLIGIBLE)
     shading = phong_vertex_colors(fr, mesh, vertex_colors, lights, cameras, materials,
                                   entries=active)
-    colors = np.zeros((len(fr), 3))
+    colors = np.zeros((len(fr), 3), fr.dist.dtype)
     colors[active] = shading.colors
     blend = softmax_rgb_blend_soft(colors, fr, blend_params, znear, zfar)
     return SoftRender(blend.images, fr, "phong",

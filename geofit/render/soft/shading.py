@@ -104,7 +104,7 @@ def _scatter(b, g, i, V):
     return out
 
 
-_CHUNK = 65536  # entries per shading chunk (cache-sized arrays)
+_CHUNK = 32768  # entries per shading chunk (cache-sized arrays; ~60 float64 temporaries each)
 
 
 def _chunks(n: int, size: int = _CHUNK) -> list:
@@ -136,7 +136,8 @@ class PhongColors:
     @property
     def cos(self) -> np.ndarray:
         """(k,) float64 ``n . l`` (cosine between the shading normal and the light) per entry."""
-        parts = [c["cos"] for c in self._saved["chunk_saved"]]
+        s = self._saved
+        parts = [s["chunk"](ci)[3]["cos"] for ci in range(len(s["chunks"]))]  # chunks
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def vjp(self, grad_colors) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,14 +159,18 @@ class PhongColors:
         """
         s = self._saved
         k = len(self.entries)
-        g = as_array(grad_colors, "grad_colors", (k, 3))
+        dt = self.colors.dtype
+        keep = isinstance(grad_colors, np.ndarray) and grad_colors.dtype == dt
+        g = as_array(grad_colors, "grad_colors", (k, 3), dt if keep else np.float64)
         V = s["n_verts"]
-        g_bary = np.empty((k, 3))
+        g_bary = np.empty((k, 3), dt)
 
         def one(ci):
             sl = s["chunks"][ci]
-            gP, gN, gT, gb, cs = _phong_chunk_vjp(s["chunk_saved"][ci], g[sl], self.shade[sl],
-                                                  s)
+            # the chunk's intermediates are recomputed (exactly as in the forward pass) rather
+            # than kept: they would be ~25 float64 arrays per shaded entry
+            gP, gN, gT, gb, cs = _phong_chunk_vjp(s["chunk"](ci)[3], g[sl].astype(np.float64),
+                                                  self.shade[sl].astype(np.float64), s)
             g_bary[sl] = gb
             b, i = cs["b"], cs["i"]
             return _scatter(b, gP, i, V), _scatter(b, gN, i, V), _scatter(b, gT, i, V)
@@ -343,22 +348,26 @@ def phong_vertex_colors(fragments: SoftFragments, mesh: Mesh, vertex_colors, lig
          "n_threads": fr._ctx.get("n_threads", 1)}
     k = len(entries)
     chunks = _chunks(k)
-    colors = np.empty((k, 3))
-    shade = np.empty((k, 3))
-    spec = np.empty((k, 3))
+    dtype = fr.dist.dtype
+    colors = np.empty((k, 3), dtype)
+    shade = np.empty((k, 3), dtype)
+    spec = np.empty((k, 3), dtype)
     faces = mesh.faces
     bary = fr.bary
 
-    def one(ci):
+    def chunk(ci):
         e = entries[chunks[ci]]
         tri = faces[fr.face[e]]
         i = [np.ascontiguousarray(tri[:, j]) for j in range(3)]
         bb = bary[e]
-        b = [np.ascontiguousarray(bb[:, j]) for j in range(3)]
-        c, sh, sp, saved = _phong_chunk(b, i, fr.view[e], s)
-        colors[chunks[ci]], shade[chunks[ci]], spec[chunks[ci]] = c, sh, sp
-        return saved
+        b = [np.ascontiguousarray(bb[:, j], dtype=np.float64) for j in range(3)]
+        return _phong_chunk(b, i, fr.view[e], s)
 
-    s["chunk_saved"] = _map_views(one, len(chunks), s["n_threads"])
+    def one(ci):
+        c, sh, sp, _ = chunk(ci)
+        colors[chunks[ci]], shade[chunks[ci]], spec[chunks[ci]] = c, sh, sp
+
+    _map_views(one, len(chunks), s["n_threads"])
+    s["chunk"] = chunk
     s["chunks"] = chunks
     return PhongColors(entries, colors, shade, spec, s)
