@@ -31,6 +31,7 @@ from .io import (
     load_obj,
     load_objs_as_meshes,
     load_pointcloud,
+    save_mesh,
     save_obj,
     save_pointcloud,
 )
@@ -141,6 +142,7 @@ __all__ = [
     "load_obj",
     "load_objs_as_meshes",
     "load_pointcloud",
+    "save_mesh",
     "save_obj",
     "save_pointcloud",
     # sampling, operators and losses

@@ -65,7 +65,15 @@ def as_array(
     ValueError
         On a shape mismatch, non-finite values, non-integral values for an integer dtype, or an
         empty array when ``allow_empty`` is False.
+    TypeError
+        For a mesh or point cloud object (geofit, trimesh, Open3D), saying how to convert it.
     """
+    if not isinstance(x, (np.ndarray, list, tuple, numbers.Number)):
+        from ._foreign import ARRAY_HINTS, geometry_kind
+
+        kind = geometry_kind(x)
+        if kind is not None:
+            raise TypeError(f"{name}: expected an array, got a {kind}; {ARRAY_HINTS[kind]}")
     try:
         arr = np.asarray(x)
     except Exception as exc:  # ragged lists and the like

@@ -5,10 +5,14 @@ Where the files are looked for, in order:
 1. the folder named by the environment variable ``GEOFIT_DATA`` (holding ``dolphin/dolphin.obj``,
    ``cow_mesh/cow.obj``, ``cow_mesh/cow.mtl``, ``cow_mesh/cow_texture.png``);
 2. the user cache, ``$XDG_CACHE_HOME/geofit`` or ``~/.cache/geofit``, where :func:`download`
-   writes.
+   writes;
+3. the data installed with geofit (:func:`shipped_dir`): the cow (Keenan Crane's "Spot", public
+   domain), so the rendering tutorials and ``geofit demo`` use the real cow on any machine.
 
-Without the files (and without network), :func:`load_target_mesh` and :func:`load_textured_mesh`
-fall back to deterministic procedural meshes, and say which one they returned.
+The dolphin (licence unknown) is not shipped: without ``GEOFIT_DATA``, a cached download or
+network, :func:`load_target_mesh` falls back to a deterministic procedural stand-in (and
+:func:`load_textured_mesh` to a procedural textured mesh should the shipped cow be missing),
+and says which mesh it returned.
 """
 from __future__ import annotations
 
@@ -37,6 +41,7 @@ __all__ = [
     "data_dir",
     "download",
     "find",
+    "shipped_dir",
     "load_target_mesh",
     "load_textured_mesh",
     "procedural_target",
@@ -113,10 +118,34 @@ def data_dir() -> Path:
     return Path(env).expanduser() if env else cache_dir()
 
 
+def shipped_dir() -> Path | None:
+    """The folder of data installed with geofit (the cow), or None if it is missing.
+
+    Returns
+    -------
+    Path or None
+        ``geofit/_data`` inside the installed package (package data of a regular or editable
+        install; in a source checkout a link to the top-level ``data/`` folder), or the
+        checkout's ``data/`` folder itself where the link is not available. None when the
+        environment variable ``GEOFIT_SHIPPED_DATA`` is ``0`` (the tests use this to exercise
+        the procedural fallbacks).
+    """
+    if os.environ.get("GEOFIT_SHIPPED_DATA", "").strip().lower() in ("0", "false", "no", "off"):
+        return None
+    pkg = Path(__file__).resolve().parent
+    for d in (pkg / "_data", pkg.parent / "data"):
+        if (d / "cow_mesh" / "cow.obj").is_file():
+            return d
+    return None
+
+
 def _search_dirs() -> list[Path]:
     dirs = [data_dir()]
     if cache_dir() not in dirs:
         dirs.append(cache_dir())
+    shipped = shipped_dir()
+    if shipped is not None:
+        dirs.append(shipped)
     return dirs
 
 
@@ -152,7 +181,8 @@ def find(name: str, *, verify: bool = False) -> Path | None:
     Returns
     -------
     Path or None
-        The first existing ``<folder>/<name>`` over ``$GEOFIT_DATA`` then the user cache.
+        The first existing ``<folder>/<name>`` over ``$GEOFIT_DATA``, the user cache, then the
+        data shipped with geofit (:func:`shipped_dir`).
 
     Raises
     ------
@@ -459,12 +489,13 @@ def load_target_mesh() -> DataMesh:
 
 
 def load_textured_mesh() -> DataMesh:
-    """The rendering tutorials' textured mesh: the cow if found, else the textured stand-in.
+    """The rendering tutorials' textured mesh: the cow (shipped with geofit), else a stand-in.
 
     Returns
     -------
     DataMesh
-        ``(mesh, "cow", path)`` read with :func:`geofit.io.load_objs_as_meshes` (TexturesUV
+        ``(mesh, "cow", path)`` (from ``$GEOFIT_DATA``, the cache or the copy installed with
+        geofit, in that order) read with :func:`geofit.io.load_objs_as_meshes` (TexturesUV
         from ``cow_texture.png``, raw coordinates), or
         ``(procedural_textured_mesh(), "procedural_textured", None)``.
     """

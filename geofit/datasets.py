@@ -44,7 +44,7 @@ from ._validate import as_array, as_unit_images, check_positive
 from ._validate import check_int as _count
 from .cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
 from .io.views import load_views, save_views
-from .structures.mesh import Mesh
+from .structures.mesh import Mesh, as_mesh
 
 __all__ = [
     "SILHOUETTE_KINDS",
@@ -330,8 +330,7 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
         warnings.warn("render_views(mesh_name=...) is deprecated; use name=...",
                       DeprecationWarning, stacklevel=2)
         name = mesh_name
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     if mesh.textures is None:
         raise ValueError("mesh: expected a textured mesh (TexturesUV or TexturesVertex)")
     size = _count(image_size, "image_size")

@@ -44,7 +44,7 @@ import numpy as np
 from ._validate import as_rng, check_positive
 from .ops import sample_points_from_meshes
 from .raycast import PointToMeshDistance
-from .structures import Mesh
+from .structures import Mesh, as_mesh
 
 __all__ = [
     "MeshEvaluator",
@@ -109,8 +109,7 @@ class MeshMetrics:
 
 
 def _check_mesh(mesh, name: str) -> Mesh:
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"{name}: expected a geofit Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, name)  # a geofit, trimesh or Open3D mesh
     if mesh.n_faces == 0:
         raise ValueError(f"{name}: expected a mesh with at least one face, got 0 faces")
     return mesh

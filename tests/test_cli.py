@@ -20,14 +20,50 @@ def test_no_command_prints_help_and_returns_2(capsys):
     assert "usage: geofit" in capsys.readouterr().out
 
 
-def test_demo_writes_png_grid(tmp_path, monkeypatch):
-    """`geofit demo` writes a PNG grid of the requested views (procedural mesh offline)."""
+def test_demo_fits_the_shipped_cow(tmp_path, monkeypatch, capsys):
+    """`geofit demo` (reduced size) fits the cow shipped with geofit, offline and without
+    GEOFIT_DATA, and writes the picture and the fitted mesh as PLY with its colours."""
+    from geofit.cli.demo import run_demo
+    from geofit.io import load_mesh
+
+    monkeypatch.delenv("GEOFIT_DATA", raising=False)
+    monkeypatch.delenv("GEOFIT_SHIPPED_DATA", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    res = run_demo(tmp_path / "out", views=4, size=32, heldout=2, time_budget=2.0)
+    assert res.name == "cow"
+    assert set(res.metrics) >= {"iou", "psnr", "chamfer_l2", "fscore@0.01"}
+    assert 0.5 < res.metrics["iou"] <= 1.0 and np.isfinite(res.metrics["chamfer_l2"])
+    img = np.asarray(Image.open(tmp_path / "out" / "demo.png"))
+    assert img.shape[0] > 2 * 160 and img.shape[1] >= 2 * 160  # caption + targets above the fit
+    assert (img < 250).any() and (img == 255).any()
+    back = load_mesh(tmp_path / "out" / "fit.ply")
+    np.testing.assert_array_equal(back.verts, res.mesh.verts)  # PLY keeps float64
+    np.testing.assert_array_equal(back.faces, res.mesh.faces)
+    err = np.abs(back.textures.verts_features - res.mesh.textures.verts_features).max()
+    assert err <= 1 / 255
+    text = capsys.readouterr().out
+    assert "cow" in text and "held-out views: silhouette IoU" in text and "fit.ply" in text
+
+
+def test_demo_command_line(tmp_path, monkeypatch):
+    """`geofit demo --views ... --out ...` runs the same job from the command line."""
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # the procedural stand-in: smaller, faster
     monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "nothing-here"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    assert main(["demo", "--out", str(tmp_path), "--views", "3", "--size", "32"]) == 0
-    img = np.asarray(Image.open(tmp_path / "demo.png"))
-    assert img.shape == (32, 96, 3)
-    assert (img < 250).any() and (img == 255).any()  # some object, some background
+    assert main(["demo", "--out", str(tmp_path), "--views", "3", "--size", "16", "--heldout", "1",
+                 "--time", "1"]) == 0
+    assert (tmp_path / "demo.png").is_file() and (tmp_path / "fit.ply").is_file()
+
+
+@pytest.mark.parametrize("kw, match", [({"views": 1}, "views"), ({"size": 8}, "size"),
+                                       ({"size": 33}, "even"), ({"heldout": 0}, "heldout"),
+                                       ({"time_budget": 0}, "time_budget")])
+def test_run_demo_validation(tmp_path, kw, match):
+    from geofit.cli.demo import run_demo
+
+    with pytest.raises(ValueError, match=match):
+        run_demo(tmp_path, **kw)
+    assert not any(tmp_path.iterdir())  # nothing written before the check
 
 
 def test_demo_sphere_silhouette_matches_analytic_disc():

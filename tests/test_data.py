@@ -24,8 +24,9 @@ def sha(data: bytes) -> str:
 
 @pytest.fixture
 def dirs(tmp_path, monkeypatch):
-    """Isolate the data folders: GEOFIT_DATA unset, cache under tmp_path."""
+    """Isolate the data folders: GEOFIT_DATA unset, cache under tmp_path, no shipped cow."""
     monkeypatch.delenv("GEOFIT_DATA", raising=False)
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     return tmp_path
 
@@ -306,3 +307,54 @@ def test_loaders_use_files_under_geofit_data(dirs, monkeypatch):
     np.testing.assert_array_equal(tex.mesh.textures.maps, maps)
     np.testing.assert_array_equal(tex.mesh.textures.faces_uvs, fuv)
     assert np.asarray(Image.open(root / "cow_mesh" / "cow.png")).shape == (2, 2, 3)
+
+
+# --------------------------------------------------------------------------- the shipped cow
+def test_shipped_cow_is_the_default_offline(dirs, monkeypatch):
+    """With no GEOFIT_DATA and an empty cache, the cow installed with geofit is loaded."""
+    monkeypatch.delenv("GEOFIT_SHIPPED_DATA")
+    shipped = gd.shipped_dir()
+    assert shipped is not None
+    for name in gd.GROUPS["cow"]:  # byte for byte the checked tutorial files
+        assert gd.find(name, verify=True) == shipped / name
+    tex = gd.load_textured_mesh()
+    assert tex.name == "cow" and tex.path == shipped / "cow_mesh" / "cow.obj"
+    assert (tex.mesh.n_verts, tex.mesh.n_faces) == (2930, 5856)
+    assert tex.mesh.textures.maps.shape == (1024, 1024, 3)
+    assert gd.load_target_mesh().name == "procedural_target"  # the dolphin is not shipped
+    assert "CC0" in (shipped / "README.md").read_text()
+
+
+def test_geofit_data_and_cache_come_before_the_shipped_cow(dirs, monkeypatch):
+    """Lookup order: GEOFIT_DATA, then the user cache, then the shipped data."""
+    monkeypatch.delenv("GEOFIT_SHIPPED_DATA")
+    mine, cache = dirs / "mine", gd.cache_dir()
+    for root in (mine, cache):
+        (root / "cow_mesh").mkdir(parents=True)
+        (root / "cow_mesh" / "cow.mtl").write_text(f"# {root.name}\n")
+    monkeypatch.setenv("GEOFIT_DATA", str(mine))
+    assert gd.find("cow_mesh/cow.mtl") == mine / "cow_mesh" / "cow.mtl"
+    (mine / "cow_mesh" / "cow.mtl").unlink()
+    assert gd.find("cow_mesh/cow.mtl") == cache / "cow_mesh" / "cow.mtl"
+    (cache / "cow_mesh" / "cow.mtl").unlink()
+    assert gd.find("cow_mesh/cow.mtl") == gd.shipped_dir() / "cow_mesh" / "cow.mtl"
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")
+    assert gd.shipped_dir() is None and gd.find("cow_mesh/cow.mtl") is None
+
+
+def test_setup_cfg_installs_the_shipped_files():
+    """package_data names every shipped file (so a regular install carries the cow)."""
+    import configparser
+    import fnmatch
+
+    root = Path(gd.__file__).resolve().parents[1]
+    if not (root / "setup.cfg").is_file():
+        pytest.skip("geofit is installed, not run from its source tree")
+    cfg = configparser.ConfigParser()
+    cfg.read(root / "setup.cfg")
+    patterns = cfg["options.package_data"]["geofit"].split()
+    shipped = [p.relative_to(root / "data").as_posix() for p in (root / "data").rglob("*")
+               if p.is_file()]
+    assert shipped and all(any(fnmatch.fnmatch(f"_data/{f}", pat) for pat in patterns)
+                           for f in shipped)
+    assert (root / "geofit" / "_data" / "cow_mesh" / "cow.obj").is_file()

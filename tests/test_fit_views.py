@@ -351,6 +351,7 @@ def test_cli_fit_views(tmp_path, monkeypatch, capsys):
 
     monkeypatch.delenv("GEOFIT_DATA", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))   # no tutorial data: stand-in
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
     code = main(["fit-views", "--out", str(tmp_path), "--views", "4", "--image-size", "24",
                  "--heldout", "2", "--silhouette-iters", "5", "--textured-iters", "3",
                  "--init-level", "1", "--no-progress"])

@@ -10,7 +10,7 @@ from PIL import Image
 import geofit.data
 from geofit import Mesh, PointCloud, TexturesUV, TexturesVertex, ico_sphere
 from geofit.io import (Material, ObjData, load_mesh, load_obj, load_objs_as_meshes,
-                       load_pointcloud, save_obj, save_pointcloud)
+                       load_pointcloud, save_mesh, save_obj, save_pointcloud)
 
 DATA = Path(__file__).parent / "data"
 
@@ -388,8 +388,8 @@ def test_load_mesh_other_formats(tmp_path):
     write(tmp_path / "nan.off", "OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n")
     with pytest.raises(ValueError, match=r"nan\.off: the vertex coordinates are not all finite"):
         load_mesh(tmp_path / "nan.off")
-    with pytest.raises(ValueError, match=r"path: expected a \.obj"):
-        load_mesh(tmp_path / "s.glb")
+    with pytest.raises(ValueError, match=r"path: expected one of \.obj, \.ply"):
+        load_mesh(tmp_path / "s.3ds")
     with pytest.raises(FileNotFoundError, match=r"nope\.ply"):
         load_mesh(tmp_path / "nope.ply")
 
@@ -593,7 +593,7 @@ def test_pointcloud_errors(tmp_path):
     with pytest.raises(ValueError, match=r"g\.ply: not a PLY file"):
         load_pointcloud(tmp_path / "g.ply")
     cloud = PointCloud(pts, np.zeros((3, 1)))
-    with pytest.raises(TypeError, match="cloud: expected a PointCloud"):
+    with pytest.raises(TypeError, match="cloud: expected a geofit PointCloud"):
         save_pointcloud(tmp_path / "a.npz", pts)
     with pytest.raises(ValueError, match=r"path: expected a \.npz or \.ply file"):
         save_pointcloud(tmp_path / "a.txt", cloud)
@@ -628,3 +628,167 @@ def test_real_cow_matches_pytorch3d():
     mesh = load_objs_as_meshes([COW])[0]
     colour = mesh.sample_textures(ref["uvlookup_face"], ref["uvlookup_bary"])
     np.testing.assert_allclose(colour, ref["uvlookup_colour"], rtol=0, atol=1e-4)  # float32 ref
+
+
+# ------------------------------------------------------------------------ load_mesh / save_mesh
+def _coloured_sphere(level=2):
+    m = ico_sphere(level)
+    cols = np.random.default_rng(7).uniform(0, 1, (m.n_verts, 3))  # like fitted colours
+    return Mesh(m.verts, m.faces, TexturesVertex(cols))
+
+
+@pytest.mark.parametrize("ext, atol", [(".obj", 0.0), (".ply", 0.0), (".off", 1e-9),
+                                       (".glb", 1e-6)])
+def test_save_mesh_load_mesh_round_trip(tmp_path, ext, atol):
+    """save_mesh then load_mesh keeps vertex order and faces (positions to format precision)."""
+    mesh = _coloured_sphere()
+    save_mesh(tmp_path / f"m{ext}", mesh)
+    back = load_mesh(tmp_path / f"m{ext}")
+    np.testing.assert_allclose(back.verts, mesh.verts, rtol=0, atol=atol)
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".glb"])
+def test_fitted_colours_export_to_ply_and_glb(tmp_path, ext):
+    """Vertex colours come back within 1/255 from the 8-bit formats (none on request)."""
+    mesh = _coloured_sphere()
+    save_mesh(tmp_path / f"fit{ext}", mesh)
+    back = load_mesh(tmp_path / f"fit{ext}")
+    assert isinstance(back.textures, TexturesVertex)
+    err = np.abs(back.textures.verts_features - mesh.textures.verts_features).max()
+    assert err <= 1 / 255
+    assert load_mesh(tmp_path / f"fit{ext}", load_textures=False).textures is None
+
+
+def test_stl_vertices_are_merged(tmp_path):
+    """An STL triangle soup loads with its shared vertices merged: 2,562 for ico_sphere(4)."""
+    mesh = ico_sphere(4)
+    save_mesh(tmp_path / "s.stl", mesh)
+    back = load_mesh(tmp_path / "s.stl")
+    assert (back.n_verts, back.n_faces) == (2562, 5120)
+    assert back.topology.is_watertight
+    # same triangles up to float32: every face's corners match the original's
+    np.testing.assert_allclose(np.sort(back.verts[back.faces].reshape(-1, 9), axis=0),
+                               np.sort(mesh.verts[mesh.faces].reshape(-1, 9), axis=0), atol=1e-6)
+
+
+def test_glb_keeps_uv_texture(tmp_path):
+    """A UV-textured mesh (with seams) written as GLB reloads with its per-corner UVs and map."""
+    m = geofit.data.procedural_textured_mesh(n_lat=6, n_lon=8, texture_size=16)
+    t = m.textures
+    mesh = Mesh(m.verts, m.faces, TexturesUV(np.round(t.maps * 255) / 255, t.faces_uvs,
+                                             t.verts_uvs))
+    save_mesh(tmp_path / "t.glb", mesh)
+    back = load_mesh(tmp_path / "t.glb")
+    assert isinstance(back.textures, TexturesUV)
+    np.testing.assert_allclose(back.verts[back.faces], mesh.verts[mesh.faces], atol=1e-6)
+    np.testing.assert_allclose(back.textures.verts_uvs[back.textures.faces_uvs],
+                               t.verts_uvs[t.faces_uvs], atol=1e-6)
+    np.testing.assert_array_equal(back.textures.maps, mesh.textures.maps)
+
+
+def test_obj_texture_round_trip_through_save_mesh(tmp_path):
+    """save_mesh(.obj) is save_obj: the UV texture and exact coordinates come back."""
+    m = geofit.data.procedural_textured_mesh(n_lat=5, n_lon=6, texture_size=16)
+    save_mesh(tmp_path / "t.obj", m)
+    back = load_mesh(tmp_path / "t.obj")
+    np.testing.assert_array_equal(back.verts, m.verts)
+    np.testing.assert_array_equal(back.textures.faces_uvs, m.textures.faces_uvs)
+
+
+@pytest.mark.parametrize("name, text, faces", [
+    ("q.off", "OFF\n5 1 0\n0 0 0\n1 0 0\n1 1 0\n0.5 1.5 0\n0 1 0\n5 0 1 2 3 4\n", 3),
+    ("q.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+              "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+              "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+              "0 0 0 255 0 0\n1 0 0 0 255 0\n1 1 0 0 0 255\n0 1 0 10 20 30\n4 0 1 2 3\n", 2)])
+def test_polygons_are_triangulated(tmp_path, name, text, faces):
+    """Quads and pentagons load as triangles; PLY colours come along."""
+    mesh = load_mesh(write(tmp_path / name, text))
+    assert mesh.n_faces == faces
+    assert np.isclose(mesh.face_areas.sum(), 1.25 if faces == 3 else 1.0)
+    if name.endswith(".ply"):
+        np.testing.assert_array_equal(mesh.textures.verts_features[3], np.array([10, 20, 30]) / 255)
+
+
+def test_save_mesh_accepts_library_meshes(tmp_path):
+    """trimesh and Open3D meshes are written as they are."""
+    import trimesh
+
+    save_mesh(tmp_path / "box.ply", trimesh.creation.box())
+    assert load_mesh(tmp_path / "box.ply").n_faces == 12
+    save_obj(tmp_path / "box.obj", ico_sphere(1).to_open3d())
+    assert load_mesh(tmp_path / "box.obj").n_verts == 42
+
+
+def test_wrong_format_errors(tmp_path):
+    """Each function refuses what it cannot do and names the format and the right function."""
+    mesh = ico_sphere(1)
+    save_mesh(tmp_path / "m.ply", mesh)
+    with pytest.raises(ValueError,
+                       match=r"m\.ply: this is a PLY file, not OBJ.*geofit\.io\.load_mesh"):
+        load_obj(tmp_path / "m.ply")
+    (tmp_path / "disguised.obj").write_bytes((tmp_path / "m.ply").read_bytes())
+    with pytest.raises(ValueError, match=r"disguised\.obj: this is a PLY file"):
+        load_obj(tmp_path / "disguised.obj")
+    np.testing.assert_array_equal(load_mesh(tmp_path / "disguised.obj").verts, mesh.verts)
+    with pytest.raises(ValueError,
+                       match=r"save_obj writes Wavefront OBJ.*PLY.*geofit\.io\.save_mesh"):
+        save_obj(tmp_path / "x.ply", mesh)
+    assert not (tmp_path / "x.ply").exists()
+    with pytest.raises(ValueError, match=r"save_mesh writes \.obj, \.ply.*'x\.gltf'.*\.glb"):
+        save_mesh(tmp_path / "x.gltf", mesh)
+    with pytest.raises(ValueError, match=r"save_mesh writes .*'x\.fbx'"):
+        save_mesh(tmp_path / "x.fbx", mesh)
+    with pytest.raises(TypeError, match="mesh: expected a geofit Mesh"):
+        save_mesh(tmp_path / "x.ply", mesh.verts)
+    with pytest.raises(ValueError, match="at least one face"):
+        save_mesh(tmp_path / "x.ply", Mesh(np.eye(3), np.zeros((0, 3), np.int64)))
+    save_pointcloud(tmp_path / "c.ply", PointCloud(np.eye(3)))
+    with pytest.raises(ValueError, match=r"c\.ply: the file has no faces.*load_pointcloud"):
+        load_mesh(tmp_path / "c.ply")
+    with pytest.raises(ValueError, match=r"\.npz holds a point cloud.*load_pointcloud"):
+        load_mesh(tmp_path / "c.npz")
+    write(tmp_path / "bad.glb", "not a glb")
+    with pytest.raises(ValueError, match=r"bad\.glb: trimesh could not read it as GLB"):
+        load_mesh(tmp_path / "bad.glb")
+
+
+def test_docstring_examples_run():
+    """The examples in geofit.io.mesh and geofit.io.obj docstrings run (doctest)."""
+    import doctest
+
+    import geofit.io.mesh as gm
+    import geofit.io.obj as go
+
+    for mod in (gm, go):
+        result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0, mod.__name__
+        assert result.attempted > 0, mod.__name__
+
+
+def test_load_mesh_reads_gltf_with_side_files(tmp_path):
+    """A .gltf (JSON plus .bin buffers, as trimesh writes it) loads with its vertex colours."""
+    import trimesh
+
+    tm = trimesh.creation.icosphere(2)
+    tm.visual.vertex_colors = np.tile([200, 10, 10, 255], (len(tm.vertices), 1)).astype(np.uint8)
+    for name, blob in trimesh.exchange.gltf.export_gltf(tm.scene()).items():
+        (tmp_path / name).write_bytes(blob)
+    mesh = load_mesh(tmp_path / "model.gltf")
+    assert (mesh.n_verts, mesh.n_faces) == (162, 320)
+    np.testing.assert_allclose(mesh.verts, tm.vertices, atol=1e-6)  # float32 in glTF
+    np.testing.assert_array_equal(mesh.textures.verts_features,
+                                  np.tile([200, 10, 10], (162, 1)) / 255)
+
+
+def test_ply_bakes_a_uv_texture_into_vertex_colours(tmp_path):
+    """A UV-textured mesh saved as PLY carries the texture's colour at each vertex."""
+    m = ico_sphere(1)
+    uv = np.full((1, 2), 0.5)
+    maps = np.broadcast_to([0.2, 0.4, 0.6], (4, 4, 3))  # one colour everywhere
+    mesh = Mesh(m.verts, m.faces, TexturesUV(maps, np.zeros_like(m.faces), uv))
+    save_mesh(tmp_path / "t.ply", mesh)
+    back = load_mesh(tmp_path / "t.ply")
+    np.testing.assert_allclose(back.textures.verts_features,
+                               np.tile([0.2, 0.4, 0.6], (m.n_verts, 1)), atol=0.5 / 255)

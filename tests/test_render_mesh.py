@@ -779,6 +779,7 @@ def test_cli_render_writes_images(tmp_path, monkeypatch, capsys):
     from geofit.cli import main
 
     monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "nothing-here"))
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     out = tmp_path / "out"
     assert main(["render", "--out", str(out), "--image-size", "32", "--views", "3"]) == 0

@@ -569,6 +569,7 @@ def test_cli_default_cloud_without_data(tmp_path, monkeypatch, capsys):
     from geofit.cli import main
 
     monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "nodata"))
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     code = main(["render-points", "--out", str(tmp_path / "o"), "--image-size", "32",
                  "--n-points", "2000", "--camera", "persp"])

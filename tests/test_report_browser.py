@@ -91,6 +91,7 @@ def test_the_browser_check_sees_a_missing_image(tmp_path):
 def test_the_command_report_loads_in_chromium(tmp_path, monkeypatch):
     """The report `geofit tutorials` writes (render steps, tiny size, procedural data)."""
     monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "no-data-here"))
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     run = run_tutorials(tmp_path / "out", size="tiny", only=["render_mesh", "render_points"],
                         progress=False)

@@ -296,3 +296,270 @@ def test_open3d_conversions_copy_read_only_arrays():
     assert_allclose(np.asarray(pc.points), np.eye(3))
     assert_allclose(np.asarray(pc.colors), 0.25)
     assert_allclose(np.asarray(pc.normals), np.eye(3))
+
+
+# ----------------------------------------------------------------------------- trimesh / Open3D
+def _seamed_mesh():
+    """A UV-mapped mesh with seams (faces_uvs != faces) and an 8-bit texture map."""
+    from geofit.data import procedural_textured_mesh
+
+    m = procedural_textured_mesh(n_lat=6, n_lon=8, texture_size=16)
+    t = m.textures  # maps read from image files hold multiples of 1/255; Open3D keeps 8 bits
+    maps = np.round(t.maps * 255) / 255
+    return Mesh(m.verts, m.faces, TexturesUV(maps, t.faces_uvs, t.verts_uvs))
+
+
+def _assert_same_mesh(a, b):
+    assert_array_equal(a.verts, b.verts)
+    assert_array_equal(a.faces, b.faces)
+    assert type(a.textures) is type(b.textures)
+    if isinstance(a.textures, TexturesVertex):
+        assert_array_equal(a.textures.verts_features, b.textures.verts_features)
+    elif isinstance(a.textures, TexturesUV):
+        assert_array_equal(a.textures.verts_uvs[a.textures.faces_uvs],
+                           b.textures.verts_uvs[b.textures.faces_uvs])
+        assert_array_equal(a.textures.maps, b.textures.maps)
+
+
+@pytest.mark.parametrize("lib", ["trimesh", "open3d"])
+def test_mesh_round_trip_keeps_uvs_exactly(lib):
+    """Mesh -> trimesh/Open3D -> Mesh keeps vertices, faces, per-corner UVs and map exactly."""
+    mesh = _seamed_mesh()
+    assert not np.array_equal(mesh.textures.faces_uvs, mesh.faces)  # there are seams
+    back = (Mesh.from_trimesh(mesh.to_trimesh()) if lib == "trimesh"
+            else Mesh.from_open3d(mesh.to_open3d()))
+    _assert_same_mesh(mesh, back)
+    if lib == "trimesh":  # the seam record gives back the UV table itself, and float maps
+        assert_array_equal(back.textures.verts_uvs, mesh.textures.verts_uvs)
+        assert_array_equal(back.textures.faces_uvs, mesh.textures.faces_uvs)
+        t = mesh.textures
+        floaty = Mesh(mesh.verts, mesh.faces, TexturesUV(t.maps * 0.999, t.faces_uvs, t.verts_uvs))
+        assert_array_equal(Mesh.from_trimesh(floaty.to_trimesh()).textures.maps, t.maps * 0.999)
+
+
+@pytest.mark.parametrize("lib", ["trimesh", "open3d"])
+def test_mesh_round_trip_keeps_float_colours_exactly(lib):
+    """Fitted (unquantised) vertex colours survive the trip exactly."""
+    m = ico_sphere(2)
+    cols = np.random.default_rng(3).uniform(0, 1, (m.n_verts, 3))
+    mesh = Mesh(m.verts, m.faces, TexturesVertex(cols))
+    back = (Mesh.from_trimesh(mesh.to_trimesh()) if lib == "trimesh"
+            else Mesh.from_open3d(mesh.to_open3d()))
+    _assert_same_mesh(mesh, back)
+
+
+def test_trimesh_to_mesh_and_back_exactly():
+    """trimesh -> Mesh -> trimesh keeps vertices, faces, 8-bit colours, and UVs with the image."""
+    import trimesh
+    from PIL import Image
+
+    tm = trimesh.creation.icosphere(2)
+    rgba = np.random.default_rng(0).integers(0, 256, (len(tm.vertices), 4)).astype(np.uint8)
+    tm.visual.vertex_colors = rgba
+    back = Mesh.from_trimesh(tm).to_trimesh()
+    assert_array_equal(back.vertices, tm.vertices)
+    assert_array_equal(back.faces, tm.faces)
+    assert_array_equal(back.visual.vertex_colors, rgba)
+
+    uv = np.random.default_rng(1).uniform(0, 1, (len(tm.vertices), 2))
+    img = np.random.default_rng(2).integers(0, 256, (8, 12, 3)).astype(np.uint8)
+    tt = trimesh.Trimesh(tm.vertices, tm.faces, process=False,
+                         visual=trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(img)))
+    mesh = Mesh.from_trimesh(tt)
+    assert_array_equal(mesh.textures.faces_uvs, mesh.faces)
+    assert_array_equal(mesh.textures.maps, img / 255.0)
+    back = mesh.to_trimesh()
+    assert_array_equal(back.vertices, tm.vertices)
+    assert_array_equal(back.faces, tm.faces)
+    assert_array_equal(back.visual.uv, uv)
+    assert_array_equal(np.asarray(back.visual.material.image), img)
+
+
+def test_open3d_to_mesh_and_back_exactly():
+    """Open3D -> Mesh -> Open3D keeps vertices, triangles, colours and per-corner UVs."""
+    import open3d as o3d
+
+    o = o3d.geometry.TriangleMesh.create_sphere(0.5, 6)
+    cols = np.random.default_rng(0).uniform(0, 1, (len(o.vertices), 3))
+    o.vertex_colors = o3d.utility.Vector3dVector(cols)
+    back = Mesh.from_open3d(o).to_open3d()
+    assert_array_equal(np.asarray(back.vertices), np.asarray(o.vertices))
+    assert_array_equal(np.asarray(back.triangles), np.asarray(o.triangles))
+    assert_array_equal(np.asarray(back.vertex_colors), cols)
+    o2 = o3d.geometry.TriangleMesh(o.vertices, o.triangles)
+    tri_uv = np.random.default_rng(1).uniform(0, 1, (3 * len(o.triangles), 2))
+    o2.triangle_uvs = o3d.utility.Vector2dVector(tri_uv)
+    img = np.random.default_rng(2).integers(0, 256, (8, 8, 3)).astype(np.uint8)
+    o2.textures = [o3d.geometry.Image(img)]
+    back = Mesh.from_open3d(o2).to_open3d()
+    assert_array_equal(np.asarray(back.triangle_uvs), tri_uv)
+    assert_array_equal(np.asarray(back.textures[0]), img)
+
+
+@pytest.mark.parametrize("lib", ["trimesh", "open3d"])
+def test_pointcloud_round_trip_exact(lib):
+    """PointCloud -> trimesh/Open3D -> PointCloud keeps points, float colours and normals."""
+    rng = np.random.default_rng(4)
+    pc = PointCloud(rng.normal(size=(50, 3)), rng.uniform(0, 1, (50, 3)), rng.normal(size=(50, 3)))
+    back = (PointCloud.from_trimesh(pc.to_trimesh()) if lib == "trimesh"
+            else PointCloud.from_open3d(pc.to_open3d()))
+    assert_array_equal(back.points, pc.points)
+    assert_array_equal(back.features, pc.features)
+    assert_array_equal(back.normals, pc.normals)
+
+
+def test_foreign_pointclouds_to_pointcloud_and_back():
+    """trimesh/Open3D clouds -> PointCloud -> same library keeps points and colours."""
+    import open3d as o3d
+    import trimesh
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(30, 3))
+    rgba = rng.integers(0, 256, (30, 4)).astype(np.uint8)
+    rgba[:, 3] = 255
+    tc = trimesh.PointCloud(pts, colors=rgba)
+    back = PointCloud.from_trimesh(tc).to_trimesh()
+    assert_array_equal(back.vertices, pts)
+    assert_array_equal(back.colors, rgba)
+    oc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    oc.colors = o3d.utility.Vector3dVector(rgba[:, :3] / 255.0)
+    back = PointCloud.from_open3d(oc).to_open3d()
+    assert_array_equal(np.asarray(back.points), pts)
+    assert_array_equal(np.asarray(back.colors), rgba[:, :3] / 255.0)
+
+
+def test_stale_trimesh_record_is_ignored():
+    """Colours edited on the trimesh side win over the record to_trimesh left in metadata."""
+    m = ico_sphere(1)
+    mesh = Mesh(m.verts, m.faces, TexturesVertex(np.full((m.n_verts, 3), 0.3)))
+    tm = mesh.to_trimesh()
+    tm.visual.vertex_colors = np.tile([255, 0, 0, 255], (m.n_verts, 1)).astype(np.uint8)
+    assert_array_equal(Mesh.from_trimesh(tm).textures.verts_features,
+                       np.tile([1.0, 0.0, 0.0], (m.n_verts, 1)))
+
+
+def test_as_mesh_and_as_pointcloud_accept_foreign_and_reject_others():
+    """The coercion helpers convert trimesh/Open3D objects and name what they accept."""
+    import open3d as o3d
+    import trimesh
+
+    from geofit.structures import as_mesh, as_meshes, as_pointcloud, as_pointclouds
+
+    box_tm = trimesh.creation.box()
+    assert as_mesh(box_tm).n_faces == 12
+    assert as_mesh(box_tm.scene()).n_faces == 12
+    assert as_mesh(o3d.geometry.TriangleMesh.create_box()).n_faces == 12
+    assert len(as_meshes([box_tm, ico_sphere(1)])) == 2
+    assert len(as_pointcloud(trimesh.PointCloud(np.eye(3)))) == 3
+    assert len(as_pointclouds(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.eye(3))))) == 1
+    with pytest.raises(TypeError, match="target: expected a geofit Mesh, trimesh.Trimesh"):
+        as_mesh(np.eye(3), "target")
+    with pytest.raises(TypeError, match="cloud: expected a geofit PointCloud"):
+        as_pointcloud(box_tm)
+    with pytest.raises(TypeError, match="meshes: expected a Mesh or Meshes"):
+        as_meshes("cow.obj")
+    with pytest.raises(TypeError, match="expected a trimesh.Trimesh"):
+        Mesh.from_trimesh(o3d.geometry.TriangleMesh())
+    with pytest.raises(TypeError, match="expected an open3d.geometry.TriangleMesh"):
+        Mesh.from_open3d(box_tm)
+    with pytest.raises(TypeError, match="expected a trimesh.PointCloud"):
+        PointCloud.from_trimesh(box_tm)
+    with pytest.raises(TypeError, match="expected an open3d.geometry.PointCloud"):
+        PointCloud.from_open3d(box_tm)
+
+
+@pytest.mark.parametrize("kind, hint", [
+    ("trimesh", "Mesh.from_trimesh"), ("trimesh_cloud", "cloud.vertices"),
+    ("open3d", "numpy.asarray\\(mesh.vertices\\)"),
+    ("open3d_cloud", "numpy.asarray\\(cloud.points\\)"),
+    ("geofit", "mesh.verts")])
+def test_as_array_says_how_to_convert_geometry_objects(kind, hint):
+    """A mesh or cloud object where an array is expected gets a TypeError with the conversion."""
+    import open3d as o3d
+    import trimesh
+
+    obj = {"trimesh": lambda: trimesh.creation.box(),
+           "trimesh_cloud": lambda: trimesh.PointCloud(np.eye(3)),
+           "open3d": lambda: o3d.geometry.TriangleMesh.create_box(),
+           "open3d_cloud": lambda: o3d.geometry.PointCloud(),
+           "geofit": lambda: ico_sphere(0)}[kind]()
+    with pytest.raises(TypeError, match=f"verts: expected an array, got a .*; .*{hint}"):
+        as_array(obj, "verts", (None, 3))
+
+
+def test_library_meshes_accepted_at_public_boundaries():
+    """trimesh and Open3D objects give the same results as the geofit Mesh they convert to."""
+    import open3d as o3d
+    import trimesh
+
+    from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+    from geofit.loss import chamfer_distance, mesh_laplacian_smoothing
+    from geofit.metrics import evaluate_mesh
+    from geofit.ops import sample_points_from_meshes
+    from geofit.raycast import RayCaster
+    from geofit.render import MeshRasterizer, RasterizationSettings
+
+    mesh = torus(0.6, 0.25, 12, 8)
+    tm, om = mesh.to_trimesh(), mesh.to_open3d()
+    R, T = look_at_view_transform(3.0, 20.0, 30.0)
+    rast = MeshRasterizer(FoVPerspectiveCameras(R=R, T=T), RasterizationSettings(image_size=16))
+    ref = rast(mesh).pix_to_face
+    rays_o, rays_d = np.array([[0.0, 0.0, 3.0]]), np.array([[0.0, 0.0, -1.0]])
+    from geofit.render.soft import SoftRasterizationSettings, rasterize_soft
+
+    soft = rasterize_soft(mesh, rast.cameras, SoftRasterizationSettings.tutorial(16))
+    for obj in (tm, om):
+        assert_array_equal(rast(obj).pix_to_face, ref)
+        assert_array_equal(rasterize_soft(obj, rast.cameras,
+                                          SoftRasterizationSettings.tutorial(16)).dist, soft.dist)
+        assert_array_equal(RayCaster(obj).cast(rays_o, rays_d).face_id,
+                           RayCaster(mesh).cast(rays_o, rays_d).face_id)
+        assert_allclose(mesh_laplacian_smoothing(obj)[0], mesh_laplacian_smoothing(mesh)[0])
+        assert_array_equal(sample_points_from_meshes(obj, 20, seed=1),
+                           sample_points_from_meshes(mesh, 20, seed=1))
+        assert evaluate_mesh(obj, mesh, n_samples=2000).chamfer_l2 < 1e-20
+    pts = np.array(mesh.verts)
+    oc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    assert chamfer_distance(oc, trimesh.PointCloud(pts)).loss == 0.0
+    from geofit.render import PointsRasterizationSettings, PointsRasterizer
+
+    prast = PointsRasterizer(rast.cameras, PointsRasterizationSettings(16, 0.05, 4))
+    ref = prast(PointCloud(pts)).idx
+    assert (ref >= 0).any()
+    for cloud in (oc, trimesh.PointCloud(pts), [oc]):
+        assert_array_equal(prast(cloud).idx, ref)
+
+
+def test_fit_mesh_takes_library_meshes():
+    """fit_mesh accepts a trimesh target and an Open3D source (converted at the boundary)."""
+    import trimesh
+
+    from geofit.fit import fit_mesh
+
+    target = trimesh.creation.icosphere(2, radius=0.8)
+    source = ico_sphere(1).to_open3d()
+    res = fit_mesh(target, init=source, n_samples=300, n_stages=1, n_iter=5, progress=False)
+    assert res.mesh.n_verts == 42
+    with pytest.raises(TypeError, match="target: expected a geofit Mesh, trimesh.Trimesh"):
+        fit_mesh("sphere.obj", init=source, n_iter=1, progress=False)
+
+
+def test_docstring_examples_run():
+    """The examples in the structures' docstrings run (doctest)."""
+    import doctest
+
+    import geofit.structures.mesh as sm
+
+    result = doctest.testmod(sm, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.failed == 0 and result.attempted > 0
+
+
+def test_trimesh_face_colours_become_vertex_colours():
+    """Face colours (which TexturesVertex cannot hold) arrive as the mean over a vertex's faces."""
+    import trimesh
+
+    tm = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]],
+                         process=False)
+    tm.visual.face_colors = [[255, 0, 0, 255], [0, 0, 255, 255]]
+    cols = Mesh.from_trimesh(tm).textures.verts_features
+    assert_array_equal(cols, [[1, 0, 0], [0.5, 0, 0.5], [0.5, 0, 0.5], [0, 0, 1]])

@@ -32,6 +32,7 @@ from geofit.viz import (
 def procedural(tmp_path, monkeypatch):
     """No tutorial files: every step uses geofit's procedural stand-ins."""
     monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "no-data-here"))
+    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.setenv("MPLBACKEND", "Agg")
 

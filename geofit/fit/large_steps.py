@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import check_positive
-from ..structures import Mesh
+from ..structures import Mesh, as_mesh
 
 __all__ = ["IdentityParameterization", "LargeSteps", "vertex_parameterization"]
 
@@ -51,8 +51,7 @@ class LargeSteps:
     def __init__(self, mesh: Mesh, lam: float):
         from scipy.sparse.linalg import splu
 
-        if not isinstance(mesh, Mesh):
-            raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
+        mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
         self.lam = check_positive(lam, "large_steps")
         A = mesh.topology.adjacency.astype(np.float64)
         deg = np.asarray(A.sum(axis=1)).ravel()

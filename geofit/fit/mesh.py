@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import as_array, as_faces, as_rng, check_choice, check_positive
-from ..structures import Mesh
+from ..structures import Mesh, as_mesh
 from ._mesh_objective import TERMS, MeshObjective, mesh_weights
 from ._options import Recipes, check_int, method_name, recipe_name, warn_deprecated
 from ._progress import progress_bar
@@ -97,9 +97,7 @@ _STOCHASTIC = ("sgd", "adam")
 # ------------------------------------------------------------------------------------ inputs
 def _as_mesh(m, name: str) -> Mesh:
     """A Mesh from a Mesh or a (verts, faces) pair, with a message naming ``name``."""
-    if isinstance(m, Mesh):
-        mesh = m
-    elif isinstance(m, (tuple, list)) and len(m) == 2:
+    if isinstance(m, (tuple, list)) and len(m) == 2:
         verts = as_array(m[0], f"{name} verts", (None, 3), finite=False)
         bad = int(np.count_nonzero(~np.isfinite(verts)))
         if bad:
@@ -107,8 +105,7 @@ def _as_mesh(m, name: str) -> Mesh:
                              "fix or drop them before fitting")
         mesh = Mesh(verts, as_faces(m[1], f"{name} faces", len(verts)))
     else:
-        raise TypeError(f"{name}: expected a geofit Mesh or a (verts, faces) pair, "
-                        f"got {type(m)!r}")
+        mesh = as_mesh(m, name)  # a geofit, trimesh or Open3D mesh
     if mesh.n_faces == 0:
         raise ValueError(f"{name}: expected a mesh with at least one face, got 0 faces")
     if not float(mesh.face_areas.sum()) > 0:

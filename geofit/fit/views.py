@@ -53,7 +53,7 @@ from ..datasets import MultiViewDataset
 from ..metrics import psnr, silhouette_iou
 from ..render.soft import SoftRasterizationSettings
 from ..shapes import ico_sphere, subdivide
-from ..structures import Mesh, TexturesVertex
+from ..structures import Mesh, TexturesVertex, as_mesh
 from ._options import (
     Recipes,
     check_int,
@@ -504,8 +504,8 @@ class _ViewsPlan:
         lv = _levels(levels, 4, dataset.image_size)
         if init is None:
             init = ico_sphere(max(4 - sum(s for s, _ in lv), 0))
-        elif not isinstance(init, Mesh):
-            raise TypeError(f"init: expected a Mesh, got {type(init)!r}")
+        else:
+            init = as_mesh(init, "init")  # a geofit, trimesh or Open3D mesh
         H, W = dataset.image_size
         for _, f_ in lv:
             if H % f_ or W % f_:

@@ -22,13 +22,14 @@ import numpy as np
 
 from .._memory import check_allocation
 from .._validate import as_array, as_faces, as_points
-from ..structures.mesh import Mesh, Meshes
+from ._formats import EXTENSIONS, not_obj_error, sniff
+from .._foreign import foreign_kind
+from ..structures.mesh import Mesh, Meshes, as_mesh
 from ..structures.textures import TexturesUV
 
 __all__ = [
     "Material",
     "ObjData",
-    "load_mesh",
     "load_obj",
     "load_objs_as_meshes",
     "save_obj",
@@ -473,7 +474,9 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
         beyond 1e38 in absolute value, a non-numeric or non-finite coordinate, a ``v``/``vn`` line
         with fewer than 3 values or a ``vt`` line with fewer than 2, a face with fewer than 3
         corners, a face mixing corners with and without ``vt`` (or ``vn``), an index that is 0
-        or out of range, or a file without any face.
+        or out of range, or a file without any face. A PLY, GLB or OFF file (recognised by its
+        first bytes or its extension) is refused with a message naming its format and
+        :func:`geofit.io.load_mesh`.
 
     Notes
     -----
@@ -502,6 +505,8 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"OBJ file not found: {path}")
+    if sniff(path) not in (None, "OBJ"):
+        raise not_obj_error(path, sniff(path), reader=True)
     lines = _lines(_read_text(path))
 
     # One pass over the lines sorts them by keyword; the numbers are parsed afterwards in bulk.
@@ -688,62 +693,6 @@ def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: boo
     return Meshes([_obj_to_mesh(Path(f), load_textures, allow_outside) for f in files])
 
 
-def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False) -> Mesh:
-    """Load one triangle mesh.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        An ``.obj`` file (read by :func:`load_obj`, with textures as in
-        :func:`load_objs_as_meshes`), or a ``.ply``, ``.stl`` or ``.off`` file (read by trimesh
-        without any processing, so the vertex order is the file's; no textures).
-    load_textures : bool
-        For OBJ files, attach the first texture image as a TexturesUV.
-    allow_outside : bool
-        For OBJ files, follow MTL and texture paths outside the file's folder (see
-        :func:`load_obj`).
-
-    Returns
-    -------
-    Mesh
-
-    Raises
-    ------
-    FileNotFoundError
-        If the file does not exist.
-    ValueError
-        For an unsupported extension, or as :func:`load_obj`; also for a non-OBJ file with no
-        faces or non-finite vertices.
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".obj":
-        return _obj_to_mesh(path, load_textures, allow_outside)
-    if suffix not in (".ply", ".stl", ".off"):
-        raise ValueError(f"path: expected a .obj, .ply, .stl or .off file, got {path.name!r}")
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
-    import trimesh
-
-    try:
-        tm = trimesh.load(str(path), process=False, force="mesh")
-        verts = np.asarray(tm.vertices, dtype=np.float64)
-        faces = np.asarray(tm.faces, dtype=np.int64).reshape(-1, 3)
-    except Exception as exc:  # noqa: BLE001 - trimesh raises many types on damaged files
-        raise ValueError(f"{path}: trimesh could not read the mesh ({type(exc).__name__}: "
-                         f"{str(exc)[:200]})") from None
-    if len(faces) == 0:
-        raise ValueError(f"{path}: the file has no faces (empty mesh; {len(verts)} vertices)")
-    if not np.isfinite(verts).all():
-        raise ValueError(f"{path}: the vertex coordinates are not all finite")
-    if np.abs(verts).max(initial=0.0) > MAX_COORD:
-        raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
-    try:
-        return Mesh(verts, faces)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-
-
 def _fmt_floats(arr: np.ndarray, decimal_places: int | None) -> tuple:
     vals = arr.ravel().tolist()
     if decimal_places is None:
@@ -762,8 +711,9 @@ def save_obj(path: PathLike, mesh_or_verts, faces=None, *, verts_uvs=None, faces
         The ``.obj`` file to write. A texture is written next to it as ``<stem>.mtl`` and
         ``<stem>.png``.
     mesh_or_verts : Mesh or (V, 3) float64
-        A :class:`~geofit.structures.Mesh` (its TexturesUV, if any, is written; vertex colours
-        are not, OBJ has no standard place for them), or vertex positions.
+        A :class:`~geofit.structures.Mesh` or a trimesh / Open3D mesh (its TexturesUV, if any,
+        is written; vertex colours are not, OBJ has no standard place for them: use
+        :func:`geofit.io.save_mesh` with ``.ply`` or ``.glb``), or vertex positions.
     faces : (F, 3) int64, optional
         Triangles; required with vertex positions, not allowed with a Mesh.
     verts_uvs : (T, 2) float64, optional
@@ -781,7 +731,8 @@ def save_obj(path: PathLike, mesh_or_verts, faces=None, *, verts_uvs=None, faces
     ------
     ValueError
         For inconsistent arguments, shapes or index ranges, non-finite values, a mesh without
-        faces, or texture values outside [0, 1].
+        faces, or texture values outside [0, 1]; for a path whose extension names another
+        format (``.ply``, ``.stl``, ...: use :func:`geofit.io.save_mesh`).
 
     Notes
     -----
@@ -790,6 +741,10 @@ def save_obj(path: PathLike, mesh_or_verts, faces=None, *, verts_uvs=None, faces
     holds such values, as any map read from an 8-bit image does).
     """
     path = Path(path)
+    if EXTENSIONS.get(path.suffix.lower(), "OBJ") != "OBJ":
+        raise not_obj_error(path, EXTENSIONS[path.suffix.lower()], reader=False)
+    if foreign_kind(mesh_or_verts) is not None:
+        mesh_or_verts = as_mesh(mesh_or_verts, "mesh_or_verts")  # a trimesh or Open3D mesh
     if isinstance(mesh_or_verts, Mesh):
         if faces is not None or verts_uvs is not None or faces_uvs is not None \
                 or texture_map is not None:

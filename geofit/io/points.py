@@ -10,7 +10,7 @@ import numpy as np
 
 from .._memory import check_allocation
 from .._validate import as_array
-from ..structures.pointcloud import PointCloud
+from ..structures.pointcloud import PointCloud, as_pointcloud
 from .obj import _tokens_per_line
 
 __all__ = ["load_pointcloud", "save_pointcloud"]
@@ -367,8 +367,7 @@ def save_pointcloud(path: str | os.PathLike, cloud: PointCloud) -> None:
         channels, values outside [0, 1]).
     """
     path = Path(path)
-    if not isinstance(cloud, PointCloud):
-        raise TypeError(f"cloud: expected a PointCloud, got {type(cloud)!r}")
+    cloud = as_pointcloud(cloud, "cloud")  # a geofit, trimesh or Open3D point cloud
     suffix = path.suffix.lower()
     if suffix not in (".npz", ".ply"):
         raise ValueError(f"path: expected a .npz or .ply file, got {path.name!r}")

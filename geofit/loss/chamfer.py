@@ -48,6 +48,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._validate import as_array, as_points, check_choice
+from .._foreign import foreign_kind
+from ..structures.pointcloud import PointCloud, as_pointcloud
 
 __all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]
 
@@ -313,8 +315,16 @@ def _member(xb, yb, index_y, xnb, ynb, *, w, point_reduction, norm, single_direc
             rx.gn_p + ry.gn_q, rx.gn_q + ry.gn_p)
 
 
+def _cloud_points(a, name: str):
+    """The points of a geofit, trimesh or Open3D point cloud; anything else unchanged."""
+    if isinstance(a, PointCloud) or foreign_kind(a) in ("trimesh.PointCloud", "open3d.PointCloud"):
+        return as_pointcloud(a, name).points
+    return a
+
+
 def _as_cloud(a, name: str):
     """(n, 3) or (N, n, 3) -> ((N, n, 3) float64, was_2d)."""
+    a = _cloud_points(a, name)
     try:
         arr = np.asarray(a)
     except (TypeError, ValueError) as exc:  # ragged input
@@ -363,9 +373,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     Parameters
     ----------
     x : (n, 3) or (N, n, 3) float64
-        First cloud, or a padded batch of clouds.
+        First cloud, or a padded batch of clouds. A geofit, trimesh or Open3D point cloud
+        object is taken as its (n, 3) points.
     y : (m, 3) or (N, m, 3) float64
         Second cloud(s); the batch size must match ``x`` (a 2-D input is a batch of one).
+        Point cloud objects as for ``x``.
     x_lengths, y_lengths : (N,) int64, optional
         Number of valid points of each batch member (the rest is padding and is ignored; its
         gradient is 0). Default: all points.
@@ -508,7 +520,8 @@ class ChamferTarget:
     Parameters
     ----------
     y : (m, 3) float64
-        Target points (at least one).
+        Target points (at least one); a geofit, trimesh or Open3D point cloud object is taken
+        as its points.
     y_normals : (m, 3) float64, optional
         Target normals, for the normal term of :meth:`chamfer`.
     backend : {"auto", "open3d", "scipy"}
@@ -535,7 +548,7 @@ class ChamferTarget:
     """
 
     def __init__(self, y, *, y_normals=None, backend: str = "auto"):
-        self.points = as_points(y, "y", allow_empty=False)
+        self.points = as_points(_cloud_points(y, "y"), "y", allow_empty=False)
         self.points.setflags(write=False)
         self.normals = None
         if y_normals is not None:

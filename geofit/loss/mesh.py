@@ -19,7 +19,7 @@ import scipy.sparse as sp
 
 from .._validate import check_choice, check_finite
 from ..ops.laplacian import _cot_laplacian, _uniform_laplacian_topology, topology_cache
-from ..structures.mesh import Mesh, Meshes, Topology
+from ..structures.mesh import Mesh, Meshes, Topology, as_mesh
 
 __all__ = [
     "mesh_edge_loss",
@@ -51,6 +51,8 @@ def _dot(a, b):
 
 def _batched(fn, mesh, name: str, *args):
     """Apply a single-mesh loss to a Mesh, or average it over a Meshes batch (PyTorch3D's /N)."""
+    if not isinstance(mesh, (Mesh, Meshes)):
+        mesh = as_mesh(mesh, name)  # a trimesh or Open3D mesh
     if isinstance(mesh, Mesh):
         return fn(mesh, *args)
     if isinstance(mesh, Meshes):
@@ -208,8 +210,7 @@ def normal_consistency_pairs(mesh: Mesh):
         with ``c`` incident faces contributes all ``c (c - 1) / 2`` pairs (non-manifold safe);
         boundary edges contribute none.
     """
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     p = _normal_pairs(mesh.topology)
     return {k: getattr(p, k) for k in ("v0", "v1", "a", "b", "face_i", "face_j", "edge")}
 

@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import as_array, as_faces, as_points, check_positive
-from ..structures.mesh import Mesh, Meshes, Topology
+from ..structures.mesh import Mesh, Meshes, Topology, as_mesh
 
 __all__ = ["cot_laplacian", "norm_laplacian", "uniform_laplacian"]
 
@@ -82,6 +82,8 @@ def uniform_laplacian(mesh) -> sp.csr_matrix:
     >>> L.shape, bool(abs(L.sum(axis=1)).max() < 1e-15)
     ((42, 42), True)
     """
+    if not isinstance(mesh, (Mesh, Meshes)):
+        mesh = as_mesh(mesh, "mesh")  # a trimesh or Open3D mesh
     if isinstance(mesh, Mesh):
         return _uniform_laplacian_topology(mesh.topology)
     if isinstance(mesh, Meshes):

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import as_rng, check_int
-from ..structures.mesh import Mesh, Meshes
+from ..structures.mesh import Mesh, Meshes, as_mesh
 
 __all__ = [
     "PointsNormals",
@@ -213,6 +213,8 @@ def sample_points_with_jacobian(mesh, num_samples: int = 10000, *, seed=None,
     """
     n = check_int(num_samples, "num_samples")
     rng = as_rng(seed)
+    if not isinstance(mesh, (Mesh, Meshes)):
+        mesh = as_mesh(mesh, "mesh")  # a trimesh or Open3D mesh
     if isinstance(mesh, Mesh):
         return _sample_one(mesh, n, rng, bool(return_normals), bool(return_textures), "mesh")
     if isinstance(mesh, Meshes):

@@ -20,7 +20,7 @@ import numpy as np
 
 from .._threads import open3d_threads
 from .._validate import as_array, as_points
-from ..structures import Mesh
+from ..structures import Mesh, as_mesh
 from .embree import unit_box
 
 __all__ = ["ClosestPoints", "PointToMeshDistance", "closest_point_on_triangles"]
@@ -230,8 +230,7 @@ class PointToMeshDistance:
     """
 
     def __init__(self, mesh: Mesh, *, n_threads: int = 0, one_ring: bool = True):
-        if not isinstance(mesh, Mesh):
-            raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
+        mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
         if mesh.n_faces == 0:
             raise ValueError("mesh: expected a mesh with at least one face, got 0 faces")
         if not isinstance(n_threads, (int, np.integer)) or n_threads < 0:

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..cameras import FoVPerspectiveCameras, PerspectiveCameras, to_open3d
-from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex
+from ..structures import Mesh, Meshes, TexturesUV, TexturesVertex, as_mesh, as_meshes
 from .mesh.textures import TexturesFlat
 
 __all__ = ["Open3DRender", "mesh_to_open3d", "render_open3d", "show_open3d"]
@@ -97,10 +97,7 @@ def mesh_to_open3d(mesh: Mesh):
 
 
 def _as_views(meshes, cameras):
-    if isinstance(meshes, Mesh):
-        meshes = Meshes([meshes])
-    if not isinstance(meshes, Meshes):
-        raise TypeError(f"meshes: expected a Mesh or Meshes, got {type(meshes)!r}")
+    meshes = as_meshes(meshes)  # geofit, trimesh or Open3D meshes
     _check_pinhole(cameras)
     nm, nc = len(meshes), len(cameras)
     N = max(nm, nc)
@@ -244,8 +241,7 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     """
     import open3d as o3d
 
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
+    mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     _check_pinhole(cameras)
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")

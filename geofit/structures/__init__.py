@@ -1,6 +1,6 @@
 """Data structures: meshes, point clouds, textures, and their batches."""
-from .mesh import Mesh, Meshes, Normalization, Topology, as_meshes
-from .pointcloud import PointCloud, Pointclouds, as_pointclouds
+from .mesh import Mesh, Meshes, Normalization, Topology, as_mesh, as_meshes
+from .pointcloud import PointCloud, Pointclouds, as_pointcloud, as_pointclouds
 from .textures import TexturesBase, TexturesUV, TexturesVertex
 from .volume import Volume
 
@@ -9,9 +9,11 @@ __all__ = [
     "Meshes",
     "Normalization",
     "Topology",
+    "as_mesh",
     "as_meshes",
     "PointCloud",
     "Pointclouds",
+    "as_pointcloud",
     "as_pointclouds",
     "TexturesBase",
     "TexturesUV",

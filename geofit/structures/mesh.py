@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from .._validate import as_array, as_faces, as_points
 from .textures import TexturesBase, TexturesUV, TexturesVertex
 
-__all__ = ["Mesh", "Meshes", "Topology", "Normalization"]
+__all__ = ["Mesh", "Meshes", "Topology", "Normalization", "as_mesh", "as_meshes"]
 
 
 class Topology:
@@ -325,24 +325,266 @@ class Mesh:
             return self.textures.sample_faces(self.faces, face_idx, bary)
         return self.textures.sample(face_idx, bary)
 
+    # ------------------------------------------------------------------ trimesh and Open3D
+    @classmethod
+    def from_trimesh(cls, mesh) -> "Mesh":
+        """A Mesh from a ``trimesh.Trimesh`` (or a ``trimesh.Scene``, concatenated).
+
+        Parameters
+        ----------
+        mesh : trimesh.Trimesh or trimesh.Scene
+            The mesh. Its vertices and faces are taken as they are (no merging, no reordering).
+
+        Returns
+        -------
+        Mesh
+            With a :class:`TexturesVertex` from the vertex colours (RGB, or RGBA when some
+            alpha is below 255, as ``colour / 255``), or a :class:`TexturesUV` from the UVs and
+            the material's image (``faces_uvs == faces``, since trimesh keeps one UV per
+            vertex). Face colours become vertex colours, the mean over each vertex's faces
+            (a TexturesVertex cannot hold one colour per face). No textures for an untextured
+            material.
+
+        Notes
+        -----
+        A mesh written by :meth:`to_trimesh` comes back exactly, seams and float colours
+        included: ``to_trimesh`` records in ``mesh.metadata["geofit"]`` how it split vertices
+        at UV seams and the unquantised colours, and this method uses that record while it
+        still agrees with the trimesh object (same vertex count, same 8-bit colours).
+        """
+        from .. import _foreign
+
+        kind = _foreign.foreign_kind(mesh)
+        if kind == "trimesh.Scene":
+            mesh = _foreign.scene_to_mesh(mesh)
+        elif kind != "trimesh.Trimesh":
+            raise TypeError(f"mesh: expected a trimesh.Trimesh, got {type(mesh)!r}")
+        verts = np.asarray(mesh.vertices, dtype=np.float64)
+        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        info = _foreign.geofit_record(mesh)
+        visual = getattr(mesh, "visual", None)
+        kind = getattr(visual, "kind", None)
+        textures = None
+        if kind == "vertex":
+            rgba = np.asarray(visual.vertex_colors)
+            stash = info.get("verts_features")
+            stash = None if stash is None else np.asarray(stash)
+            if (stash is not None and stash.ndim == 2 and stash.shape[1] in (1, 3, 4)
+                    and _foreign.stash_matches(_rgba(stash), rgba)):
+                textures = TexturesVertex(stash)
+            else:
+                textures = TexturesVertex(_foreign.from_uint8(rgba))
+        elif kind == "face" and len(faces):
+            face_colours = _foreign.from_uint8(np.asarray(visual.face_colors))
+            textures = TexturesVertex(_corner_mean(np.repeat(face_colours, 3, axis=0), faces,
+                                                   len(verts)))
+        elif kind == "texture" and visual.uv is not None and len(visual.uv) == len(verts):
+            image = _trimesh_image(visual.material)
+            if image is not None:
+                uv = np.asarray(visual.uv, dtype=np.float64)
+                split = _unsplit(info, len(verts), faces)
+                stash = info.get("maps")
+                maps = (np.asarray(stash) if stash is not None
+                        and _foreign.stash_matches(np.asarray(stash), image) else image / 255.0)
+                if split is not None:
+                    vi, ui, n_verts, n_uvs = split
+                    out = np.zeros((n_verts, 3))
+                    out[vi] = verts
+                    verts_uvs = np.zeros((n_uvs, 2))
+                    ok = ui >= 0
+                    verts_uvs[ui[ok]] = uv[ok]
+                    return cls(out, vi[faces], TexturesUV(maps, ui[faces], verts_uvs))
+                textures = TexturesUV(maps, faces, uv)
+        return cls(verts, faces, textures)
+
+    @classmethod
+    def from_open3d(cls, mesh) -> "Mesh":
+        """A Mesh from an ``open3d.geometry.TriangleMesh``.
+
+        Parameters
+        ----------
+        mesh : open3d.geometry.TriangleMesh
+            The mesh; vertices and triangles are taken as they are.
+
+        Returns
+        -------
+        Mesh
+            With a :class:`TexturesUV` when the mesh has ``triangle_uvs`` and a texture image
+            (the first one, as :func:`geofit.io.load_objs_as_meshes` does; ``verts_uvs`` are
+            the distinct per-corner UVs in order of first use), else a :class:`TexturesVertex`
+            from ``vertex_colors`` when present, else no textures.
+        """
+        from .. import _foreign
+
+        if _foreign.foreign_kind(mesh) != "open3d.TriangleMesh":
+            raise TypeError(f"mesh: expected an open3d.geometry.TriangleMesh, got {type(mesh)!r}")
+        verts = np.asarray(mesh.vertices, dtype=np.float64)
+        faces = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
+        textures = None
+        images = [np.asarray(t) for t in mesh.textures] if mesh.has_textures() else []
+        images = [im for im in images if im.size]
+        if mesh.has_triangle_uvs() and images and len(mesh.triangle_uvs) == 3 * len(faces):
+            corner_uvs = np.asarray(mesh.triangle_uvs, dtype=np.float64)
+            verts_uvs, faces_uvs = _dedupe_rows(corner_uvs)
+            im = images[0]
+            maps = im / 255.0 if im.dtype == np.uint8 else im.astype(np.float64)
+            textures = TexturesUV(maps, faces_uvs.reshape(-1, 3), verts_uvs)
+        elif mesh.has_vertex_colors():
+            textures = TexturesVertex(np.asarray(mesh.vertex_colors, dtype=np.float64))
+        return cls(verts, faces, textures)
+
     def to_trimesh(self):
-        """A ``trimesh.Trimesh`` with the same vertices and faces (no processing)."""
+        """A ``trimesh.Trimesh`` with the same vertices and faces and the colours or texture.
+
+        Returns
+        -------
+        trimesh.Trimesh
+            Built with ``process=False``. Vertex colours (TexturesVertex with 1, 3 or 4
+            channels) become 8-bit ``vertex_colors``; a TexturesUV becomes a
+            ``TextureVisuals`` with the map as an 8-bit image. Since trimesh keeps one UV per
+            vertex, vertices on UV seams are duplicated (one copy per distinct UV), so the
+            trimesh then has more vertices than this mesh; without seams (``faces_uvs ==
+            faces``) vertices and faces are unchanged.
+
+        Notes
+        -----
+        ``metadata["geofit"]`` records the seam split and the colours before 8-bit
+        quantisation, so :meth:`from_trimesh` gives this mesh back exactly.
+        """
         import trimesh
 
-        return trimesh.Trimesh(self._verts.copy(), self.faces.copy(), process=False)
+        from .._foreign import to_uint8
+
+        tex = self.textures
+        info: dict = {}
+        if isinstance(tex, TexturesUV):
+            from PIL import Image
+
+            vi, ui, faces = _split_seams(self.faces, tex.faces_uvs, self.n_verts)
+            uv = np.where((ui >= 0)[:, None], tex.verts_uvs[np.maximum(ui, 0)], 0.0)
+            maps = tex.maps
+            rgb = maps[:, :, :3] if maps.shape[2] >= 3 else np.repeat(maps[:, :, :1], 3, axis=2)
+            image = to_uint8(rgb)
+            info.update(vertex_index=vi, uv_index=ui, n_verts=self.n_verts,
+                        n_uvs=len(tex.verts_uvs))
+            if not np.array_equal(image / 255.0, rgb):
+                info["maps"] = np.array(rgb)
+            visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(image))
+            return trimesh.Trimesh(self._verts[vi], faces, visual=visual, process=False,
+                                   metadata={"geofit": info})
+        tm = trimesh.Trimesh(np.array(self._verts), np.array(self.faces), process=False)
+        if isinstance(tex, TexturesVertex) and tex.n_channels in (1, 3, 4):
+            f = tex.verts_features
+            tm.visual.vertex_colors = to_uint8(_rgba(f))
+            info["verts_features"] = np.array(f)  # small: keep the unquantised colours
+            tm.metadata["geofit"] = info
+        return tm
 
     def to_open3d(self):
-        """An ``open3d.geometry.TriangleMesh`` with vertex normals (and vertex colours if any)."""
+        """An ``open3d.geometry.TriangleMesh`` with vertex normals and the colours or texture.
+
+        Returns
+        -------
+        open3d.geometry.TriangleMesh
+            Same vertices and triangles; ``vertex_normals``; ``vertex_colors`` (float64, the
+            first three channels clipped to [0, 1]; one channel is repeated as grey) for a
+            TexturesVertex; ``triangle_uvs`` (per corner, float64), one 8-bit texture image
+            and ``triangle_material_ids`` (all 0) for a TexturesUV.
+        """
         import open3d as o3d
+
+        from .._foreign import to_uint8
 
         # Open3D's Vector3dVector rejects read-only arrays: pass copies.
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.array(self._verts)),
                                       o3d.utility.Vector3iVector(self.faces.astype(np.int32)))
         m.vertex_normals = o3d.utility.Vector3dVector(np.array(self.verts_normals))
-        if isinstance(self.textures, TexturesVertex) and self.textures.n_channels >= 3:
-            m.vertex_colors = o3d.utility.Vector3dVector(
-                np.clip(self.textures.verts_features[:, :3], 0, 1))
+        tex = self.textures
+        if isinstance(tex, TexturesVertex):
+            f = tex.verts_features
+            rgb = f[:, :3] if f.shape[1] >= 3 else np.repeat(f[:, :1], 3, axis=1)
+            m.vertex_colors = o3d.utility.Vector3dVector(np.ascontiguousarray(np.clip(rgb, 0, 1)))
+        elif isinstance(tex, TexturesUV):
+            maps = tex.maps
+            rgb = maps[:, :, :3] if maps.shape[2] >= 3 else np.repeat(maps[:, :, :1], 3, axis=2)
+            m.triangle_uvs = o3d.utility.Vector2dVector(
+                np.ascontiguousarray(tex.verts_uvs[tex.faces_uvs].reshape(-1, 2)))
+            m.textures = [o3d.geometry.Image(np.ascontiguousarray(to_uint8(rgb)))]
+            m.triangle_material_ids = o3d.utility.IntVector(np.zeros(self.n_faces, np.int32))
         return m
+
+
+def _corner_mean(values: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+    """(3F, C) values at face corners (face-major) -> (n, C): the mean at each vertex (0 if none)."""
+    idx = faces.ravel()
+    count = np.maximum(np.bincount(idx, minlength=n), 1)
+    return np.stack([np.bincount(idx, weights=values[:, c], minlength=n) / count
+                     for c in range(values.shape[1])], axis=1)  # loop over channels
+
+
+def _rgba(features: np.ndarray) -> np.ndarray:
+    """(V, 1, 3 or 4) colours -> (V, 4) RGBA (grey repeated, alpha 1 when absent)."""
+    f = np.repeat(features, 3, axis=1) if features.shape[1] == 1 else features
+    if f.shape[1] not in (3, 4):
+        raise ValueError(f"textures: expected 1, 3 or 4 colour channels, got {features.shape[1]}")
+    return np.concatenate([f, np.ones((len(f), 1))], axis=1)[:, :4]
+
+
+def _trimesh_image(material) -> np.ndarray | None:
+    """(H, W, 3 or 4) uint8 image of a trimesh material (Simple or PBR), or None."""
+    image = getattr(material, "image", None)
+    if image is None:
+        image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        return None
+    if image.mode not in ("RGB", "RGBA"):
+        image = image.convert("RGBA" if "A" in image.mode else "RGB")
+    return np.asarray(image)
+
+
+def _split_seams(faces: np.ndarray, faces_uvs: np.ndarray, n_verts: int):
+    """One vertex per distinct (vertex, uv) corner pair: (vertex_index, uv_index, new_faces).
+
+    Vertices no face uses are kept (at the end) with ``uv_index = -1``.
+    """
+    if np.array_equal(faces, faces_uvs):
+        idx = np.arange(n_verts, dtype=np.int64)
+        return idx, idx.copy(), faces.copy()
+    T = int(faces_uvs.max()) + 1 if faces_uvs.size else 1
+    key = faces.ravel() * T + faces_uvs.ravel()
+    u, inv = np.unique(key, return_inverse=True)
+    vi, ui = u // T, u % T
+    unused = np.setdiff1d(np.arange(n_verts), vi)
+    vi = np.concatenate([vi, unused]).astype(np.int64)
+    ui = np.concatenate([ui, np.full(len(unused), -1)]).astype(np.int64)
+    return vi, ui, inv.reshape(-1, 3).astype(np.int64)
+
+
+def _unsplit(info: dict, n: int, faces: np.ndarray):
+    """The seam split recorded by :meth:`Mesh.to_trimesh`, or None when it no longer fits."""
+    try:
+        vi = np.asarray(info["vertex_index"], dtype=np.int64)
+        ui = np.asarray(info["uv_index"], dtype=np.int64)
+        n_verts, n_uvs = int(info["n_verts"]), int(info["n_uvs"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if vi.shape != (n,) or ui.shape != (n,) or (n and (vi.min() < 0 or vi.max() >= n_verts
+                                                      or ui.max() >= n_uvs)):
+        return None
+    if faces.size and np.any(ui[faces] < 0):
+        return None
+    return vi, ui, n_verts, n_uvs
+
+
+def _dedupe_rows(rows: np.ndarray):
+    """Distinct rows in order of first occurrence, and each row's index into them."""
+    if len(rows) == 0:
+        return rows.reshape(0, rows.shape[1]), np.zeros(0, np.int64)
+    u, first, inv = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return u[order], rank[inv.ravel()].astype(np.int64)
 
 
 class Meshes:
@@ -486,12 +728,50 @@ class Meshes:
         return Meshes([m for m in self._meshes for _ in range(int(n))])
 
 
+def as_mesh(mesh, name: str = "mesh") -> Mesh:
+    """The one place where meshes from other libraries become geofit Meshes.
+
+    Parameters
+    ----------
+    mesh : Mesh, trimesh.Trimesh, trimesh.Scene or open3d.geometry.TriangleMesh
+        A geofit Mesh is returned as it is; the others are converted by
+        :meth:`Mesh.from_trimesh` / :meth:`Mesh.from_open3d` (colours and UVs carried).
+    name : str
+        The argument's name, for the error message.
+
+    Raises
+    ------
+    TypeError
+        For anything else, naming ``name`` and the types accepted.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from geofit.structures import as_mesh
+    >>> as_mesh(trimesh.creation.box())
+    Mesh(n_verts=8, n_faces=12)
+    """
+    if isinstance(mesh, Mesh):
+        return mesh
+    from .._foreign import foreign_kind
+
+    kind = foreign_kind(mesh)
+    if kind in ("trimesh.Trimesh", "trimesh.Scene"):
+        return Mesh.from_trimesh(mesh)
+    if kind == "open3d.TriangleMesh":
+        return Mesh.from_open3d(mesh)
+    raise TypeError(f"{name}: expected a geofit Mesh, trimesh.Trimesh or "
+                    f"open3d.geometry.TriangleMesh, got {type(mesh)!r}")
+
+
 def as_meshes(meshes, name: str = "meshes") -> Meshes:
-    """Accept a Mesh or Meshes and return a Meshes batch."""
+    """Accept a Meshes batch, one mesh or a list of meshes (any type :func:`as_mesh` takes)."""
     if isinstance(meshes, Meshes):
         return meshes
-    if isinstance(meshes, Mesh):
-        return Meshes([meshes])
-    if isinstance(meshes, (list, tuple)) and all(isinstance(m, Mesh) for m in meshes):
-        return Meshes(meshes)
-    raise TypeError(f"{name}: expected a Mesh or Meshes, got {type(meshes)!r}")
+    if isinstance(meshes, (list, tuple)):
+        return Meshes([as_mesh(m, f"{name}[{i}]") for i, m in enumerate(meshes)])
+    try:
+        return Meshes([as_mesh(meshes, name)])
+    except TypeError:
+        raise TypeError(f"{name}: expected a Mesh or Meshes (or a trimesh.Trimesh or "
+                        f"open3d.geometry.TriangleMesh), got {type(meshes)!r}") from None

@@ -7,7 +7,7 @@ import numpy as np
 
 from .._validate import as_array, as_points
 
-__all__ = ["PointCloud", "Pointclouds", "as_pointclouds"]
+__all__ = ["PointCloud", "Pointclouds", "as_pointcloud", "as_pointclouds"]
 
 
 class PointCloud:
@@ -77,14 +77,97 @@ class PointCloud:
         """A batch holding this cloud ``n`` times."""
         return Pointclouds([self]).extend(n)
 
+    # ------------------------------------------------------------------ trimesh and Open3D
+    @classmethod
+    def from_trimesh(cls, cloud) -> "PointCloud":
+        """A PointCloud from a ``trimesh.PointCloud``.
+
+        Parameters
+        ----------
+        cloud : trimesh.PointCloud
+            The points; colours (8-bit RGBA) become ``features`` ``colour / 255`` (RGB, or RGBA
+            when some alpha is below 255).
+
+        Returns
+        -------
+        PointCloud
+            A cloud written by :meth:`to_trimesh` comes back exactly (float features and
+            normals are kept in ``cloud.metadata["geofit"]``, and used while they still agree
+            with the trimesh object).
+        """
+        from .._foreign import foreign_kind, from_uint8, geofit_record, stash_matches
+
+        if foreign_kind(cloud) != "trimesh.PointCloud":
+            raise TypeError(f"cloud: expected a trimesh.PointCloud, got {type(cloud)!r}")
+        points = np.asarray(cloud.vertices, dtype=np.float64)
+        info = geofit_record(cloud)
+        stash = info.get("features")
+        stash = None if stash is None else np.asarray(stash)
+        if stash is not None and (stash.ndim != 2 or len(stash) != len(points)):
+            stash = None
+        features = None
+        colors = np.asarray(cloud.colors)
+        if len(points) and len(colors) == len(points):
+            c = None if stash is None else stash.shape[1]
+            if c in (3, 4) and stash_matches(stash, colors[:, :c]):
+                features = stash
+            else:
+                features = from_uint8(colors)
+        elif stash is not None and stash.shape[1] not in (3, 4):
+            features = stash  # features that are not colours (trimesh has no place for them)
+        normals = info.get("normals")
+        normals = None if normals is None or np.shape(normals) != points.shape else normals
+        return cls(points, features, normals)
+
+    @classmethod
+    def from_open3d(cls, cloud) -> "PointCloud":
+        """A PointCloud from an ``open3d.geometry.PointCloud`` (points, colours, normals).
+
+        Parameters
+        ----------
+        cloud : open3d.geometry.PointCloud
+            Its ``colors`` (float64 RGB) become ``features``, its ``normals`` ``normals``.
+        """
+        from .._foreign import foreign_kind
+
+        if foreign_kind(cloud) != "open3d.PointCloud":
+            raise TypeError(f"cloud: expected an open3d.geometry.PointCloud, got {type(cloud)!r}")
+        points = np.asarray(cloud.points, dtype=np.float64)
+        features = np.asarray(cloud.colors, dtype=np.float64) if cloud.has_colors() else None
+        normals = np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None
+        return cls(points, features, normals)
+
+    def to_trimesh(self):
+        """A ``trimesh.PointCloud`` with 8-bit colours (features with 3 or 4 channels).
+
+        The unquantised features and the normals (trimesh has no place for either) are kept
+        in ``metadata["geofit"]``, so :meth:`from_trimesh` gives this cloud back exactly.
+        """
+        import trimesh
+
+        from .._foreign import to_uint8
+
+        colors = None
+        info: dict = {}
+        f = self.features
+        if f is not None:
+            info["features"] = np.array(f)
+            if f.shape[1] in (3, 4):
+                colors = to_uint8(f)
+        if self.normals is not None:
+            info["normals"] = np.array(self.normals)
+        return trimesh.PointCloud(np.array(self.points), colors=colors, metadata={"geofit": info})
+
     def to_open3d(self):
-        """An ``open3d.geometry.PointCloud`` with colours (first three feature channels) and normals."""
+        """An ``open3d.geometry.PointCloud`` with colours (the first three feature channels,
+        clipped to [0, 1]) and normals."""
         import open3d as o3d
 
         # Open3D's Vector3dVector rejects read-only arrays: pass copies.
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(self.points)))
         if self.features is not None and self.features.shape[1] >= 3:
-            pc.colors = o3d.utility.Vector3dVector(np.clip(self.features[:, :3], 0, 1))
+            pc.colors = o3d.utility.Vector3dVector(
+                np.ascontiguousarray(np.clip(self.features[:, :3], 0, 1)))
         if self.normals is not None:
             pc.normals = o3d.utility.Vector3dVector(np.array(self.normals))
         return pc
@@ -183,10 +266,44 @@ class Pointclouds:
         return Pointclouds([c for c in self._clouds for _ in range(int(n))])
 
 
+def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
+    """The one place where point clouds from other libraries become geofit PointClouds.
+
+    Parameters
+    ----------
+    cloud : PointCloud, trimesh.PointCloud or open3d.geometry.PointCloud
+        A geofit PointCloud is returned as it is; the others are converted by
+        :meth:`PointCloud.from_trimesh` / :meth:`PointCloud.from_open3d`.
+    name : str
+        The argument's name, for the error message.
+
+    Raises
+    ------
+    TypeError
+        For anything else, naming ``name`` and the types accepted.
+    """
+    if isinstance(cloud, PointCloud):
+        return cloud
+    from .._foreign import foreign_kind
+
+    kind = foreign_kind(cloud)
+    if kind == "trimesh.PointCloud":
+        return PointCloud.from_trimesh(cloud)
+    if kind == "open3d.PointCloud":
+        return PointCloud.from_open3d(cloud)
+    raise TypeError(f"{name}: expected a geofit PointCloud, trimesh.PointCloud or "
+                    f"open3d.geometry.PointCloud, got {type(cloud)!r}")
+
+
 def as_pointclouds(clouds, name: str = "point_clouds") -> Pointclouds:
-    """Accept a PointCloud or Pointclouds and return a Pointclouds batch."""
+    """A Pointclouds batch from a batch, one cloud or a list of clouds (of the types
+    :func:`as_pointcloud` takes)."""
     if isinstance(clouds, Pointclouds):
         return clouds
-    if isinstance(clouds, PointCloud):
-        return Pointclouds([clouds])
-    raise TypeError(f"{name}: expected a PointCloud or Pointclouds, got {type(clouds)!r}")
+    if isinstance(clouds, (list, tuple)):
+        return Pointclouds([as_pointcloud(c, f"{name}[{i}]") for i, c in enumerate(clouds)])
+    try:
+        return Pointclouds([as_pointcloud(clouds, name)])
+    except TypeError:
+        raise TypeError(f"{name}: expected a PointCloud or Pointclouds (or a trimesh.PointCloud "
+                        f"or open3d.geometry.PointCloud), got {type(clouds)!r}") from None

@@ -22,7 +22,7 @@ from ..._threads import parallel_map
 from ..._validate import check_positive
 from ...cameras import CamerasBase, ndc_grid
 from ...raycast.embree import EmbreeScene
-from ...structures import Mesh, Meshes
+from ...structures import Mesh, Meshes, as_meshes
 from . import _raycast
 from .._fragments import DenseFragmentImages
 from .._settings import image_hw
@@ -370,13 +370,7 @@ class Fragments(DenseFragmentImages):
 
 
 def _as_batch(meshes) -> Meshes:
-    if isinstance(meshes, Meshes):
-        return meshes
-    if isinstance(meshes, Mesh):
-        return Meshes([meshes])
-    if isinstance(meshes, (list, tuple)) and all(isinstance(m, Mesh) for m in meshes):
-        return Meshes(list(meshes))
-    raise TypeError(f"meshes: expected a Mesh or Meshes, got {type(meshes)!r}")
+    return as_meshes(meshes)  # geofit, trimesh or Open3D meshes
 
 
 def _check_cameras(cameras) -> CamerasBase:

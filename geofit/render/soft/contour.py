@@ -48,7 +48,7 @@ import numpy as np
 
 from ..._validate import as_array, check_positive
 from ...cameras import CamerasBase
-from ...structures import Mesh, Topology
+from ...structures import Mesh, Topology, as_mesh
 
 __all__ = ["ContourSamples", "ContourSilhouetteLoss", "contour_edges"]
 
@@ -252,8 +252,7 @@ class ContourSilhouetteLoss:
         grad : (V, 3) float64
             The boundary-integral gradient of the continuous loss.
         """
-        if not isinstance(mesh, Mesh):
-            raise TypeError(f"mesh: expected a Mesh, got {type(mesh)!r}")
+        mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
         N = len(self.cameras)
         H, W = self.image_size
         S = min(H, W)

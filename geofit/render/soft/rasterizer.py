@@ -17,7 +17,7 @@ import numpy as np
 
 from ..._validate import check_positive
 from ...cameras import CamerasBase
-from ...structures import Mesh
+from ...structures import Mesh, as_mesh
 from .._settings import float_dtype, image_hw
 from .fragments import SoftFragments, _EPS, _map_views, _n_threads
 
@@ -132,9 +132,7 @@ class SoftRasterizationSettings:
 
 
 def _check_mesh(mesh) -> Mesh:
-    if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh: expected a geofit Mesh, got {type(mesh)!r}")
-    return mesh
+    return as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
 
 
 def _check_cameras(cameras) -> CamerasBase:
