@@ -1,7 +1,6 @@
 """What the tutorial steps share: the result types, the report helpers, the cow renders."""
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -243,11 +242,6 @@ def _shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), ligh
                             HardPhongShader(lights=PointLights(location=[list(light)]),
                                             blend_params=BlendParams(background_color=background)))
     return np.asarray(renderer(m.extend(n) if n > 1 else m)[..., :3], dtype=np.float64)
-
-
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return math.inf if mse == 0 else -10.0 * math.log10(mse)
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:

@@ -6,9 +6,10 @@ import time
 
 import numpy as np
 
+from ..metrics import psnr
 from ._common import (
     StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _iou,
-    _pick, _psnr, _recipe_cut, _record_fit, _render_volume, _try, _views_config,
+    _pick, _recipe_cut, _record_fit, _render_volume, _try, _views_config,
 )
 
 __all__ = ["step_fit_volume"]
@@ -62,7 +63,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
 
     def monitor(volume):
         out_ = _render_volume(volume, test.cameras, img, n_pts)
-        return {"psnr": _psnr(out_[..., :3], test.images),
+        return {"psnr": float(psnr(out_[..., :3], test.images)),
                 "iou": float(np.mean([_iou(out_[i, ..., 3], test.silhouettes[i])
                                       for i in range(len(test.images))]))}
 
