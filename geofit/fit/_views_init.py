@@ -21,9 +21,17 @@ import numpy as np
 
 from ..structures import Mesh
 
-__all__ = ["hull_start", "pixel_footprint", "remesh_to_length"]
+__all__ = ["hull_start", "max_edge_length", "pixel_footprint", "remesh_to_length"]
 
 _COARSE = 32  # nodes per side of the first, coarse carving grid
+_MIN_EDGES_ACROSS = 15  # edges at most this long: a fifteenth of the bounding-box diagonal
+
+
+def max_edge_length(mesh: Mesh) -> float:
+    """The longest edge the default fit remeshes to: 1/15 of the bounding-box diagonal (low
+    resolution images would otherwise leave a small object a handful of faces)."""
+    v = mesh.verts
+    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) / _MIN_EDGES_ACROSS
 
 
 def pixel_footprint(cameras, image_size, point) -> float:
@@ -102,7 +110,8 @@ def hull_start(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float =
     cameras : CamerasBase
         The ``N`` cameras.
     edge_px : float
-        Edge length of the decimated mesh, in pixels at the hull's centre.
+        Edge length of the decimated mesh, in pixels at the hull's centre (at most
+        :func:`max_edge_length`).
     shrink_px : float
         Carve the ``threshold`` outline this many pixels inwards.
     threshold : float
@@ -145,7 +154,7 @@ def hull_start(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float =
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
     mc = mesh_from_occupancy(occ, lo, h, level=0.0)
-    le = edge_px * px
+    le = min(edge_px * px, max_edge_length(mc))
     area = float(mc.face_areas.sum())
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc

@@ -43,7 +43,7 @@ is checked.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -51,7 +51,6 @@ import numpy as np
 
 from .._validate import as_rng, check_choice, check_positive
 from ..datasets import MultiViewDataset
-from ..metrics import psnr, silhouette_iou
 from ..render.soft import SoftRasterizationSettings
 from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesVertex, as_mesh
@@ -64,6 +63,7 @@ from ._options import (
     warn_deprecated,
 )
 from ._progress import NoBar, progress_bar
+from ._views_eval import ViewsEvaluator
 from ._views_objective import (
     REG_TERMS,
     _ContourObjective,
@@ -113,7 +113,7 @@ TEXTURED_METHODS = ("lstsq", "lbfgs", "sgd", "none")
 #: Laplacian 0.3 (the large-steps parameterisation already smooths the steps; the smoothing
 #: still carries the shape into directions no view sees: on the cow, held-out IoU 0.974 with
 #: these against 0.972 with edge 0 and Laplacian 0.1, measured).
-HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3}
+HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.0, "normal": 0.01, "laplacian": 0.3}
 
 #: Recipes of :func:`fit_mesh_to_views`: the stage methods and their settings. ``"default"``
 #: starts from the visual hull and remeshes as the surface moves; ``"sphere-lbfgs"`` is the
@@ -149,73 +149,6 @@ _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
 _STATUS_ORDER = ("nonfinite", "failed", "diverged", "callback", "stalled", "time_budget",
                  "max_eval", "max_iter", "converged")
-
-
-# =========================================================================================
-# Held-out evaluation (image metrics: geofit.metrics)
-# =========================================================================================
-
-
-class ViewsEvaluator:
-    """Held-out silhouette IoU and RGB PSNR, and surface accuracy against the true mesh.
-
-    Parameters
-    ----------
-    heldout : MultiViewDataset
-        Binary silhouettes and (optionally) RGB of the held-out views (e.g. a dataset's
-        ``held_out``).
-    target_mesh : Mesh, optional
-        The true surface (chamfer-L2 and F-score via :class:`geofit.metrics.MeshEvaluator`).
-    n_samples : int
-        Surface samples for the mesh metrics.
-    taus : sequence of float
-        F-score thresholds.
-
-    Notes
-    -----
-    Predictions are rendered with :class:`geofit.render.MeshRenderer` (one ray per pixel: the
-    hard render the targets were made with); the predicted silhouette is the coverage mask and
-    the RGB is Phong shading of the vertex colours with the dataset's light.
-    """
-
-    def __init__(self, heldout: MultiViewDataset, target_mesh: Mesh | None = None, *,
-                 n_samples: int = 20000, taus: Sequence[float] = (0.01, 0.02)):
-        if not isinstance(heldout, MultiViewDataset):
-            raise TypeError(f"heldout: expected a MultiViewDataset, got {type(heldout)!r}")
-        self.heldout = heldout
-        self.mesh_eval = None
-        self.taus = tuple(taus)
-        if target_mesh is not None:
-            from ..metrics import MeshEvaluator
-
-            self.mesh_eval = MeshEvaluator(target_mesh, n_samples=n_samples, taus=self.taus)
-
-    def __call__(self, mesh: Mesh, colors=None, *, surface: bool = True) -> dict[str, float]:
-        """Metrics of a prediction (keys ``iou``, ``psnr`` if colours, ``chamfer_l2``,
-        ``fscore@tau`` if a target mesh and ``surface``)."""
-        from ..render import (
-            MeshRasterizer,
-            MeshRenderer,
-            RasterizationSettings,
-            SoftPhongShader,
-        )
-
-        h = self.heldout
-        H, W = h.image_size
-        ras = MeshRasterizer(h.cameras, RasterizationSettings(image_size=(H, W)))
-        out: dict[str, float] = {}
-        frag = ras(mesh)
-        out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
-        if colors is not None and h.images is not None:
-            m = Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=dataset_lights(h)))
-            out["psnr"] = psnr(np.asarray(r(m)[..., :3], np.float64), h.images)
-        if surface and self.mesh_eval is not None:
-            mm = self.mesh_eval.evaluate(Mesh(mesh.verts, mesh.faces))
-            out["chamfer_l2"] = float(mm.chamfer_l2)
-            for t in self.taus:
-                out[f"fscore@{t:g}"] = float(mm.fscore[t])
-        return out
 
 
 # =========================================================================================
@@ -441,7 +374,7 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
         Remesh-and-solve rounds per level (0: no remeshing; None: the recipe's, 2 for
         ``"default"``). Before each solve the mesh is remeshed (:func:`geofit.ops.remesh`:
         split, collapse, flip; manifold kept) to edges of ``edge_px`` pixels of that level's
-        images.
+        images (at most a fifteenth of the initial mesh's bounding-box diagonal).
     edge_px : float
         Target edge length of the remeshing in pixels (measured at the initial mesh's centre).
     textured_init : {"silhouette", "sphere"}, optional
@@ -636,7 +569,7 @@ class _ViewsRun:
 def _initial_mesh(plan: _ViewsPlan, run: _ViewsRun) -> None:
     """The starting mesh (the visual hull is carved with the clock running), the world size of
     a pixel at its centre, and a history note."""
-    from ._views_init import hull_start, pixel_footprint
+    from ._views_init import hull_start, max_edge_length, pixel_footprint
 
     t0 = run.clock.elapsed()
     v = plan.views
@@ -650,7 +583,8 @@ def _initial_mesh(plan: _ViewsPlan, run: _ViewsRun) -> None:
                                               plan.init.verts.mean(axis=0))}
         desc = (f"ico-sphere ({plan.init.n_verts} vertices)" if plan.init_name == "sphere"
                 else f"the given mesh ({plan.init.n_verts} vertices)")
-    plan.init_info = dict(info, description=desc, seconds=run.clock.elapsed() - t0)
+    plan.init_info = dict(info, description=desc, seconds=run.clock.elapsed() - t0,
+                          max_edge=max_edge_length(plan.init))
     run.history.note(0, run.clock.elapsed(), f"initial mesh: {desc}", init=plan.init_name,
                      n_verts=plan.init.n_verts)
 
@@ -681,7 +615,8 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
                    for k, v in plan.silhouette_weights.items()}
         for ri in range(rounds):  # remesh-and-solve rounds
             if plan.remesh_rounds:
-                mesh = remesh_to_length(mesh, plan.edge_px * fac * plan.init_info["pixel_size"])
+                mesh = remesh_to_length(mesh, min(plan.edge_px * fac * plan.init_info[
+                    "pixel_size"], plan.init_info["max_edge"]))
             k = li * rounds + ri
             budget = None
             if plan.silhouette_time is not None:
