@@ -389,9 +389,14 @@ def test_former_method_names_and_data_type_warn_and_agree(data):
         old = fit_mesh_to_views(data, silhouette_method="tutorial", textured_method="tutorial",
                                 textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
                                 textured_iters=2, progress=False)
+    cur = fit_mesh_to_views(data, silhouette_method="sgd", textured_method="sgd",
+                            textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
+                            textured_iters=2, progress=False)
     assert tut.method == "sgd+sgd" and [s["method"] for s in old.stages] == ["sgd", "sgd"]
-    np.testing.assert_array_equal(old.colors, tut.colors)
+    np.testing.assert_array_equal(old.colors, cur.colors)
     with pytest.warns(DeprecationWarning, match="silhouette_method='contour'"):
         old = fit_mesh_to_views(data, silhouette_method="contour", large_steps=5.0, **kw)
-    new = fit_mesh_to_views(data, recipe="contour", large_steps=5.0, **kw)
+    new = fit_mesh_to_views(data, silhouette_method="adam", silhouette_loss="contour",
+                            large_steps=5.0, **kw)
     np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
+    assert fit_mesh_to_views(data, recipe="contour", **kw).method == "adam+none"
