@@ -31,16 +31,14 @@ from pathlib import Path
 
 import numpy as np
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser
+from fit_mesh_shapes import load_shapes
 
-from geofit import load_mesh
 from geofit.datasets import tutorial_views
 from geofit.fit.views import ViewsEvaluator, fit_mesh_to_views
 from geofit.metrics import MeshEvaluator
-from geofit.shapes import TEST_SHAPES
 from geofit.structures import Mesh, TexturesVertex
 
 ACCEPT = {"iou": 0.97, "fscore@0.01": 0.7, "seconds": 60.0}
-FILE_SHAPES = ("fandisk", "teapot", "suzanne", "woody", "ogre")
 FITS = {
     "default": {},
     "sphere": {"init": "sphere"},
@@ -51,9 +49,7 @@ FITS = {
 
 
 def shape_names() -> list[str]:
-    data = Path(os.environ.get("GEOFIT_DATA", "/nonexistent")) / "shapes"
-    return ["cow"] + [n for n in FILE_SHAPES if (data / f"{n}.obj").exists()] + \
-        list(TEST_SHAPES)
+    return ["cow"] + [n for n in load_shapes() if n != "dolphin"]
 
 
 def colored(mesh: Mesh) -> Mesh:
@@ -67,10 +63,7 @@ def colored(mesh: Mesh) -> Mesh:
 def dataset(name: str, size: int = 128):
     if name == "cow":
         return tutorial_views(4, image_size=size)
-    if name in FILE_SHAPES:
-        mesh = load_mesh(Path(os.environ["GEOFIT_DATA"]) / "shapes" / f"{name}.obj")
-    else:
-        mesh = TEST_SHAPES[name]()
+    mesh = load_shapes([name])[name]()
     return tutorial_views(4, mesh=colored(mesh), image_size=size, name=name)
 
 
