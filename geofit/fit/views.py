@@ -77,6 +77,7 @@ from ._options import (
 )
 from ._progress import NoBar, progress_bar
 from ._views_eval import ViewsEvaluator
+from ._views_init import initial_mesh
 from ._views_objective import (
     REG_TERMS,
     _ContourObjective,
@@ -122,11 +123,18 @@ SILHOUETTE_LOSSES = ("soft", "contour")
 #: Textured-stage methods of :func:`fit_mesh_to_views`.
 TEXTURED_METHODS = ("lstsq", "lbfgs", "sgd", "none")
 
-#: Weights of the default fit's silhouette stage: the tutorial's normal weight, edge and
-#: Laplacian 0.3 (the large-steps parameterisation already smooths the steps; the smoothing
-#: still carries the shape into directions no view sees: on the cow, held-out IoU 0.974 with
-#: these against 0.972 with edge 0 and Laplacian 0.1, measured).
-HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.0, "normal": 0.01, "laplacian": 0.3}
+#: Weights of the default fit's silhouette stage (at the tutorial's pixel size, see
+#: :data:`TUTORIAL_PIXEL`): the tutorial's normal weight, edge and Laplacian 0.3 (the
+#: large-steps parameterisation already smooths the steps; the smoothing still carries the
+#: shape into directions no view sees: on the cow, held-out IoU 0.976 with these against 0.972
+#: with edge 0, measured).
+HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3}
+
+#: The world size of a pixel in the tutorial's views (distance 2.7, field of view 60 degrees,
+#: 128 px): the default recipe's edge and Laplacian weights are set at this pixel size and
+#: scaled to the data's (squared and linearly, as the two terms scale with the edge length), so
+#: that they weigh the same against the silhouettes at any object scale and image size.
+TUTORIAL_PIXEL = 2.0 * 2.7 * math.tan(math.radians(30.0)) / 128
 
 #: Recipes of :func:`fit_mesh_to_views`: the stage methods and their settings. ``"default"``
 #: starts from the visual hull and remeshes as the surface moves; ``"sphere-lbfgs"`` is the
@@ -363,8 +371,12 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
     textured_method : {"lstsq", "lbfgs", "sgd", "none"}, optional
         Method of the textured stage.
     silhouette_weights, textured_weights : dict, optional
-        Term weights (defaults: the tutorial's, :data:`TUTORIAL_SILHOUETTE_WEIGHTS` and
-        :data:`TUTORIAL_TEXTURED_WEIGHTS`).
+        Term weights (defaults: the recipe's; :data:`HULL_SILHOUETTE_WEIGHTS` for
+        ``"default"``, else the tutorial's, :data:`TUTORIAL_SILHOUETTE_WEIGHTS`, and
+        :data:`TUTORIAL_TEXTURED_WEIGHTS`). With ``recipe="default"`` the silhouette stage's
+        edge and Laplacian weights hold at the tutorial's pixel size (:data:`TUTORIAL_PIXEL`)
+        and are scaled by ``(TUTORIAL_PIXEL / p)**2`` and ``TUTORIAL_PIXEL / p`` for the data's
+        pixel size ``p``.
     silhouette_iters, textured_iters : int
         Iteration budgets per stage (SGD / Adam steps or L-BFGS iterations; for coarse-to-fine
         split over the levels in proportion to their downsampling factor, then evenly over a
@@ -443,7 +455,7 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
         contour_threshold=contour_threshold, remesh_rounds=remesh_rounds, edge_px=edge_px)
     run = _ViewsRun(plan, seed=seed, evaluate=evaluate, eval_every=eval_every,
                     callback=callback, progress=progress)
-    _initial_mesh(plan, run)
+    initial_mesh(plan, run)
     sil_mesh = _silhouette_stage(plan, run) if plan.silhouette_method != "none" else plan.init
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
@@ -579,29 +591,6 @@ class _ViewsRun:
         self.n_evaluations += res.n_evaluations
 
 
-def _initial_mesh(plan: _ViewsPlan, run: _ViewsRun) -> None:
-    """The starting mesh (the visual hull is carved with the clock running), the world size of
-    a pixel at its centre, and a history note."""
-    from ._views_init import hull_start, max_edge_length, pixel_footprint
-
-    t0 = run.clock.elapsed()
-    v = plan.views
-    if plan.init_name == "hull":
-        fac = plan.levels[0][1] if plan.silhouette_method != "sgd" else 1
-        plan.init, info = hull_start(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac)
-        desc = (f"the visual hull of the silhouettes ({plan.init.n_verts} vertices, marching "
-                f"cubes on {info['voxel_size']:.3g} voxels, decimated)")
-    else:
-        info = {"pixel_size": pixel_footprint(v.cameras, v.image_size,
-                                              plan.init.verts.mean(axis=0))}
-        desc = (f"ico-sphere ({plan.init.n_verts} vertices)" if plan.init_name == "sphere"
-                else f"the given mesh ({plan.init.n_verts} vertices)")
-    plan.init_info = dict(info, description=desc, seconds=run.clock.elapsed() - t0,
-                          max_edge=max_edge_length(plan.init))
-    run.history.note(0, run.clock.elapsed(), f"initial mesh: {desc}", init=plan.init_name,
-                     n_verts=plan.init.n_verts)
-
-
 def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
     """Deform the mesh to the silhouettes, level by level (remeshing before each solve when
     ``remesh_rounds``); returns the mesh."""
@@ -626,6 +615,10 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
         later = sum(s_ for s_, _ in sub_levels[li + 1:])
         weights = {k: (v * 0.25 ** later if k in REG_TERMS else v)
                    for k, v in plan.silhouette_weights.items()}
+        if plan.recipe == "default":  # weights set in pixels (TUTORIAL_PIXEL)
+            r = TUTORIAL_PIXEL / plan.init_info["pixel_size"]
+            weights["edge"] *= r * r
+            weights["laplacian"] *= r
         for ri in range(rounds):  # remesh-and-solve rounds
             if plan.remesh_rounds:
                 mesh = remesh_to_length(mesh, min(plan.edge_px * fac * plan.init_info[
