@@ -7,9 +7,13 @@ A benchmark script builds a :class:`BenchmarkReport`, adds one :class:`MethodRun
 * ``seconds`` are the method's own wall time on this machine; work done only to *observe* the
   method (metric checkpoints, plotting) is excluded and the report's ``notes`` say so;
 * accuracy is measured with :mod:`geofit.metrics`; the JSON states in which frame;
-* the JSON is self-describing: ``schema``, ``benchmark``, ``created`` (UTC), ``command``,
-  ``machine``, ``config``, ``notes``, ``reference`` (numbers measured elsewhere, with their
-  source), ``methods`` and optional ``tables``.
+* the JSON is self-describing: ``schema``, ``benchmark``, ``created`` (UTC), ``command`` (the
+  script and its arguments: every file in ``results/`` is written by a script of
+  ``benchmarks/``, a rerun is a new file or a flag of the script, never a hand-merged entry),
+  ``machine``, ``load`` (1/5/15-minute load averages when the report was made and when it was
+  written: the 2 cores are shared, and times under load are upper bounds), ``config``,
+  ``notes``, ``reference`` (numbers measured elsewhere, with their source), ``methods`` and
+  optional ``tables``.
 
 Run benchmarks from the repository root, e.g. ``python benchmarks/fit_mesh.py [--quick]``.
 """
@@ -52,6 +56,7 @@ __all__ = [
     "print_machine",
     "print_parity",
     "record_load",
+    "report_load",
     "result_paths",
     "time_call",
 ]
@@ -72,6 +77,24 @@ def machine_info() -> dict[str, Any]:
     info["memory_gib"] = round(mem, 1) if mem else None
     info["versions"]["trimesh"] = _version("trimesh")
     return info
+
+
+def _loadavg() -> list[float] | None:
+    """The 1, 5 and 15-minute load averages (None where the OS has none)."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
+
+
+def report_load(d: Mapping[str, Any]) -> Any:
+    """The load a result JSON ``d`` was measured at: its ``load`` (this harness), else the
+    ``machine``'s ``load_average_1_5_15min`` (results written before ``load`` existed); None if
+    it has neither."""
+    if d.get("load") is not None:
+        return d["load"]
+    machine = d.get("machine")
+    return machine.get("load_average_1_5_15min") if isinstance(machine, Mapping) else None
 
 
 def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
@@ -190,6 +213,7 @@ class BenchmarkReport:
     tables: dict = field(default_factory=dict)
     command: str = field(default_factory=lambda: " ".join([Path(sys.executable).name]
                                                           + sys.argv))
+    load_at_start: list = field(default_factory=lambda: _loadavg())
 
     def add(self, run: MethodRun) -> MethodRun:
         self.methods.append(run)
@@ -202,6 +226,7 @@ class BenchmarkReport:
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "command": self.command,
             "machine": machine_info(),
+            "load": {"at_start": self.load_at_start, "at_write": _loadavg()},
             "config": self.config,
             "notes": self.notes,
             "reference": self.reference,

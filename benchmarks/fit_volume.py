@@ -276,6 +276,10 @@ def main(argv=None) -> int:
                    help="comma-separated methods (default: all)")
     p.add_argument("--tutorial-budget", type=float, default=None,
                    help="solver seconds for the tutorial recipe (default: its 300 steps)")
+    p.add_argument("--name", default="fit_volume",
+                   help="stem of the method comparison's files (default fit_volume); a rerun "
+                        "of some methods writes its own files, e.g. --methods lbfgs --name "
+                        "fit_volume_lbfgs")
     p.add_argument("--stability", action="store_true", help="also run the stress cases")
     p.add_argument("--stability-only", action="store_true", help="only the stress cases")
     p.add_argument("--stability-size", type=int, default=128,
@@ -318,7 +322,7 @@ def main(argv=None) -> int:
               "compare with PyTorch3D's", flush=True)
 
     report = BenchmarkReport(
-        "fit_volume",
+        args.name,
         config={"quick": quick, "views": n_views, "image_size": image_size, "volume_size": size,
                 "held_out_views": len(test), "held_out_azim": test.azim, "held_out_elev":
                 test.elev, "dataset": train.name, "data_seconds": t_data},
@@ -383,14 +387,14 @@ def main(argv=None) -> int:
                     "target": PYTORCH3D["psnr"], "target_label": "PyTorch3D 25.6 dB"},
                    {"metric": "iou", "label": "held-out silhouette IoU",
                     "target": PYTORCH3D["iou"], "target_label": "PyTorch3D 0.962"}],
-            out / "fit_volume.png", title="fit_volume: cow, 40 views, held-out elev 0 and 20",
+            out / f"{args.name}.png", title="fit_volume: cow, 40 views, held-out elev 0 and 20",
             time_limit=TARGET_SECONDS,
             reference_points=[{"seconds": PYTORCH3D["seconds"], "label": "PyTorch3D CPU",
                                "psnr": PYTORCH3D["psnr"], "iou": PYTORCH3D["iou"]}])
-        plot_params(runs, out / "fit_volume_params.png")
+        plot_params(runs, out / f"{args.name}_params.png")
         report.notes.append(f"load average at the end: {load_average()}")
-        path = report.write(out / "fit_volume.json")
-        print(f"wrote {path}, {out / 'fit_volume.png'}, {out / 'fit_volume_params.png'}")
+        path = report.write(out / f"{args.name}.json")
+        print(f"wrote {path}, {out / f'{args.name}.png'}, {out / f'{args.name}_params.png'}")
 
     if args.stability or args.stability_only:
         print(f"== stability (grid {args.stability_size}^3)  (load {load_average()})",
