@@ -55,3 +55,24 @@ def test_every_chart_and_table_belongs_to_a_result_json(path):
     stems = {p.stem for p in path.parent.glob("*.json")}
     assert any(path.stem == s or path.stem.startswith(s + "_") for s in stems), (
         f"{_rel(path)}: no result JSON of its name in {_rel(path.parent) or 'results'}/")
+
+
+def test_peers_script_skips_cleanly_without_pytorch3d(tmp_path):
+    """benchmarks/peers/pytorch3d_tutorials.py exits 0 with a clear message and writes nothing
+    when ``import pytorch3d`` fails (forced here by a stub package that raises ImportError)."""
+    import os
+    import subprocess
+    import sys
+
+    stub = tmp_path / "stub" / "pytorch3d"
+    stub.mkdir(parents=True)
+    (stub / "__init__.py").write_text("raise ImportError('no pytorch3d here')\n")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(stub.parent), env.get("PYTHONPATH", "")])
+    out = tmp_path / "results"
+    proc = subprocess.run([sys.executable, str(BENCHMARKS / "peers" / "pytorch3d_tutorials.py"),
+                           "all", "--out", str(out)], capture_output=True, text=True, env=env,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "skipped: PyTorch3D not installed" in proc.stdout
+    assert not out.exists() or not any(out.iterdir())
