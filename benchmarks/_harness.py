@@ -42,6 +42,7 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 __all__ = [
     "RESULTS_DIR",
+    "add_shape_options",
     "SCHEMA",
     "STYLE",
     "BenchmarkReport",
@@ -58,6 +59,7 @@ __all__ = [
     "record_load",
     "report_load",
     "result_paths",
+    "shape_datasets",
     "time_call",
 ]
 
@@ -338,6 +340,43 @@ def parser(description: str, *, reference: Path | None = None) -> argparse.Argum
         p.add_argument("--repeat", type=int, default=5)
         p.add_argument("--reference", type=Path, default=reference)
     return p
+
+
+def add_shape_options(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The stability tables' test-shape options: ``--shapes``, ``--shape-views`` and
+    ``--shape-image-size`` (see :func:`shape_datasets`)."""
+    from geofit.tutorials.stability import STABILITY_SHAPES
+
+    default = ",".join(STABILITY_SHAPES)
+    p.add_argument("--shapes", default=default,
+                   help="test shapes the stability cases also run on (geofit.shapes.TEST_SHAPES "
+                        "keys or $GEOFIT_DATA/shapes/<name>.obj stems, comma separated; '' for "
+                        f"none; default {default})")
+    p.add_argument("--shape-views", type=int, default=20,
+                   help="training views of each test shape (default 20)")
+    p.add_argument("--shape-image-size", type=int, default=64,
+                   help="image size of the test shapes' views (default 64)")
+    return p
+
+
+def shape_datasets(args: argparse.Namespace):
+    """For each of ``args.shapes``: ``(name, dataset, config)``, the dataset from
+    :func:`geofit.tutorials.stability.shape_views` (8 views of 32 px under ``--quick``), or
+    None with ``config["skipped"]`` saying why (a data file that is not there)."""
+    from geofit.tutorials.stability import shape_views
+
+    for name in [n.strip() for n in args.shapes.split(",") if n.strip()]:  # shapes
+        try:
+            data = shape_views(name, num_views=8 if args.quick else args.shape_views,
+                               image_size=32 if args.quick else args.shape_image_size,
+                               num_held_out=4 if args.quick else 8)
+        except ValueError as exc:
+            print(f"stability {name}: skipped ({exc})", flush=True)
+            yield name, None, {"skipped": str(exc)}
+            continue
+        yield name, data, {"views": len(data), "image_size": data.images.shape[1],
+                           "held_out_views": len(data.held_out),
+                           "n_verts": data.mesh.n_verts, "n_faces": data.mesh.n_faces}
 
 
 def parse_args(p: argparse.ArgumentParser, **quick) -> argparse.Namespace:

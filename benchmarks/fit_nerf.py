@@ -38,13 +38,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import BenchmarkReport, MethodRun, markdown_table, parser
+from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_table, parser,
+                      shape_datasets)
 
 from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.metrics import psnr
 from geofit.render.volume.implicit import OccupancyGrid
-from geofit.tutorials.stability import STABILITY_SHAPES
 
 #: Acceptance criteria of the issue.
 TARGET_PSNR = 25.6          # dB, PyTorch3D's voxel volume of tutorial 5 on the same views
@@ -106,16 +106,9 @@ def main(argv=None) -> int:
     p.add_argument("--stability-budget", type=float, default=90.0,
                    help="solver seconds of each stability case on the cow (default 90; 0: "
                         "no cow cases)")
-    p.add_argument("--shapes", default=",".join(STABILITY_SHAPES),
-                   help="test shapes the stability cases also run on (geofit.shapes.TEST_SHAPES "
-                        "keys or $GEOFIT_DATA/shapes/<name>.obj stems, comma separated; '' for "
-                        f"none; default {','.join(STABILITY_SHAPES)})")
     p.add_argument("--shape-budget", type=float, default=20.0,
                    help="solver seconds of each stability case on a test shape (default 20)")
-    p.add_argument("--shape-views", type=int, default=20,
-                   help="training views of each test shape (default 20)")
-    p.add_argument("--shape-image-size", type=int, default=64,
-                   help="image size of the test shapes' views (default 64)")
+    add_shape_options(p)
     p.add_argument("--replot", action="store_true",
                    help="only redraw fit_nerf.png from the existing fit_nerf.json")
     p.add_argument("--tutorial-steps", type=int, default=3,
@@ -246,10 +239,9 @@ def main(argv=None) -> int:
         print(f"wrote {out / 'fit_nerf.json'} and {out / 'fit_nerf.png'}", flush=True)
 
     if args.stability or args.only_stability:
-        stability(train, test, out, quick=quick,
-                  budget=args.stability_budget if not quick else 5.0, shapes=args.shapes,
-                  shape_budget=args.shape_budget if not quick else 3.0,
-                  shape_views=args.shape_views, shape_image_size=args.shape_image_size)
+        stability(train, test, out, args,
+                  budget=min(args.stability_budget, 5.0) if quick else args.stability_budget,
+                  shape_budget=min(args.shape_budget, 3.0) if quick else args.shape_budget)
     print(f"load average at end: {load_average()}", flush=True)
     return 0
 
@@ -388,16 +380,13 @@ def _run_cases(report: BenchmarkReport, rows: list, train, test, base: NerfConfi
               f"{finite}: {res.message}  (load {load_average()})", flush=True)
 
 
-def stability(train, test, out: Path, *, quick: bool, budget: float, shapes: str = "",
-              shape_budget: float = 20.0, shape_views: int = 20,
-              shape_image_size: int = 64) -> None:
+def stability(train, test, out: Path, args, *, budget: float, shape_budget: float) -> None:
     """Stress cases: each must end with a clear status and finite parameters, never NaN.
 
-    They run on the cow (``budget`` solver seconds each) and on each test shape of ``shapes``
-    (comma separated, :func:`geofit.tutorials.stability.shape_views`; ``shape_budget`` each).
+    They run on the cow (``budget`` solver seconds each) and on each test shape of
+    ``args.shapes`` (:func:`geofit.tutorials.stability.shape_views`; ``shape_budget`` each).
     """
-    from geofit.tutorials.stability import shape_views as make_views
-
+    quick = args.quick
     base = NerfConfig.scene()
     if quick:
         base = NerfConfig.scene(n_rays_per_image=128, n_pts_per_ray=64, hull_resolution=32)
@@ -408,20 +397,11 @@ def stability(train, test, out: Path, *, quick: bool, budget: float, shapes: str
     rows = []
     if budget > 0:
         _run_cases(report, rows, train, test, base, shape="cow", budget=budget)
-    for name in [n.strip() for n in shapes.split(",") if n.strip()]:  # shapes
-        try:
-            data = make_views(name, num_views=8 if quick else shape_views,
-                              image_size=32 if quick else shape_image_size,
-                              num_held_out=4 if quick else 8)
-        except ValueError as exc:  # a data file that is not there: say so, run the others
-            print(f"stability {name}: skipped ({exc})", flush=True)
-            report.config["shapes"][name] = {"skipped": str(exc)}
-            continue
-        report.config["shapes"][name] = {
-            "views": len(data), "image_size": data.images.shape[1],
-            "held_out_views": len(data.held_out), "n_verts": data.mesh.n_verts,
-            "n_faces": data.mesh.n_faces}
-        _run_cases(report, rows, data, data.held_out, base, shape=name, budget=shape_budget)
+    for name, data, cfg in shape_datasets(args):  # shapes
+        report.config["shapes"][name] = cfg
+        if data is not None:
+            _run_cases(report, rows, data, data.held_out, base, shape=name,
+                       budget=shape_budget)
     header = ["shape", "case", "setting", "status", "held-out PSNR dB", "steps", "finite",
               "message"]
     report.tables["stability"] = {"header": header, "rows": rows}
@@ -435,7 +415,8 @@ def stability(train, test, out: Path, *, quick: bool, budget: float, shapes: str
     report.write(out / "fit_nerf_stability.json")
     md = ("# fit_nerf stability\n\n" + f"Each case: scene preset; the cow {budget:g} s "
           f"solver budget (40 views, 16 held-out), the test shapes {shape_budget:g} s "
-          f"({8 if quick else shape_views} views of {32 if quick else shape_image_size} px, "
+          f"({8 if quick else args.shape_views} views of "
+          f"{32 if quick else args.shape_image_size} px, "
           f"{4 if quick else 8} held-out). Command: `" + report.command + "`.\n\n"
           + markdown_table(header, rows))
     (out / "fit_nerf_stability.md").write_text(md, encoding="utf-8")

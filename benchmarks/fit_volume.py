@@ -37,12 +37,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
+from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_table, parser,
+                      plot_accuracy_vs_time, shape_datasets)
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
 from geofit.fit.volume import fit_volume, volume_metrics
-from geofit.tutorials.stability import STABILITY_SHAPES
 
 #: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10
 #: views, 128^3 voxels, 150 samples per ray).
@@ -252,24 +252,13 @@ def stability(train, test, args, *, shape: str = "cow", size: int | None = None
 
 def shape_stability(args) -> tuple[list, list, dict]:
     """The stress cases on each of ``args.shapes`` (test shapes, vertex-coloured renders)."""
-    from geofit.tutorials.stability import shape_views
-
     rows, records, config = [], [], {}
-    for name in [n.strip() for n in args.shapes.split(",") if n.strip()]:  # shapes
-        try:
-            data = shape_views(name, num_views=8 if args.quick else args.shape_views,
-                               image_size=32 if args.quick else args.shape_image_size,
-                               num_held_out=4 if args.quick else 8)
-        except ValueError as exc:  # a data file that is not there: say so, run the others
-            print(f"  stability [{name}]: skipped ({exc})", flush=True)
-            config[name] = {"skipped": str(exc)}
-            continue
-        config[name] = {"views": len(data), "image_size": data.images.shape[1],
-                        "held_out_views": len(data.held_out), "n_verts": data.mesh.n_verts,
-                        "n_faces": data.mesh.n_faces}
-        r, rec = stability(data, data.held_out, args, shape=name, size=args.shape_size)
-        rows += r
-        records += rec
+    for name, data, cfg in shape_datasets(args):  # shapes
+        config[name] = cfg
+        if data is not None:
+            r, rec = stability(data, data.held_out, args, shape=name, size=args.shape_size)
+            rows += r
+            records += rec
     return rows, records, config
 
 
@@ -287,16 +276,9 @@ def main(argv=None) -> int:
     p.add_argument("--stability-only", action="store_true", help="only the stress cases")
     p.add_argument("--stability-size", type=int, default=128,
                    help="grid size of the stress cases on the cow (default 128)")
-    p.add_argument("--shapes", default=",".join(STABILITY_SHAPES),
-                   help="test shapes the stress cases also run on (geofit.shapes.TEST_SHAPES "
-                        "keys or $GEOFIT_DATA/shapes/<name>.obj stems, comma separated; '' for "
-                        f"none; default {','.join(STABILITY_SHAPES)})")
     p.add_argument("--shape-size", type=int, default=64,
                    help="grid size of the stress cases on the test shapes (default 64)")
-    p.add_argument("--shape-views", type=int, default=20,
-                   help="training views of each test shape (default 20)")
-    p.add_argument("--shape-image-size", type=int, default=64,
-                   help="image size of the test shapes' views (default 64)")
+    add_shape_options(p)
     p.add_argument("--monitor-every", type=float, default=10.0,
                    help="solver seconds between held-out checkpoints (default 10)")
     p.add_argument("--tutorial-monitor-every", type=float, default=120.0,
