@@ -24,7 +24,8 @@ writes ``fit_nerf_stability.{json,md}``.
 Run from the repository root: ``python benchmarks/fit_nerf.py [--quick] [--stability]``;
 the stability table alone with shorter budgets (about 6 minutes):
 ``nice -n 15 python benchmarks/fit_nerf.py --only-stability --stability-budget 20
---shape-budget 10``.
+--shape-budget 10``; the test shapes' table alone (about 5 minutes,
+``fit_nerf_stability_shapes.{json,md}``): ``--shapes-only``.
 """
 from __future__ import annotations
 
@@ -106,6 +107,9 @@ def main(argv=None) -> int:
     p.add_argument("--stability-budget", type=float, default=90.0,
                    help="solver seconds of each stability case on the cow (default 90; 0: "
                         "no cow cases)")
+    p.add_argument("--shapes-only", action="store_true",
+                   help="only the stability cases on the test shapes, written to "
+                        "fit_nerf_stability_shapes.{json,md} (the cow's table is kept)")
     p.add_argument("--shape-budget", type=float, default=20.0,
                    help="solver seconds of each stability case on a test shape (default 20)")
     add_shape_options(p)
@@ -132,7 +136,7 @@ def main(argv=None) -> int:
     if train.name != "cow":
         print("warning: the cow was not found (set GEOFIT_DATA); using the stand-in", flush=True)
 
-    if not args.only_stability:
+    if not (args.only_stability or args.shapes_only):
         report = BenchmarkReport("fit_nerf", config={
             "train_views": len(train), "held_out_views": len(test), "image_size": size,
             "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.name,
@@ -238,9 +242,9 @@ def main(argv=None) -> int:
         _plot(report, out / "fit_nerf.png")
         print(f"wrote {out / 'fit_nerf.json'} and {out / 'fit_nerf.png'}", flush=True)
 
-    if args.stability or args.only_stability:
-        stability(train, test, out, args,
-                  budget=min(args.stability_budget, 5.0) if quick else args.stability_budget,
+    if args.stability or args.only_stability or args.shapes_only:
+        budget = 0.0 if args.shapes_only else args.stability_budget
+        stability(train, test, out, args, budget=min(budget, 5.0) if quick else budget,
                   shape_budget=min(args.shape_budget, 3.0) if quick else args.shape_budget)
     print(f"load average at end: {load_average()}", flush=True)
     return 0
@@ -390,7 +394,8 @@ def stability(train, test, out: Path, args, *, budget: float, shape_budget: floa
     base = NerfConfig.scene()
     if quick:
         base = NerfConfig.scene(n_rays_per_image=128, n_pts_per_ray=64, hull_resolution=32)
-    report = BenchmarkReport("fit_nerf_stability", config={
+    stem = "fit_nerf_stability_shapes" if args.shapes_only else "fit_nerf_stability"
+    report = BenchmarkReport(stem, config={
         "budget_seconds": budget, "quick": quick, "shape_budget_seconds": shape_budget,
         "cow": {"views": len(train), "image_size": train.images.shape[1],
                 "held_out_views": len(test)}, "shapes": {}})
@@ -412,14 +417,16 @@ def stability(train, test, out: Path, args, *, budget: float, shape_budget: floa
         "background, elevation 0; held-out views at elevations 0 and 20)",
         f"load average at the end: {load_average()} (per case: load_average_end); solver "
         "seconds under load are upper bounds and the budget-limited PSNRs lower bounds"]
-    report.write(out / "fit_nerf_stability.json")
-    md = ("# fit_nerf stability\n\n" + f"Each case: scene preset; the cow {budget:g} s "
-          f"solver budget (40 views, 16 held-out), the test shapes {shape_budget:g} s "
+    report.write(out / f"{stem}.json")
+    cow = (f"the cow {budget:g} s solver budget (40 views, 16 held-out), " if budget > 0
+           else "")
+    md = ("# fit_nerf stability\n\n" + f"Each case: scene preset; {cow}the test shapes "
+          f"{shape_budget:g} s solver budget "
           f"({8 if quick else args.shape_views} views of "
           f"{32 if quick else args.shape_image_size} px, "
           f"{4 if quick else 8} held-out). Command: `" + report.command + "`.\n\n"
           + markdown_table(header, rows))
-    (out / "fit_nerf_stability.md").write_text(md, encoding="utf-8")
+    (out / f"{stem}.md").write_text(md, encoding="utf-8")
     print(md, flush=True)
 
 

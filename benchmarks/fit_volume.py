@@ -22,8 +22,9 @@ and ``$GEOFIT_DATA/shapes/suzanne.obj``: :func:`geofit.tutorials.stability.shape
 writes ``fit_volume_stability.{json,md}``.
 
 Run from the repository root: ``python benchmarks/fit_volume.py [--quick] [--stability]``;
-the stability table alone, smaller (a few minutes):
-``nice -n 15 python benchmarks/fit_volume.py --stability-only --stability-size 64``.
+the stability table alone, smaller: ``nice -n 15 python benchmarks/fit_volume.py
+--stability-only --stability-size 64``; the test shapes' table alone (about 5 minutes on a quiet
+machine, ``fit_volume_stability_shapes.{json,md}``): ``--shapes-only``.
 """
 from __future__ import annotations
 
@@ -276,6 +277,9 @@ def main(argv=None) -> int:
     p.add_argument("--stability-only", action="store_true", help="only the stress cases")
     p.add_argument("--stability-size", type=int, default=128,
                    help="grid size of the stress cases on the cow (default 128)")
+    p.add_argument("--shapes-only", action="store_true",
+                   help="only the stress cases on the test shapes, written to "
+                        "fit_volume_stability_shapes.{json,md} (the cow's table is kept)")
     p.add_argument("--shape-size", type=int, default=64,
                    help="grid size of the stress cases on the test shapes (default 64)")
     add_shape_options(p)
@@ -320,7 +324,7 @@ def main(argv=None) -> int:
                "stored with the run"],
         reference={"pytorch3d": PYTORCH3D, "target_seconds": TARGET_SECONDS})
 
-    methods = [] if args.stability_only else [m.strip() for m in args.methods.split(",") if
+    methods = [] if args.stability_only or args.shapes_only else [m.strip() for m in args.methods.split(",") if
                                               m.strip()]
     labels = {"tutorial": "tutorial recipe (dense 128^3, Adam, 10 views/step)",
               "lbfgs": "geofit L-BFGS (hull, 32-64-128, skipping)",
@@ -381,14 +385,15 @@ def main(argv=None) -> int:
         path = report.write(out / f"{args.name}.json")
         print(f"wrote {path}, {out / f'{args.name}.png'}, {out / f'{args.name}_params.png'}")
 
-    if args.stability or args.stability_only:
+    if args.stability or args.stability_only or args.shapes_only:
         print(f"== stability (grid {args.stability_size}^3)  (load {load_average()})",
               flush=True)
-        rows, records = stability(train, test, args)
+        rows, records = ([], []) if args.shapes_only else stability(train, test, args)
         srows, srecords, shape_config = shape_stability(args)
         rows += srows
         records += srecords
-        srep = BenchmarkReport("fit_volume_stability",
+        stem = "fit_volume_stability_shapes" if args.shapes_only else "fit_volume_stability"
+        srep = BenchmarkReport(stem,
                                config={"quick": quick, "volume_size": args.stability_size,
                                        "cow": {"views": n_views, "image_size": image_size,
                                                "held_out_views": len(test)},
@@ -409,18 +414,18 @@ def main(argv=None) -> int:
         table = markdown_table(header, rows)
         srep.tables["stability"] = table
         srep.tables["records"] = records
-        srep.write(out / "fit_volume_stability.json")
-        md = ("# fit_volume stability\n\n"
+        srep.write(out / f"{stem}.json")
+        md = ("# fit_volume stability\n\n" + ("" if args.shapes_only else
               f"Cow: grid {args.stability_size}^3, training data as the benchmark "
-              f"({n_views} views, {image_size} px). Test shapes "
+              f"({n_views} views, {image_size} px). ") + "Test shapes "
               f"({', '.join(shape_config) or 'none'}): grid {args.shape_size}^3, "
               f"{8 if quick else args.shape_views} views of "
               f"{32 if quick else args.shape_image_size} px. Held-out views at elevations 0 "
               "and 20. Every case must end with a status from `geofit.fit.STATUSES` and a "
               f"finite volume. Command: `{srep.command}`.\n\n" + table)
-        (out / "fit_volume_stability.md").write_text(md, encoding="utf-8")
+        (out / f"{stem}.md").write_text(md, encoding="utf-8")
         print("\n" + table)
-        print(f"wrote {out / 'fit_volume_stability.json'}, {out / 'fit_volume_stability.md'}")
+        print(f"wrote {out / f'{stem}.json'}, {out / f'{stem}.md'}")
     return 0
 
 
