@@ -111,7 +111,11 @@ def main(argv=None) -> int:
                    help="only the stability cases on the test shapes, written to "
                         "fit_nerf_stability_shapes.{json,md} (the cow's table is kept)")
     p.add_argument("--shape-budget", type=float, default=20.0,
-                   help="solver seconds of each stability case on a test shape (default 20)")
+                   help="solver seconds of each stability case on a test shape when "
+                        "--shape-steps is 0 (default 20)")
+    p.add_argument("--shape-steps", type=int, default=200,
+                   help="Adam steps of each stability case on a test shape (default 200: the "
+                        "same work at any load; 0: --shape-budget seconds instead)")
     add_shape_options(p)
     p.add_argument("--replot", action="store_true",
                    help="only redraw fit_nerf.png from the existing fit_nerf.json")
@@ -356,15 +360,22 @@ def _cases(train, base: NerfConfig, *, shape: bool) -> list:
 
 
 def _run_cases(report: BenchmarkReport, rows: list, train, test, base: NerfConfig, *,
-               shape: str, budget: float) -> None:
-    """Fit every case of :func:`_cases` on one dataset; add a MethodRun and a row for each."""
+               shape: str, budget: float, steps: int = 0) -> None:
+    """Fit every case of :func:`_cases` on one dataset; add a MethodRun and a row for each.
+
+    Each case runs ``budget`` solver seconds, or ``steps`` Adam steps when ``steps > 0`` (the
+    same work whatever the machine's load)."""
     for name, label, cfg, (im, sil, cams), extra in _cases(train, base,
                                                            shape=shape != "cow"):  # cases
         print(f"stability case {shape}: {name} ...", flush=True)
-        every = budget / (15 if "early_stopping" in extra else 5)
+        n_checks = 15 if "early_stopping" in extra else 5
+        if steps > 0:
+            cfg = NerfConfig(**{**asdict(cfg), "n_iter": int(steps)})
+            limit = {"time_budget": None, "eval_every": max(int(steps) // n_checks, 1)}
+        else:
+            limit = {"time_budget": budget, "eval_every": budget / n_checks}
         res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams), config=cfg,
-                       held_out=test, time_budget=budget, eval_every=every, seed=0,
-                       progress=False, **extra)
+                       held_out=test, seed=0, progress=False, **limit, **extra)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)
@@ -373,7 +384,8 @@ def _run_cases(report: BenchmarkReport, rows: list, train, test, base: NerfConfi
                         final={"shape": shape, "psnr": res.psnr, "steps": res.n_iterations,
                                "finite_parameters_and_renders": finite,
                                "any_nan_in_history": bool(np.isnan(losses).any()),
-                               "solver_seconds": res.seconds, "budget_seconds": budget,
+                               "solver_seconds": res.seconds,
+                               "budget": f"{steps} steps" if steps > 0 else f"{budget:g} s",
                                "load_average_end": load_average()})
         for c in res.history.checkpoints:
             run.add(c["seconds"], psnr=c["psnr"], held_out_loss=c["held_out_loss"])
@@ -397,6 +409,7 @@ def stability(train, test, out: Path, args, *, budget: float, shape_budget: floa
     stem = "fit_nerf_stability_shapes" if args.shapes_only else "fit_nerf_stability"
     report = BenchmarkReport(stem, config={
         "budget_seconds": budget, "quick": quick, "shape_budget_seconds": shape_budget,
+        "shape_steps": args.shape_steps,
         "cow": {"views": len(train), "image_size": train.images.shape[1],
                 "held_out_views": len(test)}, "shapes": {}})
     rows = []
@@ -406,13 +419,16 @@ def stability(train, test, out: Path, args, *, budget: float, shape_budget: floa
         report.config["shapes"][name] = cfg
         if data is not None:
             _run_cases(report, rows, data, data.held_out, base, shape=name,
-                       budget=shape_budget)
+                       budget=shape_budget, steps=2 if quick and args.shape_steps else
+                       args.shape_steps)
+    shape_limit = (f"{args.shape_steps} Adam steps" if args.shape_steps > 0 else
+                   f"{shape_budget:g} s solver budget")
     header = ["shape", "case", "setting", "status", "held-out PSNR dB", "steps", "finite",
               "message"]
     report.tables["stability"] = {"header": header, "rows": rows}
     report.notes += [
         f"each case: scene preset, seed 0; cow: {budget:g} s solver budget; test shapes "
-        f"({', '.join(report.config['shapes']) or 'none'}): {shape_budget:g} s, "
+        f"({', '.join(report.config['shapes']) or 'none'}): {shape_limit}, "
         "geofit.tutorials.stability.shape_views (normalised, coloured by position, black "
         "background, elevation 0; held-out views at elevations 0 and 20)",
         f"load average at the end: {load_average()} (per case: load_average_end); solver "
@@ -421,7 +437,7 @@ def stability(train, test, out: Path, args, *, budget: float, shape_budget: floa
     cow = (f"the cow {budget:g} s solver budget (40 views, 16 held-out), " if budget > 0
            else "")
     md = ("# fit_nerf stability\n\n" + f"Each case: scene preset; {cow}the test shapes "
-          f"{shape_budget:g} s solver budget "
+          f"{shape_limit} "
           f"({8 if quick else args.shape_views} views of "
           f"{32 if quick else args.shape_image_size} px, "
           f"{4 if quick else 8} held-out). Command: `" + report.command + "`.\n\n"
