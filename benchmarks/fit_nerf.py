@@ -409,19 +409,19 @@ def stability(train, test, out: Path, args, *, budget: float, shape_budget: floa
     stem = "fit_nerf_stability_shapes" if args.shapes_only else "fit_nerf_stability"
     report = BenchmarkReport(stem, config={
         "budget_seconds": budget, "quick": quick, "shape_budget_seconds": shape_budget,
-        "shape_steps": args.shape_steps,
+        "shape_steps": 2 if quick and args.shape_steps else args.shape_steps,
         "cow": {"views": len(train), "image_size": train.images.shape[1],
                 "held_out_views": len(test)}, "shapes": {}})
     rows = []
+    shape_steps = 2 if quick and args.shape_steps else args.shape_steps
     if budget > 0:
         _run_cases(report, rows, train, test, base, shape="cow", budget=budget)
     for name, data, cfg in shape_datasets(args):  # shapes
         report.config["shapes"][name] = cfg
         if data is not None:
             _run_cases(report, rows, data, data.held_out, base, shape=name,
-                       budget=shape_budget, steps=2 if quick and args.shape_steps else
-                       args.shape_steps)
-    shape_limit = (f"{args.shape_steps} Adam steps" if args.shape_steps > 0 else
+                       budget=shape_budget, steps=shape_steps)
+    shape_limit = (f"{shape_steps} Adam steps" if shape_steps > 0 else
                    f"{shape_budget:g} s solver budget")
     header = ["shape", "case", "setting", "status", "held-out PSNR dB", "steps", "finite",
               "message"]
