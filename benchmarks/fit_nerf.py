@@ -22,9 +22,9 @@ and ``$GEOFIT_DATA/shapes/suzanne.obj``: :func:`geofit.tutorials.stability.shape
 writes ``fit_nerf_stability.{json,md}``.
 
 Run from the repository root: ``python benchmarks/fit_nerf.py [--quick] [--stability]``;
-the stability table alone with shorter budgets (about 6 minutes):
+the stability table alone with shorter budgets:
 ``nice -n 15 python benchmarks/fit_nerf.py --only-stability --stability-budget 20
---shape-budget 10``; the test shapes' table alone (about 5 minutes,
+--shape-budget 10``; the test shapes' table alone (12 fits of 100 steps,
 ``fit_nerf_stability_shapes.{json,md}``): ``--shapes-only``.
 """
 from __future__ import annotations

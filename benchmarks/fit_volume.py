@@ -23,8 +23,8 @@ writes ``fit_volume_stability.{json,md}``.
 
 Run from the repository root: ``python benchmarks/fit_volume.py [--quick] [--stability]``;
 the stability table alone, smaller: ``nice -n 15 python benchmarks/fit_volume.py
---stability-only --stability-size 64``; the test shapes' table alone (about 5 minutes on a quiet
-machine, ``fit_volume_stability_shapes.{json,md}``): ``--shapes-only``.
+--stability-only --stability-size 64``; the test shapes' table alone (15 fits at 64^3,
+``fit_volume_stability_shapes.{json,md}``): ``--shapes-only``.
 """
 from __future__ import annotations
 
@@ -298,7 +298,8 @@ def main(argv=None) -> int:
         args.stability_size = min(args.stability_size, 32)
         args.shape_size = min(args.shape_size, 32)
 
-    print(f"uptime/load average at start: {load_average()}", flush=True)
+    load_start = load_average()
+    print(f"uptime/load average at start: {load_start}", flush=True)
     t0 = time.perf_counter()
     train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     test = held_out_views(num_views=n_views, image_size=image_size,
@@ -393,7 +394,7 @@ def main(argv=None) -> int:
         rows += srows
         records += srecords
         stem = "fit_volume_stability_shapes" if args.shapes_only else "fit_volume_stability"
-        srep = BenchmarkReport(stem,
+        srep = BenchmarkReport(stem, load_at_start=load_start,
                                config={"quick": quick, "volume_size": args.stability_size,
                                        "cow": {"views": n_views, "image_size": image_size,
                                                "held_out_views": len(test)},
