@@ -57,7 +57,6 @@ __all__ = [
     "print_machine",
     "print_parity",
     "record_load",
-    "report_load",
     "result_paths",
     "shape_datasets",
     "time_call",
@@ -87,16 +86,6 @@ def _loadavg() -> list[float] | None:
         return [round(x, 2) for x in os.getloadavg()]
     except OSError:
         return None
-
-
-def report_load(d: Mapping[str, Any]) -> Any:
-    """The load a result JSON ``d`` was measured at: its ``load`` (this harness), else the
-    ``machine``'s ``load_average_1_5_15min`` (results written before ``load`` existed); None if
-    it has neither."""
-    if d.get("load") is not None:
-        return d["load"]
-    machine = d.get("machine")
-    return machine.get("load_average_1_5_15min") if isinstance(machine, Mapping) else None
 
 
 def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
