@@ -109,7 +109,7 @@ def main() -> None:
         "loadavg_before": list(os.getloadavg())})
     header = ["shape", "fit", "init", "IoU", "F@0.01", "chamfer-L2", "PSNR", "solver s",
               "CPU s", "vertices", "genus (true / fit)", "parts", "load (1 min)",
-              "IoU >= 0.97, F >= 0.7, <= 60 s"]
+              "IoU >= 0.97, F >= 0.7, CPU <= 60 s"]
     rows = []
     for name in names:  # shapes
         ds = dataset(name, 64 if args.quick else 128)
@@ -120,7 +120,7 @@ def main() -> None:
             r = report.add(run(name, fit, ds, n_samples))
             f = r.final
             ok = (f["iou"] >= ACCEPT["iou"] and f["fscore@0.01"] >= ACCEPT["fscore@0.01"]
-                  and f["seconds"] <= ACCEPT["seconds"])
+                  and f["cpu_seconds"] <= ACCEPT["seconds"])
             rows.append([name, fit, f["init"], f"{f['iou']:.4f}", f"{f['fscore@0.01']:.3f}",
                          f"{f['chamfer_l2']:.2e}", f"{f['psnr']:.2f}", f"{f['seconds']:.1f}",
                          f"{f['cpu_seconds']:.1f}", f["n_verts"],
@@ -135,7 +135,8 @@ def main() -> None:
           "Tutorial 4's 20 views of 128 px, 16 held-out views; surface metrics from "
           "geofit.metrics (exact distances, normalised frame). Seconds: the fit's clock (wall, "
           "on a shared 2-core machine: the 1-minute load average at the start is in the "
-          "table) and its process CPU seconds (all threads).", "",
+          "table) and its process CPU seconds (all threads; the load-independent check of the "
+          "60 s budget: on a quiet 2-core machine the wall time is at most the CPU time).", "",
           markdown_table(header, rows)]
     (out / "fit_views_shapes.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     print(f"wrote {out}")
