@@ -165,6 +165,7 @@ TUTORIAL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 1.0, "normal": 0.01, "
 TUTORIAL_TEXTURED_WEIGHTS = {"rgb": 1.0, "silhouette": 1.0, "edge": 1.0, "normal": 0.01,
                              "laplacian": 1.0}
 
+_MAX_FACES = 4000  # the default's remeshing keeps at most about this many faces (full size)
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
@@ -399,7 +400,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
         Remesh-and-solve rounds per level (0: no remeshing; None: the recipe's, 2 for
         ``"default"``). Before each solve the mesh is remeshed (:func:`geofit.ops.remesh`:
         split, collapse, flip; manifold kept) to edges of ``edge_px`` pixels of that level's
-        images (at most a fifteenth of the initial mesh's bounding-box diagonal).
+        images (at most a fifteenth of the initial mesh's bounding-box diagonal, and long enough
+        to keep about 4000 faces at full resolution, 1000 at half: a bounded time per
+        evaluation).
     edge_px : float
         Target edge length of the remeshing in pixels (measured at the initial mesh's centre).
     textured_init : {"silhouette", "sphere"}, optional
@@ -621,8 +624,11 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
             weights["laplacian"] *= r
         for ri in range(rounds):  # remesh-and-solve rounds
             if plan.remesh_rounds:
-                mesh = remesh_to_length(mesh, min(plan.edge_px * fac * plan.init_info[
-                    "pixel_size"], plan.init_info["max_edge"]))
+                # edge_px pixels, at most max_edge; at least the length that keeps the face
+                # count under _MAX_FACES / fac^2 (a bounded time per evaluation)
+                floor = math.sqrt(float(mesh.face_areas.sum()) * fac * fac / (0.433 * _MAX_FACES))
+                mesh = remesh_to_length(mesh, max(min(plan.edge_px * fac * plan.init_info[
+                    "pixel_size"], plan.init_info["max_edge"]), floor))
             k = li * rounds + ri
             budget = None
             if plan.silhouette_time is not None:
