@@ -10,18 +10,18 @@ plain sight in :class:`_Objective`.
   renders the tutorial's, with held-out views for evaluation).
 * :func:`fit_mesh_to_views` -- a silhouette stage, then a textured stage. The default
   (recipe ``"default"``) is geofit's best for any shape: it starts from the **visual hull** of
-  the silhouettes (:mod:`geofit.fit._views_init`: carved at the soft silhouettes' 0.5 level
-  moved half a pixel inwards, marching cubes, quadric decimation; the hull's genus and parts),
+  the silhouettes (:mod:`geofit.fit._views_init`: carved at the soft silhouettes' 0.5 level,
+  marching cubes, quadric decimation; the hull's genus and parts),
   then alternates L-BFGS on the soft silhouettes of all views (large steps, lambda 10; 64 then
   128 px) with **remeshing** (:func:`geofit.ops.remesh`) to edges of ``edge_px`` = 3 pixels
   of the level's images, and ends with least-squares colours. Every length is a number of
   pixels times the pixel's world size at the object (:func:`~geofit.fit._views_init.
-  pixel_footprint`), so nothing depends on the object's scale. Why not the soft silhouettes'
-  0.5 level as it is: with 50 faces blended, a soft silhouette exceeds 0.5 up to about a pixel
-  outside the outline (on the cow's 20 views 5472 such pixels against 65798 inside), so the
-  0.5 hull is inflated (held-out IoU 0.889, F@0.01 0.001 on the cow, measured); the fit
-  matches the targets with the same soft model, which the true mesh fits exactly (its soft
-  render equals the targets to 1e-18). ``init="sphere"`` keeps the tutorial's ico-sphere.
+  pixel_footprint`), so nothing depends on the object's scale. The hull is only a start:
+  with 50 faces blended, a soft silhouette exceeds 0.5 up to about a pixel outside the
+  outline (on the cow's 20 views 5472 such pixels against 65798 inside), so the 0.5 hull is
+  inflated (held-out IoU 0.889, F@0.01 0.001 on the cow, measured); the fit matches the
+  targets with the same soft model, which the true mesh fits exactly (its soft render equals
+  the targets to 1e-18). ``init="sphere"`` keeps the tutorial's ico-sphere.
   Silhouette methods (:data:`SILHOUETTE_METHODS`):
 
   - ``"sgd"`` (recipe ``"tutorial"``): the tutorial's recipe (SGD lr 1, momentum 0.9, two
@@ -352,7 +352,7 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
         Training views: cameras, soft silhouettes and (for a textured stage) RGB images.
     init : {"hull", "sphere"} or Mesh, optional
         Starting mesh (default: the recipe's). ``"hull"``: the visual hull of the silhouettes
-        (carved at their 0.5 level moved half a pixel inwards, marching cubes, decimated to
+        (carved at their 0.5 level, marching cubes, decimated to
         edges of ``2 edge_px`` pixels; :mod:`geofit.fit._views_init`). ``"sphere"``: the
         tutorial's ``ico_sphere(4)`` (``ico_sphere(4 - subdivisions)`` when ``levels``
         subdivide). A Mesh is used as given. The result's ``init`` says which.
