@@ -96,7 +96,29 @@ def test_local_cluster_fits_every_good_mesh(local_run):
         assert (out / name / "picture.png").stat().st_size > 0
         # the worker limited its threads (geofit.get_num_threads read back in the worker)
         assert rec["threads"] == _cores() // res.n_workers
+        assert rec["warm"] is True  # the warm-up plugin ran on its worker before it
     assert not list(out.rglob(".*tmp-*")), "temporary files left behind"
+    assert set(res.timings) == {"cluster_start", "warm_up", "tasks", "tear_down", "summary"}
+    assert all(v >= 0.0 for v in res.timings.values())
+    assert sum(res.timings.values()) <= res.seconds
+
+
+def test_largest_input_first(local_run, tmp_path):
+    """Targets are submitted largest input first: the 2 workers start the torus and the
+    sphere, the tiny broken file waits for a free worker (name order would start it first)."""
+    inputs, out, _, _, _ = local_run
+    started = {n: json.loads((out / n / "result.json").read_text())["started"]
+               for n in ("broken", *GOOD)}
+    if _cores() >= 2:
+        assert started["broken"] > max(started[n] for n in GOOD)
+    from geofit.batch import input_bytes, largest_first
+
+    sizes = {p.stem: input_bytes(p) for p in inputs.glob("*.obj")}
+    assert sizes["torus"] > sizes["sphere"] > sizes["broken"] > 0
+    specs = [{"path": str(inputs / f"{n}.obj"), "name": n} for n in ("broken", "sphere", "torus")]
+    assert [s["name"] for s in largest_first(specs)] == ["torus", "sphere", "broken"]
+    cap = _capture(tmp_path / "cap")  # a folder: the bytes of every file in it
+    assert input_bytes(cap) == sum(p.stat().st_size for p in cap.rglob("*") if p.is_file())
 
 
 def test_broken_input_recorded_as_failed(local_run):
@@ -222,6 +244,7 @@ def test_cli_on_dask_scheduler_and_workers_exit_codes(dask_cluster, tmp_path, ca
     assert os.getpid() not in {r["pid"] for r in recs}  # computed by the workers, not here
     # 2 single-slot workers on this host share its cores
     assert all(r["threads"] == max(1, _cores() // 2) for r in recs)
+    assert all(r["warm"] for r in recs)  # the plugin reached the external workers too
     good = _make_meshes(tmp_path / "good", broken=False)
     code = main(["batch", "fit-mesh", str(good / "sphere.obj"), str(good / "torus.obj"),
                  "--out", str(tmp_path / "o2"), *flags])
