@@ -88,6 +88,7 @@ def test_local_cluster_fits_every_good_mesh(local_run):
         row = next(r for r in res if r.name == name)
         assert row.ok and not row.reused and row.n_params > 0
         assert 0.0 <= row.accuracy <= 1.0 and row.seconds > row.fit_seconds > 0
+        assert row.cpu_seconds > 0.0
         rec = json.loads((out / name / "result.json").read_text())
         assert rec["status"] == "ok" and rec["settings_hash"] == row.settings_hash
         assert rec["metrics"]["fscore@0.01"] == pytest.approx(row.accuracy)

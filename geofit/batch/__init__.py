@@ -295,6 +295,9 @@ class TargetResult:
         Wall time of the task on its worker (load, fit, evaluation, writing).
     load_seconds, fit_seconds, eval_seconds : float
         Its parts: reading/rendering the input, the solver's own time, the metrics.
+    cpu_seconds : float
+        CPU time of the worker process during the task (all its threads): against
+        ``seconds``, how long the task waited for a core on a busy machine.
     n_params : int
         Free parameters of the fit (0 for ``render``).
     fit_status : str or None
@@ -322,6 +325,7 @@ class TargetResult:
     load_seconds: float = 0.0
     fit_seconds: float = 0.0
     eval_seconds: float = 0.0
+    cpu_seconds: float = 0.0
     n_params: int = 0
     fit_status: str | None = None
     metrics: dict = field(default_factory=dict)
@@ -346,6 +350,7 @@ class TargetResult:
                    load_seconds=float(rec.get("load_seconds", 0.0)),
                    fit_seconds=float(rec.get("fit_seconds", 0.0)),
                    eval_seconds=float(rec.get("eval_seconds", 0.0)),
+                   cpu_seconds=float(rec.get("cpu_seconds", 0.0)),
                    n_params=int(rec.get("n_params", 0)), fit_status=rec.get("fit_status"),
                    metrics=dict(rec.get("metrics") or {}),
                    settings_hash=rec.get("settings_hash", ""), reused=reused,
