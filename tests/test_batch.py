@@ -60,8 +60,14 @@ def local_run(tmp_path_factory):
     out = base / "out"
     workers = 2 if _cores() >= 2 else 1
     before = {c.pid for c in psutil.Process().children(recursive=True)}
+    env = {k: os.environ.get(k) for k in THREAD_VARS}
     res = fit_many(inputs, "fit-mesh", out, n_workers=workers, progress=False, **FAST)
+    assert {k: os.environ.get(k) for k in THREAD_VARS} == env  # this process's untouched
     return inputs, out, res, _mtimes(out), before
+
+
+THREAD_VARS = ("GEOFIT_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+               "MKL_NUM_THREADS")
 
 
 def _new_children(before: set[int], wait: float = 10.0) -> list[int]:
@@ -98,6 +104,8 @@ def test_local_cluster_fits_every_good_mesh(local_run):
         # the worker limited its threads (geofit.get_num_threads read back in the worker)
         assert rec["threads"] == _cores() // res.n_workers
         assert rec["warm"] is True  # the warm-up plugin ran on its worker before it
+        # BLAS read back by threadpoolctl in the worker: the same count (not Dask's default 1)
+        assert rec["blas_threads"] and set(rec["blas_threads"]) == {rec["threads"]}
     assert not list(out.rglob(".*tmp-*")), "temporary files left behind"
     assert set(res.timings) == {"cluster_start", "warm_up", "tasks", "tear_down", "summary"}
     assert all(v >= 0.0 for v in res.timings.values())
@@ -161,6 +169,9 @@ def test_rerun_skips_finished_targets(local_run):
     after = _mtimes(out)
     assert not res[0].reused and res[0].status == "failed" and after["broken"] > mtimes["broken"]
     assert res.n_workers == 1 and all(after[n] == mtimes[n] for n in GOOD)
+    # 1 worker x all cores: its BLAS got them too (a Dask nanny would have set 1)
+    rec = json.loads((out / "broken" / "result.json").read_text())
+    assert rec["threads"] == _cores() and set(rec["blas_threads"]) == {_cores()}
     assert settings_hash("fit-mesh", inputs / "torus.obj", task_settings("fit-mesh", **FAST)) \
         != settings_hash("fit-mesh", inputs / "torus.obj",
                          task_settings("fit-mesh", **{**FAST, "seed": 1}))

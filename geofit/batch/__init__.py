@@ -39,6 +39,7 @@ import json
 import os
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -495,9 +496,14 @@ def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]
 def thread_env(threads: int) -> dict[str, str]:
     """Environment of a worker process limited to ``threads`` compute threads, set before the
     process starts: ``GEOFIT_NUM_THREADS`` (geofit's thread policy, :mod:`geofit._threads`,
-    which also limits BLAS and Open3D) and ``OMP_NUM_THREADS`` (read when OpenMP loads)."""
+    which also limits BLAS and Open3D) and ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
+    ``MKL_NUM_THREADS`` (read when OpenMP and BLAS load). The BLAS ones matter: a Dask nanny
+    sets all three to 1 before it starts a worker (``distributed.nanny.pre-spawn-environ``),
+    and geofit leaves BLAS alone when its thread count equals the cores, so a 1 worker x 2
+    threads cluster would otherwise run BLAS on one thread."""
     t = str(int(threads))
-    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t}
+    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t,
+            "MKL_NUM_THREADS": t}
 
 
 #: Keyword arguments of every ``LocalCluster`` geofit starts: no dashboard, and the scheduler's
@@ -511,13 +517,40 @@ LOCAL_CLUSTER = {"dashboard_address": None,
 LOCAL_SCHEDULER_CONFIG = {"distributed.scheduler.worker-saturation": 1.0}
 
 
+@contextmanager
+def _environ(values: dict[str, str]) -> Iterator[None]:
+    """``os.environ`` updated with ``values`` inside the block; those variables restored after
+    (also undoing what a Dask nanny writes into this process's environment for them)."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _start_local(n_workers: int, threads: int):
+    """A LocalCluster of ``n_workers`` single-slot worker processes with ``threads`` compute
+    threads each, and its client.
+
+    The BLAS/OpenMP variables must be in the environment the worker process is spawned with
+    (its ``env`` is applied after numpy has loaded BLAS): they go into Dask's
+    ``distributed.nanny.pre-spawn-environ``, whose values Dask takes from ``os.environ`` when
+    set there, hence :func:`_environ` around the start."""
     import dask
     from distributed import Client, LocalCluster
 
-    with dask.config.set(LOCAL_SCHEDULER_CONFIG):  # read when the scheduler starts
+    env = thread_env(threads)
+    at_spawn = {k: v for k, v in env.items() if k != "GEOFIT_NUM_THREADS"}
+    pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **at_spawn}
+    with _environ(at_spawn), dask.config.set(  # read when the nannies and scheduler start
+            {**LOCAL_SCHEDULER_CONFIG, "distributed.nanny.pre-spawn-environ": pre_spawn}):
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", env=thread_env(threads), **LOCAL_CLUSTER)
+                               host="127.0.0.1", env=env, **LOCAL_CLUSTER)
     client = Client(cluster)
     client.wait_for_workers(n_workers)
     return cluster, client

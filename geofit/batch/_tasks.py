@@ -143,8 +143,10 @@ def warm_up(task: str, threads: int) -> dict:
         except ImportError:
             skipped.append(name)
     got = limit_threads(int(threads))  # again: the imports may have loaded another BLAS
+    from .._threads import blas_threads
+
     report = {"seconds": time.perf_counter() - t, "threads": got, "pid": os.getpid(),
-              "skipped": skipped}
+              "blas_threads": blas_threads(), "skipped": skipped}
     _WARMED[task] = report
     return report
 
@@ -448,6 +450,7 @@ def run_target(spec: dict) -> dict:
         "pid": os.getpid(), "threads": threads,
         # the worker ran warm_up for this task before it (imports not counted in "seconds")
         "warm": spec["task"] in _WARMED,
+        "blas_threads": _WARMED.get(spec["task"], {}).get("blas_threads"),
     }
     history = None
     try:
