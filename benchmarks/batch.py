@@ -142,6 +142,9 @@ def schedule_figures(recs: list[dict], workers: int) -> dict:
         "steady_targets_per_minute": 60.0 * workers / (statistics.mean(secs) + g),
         "mean_task_seconds": statistics.mean(secs), "median_task_seconds": statistics.median(secs),
         "mean_task_cpu_seconds": statistics.mean(cpu),
+        # cores the batch had while its workers ran: W x CPU seconds / wall seconds per target
+        # (2.0 for 2 workers with a core each; on a busy machine the batch's share)
+        "cores_used": workers * statistics.mean(cpu) / statistics.mean(secs),
         "mean_gap_seconds": g, "median_gap_seconds": statistics.median(gaps) if gaps else 0.0,
         "max_gap_seconds": max(gaps) if gaps else 0.0,
         "last_wave_idle_seconds_mean": statistics.mean(idle_end),
@@ -263,7 +266,9 @@ def chart(report: BenchmarkReport, path: Path) -> Path:
         m.bar(x + 0.2, e2e, 0.4, label="end to end: 60 n / wall")
         for xi, v in zip(x - 0.2, steady):
             m.text(xi, v, f"{v:.0f}", ha="center", va="bottom", fontsize=8)
-        m.set_xticks(x, [runs[k].label.replace(" x ", "\nx ") for k in keys], fontsize=8)
+        m.set_xticks(x, [runs[k].label.replace(" x ", "\nx ")
+                         + f"\n{runs[k].final.get('cores_used', 0.0):.2f} cores used"
+                         for k in keys], fontsize=8)
         m.set_ylabel("targets per minute")
         acc = report.tables["acceptance"]
         m.set_title(f"2 workers / best 1 worker: {acc['steady_speedup']:.2f}x steady, "
@@ -331,7 +336,9 @@ def main(argv=None) -> int:
              "worker x 2 threads (both measured; the latter uses both cores' worth of threads)."),
             ("The machine may be shared with other work: read the times with uptime_before/"
              "between/after; under load every time is an upper bound and the 2-worker speed-up "
-             "also measures the other processes' share of the cores."),
+             "also measures the other processes' share of the cores: cores_used = W x mean "
+             "CPU s / mean wall s per target is the CPU the batch actually had (2.0 for two "
+             "workers with a core each)."),
             ("projection: X(N) = 1 / (1 / (N * X_2) + c) targets/s, X_2 the steady 2-worker "
              "throughput, c = the scheduler's cost per task measured with 200 queued no-ops; "
              "assumes machines like this one, the same mix of targets and a shared output "
@@ -397,11 +404,12 @@ def main(argv=None) -> int:
             "one_machine_targets_per_minute": x2, "scheduler_seconds_per_task": c}
         report.tables["throughput_md"] = markdown_table(
             ["configuration", "steady /min", "end to end /min", "mean task s", "task CPU s",
-             "mean gap ms",
+             "cores used", "mean gap ms",
              "start s", "warm-up s", "last wave idle s", "wall s"],
             [[r.label, f"{r.final['steady_targets_per_minute']:.1f}",
               f"{r.final['end_to_end_targets_per_minute']:.1f}",
               f"{r.final['mean_task_seconds']:.2f}", f"{r.final['mean_task_cpu_seconds']:.2f}",
+              f"{r.final['cores_used']:.2f}",
               f"{1e3 * r.final['mean_gap_seconds']:.1f}",
               f"{r.final['timings'].get('cluster_start', 0):.2f}",
               f"{r.final['timings'].get('warm_up', 0):.2f}",

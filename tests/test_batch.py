@@ -198,7 +198,8 @@ def dask_cluster(tmp_path_factory):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     scratch = tmp_path_factory.mktemp("dask")
-    env = {**os.environ, **thread_env(1)}
+    env = {**os.environ, **thread_env(1),  # as the README starts them
+           "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0"}
     log = open(scratch / "dask.log", "wb")  # noqa: SIM115 - closed in the finally below
     procs: list[subprocess.Popen] = []
     try:
