@@ -119,6 +119,9 @@ WARM_MODULES: dict[str, tuple[str, ...]] = {
     "fit-volume": ("geofit.fit.volume", "geofit.datasets"),
     "fit-nerf": ("geofit.fit.nerf", "geofit.datasets"),
 }
+#: This process's :func:`warm_up` reports by task (a task records whether it ran warm).
+_WARMED: dict[str, dict] = {}
+
 _WARM_COMMON = ("geofit.io", "geofit.render", "geofit.structures", "open3d", "embreex",
                 "PIL.Image", "threadpoolctl")
 
@@ -130,9 +133,12 @@ def warm_up(task: str, threads: int) -> dict:
     Run once per worker before any target (``geofit.batch`` registers it as a Dask worker
     plugin), so that no task pays the imports. A module that cannot be imported is skipped
     (the task itself then reports the error). Returns ``{"seconds", "threads", "pid",
-    "skipped"}``.
+    "blas_threads", "skipped"}`` (``blas_threads``: each loaded BLAS's thread count, read back
+    by threadpoolctl), also kept in ``_WARMED[task]``.
     """
     import importlib
+
+    from .._threads import blas_threads
 
     t = time.perf_counter()
     got = limit_threads(int(threads))
@@ -143,16 +149,10 @@ def warm_up(task: str, threads: int) -> dict:
         except ImportError:
             skipped.append(name)
     got = limit_threads(int(threads))  # again: the imports may have loaded another BLAS
-    from .._threads import blas_threads
-
     report = {"seconds": time.perf_counter() - t, "threads": got, "pid": os.getpid(),
               "blas_threads": blas_threads(), "skipped": skipped}
     _WARMED[task] = report
     return report
-
-
-#: This process's :func:`warm_up` reports by task (a task records whether it ran warm).
-_WARMED: dict[str, dict] = {}
 
 
 # ------------------------------------------------------------------------------ inputs
