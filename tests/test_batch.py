@@ -373,6 +373,17 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     assert target.read_text() == "old" and list(tmp_path.iterdir()) == [target]
 
 
+def test_thread_env_names_geofit_openmp_and_blas():
+    """The worker environment gives geofit, OpenMP and BLAS the same count; a bad count is
+    refused by geofit's thread policy."""
+    from geofit.batch import thread_env
+
+    env = thread_env(3)
+    assert set(env) == set(THREAD_VARS) and set(env.values()) == {"3"}
+    with pytest.raises(ValueError, match="n: expected an integer >= 1"):
+        thread_env(0)
+
+
 def test_every_task_has_options_and_an_accuracy():
     assert set(TASKS) == set(ACCURACY) == {"fit-mesh", "render", "fit-views", "fit-volume",
                                            "fit-nerf"}

@@ -24,7 +24,7 @@ variables, so that ``n_workers * threads_per_worker`` never exceeds the cores.
 
 Scheduling: before the first target, a worker plugin (:class:`geofit.batch._warm.WarmUp`) sets
 every worker's thread limits and imports what the task needs (geofit's modules, Open3D,
-Embree, Pillow), once per worker rather than inside the first task. The targets are submitted
+Pillow), once per worker rather than inside the first task. The targets are submitted
 largest input first (longest-processing-time-first: the last targets to start are the short
 ones, so no worker waits long for the last one), and the embedded cluster's scheduler keeps
 them queued until a worker is free (``distributed.scheduler.worker-saturation`` 1.0), so a
@@ -44,7 +44,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .._threads import cpu_count
+from .._threads import ENV_VAR, cpu_count
 from ._tasks import (
     CAPTURE_MARKERS,
     MESH_SUFFIXES,
@@ -501,9 +501,9 @@ def thread_env(threads: int) -> dict[str, str]:
     sets all three to 1 before it starts a worker (``distributed.nanny.pre-spawn-environ``),
     and geofit leaves BLAS alone when its thread count equals the cores, so a 1 worker x 2
     threads cluster would otherwise run BLAS on one thread."""
-    t = str(int(threads))
-    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t,
-            "MKL_NUM_THREADS": t}
+    from .._threads import thread_environ
+
+    return thread_environ(int(threads))
 
 
 #: Keyword arguments of every ``LocalCluster`` geofit starts: no dashboard, and the scheduler's
@@ -545,7 +545,7 @@ def _start_local(n_workers: int, threads: int):
     from distributed import Client, LocalCluster
 
     env = thread_env(threads)
-    at_spawn = {k: v for k, v in env.items() if k != "GEOFIT_NUM_THREADS"}
+    at_spawn = {k: v for k, v in env.items() if k != ENV_VAR}
     pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **at_spawn}
     with _environ(at_spawn), dask.config.set(  # read when the nannies and scheduler start
             {**LOCAL_SCHEDULER_CONFIG, "distributed.nanny.pre-spawn-environ": pre_spawn}):

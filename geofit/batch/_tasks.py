@@ -122,8 +122,8 @@ WARM_MODULES: dict[str, tuple[str, ...]] = {
 #: This process's :func:`warm_up` reports by task (a task records whether it ran warm).
 _WARMED: dict[str, dict] = {}
 
-_WARM_COMMON = ("geofit.io", "geofit.render", "geofit.structures", "open3d", "embreex",
-                "PIL.Image", "threadpoolctl")
+_WARM_COMMON = ("geofit.io", "geofit.render", "geofit.raycast", "geofit.structures", "open3d",
+                "PIL.Image")
 
 
 def warm_up(task: str, threads: int) -> dict:
