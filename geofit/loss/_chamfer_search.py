@@ -30,7 +30,8 @@ which is fast there: overlapping clouds take the KD-tree path almost entirely.
 Exactness: no point that ties with or beats the witness for some query of the block is pruned
 (every test keeps a relative margin of 1e-9 for rounding, and the block half-extents are rounded
 up), so each query's candidates contain all its nearest points; among equal distances the point
-first in the cloud's Z-order wins, so the result does not depend on the chunking or threads.
+first in the cloud's Z-order wins (the KD-tree's own rule for the blocks handed back to it), and
+the chunks of queries are fixed, so the result does not depend on the number of threads.
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ import numpy as np
 
 from .._threads import parallel_map
 
-__all__ = ["MORTON_BITS", "WitnessSearch", "morton_codes"]
+__all__ = ["MORTON_BITS", "WitnessSearch", "leaf_level", "leaf_side", "morton_codes"]
 
 MORTON_BITS = 21  # bits per axis: 63-bit codes
 _MASKS = ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
@@ -80,6 +81,23 @@ def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Concatenation of ``arange(s, s + c)`` for each start ``s`` and count ``c``."""
     off = np.cumsum(counts) - counts
     return np.repeat(starts - off, counts) + np.arange(int(counts.sum()))
+
+
+def leaf_level(codes: np.ndarray) -> int:
+    """The coarsest octree level whose cells hold at most ``_LEAF`` points on average (codes
+    ascending): the finest level of :class:`WitnessSearch`."""
+    n = len(codes)
+    for level in range(1, MORTON_BITS + 1):  # octree levels, coarse to fine
+        key = codes >> np.uint64(3 * (MORTON_BITS - level))
+        if n <= _LEAF * (1 + np.count_nonzero(key[1:] != key[:-1])):
+            return level
+    return MORTON_BITS
+
+
+def leaf_side(points: np.ndarray, codes: np.ndarray) -> float:
+    """Side of the finest cells of :class:`WitnessSearch` over ``points`` (codes ascending)."""
+    span = float((points.max(axis=0) - points.min(axis=0)).max())
+    return span / 2.0 ** leaf_level(codes)
 
 
 class _Level:
@@ -128,13 +146,8 @@ class WitnessSearch:
 
     def __init__(self, points: np.ndarray, codes: np.ndarray):
         self.points = points
-        n = len(points)
-        self.levels: list[_Level] = []
-        for level in range(1, MORTON_BITS + 1):  # octree levels, coarse to fine
-            lv = _Level(points, codes >> np.uint64(3 * (MORTON_BITS - level)))
-            self.levels.append(lv)
-            if n <= _LEAF * len(lv.start):
-                break
+        self.levels = [_Level(points, codes >> np.uint64(3 * (MORTON_BITS - level)))
+                       for level in range(1, leaf_level(codes) + 1)]
         for lv in self.levels[-_FRAMED:]:
             lv.add_frames(points)
         for a, b in zip(self.levels[:-1], self.levels[1:]):

@@ -50,6 +50,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_array, as_points, check_choice
 from .._foreign import foreign_kind
 from ..structures.pointcloud import PointCloud, as_pointcloud
+from ._chamfer_search import WitnessSearch, leaf_side, morton_codes
 
 __all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]
 
@@ -60,6 +61,10 @@ _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (meas
 _BACKENDS = ("auto", "open3d", "scipy")
 _OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is used (measured)
 _MORTON_FROM = 20_000  # clouds and queries from this size are searched in Z-order (measured)
+_WITNESS_FROM = 20_000  # "auto": clouds and queries from which far queries take the witness search
+_SAMPLE = 2048  # "auto": queries sampled (in Z-order) to tell far clouds from near ones ...
+_FAR = 4.0  # ... a sampled query is far beyond _FAR finest octree cells from its nearest point
+_FAR_SHARE = 0.05  # ... and from this share of far samples the witness search is used
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,19 +114,7 @@ def morton_order(points: np.ndarray) -> np.ndarray:
     sorted queries, reads memory in order: measured in ``benchmarks/chamfer.py`` (``*_morton``
     rows). 21 bits per axis over the points' bounding cube.
     """
-    lo = points.min(axis=0)
-    span = float((points.max(axis=0) - lo).max())
-    scale = (2 ** 21 - 1) / span if span > 0 else 0.0
-    q = ((points - lo) * scale).astype(np.uint64)
-    code = np.zeros(len(points), np.uint64)
-    for axis in range(3):  # the three coordinates: spread 21 bits to every third bit
-        v = q[:, axis]
-        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF),
-                            (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3),
-                            (2, 0x1249249249249249)):
-            v = (v | (v << np.uint64(shift))) & np.uint64(mask)
-        code |= v << np.uint64(axis)
-    return np.argsort(code, kind="stable").astype(np.int64, copy=False)
+    return np.argsort(morton_codes(points), kind="stable").astype(np.int64, copy=False)
 
 
 class _NearestIndex:
@@ -139,9 +132,16 @@ class _NearestIndex:
         self.backend = backend
         self._scipy = None
         self._open3d = None
-        self._order = morton_order(points) if len(points) >= _MORTON_FROM else None
-        self._tree_points = (points if self._order is None
-                             else np.ascontiguousarray(points[self._order]))
+        self._order = None
+        self._codes = None
+        self._tree_points = points
+        if len(points) >= _MORTON_FROM:
+            codes = morton_codes(points)
+            self._order = np.argsort(codes, kind="stable").astype(np.int64, copy=False)
+            self._codes = codes[self._order]
+            self._tree_points = np.ascontiguousarray(points[self._order])
+        self._witness = None
+        self._leaf_side = None
 
     def _pick(self, n_queries: int, norm: int) -> str:
         if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
@@ -156,7 +156,11 @@ class _NearestIndex:
         """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
         q_order = morton_order(q) if len(q) >= _MORTON_FROM else None
         qs = q if q_order is None else np.ascontiguousarray(q[q_order])
-        idx = self._search(qs, norm)
+        if (self.backend == "auto" and norm == 2 and self._codes is not None
+                and q_order is not None and min(len(q), len(self.points)) >= _WITNESS_FROM):
+            idx = self._search_far_aware(qs, norm)
+        else:
+            idx = self._search(qs, norm)
         if self._order is not None:
             idx = self._order[idx]
         if q_order is not None:
@@ -165,9 +169,30 @@ class _NearestIndex:
             idx = out
         return idx
 
-    def _search(self, q: np.ndarray, norm: int) -> np.ndarray:
-        """Indices into ``self._tree_points`` of the nearest point of each query."""
-        if self._pick(len(q), norm) == "open3d":
+    def _search_far_aware(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """The KD-tree search, or the witness search with KD fallback when the queries are far.
+
+        A Z-order sample of ``_SAMPLE`` queries is searched with the KD-tree first; if at least
+        ``_FAR_SHARE`` of them are more than ``_FAR`` finest octree cells from their nearest
+        point, the whole query set takes :class:`~geofit.loss._chamfer_search.WitnessSearch`
+        (which hands the blocks it finds near back to the KD-tree), else the KD-tree alone.
+        """
+        sample = q[:: max(1, len(q) // _SAMPLE)]
+        diff = sample - self._tree_points[self._search(sample, norm, len(q))]
+        if self._leaf_side is None:
+            self._leaf_side = leaf_side(self._tree_points, self._codes)
+        far = np.einsum("ij,ij->i", diff, diff) > (_FAR * self._leaf_side) ** 2
+        if far.mean() < _FAR_SHARE:
+            return self._search(q, norm)
+        if self._witness is None:
+            self._witness = WitnessSearch(self._tree_points, self._codes)
+        return self._witness.nearest(q, lambda rows: self._search(q[rows], norm, len(q)))
+
+    def _search(self, q: np.ndarray, norm: int, n_pick: int | None = None) -> np.ndarray:
+        """Indices into ``self._tree_points`` of the nearest point of each query (the backend
+        picked for ``n_pick`` queries, default ``len(q)``: a sample or a part of a large query
+        set keeps the large set's backend)."""
+        if self._pick(len(q) if n_pick is None else n_pick, norm) == "open3d":
             import open3d as o3d
 
             if self._open3d is None:
