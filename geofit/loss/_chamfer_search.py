@@ -35,6 +35,7 @@ the chunks of queries are fixed, so the result does not depend on the number of 
 """
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 
 import numpy as np
@@ -111,26 +112,45 @@ class _Level:
         self.hi = np.maximum.reduceat(points, self.start, axis=0)
         self.rep = self.start + (self.end - self.start) // 2  # a point in the cell's middle
         self.child_start = self.child_end = None
-        self.frame = None
+        self.framed = None
 
-    def add_frames(self, points: np.ndarray) -> None:
-        """Oriented boxes: each cell's principal axes ``frame`` (c, 3, 3), the box centre
-        ``mid`` and half extents ``half`` along them. Any orthonormal frame bounds the cell; the
-        principal one fits a flat patch, whatever its tilt."""
-        cnt = self.end - self.start
-        cell = np.repeat(np.arange(len(cnt)), cnt)
-        mean = np.add.reduceat(points, self.start, axis=0) / cnt[:, None]
-        d = points - mean[cell]
-        cov = np.empty((len(cnt), 3, 3))
-        for i in range(3):  # the six second moments
-            for j in range(i, 3):
-                cov[:, i, j] = cov[:, j, i] = np.add.reduceat(d[:, i] * d[:, j], self.start)
-        _, self.frame = np.linalg.eigh(cov)
-        u = np.einsum("nij,ni->nj", self.frame[cell], d)
-        ulo = np.minimum.reduceat(u, self.start, axis=0)
-        uhi = np.maximum.reduceat(u, self.start, axis=0)
-        self.mid = mean + np.einsum("cij,cj->ci", self.frame, 0.5 * (ulo + uhi))
-        self.half = 0.5 * (uhi - ulo) * (1.0 + 1e-9) + 1e-300
+    def allow_frames(self) -> None:
+        """Give this level oriented boxes, computed per cell when first visited (:meth:`frames`):
+        far queries visit a small part of the cloud."""
+        nc = len(self.start)
+        self.framed = np.zeros(nc, bool)
+        self.frame = np.zeros((nc, 3, 3))
+        self.mid = np.zeros((nc, 3))
+        self.half = np.zeros((nc, 3))
+        self._lock = threading.Lock()
+
+    def frames(self, points: np.ndarray, cells: np.ndarray) -> None:
+        """Oriented boxes of ``cells`` not yet done: the principal axes ``frame`` (3, 3), the
+        box centre ``mid`` and half extents ``half`` along them. Any orthonormal frame bounds a
+        cell; the principal one fits a flat patch, whatever its tilt."""
+        with self._lock:  # the chunks' threads share the level
+            new = ~self.framed[cells]
+            if not new.any():
+                return
+            todo = np.unique(cells[new])
+            cnt = self.end[todo] - self.start[todo]
+            p = points[_ranges(self.start[todo], cnt)]
+            st = np.cumsum(cnt) - cnt
+            cell = np.repeat(np.arange(len(todo)), cnt)
+            mean = np.add.reduceat(p, st, axis=0) / cnt[:, None]
+            d = p - mean[cell]
+            cov = np.empty((len(todo), 3, 3))
+            for i in range(3):  # the six second moments
+                for j in range(i, 3):
+                    cov[:, i, j] = cov[:, j, i] = np.add.reduceat(d[:, i] * d[:, j], st)
+            _, frame = np.linalg.eigh(cov)
+            u = np.einsum("nij,ni->nj", frame[cell], d)
+            ulo = np.minimum.reduceat(u, st, axis=0)
+            uhi = np.maximum.reduceat(u, st, axis=0)
+            self.frame[todo] = frame
+            self.mid[todo] = mean + np.einsum("cij,cj->ci", frame, 0.5 * (ulo + uhi))
+            self.half[todo] = 0.5 * (uhi - ulo) * (1.0 + 1e-9) + 1e-300
+            self.framed[todo] = True
 
 
 class WitnessSearch:
@@ -149,7 +169,7 @@ class WitnessSearch:
         self.levels = [_Level(points, codes >> np.uint64(3 * (MORTON_BITS - level)))
                        for level in range(1, leaf_level(codes) + 1)]
         for lv in self.levels[-_FRAMED:]:
-            lv.add_frames(points)
+            lv.allow_frames()
         for a, b in zip(self.levels[:-1], self.levels[1:]):
             a.child_start = np.searchsorted(b.start, a.start)
             a.child_end = np.r_[a.child_start[1:], len(b.start)]
@@ -215,7 +235,8 @@ class WitnessSearch:
             lo, hi = lv.lo[pc], lv.hi[pc]
             gap = np.maximum(np.maximum(lo - qb, qb - hi), 0.0)
             gap2 = np.einsum("ij,ij->i", gap, gap)
-            if lv.frame is not None:  # the oriented box is nearer the points: take the larger
+            if lv.framed is not None:  # the oriented box is nearer the points: take the larger
+                lv.frames(P, pc)
                 v = np.einsum("nij,ni->nj", lv.frame[pc], qb - lv.mid[pc])
                 gap = np.maximum(np.abs(v) - lv.half[pc], 0.0)
                 gap2 = np.maximum(gap2, np.einsum("ij,ij->i", gap, gap))

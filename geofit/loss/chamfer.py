@@ -152,9 +152,10 @@ class _NearestIndex:
         # set-up dominates; Open3D from _OPEN3D_FROM points, where it is faster on far clouds.
         return "open3d" if min(len(self.points), n_queries) >= _OPEN3D_FROM else "scipy"
 
-    def nearest(self, q: np.ndarray, norm: int) -> np.ndarray:
+    def nearest(self, q: np.ndarray, norm: int, q_order: np.ndarray | None = None) -> np.ndarray:
         """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
-        q_order = morton_order(q) if len(q) >= _MORTON_FROM else None
+        if q_order is None and len(q) >= _MORTON_FROM:
+            q_order = morton_order(q)
         qs = q if q_order is None else np.ascontiguousarray(q[q_order])
         if (self.backend == "auto" and norm == 2 and self._codes is not None
                 and q_order is not None and min(len(q), len(self.points)) >= _WITNESS_FROM):
@@ -178,7 +179,7 @@ class _NearestIndex:
         (which hands the blocks it finds near back to the KD-tree), else the KD-tree alone.
         """
         sample = q[:: max(1, len(q) // _SAMPLE)]
-        diff = sample - self._tree_points[self._search(sample, norm, len(q))]
+        diff = sample - self._tree_points[self._search(sample, norm)]
         if self._leaf_side is None:
             self._leaf_side = leaf_side(self._tree_points, self._codes)
         far = np.einsum("ij,ij->i", diff, diff) > (_FAR * self._leaf_side) ** 2
@@ -186,13 +187,11 @@ class _NearestIndex:
             return self._search(q, norm)
         if self._witness is None:
             self._witness = WitnessSearch(self._tree_points, self._codes)
-        return self._witness.nearest(q, lambda rows: self._search(q[rows], norm, len(q)))
+        return self._witness.nearest(q, lambda rows: self._search(q[rows], norm))
 
-    def _search(self, q: np.ndarray, norm: int, n_pick: int | None = None) -> np.ndarray:
-        """Indices into ``self._tree_points`` of the nearest point of each query (the backend
-        picked for ``n_pick`` queries, default ``len(q)``: a sample or a part of a large query
-        set keeps the large set's backend)."""
-        if self._pick(len(q) if n_pick is None else n_pick, norm) == "open3d":
+    def _search(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """Indices into ``self._tree_points`` of the nearest point of each query."""
+        if self._pick(len(q), norm) == "open3d":
             import open3d as o3d
 
             if self._open3d is None:
@@ -210,9 +209,9 @@ class _NearestIndex:
         return np.asarray(idx, dtype=np.int64)
 
 
-def _nearest(index: _NearestIndex, q: np.ndarray, norm: int):
+def _nearest(index: _NearestIndex, q: np.ndarray, norm: int, q_order=None):
     """Nearest index point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
-    idx = index.nearest(q, norm)
+    idx = index.nearest(q, norm, q_order)
     diff = q - index.points[idx]
     if norm == 2:
         d = np.einsum("ij,ij->i", diff, diff)
@@ -262,14 +261,15 @@ class _Direction(NamedTuple):
     dn_q: np.ndarray | None  # (k, 3) d nterm / d q_normal[idx]
 
 
-def _direction(p, q, index_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
+def _direction(p, q, index_q, norm, p_normals, q_normals, abs_cosine,
+               p_order=None) -> _Direction:
     if len(p) == 0 or len(q) == 0:  # nothing to match: this direction contributes 0
         z = np.zeros(len(p))
         zz = np.zeros((len(p), 3))
         with_n = p_normals is not None
         return _Direction(z, np.zeros(len(p), np.int64), zz, z if with_n else None,
                           zz if with_n else None, zz if with_n else None)
-    idx, d, dd = _nearest(index_q, p, norm)
+    idx, d, dd = _nearest(index_q, p, norm, p_order)
     if p_normals is None:
         return _Direction(d, idx, dd, None, None, None)
     cos, ga, gb = _cos_and_grads(p_normals, q_normals[idx])
@@ -321,12 +321,15 @@ def _reduce_direction(dr: _Direction, point_reduction: str, w: float, n_q: int) 
 def _member(xb, yb, index_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
             abs_cosine, backend):
     """Both directions of one batch member combined: (loss, loss_n, gx, gy, gxn, gyn)."""
-    rx = _reduce_direction(_direction(xb, yb, index_y, norm, xnb, ynb, abs_cosine),
+    # x moves: its tree is rebuilt per call; its Z-order (if any) also orders the x -> y queries
+    index_x = None if single_directional else _NearestIndex(xb, backend)
+    x_order = None if index_x is None else index_x._order
+    rx = _reduce_direction(_direction(xb, yb, index_y, norm, xnb, ynb, abs_cosine, x_order),
                            point_reduction, w, len(yb))
     if single_directional:
         return rx.value, rx.value_n, rx.g_p, rx.g_q, rx.gn_p, rx.gn_q
-    index_x = _NearestIndex(xb, backend)  # x moves: its tree is rebuilt per call
-    ry = _reduce_direction(_direction(yb, xb, index_x, norm, ynb, xnb, abs_cosine),
+    ry = _reduce_direction(_direction(yb, xb, index_x, norm, ynb, xnb, abs_cosine,
+                                      index_y._order),
                            point_reduction, w, len(xb))
     if point_reduction == "max":
         # torch.maximum: the gradient goes to the larger term, split evenly on a tie
