@@ -143,5 +143,17 @@ def test_leaf_level_holds_few_points():
 
     assert len(pts) <= cs._LEAF * cells(lv)
     assert len(pts) > cs._LEAF * cells(lv - 1)
-    assert cs.leaf_side(*_sorted(pts)) == pytest.approx(
-        float(np.ptp(pts, axis=0).max()) / 2 ** lv)
+
+
+def test_far_share_tells_far_queries_without_a_tree():
+    """Queries on the cloud's surface are near, a copy moved 3 units away is far, and queries
+    just outside the cloud's cube (within one cell) count as near."""
+    x, y = _scenes(3000)["apart"]
+    tp, codes = _sorted(y)
+    frame = cs.morton_frame(y)
+    level = cs.leaf_level(codes) - 2
+    assert cs.far_share(codes, frame, y[::7], level) == 0.0
+    assert cs.far_share(codes, frame, x, level) == 1.0
+    edge = y[np.argmax(y[:, 0])] + [1e-3, 0.0, 0.0]  # just past the cube's face
+    assert cs.far_share(codes, frame, edge[None], level) == 0.0
+    assert cs.far_share(codes, frame, np.zeros((0, 3)), level) == 0.0

@@ -42,7 +42,8 @@ import numpy as np
 
 from .._threads import parallel_map
 
-__all__ = ["MORTON_BITS", "WitnessSearch", "leaf_level", "leaf_side", "morton_codes"]
+__all__ = ["MORTON_BITS", "WitnessSearch", "far_share", "leaf_level", "morton_codes",
+           "morton_frame"]
 
 MORTON_BITS = 21  # bits per axis: 63-bit codes
 _MASKS = ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
@@ -54,16 +55,26 @@ _NEAR = 2.0  # a block whose witness is within _NEAR block diagonals goes to the
 _CHUNK = 1 << 15  # queries per work item (memory: pairs and candidates of one chunk)
 _COMBOS = 1 << 21  # (query, candidate) distances computed at once
 _FRAMED = 3  # finest levels with oriented boxes
+_CROWD = 64  # cells kept by a block at one level above which it goes to the KD-tree
 _HEAVY = 256  # candidates of a block above which its queries go to the KD-tree
 _SLACK = 1e-9  # relative margin of every pruning test (rounding)
 
 
-def morton_codes(points: np.ndarray) -> np.ndarray:
-    """(n,) uint64 Z-order codes of (n, 3) ``points``: 21 bits per axis over their bounding cube."""
+def morton_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(lo, scale)``: the corner of the bounding cube of (n, 3) ``points`` and the factor that
+    maps its side to ``2**21 - 1`` (0 for a single point)."""
     lo = points.min(axis=0)
     span = float((points.max(axis=0) - lo).max())
-    scale = (2 ** MORTON_BITS - 1) / span if span > 0 else 0.0
-    q = ((points - lo) * scale).astype(np.uint64)
+    return lo, ((2 ** MORTON_BITS - 1) / span if span > 0 else 0.0)
+
+
+def morton_codes(points: np.ndarray, frame: tuple[np.ndarray, float] | None = None) -> np.ndarray:
+    """(n,) uint64 Z-order codes of (n, 3) ``points``: 21 bits per axis over their bounding cube,
+    or over the cube ``frame`` of another cloud (:func:`morton_frame`; points outside it are
+    clamped to its faces)."""
+    lo, scale = morton_frame(points) if frame is None else frame
+    t = np.clip((points - lo) * scale, 0.0, 2 ** MORTON_BITS - 1)
+    q = t.astype(np.uint64)
     code = np.zeros(len(points), np.uint64)
     for axis in range(3):  # the three coordinates: spread 21 bits to every third bit
         v = q[:, axis]
@@ -71,6 +82,24 @@ def morton_codes(points: np.ndarray) -> np.ndarray:
             v = (v | (v << np.uint64(shift))) & np.uint64(mask)
         code |= v << np.uint64(axis)
     return code
+
+
+def far_share(codes: np.ndarray, frame: tuple[np.ndarray, float], q: np.ndarray,
+              level: int) -> float:
+    """Share of the queries ``q`` (k, 3) that are far from the cloud whose sorted codes are
+    ``codes`` (in ``frame``): their octree cell at ``level`` holds none of its points, or they
+    lie outside its cube by more than one such cell. No tree needed."""
+    if len(q) == 0:
+        return 0.0
+    lo, scale = frame
+    side = float(2 ** (MORTON_BITS - level))  # a cell's side, in code units
+    t = (q - lo) * scale
+    outside = ((t < -side) | (t > 2 ** MORTON_BITS - 1 + side)).any(axis=1)
+    shift = np.uint64(3 * (MORTON_BITS - level))
+    keys = codes >> shift
+    qk = morton_codes(q, frame) >> shift
+    pos = np.minimum(np.searchsorted(keys, qk), len(keys) - 1)
+    return float(np.mean(outside | (keys[pos] != qk)))
 
 
 def _segments(ids: np.ndarray) -> np.ndarray:
@@ -93,12 +122,6 @@ def leaf_level(codes: np.ndarray) -> int:
         if n <= _LEAF * (1 + np.count_nonzero(key[1:] != key[:-1])):
             return level
     return MORTON_BITS
-
-
-def leaf_side(points: np.ndarray, codes: np.ndarray) -> float:
-    """Side of the finest cells of :class:`WitnessSearch` over ``points`` (codes ascending)."""
-    span = float((points.max(axis=0) - points.min(axis=0)).max())
-    return span / 2.0 ** leaf_level(codes)
 
 
 class _Level:
@@ -216,8 +239,9 @@ class WitnessSearch:
             if len(pb) == 0:
                 break
             # witness: the nearest representative of the block's cells so far
+            qb = q0[pb]
             rep = lv.rep[pc]
-            dv = P[rep] - q0[pb]
+            dv = P[rep] - qb
             d2 = np.einsum("ij,ij->i", dv, dv)
             s = _segments(pb)
             best = np.minimum.reduceat(d2, s)
@@ -230,21 +254,29 @@ class WitnessSearch:
             diag2 = 4.0 * np.einsum("ij,ij->i", h, h) * (_K_MIN / k)  # ~ the final blocks'
             near = far & (d2w <= _NEAR * _NEAR * diag2)
             far &= ~near
+            if near.any():
+                sel = far[pb]
+                pb, pc, qb = pb[sel], pc[sel], qb[sel]
             # prune cells: |p - q0|^2 <= |w - q0|^2 + 2 sum h_i |p_i - w_i| for no p of the cell
-            qb = q0[pb]
             lo, hi = lv.lo[pc], lv.hi[pc]
-            gap = np.maximum(np.maximum(lo - qb, qb - hi), 0.0)
-            gap2 = np.einsum("ij,ij->i", gap, gap)
-            if lv.framed is not None:  # the oriented box is nearer the points: take the larger
+            if lv.framed is None:  # the axis-aligned box
+                gap = np.maximum(np.maximum(lo - qb, qb - hi), 0.0)
+            else:  # the oriented box: nearer the points of a tilted patch (measured: enough)
                 lv.frames(P, pc)
                 v = np.einsum("nij,ni->nj", lv.frame[pc], qb - lv.mid[pc])
                 gap = np.maximum(np.abs(v) - lv.half[pc], 0.0)
-                gap2 = np.maximum(gap2, np.einsum("ij,ij->i", gap, gap))
             wb = P[w[pb]]
             lat = 2.0 * np.einsum("ij,ij->i", h[pb],
                                   np.maximum(np.abs(lo - wb), np.abs(hi - wb)))
-            keep = far[pb] & (gap2 <= (d2w[pb] + lat) * (1.0 + _SLACK))
+            keep = np.einsum("ij,ij->i", gap, gap) <= (d2w[pb] + lat) * (1.0 + _SLACK)
             pb, pc = pb[keep], pc[keep]
+            # a block that keeps many cells is almost equally far from a wide part of the
+            # cloud (near the centre of a surrounding sphere): the KD-tree is faster there
+            crowded = np.bincount(pb, minlength=len(far)) > _CROWD
+            if crowded.any():
+                far &= ~crowded
+                keep = far[pb]
+                pb, pc = pb[keep], pc[keep]
         out = np.full(nq, -1, np.int64)
         if len(pb):
             self._leaves(q, k, pb, pc, q0, h, w, d2w, out)

@@ -50,7 +50,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_array, as_points, check_choice
 from .._foreign import foreign_kind
 from ..structures.pointcloud import PointCloud, as_pointcloud
-from ._chamfer_search import WitnessSearch, leaf_side, morton_codes
+from ._chamfer_search import WitnessSearch, far_share, leaf_level, morton_codes, morton_frame
 
 __all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]
 
@@ -63,8 +63,8 @@ _OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is use
 _MORTON_FROM = 20_000  # clouds and queries from this size are searched in Z-order (measured)
 _WITNESS_FROM = 20_000  # "auto": clouds and queries from which far queries take the witness search
 _SAMPLE = 2048  # "auto": queries sampled (in Z-order) to tell far clouds from near ones ...
-_FAR = 4.0  # ... a sampled query is far beyond _FAR finest octree cells from its nearest point
-_FAR_SHARE = 0.05  # ... and from this share of far samples the witness search is used
+_FAR_LEVELS = 2  # ... a sample is far when its octree cell this many levels above the finest
+_FAR_SHARE = 0.05  # ... is empty, and from this share of far samples the witness search is used
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,12 +136,13 @@ class _NearestIndex:
         self._codes = None
         self._tree_points = points
         if len(points) >= _MORTON_FROM:
-            codes = morton_codes(points)
+            self._frame = morton_frame(points)
+            codes = morton_codes(points, self._frame)
             self._order = np.argsort(codes, kind="stable").astype(np.int64, copy=False)
             self._codes = codes[self._order]
             self._tree_points = np.ascontiguousarray(points[self._order])
         self._witness = None
-        self._leaf_side = None
+        self._far_level = None
 
     def _pick(self, n_queries: int, norm: int) -> str:
         if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
@@ -174,19 +175,19 @@ class _NearestIndex:
         """``"auto"`` from ``_WITNESS_FROM`` points: scipy's tree for queries near the cloud,
         the witness search for far ones.
 
-        A Z-order sample of ``_SAMPLE`` queries is searched with scipy's tree first; if at least
-        ``_FAR_SHARE`` of them are more than ``_FAR`` finest octree cells from their nearest
-        point, all queries take :class:`~geofit.loss._chamfer_search.WitnessSearch`, which hands
+        A Z-order sample of ``_SAMPLE`` queries is located in the cloud's octree (its sorted
+        Z-order codes: no tree); if at least ``_FAR_SHARE`` of them fall in empty cells
+        ``_FAR_LEVELS`` levels above the finest (cells of 4 x 4 x 4 finest ones, about 8 points
+        each), all queries take :class:`~geofit.loss._chamfer_search.WitnessSearch`, which hands
         the blocks it finds near, or with too many candidates, to the KD-tree picked for their
-        number (:meth:`_pick`); otherwise all take scipy's tree, already built (on overlapping
-        clouds at 1M points a side it took 2.4-2.5 s per direction, as Open3D's, load ~19).
+        number (:meth:`_pick`); otherwise all take scipy's tree (on overlapping clouds at 1M
+        points a side it took 2.4-2.5 s per direction, as Open3D's, load ~19).
         """
         sample = q[:: max(1, len(q) // _SAMPLE)]
-        diff = sample - self._tree_points[self._search(sample, norm, "scipy")]
-        if self._leaf_side is None:
-            self._leaf_side = leaf_side(self._tree_points, self._codes)
-        far = np.einsum("ij,ij->i", diff, diff) > (_FAR * self._leaf_side) ** 2
-        if far.mean() < _FAR_SHARE:
+        if self._far_level is None:
+            self._far_level = max(1, leaf_level(self._codes) - _FAR_LEVELS)
+        level = self._far_level
+        if far_share(self._codes, self._frame, sample, level) < _FAR_SHARE:
             return self._search(q, norm, "scipy")
         if self._witness is None:
             self._witness = WitnessSearch(self._tree_points, self._codes)
