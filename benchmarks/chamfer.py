@@ -196,7 +196,8 @@ def main() -> None:
     report.notes += [
         "seconds: wall time, both directions (x -> y and y -> x), tree builds included; median "
         "of `repeat` runs below 100k points, one run from 100k; the machine's other jobs add "
-        "noise, see loadavg_before/after and the per-row load",
+        "noise, see loadavg_before/after and the per-row load; cpu_seconds: the CPU time of "
+        "the measuring process in that run (all its threads), less sensitive to the load",
         "check: every method's squared distances equal scipy's exactly (an exact search)",
         "scenes: overlap = two samplings of the normalised dolphin; tutorial = ico_sphere(4) "
         "samples against the dolphin inside it (the fit's start); apart = the sphere shifted "
@@ -227,7 +228,7 @@ def main() -> None:
                           flush=True)
                     _write(report, rows, sizes, args.out, stem, load_before, partial=True)
                     continue
-                times, dirs, result = out
+                times, dirs, result, cpus = out
                 k = int(np.argsort(times)[len(times) // 2])  # the median run
                 status = "ok"
                 if key in NN_METHODS:
@@ -239,7 +240,7 @@ def main() -> None:
                 elif ref is not None and not np.isclose(result, ref[0].mean() + ref[1].mean(),
                                                         rtol=1e-12):
                     status = "MISMATCH"
-                row.update(seconds=times[k], runs=times, status=status,
+                row.update(seconds=times[k], runs=times, status=status, cpu_seconds=cpus[k],
                            load_1min=os.getloadavg()[0])
                 if key == "chamfer_auto":
                     row["ref_loss"] = _ref_loss(ref)
@@ -259,9 +260,11 @@ def main() -> None:
 
 
 def _child(key, fn, x, y, repeat, conn) -> None:
-    """Run one measurement (in a forked process) and send (times, directions, result)."""
-    times, dirs = [], []
+    """Run one measurement (in a forked process) and send (times, directions, result, CPU
+    seconds of the process: its own work, whatever the machine's other jobs)."""
+    times, dirs, cpus = [], [], []
     for _ in range(repeat):  # repetitions of one measurement
+        c0 = time.process_time()
         t0 = time.perf_counter()
         if key in CHAMFER_METHODS:
             out = fn(x, y)
@@ -271,15 +274,17 @@ def _child(key, fn, x, y, repeat, conn) -> None:
             t1 = time.perf_counter()
             out = (out0, fn(x, y))
         t2 = time.perf_counter()
+        cpus.append(time.process_time() - c0)
         times.append(t2 - t0)
         dirs.append((t1 - t0, t2 - t1))
     result = out if key in CHAMFER_METHODS else (_sqdist(x, y, out[0]), _sqdist(y, x, out[1]))
-    conn.send((times, dirs, result))
+    conn.send((times, dirs, result, cpus))
     conn.close()
 
 
 def _measure(key, fn, x, y, repeat, timeout):
-    """(times, per-direction times, result) of one measurement, or None after ``timeout`` s."""
+    """(times, per-direction times, result, CPU times) of one measurement, or None after
+    ``timeout`` s."""
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")  # the child shares x and y; Open3D was imported before
@@ -344,6 +349,8 @@ def default_ratios(rows) -> dict:
             if r.get("seconds"):
                 entry[f"{scene}_seconds"] = r["seconds"]
                 entry[f"{scene}/overlap"] = r["seconds"] / o["seconds"]
+                if r.get("cpu_seconds") and o.get("cpu_seconds"):
+                    entry[f"{scene}/overlap_cpu"] = r["cpu_seconds"] / o["cpu_seconds"]
             elif r.get("seconds_at_least"):  # stopped at the timeout: a lower bound
                 entry[f"{scene}_seconds_at_least"] = r["seconds_at_least"]
                 entry[f"{scene}/overlap_at_least"] = r["seconds_at_least"] / o["seconds"]
@@ -364,7 +371,9 @@ def _ratio_text(ratios: dict) -> str:
             elif f"{scene}/overlap_at_least" in e:
                 parts.append(f"{scene}/overlap > {e[f'{scene}/overlap_at_least']:.2f}")
         load = max(v for v in e["load_1min"].values() if v is not None)
-        lines.append(f"default, {key}: " + ", ".join(parts) + f" (load <= {load:.1f})")
+        cpu = e.get("apart/overlap_cpu")
+        cpu = f"; CPU time apart/overlap {cpu:.2f}" if cpu else ""
+        lines.append(f"default, {key}: " + ", ".join(parts) + f" (wall, load <= {load:.1f}){cpu}")
     return "\n".join(lines)
 
 
@@ -397,11 +406,12 @@ def rerun_default(args) -> None:
                            seconds_at_least=args.timeout, load_1min=os.getloadavg()[0])
                 print(f"{n:>8} {scene:9s} default > {args.timeout:g} s (timeout)", flush=True)
             else:
-                times, _, loss = out
+                times, _, loss, cpus = out
+                k = int(np.argsort(times)[len(times) // 2])  # the median run
                 want = ref_loss.get((scene, n))  # the exact loss of an earlier full run
                 status = ("unchecked: no reference loss stored" if want is None else
                           "ok" if np.isclose(loss, want, rtol=1e-12) else "MISMATCH")
-                row.update(seconds=float(np.median(times)), runs=times, status=status,
+                row.update(seconds=times[k], runs=times, cpu_seconds=cpus[k], status=status,
                            load_1min=os.getloadavg()[0])
                 if want is not None:
                     row["ref_loss"] = want
