@@ -1,7 +1,8 @@
 """Chamfer distance between point clouds with analytic gradients (PyTorch3D's ``chamfer_distance``).
 
 For every point of ``x`` the nearest point of ``y`` is found (and vice versa) by an exact
-KD-tree search (Open3D's or scipy's, see below); the distances are then recomputed in float64 from
+search (a KD-tree, Open3D's or scipy's, and for far queries a witness-pruned block search, see
+below); the distances are then recomputed in float64 from
 the coordinate differences, so values and gradients are exact for the neighbours found. The choice
 of neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
 ``knn_points`` indices are constants), and the gradient is exact wherever the nearest neighbours
@@ -22,21 +23,36 @@ points sorted along a Z-order curve and the queries are searched in that order t
 side on overlapping clouds it took Open3D's search from 62 s to 24 s and scipy's from 54 s to
 29 s, sorting included (load about 15). Every path is
 exact (tests compare them with brute force, and ``benchmarks/chamfer.py`` checks that every
-method returns scipy's distances); only scipy has the L1 metric of ``norm=1``. ``"auto"``, the
-default, takes scipy below 20 000 points a side and Open3D from there, after
-``benchmarks/chamfer.py`` (``benchmarks/results/chamfer.json``: both directions, tree builds
-included, 2 shared cores at a load of 15 to 18, so read ratios rather than seconds): at 100k
-points a side ``chamfer_distance`` took 3.9 s with scipy and 2.8 s with Open3D on two samplings
-of the dolphin, and 58 s and 24 s at the mesh-fitting tutorial's start (sphere samples around
-the dolphin); at 10k all backends are within the noise (0.1 to 1.5 s).
+method returns scipy's distances); only scipy has the L1 metric of ``norm=1``.
 
-Far-apart clouds are slow for every exact KD-tree, Open3D's included: a query that is almost
-equally far from many points (a dolphin point near the centre of the sphere) must visit all of
-them to prove which one is nearest, so the time grows faster than ``n log n`` (at 100k points the
-tutorial's start took 7 times as long as two overlapping clouds with the default, 15 times with
-scipy; at 1M points the overlapping clouds took 33 s with the default and the tutorial's start
-did not finish within the benchmark's 150 s with any backend: more than 4.6 times). The default
-does not keep far-apart clouds within twice the time of overlapping ones.
+Far queries: an exact KD-tree, Open3D's included, slows down when the two clouds are apart. To
+prove a nearest point it opens every node whose box is closer than that point, and when a
+surface faces the query from afar (a dolphin point 2 units from a sphere's side, or near the
+centre of a surrounding sphere) a box tilted against the surface reaches towards the query by a
+fraction of its size times the distance: a wide patch of the surface must be opened. At 1M points
+a side scipy's search took 38 s on the clouds 2 units apart against 2.5 s overlapping (one
+direction, load ~4), and a per-query bound equal to the true distance saved only 25% at 100k
+(the work is the proof, not the finding). ``"auto"`` therefore proves nearness per block of
+queries with a witness point instead (:mod:`geofit.loss._chamfer_search`: the bisector test
+``|p - q0|^2 <= |w - q0|^2 + 2 sum_i h_i |p_i - w_i|`` over a Morton octree of the cloud, with
+oriented boxes at its finest levels), which cuts a far front to a patch about the block's size
+and stays exact (every pruning test keeps a margin for rounding; ties go to the point first in
+Z-order).
+
+``"auto"``, the default: below 20 000 points a side scipy's tree (after
+``benchmarks/chamfer.py``: Open3D's tensor set-up dominates there). From 20 000, a Z-order
+sample of 2048 queries is located in the cloud's octree; if 5% or more of them lie in empty cells
+of about 64 finest cells (the queries are far), the witness search runs, handing the blocks it
+finds near, or with too many candidates, to a KD-tree (Open3D's from 20 000 such queries,
+scipy's below); else scipy's tree answers all queries (as fast as Open3D's there: 2.4-2.5 s
+per direction at 1M points, load ~19). Measured end to end by ``benchmarks/chamfer.py``
+(``tables.default_ratios`` of ``benchmarks/results/chamfer.json``; 2 shared cores, so read the
+ratios, and the CPU-time ratios, rather than seconds): at 1M points a side two samplings of the
+dolphin took 9.1 s, the sphere moved 3 units clear of it 16.3 s (1.79 times; CPU time 1.82
+times; before: more than 150 s) and the tutorial's start (the dolphin inside the sphere) more
+than 150 s (median of 3 runs, load about 22; at 100k: 0.61 s, 1.5 s and 8.0 s). The tutorial's start stays slow: a dolphin point near the sphere's centre is
+almost equally far from a large part of the sphere, so any exact search must look at it (the
+witness search hands those blocks to the KD-tree).
 """
 from __future__ import annotations
 
@@ -124,7 +140,9 @@ class _NearestIndex:
     ``backend`` is ``"open3d"``, ``"scipy"`` or ``"auto"`` (see :meth:`_pick`). From
     ``_MORTON_FROM`` points the tree is built over the points in Z-order and the queries are
     searched in Z-order too (the answers are mapped back): the same exact neighbours, read with
-    far fewer cache misses.
+    far fewer cache misses. With ``"auto"`` and the L2 norm, from ``_WITNESS_FROM`` points and
+    queries, far queries take the witness search (:meth:`_search_far_aware`), built once per
+    cloud like the trees.
     """
 
     def __init__(self, points: np.ndarray, backend: str):
@@ -434,9 +452,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         Normal term ``1 - |cos|`` (orientation ignored) or ``1 - cos``.
     backend : {"auto", "open3d", "scipy"}
         The exact nearest-neighbour search: Open3D's ``core.nns`` (knn) or scipy's ``cKDTree``;
-        ``"auto"`` takes the faster one as measured by ``benchmarks/chamfer.py`` (see the
-        module notes). ``norm=1`` needs scipy (``"auto"`` picks it). Every backend returns the
-        exact nearest neighbours; values agree to rounding.
+        ``"auto"`` takes scipy's tree for queries near the other cloud and, from 20 000 points
+        a side, a witness-pruned block search for far ones, so that clouds far apart cost about
+        as much as overlapping ones (see the module notes for the measured figures). ``norm=1``
+        needs scipy (``"auto"`` picks it). Every backend returns the exact nearest neighbours;
+        values agree to rounding.
 
     Returns
     -------
