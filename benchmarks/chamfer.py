@@ -452,7 +452,7 @@ def plot(rows, sizes, path, mi, ratios=None) -> None:
 
     methods = {**NN_METHODS, **CHAMFER_METHODS}
     with chart_style():
-        fig, axes = plt.subplots(1, 3, figsize=(13, 5.2), sharey=True)
+        fig, axes = plt.subplots(1, 3, figsize=(13, 6.0), sharey=True)
         for ax, scene in zip(axes, ("overlap", "tutorial", "apart")):
             for i, (key, (label, _)) in enumerate(methods.items()):
                 color = f"C{i}"
@@ -472,13 +472,14 @@ def plot(rows, sizes, path, mi, ratios=None) -> None:
             ax.set_xlabel("points a side")
             ax.grid(True, which="both", alpha=0.3)
         axes[0].set_ylabel("seconds, both directions (builds included)")
-        fig.legend(loc="lower center", ncol=3, fontsize=8, frameon=False)
+        fig.legend(loc="lower center", ncol=3, fontsize=8, frameon=False,
+                   bbox_to_anchor=(0.5, 0.075))
         fig.suptitle(f"Exact nearest neighbours for chamfer: {mi['cpu']}, "
                      f"{mi['cpu_affinity']} cores (open triangle: stopped at the timeout)")
         ratios = default_ratios(rows) if ratios is None else ratios
         if ratios:
             fig.text(0.01, 0.01, _ratio_text(ratios), fontsize=8, va="bottom")
-        fig.tight_layout(rect=(0, 0.14, 1, 1))
+        fig.tight_layout(rect=(0, 0.2, 1, 1))
         fig.savefig(path, dpi=110)
         plt.close(fig)
 
