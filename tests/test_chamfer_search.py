@@ -19,14 +19,10 @@ def _brute(p, q):
 
 def _scenes(n):
     """The benchmark's three scenes, small: a torus inside a sphere stands in for the dolphin."""
-    inner = geofit.torus(0.5, 0.2, 24, 12)
-    sphere = geofit.ico_sphere(3)
-    y = sample_points_from_meshes(inner, n, seed=0)
-    return {
-        "overlap": (sample_points_from_meshes(inner, n, seed=1), y),
-        "tutorial": (sample_points_from_meshes(sphere, n, seed=1), y),
-        "apart": (sample_points_from_meshes(sphere, n, seed=1) + [3.0, 0.0, 0.0], y),
-    }
+    torus = sample_points_from_meshes(geofit.torus(0.5, 0.2, 24, 12), 2 * n, seed=0)
+    sphere = sample_points_from_meshes(geofit.ico_sphere(3), n, seed=1)
+    y = torus[:n]
+    return {"overlap": (torus[n:], y), "tutorial": (sphere, y), "apart": (sphere + [3.0, 0, 0], y)}
 
 
 def _sorted(points):
