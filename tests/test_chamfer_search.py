@@ -153,3 +153,23 @@ def test_far_share_tells_far_queries_without_a_tree():
     edge = y[np.argmax(y[:, 0])] + [1e-3, 0.0, 0.0]  # just past the cube's face
     assert cs.far_share(codes, frame, edge[None], level) == 0.0
     assert cs.far_share(codes, frame, np.zeros((0, 3)), level) == 0.0
+
+
+def test_queries_on_the_cloud_are_exact_with_single_query_blocks(monkeypatch):
+    """Blocks of one query (no extent) a hair off the points of a tilted flat grid: the oriented
+    boxes' rounding must not prune the nearest point (every block is searched by witnesses)."""
+    monkeypatch.setattr(cs, "_K_TOP", 1)
+    monkeypatch.setattr(cs, "_K_MIN", 1)
+    g = np.stack(np.meshgrid(np.linspace(0, 1, 60), np.linspace(0, 1, 60), [0.0],
+                             indexing="ij"), -1).reshape(-1, 3)
+    c, s = np.cos(0.7), np.sin(0.7)
+    rot = np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]]) @ np.array([[c, 0, s], [0, 1, 0],
+                                                                     [-s, 0, c]])
+    tp, codes = _sorted(g @ rot.T + 10.0)
+    rng = np.random.default_rng(3)
+    q = tp[rng.choice(len(tp), 300, replace=False)] + rng.normal(scale=1e-13, size=(300, 3))
+    qs, _ = _sorted(q)
+    calls = []
+    idx = _search(tp, codes, qs, calls)
+    assert sum(calls) < len(qs)
+    assert_array_equal(((qs - tp[idx]) ** 2).sum(1), _brute(qs, tp))

@@ -172,7 +172,9 @@ class _Level:
             uhi = np.maximum.reduceat(u, st, axis=0)
             self.frame[todo] = frame
             self.mid[todo] = mean + np.einsum("cij,cj->ci", frame, 0.5 * (ulo + uhi))
-            self.half[todo] = 0.5 * (uhi - ulo) * (1.0 + 1e-9) + 1e-300
+            # rounded up: the projections above are rounded by a few ulps of the cell's size
+            size = np.abs(self.hi[todo] - self.lo[todo]).max(axis=1, keepdims=True)
+            self.half[todo] = 0.5 * (uhi - ulo) * (1.0 + 1e-9) + 1e-12 * size + 1e-300
             self.framed[todo] = True
 
 
