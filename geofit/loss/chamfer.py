@@ -43,8 +43,8 @@ Z-order).
 ``benchmarks/chamfer.py``: Open3D's tensor set-up dominates there). From 20 000, a Z-order
 sample of 2048 queries is located in the cloud's octree; if 5% or more of them lie in empty cells
 of about 64 finest cells (the queries are far), the witness search runs, handing the blocks it
-finds near, or with too many candidates, to a KD-tree (Open3D's from 20 000 such queries,
-scipy's below); else scipy's tree answers all queries (as fast as Open3D's there: 2.4-2.5 s
+finds near, or with too many candidates, to a KD-tree (Open3D's when they are 20 000 or more
+and at least 10% of the queries, scipy's otherwise); else scipy's tree answers all queries (as fast as Open3D's there: 2.4-2.5 s
 per direction at 1M points, load ~19). Measured end to end by ``benchmarks/chamfer.py``
 (``tables.default_ratios`` of ``benchmarks/results/chamfer.json``; 2 shared cores, so read the
 ratios, and the CPU-time ratios, rather than seconds): at 1M points a side two samplings of the
@@ -81,6 +81,9 @@ _WITNESS_FROM = 20_000  # "auto": clouds and queries from which far queries take
 _SAMPLE = 2048  # "auto": queries sampled (in Z-order) to tell far clouds from near ones ...
 _FAR_LEVELS = 2  # ... a sample is far when its octree cell this many levels above the finest
 _FAR_SHARE = 0.05  # ... is empty, and from this share of far samples the witness search is used
+_FALLBACK_SHARE = 0.1  # queries handed back by the witness search, from this share of all of
+# them, take the KD-tree picked for their number (Open3D's from 20k: the tutorial's start hands
+# back most queries, the hard ones); fewer take scipy's, quick to build (apart: about 1%)
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,7 +212,8 @@ class _NearestIndex:
             return self._search(q, norm, "scipy")
         if self._witness is None:
             self._witness = WitnessSearch(self._tree_points, self._codes)
-        return self._witness.nearest(q, lambda rows: self._search(q[rows], norm))
+        return self._witness.nearest(q, lambda rows: self._search(
+            q[rows], norm, None if len(rows) >= _FALLBACK_SHARE * len(q) else "scipy"))
 
     def _search(self, q: np.ndarray, norm: int, backend: str | None = None) -> np.ndarray:
         """Indices into ``self._tree_points`` of the nearest point of each query (with
