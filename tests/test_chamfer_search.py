@@ -1,4 +1,5 @@
-"""The witness search for far queries: exact on every chamfer scene, ties included, deterministic."""
+"""The witness search for far queries: exact on every chamfer scene, ties included,
+deterministic."""
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal

@@ -22,10 +22,12 @@ query, so a far flat front is cut to a patch about the block's size. The same in
 cell's bounding box (its distance to ``q0``, the largest ``|p_i - w_i|``) prunes whole cells of
 a Morton octree of the cloud, level by level; the witness of each block is the best cell
 representative seen so far, and blocks are split as the cells shrink (1024 queries at the top,
-down to a few). What survives is checked point by point and the exact squared distances of each
+down to 32: blocks of 4 took 5 times as long at 1M points, with more cell pairs to test). What survives is checked point by point and the exact squared distances of each
 query to its block's candidates are compared (the same float64 formula as everywhere). A block
 whose witness is already near (within a few block diagonals) is handed back to the KD-tree,
-which is fast there: overlapping clouds take the KD-tree path almost entirely.
+which is fast there, and so is a block that keeps more than ``_CROWD`` cells at a level or
+``_HEAVY`` candidate points (near the centre of a surrounding sphere, where every exact search
+has much to look at and the KD-tree's compiled loop is faster than numpy's passes).
 
 Exactness: no point that ties with or beats the witness for some query of the block is pruned
 (every test keeps a relative margin of 1e-9 for rounding, and the block half-extents are rounded
@@ -50,7 +52,7 @@ _MASKS = ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F
           (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249))
 _LEAF = 8  # mean points per finest cell
 _K_TOP = 1024  # queries per block at the top level, divided by 4 per level ...
-_K_MIN = 32  # ... down to this (measured: 4 took 5 times as long at 1M points)
+_K_MIN = 32  # ... down to this
 _NEAR = 2.0  # a block whose witness is within _NEAR block diagonals goes to the KD-tree
 _CHUNK = 1 << 15  # queries per work item (memory: pairs and candidates of one chunk)
 _COMBOS = 1 << 21  # (query, candidate) distances computed at once

@@ -41,18 +41,19 @@ Z-order).
 
 ``"auto"``, the default: below 20 000 points a side scipy's tree (after
 ``benchmarks/chamfer.py``: Open3D's tensor set-up dominates there). From 20 000, a Z-order
-sample of 2048 queries is located in the cloud's octree; if 5% or more of them lie in empty cells
-of about 64 finest cells (the queries are far), the witness search runs, handing the blocks it
-finds near, or with too many candidates, to a KD-tree (Open3D's when they are 20 000 or more
-and at least 10% of the queries, scipy's otherwise); else scipy's tree answers all queries (as fast as Open3D's there: 2.4-2.5 s
-per direction at 1M points, load ~19). Measured end to end by ``benchmarks/chamfer.py``
-(``tables.default_ratios`` of ``benchmarks/results/chamfer.json``; 2 shared cores, so read the
-ratios, and the CPU-time ratios, rather than seconds): at 1M points a side two samplings of the
-dolphin took 9.1 s, the sphere moved 3 units clear of it 16.3 s (1.79 times; CPU time 1.82
-times; before: more than 150 s) and the tutorial's start (the dolphin inside the sphere) more
-than 150 s (median of 3 runs, load about 22; at 100k: 0.61 s, 1.5 s and 8.0 s). The tutorial's start stays slow: a dolphin point near the sphere's centre is
-almost equally far from a large part of the sphere, so any exact search must look at it (the
-witness search hands those blocks to the KD-tree).
+sample of 2048 queries is located in the cloud's octree; if 5% or more of them lie in empty
+cells of about 64 finest cells (the queries are far), the witness search runs, handing the
+blocks it finds near, or with too many candidates, to a KD-tree (Open3D's when they are 20 000
+or more and at least 10% of the queries, scipy's otherwise); else scipy's tree answers all
+queries (as fast as Open3D's there: 2.4-2.5 s per direction at 1M points, load ~19). Measured
+end to end by ``benchmarks/chamfer.py`` (``tables.default_ratios`` of
+``benchmarks/results/chamfer.json``; 2 shared cores, so read the ratios, and the CPU-time
+ratios, rather than seconds): at 1M points a side two samplings of the dolphin took 9.1 s, the
+sphere moved 3 units clear of it 16.3 s (1.79 times; CPU time 1.82 times; before: more than 150
+s) and the tutorial's start (the dolphin inside the sphere) more than 150 s (median of 3 runs,
+load about 22; at 100k: 0.61 s, 1.5 s and 8.0 s). The tutorial's start stays slow: a dolphin
+point near the sphere's centre is almost equally far from a large part of the sphere, so any
+exact search must look at it (the witness search hands those blocks to the KD-tree).
 """
 from __future__ import annotations
 
