@@ -22,8 +22,9 @@ query, so a far flat front is cut to a patch about the block's size. The same in
 cell's bounding box (its distance to ``q0``, the largest ``|p_i - w_i|``) prunes whole cells of
 a Morton octree of the cloud, level by level; the witness of each block is the best cell
 representative seen so far, and blocks are split as the cells shrink (1024 queries at the top,
-down to 32: blocks of 4 took 5 times as long at 1M points, with more cell pairs to test). What survives is checked point by point and the exact squared distances of each
-query to its block's candidates are compared (the same float64 formula as everywhere). A block
+down to 32: blocks of 4 took 5 times as long at 1M points, with more cell pairs to test).
+What survives is checked point by point and the exact squared distances of each query to its
+block's candidates are compared (the same float64 formula as everywhere). A block
 whose witness is already near (within a few block diagonals) is handed back to the KD-tree,
 which is fast there, and so is a block that keeps more than ``_CROWD`` cells at a level or
 ``_HEAVY`` candidate points (near the centre of a surrounding sphere, where every exact search
