@@ -248,7 +248,9 @@ def memory_report(ds) -> dict:
 # ------------------------------------------------------------------------------ test shapes
 SHAPE_LIMIT = 60.0  # issue 14: held-out IoU >= 0.97 and F@0.01 >= 0.7 in <= 60 s on 2 cores
 SHAPE_ACCEPT = {"iou": (">=", 0.97), "fscore@0.01": (">=", 0.7)}
-COMPARE = ("sphere", "best", "recipe:tutorial", "recipe:contour")
+# the alternatives of --compare all: every recipe but the default (the former default among
+# them where fit_mesh_to_views names it), the tutorial's sphere start and the former "best"
+COMPARE = ("sphere", "best") + tuple(f"recipe:{r}" for r in RECIPES if r != "default")
 
 
 def shape_factories(names=None) -> dict:
