@@ -399,6 +399,39 @@ def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _summarise(report, rows, by_method, noise, load_start, out: Path):
+    """Flags, medians, JSON and markdown of the shapes done so far (written after each shape,
+    so a run cut short keeps its table); returns the medians and the flags."""
+    # noise: the largest spread measured on any shape applies to all
+    worst = {k: max(n[k] for n in noise.values()) for k in next(iter(noise.values()), {})}
+    base = {r.name.split(":")[0]: r.final for r in by_method.get("default", [])}
+    flags = []
+    for mname, rs in by_method.items():
+        if mname == "default":
+            continue
+        for r in rs:
+            b = _beats(r.final, base[r.name.split(":")[0]], worst)
+            r.final["beats_default"] = b
+            if b:
+                flags.append(f"{r.name} beats the default by more than the noise: "
+                             + "; ".join(b))
+    medians = []
+    for mname, rs in by_method.items():
+        med = {k: float(np.median([r.final[k] for r in rs]))
+               for k in ("iou", "fscore@0.01", "chamfer_l2", "psnr", "seconds")}
+        medians.append([mname, len(rs), f"{med['iou']:.4f}", f"{med['fscore@0.01']:.3f}",
+                        f"{med['chamfer_l2']:.2e}", f"{med['psnr']:.2f}",
+                        f"{med['seconds']:.1f}",
+                        f"{sum(r.final['accepted'] for r in rs)} / {len(rs)}"])
+    load = [round(v, 1) for v in (*load_start, *os.getloadavg())]
+    report.tables.update(shapes={"rows": rows}, medians=medians, noise=noise,
+                         noise_worst=worst, flags=flags, loadavg_start_end=load)
+    report.write(out / "fit_views_shapes.json")
+    (out / "fit_views_shapes.md").write_text(
+        shapes_markdown(rows, medians, flags, noise, load, report.command), encoding="utf-8")
+    return medians, flags
+
+
 def run_shapes(args, out: Path) -> int:
     quick = args.quick
     names = [s.strip() for s in args.shapes.split(",") if s.strip() and s.strip() != "all"]
@@ -416,7 +449,8 @@ def run_shapes(args, out: Path) -> int:
         "methods": {k: v[0] for k, v in methods.items()}, "budget_seconds": budget,
         "accept": SHAPE_ACCEPT, "time_limit": SHAPE_LIMIT, "seeds": args.seeds,
         "noise_shapes": noise_shapes, "quick": quick})
-    rows, flags, noise, by_method = [], [], {}, {}
+    rows, noise, by_method = [], {}, {}
+    medians, flags = [], []
     for sname, make in shapes.items():  # shapes
         target = vertex_coloured(make())
         ds = tutorial_views(4, mesh=target, num_views=n_views, image_size=size,
@@ -460,33 +494,7 @@ def run_shapes(args, out: Path) -> int:
              {"metric": "psnr", "label": "held-out PSNR (dB)"}],
             out / f"fit_views_shapes_{sname}.png", time_limit=SHAPE_LIMIT,
             title=f"fit_mesh_to_views on {sname} ({n_views} views, {size} px)")
-    # noise: the largest spread measured on any shape applies to all
-    worst = {k: max(n[k] for n in noise.values()) for k in next(iter(noise.values()), {})}
-    base = {r.name.split(":")[0]: r.final for r in by_method.get("default", [])}
-    for mname, rs in by_method.items():
-        if mname == "default":
-            continue
-        for r in rs:
-            b = _beats(r.final, base[r.name.split(":")[0]], worst)
-            if b:
-                msg = (f"{r.name} beats the default by more than the noise: " + "; ".join(b))
-                flags.append(msg)
-                r.final["beats_default"] = b
-    medians = []
-    for mname, rs in by_method.items():
-        med = {k: float(np.median([r.final[k] for r in rs]))
-               for k in ("iou", "fscore@0.01", "chamfer_l2", "psnr", "seconds")}
-        medians.append([mname, len(rs), f"{med['iou']:.4f}", f"{med['fscore@0.01']:.3f}",
-                        f"{med['chamfer_l2']:.2e}", f"{med['psnr']:.2f}",
-                        f"{med['seconds']:.1f}",
-                        f"{sum(r.final['accepted'] for r in rs)} / {len(rs)}"])
-    load = [round(v, 1) for v in (*load_start, *os.getloadavg())]
-    report.tables.update(shapes={"rows": rows}, medians=medians, noise=noise,
-                         noise_worst=worst, flags=flags)
-    report.notes.append(f"load average at start and end: {load}")
-    report.write(out / "fit_views_shapes.json")
-    (out / "fit_views_shapes.md").write_text(
-        shapes_markdown(rows, medians, flags, noise, load, report.command), encoding="utf-8")
+        medians, flags = _summarise(report, rows, by_method, noise, load_start, out)
     print(markdown_table(["fit", "shapes", "IoU", "F@0.01", "chamfer", "PSNR", "s", "ok"],
                          medians))
     for f in flags:
