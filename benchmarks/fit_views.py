@@ -264,7 +264,7 @@ def shape_factories(names=None) -> dict:
         unknown = sorted(set(names) - set(shapes))
         if unknown:
             raise SystemExit(f"--shapes: unknown {unknown}; known: {sorted(shapes)}")
-        shapes = {k: v for k, v in shapes.items() if k in names}
+        shapes = {k: shapes[k] for k in names}  # in the order given
     return shapes
 
 
@@ -291,21 +291,29 @@ def _sphere_init():
     return "sphere"
 
 
-def table_methods(names, quick: bool, budget: float) -> dict:
-    """name -> (label, fit_mesh_to_views keywords) of the default and the alternatives."""
+def table_methods(names, quick: bool, budget: float | None) -> dict:
+    """name -> (label, fit_mesh_to_views keywords) of the default and the alternatives.
+
+    ``budget`` None: every alternative gets the default's solver seconds on the same shape
+    (equal time at the same load; the keywords to fill are listed under ``"_time_keys"``)."""
     out = {"default": ("fit_mesh_to_views(train): the default", {})}
+    per = "the default's time" if budget is None else f"{budget:g} s"
     for n in names:
         if n == "sphere":
             out[n] = ("init='sphere' (the tutorial's ico-sphere), default otherwise",
                       {"init": _sphere_init()})
         elif n == "best":
-            kw = settings("best", quick, budget)
+            kw = settings("best", quick, budget or TIME_LIMIT)
             kw["init"] = ico_sphere(kw.pop("init_level"))
-            out[n] = (f"the former hand-set 'best' ({LABELS['best']}, {budget:g} s)", kw)
+            if budget is None:
+                kw["_time_keys"] = ("silhouette_time",)
+            out[n] = (f"the former hand-set 'best' ({LABELS['best']}), {per}", kw)
         elif n.startswith("recipe:"):
             r = n.split(":", 1)[1]
-            out[n] = (f"recipe={r!r}, {budget:g} s a stage",
-                      {"recipe": r, "silhouette_time": budget, "textured_time": budget})
+            kw = {"recipe": r, "silhouette_time": budget, "textured_time": budget}
+            if budget is None:
+                kw["_time_keys"] = ("silhouette_time", "textured_time")
+            out[n] = (f"recipe={r!r}, {per} a stage", kw)
         elif n == "default":
             continue
         else:
@@ -383,8 +391,9 @@ def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
               "normalised frame). Solver seconds: the fit's wall clock (metric checkpoints "
               "excluded) on a shared 2-core machine; CPU s: process CPU time of the fit (all "
               "threads, checkpoints excluded); the 1-minute load at each fit's start is in the "
-              "table (wall timings under load are upper bounds). Alternatives get a time budget per stage; "
-              "the default runs as a user calls it."), "",
+              "table (wall timings under load are upper bounds). The default runs as a user "
+              "calls it; the alternatives with a budget get the default's solver seconds on the "
+              "same shape (equal time at the same load) unless `--budget` says otherwise."), "",
              f"Command: `{args_line}`; load average at start and end: {load}.", "",
              markdown_table(header, rows), "", "## Medians over the shapes", "",
              markdown_table(["fit", "shapes", "held-out IoU", "F@0.01", "chamfer-L2",
@@ -400,7 +409,7 @@ def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _summarise(report, rows, by_method, noise, load_start, out: Path):
+def _summarise(report, rows, by_method, noise, load_start, out: Path, stem: str):
     """Flags, medians, JSON and markdown of the shapes done so far (written after each shape,
     so a run cut short keeps its table); returns the medians and the flags."""
     # noise: the largest spread measured on any shape applies to all
@@ -427,8 +436,8 @@ def _summarise(report, rows, by_method, noise, load_start, out: Path):
     load = [round(v, 1) for v in (*load_start, *os.getloadavg())]
     report.tables.update(shapes={"rows": rows}, medians=medians, noise=noise,
                          noise_worst=worst, flags=flags, loadavg_start_end=load)
-    report.write(out / "fit_views_shapes.json")
-    (out / "fit_views_shapes.md").write_text(
+    report.write(out / f"{stem}.json")
+    (out / f"{stem}.md").write_text(
         shapes_markdown(rows, medians, flags, noise, load, report.command), encoding="utf-8")
     return medians, flags
 
@@ -439,15 +448,18 @@ def run_shapes(args, out: Path) -> int:
     shapes = shape_factories(names or None)
     if quick and not names:
         shapes = dict(list(shapes.items())[:1])
-    budget = args.budget or (5.0 if quick else SHAPE_LIMIT)
+    budget = args.budget or (5.0 if quick else None)
     compare = [c.strip() for c in args.compare.split(",") if c.strip()] if args.compare else []
     methods = table_methods(compare, quick, budget)
     noise_shapes = [s.strip() for s in args.noise_shapes.split(",") if s.strip()]
     size, n_views, n_held = (32, 6, 4) if quick else (128, 20, 16)
     load_start = os.getloadavg()
-    report = BenchmarkReport("fit_views_shapes", config={
+    stem = "fit_views_shapes" + (f"_{args.tag}" if args.tag else "")
+    report = BenchmarkReport(stem, config={
         "shapes": list(shapes), "views": n_views, "image_size": size, "heldout_views": n_held,
-        "methods": {k: v[0] for k, v in methods.items()}, "budget_seconds": budget,
+        "methods": {k: v[0] for k, v in methods.items()},
+        "budget_seconds": budget if budget else "each alternative: the default's solver "
+                                                "seconds on the same shape (equal time)",
         "accept": SHAPE_ACCEPT, "time_limit": SHAPE_LIMIT, "seeds": args.seeds,
         "noise_shapes": noise_shapes, "quick": quick})
     rows, noise, by_method = [], {}, {}
@@ -467,7 +479,10 @@ def run_shapes(args, out: Path) -> int:
                 sname in noise_shapes or "all" in noise_shapes)) else range(1)
             for seed in seeds:  # repeated runs: the noise
                 print(f"{sname}: {mname} seed {seed} ...", flush=True)
-                r = run_shape_method(sname, mname, label, dict(kw), ds, ev_curve, ev_final,
+                kw = dict(kw)
+                for k in kw.pop("_time_keys", ()):  # equal time: the default's seconds
+                    kw[k] = max(by_method["default"][-1].final["seconds"], 1.0)
+                r = run_shape_method(sname, mname, label, kw, ds, ev_curve, ev_final,
                                      eval_every=(1.0 if quick else 10.0), seed=seed)
                 runs.append(r)
                 report.add(r)
@@ -483,7 +498,7 @@ def run_shapes(args, out: Path) -> int:
                 print("  " + " | ".join(str(c) for c in rows[-1]), flush=True)
                 if seed == 0:
                     by_method.setdefault(mname, []).append(r)
-                report.write(out / "fit_views_shapes.json")
+                report.write(out / f"{stem}.json")
         defaults = [r for r in runs if r.name.split(":")[1] == "default"]
         if len(defaults) > 1:
             noise[sname] = _noise(defaults)
@@ -493,14 +508,14 @@ def run_shapes(args, out: Path) -> int:
               "target_label": "IoU 0.97"},
              {"metric": "fscore@0.01", "label": "F-score@0.01", "target": 0.7},
              {"metric": "psnr", "label": "held-out PSNR (dB)"}],
-            out / f"fit_views_shapes_{sname}.png", time_limit=SHAPE_LIMIT,
+            out / f"{stem}_{sname}.png", time_limit=SHAPE_LIMIT,
             title=f"fit_mesh_to_views on {sname} ({n_views} views, {size} px)")
-        medians, flags = _summarise(report, rows, by_method, noise, load_start, out)
+        medians, flags = _summarise(report, rows, by_method, noise, load_start, out, stem)
     print(markdown_table(["fit", "shapes", "IoU", "F@0.01", "chamfer", "PSNR", "s", "CPU s", "ok"],
                          medians))
     for f in flags:
         print("FLAG:", f)
-    print(f"wrote {out / 'fit_views_shapes.json'}, .md and the charts")
+    print(f"wrote {out / stem}.json, .md and the charts")
     nonfinite = [r.name for r in report.methods if not r.final["history_finite"]]
     return 1 if nonfinite else 0
 
@@ -684,6 +699,9 @@ def main(argv=None) -> int:
     p.add_argument("--compare", default="",
                    help=f"with --shapes: alternatives to run beside the default, comma-separated "
                         f"(e.g. {','.join(COMPARE)}; 'all' for these)")
+    p.add_argument("--tag", default="",
+                   help="with --shapes: write fit_views_shapes_<tag>.* (a second table beside "
+                        "the first, e.g. the comparison)")
     p.add_argument("--seeds", type=int, default=1,
                    help="with --shapes: runs of the default (seeds 0..n-1) on --noise-shapes")
     p.add_argument("--noise-shapes", default="cow",
