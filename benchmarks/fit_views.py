@@ -565,7 +565,8 @@ def stability_settings(name: str, quick: bool, budget: float) -> dict:
 
 
 def run_stability(ds, ev, quick: bool, budget: float, methods=STAB_METHODS,
-                  shape: str = "cow", cases=CASES) -> list[dict]:
+                  shape: str = "cow", cases=CASES, on_row=None) -> list[dict]:
+    """The rows of one shape; ``on_row(row)`` after each (to write a table as it grows)."""
     rows = []
     rng = np.random.default_rng(0)
     for case in cases:  # perturbations
@@ -605,6 +606,8 @@ def run_stability(ds, ev, quick: bool, budget: float, methods=STAB_METHODS,
             print(f"  {shape:12s} {case:12s} {name:12s} {row['status']:10s} "
                   f"iou={row.get('iou', -1.0):.3f} {row['seconds']:.0f}s", flush=True)
             rows.append(row)
+            if on_row is not None:
+                on_row(row)
     return rows
 
 
@@ -663,6 +666,21 @@ def main_stability(args, out: Path) -> int:
     size, n_views, n_held = (32, 6, 3) if quick else (128, 20, 16)
     load0 = os.getloadavg()
     rows = []
+    stem = "fit_views_stability" + (f"_{args.tag}" if args.tag else "")
+
+    def write(row=None):  # after every row: a run cut short keeps its table
+        if row is not None:
+            rows.append(row)
+        load = [round(v, 1) for v in (*load0, *os.getloadavg())]
+        rep = BenchmarkReport(stem, config={
+            "shapes": list(shapes), "image_size": size, "views": n_views,
+            "budget_seconds": budget, "cases": list(cases), "methods": list(methods)})
+        rep.tables["stability"] = rows
+        rep.notes.append(f"load average at start and now: {load}")
+        rep.write(out / f"{stem}.json")
+        (out / f"{stem}.md").write_text(stability_markdown(rows, budget, load, methods),
+                                        encoding="utf-8")
+
     for sname, make in shapes.items():  # shapes
         target = vertex_coloured(make())
         ds = tutorial_views(4, mesh=target, num_views=n_views, image_size=size,
@@ -670,17 +688,9 @@ def main_stability(args, out: Path) -> int:
         ev = ViewsEvaluator(ds.held_out, target, n_samples=(2000 if quick else 20000),
                             taus=(0.01, 0.02))
         print(f"stability on {sname}; loadavg {os.getloadavg()}", flush=True)
-        rows += run_stability(ds, ev, quick, budget, methods, sname, cases)
-    load = [round(v, 1) for v in (*load0, *os.getloadavg())]
-    rep = BenchmarkReport("fit_views_stability", config={
-        "shapes": list(shapes), "image_size": size, "views": n_views, "budget_seconds": budget,
-        "cases": list(cases), "methods": list(methods)})
-    rep.tables["stability"] = rows
-    rep.notes.append(f"load average at start and end: {load}")
-    path = rep.write(out / "fit_views_stability.json")
-    (out / "fit_views_stability.md").write_text(stability_markdown(rows, budget, load, methods),
-                                                encoding="utf-8")
-    print(f"wrote {path} and fit_views_stability.md")
+        run_stability(ds, ev, quick, budget, methods, sname, cases, on_row=write)
+    write()
+    print(f"wrote {out / stem}.json and {stem}.md")
     bad = [r for r in rows if r["status"] in ("exception", "failed", "nonfinite")
            or not r.get("all_steps_finite", False) or not r.get("metrics_finite", False)]
     return 1 if bad else 0
@@ -700,8 +710,8 @@ def main(argv=None) -> int:
                    help=f"with --shapes: alternatives to run beside the default, comma-separated "
                         f"(e.g. {','.join(COMPARE)}; 'all' for these)")
     p.add_argument("--tag", default="",
-                   help="with --shapes: write fit_views_shapes_<tag>.* (a second table beside "
-                        "the first, e.g. the comparison)")
+                   help="write fit_views_shapes_<tag>.* or fit_views_stability_<tag>.* (a "
+                        "second table beside the first)")
     p.add_argument("--seeds", type=int, default=1,
                    help="with --shapes: runs of the default (seeds 0..n-1) on --noise-shapes")
     p.add_argument("--noise-shapes", default="cow",
