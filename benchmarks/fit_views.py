@@ -57,7 +57,14 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
-from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
+from _harness import (
+    BenchmarkReport,
+    MethodRun,
+    load_runs,
+    markdown_table,
+    parser,
+    plot_accuracy_vs_time,
+)
 
 from geofit import (
     FoVPerspectiveCameras,
@@ -357,12 +364,8 @@ def run_shape_method(shape, name, label, kw, ds, ev_curve, ev_final, eval_every,
                  "seconds_to_accept": run.first_reaching(SHAPE_ACCEPT),
                  "stages": fit.stages}
     f = run.final
-    # the time of the acceptance: wall seconds, or the CPU seconds when the machine's load made
-    # the wall clock longer (a fit that keeps one core busy needs no more wall time than CPU
-    # time on a quiet machine)
     f["accept_seconds"] = min(f["seconds"], f["cpu_seconds"])
-    f["accepted"] = bool(f["iou"] >= 0.97 and f["fscore@0.01"] >= 0.7
-                         and f["accept_seconds"] <= SHAPE_LIMIT)
+    f["accepted"] = _accepted(f)
     return run
 
 
@@ -413,7 +416,66 @@ def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _summarise(report, rows, by_method, noise, load_start, out: Path, stem: str):
+def _accepted(f: dict) -> bool:
+    """Issue 14's acceptance: IoU >= 0.97, F@0.01 >= 0.7 in <= 60 s, the time being the wall
+    seconds, or the CPU seconds when the machine's load made the wall clock longer (a fit that
+    keeps one core busy needs no more wall time than CPU time on a quiet machine)."""
+    return bool(f["iou"] >= 0.97 and f["fscore@0.01"] >= 0.7
+                and min(f["seconds"], f["cpu_seconds"]) <= SHAPE_LIMIT)
+
+
+def _row(r: MethodRun) -> list:
+    """The markdown row of one shape fit (``r.name`` is ``shape:method[:seedN]``)."""
+    f, t = r.final, r.final["target_topology"]
+    shape, mname = r.name.split(":")[:2]
+    seed = f.get("seed", 0)
+    accepted = _accepted(f)
+    return [shape, mname + (f" (seed {seed})" if seed else ""), f["init"],
+            f"{f['iou']:.4f}", f"{f['fscore@0.01']:.3f}", f"{f['chamfer_l2']:.2e}",
+            f"{f.get('psnr', 0.0):.2f}", f"{f['seconds']:.1f}", f"{f['cpu_seconds']:.1f}",
+            f["n_verts"], f"{t['genus']} / {f['genus']}",
+            f"{t['n_components']} / {f['n_components']}",
+            f"{t['n_boundary_loops']} / {f['n_boundary_loops']}",
+            f"{f['loadavg_start'][0]:.1f}", "yes" if accepted else "no"]
+
+
+def resummarise(path: Path, out: Path) -> int:
+    """Rebuild the table, noise, flags and medians of a (partial) ``--shapes`` JSON: a run cut
+    short mid-shape keeps every fit it finished."""
+    d, runs = load_runs(path)
+    report = BenchmarkReport(d["benchmark"], config=d["config"], notes=d["notes"])
+    report.command = d["command"]
+    rows, noise, by_method, tops = [], {}, {}, {}
+    for r in runs:  # finished fits, in order
+        shape, mname = r.name.split(":")[:2]
+        if "target_topology" not in r.final:  # JSON of a run before the field existed
+            if shape not in tops:
+                t = topology(vertex_coloured(shape_factories([shape])[shape]()))
+                tops[shape] = {"genus": t.genus, "n_components": t.n_components,
+                               "n_boundary_loops": t.n_boundary_loops}
+            r.final["target_topology"] = tops[shape]
+        report.add(r)
+        rows.append(_row(r))
+        if r.final.get("seed", 0) == 0:
+            by_method.setdefault(mname, []).append(r)
+    for shape in dict.fromkeys(r.name.split(":")[0] for r in runs):
+        defaults = [r for r in runs if r.name.split(":")[:2] == [shape, "default"]]
+        if len(defaults) > 1:
+            noise[shape] = _noise(defaults)
+    starts = [r.final["loadavg_start"] for r in runs]
+    ends = [r.final["loadavg_end"] for r in runs]
+    load = d["tables"].get("loadavg_start_end") or [*starts[0], *ends[-1]]
+    medians, flags = _summarise(report, rows, by_method, noise, load[:3], out,
+                                Path(path).stem, load_end=load[3:])
+    print(markdown_table(["fit", "shapes", "IoU", "F@0.01", "chamfer", "PSNR", "s", "CPU s",
+                          "ok"], medians))
+    for f in flags:
+        print("FLAG:", f)
+    return 0
+
+
+def _summarise(report, rows, by_method, noise, load_start, out: Path, stem: str,
+               load_end=None):
     """Flags, medians, JSON and markdown of the shapes done so far (written after each shape,
     so a run cut short keeps its table); returns the medians and the flags."""
     # noise: the largest spread measured on any shape applies to all
@@ -436,8 +498,8 @@ def _summarise(report, rows, by_method, noise, load_start, out: Path, stem: str)
         medians.append([mname, len(rs), f"{med['iou']:.4f}", f"{med['fscore@0.01']:.3f}",
                         f"{med['chamfer_l2']:.2e}", f"{med['psnr']:.2f}",
                         f"{med['seconds']:.1f}", f"{med['cpu_seconds']:.1f}",
-                        f"{sum(r.final['accepted'] for r in rs)} / {len(rs)}"])
-    load = [round(v, 1) for v in (*load_start, *os.getloadavg())]
+                        f"{sum(_accepted(r.final) for r in rs)} / {len(rs)}"])
+    load = [round(v, 1) for v in (*load_start, *(load_end or os.getloadavg()))]
     report.tables.update(shapes={"rows": rows}, medians=medians, noise=noise,
                          noise_worst=worst, flags=flags, loadavg_start_end=load)
     report.write(out / f"{stem}.json")
@@ -489,23 +551,19 @@ def run_shapes(args, out: Path) -> int:
                 r = run_shape_method(sname, mname, label, kw, ds, ev_curve, ev_final,
                                      eval_every=(1.0 if quick else 10.0), seed=seed)
                 runs.append(r)
+                defaults = [x for x in runs if x.name.split(":")[1] == "default"]
+                if len(defaults) > 1:
+                    noise[sname] = _noise(defaults)
                 report.add(r)
-                f = r.final
-                rows.append([sname, mname + (f" (seed {seed})" if seed else ""), f["init"],
-                             f"{f['iou']:.4f}", f"{f['fscore@0.01']:.3f}",
-                             f"{f['chamfer_l2']:.2e}", f"{f.get('psnr', 0.0):.2f}",
-                             f"{f['seconds']:.1f}", f"{f['cpu_seconds']:.1f}", f["n_verts"],
-                             f"{t_in.genus} / {f['genus']}",
-                             f"{t_in.n_components} / {f['n_components']}",
-                             f"{t_in.n_boundary_loops} / {f['n_boundary_loops']}",
-                             f"{f['loadavg_start'][0]:.1f}", "yes" if f["accepted"] else "no"])
+                r.final["target_topology"] = {"genus": t_in.genus,
+                                              "n_components": t_in.n_components,
+                                              "n_boundary_loops": t_in.n_boundary_loops}
+                rows.append(_row(r))
                 print("  " + " | ".join(str(c) for c in rows[-1]), flush=True)
                 if seed == 0:
                     by_method.setdefault(mname, []).append(r)
-                report.write(out / f"{stem}.json")
-        defaults = [r for r in runs if r.name.split(":")[1] == "default"]
-        if len(defaults) > 1:
-            noise[sname] = _noise(defaults)
+                medians, flags = _summarise(report, rows, by_method, noise, load_start, out,
+                                            stem)
         plot_accuracy_vs_time(
             [r for r in runs if ":seed" not in r.name],
             [{"metric": "iou", "label": "held-out IoU", "target": 0.97,
@@ -713,6 +771,9 @@ def main(argv=None) -> int:
     p.add_argument("--compare", default="",
                    help=f"with --shapes: alternatives to run beside the default, comma-separated "
                         f"(e.g. {','.join(COMPARE)}; 'all' for these)")
+    p.add_argument("--resummarise", type=Path, default=None,
+                   help="rebuild the markdown, noise, flags and medians of a (partial) "
+                        "--shapes JSON next to it")
     p.add_argument("--tag", default="",
                    help="write fit_views_shapes_<tag>.* or fit_views_stability_<tag>.* (a "
                         "second table beside the first)")
@@ -730,6 +791,8 @@ def main(argv=None) -> int:
         out = Path(tempfile.mkdtemp(prefix="fit_views_"))
     if args.stability:
         return main_stability(args, out)
+    if args.resummarise:
+        return resummarise(args.resummarise, args.resummarise.parent)
     if args.shapes:
         if args.compare == "all":
             args.compare = ",".join(COMPARE)

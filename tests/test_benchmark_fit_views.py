@@ -46,6 +46,12 @@ def test_shapes_table_quick(tmp_path):
     assert "| torus | default | " in md and "| 1 / " in md  # genus of the torus: 1
     assert "nan" not in md.lower()
     assert (tmp_path / "fit_views_shapes_torus.png").stat().st_size > 1000
+    # a run cut short: the table is rebuilt from the JSON alone, the same
+    (tmp_path / "fit_views_shapes.md").unlink()
+    _run(tmp_path, "--resummarise", str(tmp_path / "fit_views_shapes.json"))
+    assert (tmp_path / "fit_views_shapes.md").read_text().split("## Medians")[0] \
+        .split("Command:")[1].split("\n", 1)[1] == md.split("## Medians")[0].split(
+            "Command:")[1].split("\n", 1)[1]
 
 
 @pytest.mark.slow
