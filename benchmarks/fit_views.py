@@ -437,6 +437,17 @@ def _row(r: MethodRun) -> list:
             f"{f['loadavg_start'][0]:.1f}", "yes" if accepted else "no"]
 
 
+def _shape_chart(runs, path: Path, title: str) -> None:
+    """Held-out IoU, F@0.01 and PSNR against solver seconds, one curve per fit of a shape."""
+    plot_accuracy_vs_time(
+        [r for r in runs if ":seed" not in r.name],
+        [{"metric": "iou", "label": "held-out IoU", "target": 0.97,
+          "target_label": "IoU 0.97"},
+         {"metric": "fscore@0.01", "label": "F-score@0.01", "target": 0.7},
+         {"metric": "psnr", "label": "held-out PSNR (dB)"}],
+        path, time_limit=SHAPE_LIMIT, title=title)
+
+
 def resummarise(path: Path, out: Path) -> int:
     """Rebuild the table, noise, flags and medians of a (partial) ``--shapes`` JSON: a run cut
     short mid-shape keeps every fit it finished."""
@@ -460,6 +471,10 @@ def resummarise(path: Path, out: Path) -> int:
         defaults = [r for r in runs if r.name.split(":")[:2] == [shape, "default"]]
         if len(defaults) > 1:
             noise[shape] = _noise(defaults)
+        c = d["config"]
+        _shape_chart([r for r in runs if r.name.split(":")[0] == shape],
+                     out / f"{Path(path).stem}_{shape}.png",
+                     f"fit_mesh_to_views on {shape} ({c['views']} views, {c['image_size']} px)")
     starts = [r.final["loadavg_start"] for r in runs]
     ends = [r.final["loadavg_end"] for r in runs]
     load = d["tables"].get("loadavg_start_end") or [*starts[0], *ends[-1]]
@@ -562,14 +577,8 @@ def run_shapes(args, out: Path) -> int:
                     by_method.setdefault(mname, []).append(r)
                 medians, flags = _summarise(report, rows, by_method, noise, load_start, out,
                                             stem)
-        plot_accuracy_vs_time(
-            [r for r in runs if ":seed" not in r.name],
-            [{"metric": "iou", "label": "held-out IoU", "target": 0.97,
-              "target_label": "IoU 0.97"},
-             {"metric": "fscore@0.01", "label": "F-score@0.01", "target": 0.7},
-             {"metric": "psnr", "label": "held-out PSNR (dB)"}],
-            out / f"{stem}_{sname}.png", time_limit=SHAPE_LIMIT,
-            title=f"fit_mesh_to_views on {sname} ({n_views} views, {size} px)")
+        _shape_chart(runs, out / f"{stem}_{sname}.png",
+                     f"fit_mesh_to_views on {sname} ({n_views} views, {size} px)")
         medians, flags = _summarise(report, rows, by_method, noise, load_start, out, stem)
     print(markdown_table(["fit", "shapes", "IoU", "F@0.01", "chamfer", "PSNR", "s", "CPU s", "ok"],
                          medians))
