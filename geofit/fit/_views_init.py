@@ -21,9 +21,18 @@ import numpy as np
 
 from ..structures import Mesh
 
-__all__ = ["hull_start", "pixel_footprint", "remesh_to_length"]
+__all__ = ["hull_start", "initial_mesh", "max_edge_length", "pixel_footprint",
+           "remesh_to_length"]
 
 _COARSE = 32  # nodes per side of the first, coarse carving grid
+_MIN_EDGES_ACROSS = 15  # edges at most this long: a fifteenth of the bounding-box diagonal
+
+
+def max_edge_length(mesh: Mesh) -> float:
+    """The longest edge the default fit remeshes to: 1/15 of the bounding-box diagonal (low
+    resolution images would otherwise leave a small object a handful of faces)."""
+    v = mesh.verts
+    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) / _MIN_EDGES_ACROSS
 
 
 def pixel_footprint(cameras, image_size, point) -> float:
@@ -102,7 +111,8 @@ def hull_start(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float =
     cameras : CamerasBase
         The ``N`` cameras.
     edge_px : float
-        Edge length of the decimated mesh, in pixels at the hull's centre.
+        Edge length of the decimated mesh, in pixels at the hull's centre (at most
+        :func:`max_edge_length`).
     shrink_px : float
         Carve the ``threshold`` outline this many pixels inwards.
     threshold : float
@@ -145,11 +155,33 @@ def hull_start(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float =
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
     mc = mesh_from_occupancy(occ, lo, h, level=0.0)
-    le = edge_px * px
+    le = min(edge_px * px, max_edge_length(mc))
     area = float(mc.face_areas.sum())
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
     return mesh, {"voxel_size": h, "pixel_size": px, "n_faces_marching_cubes": mc.n_faces}
+
+
+def initial_mesh(plan, run) -> None:
+    """The starting mesh of a :func:`~geofit.fit.fit_mesh_to_views` plan (``plan.init``; the
+    visual hull is carved with the fit's clock running), the world size of a pixel at its
+    centre and the longest remeshing edge (``plan.init_info``), and a history note."""
+    t0 = run.clock.elapsed()
+    v = plan.views
+    if plan.init_name == "hull":
+        fac = plan.levels[0][1] if plan.silhouette_method != "sgd" else 1
+        plan.init, info = hull_start(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac)
+        desc = (f"the visual hull of the silhouettes ({plan.init.n_verts} vertices, marching "
+                f"cubes on {info['voxel_size']:.3g} voxels, decimated)")
+    else:
+        info = {"pixel_size": pixel_footprint(v.cameras, v.image_size,
+                                              plan.init.verts.mean(axis=0))}
+        desc = (f"ico-sphere ({plan.init.n_verts} vertices)" if plan.init_name == "sphere"
+                else f"the given mesh ({plan.init.n_verts} vertices)")
+    plan.init_info = dict(info, description=desc, seconds=run.clock.elapsed() - t0,
+                          max_edge=max_edge_length(plan.init))
+    run.history.note(0, run.clock.elapsed(), f"initial mesh: {desc}", init=plan.init_name,
+                     n_verts=plan.init.n_verts)
 
 
 def remesh_to_length(mesh: Mesh, length: float, n_passes: int = 3) -> Mesh:
