@@ -34,7 +34,7 @@ from .history import Clock, FitHistory
 from ._mesh_objective import MeshObjective, mesh_weights
 from ._options import check_int
 from .large_steps import LargeSteps
-from .mesh import MeshFitResult, _as_mesh
+from .mesh import MeshFitResult, _as_mesh, _repair_degenerate
 from .solvers import lbfgs_scipy
 
 __all__ = ["ADAPTIVE_WEIGHTS", "AdaptiveMeshFitResult", "fit_mesh_adaptive", "refine_lengths"]
@@ -188,10 +188,13 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
     clock = Clock()
     history = FitHistory()
     start = initial_mesh(init, tgt, n_faces=n_faces)
-    mesh = start.mesh
+    mesh, n_bad, n_moved = _repair_degenerate(start.mesh)  # a given start may have them
     p2s = PointToSurface(tgt)
     history.note(0, clock.elapsed(), f"initial mesh: {start.description}", init=start.name,
                  n_verts=mesh.n_verts)
+    if n_bad:
+        history.note(0, clock.elapsed(), f"repaired {n_bad} zero-area faces of the initial "
+                     f"mesh ({n_moved} vertices moved)", n_degenerate=n_bad, n_moved=n_moved)
     metrics = None
 
     def checkpoint(m: Mesh, step: int) -> None:
