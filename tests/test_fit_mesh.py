@@ -362,6 +362,8 @@ def test_validation():
     with pytest.raises(ValueError, match="init"):  # strings: "auto" or "sphere" only
         fit_mesh(tgt, init="cube", progress=False)
     with pytest.raises(TypeError, match="target"):
+        fit_mesh(object(), init=1, progress=False)
+    with pytest.raises(ValueError, match="target: a point cloud"):  # only the default call
         fit_mesh(tgt.verts, init=1, progress=False)
     with pytest.raises(ValueError, match="init: the surface has zero area"):
         fit_mesh(tgt, init=Mesh(np.zeros((3, 3)), [[0, 1, 2]]), progress=False)

@@ -300,9 +300,12 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
 
     Parameters
     ----------
-    target : Mesh or (verts, faces)
+    target : Mesh, (verts, faces) or point cloud
         Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
-        the largest absolute coordinate) and returns the result in the original frame.
+        the largest absolute coordinate) and returns the result in the original frame. A point
+        cloud ((k, 3) float64 array, geofit ``PointCloud``/one-cloud ``Pointclouds``, trimesh or
+        Open3D point cloud) is fitted by the default call: a first mesh from the points
+        (Poisson reconstruction, trimmed, decimated), then the adaptive fit to the points.
     init : Mesh, (verts, faces), int, "auto", "sphere" or None
         Starting mesh, an ico-sphere level, or None / ``"auto"``: with no other option (the
         default recipe), :func:`geofit.fit.adaptive.fit_mesh_adaptive`, geofit's best fit for any
@@ -415,6 +418,12 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
 
         return fit_mesh_adaptive(target, seed=seed, evaluator=evaluator,
                                  **({} if time_budget is None else {"time_budget": time_budget}))
+    from ._cloud import is_cloud
+
+    if is_cloud(target):
+        raise ValueError("target: a point cloud is fitted by the default call (fit_mesh(P), "
+                         "optionally with time_budget, seed, evaluator) or by "
+                         "geofit.fit.fit_mesh_adaptive; the other options need a target mesh")
     if isinstance(init, str):  # "sphere": the tutorial's start
         init = None
     plan = _MeshPlan.validate(
