@@ -56,9 +56,13 @@ def test_cloud_data_term_matches_reference_loop():
     ref_value, ref_grad = 0.0, np.zeros_like(src.verts)
     for i in range(len(X)):  # source samples: nearest cloud point by brute force
         j = int(np.argmin(np.sum((cloud.points - X[i]) ** 2, 1)))
-        r = float((X[i] - cloud.points[j]) @ cloud.normals[j])
-        ref_value += r * r / len(X)
-        ref_grad += np.outer(B[i], 2 * r * cloud.normals[j] / len(X))
+        d, n = X[i] - cloud.points[j], cloud.normals[j]
+        r = float(d @ n)
+        t = d - r * n
+        e = max(float(np.linalg.norm(t)) - cloud.rho, 0.0)
+        ref_value += (r * r + e * e) / len(X)
+        g = 2 * r * n + (2 * e * t / np.linalg.norm(t) if e > 0 else 0.0)
+        ref_grad += np.outer(B[i], g / len(X))
     value, g = cloud.loss(X)
     np.testing.assert_allclose(value, ref_value, rtol=1e-12)
     np.testing.assert_allclose(B.T @ g, ref_grad, atol=1e-14)
@@ -74,6 +78,24 @@ def test_point_to_plane_is_zero_on_a_plane():
     np.testing.assert_allclose(np.abs(c.normals[:, 2]), 1.0, atol=1e-12)
     X = np.array([[0.03, -0.51, 0.2], [0.5, 0.5, -0.07]])
     np.testing.assert_allclose(c.distances(X), [0.2, 0.07], atol=1e-12)
+    # past the cloud's edge, in its plane: the distance to the edge point's disk
+    X = np.array([[1.0 + c.rho + 0.3, 0.0, 0.0], [1.0 + c.rho + 0.3, 0.0, 0.4]])
+    np.testing.assert_allclose(c.distances(X), [0.3, 0.5], atol=1e-12)
+
+
+def test_cloud_loss_gradient_matches_finite_differences_past_the_edge():
+    """The disk distance's gradient (normal and tangential parts) = central differences."""
+    g = np.linspace(-1, 1, 9)
+    P = np.stack(np.meshgrid(g, g, [0.0], indexing="ij"), -1).reshape(-1, 3)
+    c = CloudTarget(P + np.random.default_rng(1).normal(scale=1e-3, size=P.shape))
+    X = np.array([[1.61, 0.37, 0.12], [-0.1, 1.9, -0.05], [0.31, 0.12, 0.07]])
+    _, grad = c.loss(X)
+    h, fd = 1e-7, np.zeros_like(X)
+    for i in range(X.size):  # every coordinate (9)
+        e = np.zeros(X.size)
+        e[i] = h
+        fd.flat[i] = (c.loss(X + e.reshape(X.shape))[0] - c.loss(X - e.reshape(X.shape))[0]) / (2 * h)
+    np.testing.assert_allclose(grad, fd, rtol=1e-6, atol=1e-10)
 
 
 def test_orient_normals_point_outwards_on_closed_shapes():

@@ -5,9 +5,13 @@ one-cloud ``Pointclouds``, a trimesh or Open3D point cloud) fits a mesh to the p
 
 * :class:`CloudTarget` holds the points in the fit's frame with a KD-tree (scipy ``cKDTree``,
   built once) and *unoriented* PCA normals (Open3D ``estimate_normals``, 12 neighbours); the
-  distance of a point ``x`` to the cloud's surface is the distance to the tangent plane of its
-  nearest point ``y``: ``|(x - y) . n_y|`` (point-to-plane, as in ICP), which, unlike the
-  distance to the nearest point, does not grow with the spacing of the points.
+  distance of a point ``x`` to the cloud's surface is its distance to the tangent disk of radius
+  ``rho`` (twice the points' spacing) around its nearest point ``y``:
+  ``d^2 = r_n^2 + max(0, r_t - rho)^2`` with ``r_n = (x - y) . n_y`` and ``r_t`` the length of
+  the tangential part of ``x - y``. Inside the cloud it is the point-to-plane distance (as in
+  ICP), which, unlike the distance to the nearest point, does not grow with the spacing; past
+  the cloud's boundary it grows, so surface that extends beyond the points (in their plane,
+  where the plane distance is zero) is pulled back.
 * :func:`orient_normals` orients the normals consistently (Hoppe et al. 1992: propagation along
   a minimum spanning tree of the k-nearest-neighbour graph; scipy's ``minimum_spanning_tree``
   and ``breadth_first_order``, the signs composed by pointer doubling, no loop over points).
@@ -147,6 +151,8 @@ class CloudTarget:
         Points and unit PCA normals (12 neighbours; sign arbitrary).
     spacing : float
         Median distance of a point to its nearest other point.
+    rho : float
+        Radius of the tangent disks (``2 * spacing``).
     """
 
     def __init__(self, points: np.ndarray):
@@ -162,26 +168,35 @@ class CloudTarget:
         nrm[bad] = [0.0, 0.0, 1.0]
         self.normals = nrm
         self.spacing = float(np.median(self.tree.query(self.points, 2)[0][:, 1]))
+        self.rho = 2.0 * self.spacing
 
-    def plane_residuals(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed point-to-plane residuals ``(X_i - y_i) . n_i`` to the nearest points ``y_i``
-        and the (n,) int64 indices of those points."""
+    def _residuals(self, X: np.ndarray):
+        """Normal residual ``r_n`` (n,), tangential part ``t`` (n, 3), its excess over ``rho``
+        ``e = max(0, |t| - rho)`` (n,), and the nearest points' normals (n, 3)."""
         _, idx = self.tree.query(X)
-        r = np.einsum("ij,ij->i", X - self.points[idx], self.normals[idx])
-        return r, idx
+        d = X - self.points[idx]
+        n = self.normals[idx]
+        rn = np.einsum("ij,ij->i", d, n)
+        t = d - rn[:, None] * n
+        e = np.maximum(np.linalg.norm(t, axis=1) - self.rho, 0.0)
+        return rn, t, e, n
 
     def distances(self, X: np.ndarray) -> np.ndarray:
-        """(n,) point-to-plane distances of ``X`` to the cloud's surface."""
-        return np.abs(self.plane_residuals(X)[0])
+        """(n,) distances of ``X`` to the cloud's surface: ``sqrt(r_n^2 + e^2)``."""
+        rn, _, e, _ = self._residuals(X)
+        return np.sqrt(rn * rn + e * e)
 
     def loss(self, X: np.ndarray) -> tuple[float, np.ndarray]:
-        """``mean_i ((X_i - y_i) . n_i)^2`` and its (n, 3) gradient ``2 r_i n_i / n``.
+        """``mean_i (r_n,i^2 + e_i^2)`` and its (n, 3) gradient
+        ``2 (r_n n + e t / |t|) / n``.
 
         Which point is nearest is piecewise constant and carries no gradient.
         """
-        r, idx = self.plane_residuals(X)
-        value = float(np.mean(r * r))
-        return value, (2.0 / len(X)) * r[:, None] * self.normals[idx]
+        rn, t, e, n = self._residuals(X)
+        value = float(np.mean(rn * rn + e * e))
+        tl = np.linalg.norm(t, axis=1)
+        s = np.divide(e, tl, out=np.zeros_like(e), where=e > 0)
+        return value, (2.0 / len(X)) * (rn[:, None] * n + s[:, None] * t)
 
     def subsample(self, n: int, rng) -> np.ndarray:
         """(min(n, k), 3) points drawn without replacement."""
