@@ -265,6 +265,8 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
             history.record(_base + info.n_evaluations, clock.elapsed(), info.value,
                            _obj.last_terms, n_params=_obj.n_params, stage=_rnd)
 
+        if time_budget is not None:  # what is left after building the objective
+            remaining = max(time_budget - clock.elapsed(), 1e-6)
         res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=n_iter,
                           time_budget=remaining, callback=cb, clock=clock)
         evals += res.n_evaluations

@@ -611,7 +611,10 @@ def _solve_stage(plan: _MeshPlan, run: _Run, mesh: Mesh, ls, level: int, stage: 
                         distance=plan.distance, n_samples=plan.stage_samples(mesh),
                         resample="step" if plan.stochastic else "stage", large_steps=ls,
                         seed=run.rng, target_distance=run.p2s)
-    remaining = None if plan.time_budget is None else plan.time_budget - run.clock.elapsed()
+    # what is left after building the objective (at least a moment: one evaluation, then the
+    # solver stops with status "time_budget")
+    remaining = (None if plan.time_budget is None
+                 else max(plan.time_budget - run.clock.elapsed(), 1e-6))
     stall = (_Stall(c2f.stall_window, c2f.stall_rel)
              if c2f is not None and c2f.stall_window else None)
     res = _solve(plan.method, obj, obj.params_from_verts(mesh.verts), n_iter=plan.n_iter,
