@@ -7,9 +7,13 @@ A benchmark script builds a :class:`BenchmarkReport`, adds one :class:`MethodRun
 * ``seconds`` are the method's own wall time on this machine; work done only to *observe* the
   method (metric checkpoints, plotting) is excluded and the report's ``notes`` say so;
 * accuracy is measured with :mod:`geofit.metrics`; the JSON states in which frame;
-* the JSON is self-describing: ``schema``, ``benchmark``, ``created`` (UTC), ``command``,
-  ``machine``, ``config``, ``notes``, ``reference`` (numbers measured elsewhere, with their
-  source), ``methods`` and optional ``tables``.
+* the JSON is self-describing: ``schema``, ``benchmark``, ``created`` (UTC), ``command`` (the
+  script and its arguments: every file in ``results/`` is written by a script of
+  ``benchmarks/``, a rerun is a new file or a flag of the script, never a hand-merged entry),
+  ``machine``, ``load`` (1/5/15-minute load averages when the report was made and when it was
+  written: the 2 cores are shared, and times under load are upper bounds), ``config``,
+  ``notes``, ``reference`` (numbers measured elsewhere, with their source), ``methods`` and
+  optional ``tables``.
 
 Run benchmarks from the repository root, e.g. ``python benchmarks/fit_mesh.py [--quick]``.
 """
@@ -38,6 +42,7 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 __all__ = [
     "RESULTS_DIR",
+    "add_shape_options",
     "SCHEMA",
     "STYLE",
     "BenchmarkReport",
@@ -53,6 +58,7 @@ __all__ = [
     "print_parity",
     "record_load",
     "result_paths",
+    "shape_datasets",
     "time_call",
 ]
 
@@ -72,6 +78,14 @@ def machine_info() -> dict[str, Any]:
     info["memory_gib"] = round(mem, 1) if mem else None
     info["versions"]["trimesh"] = _version("trimesh")
     return info
+
+
+def _loadavg() -> list[float] | None:
+    """The 1, 5 and 15-minute load averages (None where the OS has none)."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
 
 
 def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
@@ -190,6 +204,7 @@ class BenchmarkReport:
     tables: dict = field(default_factory=dict)
     command: str = field(default_factory=lambda: " ".join([Path(sys.executable).name]
                                                           + sys.argv))
+    load_at_start: list = field(default_factory=lambda: _loadavg())
 
     def add(self, run: MethodRun) -> MethodRun:
         self.methods.append(run)
@@ -202,6 +217,7 @@ class BenchmarkReport:
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "command": self.command,
             "machine": machine_info(),
+            "load": {"at_start": self.load_at_start, "at_write": _loadavg()},
             "config": self.config,
             "notes": self.notes,
             "reference": self.reference,
@@ -313,6 +329,43 @@ def parser(description: str, *, reference: Path | None = None) -> argparse.Argum
         p.add_argument("--repeat", type=int, default=5)
         p.add_argument("--reference", type=Path, default=reference)
     return p
+
+
+def add_shape_options(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The stability tables' test-shape options: ``--shapes``, ``--shape-views`` and
+    ``--shape-image-size`` (see :func:`shape_datasets`)."""
+    from geofit.tutorials.stability import STABILITY_SHAPES
+
+    default = ",".join(STABILITY_SHAPES)
+    p.add_argument("--shapes", default=default,
+                   help="test shapes the stability cases also run on (geofit.shapes.TEST_SHAPES "
+                        "keys or $GEOFIT_DATA/shapes/<name>.obj stems, comma separated; '' for "
+                        f"none; default {default})")
+    p.add_argument("--shape-views", type=int, default=20,
+                   help="training views of each test shape (default 20)")
+    p.add_argument("--shape-image-size", type=int, default=64,
+                   help="image size of the test shapes' views (default 64)")
+    return p
+
+
+def shape_datasets(args: argparse.Namespace):
+    """For each of ``args.shapes``: ``(name, dataset, config)``, the dataset from
+    :func:`geofit.tutorials.stability.shape_views` (8 views of 32 px under ``--quick``), or
+    None with ``config["skipped"]`` saying why (a data file that is not there)."""
+    from geofit.tutorials.stability import shape_views
+
+    for name in [n.strip() for n in args.shapes.split(",") if n.strip()]:  # shapes
+        try:
+            data = shape_views(name, num_views=8 if args.quick else args.shape_views,
+                               image_size=32 if args.quick else args.shape_image_size,
+                               num_held_out=4 if args.quick else 8)
+        except ValueError as exc:
+            print(f"stability {name}: skipped ({exc})", flush=True)
+            yield name, None, {"skipped": str(exc)}
+            continue
+        yield name, data, {"views": len(data), "image_size": data.images.shape[1],
+                           "held_out_views": len(data.held_out),
+                           "n_verts": data.mesh.n_verts, "n_faces": data.mesh.n_faces}
 
 
 def parse_args(p: argparse.ArgumentParser, **quick) -> argparse.Namespace:

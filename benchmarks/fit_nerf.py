@@ -17,9 +17,15 @@ Methods (all geofit, numpy, float32 networks, gradients by hand):
 Each method records held-out PSNR (all 16 views, full images) at checkpoints against solver time
 (checkpoint renders are excluded from the solver time and reported separately as wall time).
 ``--stability`` runs the stress cases (learning rate x10, few views, noisy images, early stopping)
-and writes ``fit_nerf_stability.{json,md}``.
+on the cow and on test shapes no one tuned for (``--shapes``, default a torus, an open cylinder
+and ``$GEOFIT_DATA/shapes/suzanne.obj``: :func:`geofit.tutorials.stability.shape_views`) and
+writes ``fit_nerf_stability.{json,md}``.
 
-Run from the repository root: ``python benchmarks/fit_nerf.py [--quick] [--stability]``.
+Run from the repository root: ``python benchmarks/fit_nerf.py [--quick] [--stability]``;
+the stability table alone with shorter budgets:
+``nice -n 15 python benchmarks/fit_nerf.py --only-stability --stability-budget 20
+--shape-budget 10``; the test shapes' table alone (12 fits of 100 steps,
+``fit_nerf_stability_shapes.{json,md}``): ``--shapes-only``.
 """
 from __future__ import annotations
 
@@ -33,7 +39,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import BenchmarkReport, MethodRun, markdown_table, parser
+from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_table, parser,
+                      shape_datasets)
 
 from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
@@ -97,6 +104,19 @@ def main(argv=None) -> int:
                    help="solver seconds of the scene-sized run (default 720; quick: 30)")
     p.add_argument("--stability", action="store_true", help="also run the stability cases")
     p.add_argument("--only-stability", action="store_true", help="only the stability cases")
+    p.add_argument("--stability-budget", type=float, default=90.0,
+                   help="solver seconds of each stability case on the cow (default 90; 0: "
+                        "no cow cases)")
+    p.add_argument("--shapes-only", action="store_true",
+                   help="only the stability cases on the test shapes, written to "
+                        "fit_nerf_stability_shapes.{json,md} (the cow's table is kept)")
+    p.add_argument("--shape-budget", type=float, default=20.0,
+                   help="solver seconds of each stability case on a test shape when "
+                        "--shape-steps is 0 (default 20)")
+    p.add_argument("--shape-steps", type=int, default=100,
+                   help="Adam steps of each stability case on a test shape (default 100: the "
+                        "same work at any load; 0: --shape-budget seconds instead)")
+    add_shape_options(p)
     p.add_argument("--replot", action="store_true",
                    help="only redraw fit_nerf.png from the existing fit_nerf.json")
     p.add_argument("--tutorial-steps", type=int, default=3,
@@ -113,14 +133,16 @@ def main(argv=None) -> int:
     out = Path(args.out)
     print(f"load average at start: {load_average()}", flush=True)
     t = time.perf_counter()
-    train = tutorial_views(6, image_size=size, num_held_out=0)
-    test = held_out_views(image_size=size)
-    print(f"data: {train!r} and {test!r} rendered in {time.perf_counter() - t:.1f} s",
-          flush=True)
-    if train.name != "cow":
+    train = test = None  # --shapes-only: no cow
+    if not args.shapes_only:
+        train = tutorial_views(6, image_size=size, num_held_out=0)
+        test = held_out_views(image_size=size)
+        print(f"data: {train!r} and {test!r} rendered in {time.perf_counter() - t:.1f} s",
+              flush=True)
+    if train is not None and train.name != "cow":
         print("warning: the cow was not found (set GEOFIT_DATA); using the stand-in", flush=True)
 
-    if not args.only_stability:
+    if not (args.only_stability or args.shapes_only):
         report = BenchmarkReport("fit_nerf", config={
             "train_views": len(train), "held_out_views": len(test), "image_size": size,
             "held_out_elevations": sorted(set(test.elev.tolist())), "mesh": train.name,
@@ -138,7 +160,10 @@ def main(argv=None) -> int:
         report.reference = {
             "pytorch3d_tutorial_seconds_per_step_cpu": PYTORCH3D_SECONDS_PER_STEP,
             "pytorch3d_tutorial_hours_3000_steps": PYTORCH3D_SECONDS_PER_STEP * 3000 / 3600,
-            "source": "issue 8 (PyTorch3D 0.7.9 on this 2-core machine's CPU)",
+            "source": "issue 8: PyTorch3D 0.7.9 CPU build running the tutorial's network and "
+                      "recipe (750 rays x 128 points per image, 6 images per step), measured "
+                      "once on this 2-core machine kind; not re-run here (see "
+                      "benchmarks/peers/pytorch3d_tutorials.py)",
             "target_psnr_db": TARGET_PSNR, "target_wall_seconds": TARGET_SECONDS,
             "target_source": "PyTorch3D's voxel volume (tutorial 5) held-out PSNR",
         }
@@ -223,8 +248,10 @@ def main(argv=None) -> int:
         _plot(report, out / "fit_nerf.png")
         print(f"wrote {out / 'fit_nerf.json'} and {out / 'fit_nerf.png'}", flush=True)
 
-    if args.stability or args.only_stability:
-        stability(train, test, out, quick=quick, budget=90.0 if not quick else 5.0)
+    if args.stability or args.only_stability or args.shapes_only:
+        budget = 0.0 if args.shapes_only else args.stability_budget
+        stability(train, test, out, args, budget=min(budget, 5.0) if quick else budget,
+                  shape_budget=min(args.shape_budget, 3.0) if quick else args.shape_budget)
     print(f"load average at end: {load_average()}", flush=True)
     return 0
 
@@ -305,14 +332,12 @@ def _plot(report: BenchmarkReport, path: Path) -> None:
     plt.close(fig)
 
 
-def stability(train, test, out: Path, *, quick: bool, budget: float) -> None:
-    """Stress cases: each must end with a clear status and finite parameters, never NaN."""
-    base = NerfConfig.scene()
-    if quick:
-        base = NerfConfig.scene(n_rays_per_image=128, n_pts_per_ray=64, hull_resolution=32)
+def _cases(train, base: NerfConfig, *, shape: bool) -> list:
+    """The stress cases on ``train``: (name, setting, config, (images, silhouettes, cameras),
+    extra fit_nerf arguments). On a test shape: the baseline, lr x100, 4 views and noise."""
     rng = np.random.default_rng(0)
     noisy = np.clip(train.images + rng.normal(0.0, 0.1, train.images.shape), 0.0, 1.0)
-    few = np.array([0, 10, 20, 30])
+    few = np.linspace(0, len(train), 4, endpoint=False).astype(int)
 
     def with_lr(factor):
         return NerfConfig(**{**asdict(base), "lr": base.lr * factor})
@@ -331,39 +356,96 @@ def stability(train, test, out: Path, *, quick: bool, budget: float) -> None:
         ("noisy_early_stop", "images + noise, early stopping (patience 2)", base, noisy_views,
          {"early_stopping": 2}),
     ]
-    report = BenchmarkReport("fit_nerf_stability", config={"budget_seconds": budget,
-                                                           "quick": quick})
-    rows = []
-    for name, label, cfg, (im, sil, cams), extra in cases:  # cases
-        print(f"stability case {name} ...", flush=True)
-        every = budget / (15 if "early_stopping" in extra else 5)
+    if shape:
+        cases = [c for c in cases if c[0] in ("baseline", "lr_x100", "few_views", "noisy")]
+    return cases
+
+
+def _run_cases(report: BenchmarkReport, rows: list, train, test, base: NerfConfig, *,
+               shape: str, budget: float, steps: int = 0) -> None:
+    """Fit every case of :func:`_cases` on one dataset; add a MethodRun and a row for each.
+
+    Each case runs ``budget`` solver seconds, or ``steps`` Adam steps when ``steps > 0`` (the
+    same work whatever the machine's load)."""
+    for name, label, cfg, (im, sil, cams), extra in _cases(train, base,
+                                                           shape=shape != "cow"):  # cases
+        print(f"stability case {shape}: {name} ...", flush=True)
+        n_checks = 15 if "early_stopping" in extra else 5
+        if steps > 0:
+            cfg = NerfConfig(**{**asdict(cfg), "n_iter": int(steps)})
+            limit = {"time_budget": None, "eval_every": max(int(steps) // n_checks, 1)}
+        else:
+            limit = {"time_budget": budget, "eval_every": budget / n_checks}
         res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams), config=cfg,
-                       held_out=test, time_budget=budget, eval_every=every, seed=0,
-                       progress=False, **extra)
+                       held_out=test, seed=0, progress=False, **limit, **extra)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)
-        run = MethodRun(name, label, status=res.status, message=res.message,
-                        final={"psnr": res.psnr, "steps": res.n_iterations,
+        run = MethodRun(name if shape == "cow" else f"{shape}:{name}", label,
+                        status=res.status, message=res.message,
+                        final={"shape": shape, "psnr": res.psnr, "steps": res.n_iterations,
                                "finite_parameters_and_renders": finite,
                                "any_nan_in_history": bool(np.isnan(losses).any()),
-                               "solver_seconds": res.seconds})
+                               "solver_seconds": res.seconds,
+                               "budget": f"{steps} steps" if steps > 0 else f"{budget:g} s",
+                               "load_average_end": load_average()})
         for c in res.history.checkpoints:
             run.add(c["seconds"], psnr=c["psnr"], held_out_loss=c["held_out_loss"])
         report.add(run)
-        rows.append([name, label, res.status, f"{res.psnr:.2f}", res.n_iterations,
+        rows.append([shape, name, label, res.status, f"{res.psnr:.2f}", res.n_iterations,
                      "yes" if finite else "NO", res.message])
-        print(f"  stability {name}: {res.status}, PSNR {res.psnr:.2f} dB, finite {finite}: "
-              f"{res.message}", flush=True)
-    header = ["case", "setting", "status", "held-out PSNR dB", "steps", "finite", "message"]
+        print(f"  stability {shape}: {name}: {res.status}, PSNR {res.psnr:.2f} dB, finite "
+              f"{finite}: {res.message}  (load {load_average()})", flush=True)
+
+
+def stability(train, test, out: Path, args, *, budget: float, shape_budget: float) -> None:
+    """Stress cases: each must end with a clear status and finite parameters, never NaN.
+
+    They run on the cow (``budget`` solver seconds each) and on each test shape of
+    ``args.shapes`` (:func:`geofit.tutorials.stability.shape_views`; ``shape_budget`` each).
+    """
+    quick = args.quick
+    base = NerfConfig.scene()
+    if quick:
+        base = NerfConfig.scene(n_rays_per_image=128, n_pts_per_ray=64, hull_resolution=32)
+    stem = "fit_nerf_stability_shapes" if args.shapes_only else "fit_nerf_stability"
+    report = BenchmarkReport(stem, config={
+        "budget_seconds": budget, "quick": quick, "shape_budget_seconds": shape_budget,
+        "shape_steps": 2 if quick and args.shape_steps else args.shape_steps,
+        "cow": None if train is None else {"views": len(train),
+                                           "image_size": train.images.shape[1],
+                                           "held_out_views": len(test)}, "shapes": {}})
+    rows = []
+    shape_steps = 2 if quick and args.shape_steps else args.shape_steps
+    if budget > 0:
+        _run_cases(report, rows, train, test, base, shape="cow", budget=budget)
+    for name, data, cfg in shape_datasets(args):  # shapes
+        report.config["shapes"][name] = cfg
+        if data is not None:
+            _run_cases(report, rows, data, data.held_out, base, shape=name,
+                       budget=shape_budget, steps=shape_steps)
+    shape_limit = (f"{shape_steps} Adam steps" if shape_steps > 0 else
+                   f"{shape_budget:g} s solver budget")
+    header = ["shape", "case", "setting", "status", "held-out PSNR dB", "steps", "finite",
+              "message"]
     report.tables["stability"] = {"header": header, "rows": rows}
-    report.notes.append(f"each case: scene preset, {budget:g} s solver budget, seed 0; load "
-                        f"average {load_average()}")
-    report.write(out / "fit_nerf_stability.json")
-    md = ("# fit_nerf stability\n\n" + f"Each case: scene preset, {budget:g} s solver budget, "
-          "16 held-out views. Command: `" + report.command + "`.\n\n"
+    report.notes += [
+        f"each case: scene preset, seed 0; cow: {budget:g} s solver budget; test shapes "
+        f"({', '.join(report.config['shapes']) or 'none'}): {shape_limit}, "
+        "geofit.tutorials.stability.shape_views (normalised, coloured by position, black "
+        "background, elevation 0; held-out views at elevations 0 and 20)",
+        f"load average at the end: {load_average()} (per case: load_average_end); solver "
+        "seconds under load are upper bounds and the budget-limited PSNRs lower bounds"]
+    report.write(out / f"{stem}.json")
+    cow = (f"the cow {budget:g} s solver budget (40 views, 16 held-out), " if budget > 0
+           else "")
+    md = ("# fit_nerf stability\n\n" + f"Each case: scene preset; {cow}the test shapes "
+          f"{shape_limit} "
+          f"({8 if quick else args.shape_views} views of "
+          f"{32 if quick else args.shape_image_size} px, "
+          f"{4 if quick else 8} held-out). Command: `" + report.command + "`.\n\n"
           + markdown_table(header, rows))
-    (out / "fit_nerf_stability.md").write_text(md, encoding="utf-8")
+    (out / f"{stem}.md").write_text(md, encoding="utf-8")
     print(md, flush=True)
 
 

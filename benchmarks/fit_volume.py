@@ -17,9 +17,14 @@ Each method records held-out PSNR (RGB, black background, mean of the per-view P
 silhouette IoU (rendered opacity > 0.5 against the silhouette) at checkpoints against solver time;
 the checkpoint renders run with the solver's clock paused. ``--stability`` runs the stress cases
 (noisy views, a view with a wrong camera, 5 views, an all-black target, a huge learning rate)
-and writes ``fit_volume_stability.{json,md}``.
+on the cow and on test shapes no one tuned for (``--shapes``, default a torus, an open cylinder
+and ``$GEOFIT_DATA/shapes/suzanne.obj``: :func:`geofit.tutorials.stability.shape_views`) and
+writes ``fit_volume_stability.{json,md}``.
 
-Run from the repository root: ``python benchmarks/fit_volume.py [--quick] [--stability]``.
+Run from the repository root: ``python benchmarks/fit_volume.py [--quick] [--stability]``;
+the stability table alone, smaller: ``nice -n 15 python benchmarks/fit_volume.py
+--stability-only --stability-size 64``; the test shapes' table alone (15 fits at 64^3,
+``fit_volume_stability_shapes.{json,md}``): ``--shapes-only``.
 """
 from __future__ import annotations
 
@@ -33,7 +38,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _harness import BenchmarkReport, MethodRun, markdown_table, parser, plot_accuracy_vs_time
+from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_table, parser,
+                      plot_accuracy_vs_time, shape_datasets)
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
@@ -42,7 +48,10 @@ from geofit.fit.volume import fit_volume, volume_metrics
 #: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10
 #: views, 128^3 voxels, 150 samples per ray).
 PYTORCH3D = {"seconds": 1380.0, "psnr": 25.6, "iou": 0.962,
-             "source": "issue 7 (PyTorch3D 0.7.9 CPU run of fit_textured_volume, 2-core machine)"}
+             "source": "issue 7: PyTorch3D 0.7.9 CPU build running its own fit_textured_volume "
+                       "recipe (300 Adam steps of 10 views, lr 0.1, 128^3, 150 samples per ray), "
+                       "measured once on this 2-core machine kind; not re-run here (see "
+                       "benchmarks/peers/pytorch3d_tutorials.py)"}
 TARGET_SECONDS = PYTORCH3D["seconds"] / 10.0
 
 
@@ -160,15 +169,16 @@ def _wrong_camera(cameras, index: int, azim_error: float = 40.0, elev_error: flo
     return FoVPerspectiveCameras(R=R, T=T)
 
 
-def stability(train, test, args) -> tuple[list, list]:
-    """Each stress case: status, message, finiteness and held-out accuracy."""
+def _cases(train, *, quick: bool, shape: bool) -> list:
+    """The stress cases on ``train``: (name, what, data overrides, fit_volume overrides).
+
+    On a test shape (``shape``): a clean baseline and the cases that depend on the data; the
+    all-black target and the tutorial recipe's huge learning rate do not, and run on the cow only.
+    """
     rng = np.random.default_rng(0)
-    size = args.stability_size
-    levels = tuple(s for s in (32, 64, 128) if s <= size)
-    common = {"volume_size": size, "levels": levels, "verbose": False}
-    if args.quick:
-        common["iterations"] = 10
     cases = []
+    if shape:
+        cases.append(("baseline", "clean views", {}, {}))
     noisy = np.clip(train.images + rng.normal(0.0, 0.1, train.images.shape), 0.0, 1.0)
     cases.append(("noise", "images + N(0, 0.1) noise, clipped to [0, 1]",
                   dict(images=noisy), {}))
@@ -178,16 +188,29 @@ def stability(train, test, args) -> tuple[list, list]:
     cases.append(("5 views", f"training views {few.tolist()} only",
                   dict(images=train.images[few], silhouettes=train.silhouettes[few],
                        cameras=train.cameras[few]), {}))
-    cases.append(("all-black target", "images and silhouettes all zero",
-                  dict(images=np.zeros_like(train.images),
-                       silhouettes=np.zeros_like(train.silhouettes)), {}))
+    if not shape:
+        cases.append(("all-black target", "images and silhouettes all zero",
+                      dict(images=np.zeros_like(train.images),
+                           silhouettes=np.zeros_like(train.silhouettes)), {}))
     cases.append(("huge learning rate", "geofit's Adam with lr = 1e6",
                   {}, {"method": "adam", "lr": 1e6}))
-    cases.append(("huge learning rate (tutorial recipe)", "the tutorial's dense Adam with "
-                  "lr = 1e6, 20 steps", {}, {"recipe": "tutorial", "lr": 1e6,
-                                              "n_iter": 4 if args.quick else 20}))
+    if not shape:
+        cases.append(("huge learning rate (tutorial recipe)", "the tutorial's dense Adam with "
+                      "lr = 1e6, 20 steps", {}, {"recipe": "tutorial", "lr": 1e6,
+                                                  "n_iter": 4 if quick else 20}))
+    return cases
+
+
+def stability(train, test, args, *, shape: str = "cow", size: int | None = None
+              ) -> tuple[list, list]:
+    """Each stress case on one dataset: status, message, finiteness and held-out accuracy."""
+    size = args.stability_size if size is None else size
+    levels = tuple(s for s in (32, 64, 128) if s <= size)
+    common = {"volume_size": size, "levels": levels, "verbose": False}
+    if args.quick:
+        common["iterations"] = 10
     rows, records = [], []
-    for name, what, data, kw in cases:  # stress cases
+    for name, what, data, kw in _cases(train, quick=args.quick, shape=shape != "cow"):  # cases
         inputs = {"images": train.images, "silhouettes": train.silhouettes,
                   "cameras": train.cameras, **data}
         opts = {**common, **kw}
@@ -202,27 +225,42 @@ def stability(train, test, args) -> tuple[list, list]:
             res, error = None, f"{type(exc).__name__}: {exc}"
         wall = time.perf_counter() - t0
         if res is None:
-            rec = {"case": name, "what": what, "status": "exception", "message": error}
+            rec = {"shape": shape, "case": name, "what": what, "status": "exception",
+                   "message": error}
         else:
             finite = bool(np.all(np.isfinite(res.volume.densities))
                           and np.all(np.isfinite(res.volume.features)))
             hist = res.history.as_arrays()
             loss_finite = bool(np.all(np.isfinite(hist["loss"]))) if len(hist["loss"]) else True
             m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
-            rec = {"case": name, "what": what, "status": res.status, "message": res.message,
-                   "volume_finite": finite, "loss_history_finite": loss_finite,
-                   "psnr": m.psnr, "iou": m.iou, "active_voxels": res.n_active_voxels,
+            rec = {"shape": shape, "case": name, "what": what, "status": res.status,
+                   "message": res.message, "volume_finite": finite,
+                   "loss_history_finite": loss_finite, "psnr": m.psnr, "iou": m.iou,
+                   "active_voxels": res.n_active_voxels, "volume_size": size,
                    "solver_seconds": res.seconds, "solver_cpu_seconds": res.cpu_seconds,
-                   "wall_seconds": wall}
+                   "wall_seconds": wall, "load_average_end": load_average()}
         records.append(rec)
-        rows.append([name, rec["status"], rec.get("volume_finite", "-"),
+        rows.append([shape, name, rec["status"], rec.get("volume_finite", "-"),
                      f"{rec['psnr']:.2f}" if "psnr" in rec else "-",
                      f"{rec['iou']:.4f}" if "iou" in rec else "-",
                      rec.get("active_voxels", "-"),
                      f"{rec['solver_seconds']:.1f}" if "solver_seconds" in rec else "-",
                      rec["message"][:150]])
-        print(f"  stability [{name}]: {rec['status']} | {rec['message'][:120]}", flush=True)
+        print(f"  stability [{shape}: {name}]: {rec['status']} | {rec['message'][:120]}  "
+              f"(load {load_average()})", flush=True)
     return rows, records
+
+
+def shape_stability(args) -> tuple[list, list, dict]:
+    """The stress cases on each of ``args.shapes`` (test shapes, vertex-coloured renders)."""
+    rows, records, config = [], [], {}
+    for name, data, cfg in shape_datasets(args):  # shapes
+        config[name] = cfg
+        if data is not None:
+            r, rec = stability(data, data.held_out, args, shape=name, size=args.shape_size)
+            rows += r
+            records += rec
+    return rows, records, config
 
 
 def main(argv=None) -> int:
@@ -231,10 +269,20 @@ def main(argv=None) -> int:
                    help="comma-separated methods (default: all)")
     p.add_argument("--tutorial-budget", type=float, default=None,
                    help="solver seconds for the tutorial recipe (default: its 300 steps)")
+    p.add_argument("--name", default="fit_volume",
+                   help="stem of the method comparison's files (default fit_volume); a rerun "
+                        "of some methods writes its own files, e.g. --methods lbfgs --name "
+                        "fit_volume_lbfgs")
     p.add_argument("--stability", action="store_true", help="also run the stress cases")
     p.add_argument("--stability-only", action="store_true", help="only the stress cases")
     p.add_argument("--stability-size", type=int, default=128,
-                   help="grid size of the stress cases (default 128)")
+                   help="grid size of the stress cases on the cow (default 128)")
+    p.add_argument("--shapes-only", action="store_true",
+                   help="only the stress cases on the test shapes, written to "
+                        "fit_volume_stability_shapes.{json,md} (the cow's table is kept)")
+    p.add_argument("--shape-size", type=int, default=64,
+                   help="grid size of the stress cases on the test shapes (default 64)")
+    add_shape_options(p)
     p.add_argument("--monitor-every", type=float, default=10.0,
                    help="solver seconds between held-out checkpoints (default 10)")
     p.add_argument("--tutorial-monitor-every", type=float, default=120.0,
@@ -248,8 +296,10 @@ def main(argv=None) -> int:
     size = 32 if quick else 128
     if quick:
         args.stability_size = min(args.stability_size, 32)
+        args.shape_size = min(args.shape_size, 32)
 
-    print(f"uptime/load average at start: {load_average()}", flush=True)
+    load_start = load_average()
+    print(f"uptime/load average at start: {load_start}", flush=True)
     t0 = time.perf_counter()
     train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     test = held_out_views(num_views=n_views, image_size=image_size,
@@ -262,7 +312,7 @@ def main(argv=None) -> int:
               "compare with PyTorch3D's", flush=True)
 
     report = BenchmarkReport(
-        "fit_volume",
+        args.name,
         config={"quick": quick, "views": n_views, "image_size": image_size, "volume_size": size,
                 "held_out_views": len(test), "held_out_azim": test.azim, "held_out_elev":
                 test.elev, "dataset": train.name, "data_seconds": t_data},
@@ -275,7 +325,7 @@ def main(argv=None) -> int:
                "stored with the run"],
         reference={"pytorch3d": PYTORCH3D, "target_seconds": TARGET_SECONDS})
 
-    methods = [] if args.stability_only else [m.strip() for m in args.methods.split(",") if
+    methods = [] if args.stability_only or args.shapes_only else [m.strip() for m in args.methods.split(",") if
                                               m.strip()]
     labels = {"tutorial": "tutorial recipe (dense 128^3, Adam, 10 views/step)",
               "lbfgs": "geofit L-BFGS (hull, 32-64-128, skipping)",
@@ -327,38 +377,56 @@ def main(argv=None) -> int:
                     "target": PYTORCH3D["psnr"], "target_label": "PyTorch3D 25.6 dB"},
                    {"metric": "iou", "label": "held-out silhouette IoU",
                     "target": PYTORCH3D["iou"], "target_label": "PyTorch3D 0.962"}],
-            out / "fit_volume.png", title="fit_volume: cow, 40 views, held-out elev 0 and 20",
+            out / f"{args.name}.png", title="fit_volume: cow, 40 views, held-out elev 0 and 20",
             time_limit=TARGET_SECONDS,
             reference_points=[{"seconds": PYTORCH3D["seconds"], "label": "PyTorch3D CPU",
                                "psnr": PYTORCH3D["psnr"], "iou": PYTORCH3D["iou"]}])
-        plot_params(runs, out / "fit_volume_params.png")
+        plot_params(runs, out / f"{args.name}_params.png")
         report.notes.append(f"load average at the end: {load_average()}")
-        path = report.write(out / "fit_volume.json")
-        print(f"wrote {path}, {out / 'fit_volume.png'}, {out / 'fit_volume_params.png'}")
+        path = report.write(out / f"{args.name}.json")
+        print(f"wrote {path}, {out / f'{args.name}.png'}, {out / f'{args.name}_params.png'}")
 
-    if args.stability or args.stability_only:
+    if args.stability or args.stability_only or args.shapes_only:
         print(f"== stability (grid {args.stability_size}^3)  (load {load_average()})",
               flush=True)
-        rows, records = stability(train, test, args)
-        srep = BenchmarkReport("fit_volume_stability",
-                               config={"quick": quick, "volume_size": args.stability_size},
+        rows, records = ([], []) if args.shapes_only else stability(train, test, args)
+        srows, srecords, shape_config = shape_stability(args)
+        rows += srows
+        records += srecords
+        stem = "fit_volume_stability_shapes" if args.shapes_only else "fit_volume_stability"
+        srep = BenchmarkReport(stem, load_at_start=load_start,
+                               config={"quick": quick, "volume_size": args.stability_size,
+                                       "cow": {"views": n_views, "image_size": image_size,
+                                               "held_out_views": len(test)},
+                                       "shape_volume_size": args.shape_size,
+                                       "shapes": shape_config},
                                notes=["each case runs fit_volume (geofit's L-BFGS unless "
                                       "stated) and reports its status; PSNR/IoU on the "
-                                      "held-out views"])
-        header = ["case", "status", "volume finite", "PSNR", "IoU", "active voxels",
+                                      "held-out views",
+                                      "test shapes: geofit.tutorials.stability.shape_views "
+                                      "(normalised, coloured by position, black background, "
+                                      "elevation 0; held-out views at elevations 0 and 20); "
+                                      "the all-black and tutorial-recipe cases do not depend "
+                                      "on the shape and run on the cow only",
+                                      "solver seconds were taken with other jobs on the 2 "
+                                      "cores (load average per record): upper bounds"])
+        header = ["shape", "case", "status", "volume finite", "PSNR", "IoU", "active voxels",
                   "solver s", "message"]
         table = markdown_table(header, rows)
         srep.tables["stability"] = table
         srep.tables["records"] = records
-        srep.write(out / "fit_volume_stability.json")
-        md = ("# fit_volume stability\n\n"
-              f"Grid {args.stability_size}^3, training data as the benchmark "
-              f"({n_views} views, {image_size} px); held-out views at elevations 0 and 20. "
-              "Every case must end with a status from `geofit.fit.STATUSES` and a finite "
-              "volume.\n\n" + table)
-        (out / "fit_volume_stability.md").write_text(md, encoding="utf-8")
+        srep.write(out / f"{stem}.json")
+        md = ("# fit_volume stability\n\n" + ("" if args.shapes_only else
+              f"Cow: grid {args.stability_size}^3, training data as the benchmark "
+              f"({n_views} views, {image_size} px). ") + "Test shapes "
+              f"({', '.join(shape_config) or 'none'}): grid {args.shape_size}^3, "
+              f"{8 if quick else args.shape_views} views of "
+              f"{32 if quick else args.shape_image_size} px. Held-out views at elevations 0 "
+              "and 20. Every case must end with a status from `geofit.fit.STATUSES` and a "
+              f"finite volume. Command: `{srep.command}`.\n\n" + table)
+        (out / f"{stem}.md").write_text(md, encoding="utf-8")
         print("\n" + table)
-        print(f"wrote {out / 'fit_volume_stability.json'}, {out / 'fit_volume_stability.md'}")
+        print(f"wrote {out / f'{stem}.json'}, {out / f'{stem}.md'}")
     return 0
 
 

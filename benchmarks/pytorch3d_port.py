@@ -352,6 +352,7 @@ def main(argv=None) -> int:
                 run = run_t4_geofit(n4, size)
             run.final["loadavg_start"] = list(load0)
             run.final["loadavg_end"] = list(os.getloadavg())
+            run.final["command"] = report.command  # each kept part keeps its own provenance
             print(f"  {part}: {json_safe(run.final)}", flush=True)
             kept = [m for m in kept if m["name"] != part]
             report.add(run)

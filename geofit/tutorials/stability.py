@@ -5,6 +5,11 @@ setting would: a noisy or holed or NaN target, a genus-1 target, a degenerate st
 100 times too large. :func:`fit_mesh_scenario` returns the inputs of that run; the caller fits,
 scores against ``reference`` and reports the outcome (``benchmarks/fit_mesh.py`` writes the
 stability table, :func:`geofit.tutorials.step_fit_mesh` a row per case in its report).
+
+The volume and NeRF stability tables (``benchmarks/fit_volume.py`` and ``benchmarks/fit_nerf.py``
+with ``--stability``) also run on shapes no one tuned for: :func:`stability_shape` gives a
+normalised, vertex-coloured test shape (a procedural one of :data:`geofit.shapes.TEST_SHAPES`, or
+a file of ``$GEOFIT_DATA/shapes/``) and :func:`shape_views` its multi-view renders.
 """
 from __future__ import annotations
 
@@ -15,7 +20,8 @@ import numpy as np
 
 from ..structures import Mesh
 
-__all__ = ["MESH_MODES", "MeshScenario", "collapse_edges", "fit_mesh_scenario"]
+__all__ = ["MESH_MODES", "STABILITY_SHAPES", "MeshScenario", "collapse_edges",
+           "fit_mesh_scenario", "shape_views", "stability_shape"]
 
 #: Scenario key -> what it does (the stability table's legend).
 MESH_MODES = {
@@ -131,3 +137,91 @@ def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: in
         v[0, 0] = np.nan
         tin = (v, target.faces)
     return MeshScenario(source, tin, kw, reference)
+
+
+#: The shapes the volume and NeRF stability tables add to the cow: genus 1 and open (procedural,
+#: :data:`geofit.shapes.TEST_SHAPES`) and a file of ``$GEOFIT_DATA/shapes/`` (skipped when absent).
+STABILITY_SHAPES = ("torus", "open_cylinder", "suzanne")
+
+#: Shapes turned about the x axis (degrees) before normalising: the torus lies in the xz plane,
+#: where the training views at elevation 0 would only see it edge-on and never through its hole.
+_TILT_X = {"torus": 60.0, "double_torus": 60.0}
+
+
+def stability_shape(name: str) -> Mesh:
+    """A test shape, normalised as the tutorials' cow and coloured by position.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`geofit.shapes.TEST_SHAPES` (``"torus"``, ``"open_cylinder"``, ...) or the
+        stem of an OBJ file in ``$GEOFIT_DATA/shapes/`` (``"suzanne"``, ``"fandisk"``, ...).
+
+    Returns
+    -------
+    Mesh
+        The torus and double torus turned 60 degrees about x (seen through the hole from
+        elevation 0); centred on its vertex mean, largest absolute coordinate 1 (:meth:`Mesh.normalize`), with a
+        :class:`~geofit.structures.TexturesVertex` colour ``0.15 + 0.35 (v + 1)`` per vertex
+        (a smooth field in [0.15, 0.85] that differs on every side of the shape).
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is neither a procedural shape nor a file in the data folder's ``shapes/``.
+    """
+    from ..data import find
+    from ..io import load_mesh
+    from ..shapes import TEST_SHAPES
+    from ..structures import TexturesVertex
+
+    if not isinstance(name, str):
+        raise ValueError(f"name: expected a shape name (str), got {name!r}")
+    if name in TEST_SHAPES:
+        mesh = TEST_SHAPES[name]()
+    else:
+        path = find(f"shapes/{name}.obj") if name.isidentifier() else None
+        if path is None:
+            raise ValueError(f"name: expected one of {sorted(TEST_SHAPES)} or a file "
+                             f"shapes/{name}.obj in the data folder (GEOFIT_DATA), got {name!r}")
+        mesh = load_mesh(path, load_textures=False)
+    if name in _TILT_X:
+        a = np.radians(_TILT_X[name])
+        rot = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)],
+                        [0.0, np.sin(a), np.cos(a)]])
+        mesh = mesh.update_verts(mesh.verts @ rot.T)
+    norm = mesh.normalize().mesh
+    colours = 0.15 + 0.35 * (norm.verts + 1.0)
+    return Mesh(norm.verts, norm.faces, textures=TexturesVertex(colours))
+
+
+def shape_views(name: str, *, num_views: int = 20, image_size: int = 64,
+                num_held_out: int = 8):
+    """Tutorial 5/6-style renders of :func:`stability_shape` ``(name)``.
+
+    Parameters
+    ----------
+    name : str
+        As :func:`stability_shape`.
+    num_views : int
+        Training views at elevation 0 around the shape (:func:`geofit.datasets.tutorial_views`).
+    image_size : int
+        Square image size in pixels.
+    num_held_out : int
+        Held-out views (even: half at elevation 0, half at 20, between the training azimuths).
+
+    Returns
+    -------
+    MultiViewDataset
+        Black background, thresholded silhouettes, ``held_out`` attached, ``name`` set.
+
+    Examples
+    --------
+    >>> data = shape_views("torus", num_views=4, image_size=16, num_held_out=2)
+    >>> data.images.shape, data.name, len(data.held_out)
+    ((4, 16, 16, 3), 'torus', 2)
+    """
+    from ..datasets import tutorial_views
+
+    return tutorial_views(5, mesh=stability_shape(name), num_views=num_views,
+                          image_size=image_size, num_held_out=num_held_out, name=name)
