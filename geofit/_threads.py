@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["ENV_VAR", "cpu_count", "get_num_threads", "one_blas_thread", "parallel_map",
-           "pool_size", "set_num_threads"]
+           "pool_size", "set_num_threads", "thread_environ"]
 
 ENV_VAR = "GEOFIT_NUM_THREADS"
 
@@ -126,6 +126,15 @@ def set_num_threads(n: int | None) -> None:
     with _LOCK:
         _OVERRIDE = n
         _sync_libraries()
+
+
+def thread_environ(n: int) -> dict[str, str]:
+    """The environment that gives a new process ``n`` threads: ``GEOFIT_NUM_THREADS`` and the
+    variables OpenMP and BLAS read when they load (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
+    ``MKL_NUM_THREADS``), for a process started before numpy (e.g. a Dask worker, whose nanny
+    sets the BLAS ones to 1 unless told otherwise)."""
+    t = str(_check(n, "n"))
+    return {ENV_VAR: t, "OMP_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t, "MKL_NUM_THREADS": t}
 
 
 def _controller():

@@ -60,8 +60,14 @@ def local_run(tmp_path_factory):
     out = base / "out"
     workers = 2 if _cores() >= 2 else 1
     before = {c.pid for c in psutil.Process().children(recursive=True)}
+    env = {k: os.environ.get(k) for k in THREAD_VARS}
     res = fit_many(inputs, "fit-mesh", out, n_workers=workers, progress=False, **FAST)
+    assert {k: os.environ.get(k) for k in THREAD_VARS} == env  # this process's untouched
     return inputs, out, res, _mtimes(out), before
+
+
+THREAD_VARS = ("GEOFIT_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+               "MKL_NUM_THREADS")
 
 
 def _new_children(before: set[int], wait: float = 10.0) -> list[int]:
@@ -88,6 +94,7 @@ def test_local_cluster_fits_every_good_mesh(local_run):
         row = next(r for r in res if r.name == name)
         assert row.ok and not row.reused and row.n_params > 0
         assert 0.0 <= row.accuracy <= 1.0 and row.seconds > row.fit_seconds > 0
+        assert row.cpu_seconds > 0.0
         rec = json.loads((out / name / "result.json").read_text())
         assert rec["status"] == "ok" and rec["settings_hash"] == row.settings_hash
         assert rec["metrics"]["fscore@0.01"] == pytest.approx(row.accuracy)
@@ -96,7 +103,31 @@ def test_local_cluster_fits_every_good_mesh(local_run):
         assert (out / name / "picture.png").stat().st_size > 0
         # the worker limited its threads (geofit.get_num_threads read back in the worker)
         assert rec["threads"] == _cores() // res.n_workers
+        assert rec["warm"] is True  # the warm-up plugin ran on its worker before it
+        # BLAS read back by threadpoolctl in the worker: the same count (not Dask's default 1)
+        assert rec["blas_threads"] and set(rec["blas_threads"]) == {rec["threads"]}
     assert not list(out.rglob(".*tmp-*")), "temporary files left behind"
+    assert set(res.timings) == {"cluster_start", "warm_up", "tasks", "tear_down", "summary"}
+    assert all(v >= 0.0 for v in res.timings.values())
+    assert sum(res.timings.values()) <= res.seconds
+
+
+def test_largest_input_first(local_run, tmp_path):
+    """Targets are submitted largest input first: the 2 workers start the torus and the
+    sphere, the tiny broken file waits for a free worker (name order would start it first)."""
+    inputs, out, _, _, _ = local_run
+    started = {n: json.loads((out / n / "result.json").read_text())["started"]
+               for n in ("broken", *GOOD)}
+    if _cores() >= 2:
+        assert started["broken"] > max(started[n] for n in GOOD)
+    from geofit.batch import input_bytes, largest_first
+
+    sizes = {p.stem: input_bytes(p) for p in inputs.glob("*.obj")}
+    assert sizes["torus"] > sizes["sphere"] > sizes["broken"] > 0
+    specs = [{"path": str(inputs / f"{n}.obj"), "name": n} for n in ("broken", "sphere", "torus")]
+    assert [s["name"] for s in largest_first(specs)] == ["torus", "sphere", "broken"]
+    cap = _capture(tmp_path / "cap")  # a folder: the bytes of every file in it
+    assert input_bytes(cap) == sum(p.stat().st_size for p in cap.rglob("*") if p.is_file())
 
 
 def test_broken_input_recorded_as_failed(local_run):
@@ -138,6 +169,9 @@ def test_rerun_skips_finished_targets(local_run):
     after = _mtimes(out)
     assert not res[0].reused and res[0].status == "failed" and after["broken"] > mtimes["broken"]
     assert res.n_workers == 1 and all(after[n] == mtimes[n] for n in GOOD)
+    # 1 worker x all cores: its BLAS got them too (a Dask nanny would have set 1)
+    rec = json.loads((out / "broken" / "result.json").read_text())
+    assert rec["threads"] == _cores() and set(rec["blas_threads"]) == {_cores()}
     assert settings_hash("fit-mesh", inputs / "torus.obj", task_settings("fit-mesh", **FAST)) \
         != settings_hash("fit-mesh", inputs / "torus.obj",
                          task_settings("fit-mesh", **{**FAST, "seed": 1}))
@@ -164,7 +198,8 @@ def dask_cluster(tmp_path_factory):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     scratch = tmp_path_factory.mktemp("dask")
-    env = {**os.environ, **thread_env(1)}
+    env = {**os.environ, **thread_env(1),  # as the README starts them
+           "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0"}
     log = open(scratch / "dask.log", "wb")  # noqa: SIM115 - closed in the finally below
     procs: list[subprocess.Popen] = []
     try:
@@ -222,6 +257,7 @@ def test_cli_on_dask_scheduler_and_workers_exit_codes(dask_cluster, tmp_path, ca
     assert os.getpid() not in {r["pid"] for r in recs}  # computed by the workers, not here
     # 2 single-slot workers on this host share its cores
     assert all(r["threads"] == max(1, _cores() // 2) for r in recs)
+    assert all(r["warm"] for r in recs)  # the plugin reached the external workers too
     good = _make_meshes(tmp_path / "good", broken=False)
     code = main(["batch", "fit-mesh", str(good / "sphere.obj"), str(good / "torus.obj"),
                  "--out", str(tmp_path / "o2"), *flags])
@@ -335,6 +371,17 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     with pytest.raises(OSError, match="disk full"):
         atomic_write(target, bad)
     assert target.read_text() == "old" and list(tmp_path.iterdir()) == [target]
+
+
+def test_thread_env_names_geofit_openmp_and_blas():
+    """The worker environment gives geofit, OpenMP and BLAS the same count; a bad count is
+    refused by geofit's thread policy."""
+    from geofit.batch import thread_env
+
+    env = thread_env(3)
+    assert set(env) == set(THREAD_VARS) and set(env.values()) == {"3"}
+    with pytest.raises(ValueError, match="n: expected an integer >= 1"):
+        thread_env(0)
 
 
 def test_every_task_has_options_and_an_accuracy():

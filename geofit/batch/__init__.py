@@ -21,6 +21,15 @@ Threads: each Dask worker runs one target at a time, and each target limits its 
 threads (ray casting, rendering, BLAS, Open3D) to ``threads_per_worker`` through
 ``geofit.set_num_threads`` and the ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` environment
 variables, so that ``n_workers * threads_per_worker`` never exceeds the cores.
+
+Scheduling: before the first target, a worker plugin (:class:`geofit.batch._warm.WarmUp`) sets
+every worker's thread limits and imports what the task needs (geofit's modules, Open3D,
+Pillow), once per worker rather than inside the first task. The targets are submitted
+largest input first (longest-processing-time-first: the last targets to start are the short
+ones, so no worker waits long for the last one), and the embedded cluster's scheduler keeps
+them queued until a worker is free (``distributed.scheduler.worker-saturation`` 1.0), so a
+free worker always takes the largest remaining target. Results are collected in batches
+(``as_completed(..., with_results=True).batches()``).
 """
 from __future__ import annotations
 
@@ -30,11 +39,12 @@ import json
 import os
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .._threads import cpu_count
+from .._threads import ENV_VAR, cpu_count
 from ._tasks import (
     CAPTURE_MARKERS,
     MESH_SUFFIXES,
@@ -48,6 +58,7 @@ __all__ = [
     "ACCURACY",
     "CAPTURE_MARKERS",
     "LOCAL_CLUSTER",
+    "LOCAL_SCHEDULER_CONFIG",
     "MESH_SUFFIXES",
     "TASKS",
     "TASK_OPTIONS",
@@ -56,6 +67,8 @@ __all__ = [
     "TargetResult",
     "expand_targets",
     "fit_many",
+    "input_bytes",
+    "largest_first",
     "settings_hash",
     "task_settings",
     "thread_env",
@@ -283,6 +296,9 @@ class TargetResult:
         Wall time of the task on its worker (load, fit, evaluation, writing).
     load_seconds, fit_seconds, eval_seconds : float
         Its parts: reading/rendering the input, the solver's own time, the metrics.
+    cpu_seconds : float
+        CPU time of the worker process during the task (all its threads): against
+        ``seconds``, how long the task waited for a core on a busy machine.
     n_params : int
         Free parameters of the fit (0 for ``render``).
     fit_status : str or None
@@ -310,6 +326,7 @@ class TargetResult:
     load_seconds: float = 0.0
     fit_seconds: float = 0.0
     eval_seconds: float = 0.0
+    cpu_seconds: float = 0.0
     n_params: int = 0
     fit_status: str | None = None
     metrics: dict = field(default_factory=dict)
@@ -334,6 +351,7 @@ class TargetResult:
                    load_seconds=float(rec.get("load_seconds", 0.0)),
                    fit_seconds=float(rec.get("fit_seconds", 0.0)),
                    eval_seconds=float(rec.get("eval_seconds", 0.0)),
+                   cpu_seconds=float(rec.get("cpu_seconds", 0.0)),
                    n_params=int(rec.get("n_params", 0)), fit_status=rec.get("fit_status"),
                    metrics=dict(rec.get("metrics") or {}),
                    settings_hash=rec.get("settings_hash", ""), reused=reused,
@@ -364,6 +382,11 @@ class BatchResult(Sequence):
     threads_per_worker : int
     scheduler : str
         ``"local"`` for the embedded LocalCluster, else the scheduler's address.
+    timings : dict
+        Seconds of the call's phases: ``"cluster_start"`` (starting the LocalCluster or
+        connecting to the scheduler), ``"warm_up"`` (the workers' thread limits and imports,
+        all workers in parallel), ``"tasks"`` (submitting the targets until the last result),
+        ``"tear_down"`` and ``"summary"`` (the summary files); empty when nothing was run.
     """
 
     rows: list
@@ -374,6 +397,7 @@ class BatchResult(Sequence):
     n_workers: int = 0
     threads_per_worker: int = 1
     scheduler: str = "local"
+    timings: dict = field(default_factory=dict)
 
     def __getitem__(self, i):
         return self.rows[i]
@@ -430,6 +454,7 @@ class BatchResult(Sequence):
                 "n_targets": len(self.rows), "n_ok": self.n_ok, "n_failed": self.n_failed,
                 "n_reused": self.n_reused, "n_workers": self.n_workers,
                 "threads_per_worker": self.threads_per_worker, "scheduler": self.scheduler,
+                "timings": self.timings,
                 "accuracy": {"metric": ACCURACY[self.task][0], "label": ACCURACY[self.task][1]},
                 "targets": [asdict(r) for r in self.rows]}
 
@@ -471,9 +496,14 @@ def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]
 def thread_env(threads: int) -> dict[str, str]:
     """Environment of a worker process limited to ``threads`` compute threads, set before the
     process starts: ``GEOFIT_NUM_THREADS`` (geofit's thread policy, :mod:`geofit._threads`,
-    which also limits BLAS and Open3D) and ``OMP_NUM_THREADS`` (read when OpenMP loads)."""
-    t = str(int(threads))
-    return {"GEOFIT_NUM_THREADS": t, "OMP_NUM_THREADS": t}
+    which also limits BLAS and Open3D) and ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
+    ``MKL_NUM_THREADS`` (read when OpenMP and BLAS load). The BLAS ones matter: a Dask nanny
+    sets all three to 1 before it starts a worker (``distributed.nanny.pre-spawn-environ``),
+    and geofit leaves BLAS alone when its thread count equals the cores, so a 1 worker x 2
+    threads cluster would otherwise run BLAS on one thread."""
+    from .._threads import thread_environ
+
+    return thread_environ(int(threads))
 
 
 #: Keyword arguments of every ``LocalCluster`` geofit starts: no dashboard, and the scheduler's
@@ -482,12 +512,62 @@ LOCAL_CLUSTER = {"dashboard_address": None,
                  "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"}}
 
 
+#: Scheduler settings of the embedded cluster: a target goes to a worker only when that worker
+#: is free (no target waits on a busy worker while another is idle at the end of a batch).
+LOCAL_SCHEDULER_CONFIG = {"distributed.scheduler.worker-saturation": 1.0}
+
+
+@contextmanager
+def _environ(values: dict[str, str]) -> Iterator[None]:
+    """``os.environ`` updated with ``values`` inside the block; those variables restored after
+    (also undoing what a Dask nanny writes into this process's environment for them)."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _start_local(n_workers: int, threads: int):
+    """A LocalCluster of ``n_workers`` single-slot worker processes with ``threads`` compute
+    threads each, and its client.
+
+    The BLAS/OpenMP variables must be in the environment the worker process is spawned with
+    (its ``env`` is applied after numpy has loaded BLAS): they go into Dask's
+    ``distributed.nanny.pre-spawn-environ``, whose values Dask takes from ``os.environ`` when
+    set there, hence :func:`_environ` around the start."""
+    import dask
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                           host="127.0.0.1", env=thread_env(threads), **LOCAL_CLUSTER)
-    return cluster, Client(cluster)
+    env = thread_env(threads)
+    at_spawn = {k: v for k, v in env.items() if k != ENV_VAR}
+    pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **at_spawn}
+    with _environ(at_spawn), dask.config.set(  # read when the nannies and scheduler start
+            {**LOCAL_SCHEDULER_CONFIG, "distributed.nanny.pre-spawn-environ": pre_spawn}):
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", env=env, **LOCAL_CLUSTER)
+    client = Client(cluster)
+    client.wait_for_workers(n_workers)
+    return cluster, client
+
+
+def _warm_up(client, task: str, threads: int) -> dict:
+    """Register the warm-up plugin (thread limits and imports on every worker, present and
+    future); returns once every current worker has run it."""
+    from ._warm import WarmUp
+
+    return client.register_plugin(WarmUp(task, threads))
+
+
+def input_bytes(path: str | os.PathLike) -> int:
+    """Bytes of a target's input files (a file, or every file under a capture folder): the
+    size by which :func:`fit_many` orders the targets, largest first."""
+    return sum(size for _, size, _ in _fingerprint(Path(path)))
 
 
 def _remote_threads(client, threads: int | None) -> int:
@@ -613,10 +693,12 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
                          "settings": settings, "settings_hash": digest,
                          "accuracy_key": key})
     used_workers, where = 0, "local" if client is None and scheduler is None else "cluster"
+    timings: dict[str, float] = {}
     if todo:
         own = client is None
         cluster = None
         try:
+            t = time.perf_counter()
             if client is None and scheduler is not None:
                 from distributed import Client
 
@@ -627,50 +709,76 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
                 threads_per_worker = _remote_threads(client, threads_per_worker)
                 where = str(client.scheduler.address)
             used_workers = len(_workers(client))
+            timings["cluster_start"] = time.perf_counter() - t
+            t = time.perf_counter()
+            _warm_up(client, task, threads_per_worker)
+            timings["warm_up"] = time.perf_counter() - t
             for spec in todo:
                 spec["threads"] = threads_per_worker
+            t = time.perf_counter()
             rows.update(_run(client, todo, progress))
+            timings["tasks"] = time.perf_counter() - t
         finally:
+            t = time.perf_counter()
             if own and client is not None:
                 client.close()
             if cluster is not None:
                 cluster.close()
+            if todo and "tasks" in timings:
+                timings["tear_down"] = time.perf_counter() - t
     result = BatchResult([rows[name] for name, _ in items], task, out, settings,
                          n_workers=used_workers, threads_per_worker=threads_per_worker or 1,
-                         scheduler=where)
-    result.seconds = time.perf_counter() - t0
+                         scheduler=where, timings=timings)
     if summary:
         from ._summary import write_summary
 
-        write_summary(result)
+        t = time.perf_counter()
+        result.seconds = t - t0
+        write_summary(result)  # summary.json holds the seconds up to here
+        timings["summary"] = time.perf_counter() - t
+    result.seconds = time.perf_counter() - t0
     return result
 
 
+def largest_first(todo: list[dict]) -> list[dict]:
+    """The specs ordered by input size, largest first (stable for equal sizes): the
+    longest-processing-time-first order, with the input size as the estimate of the work."""
+    return sorted(todo, key=lambda spec: -input_bytes(spec["path"]))
+
+
 def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
-    """Submit one task per spec, collect the records as they finish."""
+    """Submit one task per spec, largest input first, and collect the records in batches as
+    they finish."""
+    import uuid
+
     from distributed import as_completed
     from tqdm.auto import tqdm
 
+    todo = largest_first(todo)
+    # One task group for the scheduler (the first element of a tuple key names it), so the
+    # targets are queued on the scheduler and handed out by priority; the token keeps two
+    # batches on one cluster apart.
+    group, token = f"geofit-{todo[0]['task']}", uuid.uuid4().hex[:12]
     futures = {}
-    for spec in todo:
-        f = client.submit(run_target, spec, pure=False,
-                          key=f"geofit-{spec['task']}-{spec['name']}-{spec['settings_hash'][:8]}")
+    for rank, spec in enumerate(todo):
+        f = client.submit(run_target, spec, pure=False, priority=len(todo) - rank,
+                          key=(group, token, spec["name"]))
         futures[f] = spec
     rows: dict[str, TargetResult] = {}
     n_failed = 0
     with tqdm(total=len(todo), desc=f"geofit batch {todo[0]['task']}", unit="target",
               disable=not progress) as bar:
-        for fut in as_completed(futures):
-            spec = futures[fut]
-            try:
-                rec = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the task was lost (worker died, ...)
-                rec = _lost(spec, exc)
-            row = TargetResult.from_record(rec)
-            rows[spec["name"]] = row
-            n_failed += not row.ok
+        done = as_completed(futures, with_results=True, raise_errors=False)
+        for batch in done.batches():
+            for fut, rec in batch:
+                spec = futures.pop(fut)
+                if isinstance(rec, BaseException):  # the task was lost (worker died, ...)
+                    rec = _lost(spec, rec)
+                row = TargetResult.from_record(rec)
+                rows[spec["name"]] = row
+                n_failed += not row.ok
             bar.set_postfix_str(f"{row.name}: {row.status}; {n_failed} failed")
-            bar.update(1)
+            bar.update(len(batch))
     return rows
 
 
