@@ -28,14 +28,24 @@ only the methods that were not already slower at 100k than the plain search of t
 skipped there; the table says so). The times of the two directions are also stored apart:
 far scenes are hard in one direction (a query almost equally far from many points).
 
+The acceptance figure is the default's (``chamfer_auto``) time on far clouds over its time on
+overlapping ones at 1M points a side: ``tables.default_ratios`` in the JSON (apart/overlap and
+tutorial/overlap per size, with the load), also printed on the chart.
+
 Run from the repository root::
 
     GEOFIT_DATA=/path/to/data python benchmarks/chamfer.py [--quick]
 
-Writes ``benchmarks/results/chamfer.json`` and ``chamfer.png``.
+Writes ``benchmarks/results/chamfer.json`` and ``chamfer.png``. To re-measure only the default
+(``geofit.chamfer_distance``, ``backend="auto"``) on the three scenes, median of ``--repeat``
+runs at every size, and update those rows, the ratios and the chart in the existing JSON (the
+other rows are kept, and the JSON records both commands)::
+
+    GEOFIT_DATA=/path/to/data python benchmarks/chamfer.py --default-only [--sizes 1000000]
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -156,16 +166,25 @@ def _sqdist(a, b, idx):
 
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
-    p.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
+    p.add_argument("--sizes", type=int, nargs="+",
+                   help="points a side (default 10000 100000 1000000; 1000000 with "
+                        "--default-only)")
     p.add_argument("--repeat", type=int, default=3, help="runs per figure below 100k (median)")
     p.add_argument("--replot", type=Path, help="only redraw the PNG of this JSON")
     p.add_argument("--timeout", type=float, default=150.0,
                    help="seconds after which one measurement is stopped and reported as such")
+    p.add_argument("--default-only", action="store_true",
+                   help="re-measure only geofit.chamfer_distance(backend='auto') (median of "
+                        "--repeat runs at every size; --sizes defaults to 1000000 here) and "
+                        "update its rows, the ratios and the chart in the existing chamfer.json")
     args = p.parse_args()
     if args.replot:
         replot(args.replot)
         return
-    sizes = [2_000, 20_000] if args.quick else args.sizes
+    if args.default_only:
+        rerun_default(args)
+        return
+    sizes = [2_000, 20_000] if args.quick else args.sizes or [10_000, 100_000, 1_000_000]
     load_before = os.getloadavg()
     import open3d as o3d  # imported before the timings (its import takes seconds)
 
@@ -177,7 +196,8 @@ def main() -> None:
     report.notes += [
         "seconds: wall time, both directions (x -> y and y -> x), tree builds included; median "
         "of `repeat` runs below 100k points, one run from 100k; the machine's other jobs add "
-        "noise, see loadavg_before/after and the per-row load",
+        "noise, see loadavg_before/after and the per-row load; cpu_seconds: the CPU time of "
+        "the measuring process in that run (all its threads), less sensitive to the load",
         "check: every method's squared distances equal scipy's exactly (an exact search)",
         "scenes: overlap = two samplings of the normalised dolphin; tutorial = ico_sphere(4) "
         "samples against the dolphin inside it (the fit's start); apart = the sphere shifted "
@@ -208,7 +228,7 @@ def main() -> None:
                           flush=True)
                     _write(report, rows, sizes, args.out, stem, load_before, partial=True)
                     continue
-                times, dirs, result = out
+                times, dirs, result, cpus = out
                 k = int(np.argsort(times)[len(times) // 2])  # the median run
                 status = "ok"
                 if key in NN_METHODS:
@@ -220,8 +240,10 @@ def main() -> None:
                 elif ref is not None and not np.isclose(result, ref[0].mean() + ref[1].mean(),
                                                         rtol=1e-12):
                     status = "MISMATCH"
-                row.update(seconds=times[k], runs=times, status=status,
+                row.update(seconds=times[k], runs=times, status=status, cpu_seconds=cpus[k],
                            load_1min=os.getloadavg()[0])
+                if key == "chamfer_auto":
+                    row["ref_loss"] = _ref_loss(ref)
                 if key in NN_METHODS:
                     row["seconds_x_to_y"], row["seconds_y_to_x"] = dirs[k]
                 rows.append(row)
@@ -233,13 +255,16 @@ def main() -> None:
     _write(report, rows, sizes, args.out, stem, load_before, partial=False)
     print(report.tables["markdown"])
     plot(rows, sizes, args.out / f"{stem}.png", machine_info())
+    print(json.dumps(report.tables["default_ratios"], indent=1))
     print("wrote", args.out / f"{stem}.json")
 
 
 def _child(key, fn, x, y, repeat, conn) -> None:
-    """Run one measurement (in a forked process) and send (times, directions, result)."""
-    times, dirs = [], []
+    """Run one measurement (in a forked process) and send (times, directions, result, CPU
+    seconds of the process: its own work, whatever the machine's other jobs)."""
+    times, dirs, cpus = [], [], []
     for _ in range(repeat):  # repetitions of one measurement
+        c0 = time.process_time()
         t0 = time.perf_counter()
         if key in CHAMFER_METHODS:
             out = fn(x, y)
@@ -249,15 +274,17 @@ def _child(key, fn, x, y, repeat, conn) -> None:
             t1 = time.perf_counter()
             out = (out0, fn(x, y))
         t2 = time.perf_counter()
+        cpus.append(time.process_time() - c0)
         times.append(t2 - t0)
         dirs.append((t1 - t0, t2 - t1))
     result = out if key in CHAMFER_METHODS else (_sqdist(x, y, out[0]), _sqdist(y, x, out[1]))
-    conn.send((times, dirs, result))
+    conn.send((times, dirs, result, cpus))
     conn.close()
 
 
 def _measure(key, fn, x, y, repeat, timeout):
-    """(times, per-direction times, result) of one measurement, or None after ``timeout`` s."""
+    """(times, per-direction times, result, CPU times) of one measurement, or None after
+    ``timeout`` s."""
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")  # the child shares x and y; Open3D was imported before
@@ -288,6 +315,7 @@ def _write(report, rows, sizes, out_dir, stem, load_before, *, partial: bool) ->
                 if o and f:
                     ratio[f"{key} {scene}/overlap n={n}"] = f / o
     report.tables["far_over_overlap"] = ratio
+    report.tables["default_ratios"] = default_ratios(rows)
     header = ["method"] + [f"{s} {n // 1000}k" for n in sizes
                            for s in ("overlap", "tutorial", "apart")]
     md = []
@@ -304,7 +332,118 @@ def _write(report, rows, sizes, out_dir, stem, load_before, *, partial: bool) ->
     report.write(out_dir / f"{stem}.json")
 
 
-def plot(rows, sizes, path, mi) -> None:
+def default_ratios(rows) -> dict:
+    """The default's far/overlap ratios per size: the acceptance figure (apart <= 2x)."""
+    out = {}
+    auto = {(r["scene"], r["n"]): r for r in rows if r["method"] == "chamfer_auto"}
+    for n in sorted({n for _, n in auto}):
+        o = auto.get(("overlap", n))
+        if not o or not o.get("seconds"):
+            continue
+        entry = {"overlap_seconds": o["seconds"], "load_1min": {"overlap": o.get("load_1min")}}
+        for scene in ("apart", "tutorial"):
+            r = auto.get((scene, n))
+            if not r:
+                continue
+            entry["load_1min"][scene] = r.get("load_1min")
+            if r.get("seconds"):
+                entry[f"{scene}_seconds"] = r["seconds"]
+                entry[f"{scene}/overlap"] = r["seconds"] / o["seconds"]
+                if r.get("cpu_seconds") and o.get("cpu_seconds"):
+                    entry[f"{scene}/overlap_cpu"] = r["cpu_seconds"] / o["cpu_seconds"]
+            elif r.get("seconds_at_least"):  # stopped at the timeout: a lower bound
+                entry[f"{scene}_seconds_at_least"] = r["seconds_at_least"]
+                entry[f"{scene}/overlap_at_least"] = r["seconds_at_least"] / o["seconds"]
+        if "apart/overlap" in entry:
+            entry["apart_within_2x"] = entry["apart/overlap"] <= 2.0
+        out[f"n={n}"] = entry
+    return out
+
+
+def _ratio_text(ratios: dict) -> str:
+    """One line per size for the chart: the default's far/overlap ratios."""
+    lines = []
+    for key, e in ratios.items():
+        parts = []
+        for scene in ("apart", "tutorial"):
+            if f"{scene}/overlap" in e:
+                parts.append(f"{scene}/overlap {e[f'{scene}/overlap']:.2f}")
+            elif f"{scene}/overlap_at_least" in e:
+                parts.append(f"{scene}/overlap > {e[f'{scene}/overlap_at_least']:.2f}")
+        load = max(v for v in e["load_1min"].values() if v is not None)
+        cpu = e.get("apart/overlap_cpu")
+        cpu = f"; CPU time apart/overlap {cpu:.2f}" if cpu else ""
+        lines.append(f"default, {key}: " + ", ".join(parts) + f" (wall, load <= {load:.1f}){cpu}")
+    return "\n".join(lines)
+
+
+def _ref_loss(ref):
+    """The chamfer loss from the exact reference distances (None when no reference ran)."""
+    return None if ref is None else float(ref[0].mean() + ref[1].mean())
+
+
+def rerun_default(args) -> None:
+    """``--default-only``: re-measure the default on the three scenes, update chamfer.json."""
+    sizes = args.sizes or [1_000_000]
+    path = args.out / "chamfer.json"
+    old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else None
+    rows = old["tables"]["runs"] if old else []
+    ref_loss = {(r["scene"], r["n"]): r["ref_loss"] for r in rows if r.get("ref_loss")}
+    rows = [r for r in rows if not (r["method"] == "chamfer_auto" and r["n"] in sizes)]
+    load_before = os.getloadavg()
+    import open3d as o3d  # imported before the timings (its import takes seconds)
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    label, fn = CHAMFER_METHODS["chamfer_auto"]
+    new_rows = []
+    for n in sizes:
+        for scene, (x, y) in scenes(n).items():
+            row = {"method": "chamfer_auto", "label": label, "scene": scene, "n": n,
+                   "seconds": None}
+            out = _measure("chamfer_auto", fn, x, y, max(args.repeat, 1), args.timeout)
+            if out is None:
+                row.update(status=f"timeout: not finished after {args.timeout:g} s",
+                           seconds_at_least=args.timeout, load_1min=os.getloadavg()[0])
+                print(f"{n:>8} {scene:9s} default > {args.timeout:g} s (timeout)", flush=True)
+            else:
+                times, _, loss, cpus = out
+                k = int(np.argsort(times)[len(times) // 2])  # the median run
+                want = ref_loss.get((scene, n))  # the exact loss of an earlier full run
+                status = ("unchecked: no reference loss stored" if want is None else
+                          "ok" if np.isclose(loss, want, rtol=1e-12) else "MISMATCH")
+                row.update(seconds=times[k], runs=times, cpu_seconds=cpus[k], status=status,
+                           load_1min=os.getloadavg()[0])
+                if want is not None:
+                    row["ref_loss"] = want
+                print(f"{n:>8} {scene:9s} default {row['seconds']:9.3f} s  (runs "
+                      f"{', '.join(f'{t:.2f}' for t in times)})  {status}  "
+                      f"load {row['load_1min']:.1f}", flush=True)
+            new_rows.append(row)
+    rows += new_rows
+    all_sizes = sorted({r["n"] for r in rows})
+    report = BenchmarkReport("chamfer", config=dict(old["config"]) if old else {})
+    report.notes = list(old["notes"]) if old else []
+    report.config["sizes"] = all_sizes
+    report.config["default_rerun"] = {
+        "command": report.command, "sizes": sizes, "repeat": args.repeat,
+        "note": "rows of chamfer_auto at these sizes: median of `repeat` runs, measured by "
+                "this command; the other rows come from `previous_run`"}
+    if old:
+        report.config.setdefault("previous_run", {"command": old["command"],
+                                                  "created": old["created"],
+                                                  "load_average_1_5_15min":
+                                                  old["machine"]["load_average_1_5_15min"]})
+    _write(report, rows, all_sizes, args.out, "chamfer", load_before, partial=False)
+    report.config["default_rerun"].update(loadavg_before=list(load_before),
+                                          loadavg_after=list(os.getloadavg()))
+    report.write(path)
+    plot(rows, all_sizes, args.out / "chamfer.png", machine_info(),
+         report.tables["default_ratios"])
+    print(json.dumps(report.tables["default_ratios"], indent=1))
+    print("wrote", path)
+
+
+def plot(rows, sizes, path, mi, ratios=None) -> None:
     """Seconds against points a side, one panel per scene; a run stopped at the timeout is an
     open triangle at the timeout (a lower bound)."""
     import matplotlib.pyplot as plt
@@ -313,7 +452,7 @@ def plot(rows, sizes, path, mi) -> None:
 
     methods = {**NN_METHODS, **CHAMFER_METHODS}
     with chart_style():
-        fig, axes = plt.subplots(1, 3, figsize=(13, 5.2), sharey=True)
+        fig, axes = plt.subplots(1, 3, figsize=(13, 6.0), sharey=True)
         for ax, scene in zip(axes, ("overlap", "tutorial", "apart")):
             for i, (key, (label, _)) in enumerate(methods.items()):
                 color = f"C{i}"
@@ -333,18 +472,20 @@ def plot(rows, sizes, path, mi) -> None:
             ax.set_xlabel("points a side")
             ax.grid(True, which="both", alpha=0.3)
         axes[0].set_ylabel("seconds, both directions (builds included)")
-        fig.legend(loc="lower center", ncol=3, fontsize=8, frameon=False)
+        fig.legend(loc="lower center", ncol=3, fontsize=8, frameon=False,
+                   bbox_to_anchor=(0.5, 0.075))
         fig.suptitle(f"Exact nearest neighbours for chamfer: {mi['cpu']}, "
                      f"{mi['cpu_affinity']} cores (open triangle: stopped at the timeout)")
-        fig.tight_layout(rect=(0, 0.14, 1, 1))
+        ratios = default_ratios(rows) if ratios is None else ratios
+        if ratios:
+            fig.text(0.01, 0.01, _ratio_text(ratios), fontsize=8, va="bottom")
+        fig.tight_layout(rect=(0, 0.2, 1, 1))
         fig.savefig(path, dpi=110)
         plt.close(fig)
 
 
 def replot(path) -> None:
     """Redraw the PNG next to a written JSON (``--replot``)."""
-    import json
-
     d = json.loads(Path(path).read_text(encoding="utf-8"))
     plot(d["tables"]["runs"], d["config"]["sizes"], Path(path).with_suffix(".png"), d["machine"])
 

@@ -504,7 +504,8 @@ def test_backends_find_the_exact_nearest_neighbours(backend, offset):
 
 
 def test_backends_agree_on_values_and_gradients():
-    """Open3D and scipy give the same loss and gradients; 'auto' switches to Open3D when large."""
+    """Open3D and scipy give the same loss and gradients; 'auto' samples large query sets on
+    scipy's tree (and keeps it for queries near the cloud)."""
     from geofit.loss import chamfer as ch
 
     rng = np.random.default_rng(5)
@@ -516,8 +517,11 @@ def test_backends_agree_on_values_and_gradients():
     assert_allclose(a.grad_x, b.grad_x, rtol=0, atol=1e-15)
     assert_allclose(a.grad_y, b.grad_y, rtol=0, atol=1e-15)
     big = ch._NearestIndex(y, "auto")
-    big.nearest(x, 2)
-    assert big._open3d is not None and big._scipy is None
+    big.nearest(x, 2)  # overlapping: scipy's tree on a sample, then on all the queries
+    assert big._scipy is not None and big._witness is None and big._open3d is None
+    forced = ch._NearestIndex(y, "open3d")
+    forced.nearest(x, 2)
+    assert forced._open3d is not None and forced._scipy is None
     small = ch._NearestIndex(y[:100], "auto")
     small.nearest(x[:100], 2)
     assert small._scipy is not None and small._open3d is None

@@ -157,7 +157,8 @@ def _iou(data, mesh):
     ("sgd", {"silhouette_iters": 60}),
     ("lbfgs", {"silhouette_iters": 25}),
     ("lbfgs-nlopt", {"silhouette_iters": 40}),
-    ("lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)]}),
+    ("lbfgs", {"silhouette_iters": 30, "large_steps": 5.0, "levels": [(0, 2), (1, 1)],
+               "remesh_rounds": 0}),
     ("adam", {"silhouette_iters": 60, "large_steps": 5.0, "adam_lr": 0.01,
               "silhouette_loss": "contour"}),
 ])
@@ -206,7 +207,7 @@ def test_textured_stage_improves_psnr(data):
     """Least-squares colours beat uniform grey on held-out views; the joint L-BFGS (positions
     and colours) then lowers its training loss without losing held-out PSNR."""
     ev = ViewsEvaluator(data.held_out)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
+    res = fit_mesh_to_views(data, init=ico_sphere(2), recipe="sphere-lbfgs",
                             silhouette_iters=25, textured_method="lbfgs", textured_iters=10,
                             progress=False)
     sil = res.silhouette_mesh
@@ -372,7 +373,8 @@ def test_former_method_names_and_data_type_warn_and_agree(data):
     kw = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_method": "none",
           "progress": False}
     new = fit_mesh_to_views(data, silhouette_method="lbfgs", **kw)
-    assert new.method == "lbfgs+none" and new.recipe == "default" and new.init is kw["init"]
+    assert new.method == "lbfgs+none" and new.recipe == "default" and new.init == "user"
+    assert new.init_mesh is kw["init"]
     with pytest.warns(DeprecationWarning, match="scipy-lbfgs"):
         old = fit_mesh_to_views(data, silhouette_method="scipy-lbfgs", **kw)
     np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
@@ -387,9 +389,14 @@ def test_former_method_names_and_data_type_warn_and_agree(data):
         old = fit_mesh_to_views(data, silhouette_method="tutorial", textured_method="tutorial",
                                 textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
                                 textured_iters=2, progress=False)
+    cur = fit_mesh_to_views(data, silhouette_method="sgd", textured_method="sgd",
+                            textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
+                            textured_iters=2, progress=False)
     assert tut.method == "sgd+sgd" and [s["method"] for s in old.stages] == ["sgd", "sgd"]
-    np.testing.assert_array_equal(old.colors, tut.colors)
+    np.testing.assert_array_equal(old.colors, cur.colors)
     with pytest.warns(DeprecationWarning, match="silhouette_method='contour'"):
         old = fit_mesh_to_views(data, silhouette_method="contour", large_steps=5.0, **kw)
-    new = fit_mesh_to_views(data, recipe="contour", large_steps=5.0, **kw)
+    new = fit_mesh_to_views(data, silhouette_method="adam", silhouette_loss="contour",
+                            large_steps=5.0, **kw)
     np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
+    assert fit_mesh_to_views(data, recipe="contour", **kw).method == "adam+none"

@@ -1,7 +1,8 @@
 """Chamfer distance between point clouds with analytic gradients (PyTorch3D's ``chamfer_distance``).
 
 For every point of ``x`` the nearest point of ``y`` is found (and vice versa) by an exact
-KD-tree search (Open3D's or scipy's, see below); the distances are then recomputed in float64 from
+search (a KD-tree, Open3D's or scipy's, and for far queries a witness-pruned block search, see
+below); the distances are then recomputed in float64 from
 the coordinate differences, so values and gradients are exact for the neighbours found. The choice
 of neighbour is piecewise constant: no gradient flows through it (as in PyTorch3D, whose
 ``knn_points`` indices are constants), and the gradient is exact wherever the nearest neighbours
@@ -22,21 +23,37 @@ points sorted along a Z-order curve and the queries are searched in that order t
 side on overlapping clouds it took Open3D's search from 62 s to 24 s and scipy's from 54 s to
 29 s, sorting included (load about 15). Every path is
 exact (tests compare them with brute force, and ``benchmarks/chamfer.py`` checks that every
-method returns scipy's distances); only scipy has the L1 metric of ``norm=1``. ``"auto"``, the
-default, takes scipy below 20 000 points a side and Open3D from there, after
-``benchmarks/chamfer.py`` (``benchmarks/results/chamfer.json``: both directions, tree builds
-included, 2 shared cores at a load of 15 to 18, so read ratios rather than seconds): at 100k
-points a side ``chamfer_distance`` took 3.9 s with scipy and 2.8 s with Open3D on two samplings
-of the dolphin, and 58 s and 24 s at the mesh-fitting tutorial's start (sphere samples around
-the dolphin); at 10k all backends are within the noise (0.1 to 1.5 s).
+method returns scipy's distances); only scipy has the L1 metric of ``norm=1``.
 
-Far-apart clouds are slow for every exact KD-tree, Open3D's included: a query that is almost
-equally far from many points (a dolphin point near the centre of the sphere) must visit all of
-them to prove which one is nearest, so the time grows faster than ``n log n`` (at 100k points the
-tutorial's start took 7 times as long as two overlapping clouds with the default, 15 times with
-scipy; at 1M points the overlapping clouds took 33 s with the default and the tutorial's start
-did not finish within the benchmark's 150 s with any backend: more than 4.6 times). The default
-does not keep far-apart clouds within twice the time of overlapping ones.
+Far queries: an exact KD-tree, Open3D's included, slows down when the two clouds are apart. To
+prove a nearest point it opens every node whose box is closer than that point, and when a
+surface faces the query from afar (a dolphin point 2 units from a sphere's side, or near the
+centre of a surrounding sphere) a box tilted against the surface reaches towards the query by a
+fraction of its size times the distance: a wide patch of the surface must be opened. At 1M points
+a side scipy's search took 38 s on the clouds 2 units apart against 2.5 s overlapping (one
+direction, load ~4), and a per-query bound equal to the true distance saved only 25% at 100k
+(the work is the proof, not the finding). ``"auto"`` therefore proves nearness per block of
+queries with a witness point instead (:mod:`geofit.loss._chamfer_search`: the bisector test
+``|p - q0|^2 <= |w - q0|^2 + 2 sum_i h_i |p_i - w_i|`` over a Morton octree of the cloud, with
+oriented boxes at its finest levels), which cuts a far front to a patch about the block's size
+and stays exact (every pruning test keeps a margin for rounding; ties go to the point first in
+Z-order).
+
+``"auto"``, the default: below 20 000 points a side scipy's tree (after
+``benchmarks/chamfer.py``: Open3D's tensor set-up dominates there). From 20 000, a Z-order
+sample of 2048 queries is located in the cloud's octree; if 5% or more of them lie in empty
+cells of about 64 finest cells (the queries are far), the witness search runs, handing the
+blocks it finds near, or with too many candidates, to a KD-tree (Open3D's when they are 20 000
+or more and at least 10% of the queries, scipy's otherwise); else scipy's tree answers all
+queries (as fast as Open3D's there: 2.4-2.5 s per direction at 1M points, load ~19). Measured
+end to end by ``benchmarks/chamfer.py`` (``tables.default_ratios`` of
+``benchmarks/results/chamfer.json``; 2 shared cores, so read the ratios, and the CPU-time
+ratios, rather than seconds): at 1M points a side two samplings of the dolphin took 9.1 s, the
+sphere moved 3 units clear of it 16.3 s (1.79 times; CPU time 1.82 times; before: more than 150
+s) and the tutorial's start (the dolphin inside the sphere) more than 150 s (median of 3 runs,
+load about 22; at 100k: 0.61 s, 1.5 s and 8.0 s). The tutorial's start stays slow: a dolphin
+point near the sphere's centre is almost equally far from a large part of the sphere, so any
+exact search must look at it (the witness search hands those blocks to the KD-tree).
 """
 from __future__ import annotations
 
@@ -50,6 +67,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_array, as_points, check_choice
 from .._foreign import foreign_kind
 from ..structures.pointcloud import PointCloud, as_pointcloud
+from ._chamfer_search import WitnessSearch, far_share, leaf_level, morton_codes, morton_frame
 
 __all__ = ["ChamferResult", "ChamferTarget", "chamfer_distance", "morton_order"]
 
@@ -60,6 +78,13 @@ _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (meas
 _BACKENDS = ("auto", "open3d", "scipy")
 _OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is used (measured)
 _MORTON_FROM = 20_000  # clouds and queries from this size are searched in Z-order (measured)
+_WITNESS_FROM = 20_000  # "auto": clouds and queries from which far queries take the witness search
+_SAMPLE = 2048  # "auto": queries sampled (in Z-order) to tell far clouds from near ones ...
+_FAR_LEVELS = 2  # ... a sample is far when its octree cell this many levels above the finest
+_FAR_SHARE = 0.05  # ... is empty, and from this share of far samples the witness search is used
+_FALLBACK_SHARE = 0.1  # queries handed back by the witness search, from this share of all of
+# them, take the KD-tree picked for their number (Open3D's from 20k: the tutorial's start hands
+# back most queries, the hard ones); fewer take scipy's, quick to build (apart: about 1%)
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,19 +134,7 @@ def morton_order(points: np.ndarray) -> np.ndarray:
     sorted queries, reads memory in order: measured in ``benchmarks/chamfer.py`` (``*_morton``
     rows). 21 bits per axis over the points' bounding cube.
     """
-    lo = points.min(axis=0)
-    span = float((points.max(axis=0) - lo).max())
-    scale = (2 ** 21 - 1) / span if span > 0 else 0.0
-    q = ((points - lo) * scale).astype(np.uint64)
-    code = np.zeros(len(points), np.uint64)
-    for axis in range(3):  # the three coordinates: spread 21 bits to every third bit
-        v = q[:, axis]
-        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF),
-                            (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3),
-                            (2, 0x1249249249249249)):
-            v = (v | (v << np.uint64(shift))) & np.uint64(mask)
-        code |= v << np.uint64(axis)
-    return np.argsort(code, kind="stable").astype(np.int64, copy=False)
+    return np.argsort(morton_codes(points), kind="stable").astype(np.int64, copy=False)
 
 
 class _NearestIndex:
@@ -131,7 +144,9 @@ class _NearestIndex:
     ``backend`` is ``"open3d"``, ``"scipy"`` or ``"auto"`` (see :meth:`_pick`). From
     ``_MORTON_FROM`` points the tree is built over the points in Z-order and the queries are
     searched in Z-order too (the answers are mapped back): the same exact neighbours, read with
-    far fewer cache misses.
+    far fewer cache misses. With ``"auto"`` and the L2 norm, from ``_WITNESS_FROM`` points and
+    queries, far queries take the witness search (:meth:`_search_far_aware`), built once per
+    cloud like the trees.
     """
 
     def __init__(self, points: np.ndarray, backend: str):
@@ -139,9 +154,17 @@ class _NearestIndex:
         self.backend = backend
         self._scipy = None
         self._open3d = None
-        self._order = morton_order(points) if len(points) >= _MORTON_FROM else None
-        self._tree_points = (points if self._order is None
-                             else np.ascontiguousarray(points[self._order]))
+        self._order = None
+        self._codes = None
+        self._tree_points = points
+        if len(points) >= _MORTON_FROM:
+            self._frame = morton_frame(points)
+            codes = morton_codes(points, self._frame)
+            self._order = np.argsort(codes, kind="stable").astype(np.int64, copy=False)
+            self._codes = codes[self._order]
+            self._tree_points = np.ascontiguousarray(points[self._order])
+        self._witness = None
+        self._far_level = None
 
     def _pick(self, n_queries: int, norm: int) -> str:
         if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
@@ -152,11 +175,16 @@ class _NearestIndex:
         # set-up dominates; Open3D from _OPEN3D_FROM points, where it is faster on far clouds.
         return "open3d" if min(len(self.points), n_queries) >= _OPEN3D_FROM else "scipy"
 
-    def nearest(self, q: np.ndarray, norm: int) -> np.ndarray:
+    def nearest(self, q: np.ndarray, norm: int, q_order: np.ndarray | None = None) -> np.ndarray:
         """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
-        q_order = morton_order(q) if len(q) >= _MORTON_FROM else None
+        if q_order is None and len(q) >= _MORTON_FROM:
+            q_order = morton_order(q)
         qs = q if q_order is None else np.ascontiguousarray(q[q_order])
-        idx = self._search(qs, norm)
+        if (self.backend == "auto" and norm == 2 and self._codes is not None
+                and q_order is not None and min(len(q), len(self.points)) >= _WITNESS_FROM):
+            idx = self._search_far_aware(qs, norm)
+        else:
+            idx = self._search(qs, norm)
         if self._order is not None:
             idx = self._order[idx]
         if q_order is not None:
@@ -165,9 +193,33 @@ class _NearestIndex:
             idx = out
         return idx
 
-    def _search(self, q: np.ndarray, norm: int) -> np.ndarray:
-        """Indices into ``self._tree_points`` of the nearest point of each query."""
-        if self._pick(len(q), norm) == "open3d":
+    def _search_far_aware(self, q: np.ndarray, norm: int) -> np.ndarray:
+        """``"auto"`` from ``_WITNESS_FROM`` points: scipy's tree for queries near the cloud,
+        the witness search for far ones.
+
+        A Z-order sample of ``_SAMPLE`` queries is located in the cloud's octree (its sorted
+        Z-order codes: no tree); if at least ``_FAR_SHARE`` of them fall in empty cells
+        ``_FAR_LEVELS`` levels above the finest (cells of 4 x 4 x 4 finest ones, about 8 points
+        each), all queries take :class:`~geofit.loss._chamfer_search.WitnessSearch`, which hands
+        the blocks it finds near, or with too many candidates, to the KD-tree picked for their
+        number (:meth:`_pick`); otherwise all take scipy's tree (on overlapping clouds at 1M
+        points a side it took 2.4-2.5 s per direction, as Open3D's, load ~19).
+        """
+        sample = q[:: max(1, len(q) // _SAMPLE)]
+        if self._far_level is None:
+            self._far_level = max(1, leaf_level(self._codes) - _FAR_LEVELS)
+        level = self._far_level
+        if far_share(self._codes, self._frame, sample, level) < _FAR_SHARE:
+            return self._search(q, norm, "scipy")
+        if self._witness is None:
+            self._witness = WitnessSearch(self._tree_points, self._codes)
+        return self._witness.nearest(q, lambda rows: self._search(
+            q[rows], norm, None if len(rows) >= _FALLBACK_SHARE * len(q) else "scipy"))
+
+    def _search(self, q: np.ndarray, norm: int, backend: str | None = None) -> np.ndarray:
+        """Indices into ``self._tree_points`` of the nearest point of each query (with
+        ``backend``, or the one :meth:`_pick` takes)."""
+        if (backend or self._pick(len(q), norm)) == "open3d":
             import open3d as o3d
 
             if self._open3d is None:
@@ -185,9 +237,9 @@ class _NearestIndex:
         return np.asarray(idx, dtype=np.int64)
 
 
-def _nearest(index: _NearestIndex, q: np.ndarray, norm: int):
+def _nearest(index: _NearestIndex, q: np.ndarray, norm: int, q_order=None):
     """Nearest index point of each query: (idx (k,), d (k,), dd/dq (k, 3)) with d in float64."""
-    idx = index.nearest(q, norm)
+    idx = index.nearest(q, norm, q_order)
     diff = q - index.points[idx]
     if norm == 2:
         d = np.einsum("ij,ij->i", diff, diff)
@@ -237,14 +289,15 @@ class _Direction(NamedTuple):
     dn_q: np.ndarray | None  # (k, 3) d nterm / d q_normal[idx]
 
 
-def _direction(p, q, index_q, norm, p_normals, q_normals, abs_cosine) -> _Direction:
+def _direction(p, q, index_q, norm, p_normals, q_normals, abs_cosine,
+               p_order=None) -> _Direction:
     if len(p) == 0 or len(q) == 0:  # nothing to match: this direction contributes 0
         z = np.zeros(len(p))
         zz = np.zeros((len(p), 3))
         with_n = p_normals is not None
         return _Direction(z, np.zeros(len(p), np.int64), zz, z if with_n else None,
                           zz if with_n else None, zz if with_n else None)
-    idx, d, dd = _nearest(index_q, p, norm)
+    idx, d, dd = _nearest(index_q, p, norm, p_order)
     if p_normals is None:
         return _Direction(d, idx, dd, None, None, None)
     cos, ga, gb = _cos_and_grads(p_normals, q_normals[idx])
@@ -296,12 +349,15 @@ def _reduce_direction(dr: _Direction, point_reduction: str, w: float, n_q: int) 
 def _member(xb, yb, index_y, xnb, ynb, *, w, point_reduction, norm, single_directional,
             abs_cosine, backend):
     """Both directions of one batch member combined: (loss, loss_n, gx, gy, gxn, gyn)."""
-    rx = _reduce_direction(_direction(xb, yb, index_y, norm, xnb, ynb, abs_cosine),
+    # x moves: its tree is rebuilt per call; its Z-order (if any) also orders the x -> y queries
+    index_x = None if single_directional else _NearestIndex(xb, backend)
+    x_order = None if index_x is None else index_x._order
+    rx = _reduce_direction(_direction(xb, yb, index_y, norm, xnb, ynb, abs_cosine, x_order),
                            point_reduction, w, len(yb))
     if single_directional:
         return rx.value, rx.value_n, rx.g_p, rx.g_q, rx.gn_p, rx.gn_q
-    index_x = _NearestIndex(xb, backend)  # x moves: its tree is rebuilt per call
-    ry = _reduce_direction(_direction(yb, xb, index_x, norm, ynb, xnb, abs_cosine),
+    ry = _reduce_direction(_direction(yb, xb, index_x, norm, ynb, xnb, abs_cosine,
+                                      index_y._order),
                            point_reduction, w, len(xb))
     if point_reduction == "max":
         # torch.maximum: the gradient goes to the larger term, split evenly on a tie
@@ -401,9 +457,11 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         Normal term ``1 - |cos|`` (orientation ignored) or ``1 - cos``.
     backend : {"auto", "open3d", "scipy"}
         The exact nearest-neighbour search: Open3D's ``core.nns`` (knn) or scipy's ``cKDTree``;
-        ``"auto"`` takes the faster one as measured by ``benchmarks/chamfer.py`` (see the
-        module notes). ``norm=1`` needs scipy (``"auto"`` picks it). Every backend returns the
-        exact nearest neighbours; values agree to rounding.
+        ``"auto"`` takes scipy's tree for queries near the other cloud and, from 20 000 points
+        a side, a witness-pruned block search for far ones, so that clouds far apart cost about
+        as much as overlapping ones (see the module notes for the measured figures). ``norm=1``
+        needs scipy (``"auto"`` picks it). Every backend returns the exact nearest neighbours;
+        values agree to rounding.
 
     Returns
     -------

@@ -143,7 +143,8 @@ class SoftRender:
             data = (wts[:, None] * shading.shade[:, c:c + 1] * bary).ravel()
             mats.append(sp.csr_matrix((data, (rows, cols)), shape=(G, V)))
         bg = np.asarray(self._saved["bg"], np.float64)
-        b = np.stack([np.bincount(gp, wts * shading.specular[:, c], G) for c in range(3)], 1)
+        b = np.stack([np.bincount(gp, wts * shading.specular[:, c], G) for c in range(3)],
+                     1).astype(np.float64)  # float even when no pixel is covered
         b += blend.background_weight[:, None] * bg[None, :]
         return mats, b.reshape(fr.n_views, H, W, 3)
 

@@ -1,0 +1,142 @@
+"""The default start of fit_mesh_to_views (geofit.fit._views_init) and the default fit's result.
+
+No new gradient: the default fit composes the soft-silhouette objective of
+geofit.fit._views_objective (finite-difference tests in test_fit_views.py) with remeshing.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+from geofit.datasets import tutorial_views
+from geofit.fit import fit_mesh_to_views
+from geofit.fit._views_init import _hull_field, hull_start, pixel_footprint, remesh_to_length
+from geofit.fit.views import RECIPES, ViewsEvaluator
+from geofit.shapes import two_spheres
+from geofit.structures import Mesh, TexturesVertex
+
+
+def _colored(mesh):
+    m = Mesh(mesh.verts, mesh.faces).normalize().mesh
+    return Mesh(m.verts, m.faces, TexturesVertex(0.5 + 0.4 * np.sin(3.0 * m.verts)))
+
+
+@pytest.fixture(scope="module")
+def spheres():
+    """Eight views of 32 px of two separate spheres."""
+    return tutorial_views(4, mesh=_colored(two_spheres(level=2)), num_views=8, image_size=32,
+                          num_held_out=4)
+
+
+def test_pixel_footprint_is_the_pixel_size_at_the_point():
+    """A FoV camera at distance d (fov 60 degrees, H pixels) sees 2 d tan(30 deg) / H world
+    units per pixel at the point it looks at, and twice that at twice the distance."""
+    R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    want = 2.0 * 2.7 * math.tan(math.radians(30.0)) / 128
+    np.testing.assert_allclose(pixel_footprint(cams, (128, 128), np.zeros(3)), want, rtol=1e-3)
+    R, T = look_at_view_transform(5.4, 0.0, 0.0)
+    np.testing.assert_allclose(pixel_footprint(FoVPerspectiveCameras(R=R, T=T), (128, 128),
+                                               np.zeros(3)), 2.0 * want, rtol=1e-3)
+
+
+def test_hull_field_matches_transform_points_screen():
+    """The hull field's own projection reads the images where cameras.transform_points_screen
+    puts the points (a slow per-view reference with scipy's map_coordinates)."""
+    from scipy.ndimage import map_coordinates
+
+    R, T = look_at_view_transform(2.7, [0.0, 30.0, -20.0], [0.0, 100.0, 200.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    rng = np.random.default_rng(0)
+    sd = rng.normal(size=(3, 16, 20))
+    P = rng.uniform(-1.0, 1.0, (50, 3))
+    ref = np.full(len(P), np.inf)
+    for i in range(3):  # views: the reference loop
+        xy = cams[i].transform_points_screen(P, (16, 20))[0]
+        ref = np.minimum(ref, map_coordinates(sd[i], [xy[:, 1] - 0.5, xy[:, 0] - 0.5], order=1,
+                                              cval=-36.0))
+    np.testing.assert_allclose(_hull_field(sd, cams, P), ref, atol=1e-12)
+
+
+def test_hull_start_keeps_the_parts_and_covers_the_shape(spheres):
+    """The visual hull of two separate spheres has two closed parts; carved at the 0.5 level
+    without shrinking and barely decimated, it covers (nearly) all of the silhouettes'
+    interior (> 0.9) and (nearly) nothing outside their 0.5 level in the training views."""
+    from geofit.ops import topology
+    from geofit.render import MeshRasterizer, RasterizationSettings
+
+    mesh, info = hull_start(spheres.silhouettes, spheres.cameras, edge_px=0.5, shrink_px=0.0)
+    topo = topology(mesh, self_intersections=False)
+    assert topo.n_components == 2 and topo.is_closed and topo.is_manifold
+    assert info["pixel_size"] > 0 and info["voxel_size"] > 0
+    ras = MeshRasterizer(spheres.cameras, RasterizationSettings(image_size=(32, 32)))
+    mask = ras(mesh).mask
+    inner = spheres.silhouettes > 0.9
+    assert (mask & inner).sum() >= 0.97 * inner.sum()
+    assert (mask & (spheres.silhouettes <= 0.5)).sum() <= 0.01 * mask.sum()
+
+
+def test_hull_start_rejects_an_empty_hull(spheres):
+    with pytest.raises(ValueError, match="silhouettes"):
+        hull_start(np.zeros_like(spheres.silhouettes), spheres.cameras)
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0])
+def test_remesh_to_length_keeps_the_hull_manifold(spheres, factor):
+    """Remeshing the visual hull (marching cubes, decimated: what the default fit remeshes)
+    keeps it edge-manifold and consistently oriented with its genus and parts, and moves the
+    mean edge length towards the target."""
+    from geofit.ops import topology
+
+    mesh, _ = hull_start(spheres.silhouettes, spheres.cameras, edge_px=1.0)
+    t0 = topology(mesh, self_intersections=False)
+    target = factor * float(mesh.edge_lengths.mean())
+    out = remesh_to_length(mesh, target)
+    t1 = topology(out, self_intersections=False)
+    assert t1.n_nonmanifold_edges == 0 and t1.winding_consistent
+    assert (t1.genus, t1.n_components, t1.n_boundary_loops) == \
+        (t0.genus, t0.n_components, t0.n_boundary_loops)
+    assert abs(out.edge_lengths.mean() - target) < abs(mesh.edge_lengths.mean() - target)
+
+
+def test_default_fit_starts_from_the_hull_and_reports_topology(spheres):
+    """The plain call starts from the visual hull (two parts kept), remeshes, says so, and
+    reports the fitted mesh's topology; init="sphere" keeps the tutorial's ico-sphere."""
+    res = fit_mesh_to_views(spheres, silhouette_iters=12, progress=False)
+    assert res.init == "hull" and res.ok
+    assert res.topology.n_components == 2 and res.topology.is_closed
+    assert "visual hull" in res.message and "result: genus" in res.message
+    assert res.summary()["init"] == "hull" and "topology" in res.summary()
+    ev = ViewsEvaluator(spheres.held_out)
+    assert ev(res.mesh)["iou"] > ev(res.init_mesh)["iou"] + 0.01
+    sph = fit_mesh_to_views(spheres, init="sphere", silhouette_iters=2, remesh_rounds=0,
+                            textured_method="none", progress=False)
+    assert sph.init == "sphere" and sph.init_mesh.n_verts == 2562  # ico_sphere(4)
+    assert RECIPES["tutorial"]["init"] == "sphere"
+
+
+def test_self_intersecting_result_says_so(spheres):
+    """A result whose surface self-intersects (two overlapping spheres) says so in its
+    message and its topology."""
+    from geofit.shapes import ico_sphere
+
+    s = ico_sphere(2)
+    bad = Mesh(np.concatenate([0.4 * s.verts, 0.4 * s.verts + [0.3, 0.0, 0.0]]),
+               np.concatenate([s.faces, s.faces + s.n_verts]))
+    res = fit_mesh_to_views(spheres, init=bad, silhouette_method="none",
+                            textured_method="lstsq", progress=False)
+    assert res.topology.n_self_intersecting_pairs > 0
+    assert "self-intersects" in res.message
+    ok = fit_mesh_to_views(spheres, init=Mesh(0.4 * s.verts, s.faces),
+                           silhouette_method="none", textured_method="lstsq", progress=False)
+    assert "self-intersects" not in ok.message
+
+
+def test_invalid_init_and_remesh_options(spheres):
+    with pytest.raises(ValueError, match="init"):
+        fit_mesh_to_views(spheres, init="cube", progress=False)
+    with pytest.raises(ValueError, match="remesh_rounds"):
+        fit_mesh_to_views(spheres, remesh_rounds=-1, progress=False)
+    with pytest.raises(ValueError, match="edge_px"):
+        fit_mesh_to_views(spheres, edge_px=0.0, progress=False)
