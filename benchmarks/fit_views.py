@@ -265,7 +265,7 @@ COMPARE = ("sphere", "best") + tuple(f"recipe:{r}" for r in RECIPES if r != "def
 def shape_factories(names=None) -> dict:
     """name -> factory of an (untextured or textured) mesh: the cow, the data's shapes and
     geofit's procedural ones (:data:`geofit.shapes.TEST_SHAPES`)."""
-    from fit_mesh_shapes import load_shapes
+    from fit_mesh import load_shapes  # the shapes of benchmarks/fit_mesh.py (one list)
 
     shapes = {"cow": lambda: cow_mesh()[0]}  # textured; the tutorial's normalisation
     shapes.update({k: v for k, v in load_shapes().items() if k != "dolphin"})

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from _harness import BenchmarkReport, MethodRun, markdown_table, parser
-from fit_mesh_shapes import load_shapes
+from fit_mesh import load_shapes
 
 from geofit.datasets import tutorial_views
 from geofit.fit.views import ViewsEvaluator, fit_mesh_to_views

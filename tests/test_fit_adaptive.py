@@ -151,3 +151,19 @@ def test_visual_hull_mesh_of_a_ball():
         visual_hull_mesh(ds.silhouettes, ds.cameras, resolution=4)
     with pytest.raises(ValueError, match="empty"):
         visual_hull_mesh(np.zeros_like(ds.silhouettes), ds.cameras, resolution=16)
+
+
+def test_fit_mesh_adaptive_budget_used_up_while_building_the_objective(monkeypatch):
+    """The adaptive fit's solve gets what is left of the budget after its objective is built."""
+    import time
+
+    import geofit.fit.adaptive as fa
+
+    class Slow(fa.MeshObjective):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            time.sleep(0.4)
+
+    monkeypatch.setattr(fa, "MeshObjective", Slow)
+    res = fit_mesh_adaptive(torus(1.0, 0.35, 24, 12), time_budget=0.3, evaluator=None)
+    assert res.status == "time_budget" and res.n_evaluations <= 2  # no time left to iterate

@@ -362,6 +362,8 @@ def test_validation():
     with pytest.raises(ValueError, match="init"):  # strings: "auto" or "sphere" only
         fit_mesh(tgt, init="cube", progress=False)
     with pytest.raises(TypeError, match="target"):
+        fit_mesh(object(), init=1, progress=False)
+    with pytest.raises(ValueError, match="target: a point cloud"):  # only the default call
         fit_mesh(tgt.verts, init=1, progress=False)
     with pytest.raises(ValueError, match="init: the surface has zero area"):
         fit_mesh(tgt, init=Mesh(np.zeros((3, 3)), [[0, 1, 2]]), progress=False)
@@ -435,3 +437,20 @@ def test_fit_docstring_examples():
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.failed == 0, mod.__name__
         assert result.attempted > 0, mod.__name__
+
+
+def test_time_budget_used_up_while_building_the_objective(monkeypatch):
+    """A budget that runs out between the stage check and the solve ends with status
+    "time_budget" (it once raised "time_budget: expected a finite number > 0")."""
+    import time
+
+    import geofit.fit.mesh as fm
+
+    class Slow(fm.MeshObjective):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            time.sleep(0.3)
+
+    monkeypatch.setattr(fm, "MeshObjective", Slow)
+    res = fit_mesh(ico_sphere(2), init=1, time_budget=0.1, evaluator=None, progress=False)
+    assert res.status == "time_budget" and np.all(np.isfinite(res.mesh.verts))

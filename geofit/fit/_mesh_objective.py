@@ -1,6 +1,13 @@
 """The objective of :func:`geofit.fit.fit_mesh`: data term and regularisers of the vertices.
 
-See :mod:`geofit.fit.mesh` for the terms, the two data terms and the sampling schedule.
+See :mod:`geofit.fit.mesh` for the terms, the data terms and the sampling schedule.
+
+With ``distance="cloud"`` the target is a point cloud (:class:`geofit.fit._cloud.CloudTarget`):
+the data term is ``mean_i ((P_i - y_i) . n_i)^2`` (source sample ``P_i = (B V)_i`` to the
+tangent plane of its nearest target point ``y_i``, unoriented PCA normal ``n_i``; gradient
+``B^T 2 r_i n_i / n``, the nearest point piecewise constant) plus, as with ``"surface"``,
+``mean_j |Y_j - C_j|^2`` from the target points ``Y_j`` (a fixed subsample per stage) to their
+closest points ``C_j`` on the source surface.
 """
 from __future__ import annotations
 
@@ -34,13 +41,14 @@ class MeshObjective:
     ----------
     source : Mesh
         The mesh being deformed (its faces are fixed; its vertices are the starting point).
-    target : Mesh
-        The target surface, in the frame the fit works in (normally normalised).
+    target : Mesh or (k, 3) float64
+        The target surface, in the frame the fit works in (normally normalised); a point
+        cloud with ``distance="cloud"``.
     weights : dict
         Weights of ``"chamfer"`` (the data term, whatever ``distance``), ``"edge"``,
         ``"normal"`` and ``"laplacian"``; missing terms weigh 0 and are not computed.
-    distance : {"surface", "points"}
-        Data term (see the module docstring).
+    distance : {"surface", "points", "cloud"}
+        Data term (see the module docstring); ``"cloud"`` for a point-cloud target.
     n_samples : int
         Samples drawn on each surface (per step or per stage).
     resample : {"stage", "step"}
@@ -50,8 +58,9 @@ class MeshObjective:
         When given, ``x`` holds the parameters ``u`` instead of the vertices.
     seed : int or numpy.random.Generator
         Sampling randomness.
-    target_distance : geofit.loss.PointToSurface, optional
-        A prebuilt closest-point structure of ``target`` to share between objectives.
+    target_distance : geofit.loss.PointToSurface or CloudTarget, optional
+        A prebuilt closest-point structure of ``target`` to share between objectives (a
+        :class:`~geofit.fit._cloud.CloudTarget` with ``distance="cloud"``).
 
     Attributes
     ----------
@@ -67,7 +76,7 @@ class MeshObjective:
                  large_steps: LargeSteps | None = None, seed=0, target_distance=None):
         from ..loss import PointToSurface
 
-        check_choice(distance, "distance", ("surface", "points"))
+        check_choice(distance, "distance", ("surface", "points", "cloud"))
         check_choice(resample, "resample", ("stage", "step"))
         self.source = source
         self.target = target
@@ -78,10 +87,14 @@ class MeshObjective:
         self.large_steps = large_steps
         self.rng = as_rng(seed)
         self.n_verts = source.n_verts
+        self._p2s = self._cloud = None
         if distance == "surface":
             self._p2s = target_distance if target_distance is not None else PointToSurface(target)
-        else:
-            self._p2s = None
+        elif distance == "cloud":
+            from ._cloud import CloudTarget
+
+            self._cloud = (target_distance if target_distance is not None
+                           else CloudTarget(np.asarray(target, dtype=np.float64)))
         self.last_terms: dict[str, float] = {}
         self.n_evaluations = 0
         self._B = self._Y = self._target_cloud = None
@@ -112,23 +125,31 @@ class MeshObjective:
         """Draw new fixed samples: source barycentrics on ``verts`` (area-weighted there) and
         target points (for ``resample="stage"``)."""
         from ..loss import ChamferTarget
-        from ..ops import sample_points_from_meshes, sample_points_with_jacobian
+        from ..ops import sample_points_with_jacobian
 
         mesh = self.source if verts is None else self.source.update_verts(verts)
         self._B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
-        self._Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng)
+        self._Y = self._target_samples(self.rng)
         self._target_cloud = ChamferTarget(self._Y) if self.distance == "points" else None
+
+    def _target_samples(self, rng) -> np.ndarray:
+        """``n_samples`` points of the target: surface samples, or a subsample of the cloud."""
+        from ..ops import sample_points_from_meshes
+
+        if self._cloud is not None:
+            return self._cloud.subsample(self.n_samples, rng)
+        return sample_points_from_meshes(self.target, self.n_samples, seed=rng)
 
     # -- evaluation
     def _data(self, mesh: Mesh, V: np.ndarray):
         from ..loss import chamfer_distance
-        from ..ops import barycentric_matrix, sample_points_from_meshes
+        from ..ops import barycentric_matrix
         from ..ops import sample_points_with_jacobian
         from ..raycast import PointToMeshDistance
 
         if self.resample_mode == "step":
             B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
-            Y = sample_points_from_meshes(self.target, self.n_samples, seed=self.rng)
+            Y = self._target_samples(self.rng)
             cloud = None
         else:
             B, Y, cloud = self._B, self._Y, self._target_cloud
@@ -140,8 +161,8 @@ class MeshObjective:
                 r = chamfer_distance(P, Y)
                 value, gP = r.loss, r.grad_x
             return float(value), B.T @ gP
-        # exact point-to-surface: source samples -> target surface ...
-        v_pt, gP = self._p2s.loss(P)
+        # exact point-to-surface (or point-to-plane of the cloud): source samples -> target ...
+        v_pt, gP = (self._cloud if self._cloud is not None else self._p2s).loss(P)
         grad = B.T @ gP
         # ... and target samples -> source surface (closest point C = Bc V, envelope theorem)
         c = PointToMeshDistance(mesh).query(Y)
@@ -198,9 +219,12 @@ class MeshObjective:
         rng = self.rng if seed is None else as_rng(seed)
         mesh = self.source.update_verts(verts)
         P = sample_points_from_meshes(mesh, self.n_samples, seed=rng)
-        Y = sample_points_from_meshes(self.target, self.n_samples, seed=rng)
-        p2s = self._p2s if self._p2s is not None else PointToSurface(self.target)
-        d_pt = p2s.query(P).distances
+        Y = self._target_samples(rng)
+        if self._cloud is not None:  # point-to-plane distances to the cloud
+            d_pt = self._cloud.distances(P)
+        else:
+            p2s = self._p2s if self._p2s is not None else PointToSurface(self.target)
+            d_pt = p2s.query(P).distances
         d_tp = PointToMeshDistance(mesh).query(Y).distances
         prec, rec = float(np.mean(d_pt < tau)), float(np.mean(d_tp < tau))
         f = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0

@@ -13,12 +13,18 @@
    midpoint lies ``d`` from the target asks for the length ``l sqrt(eps / d)`` (the error of
    linear interpolation grows as ``l^2``), clipped to ``[l / 2, 3 l / 2]``, and each vertex takes
    the smallest of its edges'. Refinement stops once the accuracy is met.
+   A **point-cloud** target (a ``(k, 3)`` array, a geofit, trimesh or Open3D point cloud)
+   starts instead from a screened Poisson reconstruction of the points, trimmed and decimated
+   (:func:`geofit.fit._cloud.mesh_from_points`, ``init="points"``), and is fitted with the
+   point-to-plane distance to the cloud plus the exact distance from the points to the mesh
+   (``MeshObjective(distance="cloud")``); the edge errors that drive the remeshing are
+   point-to-plane distances too.
 3. The result reports the initialisation, the vertex count and the
    :class:`~geofit.ops.TopologyReport` of the fitted mesh; a self-intersecting result says so
    in its message.
 
-The gradients are those of :class:`~geofit.fit.MeshObjective` (tested there); this module adds
-no new gradient.
+The gradients are those of :class:`~geofit.fit.MeshObjective` (tested there, the cloud mode
+included); this module adds no new gradient.
 """
 from __future__ import annotations
 
@@ -34,7 +40,7 @@ from .history import Clock, FitHistory
 from ._mesh_objective import MeshObjective, mesh_weights
 from ._options import check_int
 from .large_steps import LargeSteps
-from .mesh import MeshFitResult, _as_mesh
+from .mesh import MeshFitResult, _as_mesh, _repair_degenerate
 from .solvers import lbfgs_scipy
 
 __all__ = ["ADAPTIVE_WEIGHTS", "AdaptiveMeshFitResult", "fit_mesh_adaptive", "refine_lengths"]
@@ -53,7 +59,8 @@ class AdaptiveMeshFitResult(MeshFitResult):
     Attributes
     ----------
     init : str
-        The initialisation used: ``"target"`` (decimated target), ``"sphere"`` or ``"user"``.
+        The initialisation used: ``"target"`` (decimated target), ``"points"`` (Poisson
+        reconstruction of a point-cloud target), ``"sphere"`` or ``"user"``.
     topology : geofit.ops.TopologyReport
         Topology of the fitted mesh (genus, boundary loops, parts, non-manifold edges,
         self-intersecting face pairs).
@@ -104,17 +111,20 @@ def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float 
 def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
                       chamfer_l2: float = 3e-5, fscore: float = 0.97, tau: float = 0.01,
                       max_rounds: int = 4, max_verts: int = 30000, n_iter: int = 40,
-                      large_steps: float = 2.0, weights=None, time_budget: float | None = 10.0,
+                      large_steps: float | None = None, weights=None, time_budget: float | None = 10.0,
                       seed=0, evaluator="default") -> AdaptiveMeshFitResult:
     """Fit a mesh to ``target`` from an initial shape with its topology, remeshing as it goes.
 
     Parameters
     ----------
-    target : Mesh or (verts, faces)
-        The surface to fit (any genus, open, several parts).
+    target : Mesh, (verts, faces) or point cloud
+        The surface to fit (any genus, open, several parts), or a point cloud: a (k, 3) float64
+        array, a geofit ``PointCloud`` (or one-cloud ``Pointclouds``), a trimesh or Open3D point
+        cloud, at least 20 points.
     init : {"auto", "sphere", "target"}, int or Mesh
-        Initial mesh (:func:`geofit.fit.init.initial_mesh`); ``"auto"`` is the decimated target.
-        A given Mesh is taken in the target's normalised frame.
+        Initial mesh (:func:`geofit.fit.init.initial_mesh`); ``"auto"`` (or ``"target"``) is the
+        decimated target, or for a point cloud the trimmed, decimated Poisson reconstruction of
+        the points. A given Mesh is taken in the target's normalised frame.
     n_faces : int
         Face budget of the decimated target.
     chamfer_l2, fscore, tau : float
@@ -127,8 +137,12 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         Do not refine past this many vertices.
     n_iter : int
         L-BFGS iterations per round.
-    large_steps : float
-        ``lambda`` of the large-steps parameterisation.
+    large_steps : float, optional
+        ``lambda`` of the large-steps parameterisation. Default: 2 from the data's own shape
+        (``init`` ``"target"`` or ``"points"``, already close), 10 from an ico-sphere or a
+        given mesh, which travel far and need smoother steps (on the dolphin from a collapsed
+        ``ico_sphere(4)``, F@0.01 0.87 with 10 against 0.18 with 2 in 10 s;
+        ``benchmarks/fit_mesh.py``'s stability part).
     weights : dict, optional
         Term weights (default :data:`ADAPTIVE_WEIGHTS`).
     time_budget : float or None
@@ -138,7 +152,8 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
     evaluator : MeshEvaluator, "default" or None
         Accuracy checkpoints of the initial mesh and after each round (``"default"``: 20 000
         samples a side, F@0.01, normalised frame; each checkpoint also records ``n_verts``);
-        their time is not counted.
+        their time is not counted. A point-cloud target has no surface to score against, so
+        its ``"default"`` is None (pass a MeshEvaluator of the true surface when there is one).
 
     Returns
     -------
@@ -161,14 +176,20 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
     from ..loss import PointToSurface
     from ..metrics import MeshEvaluator
     from ..ops import remesh, topology
-    from .init import initial_mesh
+    from ._cloud import CloudTarget, as_cloud_points, is_cloud, mesh_from_points
+    from .init import InitialMesh, initial_mesh
 
-    target_mesh = _as_mesh(target, "target")
+    cloud = is_cloud(target)
+    if cloud:
+        points = as_cloud_points(target, "target")
+        target_mesh = None
+    else:
+        target_mesh = _as_mesh(target, "target")
     n_faces = check_int(n_faces, "n_faces", 4)
     max_rounds = check_int(max_rounds, "max_rounds")
     max_verts = check_int(max_verts, "max_verts", 4)
     n_iter = check_int(n_iter, "n_iter")
-    lam = check_positive(large_steps, "large_steps")
+    lam = None if large_steps is None else check_positive(large_steps, "large_steps")
     chamfer_l2 = check_positive(chamfer_l2, "chamfer_l2", strict=False)
     tau = check_positive(tau, "tau")
     if not 0.0 <= float(fscore) <= 1.0:
@@ -180,18 +201,38 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         if evaluator != "default":
             raise ValueError(f"evaluator: expected a MeshEvaluator, 'default' or None, "
                              f"got {evaluator!r}")
-        evaluator = MeshEvaluator(target_mesh, n_samples=20_000, taus=0.01, normalize=True)
+        evaluator = None if cloud else MeshEvaluator(target_mesh, n_samples=20_000, taus=0.01,
+                                                     normalize=True)
 
-    norm = target_mesh.normalize()
-    tgt = norm.mesh
     rng = as_rng(seed)
     clock = Clock()
     history = FitHistory()
-    start = initial_mesh(init, tgt, n_faces=n_faces)
-    mesh = start.mesh
-    p2s = PointToSurface(tgt)
+    if cloud:  # the same normalisation as Mesh.normalize, on the points
+        center = points.mean(0)
+        scale = float(np.abs(points - center).max())
+        tgt = (points - center) / scale
+        p2s = CloudTarget(tgt)
+        if isinstance(init, str) and init in ("auto", "target"):
+            m0 = mesh_from_points(p2s, n_faces=n_faces, seed=rng)
+            start = InitialMesh(m0, "points", f"Poisson reconstruction of the {len(tgt)} points,"
+                                f" trimmed and decimated to {m0.n_faces} faces "
+                                f"({m0.n_verts} vertices, Open3D)")
+        else:
+            start = initial_mesh(init, None, n_faces=n_faces)
+    else:
+        norm = target_mesh.normalize()
+        center, scale = norm.center, float(norm.scale)
+        tgt = norm.mesh
+        p2s = PointToSurface(tgt)
+        start = initial_mesh(init, tgt, n_faces=n_faces)
+    mesh, n_bad, n_moved = _repair_degenerate(start.mesh)  # a given start may have them
+    if lam is None:
+        lam = 2.0 if start.name in ("target", "points") else 10.0
     history.note(0, clock.elapsed(), f"initial mesh: {start.description}", init=start.name,
                  n_verts=mesh.n_verts)
+    if n_bad:
+        history.note(0, clock.elapsed(), f"repaired {n_bad} zero-area faces of the initial "
+                     f"mesh ({n_moved} vertices moved)", n_degenerate=n_bad, n_moved=n_moved)
     metrics = None
 
     def checkpoint(m: Mesh, step: int) -> None:
@@ -200,7 +241,7 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         if evaluator is None:
             return
         with clock.paused():
-            metrics = evaluator.evaluate(m.update_verts(norm.undo(m.verts)))
+            metrics = evaluator.evaluate(m.update_verts(m.verts * scale + center))
         history.checkpoint(step, clock.elapsed(), dict(metrics.as_dict(), n_verts=m.n_verts))
 
     checkpoint(mesh, 0)
@@ -214,8 +255,8 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
             break
         ls = LargeSteps(mesh, lam)
         ns = min(8000, max(2000, 4 * mesh.n_verts))
-        obj = MeshObjective(mesh, tgt, w, distance="surface", n_samples=ns, large_steps=ls,
-                            seed=rng, target_distance=p2s)
+        obj = MeshObjective(mesh, tgt, w, distance="cloud" if cloud else "surface",
+                            n_samples=ns, large_steps=ls, seed=rng, target_distance=p2s)
         base = evals
 
         def cb(info, _obj=obj, _base=base, _rnd=rnd):
@@ -224,6 +265,8 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
             history.record(_base + info.n_evaluations, clock.elapsed(), info.value,
                            _obj.last_terms, n_params=_obj.n_params, stage=_rnd)
 
+        if time_budget is not None:  # what is left after building the objective
+            remaining = max(time_budget - clock.elapsed(), 1e-6)
         res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=n_iter,
                           time_budget=remaining, callback=cb, clock=clock)
         evals += res.n_evaluations
@@ -251,7 +294,7 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         # remesh towards lengths set by the error at the edge midpoints
         E = mesh.edges
         mid = 0.5 * (mesh.verts[E[:, 0]] + mesh.verts[E[:, 1]])
-        err = p2s.query(mid).distances
+        err = p2s.distances(mid) if cloud else p2s.query(mid).distances
         eps = 0.25 * math.sqrt(chamfer_l2 / 2.0)
         lv = refine_lengths(mesh, err, eps)
         r = remesh(mesh, lv, n_passes=2)
@@ -272,6 +315,6 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
     return AdaptiveMeshFitResult(
         status=status, message=message, history=history, n_params=3 * mesh.n_verts,
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=iters,
-        n_evaluations=evals, mesh=mesh.update_verts(norm.undo(mesh.verts)),
-        mesh_normalized=mesh, center=norm.center.copy(), scale=float(norm.scale),
+        n_evaluations=evals, mesh=mesh.update_verts(mesh.verts * scale + center),
+        mesh_normalized=mesh, center=np.array(center, dtype=np.float64), scale=scale,
         method="adaptive", metrics=metrics, stages=stages, init=start.name, topology=topo)

@@ -300,9 +300,12 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
 
     Parameters
     ----------
-    target : Mesh or (verts, faces)
+    target : Mesh, (verts, faces) or point cloud
         Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
-        the largest absolute coordinate) and returns the result in the original frame.
+        the largest absolute coordinate) and returns the result in the original frame. A point
+        cloud ((k, 3) float64 array, geofit ``PointCloud``/one-cloud ``Pointclouds``, trimesh or
+        Open3D point cloud) is fitted by the default call: a first mesh from the points
+        (Poisson reconstruction, trimmed, decimated), then the adaptive fit to the points.
     init : Mesh, (verts, faces), int, "auto", "sphere" or None
         Starting mesh, an ico-sphere level, or None / ``"auto"``: with no other option (the
         default recipe), :func:`geofit.fit.adaptive.fit_mesh_adaptive`, geofit's best fit for any
@@ -415,6 +418,12 @@ def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | No
 
         return fit_mesh_adaptive(target, seed=seed, evaluator=evaluator,
                                  **({} if time_budget is None else {"time_budget": time_budget}))
+    from ._cloud import is_cloud
+
+    if is_cloud(target):
+        raise ValueError("target: a point cloud is fitted by the default call (fit_mesh(P), "
+                         "optionally with time_budget, seed, evaluator) or by "
+                         "geofit.fit.fit_mesh_adaptive; the other options need a target mesh")
     if isinstance(init, str):  # "sphere": the tutorial's start
         init = None
     plan = _MeshPlan.validate(
@@ -602,7 +611,10 @@ def _solve_stage(plan: _MeshPlan, run: _Run, mesh: Mesh, ls, level: int, stage: 
                         distance=plan.distance, n_samples=plan.stage_samples(mesh),
                         resample="step" if plan.stochastic else "stage", large_steps=ls,
                         seed=run.rng, target_distance=run.p2s)
-    remaining = None if plan.time_budget is None else plan.time_budget - run.clock.elapsed()
+    # what is left after building the objective (at least a moment: one evaluation, then the
+    # solver stops with status "time_budget")
+    remaining = (None if plan.time_budget is None
+                 else max(plan.time_budget - run.clock.elapsed(), 1e-6))
     stall = (_Stall(c2f.stall_window, c2f.stall_rel)
              if c2f is not None and c2f.stall_window else None)
     res = _solve(plan.method, obj, obj.params_from_verts(mesh.verts), n_iter=plan.n_iter,

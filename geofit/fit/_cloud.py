@@ -1,0 +1,258 @@
+"""Point-cloud targets of :func:`geofit.fit.fit_mesh`: the cloud, its normals, a first mesh.
+
+``fit_mesh(P)`` with ``P`` a point cloud (a ``(k, 3)`` array, a geofit ``PointCloud`` or a
+one-cloud ``Pointclouds``, a trimesh or Open3D point cloud) fits a mesh to the points:
+
+* :class:`CloudTarget` holds the points in the fit's frame with a KD-tree (scipy ``cKDTree``,
+  built once) and *unoriented* PCA normals (Open3D ``estimate_normals``, 12 neighbours); the
+  distance of a point ``x`` to the cloud's surface is its distance to the tangent disk of radius
+  ``rho`` (twice the points' spacing) around its nearest point ``y``:
+  ``d^2 = r_n^2 + max(0, r_t - rho)^2`` with ``r_n = (x - y) . n_y`` and ``r_t`` the length of
+  the tangential part of ``x - y``. Inside the cloud it is the point-to-plane distance (as in
+  ICP), which, unlike the distance to the nearest point, does not grow with the spacing; past
+  the cloud's boundary it grows, so surface that extends beyond the points (in their plane,
+  where the plane distance is zero) is pulled back.
+* :func:`orient_normals` orients the normals consistently (Hoppe et al. 1992: propagation along
+  a minimum spanning tree of the k-nearest-neighbour graph; scipy's ``minimum_spanning_tree``
+  and ``breadth_first_order``, the signs composed by pointer doubling, no loop over points).
+* :func:`mesh_from_points` is the first mesh: screened Poisson reconstruction (Open3D,
+  Kazhdan and Hoppe 2013) from the oriented normals, its vertices farther than a few point
+  spacings from the cloud removed (so open surfaces stay open), then quadric decimation
+  (:func:`geofit.fit.init.decimate`). It has the genus, boundaries and parts the points show.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._validate import as_points, as_rng
+from ..structures import Mesh
+
+__all__ = ["CloudTarget", "as_cloud_points", "is_cloud", "mesh_from_points", "orient_normals"]
+
+#: Fewest points a target cloud may have.
+MIN_POINTS = 20
+
+
+def is_cloud(target) -> bool:
+    """Whether ``target`` is a point cloud (not a mesh) for :func:`geofit.fit.fit_mesh`."""
+    from .._foreign import foreign_kind
+    from ..structures import PointCloud, Pointclouds
+
+    if isinstance(target, (PointCloud, Pointclouds)):
+        return True
+    if foreign_kind(target) in ("trimesh.PointCloud", "open3d.PointCloud"):
+        return True
+    return isinstance(target, np.ndarray) and target.ndim == 2
+
+
+def as_cloud_points(target, name: str = "target") -> np.ndarray:
+    """``(k, 3) float64`` points of a point-cloud target (see :func:`is_cloud`).
+
+    Raises
+    ------
+    ValueError
+        If the cloud is not ``(k, 3)``, has NaN or inf coordinates, fewer than
+        :data:`MIN_POINTS` points, or a batch holds more than one cloud.
+    """
+    from ..structures import Pointclouds, as_pointcloud
+
+    if isinstance(target, Pointclouds):
+        if len(target) != 1:
+            raise ValueError(f"{name}: expected one point cloud, got a batch of {len(target)}")
+        target = target[0]
+    if not isinstance(target, np.ndarray):
+        target = as_pointcloud(target, name).points
+    P = as_points(target, name)
+    if len(P) < MIN_POINTS:
+        raise ValueError(f"{name}: expected a point cloud of at least {MIN_POINTS} points, "
+                         f"got {len(P)}")
+    if not float(np.abs(P - P.mean(0)).max()) > 0:
+        raise ValueError(f"{name}: all points coincide")
+    return P
+
+
+def orient_normals(points: np.ndarray, normals: np.ndarray, k: int = 10) -> np.ndarray:
+    """Consistently oriented normals: propagation along a minimum spanning tree.
+
+    Parameters
+    ----------
+    points : (k, 3) float64
+        The cloud.
+    normals : (k, 3) float64
+        Unit normals of either sign.
+    k : int
+        Neighbours per point in the graph.
+
+    Returns
+    -------
+    (k, 3) float64
+        ``normals`` with some rows negated. The graph's edges weigh ``(1.1 - |n_i . n_j|)
+        |p_i - p_j|`` (short edges between nearly parallel normals first, which keeps the
+        propagation from jumping across a thin part); each connected part of the graph is
+        rooted at its point of largest x, whose normal is made to point towards +x (outwards
+        on a closed surface). Sign of a point = product of the relative signs
+        ``sign(n_i . n_parent)`` along its tree path, computed by pointer doubling.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+    from scipy.sparse.csgraph import minimum_spanning_tree
+    from scipy.spatial import cKDTree
+
+    n = len(points)
+    k = min(k, n - 1)
+    dist, idx = cKDTree(points).query(points, k + 1)
+    i = np.repeat(np.arange(n), k)
+    j = idx[:, 1:].ravel()
+    d = dist[:, 1:].ravel()
+    cos = np.abs(np.einsum("ij,ij->i", normals[i], normals[j]))
+    w = (1.1 - cos) * d + 1e-12
+    G = coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+    G = G.maximum(G.T)
+    T = minimum_spanning_tree(G)
+    T = T + T.T
+    n_parts, label = connected_components(T, directed=False)
+    # one root per part: its point of largest x
+    order = np.lexsort((-points[:, 0], label))
+    first = np.r_[True, label[order][1:] != label[order][:-1]]
+    roots = order[first]
+    parent = np.full(n, -1, dtype=np.int64)
+    for r in roots:  # one BFS per connected part (a handful), vectorised inside scipy
+        _, pred = breadth_first_order(T, int(r), directed=False, return_predecessors=True)
+        sel = pred >= 0
+        parent[sel] = pred[sel]
+    rel = np.ones(n)
+    has = parent >= 0
+    rel[has] = np.sign(np.einsum("ij,ij->i", normals[has], normals[parent[has]])) + 0.0
+    rel[rel == 0] = 1.0
+    root_sign = np.where(normals[roots, 0] < 0, -1.0, 1.0)
+    rel[roots] = root_sign
+    # pointer doubling: sign[i] = product of rel along the path from i to its root
+    sign, up = rel.copy(), parent.copy()
+    while (up >= 0).any():
+        a = up >= 0
+        sign[a] *= sign[up[a]]
+        nxt = np.full(n, -1, dtype=np.int64)
+        nxt[a] = up[up[a]]
+        up = nxt
+    return normals * sign[:, None]
+
+
+class CloudTarget:
+    """A fixed target point cloud: KD-tree, unoriented normals, spacing (built once).
+
+    Parameters
+    ----------
+    points : (k, 3) float64
+        The cloud (the fit's frame).
+
+    Attributes
+    ----------
+    points, normals : (k, 3) float64
+        Points and unit PCA normals (12 neighbours; sign arbitrary).
+    spacing : float
+        Median distance of a point to its nearest other point.
+    rho : float
+        Radius of the tangent disks (``2 * spacing``).
+    """
+
+    def __init__(self, points: np.ndarray):
+        import open3d as o3d
+        from scipy.spatial import cKDTree
+
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self.tree = cKDTree(self.points)
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
+        nrm = np.asarray(pcd.normals, dtype=np.float64)
+        bad = ~np.isfinite(nrm).all(1) | (np.linalg.norm(nrm, axis=1) < 0.5)
+        nrm[bad] = [0.0, 0.0, 1.0]
+        self.normals = nrm
+        self.spacing = float(np.median(self.tree.query(self.points, 2)[0][:, 1]))
+        self.rho = 2.0 * self.spacing
+
+    def _residuals(self, X: np.ndarray):
+        """Normal residual ``r_n`` (n,), tangential part ``t`` (n, 3), its excess over ``rho``
+        ``e = max(0, |t| - rho)`` (n,), and the nearest points' normals (n, 3)."""
+        _, idx = self.tree.query(X)
+        d = X - self.points[idx]
+        n = self.normals[idx]
+        rn = np.einsum("ij,ij->i", d, n)
+        t = d - rn[:, None] * n
+        e = np.maximum(np.linalg.norm(t, axis=1) - self.rho, 0.0)
+        return rn, t, e, n
+
+    def distances(self, X: np.ndarray) -> np.ndarray:
+        """(n,) distances of ``X`` to the cloud's surface: ``sqrt(r_n^2 + e^2)``."""
+        rn, _, e, _ = self._residuals(X)
+        return np.sqrt(rn * rn + e * e)
+
+    def loss(self, X: np.ndarray) -> tuple[float, np.ndarray]:
+        """``mean_i (r_n,i^2 + e_i^2)`` and its (n, 3) gradient
+        ``2 (r_n n + e t / |t|) / n``.
+
+        Which point is nearest is piecewise constant and carries no gradient.
+        """
+        rn, t, e, n = self._residuals(X)
+        value = float(np.mean(rn * rn + e * e))
+        tl = np.linalg.norm(t, axis=1)
+        s = np.divide(e, tl, out=np.zeros_like(e), where=e > 0)
+        return value, (2.0 / len(X)) * (rn[:, None] * n + s[:, None] * t)
+
+    def subsample(self, n: int, rng) -> np.ndarray:
+        """(min(n, k), 3) points drawn without replacement."""
+        if n >= len(self.points):
+            return self.points
+        return self.points[np.sort(as_rng(rng).choice(len(self.points), n, replace=False))]
+
+
+def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
+                     n_max: int = 20_000, seed=0) -> Mesh:
+    """A first mesh of a point cloud: screened Poisson, trimmed, decimated (Open3D).
+
+    Parameters
+    ----------
+    cloud : CloudTarget
+        The points and their normals (oriented here with :func:`orient_normals` on at most
+        ``n_max`` of the points).
+    n_faces : int
+        Face budget of the decimated mesh.
+    depth : int
+        Octree depth of the Poisson reconstruction.
+    n_max : int
+        Points used at most.
+    seed : int or numpy.random.Generator
+        Which points when there are more than ``n_max``.
+
+    Returns
+    -------
+    Mesh
+        The reconstruction with the vertices farther than 3 point spacings (and 2 octree
+        cells) from the cloud removed, cleaned and decimated.
+
+    Raises
+    ------
+    ValueError
+        If the reconstruction is empty.
+    """
+    import open3d as o3d
+
+    from .init import decimate
+
+    rng = as_rng(seed)
+    P = cloud.points
+    sel = (np.arange(len(P)) if len(P) <= n_max
+           else np.sort(rng.choice(len(P), n_max, replace=False)))
+    P, N = P[sel], orient_normals(P[sel], cloud.normals[sel])
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pcd.normals = o3d.utility.Vector3dVector(N)
+    m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=int(depth))
+    mv = np.asarray(m.vertices)
+    if len(mv):
+        cell = 2.0 * float(np.abs(P - P.mean(0)).max()) / 2 ** depth
+        far = cloud.tree.query(mv)[0] > max(3.0 * cloud.spacing, 2.0 * cell)
+        m.remove_vertices_by_mask(far)
+    if len(m.triangles) == 0:
+        raise ValueError("target: the Poisson reconstruction of the point cloud is empty")
+    mesh = Mesh(np.asarray(m.vertices, dtype=np.float64),
+                np.asarray(m.triangles, dtype=np.int64))
+    return decimate(mesh, n_faces)
