@@ -82,16 +82,11 @@ def _hull_field(sd: np.ndarray, cameras, P: np.ndarray) -> np.ndarray:
     N, H, W = sd.shape
     field = np.full(len(P), np.inf)
     far = -float(H + W)
-    M = cameras.get_full_projection_transform()  # (N, 4, 4): [P, 1] @ M -> clip coordinates
-    s = 0.5 * min(H, W)
     for i in range(N):  # views (each one vectorised call over all points)
-        q = P @ M[i, :3, [0, 1, 3]].T + M[i, 3, [0, 1, 3]]  # x, y, w
-        w = np.where(np.abs(q[:, 2]) > 1e-12, q[:, 2], 1e-12)
-        # transform_points_screen's pixel coordinates (x right, y down), minus the centre 0.5
-        px = 0.5 * W - s * q[:, 0] / w - 0.5
-        py = 0.5 * H - s * q[:, 1] / w - 0.5
-        val = map_coordinates(sd[i], [py, px], order=1, cval=far)
-        val[q[:, 2] <= 0] = far  # behind the camera
+        cam = cameras[i]
+        xy = cam.transform_points_screen(P, (H, W))[0, :, :2] - 0.5  # pixel centres at integers
+        val = map_coordinates(sd[i], [xy[:, 1], xy[:, 0]], order=1, cval=far)
+        val[cam.transform_points_view(P)[0, :, 2] <= 0] = far  # behind the camera
         np.minimum(field, val, out=field)
     return field
 
