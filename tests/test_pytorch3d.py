@@ -628,21 +628,6 @@ def test_docstring_examples_run():
         assert result.attempted > 0 and result.failed == 0, name
 
 
-def test_custom_objective_guide_runs(tmp_path, monkeypatch):
-    """docs/custom_objective.md: its python blocks run in order (their asserts check the fits
-    and the finite-difference checks)."""
-    import re
-    from pathlib import Path
-
-    text = (Path(__file__).resolve().parents[1] / "docs" / "custom_objective.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(blocks) >= 5
-    monkeypatch.chdir(tmp_path)
-    ns = {"__name__": "guide"}
-    for i, block in enumerate(blocks):  # the guide's blocks, in order
-        exec(compile(block, f"custom_objective.md block {i}", "exec"), ns)
-
-
 def test_tape_sigmoid_sqrt_clamp_expand_split_match_finite_differences():
     """The ops the volume tutorial adds to the tape (its huber: clamp(1e-4).sqrt())."""
     from geofit.pytorch3d.tensor import sigmoid
