@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up geofit on a fresh Debian machine with Python 3.11: system libraries, a venv in .venv,
-# and the package with its test extras. Safe to run again (it only installs what is missing).
+# and the package with its test and docs extras. Safe to run again (it only installs what is missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -22,5 +22,5 @@ fi
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
-.venv/bin/python -m pip install -q -e ".[test]" 2>&1 | grep -v "^WARNING: Location" || true
+.venv/bin/python -m pip install -q -e ".[test,docs]" 2>&1 | grep -v "^WARNING: Location" || true
 .venv/bin/python -c "import geofit, open3d, embreex, nlopt; print('setup: geofit', geofit.__version__, 'ready in .venv')"

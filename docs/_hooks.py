@@ -11,7 +11,7 @@ import posixpath
 import re
 from pathlib import Path
 
-from mkdocs.structure.files import File
+from mkdocs.structure.files import File, InclusionLevel
 
 _LINK = re.compile(r"\]\(([^)\s#]+)(?:#[^)\s]*)?\)")
 
@@ -34,6 +34,7 @@ def on_files(files, config):
     for rel in sorted(extra):
         inside = "repo/" + rel[len("../"):]
         dest = inside[:-3] + ".html" if inside.endswith(".md") else inside
+        # Set explicitly: MkDocs' default exclusion of dot-paths would match the leading "..".
         files.append(File(rel, str(docs), config["site_dir"], config["use_directory_urls"],
-                          dest_uri=dest))
+                          dest_uri=dest, inclusion=InclusionLevel.NOT_IN_NAV))
     return files
