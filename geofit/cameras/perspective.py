@@ -78,6 +78,8 @@ class FoVPerspectiveCameras(_PinholeCameras):
     T : (N, 3) or (3,) float64, optional
         World-to-view translations (default zeros).
 
+    Notes
+    -----
     All per-camera arguments broadcast to the largest batch size ``N`` (each has 1 or N
     entries); they are stored as read-only ``(N,)`` arrays of the same names.
 
@@ -154,6 +156,8 @@ class PerspectiveCameras(_PinholeCameras):
     T : (N, 3) or (3,) float64, optional
         World-to-view translations (default zeros).
 
+    Notes
+    -----
     All per-camera arguments broadcast to the largest batch size ``N``; they are stored as
     read-only arrays ``focal_length (N, 2)``, ``principal_point (N, 2)``, ``znear``, ``zfar``.
 
@@ -215,6 +219,8 @@ class FoVOrthographicCameras(CamerasBase):
     T : (N, 3) or (3,) float64, optional
         World-to-view translations (default zeros).
 
+    Notes
+    -----
     All per-camera arguments broadcast to the largest batch size ``N``.
 
     Examples

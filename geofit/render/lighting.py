@@ -328,9 +328,14 @@ class PointLights(_PhongLights):
         Diffuse colour; default (0.3, 0.3, 0.3).
     specular_color : (N, 3) or (3,) float64
         Specular colour; default (0.2, 0.2, 0.2).
-    location : (N, 3) or (3,) float64
-        Light positions in world coordinates; default (0, 1, 0).
 
+    Other Parameters
+    ----------------
+    location : (N, 3) or (3,) float64
+        Light positions in world coordinates; default (0, 1, 0). Keyword only.
+
+    Notes
+    -----
     Every parameter has 1 or ``N`` rows and broadcasts to ``N``.
 
     Examples
@@ -354,8 +359,12 @@ class DirectionalLights(_PhongLights):
     ----------
     ambient_color, diffuse_color, specular_color : (N, 3) or (3,) float64
         As in :class:`PointLights` (defaults 0.5, 0.3, 0.2 grey).
+
+    Other Parameters
+    ----------------
     direction : (N, 3) or (3,) float64
         Direction *towards* the light (from the surface), world coordinates; default (0, 1, 0).
+        Keyword only.
     """
 
     _PARAMS = _COLORS + ("direction",)

@@ -27,6 +27,8 @@ class Materials:
     shininess : float or (N,) float64
         Phong exponent, >= 0; default 64.
 
+    Notes
+    -----
     Every parameter has 1 or ``N`` entries and broadcasts to ``N``.
 
     Examples
