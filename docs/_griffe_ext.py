@@ -34,7 +34,8 @@ def _span(match: re.Match) -> str:
 
 
 def rst_roles_to_markdown(text: str) -> str:
-    """``:role:`target``` -> `` `target` ``; ``:role:`~a.b``` -> `` `b` ``; ``:role:`t <x>``` -> `` `t` ``."""
+    """``:role:`target``` -> `` `target` ``, ``:role:`~a.b``` -> `` `b` ``,
+    ``:role:`t <x>``` -> `` `t` ``."""
     return _ROLE.sub(_span, text)
 
 

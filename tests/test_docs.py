@@ -1,6 +1,7 @@
 """The README and the docs/ pages stay true: their Python examples run, every geofit name they
 cite exists, and the README keeps the two commands CI reads."""
 import importlib
+import importlib.util
 import re
 from pathlib import Path
 
@@ -43,7 +44,8 @@ def test_readme_is_a_front_page():
 
 def test_skip_marker_is_recognised():
     """A block preceded by the skip marker is left out, the others are kept in order."""
-    text = f"```python\na = 1\n```\n{SKIP}\n```python\nraise SystemExit\n```\n```python\nb = 2\n```\n"
+    text = (f"```python\na = 1\n```\n{SKIP}\n```python\nraise SystemExit\n```\n"
+            "```python\nb = 2\n```\n")
     assert _blocks(text) == ["a = 1\n", "b = 2\n"]
 
 
@@ -79,3 +81,15 @@ NAMES = sorted({(name, _name(page)) for page in PAGES
 def test_every_cited_geofit_name_exists(name, page):
     """Names in backticks (the PyTorch3D tables, the guide) resolve to real objects."""
     assert _resolve(name) is not None, f"{page} cites {name}"
+
+
+def test_docstring_roles_become_markdown():
+    """The site's griffe extension shows Sphinx roles as Markdown code spans, as Sphinx would."""
+    pytest.importorskip("griffe")  # the docs extra
+    spec = importlib.util.spec_from_file_location("_griffe_ext", ROOT / "docs" / "_griffe_ext.py")
+    ext = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ext)
+    convert = ext.rst_roles_to_markdown
+    assert convert("see :func:`geofit.fit.fit_mesh`.") == "see `geofit.fit.fit_mesh`."
+    assert convert(":class:`~geofit.structures.Mesh` and :py:meth:`x <a.b>`") == "`Mesh` and `x`"
+    assert convert("``literal`` and :math:`x^2`") == "``literal`` and `x^2`"
