@@ -93,3 +93,26 @@ def test_docstring_roles_become_markdown():
     assert convert("see :func:`geofit.fit.fit_mesh`.") == "see `geofit.fit.fit_mesh`."
     assert convert(":class:`~geofit.structures.Mesh` and :py:meth:`x <a.b>`") == "`Mesh` and `x`"
     assert convert("``literal`` and :math:`x^2`") == "``literal`` and `x^2`"
+
+
+def test_docstring_tables_become_markdown():
+    """reST simple tables become Markdown tables (a row with a blank first cell continues the
+    row above; a word running past a column start stays whole), and ``::`` becomes ``:``."""
+    pytest.importorskip("griffe")
+    spec = importlib.util.spec_from_file_location("_griffe_ext", ROOT / "docs" / "_griffe_ext.py")
+    ext = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ext)
+    rst = ("Formats::\n\n"
+           "====  =======  ==========\n"
+           "ext   reads    :func:`w` writes\n"
+           "====  =======  ==========\n"
+           "obj   reads_everything  OBJ\n"
+           "                       + MTL\n"
+           "====  =======  ==========\n"
+           "\nafter\n")
+    md = ext.rst_to_markdown(rst).splitlines()
+    assert md[0] == "Formats:"
+    table = [ln for ln in md if ln.startswith("|")]
+    assert table == ["| ext | reads | `w` writes |", "| --- | --- | --- |",
+                     "| obj | reads_everything | OBJ + MTL |"]
+    assert md[-1] == "after"
