@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import pkgutil
 import re
 from typing import Any
 
@@ -112,42 +113,31 @@ class RstToMarkdown(griffe.Extension):
             obj.docstring.value = rst_to_markdown(obj.docstring.value)
 
 
+def _objects(pkg: griffe.Object):
+    """Every object under ``pkg`` (itself included) that is defined there, not an alias."""
+    stack = [pkg]
+    while stack:
+        obj = stack.pop()
+        stack.extend(m for m in obj.members.values() if not m.is_alias)
+        yield obj
+
+
 class RuntimeAll(griffe.Extension):
     """Take ``__all__`` from the imported module wherever the source computes it."""
 
     def on_package(self, *, pkg: griffe.Module, **kwargs: Any) -> None:
-        stack = [pkg]
-        while stack:
-            mod = stack.pop()
-            stack.extend(m for m in mod.modules.values() if not m.is_alias)
-            assigned = mod.members.get("__all__")
+        for mod in _objects(pkg):
+            assigned = mod.members.get("__all__") if mod.is_module else None
             if assigned is None or isinstance(getattr(assigned, "value", None), griffe.ExprList):
                 continue  # no __all__, or a literal list griffe reads itself
             mod.exports = list(importlib.import_module(mod.path).__all__)
-
-
-def _runtime(path: str):
-    """The imported object at a dotted path (module, then attributes)."""
-    parts = path.split(".")
-    for k in range(len(parts), 0, -1):
-        try:
-            obj = importlib.import_module(".".join(parts[:k]))
-        except ImportError:
-            continue
-        for attr in parts[k:]:
-            obj = getattr(obj, attr)
-        return obj
-    raise ImportError(path)
 
 
 class RuntimeDocstrings(griffe.Extension):
     """Take the docstring from the imported object where the source holds a ``%(...)s`` template."""
 
     def on_package(self, *, pkg: griffe.Module, **kwargs: Any) -> None:
-        stack = [pkg]
-        while stack:
-            obj = stack.pop()
-            stack.extend(m for m in obj.members.values() if not m.is_alias)
+        for obj in _objects(pkg):
             if obj.docstring is not None and "%(" in obj.docstring.value:
-                doc = inspect.cleandoc(_runtime(obj.path).__doc__)
+                doc = inspect.cleandoc(pkgutil.resolve_name(obj.path).__doc__)
                 obj.docstring.value = rst_to_markdown(doc)

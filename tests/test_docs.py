@@ -1,7 +1,7 @@
 """The README and the docs/ pages stay true: their Python examples run, every geofit name they
 cite exists, and the README keeps the two commands CI reads."""
-import importlib
 import importlib.util
+import pkgutil
 import re
 from pathlib import Path
 
@@ -59,19 +59,6 @@ def test_python_examples_run(page, tmp_path, monkeypatch):
         exec(compile(block, f"{_name(page)} python block {i}", "exec"), namespace)
 
 
-def _resolve(dotted: str):
-    parts = dotted.split(".")
-    for k in range(len(parts), 0, -1):
-        try:
-            obj = importlib.import_module(".".join(parts[:k]))
-        except ImportError:
-            continue
-        for attr in parts[k:]:
-            obj = getattr(obj, attr)
-        return obj
-    raise ImportError(dotted)
-
-
 NAMES = sorted({(name, _name(page)) for page in PAGES
                 for name in re.findall(r"`(geofit(?:\.[A-Za-z_][A-Za-z0-9_]*)+)",
                                        page.read_text(encoding="utf-8"))})
@@ -80,7 +67,7 @@ NAMES = sorted({(name, _name(page)) for page in PAGES
 @pytest.mark.parametrize("name,page", NAMES, ids=[f"{p}:{n}" for n, p in NAMES])
 def test_every_cited_geofit_name_exists(name, page):
     """Names in backticks (the PyTorch3D tables, the guide) resolve to real objects."""
-    assert _resolve(name) is not None, f"{page} cites {name}"
+    assert pkgutil.resolve_name(name) is not None, f"{page} cites {name}"
 
 
 def test_docstring_roles_become_markdown():
