@@ -1,0 +1,1 @@
+"""Capture layouts (one module per layout), merged in one table."""
