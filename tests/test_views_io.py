@@ -13,6 +13,7 @@ from PIL import Image
 
 import geofit.datasets
 import geofit.io
+import geofit.structures
 from geofit.cameras import (
     FoVOrthographicCameras,
     FoVPerspectiveCameras,
@@ -188,9 +189,13 @@ def test_docstring_examples():
     assert result.attempted >= 3 and result.failed == 0
 
 
-def test_load_views_is_reexported():
-    assert geofit.datasets.load_views is load_views is geofit.io.load_views
-    assert geofit.datasets.save_views is save_views is geofit.io.save_views
+def test_load_views_has_one_home_in_io():
+    """load_views/save_views live in geofit.io only; the dataset type in geofit.structures."""
+    assert load_views is geofit.io.load_views and save_views is geofit.io.save_views
+    assert not hasattr(geofit.datasets, "load_views") and not hasattr(geofit.datasets, "save_views")
+    assert geofit.MultiViewDataset is geofit.structures.MultiViewDataset
+    assert not hasattr(geofit.datasets, "MultiViewDataset") or "MultiViewDataset" not in \
+        geofit.datasets.__all__
 
 
 # ---- bad input: ValueError naming the file and the field ---------------------------------

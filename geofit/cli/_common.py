@@ -42,7 +42,7 @@ def add_capture_arg(p: argparse.ArgumentParser) -> None:
 def capture_views(path: str):
     """``(train, test)`` datasets of a capture folder (see :func:`add_capture_arg`);
     ``train.held_out`` is ``test``."""
-    from ..io.views import _make_dataset, load_views
+    from ..io.views import load_views
 
     folder = Path(path)
     if (folder / "transforms_train.json").is_file() and not (folder / "transforms.json").exists():
@@ -55,12 +55,8 @@ def capture_views(path: str):
     if n < 2:
         raise ValueError(f"CAPTURE: {path} has {n} view; at least 2 are needed (every 8th "
                          "is held out)")
-    held = np.arange(n) % 8 == 0
-    name = data.name
-    train, test = (_make_dataset(data.images[m], data.silhouettes[m], data.cameras[m], name)
-                   for m in (~held, held))
-    train.held_out = test
-    return train, test
+    train = data.split(8)
+    return train, train.held_out
 
 
 def save_png(path: Path, rows: list) -> None:

@@ -84,7 +84,7 @@ def dataset_argument(dataset, args: tuple, *, fit: str, images_required: bool = 
     form ``fit(dataset, ...)`` or the former ``fit(images, silhouettes, cameras, ...)`` (with a
     DeprecationWarning; the images and silhouettes are clipped to [0, 1] as the former fits
     did)."""
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
 
     if args:
         if len(args) != 2:

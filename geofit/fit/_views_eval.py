@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..datasets import MultiViewDataset
+from ..structures import MultiViewDataset
 from ..metrics import psnr, silhouette_iou
 from ..structures import Mesh, TexturesVertex
 from ._views_objective import dataset_lights

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..datasets import MultiViewDataset
+from ..structures import MultiViewDataset
 from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
 from ..render.blending import BlendParams
 from ..render.soft import (

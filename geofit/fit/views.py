@@ -63,7 +63,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import as_rng, check_choice, check_positive
-from ..datasets import MultiViewDataset
+from ..structures import MultiViewDataset
 from ..render.soft import SoftRasterizationSettings
 from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesVertex, as_mesh

@@ -1,7 +1,7 @@
 """Multi-view captures in and out: NeRF/Blender ``transforms.json``, COLMAP text models, OpenCV K/R/t.
 
 :func:`load_views` reads a capture folder (or its camera file) into a
-:class:`geofit.datasets.MultiViewDataset`; :func:`save_views` writes a dataset back out in any of
+:class:`geofit.structures.MultiViewDataset`; :func:`save_views` writes a dataset back out in any of
 the three layouts, so a fitted scene and its cameras can be opened by other tools.
 
 Layouts
@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..structures import MultiViewDataset
 from .captures._files import _find_image, _gather, _resolve
 
 __all__ = ["VIEW_FORMATS", "load_views", "save_views"]
@@ -57,13 +58,11 @@ _COLMAP_MODELS = {"PINHOLE": 4, "SIMPLE_PINHOLE": 3}
 
 
 def _make_dataset(images: np.ndarray, silhouettes: np.ndarray, cameras, name: str):
-    """The one place a loaded capture becomes a :class:`geofit.datasets.MultiViewDataset`.
+    """The one place a loaded capture becomes a :class:`geofit.structures.MultiViewDataset`.
 
     ``MultiViewDataset(images=, silhouettes=, cameras=, name=)`` with the cameras' azimuth and
     elevation (degrees, about the origin) computed from the camera centres.
     """
-    from ..datasets import MultiViewDataset
-
     C = cameras.get_camera_center()
     r = np.linalg.norm(C, axis=1)
     elev = np.degrees(np.arcsin(np.clip(C[:, 1] / np.maximum(r, 1e-300), -1.0, 1.0)))
