@@ -198,7 +198,7 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
             sil = (sil > 1e-4).astype(np.float64)
     return MultiViewDataset(
         images=images, silhouettes=sil, cameras=cameras,
-        lights=lights, name=name, azim=az, elev=el, dist=dist, mesh=mesh,
+        lights=lights, background=bg, name=name, azim=az, elev=el, dist=dist, mesh=mesh,
         config={"image_size": size, "dist": dist, "background": bg.tolist(),
                 "light_location": light.tolist(), "silhouettes": silhouettes,
                 "sigma": _SIGMA, "blur_radius": SILHOUETTE_BLUR_RADIUS, "faces_per_pixel": 50})

@@ -134,7 +134,7 @@ def test_transforms_per_frame_intrinsics_override_the_top_level(tmp_path):
                    {"file_path": "im1.png", "transform_matrix": eye.tolist(), "fl_x": 40.0,
                     "cx": 11.0}]}))
     data = load_views(tmp_path)
-    np.testing.assert_array_equal(data.silhouettes, 1.0)  # RGB only: the whole image
+    assert data.silhouettes is None  # RGB only: silhouettes unknown
     X = np.array([[0.2, -0.1, 1.0]])  # 2 units in front (the camera looks down -z)
     px = data.cameras.transform_points_screen(X, (H, W))[:, 0, :2]
     # OpenCV camera coordinates of X: x right = 0.2, y down = +0.1, depth 2

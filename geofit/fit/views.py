@@ -506,6 +506,7 @@ class _ViewsPlan:
         """Check every option once and fill in the recipe's."""
         if not isinstance(dataset, MultiViewDataset):
             raise TypeError(f"dataset: expected a MultiViewDataset, got {type(dataset)!r}")
+        dataset.require_silhouettes("fit_mesh_to_views")
         recipe = recipe_name(recipe, RECIPES, fit="fit_mesh_to_views")
         rec = RECIPES[recipe]
         silhouette_method, silhouette_loss, textured_method, textured_init, large_steps = \

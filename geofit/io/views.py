@@ -26,8 +26,7 @@ Pixel coordinates are those of :mod:`geofit.cameras.conversions` (and COLMAP's, 
 
 Images are read with pillow (8-bit: value / 255; 16-bit greyscale: value / 65535); 16-bit colour
 PNGs, which pillow reduces to 8 bits, are read and written with pypng so they keep their values.
-Without a mask file or an alpha channel a view's silhouette is all ones (the whole image is the
-object). Referenced files must lie inside the capture folder: an absolute path or one that
+Without mask files or an alpha channel the silhouettes are unknown (None). Referenced files must lie inside the capture folder: an absolute path or one that
 leaves it (``../``) is refused unless ``allow_outside=True``.
 """
 from __future__ import annotations
@@ -59,7 +58,10 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
         Allow image and mask paths that are absolute or lead out of the capture folder.
     background : (3,) float64, optional
         Composite RGBA images over this colour (``rgb * alpha + background * (1 - alpha)``);
-        by default the stored RGB is kept as it is.
+        by default the capture's metadata colour (``"background"`` in ``transforms.json`` or
+        ``cameras.json``) if any, else the stored RGB is kept as it is. The dataset's
+        ``background`` is that colour, else the uniform colour of the pixels outside every
+        silhouette, else None.
     znear, zfar : float
         Clipping planes of the cameras (captures do not store them).
     name : str, optional
@@ -70,7 +72,11 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
     MultiViewDataset
         ``images (N, H, W, 3)`` and ``silhouettes (N, H, W)`` float64 in [0, 1] and ``N``
         cameras: :class:`~geofit.cameras.FoVPerspectiveCameras` when every principal point is
-        the image centre, else :class:`~geofit.cameras.PerspectiveCameras`.
+        the image centre, else :class:`~geofit.cameras.PerspectiveCameras`. Silhouettes are
+        the masks, else the alpha channel, else None (unknown; see
+        :data:`geofit.structures.views.UNKNOWN_SILHOUETTES`). ``lights`` is None: a capture's
+        lighting is in its pixels, and the fits that shade fit unlit colour. The
+        NeRF-synthetic split folder gives its test views as ``held_out``.
 
     Raises
     ------
@@ -111,14 +117,16 @@ def _check_dataset(dataset):
             raise TypeError(f"dataset: expected a MultiViewDataset (images, silhouettes, "
                             f"cameras), got {type(dataset).__name__} without {key!r}")
     images = as_array(dataset.images, "dataset.images")
-    sils = as_array(dataset.silhouettes, "dataset.silhouettes")
     if images.ndim != 4 or images.shape[3] != 3 or images.shape[0] == 0:
         raise ValueError(f"dataset.images: expected shape (N, H, W, 3), got {images.shape}")
-    if sils.shape != images.shape[:3]:
-        raise ValueError(f"dataset.silhouettes: expected shape {images.shape[:3]}, got "
-                         f"{sils.shape}")
+    sils = None  # silhouettes unknown: no masks, no alpha
+    if dataset.silhouettes is not None:
+        sils = as_array(dataset.silhouettes, "dataset.silhouettes")
+        if sils.shape != images.shape[:3]:
+            raise ValueError(f"dataset.silhouettes: expected shape {images.shape[:3]}, got "
+                             f"{sils.shape}")
     for nm, a in (("images", images), ("silhouettes", sils)):
-        if a.min() < 0 or a.max() > 1:
+        if a is not None and (a.min() < 0 or a.max() > 1):
             raise ValueError(f"dataset.{nm}: expected values in [0, 1], got range "
                              f"[{a.min():g}, {a.max():g}]")
     if len(dataset.cameras) != images.shape[0]:
@@ -136,8 +144,9 @@ def save_views(path, dataset, format: str = "transforms", *, bit_depth: int = 8,
     path : str or Path
         Folder to write (created if needed).
     dataset : MultiViewDataset
-        Anything with ``images (N, H, W, 3)``, ``silhouettes (N, H, W)`` in [0, 1] and
-        ``N`` perspective ``cameras``.
+        Anything with ``images (N, H, W, 3)``, ``silhouettes (N, H, W)`` in [0, 1] (or None:
+        no masks written) and ``N`` perspective ``cameras``; its ``background`` colour, when
+        set, is written to the camera file of the JSON layouts.
     format : {"transforms", "colmap", "opencv"}
         One of :data:`VIEW_FORMATS`:
         ``"transforms"``: ``transforms.json`` and RGBA PNGs ``images/r_000.png`` (alpha = the
@@ -168,4 +177,5 @@ def save_views(path, dataset, format: str = "transforms", *, bit_depth: int = 8,
     if bit_depth not in (8, 16) or isinstance(bit_depth, bool):
         raise ValueError(f"bit_depth: expected 8 or 16, got {bit_depth!r}")
     images, sils, cameras = _check_dataset(dataset)
-    return SAVERS[format](Path(path), images, sils, cameras, bit_depth, overwrite)
+    background = getattr(dataset, "background", None)
+    return SAVERS[format](Path(path), images, sils, cameras, bit_depth, overwrite, background)

@@ -18,7 +18,16 @@ from .._validate import check_int as _count
 from ..cameras import CamerasBase
 from .mesh import Mesh
 
-__all__ = ["MultiViewDataset"]
+__all__ = ["UNKNOWN_SILHOUETTES", "MultiViewDataset"]
+
+#: What a dataset without silhouettes means, and what the fits do then.
+UNKNOWN_SILHOUETTES = (
+    "silhouettes unknown: the capture has no masks and no alpha channel. fit_volume and "
+    "fit_nerf fit without them (every pixel is taken as showing the scene: no carving, the "
+    "background becomes part of the fit); fit_mesh_to_views needs them. To make masks: segment "
+    "the object in each image (e.g. rembg, Segment Anything, or a chroma key) and save them as "
+    "the images' alpha channel (RGBA PNGs), as masks/NAME.png beside images/ (COLMAP), as "
+    "frames[i].mask_path (transforms.json) or views[i].mask (cameras.json)")
 
 
 @dataclass(kw_only=True)
@@ -29,13 +38,18 @@ class MultiViewDataset:
     ----------
     images : (N, H, W, 3) float64 or None
         RGB in [0, 1] (None for silhouettes only).
-    silhouettes : (N, H, W) float64
-        Silhouettes in [0, 1] (soft or binary).
+    silhouettes : (N, H, W) float64 or None
+        Silhouettes in [0, 1] (soft or binary); None when unknown (a capture without masks or
+        alpha, see :data:`UNKNOWN_SILHOUETTES`), then ``images`` are required.
     cameras : CamerasBase
         The ``N`` cameras (PyTorch3D conventions).
     lights : PointLights, DirectionalLights or AmbientLights, optional
-        The lights the images were rendered with (the fits that shade assume PyTorch3D's
-        tutorial light, a point light at (0, 0, -3), when None).
+        The lights the images were rendered with, when known (synthetic datasets). None (a
+        capture: its lighting is in its pixels): the fits that shade fit unlit colour, what
+        the camera saw (``AmbientLights()``).
+    background : (3,) float64, optional
+        The colour behind the object in ``images`` when known (from a capture's alpha or
+        metadata, or the renderer's); held-out figures are rendered on it.
     name : str
         What the views show (``"cow"``, the stand-in's name, a capture's folder name).
     azim, elev : (N,) float64, optional
@@ -63,6 +77,7 @@ class MultiViewDataset:
     silhouettes: np.ndarray
     cameras: CamerasBase
     lights: Any = None
+    background: np.ndarray | None = None
     name: str = ""
     azim: np.ndarray | None = None
     elev: np.ndarray | None = None
@@ -77,18 +92,28 @@ class MultiViewDataset:
         n = len(self.cameras)
         if n == 0:
             raise ValueError("cameras: expected at least one camera, got 0")
-        self.silhouettes = as_array(self.silhouettes, "silhouettes", (None, None, None))
-        if self.silhouettes.shape[0] != n:
-            raise ValueError(f"silhouettes, cameras: expected one camera per view, got "
-                             f"{self.silhouettes.shape[0]} silhouettes and {n} cameras")
-        H, W = self.silhouettes.shape[1:]
-        if H < 2 or W < 2:
-            raise ValueError(f"silhouettes: expected images of at least 2 x 2 pixels, got "
-                             f"{(H, W)}")
-        _check_unit_range(self.silhouettes, "silhouettes")
+        if self.silhouettes is None:
+            if self.images is None:
+                raise ValueError("silhouettes, images: expected at least one of them, got None "
+                                 "for both")
+            self.images = as_unit_images(self.images, "images", (n, None, None, 3))
+            H, W = self.images.shape[1:3]
+        else:
+            self.silhouettes = as_array(self.silhouettes, "silhouettes", (None, None, None))
+            if self.silhouettes.shape[0] != n:
+                raise ValueError(f"silhouettes, cameras: expected one camera per view, got "
+                                 f"{self.silhouettes.shape[0]} silhouettes and {n} cameras")
+            H, W = self.silhouettes.shape[1:]
+            _check_size(H, W, "silhouettes")
+            _check_unit_range(self.silhouettes, "silhouettes")
+            if self.images is not None:
+                self.images = as_unit_images(self.images, "images", (n, H, W, 3))
+        _check_size(H, W, "images" if self.silhouettes is None else "silhouettes")
         if self.images is not None:
-            self.images = as_unit_images(self.images, "images", (n, H, W, 3))
             _check_unit_range(self.images, "images")
+        if self.background is not None:
+            self.background = as_array(self.background, "background", (3,))
+            _check_unit_range(self.background, "background")
         if not isinstance(self.name, str):
             raise TypeError(f"name: expected a str, got {type(self.name)!r}")
         for nm in ("azim", "elev"):
@@ -105,18 +130,28 @@ class MultiViewDataset:
 
     # -- size and selection
     def __len__(self) -> int:
-        return int(self.silhouettes.shape[0])
+        return len(self.cameras)
 
     @property
     def image_size(self) -> tuple[int, int]:
         """``(H, W)`` in pixels."""
-        return tuple(int(s) for s in self.silhouettes.shape[1:])
+        a = self.images if self.silhouettes is None else self.silhouettes
+        return int(a.shape[1]), int(a.shape[2])
+
+    def require_silhouettes(self, fit: str) -> np.ndarray:
+        """The silhouettes, or a ValueError for ``fit`` saying how to make them."""
+        if self.silhouettes is None:
+            raise ValueError(f"dataset: {fit} needs silhouettes and {self.name!r} has none "
+                             f"({UNKNOWN_SILHOUETTES})")
+        return self.silhouettes
 
     def __repr__(self) -> str:
-        N, H, W = self.silhouettes.shape
+        N, (H, W) = len(self), self.image_size
         parts = [f"{N} views of {self.name!r}", f"{H}x{W}"]
         if self.images is None:
             parts.append("silhouettes only")
+        if self.silhouettes is None:
+            parts.append("silhouettes unknown")
         if self.held_out is not None:
             parts.append(f"{len(self.held_out)} held out")
         return f"MultiViewDataset({', '.join(parts)})"
@@ -127,7 +162,8 @@ class MultiViewDataset:
         idx = np.atleast_1d(np.arange(len(self))[index])
         return self._replace(
             images=None if self.images is None else self.images[idx],
-            silhouettes=self.silhouettes[idx], cameras=self.cameras[idx],
+            silhouettes=None if self.silhouettes is None else self.silhouettes[idx],
+            cameras=self.cameras[idx],
             azim=None if self.azim is None else self.azim[idx],
             elev=None if self.elev is None else self.elev[idx])
 
@@ -189,11 +225,13 @@ class MultiViewDataset:
         factor = _count(factor, "factor")
         if factor == 1:
             return self
-        n, H, W = self.silhouettes.shape
+        n, (H, W) = len(self), self.image_size
         if H % factor or W % factor:
             raise ValueError(f"factor: {factor} does not divide the image size {(H, W)}")
         h, w = H // factor, W // factor
-        sil = self.silhouettes.reshape(n, h, factor, w, factor).mean(axis=(2, 4))
+        sil = None
+        if self.silhouettes is not None:
+            sil = self.silhouettes.reshape(n, h, factor, w, factor).mean(axis=(2, 4))
         img = None
         if self.images is not None:
             img = self.images.reshape(n, h, factor, w, factor, 3).mean(axis=(2, 4))
@@ -204,6 +242,11 @@ class MultiViewDataset:
         kw = {f.name: getattr(self, f.name) for f in fields(MultiViewDataset)}
         kw.update(changes)
         return MultiViewDataset(**kw)
+
+
+def _check_size(H: int, W: int, name: str) -> None:
+    if H < 2 or W < 2:
+        raise ValueError(f"{name}: expected images of at least 2 x 2 pixels, got {(H, W)}")
 
 
 def _check_unit_range(a: np.ndarray, name: str) -> None:

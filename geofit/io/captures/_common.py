@@ -111,7 +111,8 @@ def _json_entries(file: Path, key: str):
 
 def build_dataset(views: list, file: Path, K, pose: tuple, convert: Callable,
                   options: ReadOptions, folder: Path, *, distortion: np.ndarray | None = None,
-                  fisheye: bool = False) -> MultiViewDataset:
+                  fisheye: bool = False, background: np.ndarray | None = None
+                  ) -> MultiViewDataset:
     """Read the views' images (and masks) and build the dataset.
 
     Parameters
@@ -136,19 +137,51 @@ def build_dataset(views: list, file: Path, K, pose: tuple, convert: Callable,
         masks are undistorted to the pinhole camera with the same ``K``.
     fisheye : bool
         ``distortion`` holds OpenCV's fisheye coefficients.
+    background : (3,) float64, optional
+        The background colour the capture's metadata names.
+
+    Notes
+    -----
+    The dataset's ``background``: ``options.background`` (the caller's), else the metadata's
+    (RGBA images are composited over it), else the colour of the pixels outside every
+    silhouette when they are uniform (99% within 2/255 of their median), else None (unknown).
+    Silhouettes are None (unknown) when no view has a mask or an alpha channel. ``lights``
+    stay None: a capture's lighting is in its pixels.
     """
-    images, sils = _gather(views, str(file), options.background)
+    bg = options.background if options.background is not None else background
+    images, sils = _gather(views, str(file), bg)
     H, W = images.shape[1:3]
     K = K(H, W) if callable(K) else K
     if distortion is not None and np.any(distortion != 0):
         images, sils = undistort(images, sils, K, distortion, fisheye)
+    if bg is None and sils is not None:
+        bg = _uniform_background(images, sils)
     cameras = convert(*pose, K, (H, W), znear=options.znear, zfar=options.zfar)
     C = cameras.get_camera_center()
     r = np.linalg.norm(C, axis=1)
     elev = np.degrees(np.arcsin(np.clip(C[:, 1] / np.maximum(r, 1e-300), -1.0, 1.0)))
     azim = np.degrees(np.arctan2(C[:, 0], C[:, 2]))
-    return MultiViewDataset(images=images, silhouettes=sils, cameras=cameras,
+    return MultiViewDataset(images=images, silhouettes=sils, cameras=cameras, background=bg,
                             name=options.name or folder.resolve().name, azim=azim, elev=elev)
+
+
+def _uniform_background(images: np.ndarray, sils: np.ndarray) -> np.ndarray | None:
+    """The median colour of the pixels outside every silhouette when 99% of them lie within
+    2/255 of it (a rendered or keyed background), else None."""
+    px = images[sils == 0.0]
+    if len(px) < 16:
+        return None
+    med = np.median(px, axis=0)
+    if np.quantile(np.abs(px - med).max(axis=1), 0.99) > 2.0 / 255.0:
+        return None
+    return med
+
+
+def metadata_background(data: dict, where: str) -> np.ndarray | None:
+    """``data["background"]`` (RGB in [0, 1]) of a capture's JSON, or None."""
+    if data.get("background") is None:
+        return None
+    return _colour(data["background"], f"{where}.background")
 
 
 # --------------------------------------------------------------------------------------------

@@ -122,7 +122,7 @@ def _gather(views: list, where_file: str, background):
 
     ``views`` holds dicts with ``image`` (Path), ``where`` and optional ``mask`` (Path) and
     ``size`` ((H, W) declared by the camera file). Returns images ``(N, H, W, 3)``, silhouettes
-    ``(N, H, W)``.
+    ``(N, H, W)`` (None when no view has a mask or alpha: silhouettes unknown).
     """
     images, sils, size0 = [], [], None
     for v in views:  # one file per view
@@ -136,7 +136,7 @@ def _gather(views: list, where_file: str, background):
         elif alpha is not None:
             sil = alpha
         else:
-            sil = np.ones(rgb.shape[:2])
+            sil = None
         if background is not None and alpha is not None:
             rgb = rgb * alpha[..., None] + background * (1.0 - alpha[..., None])
         hw = rgb.shape[:2]
@@ -149,6 +149,13 @@ def _gather(views: list, where_file: str, background):
             raise ValueError(f"{v['where']}: image {str(v['image'])!r} is {hw[0]}x{hw[1]}, "
                              f"the first view's {size0[0]}x{size0[1]}: every view of "
                              f"{where_file} must have the same size")
+        if sils and (sil is None) != (sils[0] is None):
+            raise ValueError(f"{v['where']}: image {str(v['image'])!r} "
+                             f"{'has no' if sil is None else 'has a'} mask or alpha channel, "
+                             f"the first view's {'has' if sil is None else 'has none'}: give "
+                             "every view a mask, or none")
         images.append(rgb)
         sils.append(sil)
+    if sils[0] is None:
+        return np.ascontiguousarray(np.stack(images)), None
     return np.ascontiguousarray(np.stack(images)), np.ascontiguousarray(np.stack(sils))

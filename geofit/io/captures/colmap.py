@@ -250,18 +250,21 @@ def detect(path: Path):
     return None
 
 
-def save_colmap(root: Path, images: np.ndarray, sils: np.ndarray, cameras, bit_depth: int,
-                overwrite: bool) -> Path:
+def save_colmap(root: Path, images: np.ndarray, sils: np.ndarray | None, cameras,
+                bit_depth: int, overwrite: bool, background: np.ndarray | None) -> Path:
     """``sparse/0/{cameras,images,points3D}.txt`` (one PINHOLE camera per view),
-    ``images/000.png`` (RGB) and ``masks/000.png``."""
+    ``images/000.png`` (RGB) and ``masks/000.png`` (none without silhouettes; COLMAP has no
+    place for the ``background``)."""
     target = _target(root / "sparse/0/cameras.txt", overwrite)
-    N, H, W = sils.shape
+    N, H, W = images.shape[:3]
     names = [f"{i:03d}.png" for i in range(N)]
-    for sub in ("images", "masks"):
-        (root / sub).mkdir(exist_ok=True)
+    (root / "images").mkdir(exist_ok=True)
+    if sils is not None:
+        (root / "masks").mkdir(exist_ok=True)
     for i in range(N):  # one file per view
         _write_image(root / "images" / names[i], images[i], bit_depth)
-        _write_image(root / "masks" / names[i], sils[i], bit_depth)
+        if sils is not None:
+            _write_image(root / "masks" / names[i], sils[i], bit_depth)
     q, t, K = colmap_from_cameras(cameras, (H, W))
     cam_lines = ["# Camera list with one line of data per camera:",
                  "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]", f"# Number of cameras: {N}"]

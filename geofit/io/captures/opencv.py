@@ -23,6 +23,7 @@ from ._common import (
     _target,
     _write_image,
     build_dataset,
+    metadata_background,
 )
 from ._files import _find_image, _resolve
 
@@ -38,7 +39,7 @@ def _dist(value, where: str) -> np.ndarray:
 
 def load_opencv(file: Path, options: ReadOptions):
     """Read ``cameras.json`` (see the module notes)."""
-    _, entries = _json_entries(file, "views")
+    data, entries = _json_entries(file, "views")
     root = file.parent
     views, K, R, t, dist = [], [], [], [], []
     for where, e in entries:  # one entry per view
@@ -63,7 +64,8 @@ def load_opencv(file: Path, options: ReadOptions):
         views.append({"image": image, "mask": mask, "where": where})
     return build_dataset(views, file, np.stack(K), (np.stack(R), np.stack(t)),
                          cameras_from_opencv_projection, options, root,
-                         distortion=np.stack(dist))
+                         distortion=np.stack(dist),
+                         background=metadata_background(data, str(file)))
 
 
 def detect(path: Path):
@@ -77,22 +79,31 @@ def detect(path: Path):
     return None
 
 
-def save_opencv(root: Path, images: np.ndarray, sils: np.ndarray, cameras, bit_depth: int,
-                overwrite: bool) -> Path:
-    """``cameras.json``, ``images/000.png`` and ``masks/000.png``."""
+def save_opencv(root: Path, images: np.ndarray, sils: np.ndarray | None, cameras,
+                bit_depth: int, overwrite: bool, background: np.ndarray | None) -> Path:
+    """``cameras.json``, ``images/000.png`` and ``masks/000.png`` (none without
+    silhouettes), with the ``background`` colour when known."""
     target = _target(root / "cameras.json", overwrite)
-    N, H, W = sils.shape
+    N, H, W = images.shape[:3]
     names = [f"{i:03d}.png" for i in range(N)]
-    for sub in ("images", "masks"):
-        (root / sub).mkdir(exist_ok=True)
+    write_masks = sils is not None
+    (root / "images").mkdir(exist_ok=True)
+    if write_masks:
+        (root / "masks").mkdir(exist_ok=True)
     for i in range(N):  # one file per view
         _write_image(root / "images" / names[i], images[i], bit_depth)
-        _write_image(root / "masks" / names[i], sils[i], bit_depth)
+        if write_masks:
+            _write_image(root / "masks" / names[i], sils[i], bit_depth)
     R, t, K = opencv_from_cameras_projection(cameras, (H, W))
-    views = [{"image": f"images/{names[i]}", "mask": f"masks/{names[i]}",
-              "K": K[i].tolist(), "R": R[i].tolist(), "t": t[i].tolist()} for i in range(N)]
+    views = [{"image": f"images/{names[i]}", "K": K[i].tolist(), "R": R[i].tolist(),
+              "t": t[i].tolist()} for i in range(N)]
+    if write_masks:
+        for i, v in enumerate(views):
+            v["mask"] = f"masks/{names[i]}"
     data = {"convention": "opencv", "pixel_origin": "top-left corner of the top-left pixel",
             "width": W, "height": H, "views": views}
+    if background is not None:
+        data["background"] = np.asarray(background, dtype=np.float64).tolist()
     target.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     return target
 

@@ -34,6 +34,7 @@ from ._common import (
     _target,
     _write_image,
     build_dataset,
+    metadata_background,
 )
 from ._files import _find_image, _resolve
 
@@ -135,7 +136,8 @@ def load_transforms(file: Path, options: ReadOptions):
         return np.stack([_intrinsics_nerf(d, H, W, w) for w, d in intr])
 
     return build_dataset(views, file, K, (np.stack(c2w),), cameras_from_opengl, options, root,
-                         distortion=dist, fisheye=fisheye)
+                         distortion=dist, fisheye=fisheye,
+                         background=metadata_background(data, str(file)))
 
 
 def load_nerf_synthetic(folder: Path, options: ReadOptions):
@@ -169,24 +171,27 @@ def detect(path: Path):
     return None
 
 
-def save_transforms(root: Path, images: np.ndarray, sils: np.ndarray, cameras, bit_depth: int,
-                    overwrite: bool) -> Path:
-    """``transforms.json`` and RGBA PNGs ``images/r_000.png`` (alpha = the silhouette)."""
+def save_transforms(root: Path, images: np.ndarray, sils: np.ndarray | None, cameras,
+                    bit_depth: int, overwrite: bool, background: np.ndarray | None) -> Path:
+    """``transforms.json`` and RGBA PNGs ``images/r_000.png`` (alpha = the silhouette; RGB
+    without silhouettes), with the ``background`` colour when known."""
     target = _target(root / "transforms.json", overwrite)
     (root / "images").mkdir(exist_ok=True)
-    N, H, W = sils.shape
+    N, H, W = images.shape[:3]
     c2w, K = opengl_from_cameras(cameras, (H, W))
     shared = bool(np.all(K == K[:1]))
     frames = []
     for i in range(N):  # one file per view
         rel = f"images/r_{i:03d}.png"
-        _write_image(root / rel, np.concatenate([images[i], sils[i][..., None]], axis=2),
-                     bit_depth)
+        _write_image(root / rel, images[i] if sils is None else
+                     np.concatenate([images[i], sils[i][..., None]], axis=2), bit_depth)
         fr = {"file_path": rel, "transform_matrix": c2w[i].tolist()}
         if not shared:
             fr.update(_nerf_intrinsics(K[i], H, W))
         frames.append(fr)
     data = _nerf_intrinsics(K[0], H, W) if shared else {"w": W, "h": H}
+    if background is not None:
+        data["background"] = np.asarray(background, dtype=np.float64).tolist()
     data["frames"] = frames
     target.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     return target
