@@ -280,3 +280,17 @@ def test_as_mesh_takes_open3d_tensor_meshes_and_vf_pairs():
         as_mesh((s.verts, s.faces + 1000))
     with pytest.raises(TypeError, match=r"\(V, F\) pair"):
         as_mesh("sphere")
+
+
+def test_nerf_fit_runs_without_silhouettes():
+    """fit_nerf takes a dataset (and held-out views) with unknown silhouettes."""
+    from geofit.fit.nerf import NerfConfig, fit_nerf
+
+    data = render_views(_coloured_sphere(), np.arange(4) * 90.0, 0.0, image_size=16)
+    data = MultiViewDataset(images=data.images, silhouettes=None, cameras=data.cameras)
+    cfg = NerfConfig.scene(n_harmonic_functions=2, n_hidden_neurons=12, n_hidden_color=8,
+                           n_harmonic_functions_dir=1, n_pts_per_ray=16, n_rays_per_image=32,
+                           batch_size=2, hull_resolution=16, n_iter=4, density_grid_warmup=2,
+                           density_grid_every=2, n_threads=1)
+    res = fit_nerf(data.split(2), config=cfg, progress=False)
+    assert len(res.history.loss) > 0 and np.all(np.isfinite(res.history.loss))

@@ -187,8 +187,8 @@ def _load_capture(folder: Path, background: tuple):
     from ..io import load_views
 
     ds = load_views(folder, background=background)
-    return (np.asarray(ds.images, np.float64)[..., :3], np.asarray(ds.silhouettes, np.float64),
-            ds.cameras)
+    sils = None if ds.silhouettes is None else np.asarray(ds.silhouettes, np.float64)  # unknown
+    return np.asarray(ds.images, np.float64)[..., :3], sils, ds.cameras
 
 
 def _split(images, silhouettes, cameras):
@@ -201,8 +201,8 @@ def _split(images, silhouettes, cameras):
     if not held.any():
         held[n // 2] = True
     tr, te = np.flatnonzero(~held), np.flatnonzero(held)
-    return ((images[tr], silhouettes[tr], cameras[tr]),
-            (images[te], silhouettes[te], cameras[te]))
+    return tuple((images[i], None if silhouettes is None else silhouettes[i], cameras[i])
+                 for i in (tr, te))
 
 
 def _tutorial5_views(path: Path, s: dict):
