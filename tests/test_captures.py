@@ -294,3 +294,15 @@ def test_nerf_fit_runs_without_silhouettes():
                            density_grid_every=2, n_threads=1)
     res = fit_nerf(data.split(2), config=cfg, progress=False)
     assert len(res.history.loss) > 0 and np.all(np.isfinite(res.history.loss))
+
+
+def test_soft_silhouettes_and_background_round_trip_exactly(tmp_path):
+    """Tutorial 4's soft silhouettes as alpha and a white background: save_views then
+    load_views keeps the (already composited) pixels and the background as they were."""
+    data = render_views(_coloured_sphere(), [0.0, 120.0, 240.0], 10.0, image_size=24,
+                        background=(1.0, 1.0, 1.0), silhouettes="soft")
+    assert np.any((data.silhouettes > 0.01) & (data.silhouettes < 0.99))
+    save_views(tmp_path, data, bit_depth=16)
+    back = load_views(tmp_path)
+    assert_allclose(back.images, data.images, atol=0.5 / 65535 + 1e-9)
+    assert_allclose(back.background, [1.0, 1.0, 1.0])

@@ -58,10 +58,10 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
         Allow image and mask paths that are absolute or lead out of the capture folder.
     background : (3,) float64, optional
         Composite RGBA images over this colour (``rgb * alpha + background * (1 - alpha)``);
-        by default the capture's metadata colour (``"background"`` in ``transforms.json`` or
-        ``cameras.json``) if any, else the stored RGB is kept as it is. The dataset's
-        ``background`` is that colour, else the uniform colour of the pixels outside every
-        silhouette, else None.
+        by default the stored RGB is kept as it is. The dataset's ``background`` is this
+        colour, else the one the capture's metadata names (``"background"`` in
+        ``transforms.json`` or ``cameras.json``, as :func:`save_views` writes it), else the
+        uniform colour of the pixels outside every silhouette, else None (unknown).
     znear, zfar : float
         Clipping planes of the cameras (captures do not store them).
     name : str, optional

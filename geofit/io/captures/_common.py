@@ -142,14 +142,15 @@ def build_dataset(views: list, file: Path, K, pose: tuple, convert: Callable,
 
     Notes
     -----
-    The dataset's ``background``: ``options.background`` (the caller's), else the metadata's
-    (RGBA images are composited over it), else the colour of the pixels outside every
+    The dataset's ``background``: ``options.background`` (the caller's; RGBA images are
+    composited over it), else the metadata's (it names the colour already in the pixels, as
+    :func:`geofit.io.save_views` writes it), else the colour of the pixels outside every
     silhouette when they are uniform (99% within 2/255 of their median), else None (unknown).
     Silhouettes are None (unknown) when no view has a mask or an alpha channel. ``lights``
     stay None: a capture's lighting is in its pixels.
     """
+    images, sils = _gather(views, str(file), options.background)
     bg = options.background if options.background is not None else background
-    images, sils = _gather(views, str(file), bg)
     H, W = images.shape[1:3]
     K = K(H, W) if callable(K) else K
     if distortion is not None and np.any(distortion != 0):
