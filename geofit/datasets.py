@@ -37,6 +37,16 @@ import numpy as np
 from ._validate import as_array, check_positive
 from ._validate import check_int as _count
 from .cameras import FoVPerspectiveCameras, look_at_view_transform
+from .data import load_textured_mesh
+from .render import (
+    BlendParams,
+    MeshRasterizer,
+    MeshRenderer,
+    PointLights,
+    RasterizationSettings,
+    SoftPhongShader,
+)
+from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
 from .structures.mesh import Mesh, as_mesh
 from .structures.views import MultiViewDataset
 
@@ -79,8 +89,6 @@ def cow_mesh() -> tuple[Mesh, str]:
     name : str
         ``"cow"`` or the stand-in's name.
     """
-    from .data import load_textured_mesh
-
     mesh, name, _ = load_textured_mesh()
     return mesh.normalize().mesh, name
 
@@ -153,16 +161,6 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     MultiViewDataset
         With ``lights``, ``azim``, ``elev``, ``dist`` and ``mesh`` set.
     """
-    from .render import (
-        BlendParams,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-    )
-    from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
-
     if mesh_name is not None:
         warnings.warn("render_views(mesh_name=...) is deprecated; use name=...",
                       DeprecationWarning, stacklevel=2)
