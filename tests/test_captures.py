@@ -141,21 +141,26 @@ def test_split_holds_out_every_kth_view_or_an_index():
 _W, _H, _F, _CX, _CY = 64, 48, 40.0, 32.0, 24.0
 
 
-def _blob_capture(tmp_path: Path, k: dict, X=(0.5, 0.3, -1.0)):
+def _blob_capture(tmp_path: Path, k: dict, X=(0.5, 0.3, -1.0), model: str = "OPENCV"):
     """A nerfstudio capture of one bright point X seen by a camera at the origin (OpenGL pose:
     looking down -z), drawn as a Gaussian blob where the lens distortion ``k`` puts it; returns
     the folder and the pinhole pixel of X (corner convention)."""
     x, y = X[0] / -X[2], -X[1] / -X[2]  # OpenCV normalised coordinates (y down)
     pin = np.array([_CX + _F * x, _CY + _F * y])
     r2 = x * x + y * y
-    radial = 1 + k.get("k1", 0) * r2 + k.get("k2", 0) * r2 ** 2
-    xd = x * radial + 2 * k.get("p1", 0) * x * y + k.get("p2", 0) * (r2 + 2 * x * x)
-    yd = y * radial + k.get("p1", 0) * (r2 + 2 * y * y) + 2 * k.get("p2", 0) * x * y
+    if model == "OPENCV_FISHEYE":  # equidistant: theta_d = theta (1 + k1 theta^2 + ...)
+        th = np.arctan(np.sqrt(r2))
+        thd = th * (1 + sum(k.get(f"k{i}", 0) * th ** (2 * i) for i in range(1, 5)))
+        xd, yd = x * thd / np.sqrt(r2), y * thd / np.sqrt(r2)
+    else:
+        radial = 1 + k.get("k1", 0) * r2 + k.get("k2", 0) * r2 ** 2
+        xd = x * radial + 2 * k.get("p1", 0) * x * y + k.get("p2", 0) * (r2 + 2 * x * x)
+        yd = y * radial + k.get("p1", 0) * (r2 + 2 * y * y) + 2 * k.get("p2", 0) * x * y
     ud, vd = _CX + _F * xd, _CY + _F * yd
     u, v = np.meshgrid(np.arange(_W) + 0.5, np.arange(_H) + 0.5)
     img = np.exp(-((u - ud) ** 2 + (v - vd) ** 2) / (2 * 1.2 ** 2))
     Image.fromarray(np.round(img * 255).astype(np.uint8)).convert("RGB").save(tmp_path / "a.png")
-    meta = {"camera_model": "OPENCV", "fl_x": _F, "fl_y": _F, "cx": _CX, "cy": _CY, "w": _W,
+    meta = {"camera_model": model, "fl_x": _F, "fl_y": _F, "cx": _CX, "cy": _CY, "w": _W,
             "h": _H, **k, "frames": [{"file_path": "a.png",
                                       "transform_matrix": np.eye(4).tolist()}]}
     (tmp_path / "transforms.json").write_text(json.dumps(meta))
@@ -171,11 +176,15 @@ def _centroid(img: np.ndarray) -> np.ndarray:
     return np.array([(g * u).sum(), (g * v).sum()]) / g.sum()
 
 
-@pytest.mark.parametrize("k", [{"k1": 0.5}, {"k1": -0.3, "k2": 0.1, "p1": 0.01, "p2": -0.02}])
-def test_nerfstudio_distortion_is_undistorted(tmp_path, k):
-    """A point drawn where nerfstudio's k1 (k2, p1, p2) puts it lands, after loading, at its
-    pinhole projection through the loaded camera (same K kept)."""
-    folder, pin, distorted = _blob_capture(tmp_path, k)
+@pytest.mark.parametrize("k, model", [
+    ({"k1": 0.5}, "OPENCV"),
+    ({"k1": -0.3, "k2": 0.1, "p1": 0.01, "p2": -0.02}, "OPENCV"),
+    ({"k1": -0.2, "k2": 0.02, "k4": 0.01}, "OPENCV_FISHEYE"),
+])
+def test_nerfstudio_distortion_is_undistorted(tmp_path, k, model):
+    """A point drawn where nerfstudio's k1 (k2, p1, p2; fisheye k1..k4) puts it lands, after
+    loading, at its pinhole projection through the loaded camera (same K kept)."""
+    folder, pin, distorted = _blob_capture(tmp_path, k, model=model)
     assert np.linalg.norm(distorted - pin) > 1.5  # the distortion moves the point visibly
     data = load_views(folder)
     X = np.array([[0.5, 0.3, -1.0]])

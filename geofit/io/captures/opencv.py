@@ -14,17 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ...cameras.conversions import cameras_from_opencv_projection, opencv_from_cameras_projection
-from ._common import (
-    ReadOptions,
-    _json_entries,
-    _matrix,
-    _read_json,
-    _rotation,
-    _target,
-    _write_image,
-    build_dataset,
-    metadata_background,
-)
+from ._common import ReadOptions, _json_entries, _matrix, _read_json, _rotation, _target
+from ._common import _write_image, build_dataset, metadata_background
 from ._files import _find_image, _resolve
 
 
