@@ -315,3 +315,55 @@ def test_soft_silhouettes_and_background_round_trip_exactly(tmp_path):
     back = load_views(tmp_path)
     assert_allclose(back.images, data.images, atol=0.5 / 65535 + 1e-9)
     assert_allclose(back.background, [1.0, 1.0, 1.0])
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"camera_model": "OPENCV_FISHEYE", "p1": 0.1}, r"p1, p2: a fisheye camera has no tangential"),
+    ({"is_fisheye": "yes"}, r"is_fisheye: expected true or false"),
+    ({"k1": "big"}, r"\.k1: expected a finite number"),
+])
+def test_bad_distortion_fields_are_named(tmp_path, change, match):
+    folder, _, _ = _blob_capture(tmp_path, {"k1": 0.1})
+    meta = json.loads((folder / "transforms.json").read_text())
+    meta.update(change)
+    (folder / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=match):
+        load_views(folder)
+
+
+def test_mixed_fisheye_frames_and_bad_opencv_dist_are_refused(tmp_path):
+    folder, _, _ = _blob_capture(tmp_path, {"k1": 0.1})
+    meta = json.loads((folder / "transforms.json").read_text())
+    meta["frames"].append({**meta["frames"][0], "is_fisheye": True})
+    (folder / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="frames mix fisheye and perspective cameras"):
+        load_views(folder)
+    cv = tmp_path / "cv"
+    cv.mkdir()
+    shutil.copy(folder / "a.png", cv / "a.png")
+    view = {"image": "a.png", "K": [[_F, 0, _CX], [0, _F, _CY], [0, 0, 1]],
+            "R": np.eye(3).tolist(), "t": [0, 0, 1]}
+    for dist, ok in (([0.1, 0, 0, 0], True), ([0.1, 0.2], False), ("k1", False)):
+        (cv / "cameras.json").write_text(json.dumps({"views": [{**view, "dist": dist}]}))
+        if ok:
+            assert load_views(cv).images.shape == (1, _H, _W, 3)
+        else:
+            with pytest.raises(ValueError, match=r"views\[0\]\.dist: expected OpenCV's 4, 5 or 8"):
+                load_views(cv)
+
+
+@pytest.mark.parametrize("model_id, n_params, match", [
+    (42, 0, r"cameras\.bin@8: MODEL: unknown COLMAP camera model id 42"),
+    (7, 5, r"cameras\.bin@8: MODEL: camera model 'FOV' is not supported"),
+])
+def test_colmap_binary_unknown_or_unsupported_models_are_refused(tmp_path, model_id, n_params,
+                                                                  match):
+    import struct
+
+    sparse = tmp_path / "sparse" / "0"
+    sparse.mkdir(parents=True)
+    (sparse / "cameras.bin").write_bytes(struct.pack("<QiiQQ", 1, 1, model_id, 8, 6)
+                                         + struct.pack(f"<{n_params}d", *[1.0] * n_params))
+    (sparse / "images.bin").write_bytes(struct.pack("<Q", 0))
+    with pytest.raises(ValueError, match=match):
+        load_views(tmp_path)
