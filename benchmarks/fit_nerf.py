@@ -42,7 +42,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_table, parser,
                       shape_datasets)
 
-from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
+from geofit.structures import MultiViewDataset
+from geofit.datasets import held_out_views, tutorial_views
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.metrics import psnr
 from geofit.render.volume.implicit import OccupancyGrid

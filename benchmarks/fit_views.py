@@ -74,7 +74,8 @@ from geofit import (
     ico_sphere,
     look_at_view_transform,
 )
-from geofit.datasets import MultiViewDataset, cow_mesh, tutorial_views
+from geofit.structures import MultiViewDataset
+from geofit.datasets import cow_mesh, tutorial_views
 from geofit.fit.views import RECIPES, ViewsEvaluator, fit_mesh_to_views
 from geofit.ops import topology
 from geofit.tutorials.stability import STABILITY_SHAPES

@@ -42,7 +42,8 @@ from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_ta
                       plot_accuracy_vs_time, shape_datasets)
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import MultiViewDataset, held_out_views, tutorial_views
+from geofit.structures import MultiViewDataset
+from geofit.datasets import held_out_views, tutorial_views
 from geofit.fit.volume import fit_volume, volume_metrics
 
 #: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10

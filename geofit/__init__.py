@@ -88,6 +88,7 @@ from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
 from .structures import (
     Mesh,
     Meshes,
+    MultiViewDataset,
     Normalization,
     PointCloud,
     Pointclouds,
@@ -106,6 +107,7 @@ __all__ = [
     # structures
     "Mesh",
     "Meshes",
+    "MultiViewDataset",
     "Normalization",
     "PointCloud",
     "Pointclouds",

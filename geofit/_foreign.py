@@ -15,6 +15,8 @@ _KINDS = {
     ("trimesh", "Scene"): "trimesh.Scene",
     ("open3d", "TriangleMesh"): "open3d.TriangleMesh",
     ("open3d", "PointCloud"): "open3d.PointCloud",
+    ("open3d.t", "TriangleMesh"): "open3d.t.TriangleMesh",
+    ("open3d.t", "PointCloud"): "open3d.t.PointCloud",
 }
 
 #: How to turn each foreign kind into what a plain-array argument expects.
@@ -38,7 +40,10 @@ def foreign_kind(obj) -> str | None:
     Subclasses count (the class hierarchy is searched), and nothing is imported.
     """
     for cls in type(obj).__mro__:
-        top = (cls.__module__ or "").split(".", 1)[0]
+        module = cls.__module__ or ""
+        top = module.split(".", 1)[0]
+        if top == "open3d" and ".t." in module + ".":  # the tensor API (open3d.t.geometry)
+            top = "open3d.t"
         kind = _KINDS.get((top, cls.__name__))
         if kind is not None:
             return kind

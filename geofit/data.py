@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .io import load_mesh, load_objs_as_meshes
 from .shapes import ico_sphere
 from .structures.mesh import Mesh
 from .structures.textures import TexturesUV
@@ -482,8 +483,6 @@ def load_target_mesh() -> DataMesh:
     """
     p = find("dolphin/dolphin.obj")
     if p is not None:
-        from .io import load_mesh
-
         return DataMesh(load_mesh(p, load_textures=False), "dolphin", p)
     return DataMesh(procedural_target(), "procedural_target", None)
 
@@ -501,7 +500,5 @@ def load_textured_mesh() -> DataMesh:
     """
     p = find("cow_mesh/cow.obj")
     if p is not None:
-        from .io import load_objs_as_meshes
-
         return DataMesh(load_objs_as_meshes([p])[0], "cow", p)
     return DataMesh(procedural_textured_mesh(), "procedural_textured", None)

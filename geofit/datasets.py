@@ -1,11 +1,7 @@
-"""Multi-view datasets: one type for tutorials 4, 5 and 6, and geofit's renders of them.
+"""The synthetic multi-view datasets of tutorials 4, 5 and 6: geofit's renders of the cow.
 
-:class:`MultiViewDataset` holds posed views of one scene: images, silhouettes, cameras, the
-lights, optional held-out views (another :class:`MultiViewDataset`) and the true mesh when known.
-Every multi-view fit (:func:`geofit.fit_mesh_to_views`, :func:`geofit.fit_volume`,
-:func:`geofit.fit_nerf`) takes one; capture loaders build one with keywords::
-
-    MultiViewDataset(images=..., silhouettes=..., cameras=..., name="capture")
+Each is a :class:`geofit.structures.MultiViewDataset` (the one dataset type; capture folders are
+read into one by :func:`geofit.io.load_views`).
 
 :func:`render_views` is the one renderer of synthetic datasets (PyTorch3D's
 ``generate_cow_renders`` and the fit_textured_mesh tutorial's dataset are both made with it):
@@ -35,27 +31,32 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field, fields
-from typing import Any
 
 import numpy as np
 
-from ._validate import as_array, as_unit_images, check_positive
+from ._validate import as_array, check_positive
 from ._validate import check_int as _count
-from .cameras import CamerasBase, FoVPerspectiveCameras, look_at_view_transform
-from .io.views import load_views, save_views
+from .cameras import FoVPerspectiveCameras, look_at_view_transform
+from .data import load_textured_mesh
+from .render import (
+    BlendParams,
+    MeshRasterizer,
+    MeshRenderer,
+    PointLights,
+    RasterizationSettings,
+    SoftPhongShader,
+)
+from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
 from .structures.mesh import Mesh, as_mesh
+from .structures.views import MultiViewDataset
 
 __all__ = [
     "SILHOUETTE_KINDS",
     "TUTORIALS",
-    "MultiViewDataset",
     "cow_mesh",
     "generate_cow_renders",
     "held_out_views",
-    "load_views",
     "render_views",
-    "save_views",
     "training_azimuths",
     "tutorial_views",
 ]
@@ -70,160 +71,6 @@ SILHOUETTE_KINDS = ("threshold", "soft", "coverage")
 TUTORIALS = (4, 5, 6)
 
 _SIGMA = 1e-4
-
-
-# --------------------------------------------------------------------------------------------
-# The dataset
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(kw_only=True)
-class MultiViewDataset:
-    """Posed views of one scene (keyword-only construction).
-
-    Attributes
-    ----------
-    images : (N, H, W, 3) float64 or None
-        RGB in [0, 1] (None for silhouettes only).
-    silhouettes : (N, H, W) float64
-        Silhouettes in [0, 1] (soft or binary).
-    cameras : CamerasBase
-        The ``N`` cameras (PyTorch3D conventions).
-    lights : PointLights, DirectionalLights or AmbientLights, optional
-        The lights the images were rendered with (the fits that shade assume PyTorch3D's
-        tutorial light, a point light at (0, 0, -3), when None).
-    name : str
-        What the views show (``"cow"``, the stand-in's name, a capture's folder name).
-    azim, elev : (N,) float64, optional
-        Azimuth and elevation of each camera (degrees) when known.
-    dist : float, optional
-        Camera distance from the origin when all cameras share one.
-    held_out : MultiViewDataset, optional
-        Views for evaluation only (may be set after construction).
-    mesh : Mesh, optional
-        The true surface, when known (synthetic datasets).
-    config : dict
-        How the views were made (free-form, JSON-ready).
-
-    Examples
-    --------
-    >>> from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-    >>> R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
-    >>> ds = MultiViewDataset(images=np.zeros((2, 8, 8, 3)), silhouettes=np.zeros((2, 8, 8)),
-    ...                       cameras=FoVPerspectiveCameras(R=R, T=T), name="empty")
-    >>> len(ds), ds.image_size, len(ds[1:]), ds.downsample(2).image_size
-    (2, (8, 8), 1, (4, 4))
-    """
-
-    images: np.ndarray | None
-    silhouettes: np.ndarray
-    cameras: CamerasBase
-    lights: Any = None
-    name: str = ""
-    azim: np.ndarray | None = None
-    elev: np.ndarray | None = None
-    dist: float | None = None
-    held_out: MultiViewDataset | None = None
-    mesh: Mesh | None = None
-    config: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.cameras, CamerasBase):
-            raise TypeError(f"cameras: expected a geofit camera batch, got {type(self.cameras)!r}")
-        n = len(self.cameras)
-        if n == 0:
-            raise ValueError("cameras: expected at least one camera, got 0")
-        self.silhouettes = as_array(self.silhouettes, "silhouettes", (None, None, None))
-        if self.silhouettes.shape[0] != n:
-            raise ValueError(f"silhouettes, cameras: expected one camera per view, got "
-                             f"{self.silhouettes.shape[0]} silhouettes and {n} cameras")
-        H, W = self.silhouettes.shape[1:]
-        if H < 2 or W < 2:
-            raise ValueError(f"silhouettes: expected images of at least 2 x 2 pixels, got "
-                             f"{(H, W)}")
-        _check_unit_range(self.silhouettes, "silhouettes")
-        if self.images is not None:
-            self.images = as_unit_images(self.images, "images", (n, H, W, 3))
-            _check_unit_range(self.images, "images")
-        if not isinstance(self.name, str):
-            raise TypeError(f"name: expected a str, got {type(self.name)!r}")
-        for nm in ("azim", "elev"):
-            v = getattr(self, nm)
-            if v is not None:
-                setattr(self, nm, as_array(np.atleast_1d(v), nm, (n,)))
-        if self.dist is not None:
-            self.dist = check_positive(self.dist, "dist")
-        if self.held_out is not None and not isinstance(self.held_out, MultiViewDataset):
-            raise TypeError(f"held_out: expected a MultiViewDataset or None, got "
-                            f"{type(self.held_out)!r}")
-        if self.mesh is not None and not isinstance(self.mesh, Mesh):
-            raise TypeError(f"mesh: expected a geofit Mesh or None, got {type(self.mesh)!r}")
-
-    # -- size and selection
-    def __len__(self) -> int:
-        return int(self.silhouettes.shape[0])
-
-    @property
-    def image_size(self) -> tuple[int, int]:
-        """``(H, W)`` in pixels."""
-        return tuple(int(s) for s in self.silhouettes.shape[1:])
-
-    @property
-    def mesh_name(self) -> str:
-        """Deprecated: use :attr:`name`."""
-        warnings.warn("MultiViewDataset.mesh_name is deprecated; use .name", DeprecationWarning,
-                      stacklevel=2)
-        return self.name
-
-    def __repr__(self) -> str:
-        N, H, W = self.silhouettes.shape
-        parts = [f"{N} views of {self.name!r}", f"{H}x{W}"]
-        if self.images is None:
-            parts.append("silhouettes only")
-        if self.held_out is not None:
-            parts.append(f"{len(self.held_out)} held out")
-        return f"MultiViewDataset({', '.join(parts)})"
-
-    def __getitem__(self, index) -> MultiViewDataset:
-        """The views selected by ``index`` (int, int array, bool mask or slice), as a dataset
-        (held-out views, mesh and lights kept)."""
-        idx = np.atleast_1d(np.arange(len(self))[index])
-        return self._replace(
-            images=None if self.images is None else self.images[idx],
-            silhouettes=self.silhouettes[idx], cameras=self.cameras[idx],
-            azim=None if self.azim is None else self.azim[idx],
-            elev=None if self.elev is None else self.elev[idx])
-
-    def subset(self, index) -> MultiViewDataset:
-        """Same as ``dataset[index]``."""
-        return self[index]
-
-    def downsample(self, factor: int) -> MultiViewDataset:
-        """Average ``factor x factor`` pixel blocks (a coarser level of the same views)."""
-        factor = _count(factor, "factor")
-        if factor == 1:
-            return self
-        n, H, W = self.silhouettes.shape
-        if H % factor or W % factor:
-            raise ValueError(f"factor: {factor} does not divide the image size {(H, W)}")
-        h, w = H // factor, W // factor
-        sil = self.silhouettes.reshape(n, h, factor, w, factor).mean(axis=(2, 4))
-        img = None
-        if self.images is not None:
-            img = self.images.reshape(n, h, factor, w, factor, 3).mean(axis=(2, 4))
-        return self._replace(images=img, silhouettes=sil)
-
-    def _replace(self, **changes) -> MultiViewDataset:
-        """A :class:`MultiViewDataset` (never a subclass) with ``changes``."""
-        kw = {f.name: getattr(self, f.name) for f in fields(MultiViewDataset)}
-        kw.update(changes)
-        return MultiViewDataset(**kw)
-
-
-def _check_unit_range(a: np.ndarray, name: str) -> None:
-    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
-    if lo < 0.0 or hi > 1.0:
-        raise ValueError(f"{name}: expected values in [0, 1], got values in [{lo:g}, {hi:g}]")
 
 
 # --------------------------------------------------------------------------------------------
@@ -242,8 +89,6 @@ def cow_mesh() -> tuple[Mesh, str]:
     name : str
         ``"cow"`` or the stand-in's name.
     """
-    from .data import load_textured_mesh
-
     mesh, name, _ = load_textured_mesh()
     return mesh.normalize().mesh, name
 
@@ -316,16 +161,6 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     MultiViewDataset
         With ``lights``, ``azim``, ``elev``, ``dist`` and ``mesh`` set.
     """
-    from .render import (
-        BlendParams,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-    )
-    from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
-
     if mesh_name is not None:
         warnings.warn("render_views(mesh_name=...) is deprecated; use name=...",
                       DeprecationWarning, stacklevel=2)
@@ -361,7 +196,7 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
             sil = (sil > 1e-4).astype(np.float64)
     return MultiViewDataset(
         images=images, silhouettes=sil, cameras=cameras,
-        lights=lights, name=name, azim=az, elev=el, dist=dist, mesh=mesh,
+        lights=lights, background=bg, name=name, azim=az, elev=el, dist=dist, mesh=mesh,
         config={"image_size": size, "dist": dist, "background": bg.tolist(),
                 "light_location": light.tolist(), "silhouettes": silhouettes,
                 "sigma": _SIGMA, "blur_radius": SILHOUETTE_BLUR_RADIUS, "faces_per_pixel": 50})

@@ -307,7 +307,7 @@ def _capture(folder: Path, fmt: str = "transforms") -> Path:
 
 def test_capture_folder_through_load_views(tmp_path):
     """fit-volume and fit-views on capture folders (transforms.json, COLMAP) found in a folder
-    next to a mesh file: read by geofit.datasets.load_views, every 8th view held out."""
+    next to a mesh file: read by geofit.io.load_views, every 8th view held out."""
     _capture(tmp_path / "scans" / "a")
     _capture(tmp_path / "scans" / "b", "colmap")
     save_obj(tmp_path / "scans" / "m.obj", ico_sphere(1))

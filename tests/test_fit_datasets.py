@@ -1,4 +1,4 @@
-"""Tests for geofit.datasets.MultiViewDataset (the one multi-view dataset type of tutorials 4, 5
+"""Tests for geofit.structures.MultiViewDataset (the one multi-view dataset type of tutorials 4, 5
 and 6), its renderer and the deprecated names of the former dataset stack."""
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
-from geofit.datasets import MultiViewDataset, render_views, tutorial_views
+from geofit.structures import MultiViewDataset
+from geofit.datasets import render_views, tutorial_views
 
 
 def _cameras(n=3):
@@ -133,8 +134,6 @@ def test_deprecated_dataset_names_warn_and_agree():
         g = generate_cow_renders(num_views=2, image_size=8, mesh=obj)
     t5 = tutorial_views(5, mesh=obj, num_views=2, image_size=8, num_held_out=0)
     np.testing.assert_array_equal(g.images, t5.images)
-    with pytest.warns(DeprecationWarning, match="mesh_name"):
-        assert g.mesh_name == "mesh"
 
 
 def test_every_multi_view_fit_shows_a_progress_bar_unless_asked_not_to(capsys):

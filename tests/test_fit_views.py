@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
-from geofit.datasets import MultiViewDataset, tutorial_views
+from geofit.structures import MultiViewDataset
+from geofit.datasets import tutorial_views
 from geofit.fit._views_objective import _lstsq_colors, _Objective
 from geofit.fit.large_steps import IdentityParameterization, LargeSteps
 from geofit.fit.views import SILHOUETTE_METHODS, ViewsEvaluator, fit_mesh_to_views

@@ -8,7 +8,7 @@ import pytest
 
 import geofit.fit._volume_problem as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import MultiViewDataset
+from geofit.structures import MultiViewDataset
 from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
 from geofit.loss import huber
 from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher

@@ -8,7 +8,7 @@ import pytest
 
 from geofit import Mesh, ico_sphere
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import MultiViewDataset
+from geofit.structures import MultiViewDataset
 from geofit.fit import fit_mesh, fit_volume
 from geofit.fit.nerf import fit_nerf
 

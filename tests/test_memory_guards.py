@@ -11,7 +11,7 @@ import pytest
 from geofit import PointCloud, ico_sphere
 from geofit._memory import check_allocation, memory_limit, parse_bytes
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import MultiViewDataset
+from geofit.structures import MultiViewDataset
 from geofit.fit import fit_volume
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.render import (

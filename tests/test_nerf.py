@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
-from geofit.datasets import MultiViewDataset
+from geofit.structures import MultiViewDataset
 from geofit.fit.nerf import (
     NerfConfig,
     fit_nerf,

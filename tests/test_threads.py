@@ -36,7 +36,7 @@ COMPONENTS = {
 def _workloads() -> dict:
     """Run each component once on a tiny input; return its thread-count attributes."""
     from geofit import FoVPerspectiveCameras, PointCloud, ico_sphere, look_at_view_transform
-    from geofit.datasets import MultiViewDataset
+    from geofit.structures import MultiViewDataset
     from geofit.fit.nerf import render_nerf
     from geofit.fit.volume import fit_volume
     from geofit.render import (

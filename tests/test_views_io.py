@@ -13,6 +13,7 @@ from PIL import Image
 
 import geofit.datasets
 import geofit.io
+import geofit.structures
 from geofit.cameras import (
     FoVOrthographicCameras,
     FoVPerspectiveCameras,
@@ -133,7 +134,7 @@ def test_transforms_per_frame_intrinsics_override_the_top_level(tmp_path):
                    {"file_path": "im1.png", "transform_matrix": eye.tolist(), "fl_x": 40.0,
                     "cx": 11.0}]}))
     data = load_views(tmp_path)
-    np.testing.assert_array_equal(data.silhouettes, 1.0)  # RGB only: the whole image
+    assert data.silhouettes is None  # RGB only: silhouettes unknown
     X = np.array([[0.2, -0.1, 1.0]])  # 2 units in front (the camera looks down -z)
     px = data.cameras.transform_points_screen(X, (H, W))[:, 0, :2]
     # OpenCV camera coordinates of X: x right = 0.2, y down = +0.1, depth 2
@@ -188,9 +189,13 @@ def test_docstring_examples():
     assert result.attempted >= 3 and result.failed == 0
 
 
-def test_load_views_is_reexported():
-    assert geofit.datasets.load_views is load_views is geofit.io.load_views
-    assert geofit.datasets.save_views is save_views is geofit.io.save_views
+def test_load_views_has_one_home_in_io():
+    """load_views/save_views live in geofit.io only; the dataset type in geofit.structures."""
+    assert load_views is geofit.io.load_views and save_views is geofit.io.save_views
+    assert not hasattr(geofit.datasets, "load_views") and not hasattr(geofit.datasets, "save_views")
+    assert geofit.MultiViewDataset is geofit.structures.MultiViewDataset
+    assert not hasattr(geofit.datasets, "MultiViewDataset") or "MultiViewDataset" not in \
+        geofit.datasets.__all__
 
 
 # ---- bad input: ValueError naming the file and the field ---------------------------------
@@ -278,8 +283,8 @@ def test_unreadable_image_and_json(tmp_path):
 
 
 @pytest.mark.parametrize("model_line, image_lines, match", [
-    ("1 OPENCV 20 12 25 25 10 6 0.1 0 0 0", None,
-     r"cameras\.txt:2: MODEL: camera model 'OPENCV' is not supported"),
+    ("1 FOV 20 12 25 25 10 6 0.1", None,
+     r"cameras\.txt:2: MODEL: camera model 'FOV' is not supported"),
     ("1 PINHOLE 20 12 25 25 10", None, r"cameras\.txt:2: PARAMS: PINHOLE takes 4"),
     ("1 PINHOLE 20 12 25 x 10 6", None, r"cameras\.txt:2: fy: expected a number"),
     ("1 SIMPLE_PINHOLE 20 12 25 10 6", "1 1 0 0 0 0 0 5 1\n\n",
@@ -489,3 +494,54 @@ def test_a_file_that_is_no_capture(tmp_path):
     with pytest.raises(ValueError, match=r"a\.png: not a capture file"):
         _png(tmp_path / "a.png", np.ones((H, W, 3)))
         load_views(tmp_path / "a.png")
+
+
+def _colmap_text_to_binary(model: Path) -> None:
+    """Rewrite a COLMAP text model (PINHOLE cameras) as cameras.bin / images.bin (COLMAP's
+    little-endian layout) and remove the text files."""
+    import struct
+
+    cams = [ln.split() for ln in (model / "cameras.txt").read_text().splitlines()
+            if ln and not ln.startswith("#")]
+    out = struct.pack("<Q", len(cams))
+    for c in cams:
+        out += struct.pack("<iiQQ", int(c[0]), 1, int(c[2]), int(c[3]))
+        out += struct.pack("<4d", *map(float, c[4:8]))
+    (model / "cameras.bin").write_bytes(out)
+    ims = [ln.split() for ln in (model / "images.txt").read_text().splitlines()
+           if ln and not ln.startswith("#")]
+    out = struct.pack("<Q", len(ims))
+    for f in ims:
+        out += struct.pack("<I7dI", int(f[0]), *map(float, f[1:8]), int(f[8]))
+        out += f[9].encode() + b"\0" + struct.pack("<Q", 1) + struct.pack("<ddq", 1.0, 2.0, -1)
+    (model / "images.bin").write_bytes(out)
+    for name in ("cameras.txt", "images.txt", "points3D.txt"):
+        (model / name).unlink()
+
+
+def test_colmap_binary_model_reads_as_the_text_one(tmp_path):
+    """A COLMAP binary model (cameras.bin, images.bin) gives the same views and cameras."""
+    data = _dataset(True)
+    save_views(tmp_path, data, format="colmap")
+    text = load_views(tmp_path, znear=0.5)
+    _colmap_text_to_binary(tmp_path / "sparse/0")
+    back = load_views(tmp_path, znear=0.5)
+    np.testing.assert_array_equal(back.images, text.images)
+    np.testing.assert_array_equal(back.silhouettes, text.silhouettes)
+    assert_allclose(_pixels(back.cameras), _pixels(data.cameras), atol=1e-6, rtol=0)
+    (tmp_path / "sparse/0/images.bin").write_bytes(b"\1\0\0\0\0\0\0\0\1\0")
+    with pytest.raises(ValueError, match=r"images\.bin: truncated at byte 8"):
+        load_views(tmp_path)
+
+
+def test_capture_registry_merges_one_table_per_layout_module():
+    """Every layout module ends in a _loaders table and a detect(); the registry is their union
+    and save_views writes exactly the layouts with a _savers table."""
+    from geofit.io import captures
+
+    for m in captures._MODULES:
+        assert m._loaders and callable(m.detect)
+        assert set(m._loaders) <= set(captures.LOADERS)
+    assert set(captures.LOADERS) == {"transforms", "nerf_synthetic", "nerfstudio", "colmap",
+                                     "opencv"}
+    assert VIEW_FORMATS == tuple(captures.SAVERS) == ("transforms", "colmap", "opencv")

@@ -148,7 +148,7 @@ TASK_OPTIONS: dict[str, dict[str, Option]] = {
 }
 
 #: The tasks: ``fit-mesh`` and ``render`` take mesh files; ``fit-views``, ``fit-volume`` and
-#: ``fit-nerf`` take capture folders (read by ``geofit.datasets.load_views``) or mesh files
+#: ``fit-nerf`` take capture folders (read by ``geofit.io.load_views``) or mesh files
 #: (rendered into synthetic views first).
 TASKS = tuple(TASK_OPTIONS)
 

@@ -28,7 +28,7 @@ PICTURE_FILE = "picture.png"
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 #: Files whose presence makes a folder a multi-view capture (the layouts
-#: ``geofit.datasets.load_views`` reads): the NeRF/Blender ``transforms.json``, a COLMAP text
+#: ``geofit.io.load_views`` reads): the NeRF/Blender ``transforms.json``, a COLMAP text
 #: model (also under ``sparse/0``), OpenCV K/R/t per view in ``cameras.json``.
 CAPTURE_MARKERS = ("transforms.json", "cameras.txt", "sparse/0/cameras.txt",
                    "sparse/cameras.txt", "cameras.json")
@@ -181,14 +181,14 @@ def _load_capture(folder: Path, background: tuple):
     """A capture folder -> (images (N, H, W, 3), silhouettes (N, H, W), cameras), RGBA images
     composited over ``background`` (black for the volume and NeRF fits, white for the mesh).
 
-    The one place that knows ``geofit.datasets.load_views``' contract (a dataset with
+    The one place that knows ``geofit.io.load_views``' contract (a dataset with
     ``images``, ``silhouettes`` and ``cameras``).
     """
-    from ..datasets import load_views
+    from ..io import load_views
 
     ds = load_views(folder, background=background)
-    return (np.asarray(ds.images, np.float64)[..., :3], np.asarray(ds.silhouettes, np.float64),
-            ds.cameras)
+    sils = None if ds.silhouettes is None else np.asarray(ds.silhouettes, np.float64)  # unknown
+    return np.asarray(ds.images, np.float64)[..., :3], sils, ds.cameras
 
 
 def _split(images, silhouettes, cameras):
@@ -201,8 +201,8 @@ def _split(images, silhouettes, cameras):
     if not held.any():
         held[n // 2] = True
     tr, te = np.flatnonzero(~held), np.flatnonzero(held)
-    return ((images[tr], silhouettes[tr], cameras[tr]),
-            (images[te], silhouettes[te], cameras[te]))
+    return tuple((images[i], None if silhouettes is None else silhouettes[i], cameras[i])
+                 for i in (tr, te))
 
 
 def _tutorial5_views(path: Path, s: dict):
@@ -240,7 +240,7 @@ def _fit_views_call(train, **kwargs):
 
 def _fit_volume_call(images, silhouettes, cameras, **kwargs):
     """geofit's volume fit (tutorial 5) with its defaults."""
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
     from ..fit.volume import fit_volume
 
     return fit_volume(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
@@ -249,7 +249,7 @@ def _fit_volume_call(images, silhouettes, cameras, **kwargs):
 
 def _fit_nerf_call(images, silhouettes, cameras, **kwargs):
     """geofit's NeRF fit (tutorial 6) with its defaults."""
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
     from ..fit.nerf import fit_nerf
 
     return fit_nerf(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
@@ -335,7 +335,8 @@ def _task_render(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..datasets import MultiViewDataset, tutorial_views
+    from ..structures import MultiViewDataset
+    from ..datasets import tutorial_views
     from ..fit._views_objective import dataset_lights
     from ..fit.views import ViewsEvaluator
 

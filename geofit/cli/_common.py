@@ -32,35 +32,27 @@ def add_capture_arg(p: argparse.ArgumentParser) -> None:
     """The optional positional ``CAPTURE``: a capture folder to fit instead of the cow."""
     p.add_argument("capture", nargs="?", default=None, metavar="CAPTURE",
                    help="a capture folder (or its camera file) to fit instead of the cow's "
-                        "renders: NeRF/Blender transforms.json, a COLMAP text model with "
-                        "images/ and masks/, or OpenCV cameras.json (geofit.io.load_views). "
-                        "Held out: transforms_test.json beside transforms_train.json, else "
-                        "every 8th view. The scene should sit in the tutorial's box (3 units "
-                        "around the origin, cameras about 2.7 away)")
+                        "renders: NeRF/Blender transforms.json or the NeRF-synthetic split "
+                        "folder, nerfstudio, a COLMAP model with images/ and masks/, or OpenCV "
+                        "cameras.json (geofit.io.load_views). Held out: the capture's test "
+                        "views (NeRF-synthetic), else every 8th view. The scene should sit in "
+                        "the tutorial's box (3 units around the origin, cameras about 2.7 away)")
 
 
 def capture_views(path: str):
     """``(train, test)`` datasets of a capture folder (see :func:`add_capture_arg`);
     ``train.held_out`` is ``test``."""
-    from ..io.views import _make_dataset, load_views
+    from ..io.views import load_views
 
-    folder = Path(path)
-    if (folder / "transforms_train.json").is_file() and not (folder / "transforms.json").exists():
-        train = load_views(folder / "transforms_train.json")
-        test_file = folder / "transforms_test.json"
-        train.held_out = load_views(test_file) if test_file.is_file() else train
-        return train, train.held_out
-    data = load_views(folder)
+    data = load_views(Path(path))
+    if data.held_out is not None:  # a layout with its own test views (NeRF-synthetic)
+        return data, data.held_out
     n = len(data.cameras)
     if n < 2:
         raise ValueError(f"CAPTURE: {path} has {n} view; at least 2 are needed (every 8th "
                          "is held out)")
-    held = np.arange(n) % 8 == 0
-    name = data.name
-    train, test = (_make_dataset(data.images[m], data.silhouettes[m], data.cameras[m], name)
-                   for m in (~held, held))
-    train.held_out = test
-    return train, test
+    train = data.split(8)
+    return train, train.held_out
 
 
 def save_png(path: Path, rows: list) -> None:

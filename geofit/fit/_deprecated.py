@@ -9,7 +9,8 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..datasets import MultiViewDataset, tutorial_views
+from ..structures import MultiViewDataset
+from ..datasets import tutorial_views
 from ..structures import Mesh
 from ._options import warn_deprecated
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -84,7 +85,7 @@ def dataset_argument(dataset, args: tuple, *, fit: str, images_required: bool = 
     form ``fit(dataset, ...)`` or the former ``fit(images, silhouettes, cameras, ...)`` (with a
     DeprecationWarning; the images and silhouettes are clipped to [0, 1] as the former fits
     did)."""
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
 
     if args:
         if len(args) != 2:
@@ -106,7 +107,21 @@ def dataset_argument(dataset, args: tuple, *, fit: str, images_required: bool = 
                         f"{type(dataset)!r}")
     if images_required and dataset.images is None:
         raise ValueError(f"dataset: {fit} needs RGB images (dataset.images is None)")
-    return dataset
+    return _full_silhouettes(dataset)
+
+
+def _full_silhouettes(dataset):
+    """Unknown silhouettes (None, a capture without masks) as ones, for the fits that fit
+    without them: every pixel shows the scene (see ``UNKNOWN_SILHOUETTES``)."""
+    held = dataset.held_out
+    if held is not None and held.silhouettes is None and held.images is not None:
+        held = replace(held, silhouettes=np.ones(held.images.shape[:3]))
+    sil = dataset.silhouettes
+    if sil is None:
+        sil = np.ones(dataset.images.shape[:3])
+    if sil is dataset.silhouettes and held is dataset.held_out:
+        return dataset
+    return replace(dataset, silhouettes=sil, held_out=held)
 
 
 def _clip01(a, name: str):

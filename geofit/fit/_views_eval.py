@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..datasets import MultiViewDataset
+from ..structures import MultiViewDataset
 from ..metrics import psnr, silhouette_iou
 from ..structures import Mesh, TexturesVertex
 from ._views_objective import dataset_lights
@@ -52,6 +52,7 @@ class ViewsEvaluator:
         """Metrics of a prediction (keys ``iou``, ``psnr`` if colours, ``chamfer_l2``,
         ``fscore@tau`` if a target mesh and ``surface``)."""
         from ..render import (
+            BlendParams,
             MeshRasterizer,
             MeshRenderer,
             RasterizationSettings,
@@ -63,10 +64,14 @@ class ViewsEvaluator:
         ras = MeshRasterizer(h.cameras, RasterizationSettings(image_size=(H, W)))
         out: dict[str, float] = {}
         frag = ras(mesh)
-        out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
+        if h.silhouettes is not None:
+            out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
         if colors is not None and h.images is not None:
             m = Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=dataset_lights(h)))
+            blend = BlendParams() if h.background is None else BlendParams(
+                background_color=tuple(h.background.tolist()))  # the capture's background
+            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=dataset_lights(h),
+                                                  blend_params=blend))
             out["psnr"] = psnr(np.asarray(r(m)[..., :3], np.float64), h.images)
         if surface and self.mesh_eval is not None:
             mm = self.mesh_eval.evaluate(Mesh(mesh.verts, mesh.faces))

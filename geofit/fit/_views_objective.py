@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..datasets import MultiViewDataset
+from ..structures import MultiViewDataset
 from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
 from ..render.blending import BlendParams
 from ..render.soft import (
@@ -34,12 +34,13 @@ SIGMA = 1e-4
 
 
 def dataset_lights(data: MultiViewDataset):
-    """The dataset's lights, or the tutorial's point light at (0, 0, -3)."""
+    """The dataset's lights, or ``AmbientLights()`` (unlit colour: what the camera saw) when it
+    has none (a capture: its lighting is in its pixels)."""
     if data.lights is not None:
         return data.lights
-    from ..render import PointLights
+    from ..render import AmbientLights
 
-    return PointLights(location=[[0.0, 0.0, -3.0]])
+    return AmbientLights()
 
 
 #: The mesh regularisers of both stages.

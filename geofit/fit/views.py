@@ -63,7 +63,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import as_rng, check_choice, check_positive
-from ..datasets import MultiViewDataset
+from ..structures import MultiViewDataset
 from ..render.soft import SoftRasterizationSettings
 from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesVertex, as_mesh
@@ -506,6 +506,7 @@ class _ViewsPlan:
         """Check every option once and fill in the recipe's."""
         if not isinstance(dataset, MultiViewDataset):
             raise TypeError(f"dataset: expected a MultiViewDataset, got {type(dataset)!r}")
+        dataset.require_silhouettes("fit_mesh_to_views")
         recipe = recipe_name(recipe, RECIPES, fit="fit_mesh_to_views")
         rec = RECIPES[recipe]
         silhouette_method, silhouette_loss, textured_method, textured_init, large_steps = \

@@ -40,7 +40,8 @@ READ_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 WRITE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
 
 
-def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False) -> Mesh:
+def load_mesh(path: PathLike, load_textures: bool = True, *, merge: bool = True,
+              allow_outside: bool = False) -> Mesh | dict[str, Mesh]:
     """Load one triangle mesh from an OBJ, PLY, STL, OFF, GLB or glTF file.
 
     Parameters
@@ -55,15 +56,19 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool
     load_textures : bool
         Attach the file's texture or colours: a TexturesUV (OBJ, GLB/glTF with an image), or a
         TexturesVertex from vertex colours (PLY, GLB/glTF), in [0, 1].
+    merge : bool
+        True: one Mesh; a GLB/glTF scene with several meshes is merged into one (node
+        transforms applied, node names dropped). False: the parts as ``{node name: Mesh}``,
+        each with its node transform applied (``{file stem: Mesh}`` for the
+        single-mesh formats).
     allow_outside : bool
         For OBJ files, follow MTL and texture paths outside the file's folder (see
         :func:`geofit.io.load_obj`).
 
     Returns
     -------
-    Mesh
-        Vertices (V, 3) float64, faces (F, 3) int64 and the textures. A GLB/glTF scene with
-        several meshes is flattened into one (node transforms applied).
+    Mesh or dict of str to Mesh
+        Vertices (V, 3) float64, faces (F, 3) int64 and the textures (see ``merge``).
 
     Raises
     ------
@@ -91,10 +96,13 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool
         raise ValueError(f"path: expected one of {', '.join(READ_FORMATS)}, got {path.name!r}"
                          + ("; a .npz holds a point cloud: use geofit.io.load_pointcloud"
                             if suffix == ".npz" else ""))
+    if not isinstance(merge, bool):
+        raise TypeError(f"merge: expected True or False, got {merge!r}")
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     if suffix == ".obj" and sniff(path) == "OBJ":
-        return _obj_to_mesh(path, load_textures, allow_outside)
+        mesh = _obj_to_mesh(path, load_textures, allow_outside)
+        return mesh if merge else {path.stem: mesh}
     import trimesh
 
     fmt = sniff(path) or EXTENSIONS[suffix]
@@ -109,11 +117,27 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool
             n = sum(len(getattr(g, "vertices", ())) for g in loaded.geometry.values())
             raise ValueError(f"{path}: the file has no faces ({n} points): "
                              "read a point cloud with geofit.io.load_pointcloud")
+        if not merge:
+            parts = {}
+            for node in loaded.graph.nodes_geometry:  # one entry per part
+                T, geometry = loaded.graph[node]
+                g = loaded.geometry[geometry]
+                if isinstance(g, trimesh.Trimesh) and len(g.faces):
+                    g = g.copy()
+                    g.apply_transform(T)
+                    parts[node] = _from_trimesh(path, g, fmt, load_textures)
+            return parts
         loaded = scene_to_mesh(loaded)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         n = len(getattr(loaded, "vertices", ()))
         raise ValueError(f"{path}: the file has no faces ({n} vertices): "
                          "read a point cloud with geofit.io.load_pointcloud")
+    mesh = _from_trimesh(path, loaded, fmt, load_textures)
+    return mesh if merge else {path.stem: mesh}
+
+
+def _from_trimesh(path: Path, loaded, fmt: str, load_textures: bool) -> Mesh:
+    """A loaded ``trimesh.Trimesh`` with faces, checked, as a Mesh."""
     if not np.isfinite(np.asarray(loaded.vertices)).all():
         raise ValueError(f"{path}: the vertex coordinates are not all finite")
     if np.abs(np.asarray(loaded.vertices)).max(initial=0.0) > MAX_COORD:

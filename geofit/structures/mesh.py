@@ -733,9 +733,12 @@ def as_mesh(mesh, name: str = "mesh") -> Mesh:
 
     Parameters
     ----------
-    mesh : Mesh, trimesh.Trimesh, trimesh.Scene or open3d.geometry.TriangleMesh
+    mesh : Mesh, trimesh.Trimesh, trimesh.Scene, open3d.geometry.TriangleMesh,
+           open3d.t.geometry.TriangleMesh or (V, F)
         A geofit Mesh is returned as it is; the others are converted by
-        :meth:`Mesh.from_trimesh` / :meth:`Mesh.from_open3d` (colours and UVs carried).
+        :meth:`Mesh.from_trimesh` (a Scene merged into one mesh, node transforms applied) /
+        :meth:`Mesh.from_open3d` (colours and UVs carried; a tensor-API mesh through its
+        legacy copy); a pair ``(V (n, 3) float64, F (m, 3) int64)`` becomes ``Mesh(V, F)``.
     name : str
         The argument's name, for the error message.
 
@@ -760,8 +763,15 @@ def as_mesh(mesh, name: str = "mesh") -> Mesh:
         return Mesh.from_trimesh(mesh)
     if kind == "open3d.TriangleMesh":
         return Mesh.from_open3d(mesh)
-    raise TypeError(f"{name}: expected a geofit Mesh, trimesh.Trimesh or "
-                    f"open3d.geometry.TriangleMesh, got {type(mesh)!r}")
+    if kind == "open3d.t.TriangleMesh":
+        return Mesh.from_open3d(mesh.to_legacy())
+    if isinstance(mesh, (tuple, list)) and len(mesh) == 2 \
+            and all(np.ndim(a) == 2 for a in mesh):
+        V = as_points(mesh[0], f"{name}[0]")
+        return Mesh(V, as_faces(mesh[1], f"{name}[1]", len(V)))
+    raise TypeError(f"{name}: expected a geofit Mesh, trimesh.Trimesh, "
+                    f"open3d.geometry.TriangleMesh (legacy or tensor API) or a (V, F) pair, got "
+                    f"{type(mesh)!r}")
 
 
 def as_meshes(meshes, name: str = "meshes") -> Meshes:

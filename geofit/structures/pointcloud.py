@@ -291,8 +291,10 @@ def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
         return PointCloud.from_trimesh(cloud)
     if kind == "open3d.PointCloud":
         return PointCloud.from_open3d(cloud)
+    if kind == "open3d.t.PointCloud":
+        return PointCloud.from_open3d(cloud.to_legacy())
     raise TypeError(f"{name}: expected a geofit PointCloud, trimesh.PointCloud or "
-                    f"open3d.geometry.PointCloud, got {type(cloud)!r}")
+                    f"open3d.geometry.PointCloud (legacy or tensor API), got {type(cloud)!r}")
 
 
 def as_pointclouds(clouds, name: str = "point_clouds") -> Pointclouds:

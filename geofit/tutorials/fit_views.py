@@ -140,7 +140,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
 
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
     from ..fit.views import fit_mesh_to_views
     from ..shapes import ico_sphere
 

@@ -142,6 +142,6 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
 
 def _views(images, silhouettes, cameras):
     """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
 
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

@@ -133,6 +133,6 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
 
 def _views(images, silhouettes, cameras):
     """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-    from ..datasets import MultiViewDataset
+    from ..structures import MultiViewDataset
 
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

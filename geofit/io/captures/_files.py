@@ -1,0 +1,161 @@
+"""Capture files: paths inside the capture folder, images, masks (private to geofit.io).
+
+The helpers every capture layout shares to find and read its image and mask files (moved here
+verbatim from ``geofit/io/views.py``).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+_IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".tif", ".tiff", ".bmp",
+               ".webp")
+
+
+# --------------------------------------------------------------------------------------------
+# Files: paths and images
+# --------------------------------------------------------------------------------------------
+
+
+def _resolve(root: Path, ref: str, where: str, allow_outside: bool) -> Path:
+    """``ref`` relative to ``root``; refused if absolute or outside ``root`` (path policy)."""
+    if not isinstance(ref, str) or not ref.strip():
+        raise ValueError(f"{where}: expected a non-empty relative path, got {ref!r}")
+    p = Path(ref)
+    target = p if p.is_absolute() else root / p
+    if not allow_outside:
+        if p.is_absolute():
+            raise ValueError(f"{where}: absolute path {ref!r} refused (files must lie in the "
+                             f"capture folder {root}; pass allow_outside=True to allow it)")
+        real_root = os.path.realpath(root)
+        real = os.path.realpath(target)
+        if os.path.commonpath([real_root, real]) != real_root:
+            raise ValueError(f"{where}: path {ref!r} leaves the capture folder {root} (pass "
+                             "allow_outside=True to allow it)")
+    return target
+
+
+def _find_image(path: Path, where: str) -> Path:
+    """``path`` itself, or ``path`` plus an image extension (``file_path`` without one)."""
+    if path.is_file():
+        return path
+    for ext in _IMAGE_EXTS:
+        q = path.with_name(path.name + ext)
+        if q.is_file():
+            return q
+    raise ValueError(f"{where}: image {str(path)!r} not found (also tried the extensions "
+                     f"{', '.join(_IMAGE_EXTS[:3])}, ...)")
+
+
+def _is_png16_colour(path: Path) -> bool:
+    with open(path, "rb") as f:
+        head = f.read(26)
+    return (len(head) == 26 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[24] == 16
+            and head[25] in (2, 4, 6))
+
+
+def _read_image(path: Path, where: str) -> np.ndarray:
+    """An image file as ``(H, W, C)`` float64 in [0, 1], ``C`` in 1..4 (grey, grey+alpha, RGB,
+    RGBA); errors become ValueError naming the file."""
+    from PIL import Image
+
+    try:
+        if _is_png16_colour(path):
+            import png  # pypng: pillow reduces 16-bit colour PNGs to 8 bits
+
+            with open(path, "rb") as f:
+                reader = png.Reader(file=f)
+                reader.preamble()
+                if reader.width * reader.height > (Image.MAX_IMAGE_PIXELS or np.inf):
+                    raise ValueError(f"{reader.width}x{reader.height} pixels is more than "
+                                     "pillow's limit")
+                w, h, flat, info = reader.read_flat()
+            a = np.asarray(flat, dtype=np.uint16).reshape(h, w, info["planes"])
+            a = a.astype(np.float64) / 65535.0
+        else:
+            with Image.open(path) as im:
+                mode = im.mode
+                if mode in ("I;16", "I;16B", "I;16L", "I"):
+                    a = np.asarray(im, dtype=np.float64) / 65535.0
+                elif mode == "F":
+                    a = np.asarray(im, dtype=np.float64)
+                else:
+                    if mode not in ("L", "LA", "RGB", "RGBA"):
+                        alpha = "A" in im.getbands() or "transparency" in im.info
+                        im = im.convert("RGBA" if alpha else "RGB")
+                    a = np.asarray(im, dtype=np.float64) / 255.0
+    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError,
+            _png_error()) as exc:
+        raise ValueError(f"{where}: cannot read image {str(path)!r}: {exc}") from None
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[2] not in (1, 2, 3, 4) or a.shape[0] == 0 or a.shape[1] == 0:
+        raise ValueError(f"{where}: image {str(path)!r} has unsupported shape {a.shape}")
+    if not np.all(np.isfinite(a)) or a.min() < 0.0 or a.max() > 1.0:
+        raise ValueError(f"{where}: image {str(path)!r} has values outside [0, 1]")
+    return a
+
+
+def _png_error():
+    import png
+
+    return png.Error
+
+
+def _split_rgba(a: np.ndarray):
+    """RGB ``(H, W, 3)`` and alpha ``(H, W)`` (None without alpha) of a read image."""
+    c = a.shape[2]
+    rgb = np.repeat(a[..., :1], 3, axis=2) if c in (1, 2) else a[..., :3]
+    alpha = a[..., -1] if c in (2, 4) else None
+    return rgb, alpha
+
+
+def _mask_values(a: np.ndarray) -> np.ndarray:
+    """A mask image as ``(H, W)``: grey value, or the mean of RGB."""
+    return a[..., 0] if a.shape[2] in (1, 2) else a[..., :3].mean(axis=2)
+
+
+def _gather(views: list, where_file: str, background):
+    """Read every view's image (and mask); check one common size.
+
+    ``views`` holds dicts with ``image`` (Path), ``where`` and optional ``mask`` (Path) and
+    ``size`` ((H, W) declared by the camera file). Returns images ``(N, H, W, 3)``, silhouettes
+    ``(N, H, W)`` (None when no view has a mask or alpha: silhouettes unknown).
+    """
+    images, sils, size0 = [], [], None
+    for v in views:  # one file per view
+        a = _read_image(v["image"], v["where"])
+        rgb, alpha = _split_rgba(a)
+        if v.get("mask") is not None:
+            sil = _mask_values(_read_image(v["mask"], v["where"]))
+            if sil.shape != rgb.shape[:2]:
+                raise ValueError(f"{v['where']}: mask {str(v['mask'])!r} is {sil.shape[0]}x"
+                                 f"{sil.shape[1]}, its image {rgb.shape[0]}x{rgb.shape[1]}")
+        elif alpha is not None:
+            sil = alpha
+        else:
+            sil = None
+        if background is not None and alpha is not None:
+            rgb = rgb * alpha[..., None] + background * (1.0 - alpha[..., None])
+        hw = rgb.shape[:2]
+        if v.get("size") is not None and tuple(v["size"]) != hw:
+            raise ValueError(f"{v['where']}: image {str(v['image'])!r} is {hw[0]}x{hw[1]} "
+                             f"(HxW), the camera says {v['size'][0]}x{v['size'][1]}")
+        if size0 is None:
+            size0 = hw
+        elif hw != size0:
+            raise ValueError(f"{v['where']}: image {str(v['image'])!r} is {hw[0]}x{hw[1]}, "
+                             f"the first view's {size0[0]}x{size0[1]}: every view of "
+                             f"{where_file} must have the same size")
+        if sils and (sil is None) != (sils[0] is None):
+            raise ValueError(f"{v['where']}: image {str(v['image'])!r} "
+                             f"{'has no' if sil is None else 'has a'} mask or alpha channel, "
+                             f"the first view's {'has' if sil is None else 'has none'}: give "
+                             "every view a mask, or none")
+        images.append(rgb)
+        sils.append(sil)
+    if sils[0] is None:
+        return np.ascontiguousarray(np.stack(images)), None
+    return np.ascontiguousarray(np.stack(images)), np.ascontiguousarray(np.stack(sils))
