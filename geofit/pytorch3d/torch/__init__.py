@@ -14,6 +14,7 @@ under torch's names. Exactly these are provided:
   generator, seeded by ``manual_seed``; the streams differ from torch's);
 * dtypes: ``float32``, ``float``, ``float64``, ``double``, ``int32``, ``int64``, ``long``,
   ``bool``, ``uint8`` (numpy dtypes; floating values are always stored as float64);
+* ``__version__`` (``"0+geofit"``, matching no torch release);
 * gradients: ``no_grad``, ``is_grad_enabled``; ``Tensor.backward()`` runs the tape;
 * devices: ``device``, ``cuda.is_available()`` (False), ``cuda.device_count()`` (0),
   ``cuda.set_device`` (raises: there is no CUDA); ``device=`` and ``.to(device)`` are accepted
@@ -87,6 +88,10 @@ from ..tensor import (
     zeros_like,
 )
 from . import cuda, nn, optim
+
+#: Not a torch release: code that compares torch versions (the tutorials' install cells) sees
+#: none it knows.
+__version__ = "0+geofit"
 
 float32 = float = _np.float32  # noqa: A001 - torch's names
 float64 = double = _np.float64
