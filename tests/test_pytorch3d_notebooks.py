@@ -68,7 +68,8 @@ LOSSES = {
 }
 
 _IMPORTS = [
-    (r"^(\s*)import torch\.nn\.functional as (\w+)", r"\1import geofit.pytorch3d.torch.nn.functional as \2"),
+    (r"^(\s*)import torch\.nn\.functional as (\w+)",
+     r"\1import geofit.pytorch3d.torch.nn.functional as \2"),
     (r"^(\s*)import torch\s*$", r"\1import geofit.pytorch3d.torch as torch"),
     (r"^(\s*)import pytorch3d\s*$", r"\1import geofit.pytorch3d as pytorch3d"),
     (r"^(\s*)from pytorch3d\.", r"\1from geofit.pytorch3d."),

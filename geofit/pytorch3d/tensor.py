@@ -598,7 +598,7 @@ class Tensor:
                               lambda g: (np.swapaxes(g, dim0, dim1),))
 
     def chunk(self, chunks: int, dim: int = 0) -> tuple:
-        """At most ``chunks`` pieces along ``dim`` of ``ceil(n / chunks)`` each (``torch.chunk``)."""
+        """At most ``chunks`` pieces along ``dim``, ``ceil(n / chunks)`` each (``torch.chunk``)."""
         n = self.data.shape[dim]
         return self.split(max(-(-n // int(chunks)), 1), dim)
 

@@ -3,8 +3,8 @@
 
 Meshes become ``Mesh3d`` traces (vertex colours from ``TexturesVertex``; other textures and
 none: plotly's default colour), point clouds ``Scatter3d`` markers (colours from their
-features), cameras wireframe ``Scatter3d`` lines. plotly is imported when a figure is made: without it
-the call raises ImportError saying ``pip install plotly``.
+features), cameras wireframe ``Scatter3d`` lines. plotly is imported when a figure is made:
+without it the call raises ImportError saying ``pip install plotly``.
 """
 from __future__ import annotations
 
