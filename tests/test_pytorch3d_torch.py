@@ -23,6 +23,14 @@ def _fd(fun, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
     return g
 
 
+def _check_tape(build, x0: np.ndarray, atol: float) -> None:
+    """The tape's gradient of ``build(Parameter(x))`` equals central differences at ``x0``."""
+    p = torch.Parameter(x0.copy())
+    build(p).backward()
+    np.testing.assert_allclose(p.grad.numpy(),
+                               _fd(lambda a: float(build(torch.tensor(a))), x0.copy()), atol=atol)
+
+
 def test_torch_names_the_tutorials_use():
     """device / cuda / dtypes / creation / seeding behave as the tutorials expect."""
     assert torch.cuda.is_available() is False and torch.cuda.device_count() == 0
@@ -56,17 +64,12 @@ def test_tensor_shape_ops_record_their_gradients():
     x0 = rng.normal(size=(2, 3, 4))
     W = rng.normal(size=(4, 2, 3))
 
-    def loss(a, backward=False):
-        t = torch.Parameter(a)
+    def build(t):
         y = t.permute(2, 0, 1) * W
         z = y.transpose(0, 2).flatten(1).chunk(2, dim=1)[1]
-        out = (z * z).sum() + (y ** 2).mean()
-        if backward:
-            out.backward()
-            return t.grad.numpy()
-        return float(out)
+        return (z * z).sum() + (y ** 2).mean()
 
-    np.testing.assert_allclose(loss(x0.copy(), True), _fd(loss, x0.copy()), atol=1e-7)
+    _check_tape(build, x0, 1e-7)
     with pytest.raises(TypeError, match="detach"):
         torch.Parameter(x0).long()
 
@@ -98,15 +101,7 @@ def test_so3_exp_map_gradient_equals_central_differences():
     v0 = rng.normal(size=(3, 3))
     W = rng.normal(size=(3, 3, 3))
 
-    def loss(a, backward=False):
-        p = torch.Parameter(a)
-        out = (so3_exp_map(p) * W).sum()
-        if backward:
-            out.backward()
-            return p.grad.numpy()
-        return float(out)
-
-    np.testing.assert_allclose(loss(v0.copy(), True), _fd(loss, v0.copy()), atol=1e-8)
+    _check_tape(lambda p: (so3_exp_map(p) * W).sum(), v0, 1e-8)
 
 
 def test_so3_validators():
@@ -161,15 +156,8 @@ def test_functional_activations_record_gradients():
     np.testing.assert_allclose(F.sigmoid(x0).numpy(), 1 / (1 + np.exp(-x0)), atol=1e-12)
     W = rng.normal(size=(4, 3))
 
-    def loss(a, backward=False):
-        p = torch.Parameter(a)
-        out = ((F.softplus(p, beta=2.0) + F.normalize(p, dim=-1) + F.relu(p)) * W).sum()
-        if backward:
-            out.backward()
-            return p.grad.numpy()
-        return float(out)
-
-    np.testing.assert_allclose(loss(x0.copy(), True), _fd(loss, x0.copy()), atol=1e-7)
+    _check_tape(lambda p: ((F.softplus(p, beta=2.0) + F.normalize(p, dim=-1) + F.relu(p))
+                           * W).sum(), x0, 1e-7)
 
 
 def test_plot_scene_validates_its_input():
