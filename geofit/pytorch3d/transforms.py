@@ -66,7 +66,7 @@ def so3_exp_map(log_rot, eps: float = 0.0001) -> Tensor:
     return fac1[:, None, None] * K + fac2[:, None, None] * K2 + np.eye(3)
 
 
-#: PyTorch3D's former name of :func:`so3_exp_map` (the volume tutorial imports it).
+#: PyTorch3D's older name of :func:`so3_exp_map` (the volume tutorial imports it).
 so3_exponential_map = so3_exp_map
 
 
