@@ -38,6 +38,7 @@ from ._validate import as_array, check_positive
 from ._validate import check_int as _count
 from .cameras import FoVPerspectiveCameras, look_at_view_transform
 from .data import load_textured_mesh
+from .io.mesh import load_mesh
 from .render import (
     BlendParams,
     MeshRasterizer,
@@ -341,12 +342,40 @@ def tutorial_views(tutorial: int = 5, *, mesh: Mesh | None = None, num_views: in
     return data
 
 
-def generate_cow_renders(num_views: int = 40, azimuth_range: float = 180.0,
-                         image_size: int = 128, background=(0.0, 0.0, 0.0), elev: float = 0.0,
-                         *, dist: float = 2.7, mesh: Mesh | None = None) -> MultiViewDataset:
-    """Deprecated: use ``tutorial_views(5, ...)`` (the same views, held-out views attached)."""
-    warnings.warn("generate_cow_renders is deprecated; use geofit.datasets.tutorial_views(5, "
-                  "num_views=..., num_held_out=0)", DeprecationWarning, stacklevel=2)
-    return tutorial_views(5, mesh=mesh, num_views=num_views, image_size=image_size,
-                          num_held_out=0, azimuth_range=azimuth_range, elev=elev, dist=dist,
-                          background=background, name=None if mesh is None else "mesh")
+def generate_cow_renders(num_views: int = 40, data_dir=None, azimuth_range: float = 180.0, *,
+                         image_size: int = 128, mesh: Mesh | None = None):
+    """The tutorials' helper (``docs/tutorials/utils/generate_cow_renders.py``): ``cameras,
+    images, silhouettes`` as PyTorch3D's returns them, in geofit's types.
+
+    The views of :func:`tutorial_views` ``(5, num_held_out=0)``: elevation 0,
+    :func:`training_azimuths`, black background, silhouettes thresholded at 1e-4.
+
+    Parameters
+    ----------
+    num_views : int
+        Number of views (40).
+    data_dir : str or path, optional
+        A folder holding ``cow.obj`` (with its material and texture); default: geofit's cow
+        (:func:`cow_mesh`).
+    azimuth_range : float
+        Azimuths ``linspace(-azimuth_range, azimuth_range, num_views) + 180`` degrees.
+    image_size : int
+        Square image size (128).
+    mesh : Mesh, optional
+        Render this (textured, normalised) mesh instead (not with ``data_dir``).
+
+    Returns
+    -------
+    cameras : FoVPerspectiveCameras
+        ``num_views`` cameras.
+    images : (num_views, image_size, image_size, 3) float64
+    silhouettes : (num_views, image_size, image_size) float64
+        0 or 1.
+    """
+    if data_dir is not None:
+        if mesh is not None:
+            raise ValueError("data_dir, mesh: give one of them, not both")
+        mesh = load_mesh(f"{data_dir}/cow.obj").normalize().mesh
+    data = tutorial_views(5, mesh=mesh, num_views=num_views, image_size=image_size,
+                          num_held_out=0, azimuth_range=azimuth_range)
+    return data.cameras, data.images, data.silhouettes

@@ -110,7 +110,6 @@ def test_tutorial_views_layouts():
 def test_deprecated_dataset_names_warn_and_agree():
     """The former stack still works for one release, with a DeprecationWarning, and returns
     the same arrays as the new one."""
-    from geofit.datasets import generate_cow_renders
     from geofit.fit.views import (
         MultiViewData,
         MultiViewSplit,
@@ -130,10 +129,24 @@ def test_deprecated_dataset_names_warn_and_agree():
     assert isinstance(mv, MultiViewDataset) and type(mv[0]) is MultiViewDataset
     with pytest.warns(DeprecationWarning, match="cow_multiview_dataset"):
         cow_multiview_dataset(num_views=2, image_size=8, num_heldout=1)
-    with pytest.warns(DeprecationWarning, match="generate_cow_renders"):
-        g = generate_cow_renders(num_views=2, image_size=8, mesh=obj)
-    t5 = tutorial_views(5, mesh=obj, num_views=2, image_size=8, num_held_out=0)
-    np.testing.assert_array_equal(g.images, t5.images)
+
+
+def test_generate_cow_renders_returns_cameras_images_silhouettes():
+    """The tutorials' helper unpacks as ``cameras, images, silhouettes`` with the views of
+    tutorial_views(5); data_dir and mesh together are refused."""
+    from geofit.datasets import generate_cow_renders
+
+    obj = _object()
+    cameras, images, silhouettes = generate_cow_renders(num_views=3, image_size=8, mesh=obj,
+                                                        azimuth_range=90)
+    t5 = tutorial_views(5, mesh=obj, num_views=3, image_size=8, num_held_out=0,
+                        azimuth_range=90)
+    assert len(cameras) == 3 and images.shape == (3, 8, 8, 3) and silhouettes.shape == (3, 8, 8)
+    np.testing.assert_array_equal(images, t5.images)
+    np.testing.assert_array_equal(cameras.R, t5.cameras.R)
+    assert set(np.unique(silhouettes)) <= {0.0, 1.0}
+    with pytest.raises(ValueError, match="data_dir"):
+        generate_cow_renders(num_views=2, data_dir="x", mesh=obj)
 
 
 def test_every_multi_view_fit_shows_a_progress_bar_unless_asked_not_to(capsys):

@@ -552,20 +552,37 @@ def test_hard_render_and_errors_for_what_is_not_differentiable():
 @pytest.mark.parametrize("module, name, hint", [
     ("geofit.pytorch3d.renderer", "PulsarPointsRenderer", "AlphaCompositor"),
     ("geofit.pytorch3d.ops", "knn_points", "cKDTree"),
-    ("geofit.pytorch3d.vis.plotly_vis", "plot_scene", "matplotlib"),
     ("geofit.pytorch3d.nn", "Conv2d", "NeuralRadianceField"),
-    ("geofit.pytorch3d.renderer", "NoSuchThing", "six introductory tutorials"),
+    ("geofit.pytorch3d.torch.nn", "Conv2d", "NeuralRadianceField"),
+    ("geofit.pytorch3d.transforms", "quaternion_to_matrix", "scipy"),
+    ("geofit.pytorch3d.torch", "matmul", "broadcasting"),
 ])
-def test_missing_pytorch3d_names_say_what_to_use(module, name, hint):
-    """module.Name -> AttributeError, from module import Name -> ImportError, both with a hint."""
+def test_missing_pytorch3d_names_import_and_raise_at_use(module, name, hint):
+    """A PyTorch3D name geofit does not provide imports (the import cell runs), and calling
+    or instantiating it raises NotImplementedError with what to use instead."""
     import importlib
 
     mod = importlib.import_module(module)
-    with pytest.raises(AttributeError, match=hint):
-        getattr(mod, name)
-    with pytest.raises(ImportError, match=hint):
-        exec(f"from {module} import {name}", {})
-    assert not hasattr(mod, name)
+    ns = {}
+    exec(f"from {module} import {name}", ns)
+    assert getattr(mod, name) is not None
+    with pytest.raises(NotImplementedError, match=hint):
+        ns[name]()
+    with pytest.raises(NotImplementedError, match=hint):
+        ns[name].some_attribute  # noqa: B018
+    assert hint in repr(ns[name])
+
+
+def test_unknown_names_still_fail_at_import():
+    """A name that is not PyTorch3D's (a typo) fails at once, naming the list of what exists."""
+    import importlib
+
+    mod = importlib.import_module("geofit.pytorch3d.renderer")
+    with pytest.raises(AttributeError, match="docs/pytorch3d.md"):
+        mod.NoSuchThing  # noqa: B018
+    with pytest.raises(ImportError, match="docs/pytorch3d.md"):
+        exec("from geofit.pytorch3d.renderer import NoSuchThing", {})
+    assert not hasattr(mod, "NoSuchThing")
 
 
 # ------------------------------------------------------------------------------- volumes (5, 6)
@@ -580,6 +597,8 @@ def test_volume_and_implicit_renderers_give_geofits_images():
         ray_bundle_to_ray_points,
     )
     from geofit.pytorch3d.structures import Volumes
+    from geofit.pytorch3d.tensor import Tensor
+    from geofit.render import RayBundle as GeofitRayBundle
     from geofit.structures.volume import Volume
 
     R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
@@ -593,9 +612,11 @@ def test_volume_and_implicit_renderers_give_geofits_images():
     images, bundle = r(cameras=cams, volumes=Volumes(densities=dens, features=feats,
                                                       voxel_size=0.3))
     assert images.shape == (2, 12, 12, 4)
+    assert all(isinstance(a, Tensor) for a in bundle)  # the tutorials call .view, .shape.numel()
+    assert bundle.origins.shape[:-1].numel() == 2 * 12 * 12
     for i in range(2):  # camera i renders volume i
         ref = r._r.render_rays(Volume(dens[i, 0], feats[i], voxel_size=0.3),
-                               type(bundle)(*(np.asarray(a)[i:i + 1] for a in bundle)))
+                               GeofitRayBundle(*(np.asarray(a)[i:i + 1] for a in bundle)))
         np.testing.assert_allclose(images.numpy()[i], ref[0], atol=1e-14)
     ir = ImplicitRenderer(raysampler=MonteCarloRaysampler(-1, 1, -1, 1, n_rays_per_image=30,
                                                           n_pts_per_ray=16, min_depth=0.1,
@@ -653,6 +674,7 @@ def test_volume_render_on_the_tape_equals_geofits_vjp():
         VolumeRenderer,
     )
     from geofit.pytorch3d.structures import Volumes
+    from geofit.render import RayBundle as GeofitRayBundle
     from geofit.structures.volume import Volume
 
     R, T = look_at_view_transform(2.0, 10.0, [0.0, 70.0, 150.0])
@@ -668,7 +690,8 @@ def test_volume_render_on_the_tape_equals_geofits_vjp():
                    features=cols[None].expand(3, *cols.shape), voxel_size=0.3)
     images, bundle = r(cameras=cams, volumes=vols)
     (images * W).sum().backward()
-    ref = r._r.vjp(W, Volume(dens.data[0], cols.data, voxel_size=0.3), bundle)
+    ref = r._r.vjp(W, Volume(dens.data[0], cols.data, voxel_size=0.3),
+                   GeofitRayBundle(*(np.asarray(a) for a in bundle)))
     np.testing.assert_allclose(dens.grad.numpy()[0], ref.densities, atol=TOL)
     np.testing.assert_allclose(cols.grad.numpy(), ref.features, atol=TOL)
     two = Parameter(rng.random((3, 1, 5, 5, 5)) * 0.4)  # three different volumes

@@ -1,11 +1,11 @@
-"""The code cells of PyTorch3D's tutorials 1-4 as written, on geofit.pytorch3d.
+"""The code cells of PyTorch3D's six tutorials in their call forms, on geofit.pytorch3d.
 
-Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``; torch tensor
-creation -> ``geofit.pytorch3d.tensor`` (imported as ``torch``) or numpy (``np.linspace`` for
-``torch.linspace``, ``np.load`` arrays for ``torch.Tensor``); the notebooks' plotting helper
-``image_grid`` -> :func:`geofit.render.image_grid`; sizes reduced (steps, images, samples); data:
-geofit's procedural stand-ins written as OBJ files into ``tmp_path`` (the tests run offline).
-Each test then checks something the tutorial relies on.
+Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``, ``import torch``
+-> ``import geofit.pytorch3d.torch as torch``, the tutorials' helper files ->
+:mod:`geofit.pytorch3d.tutorial_utils`; sizes reduced (steps, images, samples); data: geofit's
+procedural stand-ins written as OBJ files into ``tmp_path`` (the tests run offline). Each test
+then checks something the tutorial relies on. ``tests/test_pytorch3d_notebooks.py`` runs
+PyTorch3D's own notebooks the same way when they are given.
 """
 from __future__ import annotations
 
@@ -40,8 +40,7 @@ def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
     """The deform tutorial's cells; 20 steps lower the chamfer loss and the mesh is saved."""
     import os
 
-    from geofit.pytorch3d import optim
-    from geofit.pytorch3d import tensor as torch
+    import geofit.pytorch3d.torch as torch
     from geofit.pytorch3d.io import load_obj, save_obj
     from geofit.pytorch3d.loss import (
         chamfer_distance,
@@ -54,7 +53,7 @@ def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
     from geofit.pytorch3d.utils import ico_sphere
 
     torch.manual_seed(0)
-    device = "cpu"
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     trg_obj = os.path.join(dolphin_obj)
     verts, faces, aux = load_obj(trg_obj)
     faces_idx = faces.verts_idx.to(device)
@@ -80,7 +79,7 @@ def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
     plot_pointcloud(src_mesh, "Source mesh")
     deform_verts = torch.full(src_mesh.verts_packed().shape, 0.0, device=device,
                               requires_grad=True)
-    optimizer = optim.SGD([deform_verts], lr=1.0, momentum=0.9)
+    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
     Niter = 20
     w_chamfer = 1.0
     w_edge = 1.0
@@ -122,7 +121,7 @@ def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
 
 def test_tutorial2_render_textured_meshes(cow_obj):
     """The render tutorial's cells at 64 px; the light behind the cow darkens the image."""
-    from geofit.pytorch3d import tensor as torch
+    import geofit.pytorch3d.torch as torch
     from geofit.pytorch3d.io import load_obj, load_objs_as_meshes
     from geofit.pytorch3d.renderer import (
         FoVPerspectiveCameras,
@@ -136,9 +135,10 @@ def test_tutorial2_render_textured_meshes(cow_obj):
         look_at_view_transform,
     )
     from geofit.pytorch3d.structures import Meshes
+    from geofit.pytorch3d.vis.plotly_vis import AxisArgs, plot_batch_individually, plot_scene
     from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib
 
-    device = "cpu"
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     obj_filename = cow_obj
     mesh = load_objs_as_meshes([obj_filename], device=device)
     plt.figure(figsize=(7, 7))
@@ -169,8 +169,8 @@ def test_tutorial2_render_textured_meshes(cow_obj):
     images = renderer(mesh, lights=lights, materials=materials, cameras=cameras)
     batch_size = 20
     meshes = mesh.extend(batch_size)
-    elev = np.linspace(0, 180, batch_size)
-    azim = np.linspace(-180, 180, batch_size)
+    elev = torch.linspace(0, 180, batch_size)
+    azim = torch.linspace(-180, 180, batch_size)
     R, T = look_at_view_transform(dist=2.7, elev=elev, azim=azim)
     cameras = FoVPerspectiveCameras(device=device, R=R, T=T)
     lights.location = torch.tensor([[0.0, 0.0, -3.0]], device=device)
@@ -190,13 +190,32 @@ def test_tutorial2_render_textured_meshes(cow_obj):
     assert images.shape == (20, 64, 64, 4)
     assert behind[covered].mean() < front[covered].mean()
     assert len(mesh_4) == 4 and mesh_4.num_verts_per_mesh().tolist()[1] == len(verts)
-    with pytest.raises(ImportError, match="plotly"):
-        exec("from geofit.pytorch3d.vis.plotly_vis import plot_scene", {})
+    fig = plot_scene({"subplot1": {"cow_mesh": mesh}})
+    assert fig.data[0].type == "mesh3d" and len(fig.data[0].vertexcolor) == len(verts)
+    fig = plot_scene({"subplot1": {"cow_mesh1": mesh_batch[0]}, "subplot2": {"cow_mesh2":
+                                                                             mesh_batch[1]}})
+    assert len(fig.data) == 2
+    fig = plot_batch_individually(mesh_4)
+    fig.update_layout(height=1000, width=500)
+    fig2 = plot_scene({"cow_plot1": {"cows": mesh_batch}},
+                      xaxis={"backgroundcolor": "rgb(200, 200, 230)"},
+                      yaxis={"backgroundcolor": "rgb(230, 200, 200)"},
+                      zaxis={"backgroundcolor": "rgb(200, 230, 200)"},
+                      axis_args=AxisArgs(showgrid=True))
+    fig3 = plot_batch_individually(mesh_4, ncols=2, subplot_titles=["cow1", "cow2", "cow3",
+                                                                   "cow4"],
+                                   xaxis={"backgroundcolor": "rgb(200, 200, 230)"},
+                                   axis_args=AxisArgs(showgrid=True))
+    assert len(fig.data) == 4 and len(fig3.data) == 4
+    assert len(fig2.data[0].x) == 2 * len(verts)  # one trace for the batch
+    assert fig2.layout.scene.xaxis.backgroundcolor == "rgb(200, 200, 230)"
+    assert fig2.layout.scene.xaxis.showgrid
 
 
 def test_tutorial3_render_colored_points(tmp_path):
     """The point-cloud tutorial's cells on a random coloured cloud at 64 px."""
-    from geofit.pytorch3d import tensor as torch
+    import geofit.pytorch3d.torch as torch
+    import geofit.pytorch3d.torch.nn.functional as F  # noqa: F401 - the tutorial's import
     from geofit.pytorch3d.renderer import (
         AlphaCompositor,
         FoVOrthographicCameras,
@@ -204,17 +223,19 @@ def test_tutorial3_render_colored_points(tmp_path):
         PointsRasterizationSettings,
         PointsRasterizer,
         PointsRenderer,
+        PulsarPointsRenderer,
         look_at_view_transform,
     )
     from geofit.pytorch3d.structures import Pointclouds
+    from geofit.pytorch3d.vis.plotly_vis import AxisArgs, plot_batch_individually, plot_scene
 
     rng = np.random.default_rng(0)
     obj_filename = str(tmp_path / "pointcloud.npz")
     np.savez(obj_filename, verts=rng.normal(size=(3000, 3)) * 3.0, rgb=rng.random((3000, 3)))
-    device = "cpu"
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     pointcloud = np.load(obj_filename)
-    verts = torch.tensor(pointcloud["verts"]).to(device)
-    rgb = torch.tensor(pointcloud["rgb"]).to(device)
+    verts = torch.Tensor(pointcloud["verts"]).to(device)
+    rgb = torch.Tensor(pointcloud["rgb"]).to(device)
     point_cloud = Pointclouds(points=[verts], features=[rgb])
     R, T = look_at_view_transform(20, 10, 0)
     cameras = FoVOrthographicCameras(device=device, R=R, T=T, znear=0.01)
@@ -244,8 +265,23 @@ def test_tutorial3_render_colored_points(tmp_path):
     empty &= np.all(images_blue.numpy()[0] == [0.0, 0.0, 1.0], axis=-1)
     assert empty.any() and np.all(images_red.numpy()[0][empty] == [1.0, 0.0, 0.0])
     assert len(point_cloud_batch[1]) == 1
-    with pytest.raises(ImportError, match="PointsRenderer"):
-        exec("from geofit.pytorch3d.renderer import PulsarPointsRenderer", {})
+    with pytest.raises(NotImplementedError, match="NormWeightedCompositor"):
+        PulsarPointsRenderer(
+            rasterizer=PointsRasterizer(cameras=cameras, raster_settings=raster_settings),
+            n_channels=4).to(device)
+    bg = torch.tensor([0.0, 1.0, 0.0, 1.0], dtype=torch.float32, device=device)
+    assert bg.dtype == np.float64  # values are float64 whatever the dtype asked
+    fig = plot_scene({"Pointcloud": {"person": point_cloud_batch[0],
+                                     "person2": point_cloud_batch[1]}})
+    fig2 = plot_batch_individually(point_cloud_batch, ncols=2)
+    fig2.update_layout(height=500, width=500)
+    fig3 = plot_batch_individually(point_cloud_batch,
+                                   xaxis={"backgroundcolor": "rgb(200, 200, 230)"},
+                                   subplot_titles=["Pointcloud1", "Pointcloud2"],
+                                   axis_args=AxisArgs(showgrid=True))
+    assert [d.type for d in fig.data] == ["scatter3d", "scatter3d"]
+    assert fig.data[1].marker.color[0] == "rgb(0,0,0)"  # the all-black second cloud
+    assert len(fig2.data) == 2 and fig3.layout.annotations[1].text == "Pointcloud2"
 
 
 def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
@@ -253,8 +289,7 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
     colours get a gradient, the prediction is saved."""
     import os
 
-    from geofit.pytorch3d import optim
-    from geofit.pytorch3d import tensor as torch
+    import geofit.pytorch3d.torch as torch
     from geofit.pytorch3d.io import load_objs_as_meshes, save_obj
     from geofit.pytorch3d.loss import (
         mesh_edge_loss,
@@ -275,7 +310,7 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
     from geofit.pytorch3d.utils import ico_sphere
 
     np.random.seed(0)
-    device = "cpu"
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     obj_filename = cow_obj
     mesh = load_objs_as_meshes([obj_filename], device=device)
     verts = mesh.verts_packed()
@@ -285,8 +320,8 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
     mesh.offset_verts_(-center)
     mesh.scale_verts_((1.0 / float(scale)))
     num_views = 20
-    elev = np.linspace(0, 360, num_views)
-    azim = np.linspace(-180, 180, num_views)
+    elev = torch.linspace(0, 360, num_views)
+    azim = torch.linspace(-180, 180, num_views)
     lights = PointLights(device=device, location=[[0.0, 0.0, -3.0]])
     R, T = look_at_view_transform(dist=2.7, elev=elev, azim=azim)
     cameras = OpenGLPerspectiveCameras(device=device, R=R, T=T)
@@ -346,7 +381,7 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
 
     verts_shape = src_mesh.verts_packed().shape
     deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
-    optimizer = optim.SGD([deform_verts], lr=1.0, momentum=0.9)
+    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
     for i in range(Niter):
         optimizer.zero_grad()
         new_src_mesh = src_mesh.offset_verts(deform_verts)
@@ -380,7 +415,7 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
               "laplacian": {"weight": 1.0, "values": []}}
     deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
     sphere_verts_rgb = torch.full([1, verts_shape[0], 3], 0.5, device=device, requires_grad=True)
-    optimizer = optim.SGD([deform_verts, sphere_verts_rgb], lr=1.0, momentum=0.9)
+    optimizer = torch.optim.SGD([deform_verts, sphere_verts_rgb], lr=1.0, momentum=0.9)
     for i in range(Niter):
         optimizer.zero_grad()
         new_src_mesh = src_mesh.offset_verts(deform_verts)
@@ -420,8 +455,7 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
 def test_tutorial5_fit_textured_volume():
     """fit_textured_volume's model, huber and Adam loop (with its 10x learning-rate drop) on a
     16^3 volume and 8 views of 16 px rendered from a known volume: the loss goes down."""
-    from geofit.pytorch3d import nn, optim
-    from geofit.pytorch3d import tensor as torch
+    import geofit.pytorch3d.torch as torch
     from geofit.pytorch3d.renderer import (
         EmissionAbsorptionRaymarcher,
         FoVPerspectiveCameras,
@@ -430,9 +464,11 @@ def test_tutorial5_fit_textured_volume():
         look_at_view_transform,
     )
     from geofit.pytorch3d.structures import Volumes
+    from geofit.pytorch3d.transforms import so3_exponential_map
+    from geofit.pytorch3d.tutorial_utils import image_grid
 
     torch.manual_seed(0)
-    device = "cpu"
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     # the dataset: a ball of colour rendered by the same renderer (the notebook's
     # generate_cow_renders is its helper file, not PyTorch3D)
     R, T = look_at_view_transform(dist=2.7, elev=0.0, azim=np.linspace(-180, 180, 8) + 180.0)
@@ -452,11 +488,11 @@ def test_tutorial5_fit_textured_volume():
     rendered = renderer(cameras=target_cameras, volumes=truth)[0]
     target_images, target_silhouettes = rendered[..., :3], rendered[..., 3]
 
-    class VolumeModel(nn.Module):
+    class VolumeModel(torch.nn.Module):
         def __init__(self, renderer, volume_size=[64] * 3, voxel_size=0.1):
             super().__init__()
-            self.log_densities = nn.Parameter(-4.0 * torch.ones(1, *volume_size))
-            self.log_colors = nn.Parameter(torch.zeros(3, *volume_size))
+            self.log_densities = torch.nn.Parameter(-4.0 * torch.ones(1, *volume_size))
+            self.log_colors = torch.nn.Parameter(torch.zeros(3, *volume_size))
             self._voxel_size = voxel_size
             self._renderer = renderer
 
@@ -480,13 +516,13 @@ def test_tutorial5_fit_textured_volume():
     volume_model = VolumeModel(renderer, volume_size=[volume_size] * 3,
                                voxel_size=volume_extent_world / volume_size).to(device)
     lr = 0.1
-    optimizer = optim.Adam(volume_model.parameters(), lr=lr)
+    optimizer = torch.optim.Adam(volume_model.parameters(), lr=lr)
     batch_size = 4
     n_iter = 20
     losses = []
     for iteration in range(n_iter):
         if iteration == round(n_iter * 0.75):
-            optimizer = optim.Adam(volume_model.parameters(), lr=lr * 0.1)
+            optimizer = torch.optim.Adam(volume_model.parameters(), lr=lr * 0.1)
         optimizer.zero_grad()
         batch_idx = torch.randperm(len(target_cameras))[:batch_size]
         batch_cameras = FoVPerspectiveCameras(
@@ -527,8 +563,56 @@ def test_tutorial5_fit_textured_volume():
     assert len(volume_model.parameters()) == 2
     assert np.mean(losses[-3:]) < 0.8 * losses[0]
     assert frames.shape == (4, 16, 16, 3)
-    with pytest.raises(ImportError, match="Rotation.from_rotvec"):
-        exec("from geofit.pytorch3d.transforms import so3_exp_map", {})
+
+    def generate_rotating_volume(volume_model, n_frames=50):
+        logRs = torch.zeros(n_frames, 3, device=device)
+        logRs[:, 1] = torch.linspace(0.0, 2.0 * 3.14, n_frames, device=device)
+        Rs = so3_exponential_map(logRs)
+        Ts = torch.zeros(n_frames, 3, device=device)
+        Ts[:, 2] = 2.7
+        frames = []
+        for R, T in zip(Rs, Ts):
+            camera = FoVPerspectiveCameras(
+                R=R[None], T=T[None], znear=target_cameras.znear[0],
+                zfar=target_cameras.zfar[0], aspect_ratio=target_cameras.aspect_ratio[0],
+                fov=target_cameras.fov[0], device=device)
+            frames.append(volume_model(camera)[..., :3].clamp(0.0, 1.0))
+        return torch.cat(frames)
+
+    with torch.no_grad():
+        rotating_volume_frames = generate_rotating_volume(volume_model, n_frames=3)
+    image_grid(rotating_volume_frames.clamp(0., 1.).cpu().numpy(), rows=1, cols=3, rgb=True,
+               fill=True)
+    plt.close("all")
+    assert rotating_volume_frames.shape == (3, 16, 16, 3)
+    # the fitted ball is in view of the turning camera (it looks at the origin from 2.7)
+    assert float(rotating_volume_frames.max()) > 0.3
+
+
+def test_tutorial5_and_6_data_generate_cow_renders():
+    """The tutorials' helper unpacks as ``cameras, images, silhouettes`` tensors, and the
+    loops' camera batching (``target_cameras.R[batch_idx]``...) works on them."""
+    import geofit.pytorch3d.torch as torch
+    from geofit.pytorch3d.renderer import FoVPerspectiveCameras
+    from geofit.pytorch3d.tutorial_utils import generate_cow_renders
+
+    device = torch.device("cpu")
+    target_cameras, target_images, target_silhouettes = generate_cow_renders(
+        num_views=6, azimuth_range=180, image_size=16)
+    target_cameras = target_cameras.to(device)
+    target_images = target_images.to(device)
+    target_silhouettes = target_silhouettes.to(device)
+    batch_idx = torch.randperm(len(target_cameras))[:3]
+    batch_cameras = FoVPerspectiveCameras(
+        R=target_cameras.R[batch_idx], T=target_cameras.T[batch_idx],
+        znear=target_cameras.znear[batch_idx], zfar=target_cameras.zfar[batch_idx],
+        aspect_ratio=target_cameras.aspect_ratio[batch_idx], fov=target_cameras.fov[batch_idx],
+        device=device)
+    assert len(target_images) == 6 and target_images.shape == (6, 16, 16, 3)
+    assert target_silhouettes.shape == (6, 16, 16)
+    assert set(np.unique(target_silhouettes.numpy())) == {0.0, 1.0}
+    np.testing.assert_array_equal(batch_cameras.R, target_cameras.R[batch_idx.numpy()])
+    assert float(target_images[batch_idx][0].max()) > 0.1  # the cow is in every view
 
 
 def test_tutorial6_fit_simple_neural_radiance_field():
@@ -537,23 +621,25 @@ def test_tutorial6_fit_simple_neural_radiance_field():
     samples, 40 steps) on renders of a known volume; ``sample_images_at_mc_locs`` (grid_sample)
     is geofit's ``sample_images_at_xys``. The loop runs; the gradient it follows equals
     central differences of the loss on fixed rays."""
+    import geofit.pytorch3d.torch as torch
     from geofit.fit.nerf import sample_images_at_xys
-    from geofit.pytorch3d import nn, optim
-    from geofit.pytorch3d import tensor as torch
     from geofit.pytorch3d.renderer import (
         EmissionAbsorptionRaymarcher,
         FoVPerspectiveCameras,
         ImplicitRenderer,
         MonteCarloRaysampler,
+        NDCGridRaysampler,
         NDCMultinomialRaysampler,
+        RayBundle,
         VolumeRenderer,
         look_at_view_transform,
         ray_bundle_to_ray_points,
     )
     from geofit.pytorch3d.structures import Volumes
+    from geofit.pytorch3d.transforms import so3_exp_map
 
     torch.manual_seed(1)
-    device = "cpu"
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     R, T = look_at_view_transform(dist=2.7, elev=0.0, azim=np.linspace(-90, 90, 4) + 180.0)
     target_cameras = FoVPerspectiveCameras(R=R, T=T)
     g = np.linspace(-1, 1, 12)
@@ -567,7 +653,7 @@ def test_tutorial6_fit_simple_neural_radiance_field():
                                      (4, 3, 12, 12, 12)), voxel_size=2.0 / 12))[0]
     target_images, target_silhouettes = truth[..., :3], truth[..., 3]
 
-    class HarmonicEmbedding(nn.Module):
+    class HarmonicEmbedding(torch.nn.Module):
         def __init__(self, n_harmonic_functions=60, omega0=0.1):
             super().__init__()
             self.register_buffer("frequencies",
@@ -577,26 +663,26 @@ def test_tutorial6_fit_simple_neural_radiance_field():
             embed = (x[..., None] * self.frequencies).view(*x.shape[:-1], -1)
             return torch.cat((embed.sin(), embed.cos()), dim=-1)
 
-    class NeuralRadianceField(nn.Module):
+    class NeuralRadianceField(torch.nn.Module):
         def __init__(self, n_harmonic_functions=60, n_hidden_neurons=256):
             super().__init__()
             self.harmonic_embedding = HarmonicEmbedding(n_harmonic_functions)
             embedding_dim = n_harmonic_functions * 2 * 3
-            self.mlp = nn.Sequential(
-                nn.Linear(embedding_dim, n_hidden_neurons),
-                nn.Softplus(beta=10.0),
-                nn.Linear(n_hidden_neurons, n_hidden_neurons),
-                nn.Softplus(beta=10.0),
+            self.mlp = torch.nn.Sequential(
+                torch.nn.Linear(embedding_dim, n_hidden_neurons),
+                torch.nn.Softplus(beta=10.0),
+                torch.nn.Linear(n_hidden_neurons, n_hidden_neurons),
+                torch.nn.Softplus(beta=10.0),
             )
-            self.color_layer = nn.Sequential(
-                nn.Linear(n_hidden_neurons + embedding_dim, n_hidden_neurons),
-                nn.Softplus(beta=10.0),
-                nn.Linear(n_hidden_neurons, 3),
-                nn.Sigmoid(),
+            self.color_layer = torch.nn.Sequential(
+                torch.nn.Linear(n_hidden_neurons + embedding_dim, n_hidden_neurons),
+                torch.nn.Softplus(beta=10.0),
+                torch.nn.Linear(n_hidden_neurons, 3),
+                torch.nn.Sigmoid(),
             )
-            self.density_layer = nn.Sequential(
-                nn.Linear(n_hidden_neurons, 1),
-                nn.Softplus(beta=10.0),
+            self.density_layer = torch.nn.Sequential(
+                torch.nn.Linear(n_hidden_neurons, 1),
+                torch.nn.Softplus(beta=10.0),
             )
             self.density_layer[0].bias.data[0] = -1.5
 
@@ -606,7 +692,7 @@ def test_tutorial6_fit_simple_neural_radiance_field():
 
         def _get_colors(self, features, rays_directions):
             spatial_size = features.shape[:-1]
-            rays_directions_normed = nn.functional.normalize(rays_directions, dim=-1)
+            rays_directions_normed = torch.nn.functional.normalize(rays_directions, dim=-1)
             rays_embedding = self.harmonic_embedding(rays_directions_normed)
             rays_embedding_expand = rays_embedding[..., None, :].expand(
                 *spatial_size, rays_embedding.shape[-1])
@@ -621,14 +707,36 @@ def test_tutorial6_fit_simple_neural_radiance_field():
             rays_colors = self._get_colors(features, ray_bundle.directions)
             return rays_densities, rays_colors
 
+        def batched_forward(self, ray_bundle, n_batches=16, **kwargs):
+            n_pts_per_ray = ray_bundle.lengths.shape[-1]
+            spatial_size = [*ray_bundle.origins.shape[:-1], n_pts_per_ray]
+            tot_samples = ray_bundle.origins.shape[:-1].numel()
+            batches = torch.chunk(torch.arange(tot_samples), n_batches)
+            batch_outputs = [
+                self.forward(RayBundle(
+                    origins=ray_bundle.origins.view(-1, 3)[batch_idx],
+                    directions=ray_bundle.directions.view(-1, 3)[batch_idx],
+                    lengths=ray_bundle.lengths.view(-1, n_pts_per_ray)[batch_idx],
+                    xys=None)) for batch_idx in batches]
+            rays_densities, rays_colors = [
+                torch.cat([batch_output[output_i] for batch_output in batch_outputs],
+                          dim=0).view(*spatial_size, -1) for output_i in (0, 1)]
+            return rays_densities, rays_colors
+
     def huber(x, y, scaling=0.1):
         diff_sq = (x - y) ** 2
         loss = ((1 + diff_sq / (scaling**2)).clamp(1e-4).sqrt() - 1) * float(scaling)
         return loss
 
     def sample_images_at_mc_locs(target_images, sampled_rays_xy):
-        return torch.tensor(sample_images_at_xys(np.asarray(target_images),
-                                                 np.asarray(sampled_rays_xy)))
+        ba = target_images.shape[0]
+        dim = target_images.shape[-1]
+        spatial_size = sampled_rays_xy.shape[1:-1]
+        images_sampled = torch.nn.functional.grid_sample(
+            target_images.permute(0, 3, 1, 2),
+            -sampled_rays_xy.view(ba, -1, 1, 2),  # note the sign inversion
+            align_corners=True)
+        return images_sampled.permute(0, 2, 3, 1).view(ba, *spatial_size, dim)
 
     raysampler_mc = MonteCarloRaysampler(min_x=-1.0, max_x=1.0, min_y=-1.0, max_y=1.0,
                                          n_rays_per_image=64, n_pts_per_ray=16, min_depth=0.1,
@@ -645,13 +753,13 @@ def test_tutorial6_fit_simple_neural_radiance_field():
 
     before = held_out_loss()
     lr = 1e-3
-    optimizer = optim.Adam(neural_radiance_field.parameters(), lr=lr)
+    optimizer = torch.optim.Adam(neural_radiance_field.parameters(), lr=lr)
     batch_size = 2
     n_iter = 40
     losses = []
     for iteration in range(n_iter):
         if iteration == round(n_iter * 0.75):
-            optimizer = optim.Adam(neural_radiance_field.parameters(), lr=lr * 0.1)
+            optimizer = torch.optim.Adam(neural_radiance_field.parameters(), lr=lr * 0.1)
         optimizer.zero_grad()
         batch_idx = torch.randperm(len(target_cameras))[:batch_size]
         batch_cameras = FoVPerspectiveCameras(
@@ -674,6 +782,32 @@ def test_tutorial6_fit_simple_neural_radiance_field():
         losses.append(float(loss))
 
     assert len(neural_radiance_field.parameters()) == 10
+    # grid_sample (the tutorial's helper) samples as geofit's sample_images_at_xys
+    np.testing.assert_allclose(
+        sample_images_at_mc_locs(target_images[batch_idx], sampled_rays.xys).numpy(),
+        sample_images_at_xys(target_images.numpy()[batch_idx.numpy()],
+                             sampled_rays.xys.numpy()), atol=1e-12)
+    # the full render and the rotating views: batched_forward, NDCGridRaysampler, so3_exp_map
+    renderer_grid = ImplicitRenderer(raysampler=NDCGridRaysampler(
+        image_height=8, image_width=8, n_pts_per_ray=16, min_depth=0.1, max_depth=3.0),
+        raymarcher=raymarcher)
+    logRs = torch.zeros(2, 3, device=device)
+    logRs[:, 1] = torch.linspace(-3.14, 3.14, 2, device=device)
+    Rs = so3_exp_map(logRs)
+    Ts = torch.zeros(2, 3, device=device)
+    Ts[:, 2] = 2.7
+    with torch.no_grad():
+        frames = [renderer_grid(cameras=FoVPerspectiveCameras(
+            R=R[None], T=T[None], znear=target_cameras.znear[0], zfar=target_cameras.zfar[0],
+            aspect_ratio=target_cameras.aspect_ratio[0], fov=target_cameras.fov[0],
+            device=device), volumetric_function=neural_radiance_field.batched_forward)[0][..., :3]
+            for R, T in zip(Rs, Ts)]
+        direct = renderer_grid(cameras=FoVPerspectiveCameras(R=Rs[:1], T=Ts[:1]),
+                               volumetric_function=neural_radiance_field)[0]
+    rotating_nerf_frames = torch.cat(frames)
+    assert rotating_nerf_frames.shape == (2, 8, 8, 3)
+    np.testing.assert_allclose(rotating_nerf_frames.numpy()[0], direct.numpy()[0, ..., :3],
+                               atol=1e-12)  # batched_forward = forward
     assert np.all(np.isfinite(losses)) and held_out_loss() != before
     assert float(neural_radiance_field.density_layer[0].bias.data[0]) != -1.5
 

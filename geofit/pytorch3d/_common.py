@@ -1,5 +1,6 @@
-"""Helpers shared by the geofit.pytorch3d modules: array conversion, the ``device=`` shim and the
-module ``__getattr__`` that names what to use for a PyTorch3D name this layer does not provide."""
+"""Helpers shared by the geofit.pytorch3d modules: array conversion, the ``device=`` shim, packed
+<-> padded tensors on the tape, and the module ``__getattr__`` for PyTorch3D names this layer does
+not provide (each returns a placeholder that raises, with what to use instead, when used)."""
 from __future__ import annotations
 
 import dis
@@ -62,25 +63,78 @@ def _called_by_from_import(depth: int) -> bool:
         return False
 
 
+class MissingName:
+    """A PyTorch3D name that geofit.pytorch3d does not provide: importing it works, using it
+    (calling or instantiating it, reading an attribute) raises ``NotImplementedError`` saying
+    what to use instead.
+
+    So a tutorial's import cell never fails for a name the code may not reach (the points
+    tutorial imports ``PulsarPointsRenderer`` next to the renderers it does use).
+    """
+
+    def __init__(self, qualname: str, hint: str):
+        self._qualname = qualname
+        self._hint = hint
+
+    def _message(self) -> str:
+        return f"{self._qualname} is not provided by geofit.pytorch3d: {self._hint}"
+
+    def __call__(self, *args, **kwargs):
+        raise NotImplementedError(self._message())
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):  # introspection (IPython, pickle, doctest) must see no attribute
+            raise AttributeError(name)
+        raise NotImplementedError(self._message())
+
+    def __repr__(self) -> str:
+        return f"<not provided: {self._qualname}; {self._hint}>"
+
+
 def missing_names(module_name: str, hints: dict):
     """A module ``__getattr__`` for PyTorch3D names this layer does not provide.
 
-    ``module.Name`` raises AttributeError and ``from module import Name`` raises ImportError,
-    both saying what to use instead (``hints[name]``), or pointing at the README table.
+    A name in ``hints`` (PyTorch3D's name -> what to use instead) returns a
+    :class:`MissingName` that raises ``NotImplementedError`` with the hint at first use, so
+    ``from module import Name`` succeeds. Any other name raises AttributeError
+    (``ImportError`` in ``from module import Name``), pointing at the list of what is provided.
     """
 
     def __getattr__(name: str):
         if name.startswith("__"):
             raise AttributeError(f"module {module_name!r} has no attribute {name!r}")
         hint = hints.get(name)
-        if hint is None:
-            msg = (f"{module_name}.{name}: not provided by geofit.pytorch3d, which covers the "
-                   f"calls of PyTorch3D's six introductory tutorials (README: 'Coming from "
-                   f"PyTorch3D')")
-        else:
-            msg = f"{module_name}.{name} is not provided by geofit.pytorch3d: {hint}"
+        if hint is not None:
+            return MissingName(f"{module_name}.{name}", hint)
+        msg = (f"{module_name}.{name}: not provided by geofit.pytorch3d, which covers the "
+               f"calls of PyTorch3D's six introductory tutorials (docs/pytorch3d.md lists "
+               f"them)")
         if _called_by_from_import(1):
             raise ImportError(msg, name=module_name)
         raise AttributeError(msg)
 
     return __getattr__
+
+
+def padded_index(counts: np.ndarray):
+    """(mesh index, index within the mesh) of every packed row."""
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    mesh_idx = np.repeat(np.arange(len(counts)), counts)
+    local = np.arange(int(counts.sum())) - np.repeat(starts, counts)
+    return mesh_idx, local
+
+
+def to_padded(packed: Tensor, counts: np.ndarray, pad_value: float = 0.0) -> Tensor:
+    """Packed (sum n, C) rows to (N, max n, C), recorded on the tape."""
+    mi, li = padded_index(counts)
+    n_max = int(counts.max()) if len(counts) else 0
+    out = np.full((len(counts), n_max) + packed.data.shape[1:], pad_value,
+                  dtype=packed.data.dtype)
+    out[mi, li] = packed.data
+    return Tensor._record(out, (packed,), lambda g: (g[mi, li],))
+
+
+def from_padded(padded: Tensor, counts: np.ndarray) -> Tensor:
+    """(N, max n, C) to packed (sum n, C) rows, recorded (an index into the padded tensor)."""
+    mi, li = padded_index(counts)
+    return padded[mi, li]

@@ -1,6 +1,7 @@
 """``torch.nn`` pieces the tutorials use, on the tape: ``Parameter``, ``Module``, the NeRF
 tutorial's layers (``Linear``, ``Softplus``, ``Sigmoid``, ``ReLU``, ``Sequential``) and
-``functional.normalize``.
+``functional`` (``normalize``, ``grid_sample``, ``relu``, ``sigmoid``, ``softplus``).
+:mod:`geofit.pytorch3d.torch` exposes them as ``torch.nn``.
 
 The layers are geofit's :mod:`geofit.nn` layers (PyTorch's initialisation and formulas, each
 with its hand-written backward), run in float64 and recorded on the tape; :class:`Module` only
@@ -10,11 +11,10 @@ anything else raises.
 """
 from __future__ import annotations
 
-import types
-
 import numpy as np
 
 from ..nn import layers as _layers
+from . import _functional
 from ._common import missing_names
 from .tensor import Parameter, Tensor, default_rng
 
@@ -179,26 +179,9 @@ class Sequential(Module):
         return x
 
 
-def _normalize(input, p: float = 2.0, dim: int = 1, eps: float = 1e-12):  # noqa: A002
-    """``x / max(|x|_2, eps)`` along ``dim`` (``torch.nn.functional.normalize``, p = 2)."""
-    if p != 2:
-        raise ValueError(f"p: only the Euclidean norm (p=2) is provided, got {p!r}")
-    x = _as_tensor(input)
-    a = x.data
-    n = np.sqrt((a * a).sum(axis=dim, keepdims=True))
-    m = np.maximum(n, eps)
-    y = a / m
+#: ``torch.nn.functional``: ``normalize``, ``grid_sample``, ``relu``, ``sigmoid``, ``softplus``.
+functional = _functional
 
-    def vjp(g):
-        # above eps: (g - y (g . y)) / |x|; below: g / eps
-        inner = (g * y).sum(axis=dim, keepdims=True)
-        return (np.where(n > eps, (g - y * inner) / m, g / m),)
-
-    return Tensor._record(y, [x], vjp)
-
-
-#: ``torch.nn.functional``: ``normalize`` (p = 2).
-functional = types.SimpleNamespace(normalize=_normalize)
 
 _MISSING = ("torch.nn layers other than Linear, Softplus, Sigmoid, ReLU and Sequential are not "
             "emulated (no general autodiff); geofit's NeuralRadianceField in geofit.render is "
@@ -207,5 +190,4 @@ _MISSING = ("torch.nn layers other than Linear, Softplus, Sigmoid, ReLU and Sequ
 __getattr__ = missing_names("geofit.pytorch3d.nn", {
     "Conv2d": _MISSING, "ModuleList": "use Sequential or a list attribute of a Module",
     "Dropout": _MISSING, "BatchNorm1d": _MISSING, "LayerNorm": _MISSING, "Embedding": _MISSING,
-    "grid_sample": "geofit.fit.nerf.sample_images_at_xys samples images at NDC points",
 })

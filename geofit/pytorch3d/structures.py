@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import structures as _gs
 from ..structures.volume import Volume as _Volume
-from ._common import missing_names, np_
+from ._common import from_padded, to_padded, missing_names, np_
 from .tensor import Tensor, cat, stack
 from .textures import TexturesUV, TexturesVertex, _convert_textures
 
@@ -39,34 +39,10 @@ def _check_array_like(x, name: str):
     if mod.startswith("open3d"):
         raise TypeError(f"{name}: got an Open3D object {type(x).__name__}; convert it with "
                         f"np.asarray(mesh.vertices) / np.asarray(mesh.triangles) (or "
-                        f"geofit.io.from_open3d) first")
+                        f"geofit.Mesh.from_open3d) first")
     if mod.startswith("trimesh"):
         raise TypeError(f"{name}: got a trimesh object {type(x).__name__}; pass mesh.vertices "
                         f"and mesh.faces (numpy arrays)")
-
-
-def _padded_index(counts: np.ndarray):
-    """(mesh index, index within the mesh) of every packed row."""
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    mesh_idx = np.repeat(np.arange(len(counts)), counts)
-    local = np.arange(int(counts.sum())) - np.repeat(starts, counts)
-    return mesh_idx, local
-
-
-def _to_padded(packed: Tensor, counts: np.ndarray, pad_value: float = 0.0) -> Tensor:
-    """Packed (sum n, C) rows to (N, max n, C), recorded on the tape."""
-    mi, li = _padded_index(counts)
-    n_max = int(counts.max()) if len(counts) else 0
-    out = np.full((len(counts), n_max) + packed.data.shape[1:], pad_value,
-                  dtype=packed.data.dtype)
-    out[mi, li] = packed.data
-    return Tensor._record(out, (packed,), lambda g: (g[mi, li],))
-
-
-def _from_padded(padded: Tensor, counts: np.ndarray) -> Tensor:
-    """(N, max n, C) to packed (sum n, C) rows, recorded (an index into the padded tensor)."""
-    mi, li = _padded_index(counts)
-    return padded[mi, li]
 
 
 def _lists(x, name: str):
@@ -206,7 +182,7 @@ class Meshes:
 
     def verts_padded(self) -> Tensor:
         """(N, max V, 3), zeros as padding."""
-        return _to_padded(self._verts, self._counts)
+        return to_padded(self._verts, self._counts)
 
     def faces_packed(self) -> Tensor:
         """(sum F, 3) int64 indices into ``verts_packed()``."""
@@ -264,7 +240,7 @@ class Meshes:
         return [Tensor(m.verts_normals) for m in self._geofit()]
 
     def verts_normals_padded(self) -> Tensor:
-        return _to_padded(self.verts_normals_packed(), self._counts)
+        return to_padded(self.verts_normals_packed(), self._counts)
 
     def faces_normals_packed(self) -> Tensor:
         """(sum F, 3) unit face normals (no gradient)."""
@@ -274,7 +250,7 @@ class Meshes:
         return [Tensor(m.face_normals) for m in self._geofit()]
 
     def faces_normals_padded(self) -> Tensor:
-        return _to_padded(self.faces_normals_packed(), self._fcounts)
+        return to_padded(self.faces_normals_packed(), self._fcounts)
 
     def faces_areas_packed(self) -> Tensor:
         """(sum F,) face areas (no gradient)."""
@@ -337,7 +313,7 @@ class Meshes:
         expect = (len(self), int(self._counts.max()) if len(self) else 0, 3)
         if t.shape != expect:
             raise ValueError(f"new_verts_padded: expected shape {expect}, got {t.shape}")
-        return self._from_parts(self._base, _from_padded(t, self._counts), self._textures)
+        return self._from_parts(self._base, from_padded(t, self._counts), self._textures)
 
     def extend(self, N: int) -> Meshes:
         """Each mesh repeated ``N`` times, consecutively (m0, m0, ..., m1, m1, ...), with its
@@ -471,7 +447,7 @@ class Pointclouds:
         return self._split(self._points)
 
     def points_padded(self) -> Tensor:
-        return _to_padded(self._points, self._counts)
+        return to_padded(self._points, self._counts)
 
     def normals_packed(self):
         return self._normals
@@ -480,7 +456,7 @@ class Pointclouds:
         return self._split(self._normals)
 
     def normals_padded(self):
-        return None if self._normals is None else _to_padded(self._normals, self._counts)
+        return None if self._normals is None else to_padded(self._normals, self._counts)
 
     def features_packed(self):
         return self._features
@@ -489,7 +465,7 @@ class Pointclouds:
         return self._split(self._features)
 
     def features_padded(self):
-        return None if self._features is None else _to_padded(self._features, self._counts)
+        return None if self._features is None else to_padded(self._features, self._counts)
 
     def _geofit(self):
         """geofit Pointclouds (values only) for the points renderer."""

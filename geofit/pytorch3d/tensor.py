@@ -41,11 +41,21 @@ import numpy as np
 
 __all__ = [
     "Parameter",
+    "Size",
     "Tensor",
     "arange",
     "as_tensor",
     "cat",
+    "chunk",
     "default_rng",
+    "device",
+    "eye",
+    "from_numpy",
+    "full_like",
+    "is_tensor",
+    "rand",
+    "randn",
+    "split",
     "manual_seed",
     "stack",
     "full",
@@ -65,6 +75,17 @@ __all__ = [
 
 #: ``values, indices`` of ``Tensor.max(dim)`` / ``Tensor.min(dim)`` (torch's return type).
 MaxMin = namedtuple("MaxMin", ["values", "indices"])
+
+
+class Size(tuple):
+    """A tensor's shape: a tuple with ``numel()`` (``torch.Size``)."""
+
+    def numel(self) -> int:
+        return int(np.prod(self, dtype=np.int64))
+
+    def __getitem__(self, index):
+        out = tuple.__getitem__(self, index)
+        return Size(out) if isinstance(index, slice) else out
 
 
 class _GradMode(threading.local):
@@ -289,8 +310,8 @@ class Tensor:
         return self.data.tolist()
 
     @property
-    def shape(self) -> tuple:
-        return self.data.shape
+    def shape(self) -> Size:
+        return Size(self.data.shape)
 
     @property
     def ndim(self) -> int:
@@ -306,7 +327,7 @@ class Tensor:
 
     def size(self, dim: int | None = None):
         """The shape (torch's ``size()``), or one of its entries."""
-        return self.data.shape if dim is None else self.data.shape[dim]
+        return Size(self.data.shape) if dim is None else self.data.shape[dim]
 
     def dim(self) -> int:
         return self.data.ndim
@@ -563,6 +584,58 @@ class Tensor:
                             "Parameter")
         self.data[_data(index)] = _data(value)
 
+    def permute(self, *dims) -> Tensor:
+        """The axes reordered (``torch.permute``); the gradient is permuted back."""
+        if len(dims) == 1 and isinstance(dims[0], (tuple, list)):
+            dims = tuple(dims[0])
+        dims = tuple(int(d) % self.data.ndim for d in dims)
+        inv = tuple(np.argsort(dims))
+        return Tensor._record(self.data.transpose(dims), (self,), lambda g: (g.transpose(inv),))
+
+    def transpose(self, dim0: int, dim1: int) -> Tensor:
+        """Two axes swapped (``torch.transpose``)."""
+        return Tensor._record(np.swapaxes(self.data, dim0, dim1), (self,),
+                              lambda g: (np.swapaxes(g, dim0, dim1),))
+
+    def chunk(self, chunks: int, dim: int = 0) -> tuple:
+        """At most ``chunks`` pieces along ``dim``, ``ceil(n / chunks)`` each (``torch.chunk``)."""
+        n = self.data.shape[dim]
+        return self.split(max(-(-n // int(chunks)), 1), dim)
+
+    def flatten(self, start_dim: int = 0, end_dim: int = -1) -> Tensor:
+        """Axes ``start_dim..end_dim`` merged into one."""
+        shape = self.data.shape
+        a, b = start_dim % max(len(shape), 1), end_dim % max(len(shape), 1)
+        return self.reshape(shape[:a] + (-1,) + shape[b + 1:])
+
+    def _cast(self, dtype) -> Tensor:
+        if self.data.dtype == dtype:
+            return self
+        if self.requires_grad and _MODE.enabled:
+            raise TypeError(f"{np.dtype(dtype).name}(): the tape records no gradient through a "
+                            f"cast to a non-floating type; call .detach() first")
+        return Tensor(self.data.astype(dtype))
+
+    def float(self) -> Tensor:
+        """A floating tensor (float64 here: see the module notes); itself if already floating."""
+        if self.data.dtype.kind == "f":
+            return self
+        return Tensor(self.data.astype(np.float64))
+
+    double = float
+
+    def long(self) -> Tensor:
+        """int64 values (``torch.long``)."""
+        return self._cast(np.int64)
+
+    def int(self) -> Tensor:
+        """int32 values."""
+        return self._cast(np.int32)
+
+    def bool(self) -> Tensor:
+        """Boolean values."""
+        return self._cast(np.bool_)
+
     # ------------------------------------------------------------------ value-only operations
     def _constant_op(self, name: str):
         if self.requires_grad and _MODE.enabled:
@@ -782,3 +855,75 @@ def randint(low: int = 0, high: int | None = None, size=(1,), *, device=None) ->
     if high is None:
         low, high = 0, low
     return Tensor(_RNG.integers(low, high, size=size))
+
+
+def rand(*size, dtype=None, device=None, requires_grad: bool = False) -> Tensor:
+    """Uniform [0, 1) values from the :func:`manual_seed` generator (``torch.rand``)."""
+    return Tensor(_RNG.random(_size(size)).astype(dtype or np.float64), requires_grad)
+
+
+def randn(*size, dtype=None, device=None, requires_grad: bool = False) -> Tensor:
+    """Standard normal values from the :func:`manual_seed` generator (``torch.randn``)."""
+    return Tensor(_RNG.standard_normal(_size(size)).astype(dtype or np.float64), requires_grad)
+
+
+def full_like(x, fill_value, *, dtype=None, device=None, requires_grad: bool = False) -> Tensor:
+    """``fill_value`` shaped like ``x`` (``torch.full_like``)."""
+    return Tensor(np.full_like(_data(x), fill_value, dtype=dtype), requires_grad)
+
+
+def eye(n: int, m: int | None = None, *, dtype=None, device=None) -> Tensor:
+    """The identity matrix (``torch.eye``)."""
+    return Tensor(np.eye(n, m, dtype=dtype or np.float64))
+
+
+def from_numpy(array: np.ndarray) -> Tensor:
+    """A tensor sharing ``array``'s memory when it is float64 (``torch.from_numpy``)."""
+    return Tensor(array)
+
+
+def is_tensor(obj) -> bool:
+    """``isinstance(obj, Tensor)``."""
+    return isinstance(obj, Tensor)
+
+
+def chunk(input, chunks: int, dim: int = 0) -> tuple:  # noqa: A002 - torch's keyword name
+    """``input.chunk(chunks, dim)``."""
+    return as_tensor(input).chunk(chunks, dim)
+
+
+def split(tensor, split_size_or_sections, dim: int = 0) -> tuple:
+    """``tensor.split(split_size_or_sections, dim)``."""
+    return as_tensor(tensor).split(split_size_or_sections, dim)
+
+
+class device:  # noqa: N801 - torch's name
+    """A device name (``torch.device``): everything runs on the CPU, so ``.to(device)`` and
+    ``device=`` arguments accept any device and change nothing.
+
+    Examples
+    --------
+    >>> device("cpu"), device("cuda:0").type
+    (device(type='cpu'), 'cuda')
+    """
+
+    def __init__(self, type: str, index: int | None = None):  # noqa: A002 - torch's name
+        name = str(getattr(type, "type", type))
+        if ":" in name:
+            name, idx = name.split(":", 1)
+            index = int(idx)
+        self.type = name
+        self.index = index
+
+    def __repr__(self) -> str:
+        idx = "" if self.index is None else f", index={self.index}"
+        return f"device(type={self.type!r}{idx})"
+
+    def __str__(self) -> str:
+        return self.type if self.index is None else f"{self.type}:{self.index}"
+
+    def __eq__(self, other) -> bool:
+        return str(self) == str(other)
+
+    def __hash__(self) -> int:
+        return hash(str(self))

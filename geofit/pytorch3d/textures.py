@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import structures as _gs
-from ._common import np_
+from ._common import to_padded, np_
 from .tensor import Tensor, cat
 
 __all__ = ["TexturesUV", "TexturesVertex"]
@@ -69,9 +69,7 @@ class TexturesVertex:
 
     def verts_features_padded(self) -> Tensor:
         """(N, max V, C), zeros as padding."""
-        from .structures import _to_padded
-
-        return _to_padded(self.verts_features_packed(), np.array([len(v) for v in self._list]))
+        return to_padded(self.verts_features_packed(), np.array([len(v) for v in self._list]))
 
     def _geofit(self, i: int) -> _gs.TexturesVertex:
         return _gs.TexturesVertex(self._list[i].data)

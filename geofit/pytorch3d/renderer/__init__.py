@@ -59,7 +59,7 @@ from .points import (
     PointsRenderer,
 )
 
-#: PyTorch3D's former name of NDCMultinomialRaysampler (older texts of the volume tutorial).
+#: PyTorch3D's older name of NDCMultinomialRaysampler (the volume and NeRF tutorials use it).
 NDCGridRaysampler = NDCMultinomialRaysampler
 
 __all__ = [

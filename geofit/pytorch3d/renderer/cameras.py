@@ -11,9 +11,9 @@ __all__ = ["FoVOrthographicCameras", "FoVPerspectiveCameras", "OpenGLOrthographi
 
 FoVPerspectiveCameras = drop_device(_gc.FoVPerspectiveCameras)
 FoVOrthographicCameras = drop_device(_gc.FoVOrthographicCameras)
-#: PyTorch3D's deprecated name of FoVPerspectiveCameras (fit_textured_mesh uses it).
+#: PyTorch3D's older name of FoVPerspectiveCameras (the fit_textured_mesh tutorial uses it).
 OpenGLPerspectiveCameras = FoVPerspectiveCameras
-#: PyTorch3D's deprecated name of FoVOrthographicCameras.
+#: PyTorch3D's older name of FoVOrthographicCameras.
 OpenGLOrthographicCameras = FoVOrthographicCameras
 
 

@@ -7,42 +7,78 @@ renderers here produce the tutorials' images from a ``Volumes`` batch or a volum
 """
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import numpy as np
 
 from .._common import drop_device, np_
 from ..structures import Volumes
-from ..tensor import Tensor
+from ..tensor import Tensor, default_rng
 
 __all__ = ["EmissionAbsorptionRaymarcher", "HarmonicEmbedding", "ImplicitRenderer",
            "MonteCarloRaysampler", "NDCMultinomialRaysampler", "RayBundle", "VolumeRenderer",
            "ray_bundle_to_ray_points"]
 
-try:  # geofit.render exports every renderer
-    from ...render import EmissionAbsorptionRaymarcher as _EA
-    from ...render import HarmonicEmbedding as _HE
-    from ...render import MonteCarloRaysampler as _MC
-    from ...render import NDCMultinomialRaysampler as _NDC
-    from ...render import RayBundle
-    from ...render import VolumeRenderer as _VR
-    from ...render import ray_bundle_to_ray_points as _points
-except ImportError:  # geofit 0.1's flat module layout
-    from ...render.harmonic import HarmonicEmbedding as _HE
-    from ...render.raymarching import EmissionAbsorptionRaymarcher as _EA
-    from ...render.raysampling import MonteCarloRaysampler as _MC
-    from ...render.raysampling import NDCMultinomialRaysampler as _NDC
-    from ...render.raysampling import RayBundle
-    from ...render.raysampling import ray_bundle_to_ray_points as _points
-    from ...render.volume import VolumeRenderer as _VR
+from ...render import EmissionAbsorptionRaymarcher as _EA
+from ...render import HarmonicEmbedding as _HE
+from ...render import MonteCarloRaysampler as _MC
+from ...render import NDCMultinomialRaysampler as _NDC
+from ...render import RayBundle as _RayBundle
+from ...render import VolumeRenderer as _VR
 
-NDCMultinomialRaysampler = drop_device(_NDC)
-MonteCarloRaysampler = drop_device(_MC)
+class RayBundle(NamedTuple):
+    """Rays and the depths of their samples, as tensors (PyTorch3D's ``RayBundle``).
+
+    Attributes
+    ----------
+    origins : (B, ..., 3) Tensor
+    directions : (B, ..., 3) Tensor
+    lengths : (B, ..., n_pts) Tensor
+    xys : (B, ..., 2) Tensor or None
+        NDC x, y of each ray (+X left, +Y up).
+
+    The raysamplers below return one; build your own with keywords (``RayBundle(origins=...,
+    directions=..., lengths=..., xys=None)``, as the NeRF tutorial's ``batched_forward`` does).
+    """
+
+    origins: Any
+    directions: Any
+    lengths: Any
+    xys: Any = None
+
+
+def _tensor_bundle(b: _RayBundle) -> RayBundle:
+    return RayBundle(*(None if a is None else Tensor(a) for a in b))
+
+
+def _numpy_bundle(b) -> _RayBundle:
+    return _RayBundle(*(None if a is None else np_(a, np.float64) for a in b))
+
+
+def _sampler(cls):
+    """geofit's raysampler ``cls`` with ``device=`` and a RayBundle of tensors; random draws
+    come from the :func:`~geofit.pytorch3d.tensor.manual_seed` generator."""
+    base = drop_device(cls)
+
+    def __call__(self, cameras, **kwargs):
+        kwargs.setdefault("seed", default_rng())
+        return _tensor_bundle(base.__call__(self, cameras, **kwargs))
+
+    return type(cls.__name__, (base,), {"__call__": __call__, "__doc__": cls.__doc__,
+                                        "__module__": __name__})
+
+
+NDCMultinomialRaysampler = _sampler(_NDC)
+MonteCarloRaysampler = _sampler(_MC)
 EmissionAbsorptionRaymarcher = drop_device(_EA)
 HarmonicEmbedding = drop_device(_HE)
 
 
 def ray_bundle_to_ray_points(ray_bundle) -> Tensor:
-    """(B, ..., n_pts, 3) sample points ``origins + lengths * directions``."""
-    return Tensor(_points(ray_bundle))
+    """(B, ..., n_pts, 3) sample points ``origins + lengths * directions`` (on the tape)."""
+    o, d, lengths = (a if isinstance(a, Tensor) else Tensor(np_(a, np.float64))
+                     for a in ray_bundle[:3])
+    return o[..., None, :] + lengths[..., :, None] * d[..., None, :]
 
 
 class VolumeRenderer:
@@ -69,14 +105,14 @@ class VolumeRenderer:
         if not isinstance(volumes, Volumes):
             raise TypeError(f"volumes: expected geofit.pytorch3d.structures.Volumes, got "
                             f"{type(volumes)!r}")
-        bundle = self.raysampler(cameras, **kwargs)
+        bundle = _numpy_bundle(self.raysampler(cameras, **kwargs))
         n, B = len(volumes), len(cameras)
         if n not in (1, B):
             raise ValueError(f"volumes: expected 1 or {B} volumes, got {n}")
         if len(volumes._vols) == 1:
             groups = [(0, slice(0, B), bundle)]
         else:
-            groups = [(i, slice(i, i + 1), RayBundle(*(np_(a)[i:i + 1] for a in bundle)))
+            groups = [(i, slice(i, i + 1), _RayBundle(*(a[i:i + 1] for a in bundle)))
                       for i in range(n)]
         images = np.concatenate([self._r.render_rays(volumes._vols[i], b)
                                  for i, _, b in groups])  # loop over distinct volumes
@@ -100,7 +136,7 @@ class VolumeRenderer:
                 gf = None if gf is None else np.broadcast_to(gf / n, volumes._features.shape)
             return (gd, gf)[:len(parents)]
 
-        return Tensor._record(images, parents, vjp), bundle
+        return Tensor._record(images, parents, vjp), _tensor_bundle(bundle)
 
     def to(self, *args, **kwargs):
         return self
@@ -124,6 +160,8 @@ class ImplicitRenderer:
         sampler_kw = {k: kwargs.pop(k) for k in ("seed", "n_rays_per_image", "mask")
                       if k in kwargs}
         bundle = self.raysampler(cameras, **sampler_kw)
+        if isinstance(bundle, _RayBundle):  # one of geofit's own raysamplers
+            bundle = _tensor_bundle(bundle)
         densities, features = volumetric_function(ray_bundle=bundle, cameras=cameras, **kwargs)
         d = densities if isinstance(densities, Tensor) else Tensor(np_(densities))
         f = features if isinstance(features, Tensor) else Tensor(np_(features))
