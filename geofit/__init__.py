@@ -6,7 +6,14 @@ gradients.
 """
 from __future__ import annotations
 
+import os as _os
+
 import lazy_loader as _lazy
+
+# Open3D prints a banner and switches its windows to WebRTC when imported in a Jupyter kernel;
+# geofit renders offscreen and opens native viewers, so it asks Open3D not to (set the
+# variable to "false" before importing geofit to have Open3D's WebVisualizer back).
+_os.environ.setdefault("OPEN3D_DISABLE_WEB_VISUALIZER", "true")
 
 # The namespace is lazy (SPEC 1, as scikit-image's): ``import geofit`` costs nothing until a
 # name is used, so ``geofit --help`` and the command line's argument checks answer before

@@ -203,8 +203,14 @@ def dask_cluster(tmp_path_factory):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     scratch = tmp_path_factory.mktemp("dask")
+    import geofit
+
+    # the processes start in scratch: they import this checkout's geofit by absolute path
+    root = str(Path(geofit.__file__).resolve().parents[1])
+    path = os.pathsep.join([root] + [q for q in os.environ.get("PYTHONPATH", "").split(
+        os.pathsep) if q])
     env = {**os.environ, **thread_env(1),  # as the README starts them
-           "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0"}
+           "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0", "PYTHONPATH": path}
     log = open(scratch / "dask.log", "wb")  # noqa: SIM115 - closed in the finally below
     procs: list[subprocess.Popen] = []
     try:

@@ -267,3 +267,23 @@ def test_unwritable_out_refused_before_the_fit(tmp_path):
         ro.chmod(0o555)
     code, heavy, err = _probe("fit-mesh", "--out", str(ro))
     assert code == 1 and heavy == "-" and "--out: the folder" in err and "not writable" in err
+
+
+def test_plot_scene_with_plotly():
+    """plot_scene draws meshes (vertex colours), clouds and camera centres when plotly is
+    installed; a wrong object is refused naming it."""
+    pytest.importorskip("plotly")
+    from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
+    from geofit.pytorch3d.vis.plotly_vis import plot_scene
+    from geofit.structures import Mesh, PointCloud, TexturesVertex
+
+    m = ico_sphere(1)
+    mesh = Mesh(m.verts, m.faces, TexturesVertex(np.full((m.n_verts, 3), 0.5)))
+    R, T = look_at_view_transform(2.7, 0.0, [0.0, 90.0])
+    fig = plot_scene({"a": {"mesh": mesh}, "b": {"cloud": PointCloud(m.verts, m.verts * 0 + 1),
+                                                 "cams": FoVPerspectiveCameras(R=R, T=T)}},
+                     ncols=2)
+    assert [t.type for t in fig.data] == ["mesh3d", "scatter3d", "scatter3d"]
+    assert fig.data[0].vertexcolor[0] == "rgb(128,128,128)" and len(fig.data[2].x) == 2
+    with pytest.raises(TypeError, match="thing: expected Meshes"):
+        plot_scene({"a": {"thing": object()}})

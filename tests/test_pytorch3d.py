@@ -552,7 +552,7 @@ def test_hard_render_and_errors_for_what_is_not_differentiable():
 @pytest.mark.parametrize("module, name, hint", [
     ("geofit.pytorch3d.renderer", "PulsarPointsRenderer", "AlphaCompositor"),
     ("geofit.pytorch3d.ops", "knn_points", "cKDTree"),
-    ("geofit.pytorch3d.vis.plotly_vis", "plot_scene", "matplotlib"),
+    ("geofit.pytorch3d.vis.plotly_vis", "plot_batch_individually", "plot_scene"),
     ("geofit.pytorch3d.nn", "Conv2d", "NeuralRadianceField"),
     ("geofit.pytorch3d.renderer", "NoSuchThing", "six introductory tutorials"),
 ])

@@ -190,8 +190,11 @@ def test_tutorial2_render_textured_meshes(cow_obj):
     assert images.shape == (20, 64, 64, 4)
     assert behind[covered].mean() < front[covered].mean()
     assert len(mesh_4) == 4 and mesh_4.num_verts_per_mesh().tolist()[1] == len(verts)
-    with pytest.raises(ImportError, match="plotly"):
-        exec("from geofit.pytorch3d.vis.plotly_vis import plot_scene", {})
+    from geofit.pytorch3d.vis.plotly_vis import plot_scene
+
+    fig = plot_scene({"subplot1": {"cow_mesh": mesh}})   # the tutorial's call; plotly installed
+    assert len(fig.data) == 1 and fig.data[0].type == "mesh3d"
+    assert len(fig.data[0].x) == len(verts) and len(fig.data[0].i) == len(faces)
 
 
 def test_tutorial3_render_colored_points(tmp_path):
