@@ -234,13 +234,13 @@ def _probe(*argv: str):
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["fit-mesh", "{tmp}/missing.ply"], "TARGET: .*missing.ply does not exist"),
+    (["fit-mesh", "{tmp}/missing.ply"], "TARGET: .*missing.ply not found"),
     (["fit-mesh", "{tmp}"], "TARGET: expected a file, got the folder"),
-    (["render", "{tmp}/missing.obj"], "MESH: .*does not exist"),
-    (["fit-views", "{tmp}/no-capture"], "CAPTURE: .*does not exist"),
+    (["render", "{tmp}/missing.obj"], "MESH: .*not found"),
+    (["fit-views", "{tmp}/no-capture"], "CAPTURE: .*not found"),
     (["fit-volume", "--out", "{tmp}/a-file"], "--out: .*a-file is a file"),
     (["fit-nerf", "--out", "{tmp}/a-file/below"], "--out: cannot create the folder"),
-    (["batch", "fit-mesh", "{tmp}/missing.obj", "--out", "{tmp}/o"], "TARGETS: .*does not exist"),
+    (["batch", "fit-mesh", "{tmp}/missing.obj", "--out", "{tmp}/o"], "TARGETS: .*not found"),
     (["batch", "fit-mesh", "{tmp}", "--out", "{tmp}/a-file"], "--out: .*a-file is a file"),
 ])
 def test_bad_path_answered_before_heavy_imports(argv, match, tmp_path):

@@ -6,7 +6,6 @@ Objects are small procedural meshes (an ellipsoid with smooth vertex colours) re
 """
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np

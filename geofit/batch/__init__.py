@@ -5,11 +5,16 @@ its settings, loads its own input (no Embree scene, Open3D object or large array
 process boundary), runs geofit's workflow, and writes ``OUT/<name>/result.json`` (status,
 message, metrics, seconds, parameter count, history, the settings and their hash) and its
 outputs (mesh, volume, weights, pictures), each atomically (a temporary file, then
-``os.replace``). A failing target is recorded as ``"failed"`` (error type and message) and the
-batch goes on. A rerun into the same ``OUT`` skips every target whose ``result.json`` holds the same
-settings hash (the hash covers the task, the settings and the input files' sizes and
-modification times); ``retry_failed=True`` recomputes the failed ones, ``force=True`` all. Results stream in as they finish (``distributed.as_completed``) with a
-tqdm progress bar.
+``os.replace``). Each fit runs with its own defaults (those of ``geofit.fit_*`` and of the
+``geofit fit-*`` commands); only the options given are passed on. A target is ``"ok"`` when its
+fit made at least one step and ended well by its own account; otherwise, or on an error, it is
+recorded as ``"failed"`` (error type, message and cause) and the batch goes on. A rerun into the
+same ``OUT`` skips every target whose ``result.json`` holds the same settings hash (the hash
+covers the task, the settings and the input files' sizes and modification times) and redoes the
+failures caused by the environment (disk full, memory, a killed worker); ``retry_failed=True``
+also recomputes the other failed ones, ``force=True`` all. Results stream in as they finish
+(``distributed.as_completed``) with a tqdm progress bar. Dask's shutdown never fails a batch:
+its errors become ``notes``.
 
 Without ``client`` or ``scheduler``, :func:`fit_many` starts a ``distributed.LocalCluster`` of
 worker processes on 127.0.0.1 (no dashboard) and tears it down afterwards; with
@@ -272,7 +277,8 @@ class TargetResult:
         err = rec.get("error") or {}
         return cls(name=rec["name"], target=rec["target"], task=rec["task"],
                    status=rec["status"], message=rec.get("message", ""),
-                   error_type=err.get("type"), cause=rec.get("cause"), accuracy=float(rec.get("accuracy", -1.0)),
+                   error_type=err.get("type"), cause=rec.get("cause"),
+                   accuracy=float(rec.get("accuracy", -1.0)),
                    seconds=float(rec.get("seconds", 0.0)),
                    load_seconds=float(rec.get("load_seconds", 0.0)),
                    fit_seconds=float(rec.get("fit_seconds", 0.0)),

@@ -140,7 +140,7 @@ def check_input(path, name: str, *, folder: bool = False) -> Path:
     """
     p = Path(path)
     if not p.exists():
-        raise FileNotFoundError(f"{name}: {p} does not exist")
+        raise FileNotFoundError(f"{name}: {p} not found (no such file or folder)")
     if p.is_dir():
         if not folder:
             raise ValueError(f"{name}: expected a file, got the folder {p}")
