@@ -278,9 +278,11 @@ def test_cli_on_dask_scheduler_and_workers_exit_codes(dask_cluster, tmp_path, ca
 # ----------------------------------------------------------------------------- the tasks
 @pytest.mark.parametrize("task, kw", [
     ("render", {"views": 2, "image_size": 32}),
-    ("fit-views", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 4.0}),
-    ("fit-volume", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 8.0}),
-    ("fit-nerf", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 3.0}),
+    # fit-views: its default (no budget) is a few seconds at this size; the others get budgets
+    # far above their set-up, so that the first step happens even on a loaded machine
+    ("fit-views", {"views": 4, "image_size": 16, "heldout": 2}),
+    ("fit-volume", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 15.0}),
+    ("fit-nerf", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 5.0}),
 ])
 def test_task_on_a_mesh_file(task, kw, tmp_path):
     """Every task runs on a mesh file (the multi-view tasks on renders of it) and writes its
@@ -320,8 +322,7 @@ def test_capture_folder_through_load_views(tmp_path):
     save_obj(tmp_path / "scans" / "m.obj", ico_sphere(1))
     assert [n for n, _ in expand_targets(tmp_path / "scans", "fit-volume")] == ["a", "b", "m"]
     assert [n for n, _ in expand_targets(tmp_path / "scans", "fit-mesh")] == ["m"]
-    for task, name, kw in (("fit-volume", "a", {"time_budget": 8.0}),
-                           ("fit-views", "b", {"time_budget": 4.0})):
+    for task, name, kw in (("fit-volume", "a", {"time_budget": 15.0}), ("fit-views", "b", {})):
         s = task_settings(task, **kw)
         rec = run_target({"task": task, "path": str(tmp_path / "scans" / name), "name": name,
                           "out": str(tmp_path / "o"), "settings": s, "settings_hash": "h",
