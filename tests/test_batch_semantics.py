@@ -239,3 +239,21 @@ def test_shutdown_errors_become_notes(monkeypatch):
                       Stubborn(TimeoutError("cluster close timed out")))
     assert len(notes) == 2 and "CommClosedError" in notes[0] and "TimeoutError" in notes[1]
     assert time.perf_counter() - t < 60
+
+
+def test_unreachable_scheduler_still_writes_the_summary(tmp_path):
+    """The cluster failing (no scheduler at the address) fails every target with the cause
+    "environment" (a rerun redoes them), and the summary files are written all the same."""
+    import dask
+
+    _mesh(tmp_path / "in")
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        res = fit_many(tmp_path / "in", out=tmp_path / "out", progress=False,
+                       scheduler=f"tcp://127.0.0.1:{_free_port()}")
+    assert res.exit_code == 1 and res.n_failed == 1 and res[0].cause == "environment"
+    assert res.notes and res.notes[0].startswith("the cluster failed")
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["n_failed"] == 1 and summary["notes"] == res.notes
+    assert (tmp_path / "out" / "index.html").is_file()
+    rec = json.loads((tmp_path / "out" / "torus" / "result.json").read_text())
+    assert _previous(tmp_path / "out" / "torus", rec["settings_hash"], False) is None
