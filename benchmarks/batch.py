@@ -298,7 +298,6 @@ def chart(report: BenchmarkReport, path: Path) -> Path:
 def main(argv=None) -> int:
     p = parser(__doc__.split("\n\n")[0])
     p.add_argument("--budget", type=float, default=3.0, help="solver seconds per target")
-    p.add_argument("--metric-samples", type=int, default=20_000)
     p.add_argument("--repeat", type=int, default=3, help="copies of each shape")
     p.add_argument("--configs", default=",".join(k for k, *_ in CONFIGS),
                    help="which of w1t1, w1t2, w2t1 to run (w2t1 is required)")
@@ -314,14 +313,13 @@ def main(argv=None) -> int:
         repeat = 2 if args.quick else args.repeat
         shapes = make_targets(work / "targets", args.quick, repeat)
         names = sorted(q.stem for q in (work / "targets").glob("*.obj"))
-        kw = {"time_budget": (0.5 if args.quick else args.budget),
-              "metric_samples": (2000 if args.quick else args.metric_samples)}
+        kw = {"time_budget": (0.5 if args.quick else args.budget)}
         report = BenchmarkReport("batch", config={
             "command": " ".join(shlex.quote(w) for w in ["python", "benchmarks/batch.py",
                                                          *(sys.argv[1:] if argv is None
                                                            else argv)]),
             "task": "fit-mesh", "shapes": shapes, "repeat": repeat, "n_targets": len(names),
-            "budget_seconds": kw["time_budget"], "metric_samples": kw["metric_samples"],
+            "budget_seconds": kw["time_budget"],
             "configs": [c[0] for c in configs], "quick": args.quick,
             "uptime_before": uptime(), "uptime_between": []})
         report.notes += [

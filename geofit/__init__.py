@@ -6,95 +6,147 @@ gradients.
 """
 from __future__ import annotations
 
-from . import data, fit, io, metrics, render
-from ._threads import get_num_threads, set_num_threads
-from .cameras import (
-    CamerasBase,
-    FoVOrthographicCameras,
-    FoVPerspectiveCameras,
-    PerspectiveCameras,
-    Rays,
-    camera_position_from_spherical_angles,
-    cameras_from_colmap,
-    cameras_from_opencv_projection,
-    cameras_from_opengl,
-    colmap_from_cameras,
-    look_at_rotation,
-    look_at_view_transform,
-    ndc_grid,
-    opencv_from_cameras_projection,
-    opengl_from_cameras,
-)
-from .fit import fit_mesh, fit_mesh_to_views, fit_nerf, fit_volume
-from .io import (
-    load_mesh,
-    load_obj,
-    load_objs_as_meshes,
-    load_pointcloud,
-    save_mesh,
-    save_obj,
-    save_pointcloud,
-)
-from .loss import (
-    ChamferResult,
-    ChamferTarget,
-    PointToSurface,
-    chamfer_distance,
-    mesh_edge_loss,
-    mesh_laplacian_smoothing,
-    mesh_normal_consistency,
-)
-from .ops import (
-    SampledPoints,
-    cot_laplacian,
-    norm_laplacian,
-    sample_points_from_meshes,
-    sample_points_with_jacobian,
-    uniform_laplacian,
-)
-from .raycast import (
-    ClosestPoints,
-    PointToMeshDistance,
-    RayCaster,
-    RayHits,
-    closest_point_on_triangles,
-    intersect_rays_triangles,
-)
-from .render import (
-    AlphaCompositor,
-    AmbientLights,
-    BlendParams,
-    DirectionalLights,
-    Fragments,
-    HardFlatShader,
-    HardGouraudShader,
-    HardPhongShader,
-    Materials,
-    MeshRasterizer,
-    MeshRenderer,
-    MeshRendererWithFragments,
-    NormWeightedCompositor,
-    PointLights,
-    PointsRasterizationSettings,
-    PointsRasterizer,
-    PointsRenderer,
-    RasterizationSettings,
-    SoftGouraudShader,
-    SoftPhongShader,
-    TexturesFlat,
-    image_grid,
-)
-from .shapes import box, ico_sphere, plane, subdivide, tetrahedron, torus
-from .structures import (
-    Mesh,
-    Meshes,
-    MultiViewDataset,
-    Normalization,
-    PointCloud,
-    Pointclouds,
-    TexturesUV,
-    TexturesVertex,
-    Topology,
+import os as _os
+
+import lazy_loader as _lazy
+
+# Open3D prints a banner and switches its windows to WebRTC when imported in a Jupyter kernel;
+# geofit renders offscreen and opens native viewers, so it asks Open3D not to (set the
+# variable to "false" before importing geofit to have Open3D's WebVisualizer back).
+_os.environ.setdefault("OPEN3D_DISABLE_WEB_VISUALIZER", "true")
+
+# The namespace is lazy (SPEC 1, as scikit-image's): ``import geofit`` costs nothing until a
+# name is used, so ``geofit --help`` and the command line's argument checks answer before
+# numpy, Open3D or Embree are loaded. ``EAGER_IMPORT=1`` imports everything at once.
+__getattr__, __dir__, _ = _lazy.attach(
+    __name__,
+    submodules=[
+        'batch',
+        'cameras',
+        'cli',
+        'data',
+        'datasets',
+        'fit',
+        'io',
+        'loss',
+        'metrics',
+        'nn',
+        'ops',
+        'pytorch3d',
+        'raycast',
+        'render',
+        'report',
+        'shapes',
+        'structures',
+        'tutorials',
+        'viz',
+    ],
+    submod_attrs={
+        '_threads': [
+            'get_num_threads',
+            'set_num_threads',
+        ],
+        'cameras': [
+            'CamerasBase',
+            'FoVOrthographicCameras',
+            'FoVPerspectiveCameras',
+            'PerspectiveCameras',
+            'Rays',
+            'camera_position_from_spherical_angles',
+            'cameras_from_colmap',
+            'cameras_from_opencv_projection',
+            'cameras_from_opengl',
+            'colmap_from_cameras',
+            'look_at_rotation',
+            'look_at_view_transform',
+            'ndc_grid',
+            'opencv_from_cameras_projection',
+            'opengl_from_cameras',
+        ],
+        'fit': [
+            'fit_mesh',
+            'fit_mesh_to_views',
+            'fit_nerf',
+            'fit_volume',
+        ],
+        'io': [
+            'load_mesh',
+            'load_obj',
+            'load_objs_as_meshes',
+            'load_pointcloud',
+            'save_mesh',
+            'save_obj',
+            'save_pointcloud',
+        ],
+        'loss': [
+            'ChamferResult',
+            'ChamferTarget',
+            'PointToSurface',
+            'chamfer_distance',
+            'mesh_edge_loss',
+            'mesh_laplacian_smoothing',
+            'mesh_normal_consistency',
+        ],
+        'ops': [
+            'SampledPoints',
+            'cot_laplacian',
+            'norm_laplacian',
+            'sample_points_from_meshes',
+            'sample_points_with_jacobian',
+            'uniform_laplacian',
+        ],
+        'raycast': [
+            'ClosestPoints',
+            'PointToMeshDistance',
+            'RayCaster',
+            'RayHits',
+            'closest_point_on_triangles',
+            'intersect_rays_triangles',
+        ],
+        'render': [
+            'AlphaCompositor',
+            'AmbientLights',
+            'BlendParams',
+            'DirectionalLights',
+            'Fragments',
+            'HardFlatShader',
+            'HardGouraudShader',
+            'HardPhongShader',
+            'Materials',
+            'MeshRasterizer',
+            'MeshRenderer',
+            'MeshRendererWithFragments',
+            'NormWeightedCompositor',
+            'PointLights',
+            'PointsRasterizationSettings',
+            'PointsRasterizer',
+            'PointsRenderer',
+            'RasterizationSettings',
+            'SoftGouraudShader',
+            'SoftPhongShader',
+            'TexturesFlat',
+            'image_grid',
+        ],
+        'shapes': [
+            'box',
+            'ico_sphere',
+            'plane',
+            'subdivide',
+            'tetrahedron',
+            'torus',
+        ],
+        'structures': [
+            'Mesh',
+            'Meshes',
+            'MultiViewDataset',
+            'Normalization',
+            'PointCloud',
+            'Pointclouds',
+            'TexturesUV',
+            'TexturesVertex',
+            'Topology',
+        ],
+    },
 )
 
 __version__ = "0.1.0"

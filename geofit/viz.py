@@ -25,6 +25,7 @@ from ._validate import as_array
 __all__ = [
     "STYLE",
     "Series",
+    "Table",
     "chart_style",
     "image_panel",
     "plot_accuracy_vs_time",
@@ -413,3 +414,79 @@ def image_panel(rows: Sequence[Sequence[Any]], path: str | Path, *,
     path.parent.mkdir(parents=True, exist_ok=True)
     canvas.save(path, optimize=True)
     return path
+
+
+class Table:
+    """Rows of results shown as a table: an HTML table in a notebook (``_repr_html_``), aligned
+    text in a terminal (``str``). Numbers are formatted with ``formats[column]`` (a format
+    spec such as ``".3g"``; default: ``".4g"`` for floats), anything else with ``str``.
+
+    Parameters
+    ----------
+    rows : sequence of sequence
+        One sequence of values per row, in the order of ``columns``.
+    columns : sequence of str
+        Column titles.
+    formats : dict of str to str, optional
+        Format spec per column title.
+    title : str, optional
+        A caption above the table.
+
+    Examples
+    --------
+    >>> print(Table([("sgd", 2562, 0.0512)], ["fit", "verts", "chamfer-L2"],
+    ...             {"chamfer-L2": ".2e"}))
+    fit  verts  chamfer-L2
+    sgd   2562    5.12e-02
+    """
+
+    def __init__(self, rows: Sequence[Sequence[Any]], columns: Sequence[str],
+                 formats: Mapping[str, str] | None = None, title: str | None = None):
+        self.columns = [str(c) for c in columns]
+        self.rows = [list(r) for r in rows]
+        bad = [i for i, r in enumerate(self.rows) if len(r) != len(self.columns)]
+        if bad:
+            raise ValueError(f"rows: row {bad[0]} has {len(self.rows[bad[0]])} values, expected "
+                             f"{len(self.columns)} (one per column)")
+        self.formats = dict(formats or {})
+        self.title = title
+
+    def _cell(self, column: str, value) -> str:
+        spec = self.formats.get(column)
+        if isinstance(value, (bool, np.bool_)) or value is None:
+            return str(value)
+        if isinstance(value, (int, np.integer)) and spec is None:
+            return str(int(value))
+        if isinstance(value, (float, np.floating, int, np.integer)):
+            return format(float(value), spec or ".4g")
+        return str(value)
+
+    def _cells(self) -> list[list[str]]:
+        return [[self._cell(c, v) for c, v in zip(self.columns, r)] for r in self.rows]
+
+    def __str__(self) -> str:
+        cells = self._cells()
+        numeric = [all(isinstance(r[j], (int, float, np.integer, np.floating))
+                       and not isinstance(r[j], bool) for r in self.rows) and bool(self.rows)
+                   for j in range(len(self.columns))]
+        widths = [max([len(c)] + [len(r[j]) for r in cells]) for j, c in enumerate(self.columns)]
+
+        def line(values):
+            return "  ".join(v.rjust(w) if num else v.ljust(w)
+                             for v, w, num in zip(values, widths, numeric)).rstrip()
+
+        out = ([self.title] if self.title else []) + [line(self.columns)]
+        return "\n".join(out + [line(r) for r in cells])
+
+    def __repr__(self) -> str:
+        return str(self)
+
+    def _repr_html_(self) -> str:
+        import html
+
+        e = html.escape
+        head = "".join(f"<th>{e(c)}</th>" for c in self.columns)
+        body = "".join("<tr>" + "".join(f"<td>{e(v)}</td>" for v in r) + "</tr>"
+                       for r in self._cells())
+        cap = f"<caption>{e(self.title)}</caption>" if self.title else ""
+        return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"

@@ -28,8 +28,9 @@ from geofit.batch._summary import SUMMARY_FILES
 from geofit.batch._tasks import atomic_write, run_target
 from geofit.cli import main
 
-# A small, fast fit: ico_sphere(4) start, a few L-BFGS iterations, cheap metrics.
-FAST = {"time_budget": 0.5, "n_iter": 3, "metric_samples": 500}
+# The fit's defaults on small meshes, with a time budget far above what they need (a budget
+# that binds would make the result depend on the machine's load).
+FAST = {"time_budget": 120.0}
 GOOD = ("sphere", "torus")
 
 
@@ -162,6 +163,10 @@ def test_rerun_skips_finished_targets(local_run):
     inputs, out, first, mtimes, _ = local_run
     res = fit_many(inputs, "fit-mesh", out, n_workers=1, progress=False, **FAST)
     assert res.n_reused == 3 and res.n_workers == 0 and _mtimes(out) == mtimes
+    # the page names the workers that computed the results, not "0 workers"
+    html = (out / "index.html").read_text()
+    assert "0 worker(s)" not in html
+    assert f"computed by {min(2, _cores())} worker process(es)" in html
     assert [r.status for r in res] == [r.status for r in first]
     assert [r.accuracy for r in res] == [r.accuracy for r in first]
     res = fit_many(inputs, "fit-mesh", out, n_workers=1, progress=False, retry_failed=True,
@@ -198,8 +203,14 @@ def dask_cluster(tmp_path_factory):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     scratch = tmp_path_factory.mktemp("dask")
+    import geofit
+
+    # the processes start in scratch: they import this checkout's geofit by absolute path
+    root = str(Path(geofit.__file__).resolve().parents[1])
+    path = os.pathsep.join([root] + [q for q in os.environ.get("PYTHONPATH", "").split(
+        os.pathsep) if q])
     env = {**os.environ, **thread_env(1),  # as docs/batch.md starts them
-           "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0"}
+           "DASK_DISTRIBUTED__SCHEDULER__WORKER_SATURATION": "1.0", "PYTHONPATH": path}
     log = open(scratch / "dask.log", "wb")  # noqa: SIM115 - closed in the finally below
     procs: list[subprocess.Popen] = []
     try:
@@ -245,8 +256,7 @@ def test_cli_on_dask_scheduler_and_workers_exit_codes(dask_cluster, tmp_path, ca
     """`geofit batch fit-mesh DIR --scheduler ADDRESS` runs on the external workers: exit 1
     with a broken file (the good ones succeed), 0 for a folder of good meshes."""
     inputs = _make_meshes(tmp_path / "meshes")
-    flags = ["--time-budget", "0.5", "--n-iter", "3", "--metric-samples", "500",
-             "--scheduler", dask_cluster, "--no-progress"]
+    flags = ["--time-budget", "120", "--scheduler", dask_cluster, "--no-progress"]
     code = main(["batch", "fit-mesh", str(inputs), "--out", str(tmp_path / "o1"), *flags])
     assert code == 1
     summary = json.loads((tmp_path / "o1" / "summary.json").read_text())
@@ -268,12 +278,11 @@ def test_cli_on_dask_scheduler_and_workers_exit_codes(dask_cluster, tmp_path, ca
 # ----------------------------------------------------------------------------- the tasks
 @pytest.mark.parametrize("task, kw", [
     ("render", {"views": 2, "image_size": 32}),
-    ("fit-views", {"views": 4, "image_size": 32, "heldout": 2, "time_budget": 0.5,
-                   "iterations": 3, "metric_samples": 500}),
-    ("fit-volume", {"views": 6, "image_size": 32, "heldout": 2, "time_budget": 0.5,
-                    "size": 32}),
-    ("fit-nerf", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 0.5,
-                  "n_iter": 2}),
+    # fit-views: its default (no budget) is a few seconds at this size; the others get budgets
+    # far above their set-up, so that the first step happens even on a loaded machine
+    ("fit-views", {"views": 4, "image_size": 16, "heldout": 2}),
+    ("fit-volume", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 15.0}),
+    ("fit-nerf", {"views": 4, "image_size": 16, "heldout": 2, "time_budget": 5.0}),
 ])
 def test_task_on_a_mesh_file(task, kw, tmp_path):
     """Every task runs on a mesh file (the multi-view tasks on renders of it) and writes its
@@ -313,9 +322,7 @@ def test_capture_folder_through_load_views(tmp_path):
     save_obj(tmp_path / "scans" / "m.obj", ico_sphere(1))
     assert [n for n, _ in expand_targets(tmp_path / "scans", "fit-volume")] == ["a", "b", "m"]
     assert [n for n, _ in expand_targets(tmp_path / "scans", "fit-mesh")] == ["m"]
-    for task, name, kw in (("fit-volume", "a", {"time_budget": 0.5, "size": 24}),
-                           ("fit-views", "b", {"time_budget": 0.5, "iterations": 3,
-                                               "metric_samples": 500})):
+    for task, name, kw in (("fit-volume", "a", {"time_budget": 15.0}), ("fit-views", "b", {})):
         s = task_settings(task, **kw)
         rec = run_target({"task": task, "path": str(tmp_path / "scans" / name), "name": name,
                           "out": str(tmp_path / "o"), "settings": s, "settings_hash": "h",

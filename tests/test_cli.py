@@ -51,7 +51,7 @@ def test_demo_command_line(tmp_path, monkeypatch):
     monkeypatch.setenv("GEOFIT_DATA", str(tmp_path / "nothing-here"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     assert main(["demo", "--out", str(tmp_path), "--views", "3", "--size", "16", "--heldout", "1",
-                 "--time", "1"]) == 0
+                 "--time-budget", "1"]) == 0
     assert (tmp_path / "demo.png").is_file() and (tmp_path / "fit.ply").is_file()
 
 

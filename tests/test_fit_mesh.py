@@ -402,28 +402,6 @@ def test_former_call_forms_warn_and_agree():
         RECIPES["fast"]
 
 
-def test_cli_fit_mesh(tmp_path, capsys):
-    """`geofit fit-mesh TARGET` prints the metrics and vertex count and writes the OBJ."""
-    from geofit.cli import main
-    from geofit.io import load_mesh, save_obj
-
-    s = ico_sphere(3)
-    src = tmp_path / "target.obj"
-    save_obj(src, s.update_verts(s.verts * [2.0, 1.0, 1.5] + 4.0))
-    out = tmp_path / "out"
-    code = main(["fit-mesh", str(src), "--recipe", "coarse-to-fine", "--n-iter", "10",
-                 "--metric-samples", "500", "--time-budget", "4", "--no-progress",
-                 "--out", str(out)])
-    assert code == 0
-    text = capsys.readouterr().out
-    assert "chamfer-L2" in text and "F@0.01" in text
-    n_verts = int(text.split("vertices: ")[1].split()[0])
-    fitted = load_mesh(out / "fit_mesh.obj", load_textures=False)
-    assert fitted.n_verts == n_verts and n_verts in (162, 642, 2562)
-    assert np.all(np.isfinite(fitted.verts)) and fitted.verts.min() > 1.0  # original frame
-    assert (out / "fit_mesh_history.json").exists()
-
-
 def test_fit_docstring_examples():
     """The Examples sections of the fit modules run as doctests."""
     import doctest

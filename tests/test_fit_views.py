@@ -6,7 +6,6 @@ Objects are small procedural meshes (an ellipsoid with smooth vertex colours) re
 """
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -345,25 +344,6 @@ def test_validation(data):
     with pytest.raises(TypeError, match="heldout"):
         ViewsEvaluator(tr.silhouettes)
     assert SILHOUETTE_METHODS == ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
-
-
-def test_cli_fit_views(tmp_path, monkeypatch, capsys):
-    """``geofit fit-views`` at a tiny size writes the mesh, the history and a summary."""
-    from geofit.cli import main
-
-    monkeypatch.delenv("GEOFIT_DATA", raising=False)
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))   # no tutorial data: stand-in
-    monkeypatch.setenv("GEOFIT_SHIPPED_DATA", "0")  # not the cow installed with geofit
-    code = main(["fit-views", "--out", str(tmp_path), "--views", "4", "--image-size", "24",
-                 "--heldout", "2", "--silhouette-iters", "5", "--textured-iters", "3",
-                 "--init-level", "1", "--no-progress"])
-    assert code == 0
-    summary = json.loads((tmp_path / "fit_views.json").read_text())
-    assert summary["status"] in ("converged", "max_iter", "max_eval", "stalled")
-    assert 0.0 <= summary["heldout"]["iou"] <= 1.0 and summary["heldout"]["psnr"] > 0
-    assert (tmp_path / "fit_views.obj").stat().st_size > 0
-    assert "held-out IoU" in capsys.readouterr().out
-    assert main(["fit-views", "--out", str(tmp_path), "--views", "0"]) == 1
 
 
 def test_former_method_names_and_data_type_warn_and_agree(data):

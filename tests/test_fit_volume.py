@@ -257,7 +257,6 @@ def test_huge_learning_rate_stays_finite(scene):
     assert np.all(np.isfinite(tut.volume.densities))
 
 
-
 def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
     """Noisy images and one view with a wrong camera: the hull tolerates it, the fit is fine."""
     images, sils, cams, _, renderer = scene
@@ -336,7 +335,6 @@ def test_former_call_form_warns_and_agrees(scene):
         fit_volume(images, sils, cams[:2], progress=False)
 
 
-
 # ------------------------------------------------------------------------------------- datasets
 
 
@@ -369,27 +367,6 @@ def test_cow_renders_and_held_out_views():
         held_out_views(num_views=5, n_azimuths=9)
     with pytest.raises(ValueError, match="background"):
         tutorial_views(5, num_views=1, image_size=8, background=(2.0, 0, 0))
-
-
-def test_cli_fit_volume(tmp_path):
-    """`geofit fit-volume` writes the summary, the volume, the held-out panel and the GIF."""
-    import json
-
-    from geofit.cli import main
-
-    code = main(["fit-volume", "--size", "16", "--levels", "8,16", "--iters", "3,3",
-                 "--views", "4", "--image-size", "16", "--frames", "2", "--quiet", "--no-progress",
-                 "--out", str(tmp_path)])
-    assert code == 0
-    summary = json.loads((tmp_path / "volume_summary.json").read_text())
-    assert summary["method"] == "lbfgs" and 0 < summary["n_active_voxels"] < 16 ** 3
-    assert 0.0 <= summary["held_out"]["iou"] <= 1.0 and summary["held_out"]["psnr"] > 5.0
-    vol = np.load(tmp_path / "volume.npz")
-    assert vol["densities"].shape == (16, 16, 16) and vol["features"].shape == (3, 16, 16, 16)
-    assert (tmp_path / "volume_heldout.png").stat().st_size > 0
-    assert (tmp_path / "volume_rotation.gif").stat().st_size > 0
-    with pytest.raises(SystemExit):   # argparse rejects a malformed level list
-        main(["fit-volume", "--levels", "8,x", "--out", str(tmp_path)])
 
 
 def test_one_visual_hull_for_fit_volume_and_occupancy_grid(scene):

@@ -657,25 +657,6 @@ def test_component_validation(make, exc, match):
 
 
 # ------------------------------------------------------------------------------------------ CLI
-def test_cli_fit_nerf_writes_outputs(tmp_path, capsys):
-    """`geofit fit-nerf` fits a tiny NeRF and writes the summary, weights, renders and GIF."""
-    import json
-
-    from geofit.cli import main
-
-    code = main(["fit-nerf", "--views", "4", "--image-size", "16", "--time", "1",
-                 "--iters", "5", "--frames", "2", "--width", "8", "--threads", "1", "--quiet",
-                 "--no-progress",
-                 "--out", str(tmp_path)])
-    assert code == 0
-    summary = json.loads((tmp_path / "nerf_summary.json").read_text())
-    assert summary["status"] in ("max_iter", "time_budget")
-    assert summary["n_params"] > 0 and summary["config"]["n_hidden_neurons"] == 8
-    w = np.load(tmp_path / "nerf_field.npz")
-    assert w["mlp.0.weight"].shape[0] == 8
-    for name in ("nerf_heldout.png", "nerf_rotation.gif"):
-        assert (tmp_path / name).stat().st_size > 0
-    assert "fit-nerf" in capsys.readouterr().out
 
 
 def test_fit_same_seed_same_network_on_1_and_2_threads(toy_scene):

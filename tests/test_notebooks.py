@@ -13,6 +13,24 @@ import pytest
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 
+#: Third-party banners no output may show: Open3D's Jupyter WebVisualizer, Filament's engine
+#: log, Open3D's INFO lines.
+BANNERS = ("Jupyter environment detected", "WebVisualizer", "WebRTC", "FEngine",
+           "CircularBuffer", "[Open3D INFO]", "Vulkan device driver")
+
+
+def _texts(cell) -> list[str]:
+    """The text of a cell's outputs (streams, plain-text results, errors)."""
+    out = []
+    for o in cell.get("outputs", []):
+        if o.get("output_type") == "stream":
+            out.append(o.get("text", ""))
+        elif "data" in o:
+            out.append(str(o["data"].get("text/plain", "")))
+        elif o.get("output_type") == "error":
+            out.append(" ".join(o.get("traceback", [])))
+    return out
+
 
 def _imports():
     nbformat = pytest.importorskip("nbformat", reason="nbformat is not installed "
@@ -37,7 +55,8 @@ def test_notebook_committed_without_outputs(path):
 @pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
 def test_notebook_runs(path, tmp_path, monkeypatch):
-    """The notebook executes without error with GEOFIT_QUICK=1 (the failing cell is named)."""
+    """The notebook executes without error with GEOFIT_QUICK=1 (the failing cell is named), and
+    no output shows a third-party banner."""
     nbformat, nbclient = _imports()
     from nbclient.exceptions import CellExecutionError
 
@@ -57,3 +76,5 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
                 source = cell.source if len(cell.source) < 800 else cell.source[:800] + " ..."
                 pytest.fail(f"{path.name}: cell {index} failed:\n{source}\n\n{exc}",
                             pytrace=False)
+            loud = [b for text in _texts(cell) for b in BANNERS if b in text]
+            assert not loud, f"{path.name}: cell {index} prints third-party banners {loud}"

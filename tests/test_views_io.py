@@ -388,53 +388,6 @@ def test_fit_volume_on_a_written_capture_matches_the_direct_fit(tmp_path):
     assert time.perf_counter() - t0 < 60.0
 
 
-# ---- the command line takes a capture folder -----------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def cow_capture(tmp_path_factory):
-    """9 views of the cow at 16 px written as a transforms.json capture (view 0 is held out)."""
-    path = tmp_path_factory.mktemp("capture")
-    save_views(path, _cow_renders(9, 16))
-    return path
-
-
-def test_cli_fit_volume_on_a_capture(cow_capture, tmp_path, capsys):
-    from geofit.cli import main
-
-    code = main(["fit-volume", str(cow_capture), "--size", "8", "--levels", "8", "--iters",
-                 "3", "--frames", "0", "--quiet", "--out", str(tmp_path)])
-    assert code == 0
-    summary = json.loads((tmp_path / "volume_summary.json").read_text())
-    assert summary["views"] == 7 and summary["dataset"] == cow_capture.name
-    assert len(summary["held_out"]["psnr_per_view"]) == 2   # views 0 and 8
-    assert "held-out PSNR" in capsys.readouterr().out
-
-
-def test_cli_fit_nerf_and_fit_views_on_a_capture(cow_capture, tmp_path, capsys):
-    from geofit.cli import main
-
-    code = main(["fit-nerf", str(cow_capture / "transforms.json"), "--time", "1", "--iters",
-                 "2", "--frames", "0", "--width", "8", "--threads", "1", "--quiet",
-                 "--out", str(tmp_path / "nerf")])
-    assert code == 0 and (tmp_path / "nerf" / "nerf_summary.json").is_file()
-    code = main(["fit-views", str(cow_capture), "--out", str(tmp_path / "views"),
-                 "--silhouette-iters", "3", "--textured-iters", "2", "--init-level", "1"])
-    assert code == 0
-    summary = json.loads((tmp_path / "views" / "fit_views.json").read_text())
-    assert summary["settings"]["views"] == 7 and summary["settings"]["heldout"] == 2
-    assert 0.0 <= summary["heldout"]["iou"] <= 1.0 and "chamfer_l2" not in summary["heldout"]
-    out = capsys.readouterr().out
-    assert "held-out IoU" in out
-
-
-def test_cli_capture_errors_are_reported(tmp_path, capsys):
-    from geofit.cli import main
-
-    assert main(["fit-volume", str(tmp_path / "none"), "--out", str(tmp_path)]) == 1
-    assert "no such file or folder" in capsys.readouterr().err
-
-
 def _write(path: Path, text: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)

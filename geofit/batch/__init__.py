@@ -5,11 +5,16 @@ its settings, loads its own input (no Embree scene, Open3D object or large array
 process boundary), runs geofit's workflow, and writes ``OUT/<name>/result.json`` (status,
 message, metrics, seconds, parameter count, history, the settings and their hash) and its
 outputs (mesh, volume, weights, pictures), each atomically (a temporary file, then
-``os.replace``). A failing target is recorded as ``"failed"`` (error type and message) and the
-batch goes on. A rerun into the same ``OUT`` skips every target whose ``result.json`` holds the same
-settings hash (the hash covers the task, the settings and the input files' sizes and
-modification times); ``retry_failed=True`` recomputes the failed ones, ``force=True`` all. Results stream in as they finish (``distributed.as_completed``) with a
-tqdm progress bar.
+``os.replace``). Each fit runs with its own defaults (those of ``geofit.fit_*`` and of the
+``geofit fit-*`` commands); only the options given are passed on. A target is ``"ok"`` when its
+fit made at least one step and ended well by its own account; otherwise, or on an error, it is
+recorded as ``"failed"`` (error type, message and cause) and the batch goes on. A rerun into the
+same ``OUT`` skips every target whose ``result.json`` holds the same settings hash (the hash
+covers the task, the settings and the input files' sizes and modification times) and redoes the
+failures caused by the environment (disk full, memory, a killed worker); ``retry_failed=True``
+also recomputes the other failed ones, ``force=True`` all. Results stream in as they finish
+(``distributed.as_completed``) with a tqdm progress bar. Dask's shutdown never fails a batch:
+its errors become ``notes``.
 
 Without ``client`` or ``scheduler``, :func:`fit_many` starts a ``distributed.LocalCluster`` of
 worker processes on 127.0.0.1 (no dashboard) and tears it down afterwards; with
@@ -44,14 +49,17 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .._threads import ENV_VAR, cpu_count
-from ._tasks import (
+from ._options import (
+    ACCURACY,
     CAPTURE_MARKERS,
     MESH_SUFFIXES,
     RESULT_FILE,
     RESULT_SCHEMA,
+    TASK_OPTIONS,
+    TASKS,
+    Option,
+    check_output_folder,
     is_capture,
-    run_target,
 )
 
 __all__ = [
@@ -73,93 +81,6 @@ __all__ = [
     "task_settings",
     "thread_env",
 ]
-
-
-# ------------------------------------------------------------------------------ tasks
-@dataclass(frozen=True)
-class Option:
-    """One setting of a task: its type, default and help (shared by :func:`fit_many` keyword
-    arguments and the ``geofit batch`` flags)."""
-
-    type: type
-    default: Any
-    help: str
-    choices: tuple | None = None
-
-
-def _recipes() -> tuple:
-    from ..fit import RECIPES
-
-    return tuple(RECIPES)
-
-
-def _volume_methods() -> tuple:
-    from ..fit.volume import FIT_VOLUME_METHODS
-
-    return tuple(FIT_VOLUME_METHODS)
-
-
-_SEED = Option(int, 0, "random seed")
-_VIEWS_TIME = Option(float, None, "seconds of solver time per target")
-
-#: Every task's options, with defaults. ``fit_many(..., **fit_kwargs)`` accepts exactly these.
-TASK_OPTIONS: dict[str, dict[str, Option]] = {
-    "fit-mesh": {
-        "recipe": Option(str, None, "a fit_mesh recipe",
-                         _recipes()),
-        "time_budget": Option(float, None, "seconds of solver time per target"),
-        "n_iter": Option(int, None, "iterations per stage"),
-        "metric_samples": Option(int, 100_000, "samples a side for the accuracy"),
-        "seed": _SEED,
-    },
-    "render": {
-        "views": Option(int, 4, "views per target"),
-        "image_size": Option(int, 256, "pixels per side"),
-        "dist": Option(float, 2.7, "camera distance (the mesh is normalised first)"),
-        "elev": Option(float, 20.0, "camera elevation in degrees"),
-    },
-    "fit-views": {
-        "views": Option(int, 20, "training views rendered from a mesh target"),
-        "image_size": Option(int, 128, "image size of those views"),
-        "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
-        "time_budget": _VIEWS_TIME,
-        "iterations": Option(int, None, "silhouette iterations"),
-        "metric_samples": Option(int, 20_000, "samples a side for the surface accuracy"),
-        "seed": _SEED,
-    },
-    "fit-volume": {
-        "views": Option(int, 40, "training views rendered from a mesh target"),
-        "image_size": Option(int, 128, "image size of those views"),
-        "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
-        "time_budget": _VIEWS_TIME,
-        "size": Option(int, None, "final grid size"),
-        "method": Option(str, None, "fit_volume method", _volume_methods()),
-        "seed": _SEED,
-    },
-    "fit-nerf": {
-        "views": Option(int, 40, "training views rendered from a mesh target"),
-        "image_size": Option(int, 128, "image size of those views"),
-        "heldout": Option(int, 8, "held-out views rendered from a mesh target"),
-        "time_budget": _VIEWS_TIME,
-        "recipe": Option(str, None, "fit_nerf recipe", ("default", "tutorial")),
-        "n_iter": Option(int, None, "maximum steps"),
-        "seed": _SEED,
-    },
-}
-
-#: The tasks: ``fit-mesh`` and ``render`` take mesh files; ``fit-views``, ``fit-volume`` and
-#: ``fit-nerf`` take capture folders (read by ``geofit.io.load_views``) or mesh files
-#: (rendered into synthetic views first).
-TASKS = tuple(TASK_OPTIONS)
-
-#: Per task, the metric plotted as accuracy in ``summary.png`` and its label.
-ACCURACY: dict[str, tuple[str, str]] = {
-    "fit-mesh": ("fscore@0.01", "F-score@0.01 (normalised frame)"),
-    "render": ("coverage", "share of pixels on the mesh"),
-    "fit-views": ("iou", "held-out silhouette IoU"),
-    "fit-volume": ("psnr", "held-out PSNR (dB)"),
-    "fit-nerf": ("psnr", "held-out PSNR (dB)"),
-}
 
 
 def _check_task(task) -> str:
@@ -195,8 +116,9 @@ def task_settings(task: str, **kwargs) -> dict[str, Any]:
             v = float(v)
         if not isinstance(v, opt.type) or isinstance(v, bool):
             raise TypeError(f"{name}: expected {opt.type.__name__}, got {v!r}")
-        if opt.choices is not None and v not in opt.choices:
-            raise ValueError(f"{name}: expected one of {opt.choices}, got {v!r}")
+        choices = opt.allowed()
+        if choices is not None and v not in choices:
+            raise ValueError(f"{name}: expected one of {choices}, got {v!r}")
         if opt.type in (int, float) and name not in ("seed", "elev") and not v > 0:
             raise ValueError(f"{name}: expected a positive number, got {v!r}")
         out[name] = v
@@ -210,7 +132,7 @@ def expand_targets(targets: str | os.PathLike | Iterable[str | os.PathLike],
 
     A file is one target. A folder expands to its mesh files (:data:`MESH_SUFFIXES`, not
     recursive), and, for the multi-view tasks, is itself one target when it is a capture
-    (:func:`geofit.batch._tasks.is_capture`) or else contributes its capture sub-folders.
+    (:func:`geofit.batch._options.is_capture`) or else contributes its capture sub-folders.
     ``name`` is the file or folder stem, made unique with a short hash of the path when two
     targets share a stem; it names the target's output folder.
 
@@ -289,7 +211,12 @@ class TargetResult:
         The fit's status and message, or the error (``"TypeName: message"``).
     error_type : str or None
         Exception type of a failure (``"FitStatus"`` when the fit ended non-finite/diverged,
-        ``"KilledWorker"`` etc. when the task itself was lost).
+        ``"NoProgress"`` when it made no step, ``"KilledWorker"`` etc. when the task itself
+        was lost).
+    cause : str or None
+        Of a failure: ``"environment"`` (disk full, memory, a killed worker, a lost task: a
+        rerun redoes it by default) or ``"target"`` (the input or the fit: redone only with
+        ``retry_failed``).
     accuracy : float
         The task's headline metric (:data:`ACCURACY`); -1 when not measured.
     seconds : float
@@ -313,6 +240,8 @@ class TargetResult:
     outputs : dict
         The target's output files (``"mesh"``, ``"volume"``, ``"weights"``, views), relative
         to ``out``.
+    worker : str
+        ``host:pid`` of the worker process that computed the result ("" for a lost task).
     """
 
     name: str
@@ -321,6 +250,7 @@ class TargetResult:
     status: str
     message: str = ""
     error_type: str | None = None
+    cause: str | None = None
     accuracy: float = -1.0
     seconds: float = 0.0
     load_seconds: float = 0.0
@@ -334,6 +264,7 @@ class TargetResult:
     reused: bool = False
     picture: str | None = None
     outputs: dict = field(default_factory=dict)
+    worker: str = ""
 
     @property
     def ok(self) -> bool:
@@ -346,7 +277,8 @@ class TargetResult:
         err = rec.get("error") or {}
         return cls(name=rec["name"], target=rec["target"], task=rec["task"],
                    status=rec["status"], message=rec.get("message", ""),
-                   error_type=err.get("type"), accuracy=float(rec.get("accuracy", -1.0)),
+                   error_type=err.get("type"), cause=rec.get("cause"),
+                   accuracy=float(rec.get("accuracy", -1.0)),
                    seconds=float(rec.get("seconds", 0.0)),
                    load_seconds=float(rec.get("load_seconds", 0.0)),
                    fit_seconds=float(rec.get("fit_seconds", 0.0)),
@@ -357,7 +289,8 @@ class TargetResult:
                    settings_hash=rec.get("settings_hash", ""), reused=reused,
                    picture=None if pic is None else f"{rec['name']}/{pic}",
                    outputs={k: f"{rec['name']}/{v}" for k, v in
-                            (rec.get("outputs") or {}).items()})
+                            (rec.get("outputs") or {}).items()},
+                   worker=f"{rec['host']}:{rec['pid']}" if rec.get("pid") else "")
 
 
 _CSV_FIELDS = [f.name for f in fields(TargetResult) if f.name not in ("metrics", "outputs")]
@@ -387,6 +320,9 @@ class BatchResult(Sequence):
         connecting to the scheduler), ``"warm_up"`` (the workers' thread limits and imports,
         all workers in parallel), ``"tasks"`` (submitting the targets until the last result),
         ``"tear_down"`` and ``"summary"`` (the summary files); empty when nothing was run.
+    notes : list of str
+        What went wrong around the targets (the cluster failing, Dask's shutdown timing out):
+        one line each, also in ``summary.json``; a note never fails the batch by itself.
     """
 
     rows: list
@@ -398,6 +334,7 @@ class BatchResult(Sequence):
     threads_per_worker: int = 1
     scheduler: str = "local"
     timings: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
 
     def __getitem__(self, i):
         return self.rows[i]
@@ -419,6 +356,12 @@ class BatchResult(Sequence):
     @property
     def n_reused(self) -> int:
         return sum(r.reused for r in self.rows)
+
+    @property
+    def n_result_workers(self) -> int:
+        """Worker processes that computed the results listed (this run's and, for reused
+        rows, the earlier runs')."""
+        return len({r.worker for r in self.rows if r.worker})
 
     @property
     def exit_code(self) -> int:
@@ -454,7 +397,8 @@ class BatchResult(Sequence):
                 "n_targets": len(self.rows), "n_ok": self.n_ok, "n_failed": self.n_failed,
                 "n_reused": self.n_reused, "n_workers": self.n_workers,
                 "threads_per_worker": self.threads_per_worker, "scheduler": self.scheduler,
-                "timings": self.timings,
+                "n_result_workers": self.n_result_workers, "timings": self.timings,
+                "notes": self.notes,
                 "accuracy": {"metric": ACCURACY[self.task][0], "label": ACCURACY[self.task][1]},
                 "targets": [asdict(r) for r in self.rows]}
 
@@ -465,15 +409,17 @@ class BatchResult(Sequence):
 
 def _previous(dest: Path, digest: str, retry_failed: bool) -> dict | None:
     """The earlier ``result.json`` of a target when it holds the same settings hash and is
-    ``"ok"``, or ``"failed"`` by the target itself (not a lost task) and ``retry_failed`` is
-    off."""
+    ``"ok"``, or ``"failed"`` because of the target itself and ``retry_failed`` is off. A
+    failure whose cause was the environment (disk full, memory, a killed worker, a lost task:
+    ``"cause": "environment"``) is never kept: the rerun redoes it."""
     try:
         rec = json.loads((dest / RESULT_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     if rec.get("schema") != RESULT_SCHEMA or rec.get("settings_hash") != digest:
         return None
-    if rec.get("status") == "ok" or (not retry_failed and not rec.get("lost")):
+    from_environment = rec.get("lost") or rec.get("cause") == "environment"
+    if rec.get("status") == "ok" or (not retry_failed and not from_environment):
         rec.pop("history", None)
         return rec
     return None
@@ -482,6 +428,8 @@ def _previous(dest: Path, digest: str, retry_failed: bool) -> dict | None:
 # ------------------------------------------------------------------------------ cluster
 def _plan_threads(n_workers: int | None, threads: int | None) -> tuple[int, int]:
     """(workers, threads per worker) of the embedded cluster, with workers x threads <= cores."""
+    from .._threads import cpu_count
+
     cores = cpu_count()
     if n_workers is None:
         n_workers = max(1, cores // (threads or 1))
@@ -544,6 +492,8 @@ def _start_local(n_workers: int, threads: int):
     import dask
     from distributed import Client, LocalCluster
 
+    from .._threads import ENV_VAR
+
     env = thread_env(threads)
     at_spawn = {k: v for k, v in env.items() if k != ENV_VAR}
     pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **at_spawn}
@@ -581,6 +531,8 @@ def _remote_threads(client, threads: int | None) -> int:
         slots[w["host"]] = slots.get(w["host"], 0) + int(w["nthreads"])
     if not slots:
         return 1
+    from .._threads import cpu_count
+
     cores = client.run(cpu_count)
     per_host: dict[str, int] = {}
     for addr, c in cores.items():
@@ -634,8 +586,8 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
         Recompute every target, even those whose earlier result has the same settings hash.
     retry_failed : bool
         Recompute the targets that failed earlier with the same settings hash (by default a
-        rerun keeps them: the same input and settings fail the same way). Tasks that were lost
-        (a worker died) are always retried.
+        rerun keeps them: the same input and settings fail the same way). Failures caused by
+        the environment (disk full, memory, a killed worker, a lost task) are always retried.
     summary : bool
         Write the summary files into ``out``.
     **fit_kwargs
@@ -651,8 +603,10 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     Raises
     ------
     ValueError
-        For an unknown task or option, a bad option value, thread counts above the cores, or
-        no targets. A failing *target* never raises: it is recorded as ``"failed"``.
+        For an unknown task or option, a bad option value, thread counts above the cores, no
+        targets, or an unusable ``out`` (a file, a folder that cannot be created or written),
+        all before the first task. A failing *target* never raises: it is recorded as
+        ``"failed"``; nor does a failing cluster or its shutdown (see ``notes``).
     FileNotFoundError
         For a target path that does not exist.
 
@@ -671,7 +625,7 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     t0 = time.perf_counter()
     settings = task_settings(task, **fit_kwargs)
     items = expand_targets(targets, task)
-    out = Path(out).resolve()
+    out = check_output_folder(Path(out).resolve(), "out")  # before the first task
     if client is not None and scheduler is not None:
         raise ValueError("client, scheduler: give at most one of them")
     for v, nm in ((n_workers, "n_workers"), (threads_per_worker, "threads_per_worker")):
@@ -679,7 +633,6 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
             raise ValueError(f"{nm}: expected an integer >= 1, got {v!r}")
     if client is None and scheduler is None:
         n_workers, threads_per_worker = _plan_threads(n_workers, threads_per_worker)
-    out.mkdir(parents=True, exist_ok=True)
     key = ACCURACY[task][0]
     rows: dict[str, TargetResult] = {}
     todo = []
@@ -694,6 +647,7 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
                          "accuracy_key": key})
     used_workers, where = 0, "local" if client is None and scheduler is None else "cluster"
     timings: dict[str, float] = {}
+    notes: list[str] = []
     if todo:
         own = client is None
         cluster = None
@@ -716,19 +670,25 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
             for spec in todo:
                 spec["threads"] = threads_per_worker
             t = time.perf_counter()
-            rows.update(_run(client, todo, progress))
+            _run(client, todo, progress, rows)
             timings["tasks"] = time.perf_counter() - t
+            # the scheduler's list may lag behind an external cluster's workers: count those
+            # that computed a result too
+            ran = {rows[spec["name"]].worker for spec in todo if spec["name"] in rows}
+            used_workers = max(used_workers, len(_workers(client)), len(ran - {""}))
+        except Exception as exc:  # noqa: BLE001 - the cluster failed, not a target: record it
+            notes.append(f"the cluster failed: {type(exc).__name__}: {exc}")
+            for spec in todo:
+                if spec["name"] not in rows:
+                    rows[spec["name"]] = TargetResult.from_record(_lost(spec, exc))
         finally:
             t = time.perf_counter()
-            if own and client is not None:
-                client.close()
-            if cluster is not None:
-                cluster.close()
-            if todo and "tasks" in timings:
+            notes += _shutdown(client if own else None, cluster)
+            if "tasks" in timings:
                 timings["tear_down"] = time.perf_counter() - t
     result = BatchResult([rows[name] for name, _ in items], task, out, settings,
                          n_workers=used_workers, threads_per_worker=threads_per_worker or 1,
-                         scheduler=where, timings=timings)
+                         scheduler=where, timings=timings, notes=notes)
     if summary:
         from ._summary import write_summary
 
@@ -740,19 +700,55 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
     return result
 
 
+#: Seconds the client and the embedded cluster get to close before they are left to the
+#: process's exit (distributed's own default waits longer, then raises).
+SHUTDOWN_TIMEOUT = 10.0
+
+
+def _shutdown(client, cluster) -> list[str]:
+    """Close ``client`` and ``cluster`` (either may be None) quietly; returns notes.
+
+    Every result is on disk when this runs, so nothing that happens while Dask shuts down may
+    fail the batch: a shutdown timeout, a comm the scheduler already closed
+    (``CommClosedError``), a worker that will not stop, each becomes a one-line note in the
+    summary instead of a traceback, and distributed's own log lines about them are muted.
+    """
+    import logging
+
+    notes = []
+    loggers = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        for what, obj in (("client", client), ("cluster", cluster)):
+            if obj is None:
+                continue
+            try:
+                obj.close(timeout=SHUTDOWN_TIMEOUT)
+            except Exception as exc:  # noqa: BLE001 - see the docstring
+                notes.append(f"closing the {what}: {type(exc).__name__}: {exc}".rstrip(": "))
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+    return notes
+
+
 def largest_first(todo: list[dict]) -> list[dict]:
     """The specs ordered by input size, largest first (stable for equal sizes): the
     longest-processing-time-first order, with the input size as the estimate of the work."""
     return sorted(todo, key=lambda spec: -input_bytes(spec["path"]))
 
 
-def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
+def _run(client, todo: list[dict], progress: bool, rows: dict[str, TargetResult]) -> None:
     """Submit one task per spec, largest input first, and collect the records in batches as
-    they finish."""
+    they finish, into ``rows`` (kept when the cluster fails half-way)."""
     import uuid
 
     from distributed import as_completed
     from tqdm.auto import tqdm
+
+    from ._tasks import run_target
 
     todo = largest_first(todo)
     # One task group for the scheduler (the first element of a tuple key names it), so the
@@ -764,7 +760,6 @@ def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
         f = client.submit(run_target, spec, pure=False, priority=len(todo) - rank,
                           key=(group, token, spec["name"]))
         futures[f] = spec
-    rows: dict[str, TargetResult] = {}
     n_failed = 0
     with tqdm(total=len(todo), desc=f"geofit batch {todo[0]['task']}", unit="target",
               disable=not progress) as bar:
@@ -779,11 +774,11 @@ def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
                 n_failed += not row.ok
             bar.set_postfix_str(f"{row.name}: {row.status}; {n_failed} failed")
             bar.update(len(batch))
-    return rows
 
 
 def _lost(spec: dict, exc: BaseException) -> dict:
-    """The record of a task that did not return (its worker died): written by the client."""
+    """The record of a task that did not return (its worker died, the cluster failed):
+    written by the client, with the cause ``"environment"`` (a rerun retries it)."""
     from ._tasks import write_json
 
     rec = {"schema": RESULT_SCHEMA, "name": spec["name"], "target": spec["path"],
@@ -791,9 +786,13 @@ def _lost(spec: dict, exc: BaseException) -> dict:
            "settings_hash": spec["settings_hash"], "status": "failed",
            "message": f"{type(exc).__name__}: {exc}",
            "error": {"type": type(exc).__name__, "message": str(exc)}, "metrics": {},
-           "accuracy": -1.0, "seconds": 0.0, "n_params": 0, "picture": None, "lost": True}
+           "accuracy": -1.0, "seconds": 0.0, "n_params": 0, "picture": None, "lost": True,
+           "cause": "environment"}
     dest = Path(spec["out"]) / spec["name"]
-    dest.mkdir(parents=True, exist_ok=True)
-    write_json(dest / RESULT_FILE, {**rec, "history": None})
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+        write_json(dest / RESULT_FILE, {**rec, "history": None})
+    except OSError:  # the disk is what failed: the summary still lists the target
+        pass
     return rec
 

@@ -53,6 +53,20 @@ def _plot(result, path: Path) -> Path:
     return path
 
 
+def _where(result) -> str:
+    """Which workers computed the results: this run's cluster, and for reused results the
+    worker processes recorded in them (never "0 workers" for a rerun that reused all)."""
+    e = html.escape
+    parts = []
+    if result.n_workers:
+        parts.append(f"this run {result.seconds:.1f} s wall on {result.n_workers} worker(s) x "
+                     f"{result.threads_per_worker} thread(s) ({e(result.scheduler)})")
+    else:
+        parts.append(f"this run {result.seconds:.1f} s wall, no target to compute")
+    parts.append(f"the results computed by {result.n_result_workers} worker process(es)")
+    return "; ".join(parts)
+
+
 def _html(result, path: Path) -> Path:
     from . import ACCURACY
 
@@ -86,9 +100,8 @@ img {{ max-width: 480px; }}
 </style></head><body>
 <h1>geofit batch {e(result.task)}</h1>
 <p>{len(result.rows)} targets: {result.n_ok} ok, {result.n_failed} failed,
-{result.n_reused} reused from an earlier run; {result.seconds:.1f} s wall on
-{result.n_workers} worker(s) x {result.threads_per_worker} thread(s)
-({e(result.scheduler)}).</p>
+{result.n_reused} reused from an earlier run; {_where(result)}.</p>
+{"".join(f"<p class='msg'>note: {e(n)}</p>" for n in result.notes)}
 <p><img src="summary.png" alt="accuracy against seconds"></p>
 <p><a href="summary.csv">summary.csv</a> &middot; <a href="summary.json">summary.json</a></p>
 <table><thead><tr><th>target</th><th>status</th><th>{e(label)}</th><th>seconds</th>

@@ -2,9 +2,9 @@
 
 Runs in a worker process. Everything here receives plain data (paths, dicts of settings) and
 builds its own objects, so no Embree scene, Open3D object or big array crosses a process
-boundary. Each task has ONE adapter function calling the geofit workflow (``_fit_mesh_call``,
-``_fit_views_call``, ``_fit_volume_call``, ``_fit_nerf_call``, ``_load_capture``): when a
-workflow's signature changes, one line changes here.
+boundary. Each fit is called with its defaults, the data plus only the options the user
+gave (:data:`FIT_KEYWORDS`: when a fit's keywords change, that table changes here), so a
+batch target fits exactly as ``geofit.fit_*`` and the command line do.
 """
 from __future__ import annotations
 
@@ -20,26 +20,27 @@ from typing import Any
 
 import numpy as np
 
-RESULT_SCHEMA = "geofit-batch-result/1"
-RESULT_FILE = "result.json"
-PICTURE_FILE = "picture.png"
-
-#: Suffixes of the mesh files a folder target expands to.
-MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
-
-#: Files whose presence makes a folder a multi-view capture (the layouts
-#: ``geofit.io.load_views`` reads): the NeRF/Blender ``transforms.json``, a COLMAP text
-#: model (also under ``sparse/0``), OpenCV K/R/t per view in ``cameras.json``.
-CAPTURE_MARKERS = ("transforms.json", "cameras.txt", "sparse/0/cameras.txt",
-                   "sparse/cameras.txt", "cameras.json")
+from ._options import (  # noqa: F401 - CAPTURE_MARKERS, MESH_SUFFIXES, is_capture: re-exported
+    CAPTURE_MARKERS,
+    MESH_SUFFIXES,
+    PICTURE_FILE,
+    RESULT_FILE,
+    RESULT_SCHEMA,
+    environment_cause,
+    is_capture,
+)
 
 #: Held-out share of a capture without a split of its own: every ``HOLDOUT_EVERY``-th view.
 HOLDOUT_EVERY = 8
 
-
-def is_capture(path: Path) -> bool:
-    """True for a folder holding a multi-view capture (one of :data:`CAPTURE_MARKERS`)."""
-    return path.is_dir() and any((path / m).is_file() for m in CAPTURE_MARKERS)
+#: Per task, the batch options passed on to the fit: ``{option: the fit's keyword}``, each only
+#: when given (not None). Everything else is the fit's own default.
+FIT_KEYWORDS: dict[str, dict[str, str]] = {
+    "fit-mesh": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
+    "fit-views": {"recipe": "recipe", "time_budget": "silhouette_time", "seed": "seed"},
+    "fit-volume": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
+    "fit-nerf": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
+}
 
 
 # ------------------------------------------------------------------------------ small helpers
@@ -224,41 +225,17 @@ def _tutorial5_views(path: Path, s: dict):
 
 
 # ------------------------------------------------------------------------------ adapters
-def _fit_mesh_call(target, **kwargs):
-    """geofit's mesh fit with its default start."""
-    from ..fit import fit_mesh
-
-    return fit_mesh(target, **kwargs)
-
-
-def _fit_views_call(train, **kwargs):
-    """geofit's mesh-from-views fit (tutorial 4) with its defaults."""
-    from ..fit.views import fit_mesh_to_views
-
-    return fit_mesh_to_views(train, progress=False, **kwargs)
+def _fit_kwargs(task: str, s: dict) -> dict:
+    """The fit's keywords of ``task`` from the settings ``s`` (:data:`FIT_KEYWORDS`), with
+    progress off (a worker has no terminal)."""
+    return {**{kw: s[opt] for opt, kw in FIT_KEYWORDS[task].items() if s.get(opt) is not None},
+            "progress": False}
 
 
-def _fit_volume_call(images, silhouettes, cameras, **kwargs):
-    """geofit's volume fit (tutorial 5) with its defaults."""
+def _dataset(images, silhouettes, cameras):
     from ..structures import MultiViewDataset
-    from ..fit.volume import fit_volume
 
-    return fit_volume(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
-                      progress=False, **kwargs)
-
-
-def _fit_nerf_call(images, silhouettes, cameras, **kwargs):
-    """geofit's NeRF fit (tutorial 6) with its defaults."""
-    from ..structures import MultiViewDataset
-    from ..fit.nerf import fit_nerf
-
-    return fit_nerf(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
-                    progress=False, **kwargs)
-
-
-def _given(s: dict, mapping: dict) -> dict:
-    """``{kwarg: s[option]}`` for the options in ``mapping`` that are set (not None)."""
-    return {kw: s[opt] for opt, kw in mapping.items() if s.get(opt) is not None}
+    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)
 
 
 def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
@@ -267,13 +244,12 @@ def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     target = _load_mesh(path)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = {"recipe": s["recipe"]} if s.get("recipe") else {}
-    kw.update(_given(s, {"time_budget": "time_budget", "n_iter": "n_iter"}))
-    res = _fit_mesh_call(target, seed=s["seed"], evaluator=None, progress=False, **kw)
+    from ..fit import fit_mesh
+
+    res = fit_mesh(target, **_fit_kwargs("fit-mesh", s))
     clock["fit_seconds"] = res.seconds
     t = time.perf_counter()
-    m = MeshEvaluator(target, n_samples=s["metric_samples"], taus=(0.01,), normalize=True,
-                      seed=0).evaluate(res.mesh)
+    m = MeshEvaluator(target, taus=(0.01,), normalize=True, seed=0).evaluate(res.mesh)
     clock["eval_seconds"] = time.perf_counter() - t
     _save_mesh(dest / "fit.obj", res.mesh)
     pics = _render_pair(target, res.mesh)
@@ -352,13 +328,13 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
                                num_held_out=s["heldout"], name=path.stem)
         heldout, truth = train.held_out, train.mesh
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "silhouette_time", "iterations": "silhouette_iters"})
-    fit = _fit_views_call(train, seed=s["seed"], **kw)
+    from ..fit import fit_mesh_to_views
+
+    fit = fit_mesh_to_views(train, **_fit_kwargs("fit-views", s))
     clock["fit_seconds"] = fit.seconds
     t = time.perf_counter()
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
-    metrics = ViewsEvaluator(heldout, truth, n_samples=s["metric_samples"], taus=(0.01,))(
-        fit.mesh, colors)
+    metrics = ViewsEvaluator(heldout, truth, taus=(0.01,))(fit.mesh, colors)
     clock["eval_seconds"] = time.perf_counter() - t
     _save_mesh(dest / "fit.obj", fit.mesh)
     _save_npz(dest / "fit_colors.npz", verts=fit.mesh.verts, faces=fit.mesh.faces,
@@ -386,8 +362,9 @@ def _task_fit_volume(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "time_budget", "size": "volume_size", "method": "method"})
-    res = _fit_volume_call(*tr, seed=s["seed"], **kw)
+    from ..fit import fit_volume
+
+    res = fit_volume(_dataset(*tr), **_fit_kwargs("fit-volume", s))
     clock["fit_seconds"] = res.seconds
     t = time.perf_counter()
     m = volume_metrics(res.volume, te[0], te[1], te[2])
@@ -408,8 +385,11 @@ def _task_fit_nerf(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "time_budget", "recipe": "recipe", "n_iter": "n_iter"})
-    res = _fit_nerf_call(*tr, held_out=te, seed=s["seed"], **kw)
+    from ..fit import fit_nerf
+
+    train = _dataset(*tr)
+    train.held_out = _dataset(*te)
+    res = fit_nerf(train, **_fit_kwargs("fit-nerf", s))
     clock["fit_seconds"] = res.seconds
     _save_npz(dest / "nerf_field.npz", **res.field.params, config=json.dumps(asdict(res.config)))
     if res.images is not None:
@@ -430,6 +410,33 @@ ADAPTERS: dict[str, Callable[[Path, Path, dict, dict], dict]] = {
 
 
 # ------------------------------------------------------------------------------ the task
+def verdict(fit, accuracy, settings: dict) -> dict | None:
+    """None when a target's fit counts as done, else its error ``{"type", "message"}``.
+
+    Done means: the fit ended well by its own account (``fit.ok``: not failed, non-finite or
+    diverged; and ``fit.accepted`` when the result has it), it made progress (at least one
+    solver step: a fit whose time budget ran out before its first step returns its start and
+    is not a result), and its accuracy metric is finite. ``fit`` None (a render) is done.
+    """
+    if fit is None:
+        return None
+    if not fit.ok or getattr(fit, "accepted", True) is False:
+        return {"type": "FitStatus",
+                "message": f"the fit ended with status {fit.status!r}: {fit.message}"}
+    steps = int(getattr(fit, "n_iterations", 0) or 0)
+    if steps < 1:
+        if fit.status == "time_budget":
+            budget = settings.get("time_budget")
+            limit = f"of {budget:g} s " if budget is not None else ""
+            why = f"its time budget {limit}ran out before its first step"
+        else:
+            why = f"it ended with status {fit.status!r} ({fit.message})"
+        return {"type": "NoProgress", "message": f"the fit made no step: {why}"}
+    if accuracy is not None and not np.isfinite(accuracy):
+        return {"type": "FitStatus", "message": f"the fit's accuracy is {accuracy}"}
+    return None
+
+
 def run_target(spec: dict) -> dict:
     """Run one target on this process and write ``<out>/<name>/result.json``.
 
@@ -457,12 +464,12 @@ def run_target(spec: dict) -> dict:
     try:
         out = ADAPTERS[spec["task"]](Path(spec["path"]), dest, spec["settings"], clock)
         fit = out["fit"]
-        ok = fit is None or fit.ok
+        error = verdict(fit, out["metrics"].get(spec["accuracy_key"]), spec["settings"])
         record.update(
-            status="ok" if ok else "failed",
-            message="" if fit is None else f"{fit.status}: {fit.message}",
-            error=None if ok else {"type": "FitStatus", "message": f"the fit ended with status "
-                                                                  f"{fit.status!r}"},
+            status="ok" if error is None else "failed",
+            message=("" if fit is None else f"{fit.status}: {fit.message}") if error is None
+            else error["message"],
+            error=error, cause=None if error is None else "target",
             fit_status=None if fit is None else fit.status,
             metrics=out["metrics"], n_params=0 if fit is None else int(fit.n_params),
             n_iterations=0 if fit is None else int(fit.n_iterations),
@@ -474,6 +481,7 @@ def run_target(spec: dict) -> dict:
         record.update(status="failed", message=f"{type(exc).__name__}: {exc}",
                       error={"type": type(exc).__name__, "message": str(exc),
                              "traceback": traceback.format_exc(limit=8)},
+                      cause="environment" if environment_cause(exc) else "target",
                       fit_status=None, metrics={}, n_params=0, n_iterations=0, outputs={},
                       picture=None)
     acc = record["metrics"].get(spec["accuracy_key"])

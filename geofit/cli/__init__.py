@@ -1,7 +1,12 @@
 """The ``geofit`` command line.
 
 Each workflow lives in its own module in this package and defines ``register(subparsers)``,
-which adds one sub-command whose ``func(args) -> int`` runs it. ``main`` discovers them.
+which adds one sub-command whose ``func(args) -> int`` runs it, and optionally
+``check(args)``, which checks its arguments and paths first. ``main`` discovers them.
+
+Building the parser and checking the arguments import nothing heavy (the package namespace is
+lazy, the sub-command modules import numpy, Open3D and the fits inside their ``run``): a wrong
+path or a bad option is answered at once.
 """
 from __future__ import annotations
 
@@ -19,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="geofit",
         description="Fit and render 3D geometry on the CPU (PyTorch3D's tutorials in numpy).",
     )
-    from .. import __version__
+    from .. import __version__  # a constant of the lazy namespace: imports nothing else
 
     parser.add_argument("--version", action="version", version=f"geofit {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -39,8 +44,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        check = getattr(args, "check", None)
+        if check is not None:
+            check(args)
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, RuntimeError) as exc:
+    except (ValueError, TypeError, FileNotFoundError, RuntimeError) as exc:
         print(f"geofit {args.command}: error: {exc}", file=sys.stderr)
         return 1
 

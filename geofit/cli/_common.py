@@ -1,5 +1,10 @@
-"""Pieces shared by the sub-commands: parser set-up, the cow's renders or a capture as data,
-option overrides and the files they write (JSON summaries, PNG grids, rotating GIFs).
+"""Pieces shared by the sub-commands: parser set-up, argument checks, the cow's renders or a
+capture as data, the fit's keywords and the files they write (JSON summaries, PNG grids,
+rotating GIFs).
+
+This module imports only the standard library at its top: the parser is built and the
+arguments (input files, the output folder) are checked before numpy, Open3D or Embree load,
+so a wrong path is answered at once. Everything heavy is imported inside the functions.
 
 A private module: the command line skips modules whose name starts with ``_`` when it looks for
 ``register(subparsers)``.
@@ -7,24 +12,32 @@ A private module: the command line skips modules whose name starts with ``_`` wh
 from __future__ import annotations
 
 import argparse
-import json
+import ast
+import re
+from functools import lru_cache
 from pathlib import Path
 
-import numpy as np
+#: The package folder: API docstrings are read from its sources (with ``ast``, no import).
+_PACKAGE = Path(__file__).resolve().parents[1]
 
 
-def cow_views(args: argparse.Namespace):
-    """The tutorial's training renders of the cow and held-out views between them.
+#: The flags that choose the tutorial's views -> ``geofit.datasets.tutorial_views``' keywords
+#: (passed on only when given: the tutorial's own counts and sizes otherwise).
+VIEW_OPTIONS = {"views": "num_views", "image_size": "image_size", "heldout": "num_held_out"}
 
-    ``args.views`` training views of ``args.image_size`` pixels; held out: up to 8 azimuths
-    half-way between them (:func:`geofit.datasets.held_out_views`). Returns ``(train, test)``;
-    ``train.held_out`` is ``test``.
+
+def tutorial_data(args: argparse.Namespace, tutorial: int):
+    """The training views of ``CAPTURE`` (:func:`capture_views`) or, without one, the
+    tutorial's renders of the cow (``geofit.datasets.tutorial_views(tutorial)`` with only the
+    view flags given); ``train.held_out`` holds the held-out views. Returns ``(train, test)``.
     """
-    from ..datasets import held_out_views, tutorial_views
+    if getattr(args, "capture", None):
+        return capture_views(args.capture)
+    from ..datasets import tutorial_views
 
-    train = tutorial_views(5, num_views=args.views, image_size=args.image_size, num_held_out=0)
-    train.held_out = held_out_views(num_views=args.views, image_size=args.image_size,
-                                    n_azimuths=min(8, max(1, args.views - 1)))
+    kw = {kw: getattr(args, a) for a, kw in VIEW_OPTIONS.items()
+          if getattr(args, a, None) is not None}
+    train = tutorial_views(tutorial, **kw)
     return train, train.held_out
 
 
@@ -57,63 +70,169 @@ def capture_views(path: str):
 
 def save_png(path: Path, rows: list) -> None:
     """Write rows of (n, H, W, 3) images in [0, 1] as one PNG grid (row by row)."""
+    import numpy as np
     from PIL import Image
 
     grid = np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0)
     Image.fromarray((np.clip(grid, 0, 1) * 255).round().astype(np.uint8)).save(path)
 
 
-def save_gif(path: Path, frames: np.ndarray, ms: int = 80) -> None:
+def save_gif(path: Path, frames, ms: int = 80) -> None:
     """Write (n, H, W, 3) frames in [0, 1] as a looping GIF, ``ms`` milliseconds per frame."""
+    import numpy as np
     from PIL import Image
 
     ims = [Image.fromarray((np.clip(f, 0, 1) * 255).round().astype(np.uint8)) for f in frames]
     ims[0].save(path, save_all=True, append_images=ims[1:], duration=ms, loop=0)
 
 
-def add_view_args(p: argparse.ArgumentParser) -> None:
-    """``--views``, ``--image-size`` (the training renders) and ``--frames`` (the rotation)."""
-    p.add_argument("--views", type=int, default=40, help="training views (default 40)")
-    p.add_argument("--image-size", type=int, default=128, help="image size (default 128)")
-    p.add_argument("--frames", type=int, default=24,
-                   help="frames of the rotating render (0: none; default 24)")
+def add_view_args(p: argparse.ArgumentParser, frames: bool = True) -> None:
+    """``--views``, ``--image-size``, ``--heldout`` (the tutorial's renders, when no CAPTURE
+    is given) and, with ``frames``, ``--frames`` (the rotating render)."""
+    p.add_argument("--views", type=int, default=None,
+                   help="training views of the cow (default: the tutorial's)")
+    p.add_argument("--image-size", type=int, default=None,
+                   help="image size of the cow's views (default: the tutorial's, 128)")
+    p.add_argument("--heldout", type=int, default=None,
+                   help="held-out views of the cow (default: the tutorial's, 16)")
+    if frames:
+        p.add_argument("--frames", type=int, default=24,
+                       help="frames of the rotating render (0: none; default 24)")
 
 
-def add_quiet_arg(p: argparse.ArgumentParser) -> None:
-    """``--quiet`` (no progress lines) and ``--no-progress`` (no progress bar)."""
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+def _plain(text: str) -> str:
+    """Docstring markup made plain for a terminal: roles and double backquotes dropped, one
+    line, ``%`` escaped for argparse."""
+    text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text).replace("``", "").replace("`", "")
+    return " ".join(text.split()).replace("%", "%%")
 
 
-def add_command(subparsers, name: str, help: str, doc: str | None, func,
-                input: tuple[str, str] | None = None) -> argparse.ArgumentParser:
+@lru_cache(maxsize=None)
+def _docstrings(module: str) -> dict[str, str]:
+    """``{function or class name: docstring}`` of ``geofit/<module>``, read with ``ast``
+    (nothing is imported)."""
+    tree = ast.parse((_PACKAGE / module).read_text(encoding="utf-8"))
+    return {n.name: ast.get_docstring(n) or "" for n in ast.walk(tree)
+            if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+
+
+def module_constant(module: str, name: str):
+    """The literal value of the module-level constant ``name`` in ``geofit/<module>``, read
+    with ``ast`` (nothing is imported): choices of the parser from their one home."""
+    tree = ast.parse((_PACKAGE / module).read_text(encoding="utf-8"))
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else \
+            [node.target] if isinstance(node, ast.AnnAssign) and node.value else []
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            return ast.literal_eval(node.value)
+    raise LookupError(f"{name}: no such constant in geofit/{module}")
+
+
+def api_doc(api: tuple[str, str], param: str | None = None) -> str:
+    """The first sentence of the docstring of ``api = (module file, function)`` (e.g.
+    ``("fit/mesh.py", "fit_mesh")``), or of its parameter ``param``'s description.
+
+    The command line's help texts come from here, so they say what the API's docstrings say.
+
+    Raises
+    ------
+    LookupError
+        When the function or the parameter is not documented there.
+    """
+    module, func = api
+    doc = _docstrings(module).get(func)
+    if doc is None:
+        raise LookupError(f"{func}: not found in geofit/{module}")
+    if param is None:
+        return _plain(doc.split("\n\n", 1)[0])
+    lines = doc.splitlines()
+    for i, line in enumerate(lines):
+        names = line.split(" : ", 1)[0] if " : " in line else line.rstrip(":")
+        if line[:1].strip() and param in [n.strip() for n in names.split(",")]:
+            body = []
+            for nxt in lines[i + 1:]:
+                if nxt.strip() and not nxt[:1].isspace():
+                    break
+                body.append(nxt)
+            text = _plain(" ".join(body))
+            return re.split(r"(?<=[.;])\s", text, maxsplit=1)[0].rstrip(".;")
+    raise LookupError(f"{func}: no parameter {param!r} in its docstring (geofit/{module})")
+
+
+def add_command(subparsers, name: str, doc: str | None, func,
+                input: tuple[str, str] | None = None, check=None) -> argparse.ArgumentParser:
     """A sub-command's parser with its ``--out`` folder option.
 
-    ``help`` is its line in the command list, the module docstring ``doc`` (without its first
-    paragraph, the title) its description, ``func(args)`` runs it; ``input = (name, help)``
-    adds an optional positional input file (``None`` when not given).
+    Its line in the command list is the first paragraph of the module docstring ``doc`` (after
+    the ``geofit NAME``: prefix), its description the rest; ``func(args)`` runs it and
+    ``check(args)`` (optional) checks its arguments before (nothing heavy imported yet);
+    ``input = (name, help)`` adds an optional positional input file (``None`` when not given),
+    checked to be a readable file.
     """
-    p = subparsers.add_parser(name, help=help,
-                              description=doc.split("\n\n", 1)[-1] if doc else None,
+    head, _, rest = (doc or "").partition("\n\n")
+    help = _plain(head.split(":", 1)[-1] if head.startswith("``geofit") else head)
+    p = subparsers.add_parser(name, help=help, description=(help + "\n\n" + rest.replace(
+        "``", "")).replace("%", "%%") if doc else None,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.set_defaults(func=func)
+    p.set_defaults(func=func, check=check or check_paths, input_arg=input[0] if input else None)
     if input is not None:
         p.add_argument(input[0], nargs="?", type=Path, default=None, help=input[1])
     p.add_argument("--out", default="out", help="output folder (default: out)")
     return p
 
 
-def options(args: argparse.Namespace, names: dict[str, str]) -> dict:
-    """``{keyword: getattr(args, attribute)}`` for each ``attribute: keyword`` of ``names``
-    whose value was given (is not None): the options a sub-command passes on as overrides."""
-    return {kw: getattr(args, a) for a, kw in names.items() if getattr(args, a) is not None}
+def add_fit_options(p: argparse.ArgumentParser, api: tuple[str, str],
+                    table: dict[str, str]) -> None:
+    """The fit's options a sub-command offers: one flag per entry ``dest: keyword`` of
+    ``table`` (``--time-budget``, ``--seed``, ``--recipe``, ...; default None: the fit's own),
+    with the help of the keyword's description in the API's docstring, and ``--no-progress``.
+    """
+    for dest, keyword in table.items():
+        kind = {"seed": int, "recipe": str}.get(dest, float if "time" in dest else int)
+        p.add_argument("--" + dest.replace("_", "-"), dest=dest, type=kind, default=None,
+                       help=f"{api_doc(api, keyword)} (default: {api[1]}'s own)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def fit_kwargs(args: argparse.Namespace, table: dict[str, str]) -> dict:
+    """The keywords of the fit call: ``{keyword: value}`` for each flag of ``table`` the user
+    gave, and ``progress=False`` with ``--no-progress``. Nothing else: the fit's defaults are
+    the command's."""
+    kw = {keyword: getattr(args, dest) for dest, keyword in table.items()
+          if getattr(args, dest, None) is not None}
+    if getattr(args, "no_progress", False):
+        kw["progress"] = False
+    return kw
+
+
+def check_input(path, name: str, *, folder: bool = False) -> Path:
+    """A readable input file (or folder); see :func:`geofit.batch._options.check_input`."""
+    from ..batch._options import check_input as check
+
+    return check(path, name, folder=folder)
+
+
+def check_out(args: argparse.Namespace) -> Path:
+    """The ``--out`` folder, created if missing and proved writable, before any work."""
+    from ..batch._options import check_output_folder
+
+    return check_output_folder(args.out, "--out")
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """The default check of a sub-command: its input file (if any) and capture folder (if
+    any) readable, its ``--out`` folder writable. Runs before anything heavy is imported."""
+    name = getattr(args, "input_arg", None)
+    if name and getattr(args, name, None) is not None:
+        check_input(getattr(args, name), name.upper())
+    if getattr(args, "capture", None) is not None:
+        check_input(args.capture, "CAPTURE", folder=True)
+    check_out(args)
 
 
 def out_dir(args: argparse.Namespace) -> Path:
-    """The ``--out`` folder, created if missing."""
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    """The ``--out`` folder (checked by :func:`check_out` before the work started)."""
+    return check_out(args)
 
 
 def wrote(*paths) -> int:
@@ -122,18 +241,30 @@ def wrote(*paths) -> int:
     return 0
 
 
-def finish(command: str, res, details: str, out: Path) -> int:
-    """Print ``geofit COMMAND: status (message); details; wrote OUT``; the exit code: 0 when
-    the fit ``res`` succeeded, else 1."""
-    print(f"geofit {command}: {res.status} ({res.message}); {details}; wrote {out}")
+def metric_line(metrics: dict) -> str:
+    """``name value, name value, ...`` of the finite numbers of ``metrics`` (4 significant
+    digits), the line a sub-command prints last."""
+    items = []
+    for k, v in metrics.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and v == v:
+            items.append(f"{k} {v:.4g}")
+    return ", ".join(items)
+
+
+def finish(command: str, res, metrics: dict, out: Path) -> int:
+    """Print ``geofit COMMAND: status (message); wrote OUT`` and then the metrics; the exit
+    code: 0 when the fit ``res`` succeeded, else 1."""
+    print(f"geofit {command}: {res.status} ({res.message}); wrote {out}")
+    print(f"geofit {command}: metrics: {metric_line(metrics)}")
     return 0 if res.ok else 1
 
 
 def write_json(path: Path, obj) -> None:
-    """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain)."""
-    from ..fit.history import _json_safe
+    """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain),
+    atomically (a temporary file beside it, then ``os.replace``)."""
+    from ..batch._tasks import write_json as write
 
-    path.write_text(json.dumps(_json_safe(obj), indent=1) + "\n", encoding="utf-8")
+    write(Path(path), obj)
 
 
 def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float = 180.0) -> None:
@@ -141,6 +272,8 @@ def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float =
     azimuths from ``azim0``); ``render(cameras)`` returns their ``(n, H, W, >=3)`` images."""
     if n_frames <= 0:
         return
+    import numpy as np
+
     from ..cameras import FoVPerspectiveCameras, look_at_view_transform
 
     azim = np.linspace(0.0, 360.0, n_frames, endpoint=False) + azim0

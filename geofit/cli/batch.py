@@ -7,8 +7,13 @@ file is rendered into synthetic views first). Each target writes ``DIR/<name>/re
 (status, message, metrics, seconds, parameter count, history, settings hash) and its outputs; the
 batch writes ``DIR/summary.json``, ``summary.csv``, ``summary.png`` (accuracy against seconds, a
 point per target) and ``index.html`` (each target's picture). A failing target is recorded and
-the batch goes on; running again with the same DIR skips the targets already done with the same
-settings and input (``--retry-failed`` recomputes the failed ones, ``--force`` all).
+the batch goes on. A target is ok when its fit made at least one step and ended well by its own
+account; a fit whose time budget ran out before its first step is a failure. Running again with
+the same DIR skips the targets already done with the same settings and input and redoes those
+that failed because of the machine (disk full, memory, a killed worker); ``--retry-failed``
+also recomputes the other failed ones, ``--force`` all. Each fit runs with its defaults (those
+of ``geofit.fit_*`` and of the ``geofit fit-*`` commands): only the options given here are
+passed on.
 
 By default a Dask LocalCluster of ``--workers`` processes on 127.0.0.1 runs the targets and is
 torn down afterwards; ``--scheduler tcp://HOST:PORT`` runs them on an existing Dask cluster
@@ -31,7 +36,12 @@ EPILOG = """exit status:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code (0: all succeeded, 1: some failed)."""
-    from ..batch import ACCURACY, TASK_OPTIONS, fit_many
+    from ..batch._options import ACCURACY, TASK_OPTIONS, check_input, check_output_folder
+
+    for t in args.targets:  # before Dask, numpy or Open3D load
+        check_input(t, "TARGETS", folder=True)
+    check_output_folder(args.out, "--out")
+    from ..batch import fit_many
 
     opts = {k: getattr(args, k) for k in TASK_OPTIONS[args.task]}
     result = fit_many(args.targets, args.task, args.out, scheduler=args.scheduler,
@@ -44,7 +54,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r.name}: {r.status}{note}, {ACCURACY[args.task][0]} {acc}, {r.seconds:.1f} s"
               + ("" if r.ok else f" - {r.message}"))
     where = (f"on {result.n_workers} worker(s) x {result.threads_per_worker} thread(s)"
-             if result.n_workers else "(nothing to compute)")
+             if result.n_workers else
+             f"(nothing to compute: results of {result.n_result_workers} worker(s) reused)")
+    for note in result.notes:
+        print(f"note: {note}")
     print(f"{len(result)} targets: {result.n_ok} ok, {result.n_failed} failed, "
           f"{result.n_reused} reused; {result.seconds:.1f} s {where}; wrote "
           f"{Path(result.out) / 'index.html'}")
@@ -57,7 +70,7 @@ def _flag(name: str) -> str:
 
 def register(subparsers) -> None:
     """Add the ``batch`` sub-command with one sub-command per task."""
-    from ..batch import TASK_OPTIONS
+    from ..batch._options import TASK_OPTIONS
 
     desc = __doc__.split("\n\n", 1)[1] if __doc__ else None
     p = subparsers.add_parser(
@@ -88,5 +101,5 @@ def register(subparsers) -> None:
         for name, opt in options.items():
             default = "the fit's own" if opt.default is None else opt.default
             g.add_argument(_flag(name), dest=name, type=opt.type, default=None,
-                           choices=opt.choices, help=f"{opt.help} (default: {default})")
+                           help=f"{opt.help} (default: {default})")
         t.set_defaults(func=run)

@@ -7,7 +7,7 @@ domain; ``GEOFIT_DATA`` or the user cache take precedence), the demo
    ``--size`` pixels (RGB and soft silhouettes), plus ``--heldout`` views kept for evaluation;
 2. fits a mesh and its vertex colours to the training views with
    ``geofit.fit_mesh_to_views`` with its defaults (the visual hull of the silhouettes
-   deformed to them by L-BFGS with remeshing, within a ``--time`` budget in seconds, then the
+   deformed to them by L-BFGS with remeshing, within a ``--time-budget`` in seconds, then the
    colours by one least-squares solve);
 3. writes ``out/demo.png`` (held-out targets above the fit seen from the same cameras, with the
    held-out silhouette IoU and PSNR, the chamfer-L2 and F-score against the true cow, and the
@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
-import numpy as np
+from ._common import check_out
 
 __all__ = ["register", "run", "render_views", "DemoImages", "DemoResult", "run_demo"]
 
@@ -58,6 +58,8 @@ def render_views(mesh, n_views: int = 8, image_size: int = 256, dist: float = 2.
     -------
     DemoImages
     """
+    import numpy as np
+
     from ..cameras import FoVPerspectiveCameras, look_at_view_transform
     from ..raycast import RayCaster
 
@@ -127,6 +129,8 @@ def _label(img, text: str, xy, size: int, fill=(0, 0, 0)) -> None:
 
 def _picture(path: Path, targets: np.ndarray, preds: np.ndarray, lines: list[str]) -> None:
     """Targets above predictions ((k, H, W, 3) in [0, 1]), scaled to >= 160 px, under a caption."""
+    import numpy as np
+
     from PIL import Image
 
     k, H, W, _ = targets.shape
@@ -170,6 +174,8 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     -------
     DemoResult
     """
+    import numpy as np
+
     from ..data import load_textured_mesh
     from ..datasets import tutorial_views
     from ..fit.views import ViewsEvaluator
@@ -237,7 +243,7 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code (0 unless the fit failed)."""
     res = run_demo(args.out, views=args.views, size=args.size, heldout=args.heldout,
-                   time_budget=args.time)
+                   time_budget=args.time_budget)
     return 0 if res.status not in ("nonfinite", "failed", "diverged") else 1
 
 
@@ -250,7 +256,7 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--size", type=int, default=128, help="image size in pixels (default 128)")
     p.add_argument("--heldout", type=int, default=8, help="held-out views (default 8)")
-    p.add_argument("--time", type=float, default=30.0,
-                   help="seconds for the silhouette fit (default 30)")
+    p.add_argument("--time-budget", type=float, default=30.0,
+                   help="seconds for the silhouette fit (default 30: the demo's short run)")
     p.add_argument("--out", default="out", help="output folder (default ./out)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, check=check_out)

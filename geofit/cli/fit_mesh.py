@@ -1,95 +1,120 @@
-"""``geofit fit-mesh [TARGET]``: deform a sphere into a target mesh (PyTorch3D's deform tutorial).
+"""``geofit fit-mesh [TARGET]``: fit a mesh to a target mesh or point cloud with
+geofit.fit_mesh's defaults (PyTorch3D's deform tutorial).
 
-Without TARGET, the tutorial's dolphin (when the tutorial data is found, see ``geofit.data``) or
-geofit's procedural stand-in. Prints progress, the final accuracy (chamfer-L2, chamfer-L1,
-F-score at 0.01 and normal consistency in the target's normalised frame, from exact
-point-to-surface distances) and the vertex count; writes ``fit_mesh.obj`` (the fitted mesh in
-the target's original frame) and ``fit_mesh_history.json`` into ``--out``.
+TARGET is a mesh (.obj, .ply, .stl, .off, .glb) or a point cloud (.ply without faces, .npz with
+``points``/``verts``, .xyz, .pts: anything geofit.io.load_pointcloud or trimesh reads). Without
+TARGET, the tutorial's dolphin (when the tutorial data is found, see geofit.data) or geofit's
+procedural stand-in. The fit is ``fit_mesh(target)`` exactly as in Python, with only the options
+given here passed on. Prints progress, then the fit's own final accuracy (chamfer-L2,
+chamfer-L1, F-score at 0.01 and normal consistency in the target's normalised frame) and the
+vertex count; writes ``fit_mesh.obj`` (the fitted mesh in the target's original frame) and
+``fit_mesh_history.json`` into ``--out``.
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from ._common import add_command, options, out_dir, write_json, wrote
+from ._common import add_command, add_fit_options, fit_kwargs, out_dir, write_json, wrote
 
-__all__ = ["register", "run"]
+__all__ = ["API", "OPTIONS", "register", "run"]
+
+#: The function this sub-command runs (its docstring gives the options' help).
+API = ("fit/mesh.py", "fit_mesh")
+#: The command line's flags -> the fit's keywords, passed on only when given: everything else
+#: is ``fit_mesh``'s own default. When the fit's keywords change, this table changes.
+OPTIONS = {"time_budget": "time_budget", "seed": "seed", "recipe": "recipe"}
+
+#: Suffixes read as point clouds by trimesh's XYZ reader (one point a line: x y z, then
+#: optional columns); ``.npz`` and a ``.ply`` without faces go to geofit.io.load_pointcloud.
+XYZ_SUFFIXES = (".xyz", ".pts", ".txt")
 
 
-def _load_target(path):
+def _ply_has_faces(path: Path) -> bool:
+    """True when the PLY header declares a non-empty ``face`` element."""
+    with open(path, "rb") as fh:
+        for _ in range(200):
+            line = fh.readline()
+            if not line or line.strip() == b"end_header":
+                break
+            words = line.split()
+            if len(words) == 3 and words[:2] == [b"element", b"face"]:
+                return words[2] != b"0"
+    return False
+
+
+def load_target(path):
+    """``(target, name)``: the mesh or point cloud at ``path`` (None: the tutorial's target),
+    as ``fit_mesh`` takes it."""
     if path is None:
         from ..data import load_target_mesh
 
         data = load_target_mesh()
         return data.mesh, data.name
-    from ..io import load_mesh
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in XYZ_SUFFIXES:
+        import numpy as np
+        import trimesh
 
+        try:
+            cloud = trimesh.load(path, file_type="xyz")
+        except Exception as exc:  # noqa: BLE001 - trimesh's parse errors vary
+            raise ValueError(f"{path}: unreadable point file ({type(exc).__name__}: "
+                             f"{str(exc)[:200]})") from None
+        points = np.asarray(getattr(cloud, "vertices", ()), np.float64)
+        if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+            raise ValueError(f"{path}: expected lines of x y z, got points of shape "
+                             f"{points.shape}")
+        return points, str(path)
+    from ..io import load_mesh, load_pointcloud
+
+    if suffix == ".npz" or (suffix == ".ply" and not _ply_has_faces(path)):
+        return load_pointcloud(path), str(path)
     return load_mesh(path, load_textures=False), str(path)
 
 
-def _save(path: Path, mesh) -> None:
-    try:
-        from ..io import save_obj
-    except ImportError:  # pragma: no cover - io is part of geofit; kept for partial installs
-        mesh.to_trimesh().export(path)
-        return
-    save_obj(path, mesh)
+def _describe(target) -> str:
+    n_faces = getattr(target, "n_faces", None)
+    if n_faces is None:
+        return f"{len(target)} points"
+    return f"{target.n_verts} vertices, {n_faces} faces"
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from ..fit.mesh import fit_mesh
-    from ..metrics import MeshEvaluator
+    from ..fit import fit_mesh
+    from ..io import save_obj
 
-    target, name = _load_target(args.target)
-    kwargs = {"recipe": args.recipe}
-    kwargs.update(options(args, {"method": "method", "large_steps": "large_steps",
-                                 "n_iter": "n_iter", "time_budget": "time_budget"}))
-    if kwargs.get("large_steps") == 0:
-        kwargs["large_steps"] = None
-    evaluator = MeshEvaluator(target, n_samples=args.metric_samples, taus=(0.01,),
-                              normalize=True, seed=0)
-    print(f"target: {name} ({target.n_verts} vertices, {target.n_faces} faces); "
-          + ", ".join(f"{k}={v}" for k, v in kwargs.items()))
-    res = fit_mesh(target, seed=args.seed, evaluator=None,
-                   progress=not args.no_progress, **kwargs)
-    m = evaluator.evaluate(res.mesh)
-    print(f"status: {res.status} ({res.message})")
-    print(f"solver time {res.seconds:.2f} s (CPU {res.cpu_seconds:.2f} s), "
-          f"{res.n_iterations} iterations, "
-          f"{res.n_evaluations} evaluations")
-    print(f"vertices: {res.n_verts} (faces {res.mesh.n_faces})")
-    print(f"accuracy (normalised frame, {args.metric_samples} samples a side, exact distances): "
-          f"chamfer-L2 {m.chamfer_l2:.3e}, chamfer-L1 {m.chamfer_l1:.4f}, "
-          f"F@0.01 {m.fscore[0.01]:.4f}, normal consistency {m.normal_consistency:.4f}")
+    target, name = load_target(args.target)
+    kwargs = fit_kwargs(args, OPTIONS)
+    print(f"target: {name} ({_describe(target)})"
+          + "".join(f", {k}={v}" for k, v in kwargs.items()))
+    res = fit_mesh(target, **kwargs)
     out = out_dir(args)
     obj_path = out / "fit_mesh.obj"
-    _save(obj_path, res.mesh)
+    save_obj(obj_path, res.mesh)
     hist = res.to_dict()
-    hist["final_metrics"] = m.to_dict()
+    metrics = res.metrics.as_dict() if res.metrics is not None else {}
+    hist["final_metrics"] = metrics
     write_json(out / "fit_mesh_history.json", hist)
-    return wrote(obj_path, out / "fit_mesh_history.json")
+    wrote(obj_path, out / "fit_mesh_history.json")
+    print(f"geofit fit-mesh: {res.status} ({res.message}); {res.n_iterations} iterations, "
+          f"{res.seconds:.2f} s (CPU {res.cpu_seconds:.2f} s); {res.n_verts} vertices, "
+          f"{res.mesh.n_faces} faces")
+    if metrics:
+        print("geofit fit-mesh: accuracy (normalised frame): "
+              f"chamfer-L2 {metrics['chamfer_l2']:.3e}, chamfer-L1 {metrics['chamfer_l1']:.4f}, "
+              + ", ".join(f"F@{k.split('@')[1]} {v:.4f}" for k, v in metrics.items()
+                          if k.startswith("fscore@"))
+              + f", normal consistency {metrics['normal_consistency']:.4f}")
+    return 0 if res.ok else 1
 
 
 def register(subparsers) -> None:
     """Add the ``fit-mesh`` sub-command."""
-    from ..fit.mesh import METHODS, RECIPES
-
-    p = add_command(subparsers, "fit-mesh",
-                    "deform a sphere into a target mesh (PyTorch3D's deform_source_mesh tutorial)",
-                    __doc__, run, input=("target", "target mesh (.obj); default: the tutorial "
-                                         "dolphin if found, else the procedural stand-in"))
-    p.add_argument("--recipe", choices=tuple(RECIPES), default="coarse-to-fine",
-                   help="preset (default coarse-to-fine: L-BFGS, large steps, ico 2 -> 3 -> 4 "
-                        "as needed; tutorial: the tutorial's SGD exactly)")
-    p.add_argument("--method", choices=METHODS, default=None,
-                   help="override the recipe's solver")
-    p.add_argument("--large-steps", type=float, default=None, metavar="LAMBDA",
-                   help="override the large-steps lambda (0 turns it off)")
-    p.add_argument("--n-iter", type=int, default=None,
-                   help="steps (SGD/Adam) or iterations per stage (L-BFGS)")
-    p.add_argument("--time-budget", type=float, default=None, help="seconds of solver time")
-    p.add_argument("--metric-samples", type=int, default=100_000,
-                   help="samples a side for the final accuracy (default 100000)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p = add_command(subparsers, "fit-mesh", __doc__, run,
+                    input=("target", "target mesh or point cloud (.obj, .ply, .stl, .off, .glb, "
+                                     ".npz, .xyz, .pts); default: the tutorial dolphin if found, "
+                                     "else the procedural stand-in"))
+    add_fit_options(p, API, OPTIONS)

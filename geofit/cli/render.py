@@ -16,19 +16,21 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from ._common import add_command, out_dir, wrote
 
 __all__ = ["register", "run"]
 
 
 def _to_uint8(img: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def _depth_to_unit(depth: np.ndarray) -> np.ndarray:
     """View depth (N, H, W), inf on the background -> brightness in [0, 1] (near = bright)."""
+    import numpy as np
+
     out = np.zeros(depth.shape)
     hit = np.isfinite(depth)
     if hit.any():
@@ -39,6 +41,7 @@ def _depth_to_unit(depth: np.ndarray) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
+    import numpy as np
     from PIL import Image
 
     from ..cameras import FoVPerspectiveCameras, look_at_view_transform
@@ -116,11 +119,9 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``render`` sub-command."""
-    p = add_command(subparsers, "render",
-                    "render a textured mesh by ray casting (PyTorch3D's render_textured_meshes)",
-                    __doc__, run, input=("mesh", ".obj (with MTL and texture), .ply, .stl or "
-                                         ".off; default: the textured default mesh (the cow if "
-                                         "found)"))
+    p = add_command(subparsers, "render", __doc__, run,
+                    input=("mesh", ".obj (with MTL and texture), .ply, .stl, .off or .glb; "
+                                   "default: the textured default mesh (the cow if found)"))
     p.add_argument("--image-size", type=int, default=512, help="pixels per side (default 512)")
     p.add_argument("--views", type=int, default=1,
                    help="number of views; >1 renders the tutorial's batch (default 1)")

@@ -14,8 +14,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from ._common import add_command, out_dir, wrote
 
 __all__ = ["BRIDGE", "default_cloud", "register", "run"]
@@ -53,10 +51,14 @@ def default_cloud(n_points: int = 300_000, seed=0):
 
 
 def _to_uint8(img: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def _depth_to_uint8(depth: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     out = np.zeros(depth.shape, dtype=np.uint8)
     hit = depth >= 0
     if hit.any():
@@ -127,12 +129,10 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``render-points`` sub-command."""
-    p = add_command(subparsers, "render-points",
-                    "render a coloured point cloud (PyTorch3D's render_colored_points tutorial)",
-                    __doc__, run, input=("cloud", ".npz (verts, rgb) or .ply point cloud; "
-                                         f"default: the tutorial's {BRIDGE} if in the data "
-                                         "folder, else samples of the textured default mesh "
-                                         "(the cow if found)"))
+    p = add_command(subparsers, "render-points", __doc__, run,
+                    input=("cloud", ".npz (verts, rgb) or .ply point cloud; default: the "
+                                    f"tutorial's {BRIDGE} if in the data folder, else samples "
+                                    "of the textured default mesh (the cow if found)"))
     p.add_argument("--image-size", type=int, default=512)
     p.add_argument("--radius", type=float, default=0.003,
                    help="point radius (NDC units unless --radius-units world; default 0.003)")

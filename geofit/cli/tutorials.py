@@ -18,6 +18,8 @@ import shlex
 import time
 from pathlib import Path
 
+from ._common import check_out, module_constant
+
 __all__ = ["register", "run"]
 
 
@@ -65,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``tutorials`` sub-command."""
-    from ..tutorials import SIZES, STEPS
+    sizes = module_constant("tutorials/_common.py", "SIZES")
 
     p = subparsers.add_parser(
         "tutorials",
@@ -76,14 +78,14 @@ def register(subparsers) -> None:
                    help="output folder (default: out/tutorials)")
     p.add_argument("--full", action="store_true",
                    help="the tutorials' full sizes (views, image sizes, iterations); slow")
-    p.add_argument("--size", choices=SIZES, default="default",
+    p.add_argument("--size", choices=sizes, default="default",
                    help="run size: tiny (for tests), default (a few minutes) or full "
                         "(same as --full)")
     p.add_argument("--only", default=None, metavar="STEP,...",
-                   help=f"comma-separated steps to run (default all: {','.join(STEPS)})")
+                   help="comma-separated steps to run (default: all six; see the report)")
     p.add_argument("--gallery", type=Path, default=None, metavar="DIR",
                    help="also copy the figures into DIR under stable names with a README.md "
                         "(e.g. docs/tutorials, for the project README)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, check=check_out)

@@ -1,4 +1,5 @@
-"""Progress bars of the fits (tqdm on stderr; off with ``progress=False``).
+"""Progress bars of the fits (tqdm.auto: widgets in notebooks, stderr in terminals; off with
+``progress=False``).
 
 Every fit that can run for more than a few seconds shows one bar; the fits update it with their
 clock paused, so drawing it is not charged to the solver.
@@ -24,10 +25,18 @@ class NoBar:
         pass
 
 
+#: The look of a bar counting seconds of a time budget: "fit_nerf: 41%|####   | 3.3 s / 8.0 s"
+#: (tqdm's default would read "3.29/8.0 [00:05<00:07, 1.26s/s]").
+TIME_BAR = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f} s / {total:.1f} s{postfix}"
+
+
 def progress_bar(enabled: bool, total: float | None, desc: str, unit: str = "it"):
-    """A tqdm bar on stderr (text, also in notebooks) when ``enabled``, else :class:`NoBar`."""
+    """A tqdm bar when ``enabled``, else :class:`NoBar`: ``tqdm.auto`` (a widget in a notebook,
+    text on stderr in a terminal); ``unit="s"`` counts seconds of a time budget
+    (:data:`TIME_BAR`)."""
     if not enabled:
         return NoBar()
-    from tqdm import tqdm
+    from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit=unit, leave=False, dynamic_ncols=True)
+    fmt = {"bar_format": TIME_BAR} if unit == "s" and total is not None else {}
+    return tqdm(total=total, desc=desc, unit=unit, leave=False, dynamic_ncols=True, **fmt)

@@ -10,7 +10,10 @@ model is not Phong's, so compare silhouettes and depth, and colours only by eye.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import gc
+import os
+import sys
 from typing import NamedTuple
 
 import numpy as np
@@ -125,12 +128,46 @@ def _release_renderer() -> None:
     r = _RENDERER.pop("r", None)
     _RENDERER.clear()
     if r is not None:
-        r.scene.clear_geometry()
-        del r
-        gc.collect()
+        with quiet_open3d():
+            r.scene.clear_geometry()
+            del r
+            gc.collect()
 
 
 atexit.register(_release_renderer)
+
+
+@contextlib.contextmanager
+def quiet_open3d():
+    """Silence Open3D and Filament inside the block: Open3D's log below errors, and the process's
+    C-level stdout and stderr sent to the null device (Filament prints its engine log, "FEngine
+    (64 bits) created ...", straight to file descriptor 1, which Python's ``sys.stdout`` and
+    ``contextlib.redirect_stdout`` never see; a notebook kernel shows it in the cell's output).
+    Python-level output is flushed first and restored after; an exception passes through."""
+    import open3d as o3d
+
+    level = o3d.utility.get_verbosity_level()
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, OSError, ValueError):
+            pass
+    saved = []
+    try:
+        with open(os.devnull, "wb") as null:
+            for fd in (1, 2):
+                try:
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(null.fileno(), fd)
+                except OSError:  # no such descriptor (embedded interpreters): leave it
+                    pass
+            yield
+    finally:
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+        o3d.utility.set_verbosity_level(level)
 
 
 def _offscreen(W: int, H: int):
@@ -139,7 +176,8 @@ def _offscreen(W: int, H: int):
 
     if _RENDERER.get("size") != (W, H):
         _release_renderer()
-        _RENDERER["r"] = o3d.visualization.rendering.OffscreenRenderer(W, H)
+        with quiet_open3d():
+            _RENDERER["r"] = o3d.visualization.rendering.OffscreenRenderer(W, H)
         _RENDERER["size"] = (W, H)
     return _RENDERER["r"]
 
@@ -211,7 +249,56 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     return Open3DRender(images, depth, np.isfinite(depth))
 
 
-def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bool = True):
+def display_problem(timeout: float = 3.0) -> str | None:
+    """Why no display would answer a viewer (a sentence), or None when one answers.
+
+    ``DISPLAY`` / ``WAYLAND_DISPLAY`` unset; or the X server they name does not complete the
+    X11 connection set-up within ``timeout`` seconds (a stale ``DISPLAY`` of a closed SSH
+    session or a stopped Xvfb); or the Wayland socket does not accept a connection. Standard
+    library only: a socket and the 12-byte X11 set-up request, so the answer takes at most
+    ``timeout`` seconds and never blocks in Open3D or GLFW.
+    """
+    import socket
+    import struct
+
+    wayland = os.environ.get("WAYLAND_DISPLAY")
+    display = os.environ.get("DISPLAY")
+    if not display and not wayland:
+        return "no display (DISPLAY and WAYLAND_DISPLAY are unset)"
+    if not display:
+        path = wayland if os.path.isabs(wayland) else os.path.join(
+            os.environ.get("XDG_RUNTIME_DIR", "/tmp"), wayland)
+        try:
+            with socket.socket(socket.AF_UNIX) as s:
+                s.settimeout(timeout)
+                s.connect(path)
+            return None
+        except OSError as exc:
+            return f"the Wayland display {wayland!r} does not answer ({exc.strerror or exc})"
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return f"DISPLAY={display!r} is not a display name (host:number)"
+    local = host in ("", "unix") or host.startswith("/")
+    try:
+        with socket.socket(socket.AF_UNIX if local else socket.AF_INET) as s:
+            s.settimeout(timeout)
+            if local:
+                s.connect(host if host.startswith("/") else f"/tmp/.X11-unix/X{number}")
+            else:
+                s.connect((socket.gethostbyname(host), 6000 + int(number)))
+            # the X11 set-up request: little-endian, protocol 11.0, no authorisation; any
+            # reply (success, failure or "authenticate") means a server answers
+            s.sendall(struct.pack("<BxHHHHxx", ord("l"), 11, 0, 0, 0))
+            if not s.recv(8):
+                return f"the X display {display!r} closed the connection"
+    except OSError as exc:
+        return f"the X display {display!r} does not answer ({exc.strerror or exc})"
+    return None
+
+
+def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bool = True,
+                timeout: float = 3.0):
     """Open Open3D's interactive viewer on ``mesh`` at the viewpoint of ``cameras[index]``.
 
     Parameters
@@ -227,6 +314,8 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
         False the ``open3d.visualization.Visualizer`` is returned, its window open and its view
         set, for scripting (``capture_screen_float_buffer``) or tests; call
         ``destroy_window()`` when done.
+    timeout : float
+        Seconds the display has to answer (:func:`display_problem`) before a window is made.
 
     Returns
     -------
@@ -235,9 +324,11 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     Raises
     ------
     RuntimeError
-        If Open3D cannot create a window (no display and no offscreen fallback), or, with
-        ``run=True`` on Linux, if there is no display at all (checked first: the event loop
-        would otherwise wait for a window no one can close).
+        On Linux, at once (within ``timeout``) and saying why, when no display answers: unset
+        ``DISPLAY`` (with ``run=True``; with ``run=False`` Open3D may still find an offscreen
+        fallback), or a ``DISPLAY`` naming an X server that does not answer (a stale
+        ``DISPLAY``, which would otherwise hang in ``create_window``). Also if Open3D cannot
+        create a window.
     """
     import open3d as o3d
 
@@ -246,15 +337,19 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)
-    import os, sys  # noqa: E401 - display check (issue 18): run() would wait for ever
-    if run and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
-                                                         or os.environ.get("WAYLAND_DISPLAY")):
-        raise RuntimeError("show_open3d: no display (DISPLAY and WAYLAND_DISPLAY are unset), so "
-                           "the viewer could never be closed; use render_open3d(...) for an "
-                           "offscreen image, or run=False to script the viewer")
+    if sys.platform.startswith("linux"):
+        # issue 18: with no display run() waits for ever; issue 26: a stale DISPLAY (no X
+        # server behind it) hangs create_window. Ask the display first, with a timeout.
+        why = display_problem(timeout)
+        if why is not None and (run or "unset" not in why):
+            raise RuntimeError(f"show_open3d: {why}, so the viewer could never be closed; use "
+                               "render_open3d(...) for an offscreen image, or run=False to "
+                               "script the viewer")
     m, _ = mesh_to_open3d(mesh)
     vis = o3d.visualization.Visualizer()
-    if not vis.create_window(window_name="geofit", width=W, height=H):
+    with quiet_open3d():
+        made = vis.create_window(window_name="geofit", width=W, height=H)
+    if not made:
         raise RuntimeError("Open3D could not create a viewer window (no display?)")
     vis.add_geometry(m)
     ctr = vis.get_view_control()
