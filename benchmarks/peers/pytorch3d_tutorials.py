@@ -126,7 +126,7 @@ def peer_fit_mesh(steps: int | None, quick: bool) -> list[MethodRun]:
     p3d.add(seconds, chamfer_l2=m.chamfer_l2, fscore=m.fscore[0.01])
     p3d.final = {"seconds": seconds, "chamfer_l2": m.chamfer_l2, "fscore@0.01": m.fscore[0.01],
                  "n_verts": int(v.shape[0])}
-    res = fit_mesh(None, target, progress=False)
+    res = fit_mesh(target, progress=False)
     g = evaluator.evaluate(res.mesh)
     geo = MethodRun("geofit", "geofit fit_mesh default", config={"recipe": "default"},
                     status=res.status, message=res.message)

@@ -267,8 +267,11 @@ def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     target = _load_mesh(path)
     clock["load_seconds"] = time.perf_counter() - t
+    from ..fit import MeshFitOptions
+
     kw = {"recipe": s["recipe"]} if s.get("recipe") else {}
-    kw.update(_given(s, {"time_budget": "time_budget", "n_iter": "n_iter"}))
+    kw.update(_given(s, {"time_budget": "time_budget"}))
+    kw["options"] = MeshFitOptions(**_given(s, {"n_iter": "n_iter"}))
     res = _fit_mesh_call(target, seed=s["seed"], evaluator=None, progress=False, **kw)
     clock["fit_seconds"] = res.seconds
     t = time.perf_counter()

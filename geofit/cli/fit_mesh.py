@@ -38,19 +38,19 @@ def _save(path: Path, mesh) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from ..fit.mesh import fit_mesh
+    from ..fit.mesh import MeshFitOptions, fit_mesh
     from ..metrics import MeshEvaluator
 
     target, name = _load_target(args.target)
-    kwargs = {"recipe": args.recipe}
-    kwargs.update(options(args, {"method": "method", "large_steps": "large_steps",
-                                 "n_iter": "n_iter", "time_budget": "time_budget"}))
-    if kwargs.get("large_steps") == 0:
-        kwargs["large_steps"] = None
+    settings = options(args, {"method": "method", "large_steps": "large_steps",
+                              "n_iter": "n_iter"})
+    kwargs = {"recipe": args.recipe, "options": MeshFitOptions(**settings)}
+    if args.time_budget is not None:
+        kwargs["time_budget"] = args.time_budget
     evaluator = MeshEvaluator(target, n_samples=args.metric_samples, taus=(0.01,),
                               normalize=True, seed=0)
     print(f"target: {name} ({target.n_verts} vertices, {target.n_faces} faces); "
-          + ", ".join(f"{k}={v}" for k, v in kwargs.items()))
+          + ", ".join(f"{k}={v}" for k, v in dict(recipe=args.recipe, **settings).items()))
     res = fit_mesh(target, seed=args.seed, evaluator=None,
                    progress=not args.no_progress, **kwargs)
     m = evaluator.evaluate(res.mesh)
@@ -88,7 +88,7 @@ def register(subparsers) -> None:
                    help="override the large-steps lambda (0 turns it off)")
     p.add_argument("--n-iter", type=int, default=None,
                    help="steps (SGD/Adam) or iterations per stage (L-BFGS)")
-    p.add_argument("--time-budget", type=float, default=None, help="seconds of solver time")
+    p.add_argument("--time-budget", type=float, default=None, help="wall-clock seconds for the fit")
     p.add_argument("--metric-samples", type=int, default=100_000,
                    help="samples a side for the final accuracy (default 100000)")
     p.add_argument("--seed", type=int, default=0)

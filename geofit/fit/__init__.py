@@ -53,17 +53,19 @@ from __future__ import annotations
 
 from ._options import METHODS as METHOD_NAMES
 from ._options import RECIPE_NAMES
-from .adaptive import ADAPTIVE_WEIGHTS, AdaptiveMeshFitResult, fit_mesh_adaptive
 from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
 from .mesh import (
+    ADAPTIVE_WEIGHTS,
     FINE_WEIGHTS,
     METHODS,
     RECIPES,
     TUTORIAL_WEIGHTS,
     CoarseToFine,
     LargeSteps,
+    MeshFitOptions,
     MeshFitResult,
     MeshObjective,
+    Remeshing,
     fit_mesh,
 )
 from .nerf import NerfConfig, NerfFitResult, fit_nerf
@@ -73,7 +75,6 @@ from .volume import VolumeFitResult, fit_volume
 
 __all__ = [
     "ADAPTIVE_WEIGHTS",
-    "AdaptiveMeshFitResult",
     "CONVERGED_STATUSES",
     "FINE_WEIGHTS",
     "METHODS",
@@ -88,18 +89,19 @@ __all__ = [
     "FitHistory",
     "FitResult",
     "LargeSteps",
+    "MeshFitOptions",
     "MeshFitResult",
     "MeshObjective",
     "MultiViewData",
     "NerfConfig",
     "NerfFitResult",
+    "Remeshing",
     "SolveResult",
     "StepInfo",
     "ViewsFitResult",
     "VolumeFitResult",
     "adam",
     "fit_mesh",
-    "fit_mesh_adaptive",
     "fit_mesh_to_views",
     "fit_nerf",
     "fit_volume",

@@ -7,6 +7,7 @@ the previous release (``"scipy-lbfgs"``, ``"nlopt-lbfgs"``, ``method="tutorial"`
 """
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Mapping
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from .._validate import check_int  # the one integer check, re-exported for the fits
 
-__all__ = ["METHODS", "RECIPE_NAMES", "Recipes", "check_int", "check_weights", "dataset_argument",
+__all__ = ["METHODS", "RECIPE_NAMES", "Recipes", "check_int", "check_weights", "dataset_argument", "merge_options",
            "method_name", "recipe_name", "warn_deprecated"]
 
 #: Every method (solver) name a geofit fit accepts, and what it is.
@@ -115,6 +116,18 @@ def _clip01(a, name: str):
     except (TypeError, ValueError):
         raise ValueError(f"{name}: could not convert to a float array") from None
     return np.clip(a, 0.0, 1.0)
+
+
+def merge_options(preset, options, cls, name: str = "options"):
+    """The options of a fit: the recipe's ``preset`` with every field that ``options`` sets
+    (not None) replaced by the user's value. ``options`` is None or an instance of ``cls``."""
+    if options is None:
+        return preset
+    if not isinstance(options, cls):
+        raise TypeError(f"{name}: expected a {cls.__name__} or None, got {type(options)!r}")
+    changes = {f.name: getattr(options, f.name) for f in dataclasses.fields(cls)
+               if getattr(options, f.name) is not None}
+    return dataclasses.replace(preset, **changes)
 
 
 def check_weights(weights, defaults: Mapping[str, float], name: str, *,
