@@ -9,8 +9,8 @@ import pytest
 from geofit import Mesh, ico_sphere
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import MultiViewDataset
-from geofit.fit import MeshFitOptions, fit_mesh, fit_volume
-from geofit.fit.nerf import fit_nerf
+from geofit.fit import MeshFitOptions, VolumeFitOptions, fit_mesh, fit_volume
+from geofit.fit.nerf import NerfConfig, fit_nerf
 
 
 def _cameras(n: int) -> FoVPerspectiveCameras:
@@ -61,8 +61,10 @@ def test_fits_refuse_8bit_images(fit):
     def data(im):
         return MultiViewDataset(images=im, silhouettes=sils, cameras=cams)
 
-    call = ((lambda im: fit_volume(data(im), volume_size=8, progress=False)) if fit == "volume"
-            else (lambda im: fit_nerf(data(im), n_iter=1, progress=False)))
+    call = ((lambda im: fit_volume(data(im), options=VolumeFitOptions(volume_size=8),
+            progress=False)) if fit == "volume"
+            else (lambda im: fit_nerf(data(im), options=NerfConfig.scene(n_iter=1),
+                                      progress=False)))
     with pytest.raises(ValueError, match=r"^images: expected float values in \[0, 1\], got "
                                          r"integer dtype uint8"):
         call(np.full((2, 8, 8, 3), 200, np.uint8))

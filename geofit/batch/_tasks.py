@@ -15,6 +15,7 @@ import time
 import traceback
 import uuid
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -244,7 +245,7 @@ def _fit_volume_call(images, silhouettes, cameras, **kwargs):
     from ..fit.volume import fit_volume
 
     return fit_volume(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
-                      progress=False, **kwargs)
+                      progress=False, **kwargs)  # recipe, options, time_budget, seed
 
 
 def _fit_nerf_call(images, silhouettes, cameras, **kwargs):
@@ -339,7 +340,6 @@ def _task_render(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     from ..datasets import MultiViewDataset, tutorial_views
-    from ..fit._views_objective import dataset_lights
     from ..fit.views import ViewsEvaluator
 
     t = time.perf_counter()
@@ -354,7 +354,10 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
                                num_held_out=s["heldout"], name=path.stem)
         heldout, truth = train.held_out, train.mesh
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "silhouette_time", "iterations": "silhouette_iters"})
+    from ..fit import ViewsFitOptions
+
+    kw = _given(s, {"time_budget": "time_budget"})
+    kw["options"] = ViewsFitOptions(**_given(s, {"iterations": "silhouette_iters"}))
     fit = _fit_views_call(train, seed=s["seed"], **kw)
     clock["fit_seconds"] = fit.seconds
     t = time.perf_counter()
@@ -365,15 +368,8 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     _save_mesh(dest / "fit.obj", fit.mesh)
     _save_npz(dest / "fit_colors.npz", verts=fit.mesh.verts, faces=fit.mesh.faces,
               colors=colors)
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
-    from ..structures import Mesh, TexturesVertex
-
     k = min(4, len(heldout))
-    cams = heldout.cameras[np.arange(k)]
-    ras = MeshRasterizer(cams, RasterizationSettings(image_size=heldout.image_size))
-    tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
-    shader = SoftPhongShader(cameras=cams, lights=dataset_lights(heldout))
-    pred = np.asarray(MeshRenderer(ras, shader)(tm), np.float64)
+    pred = fit.render(heldout, n_views=k)
     target_rgb = heldout.images[:k] if heldout.images is not None else \
         np.repeat(heldout.silhouettes[:k, ..., None], 3, axis=-1)
     _save_png(dest / PICTURE_FILE, _rows(target_rgb, pred))
@@ -388,7 +384,10 @@ def _task_fit_volume(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "time_budget", "size": "volume_size", "method": "method"})
+    from ..fit.volume import VolumeFitOptions
+
+    kw = _given(s, {"time_budget": "time_budget"})
+    kw["options"] = VolumeFitOptions(**_given(s, {"size": "volume_size", "method": "method"}))
     res = _fit_volume_call(*tr, seed=s["seed"], **kw)
     clock["fit_seconds"] = res.seconds
     t = time.perf_counter()
@@ -410,8 +409,12 @@ def _task_fit_nerf(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
-    kw = _given(s, {"time_budget": "time_budget", "recipe": "recipe", "n_iter": "n_iter"})
-    res = _fit_nerf_call(*tr, held_out=te, seed=s["seed"], **kw)
+    from ..fit.nerf import RECIPES
+
+    kw = _given(s, {"time_budget": "time_budget", "recipe": "recipe"})
+    kw["options"] = replace(RECIPES[kw.get("recipe", "default")], **_given(s, {"n_iter":
+                                                                               "n_iter"}))
+    res = _fit_nerf_call(*tr, evaluator=te, seed=s["seed"], **kw)
     clock["fit_seconds"] = res.seconds
     _save_npz(dest / "nerf_field.npz", **res.field.params, config=json.dumps(asdict(res.config)))
     if res.images is not None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -27,7 +27,7 @@ __all__ = ["register", "run"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..fit.nerf import fit_nerf, render_nerf
+    from ..fit.nerf import RECIPES, fit_nerf, render_nerf
 
     out = out_dir(args)
     train, test = capture_views(args.capture) if args.capture else cow_views(args)
@@ -37,9 +37,9 @@ def run(args: argparse.Namespace) -> int:
     recipe = args.recipe
     if args.preset is not None:  # the former option
         recipe = "default" if args.preset == "scene" else "tutorial"
-    res = fit_nerf(train, recipe=recipe, held_out=test, time_budget=args.time,
-                   early_stopping=args.early_stopping, seed=args.seed, verbose=not args.quiet,
-                   progress=not args.no_progress, **overrides)
+    opts = replace(RECIPES[recipe], early_stopping=args.early_stopping, **overrides)
+    res = fit_nerf(train, recipe=recipe, options=opts, evaluator=test, time_budget=args.time,
+                   seed=args.seed, progress=not args.no_progress)
     summary = res.summary()
     summary["history"] = res.history.to_dict()
     write_json(out / "nerf_summary.json", summary)

@@ -30,12 +30,10 @@ __all__ = ["register", "run"]
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
     from ..datasets import tutorial_views
-    from ..fit._views_objective import dataset_lights
-    from ..fit.views import ViewsEvaluator, fit_mesh_to_views
+    from ..fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
     from ..io import save_obj
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
-    from ..structures import Mesh, TexturesVertex
+    from ..structures import Mesh
 
     _int(args.views, "--views")
     _int(args.image_size, "--image-size", 8)
@@ -58,15 +56,16 @@ def run(args: argparse.Namespace) -> int:
             and init_level >= 1:
         levels = [(0, 2), (1, 1)]
         init_level -= 1
-    kw = {"recipe": args.recipe, "silhouette_method": args.method,
-          "textured_method": args.textured, "silhouette_iters": args.silhouette_iters,
-          "textured_iters": args.textured_iters, "silhouette_time": args.time,
-          "large_steps": None if stochastic else args.large_steps, "levels": levels,
-          "seed": args.seed}
-    fit = fit_mesh_to_views(ds, init=ico_sphere(init_level), progress=not args.no_progress,
-                            **kw)
+    opts = ViewsFitOptions(init=ico_sphere(init_level), silhouette_method=args.method,
+                           textured_method=args.textured,
+                           silhouette_iters=args.silhouette_iters,
+                           textured_iters=args.textured_iters,
+                           large_steps=0.0 if stochastic else args.large_steps,
+                           levels=levels if levels is not None else ((0, 1),))
+    kw = {"recipe": args.recipe, "options": opts, "time_budget": args.time, "seed": args.seed}
+    fit = fit_mesh_to_views(ds, progress=not args.no_progress, **kw)
     ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=20000)
-    colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
+    colors = fit.textured_mesh.textures.verts_features
     metrics = ev(fit.mesh, colors)
 
     dest = out_dir(args)
@@ -74,7 +73,11 @@ def run(args: argparse.Namespace) -> int:
     np.savez_compressed(dest / "fit_views_colors.npz", verts=fit.mesh.verts,
                         faces=fit.mesh.faces, colors=colors)
     fit.history.to_json(dest / "fit_views_history.json")
-    summary = {"object": ds.name, "settings": {**{k: v for k, v in kw.items()},
+    given = {f: getattr(opts, f) for f in ("silhouette_method", "textured_method",
+                                           "silhouette_iters", "textured_iters",
+                                           "large_steps", "levels")}
+    summary = {"object": ds.name, "settings": {"recipe": args.recipe, "seed": args.seed,
+                                               "time_budget": args.time, **given,
                                                "views": args.views, "image_size": args.image_size,
                                                "heldout": args.heldout,
                                                "init_level": args.init_level},
@@ -83,12 +86,7 @@ def run(args: argparse.Namespace) -> int:
     write_json(dest / "fit_views.json", summary)
     h = ds.held_out
     k = min(4, len(h))
-    cams = h.cameras[np.arange(k)]
-    ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
-    tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
-    lights = dataset_lights(h)   # a capture's: the tutorial's point light
-    pred = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=lights))(tm)
-                      [..., :3], np.float64)
+    pred = fit.render(h, n_views=k)
     save_png(dest / "fit_views.png", [h.images[:k], pred])
     print(f"object: {ds.name}; {args.views} views of {args.image_size} px, "
           f"{args.heldout} held-out views (dataset rendered in {t_data:.1f} s)")

@@ -35,17 +35,17 @@ def _ints(text: str) -> tuple[int, ...]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
-    from ..fit.volume import fit_volume, render_volume, volume_metrics
+    from ..fit.volume import VolumeFitOptions, fit_volume, render_volume, volume_metrics
 
     out = out_dir(args)
     t0 = time.perf_counter()
     train, test = capture_views(args.capture) if args.capture else cow_views(args)
     t_data = time.perf_counter() - t0
     kw = options(args, {"levels": "levels", "iters": "iterations", "smoothness": "smoothness"})
-    res = fit_volume(train, recipe=args.recipe, method=args.method,
-                     volume_size=args.size, time_budget=args.time, n_iter=args.steps,
-                     precision=args.precision, verbose=not args.quiet,
-                     progress=not args.no_progress, **kw)
+    opts = VolumeFitOptions(method=args.method, volume_size=args.size, n_iter=args.steps,
+                            precision=args.precision, **kw)
+    res = fit_volume(train, recipe=args.recipe, options=opts, time_budget=args.time,
+                     progress=not args.no_progress)
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
     summary = res.summary()
     summary.update({"dataset": train.name, "views": len(train),

@@ -7,11 +7,57 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..datasets import MultiViewDataset
-from ..metrics import psnr, silhouette_iou
+from ..metrics import MeshEvaluator, psnr, silhouette_iou
+from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
 from ..structures import Mesh, TexturesVertex
 from ._views_objective import dataset_lights
 
-__all__ = ["ViewsEvaluator"]
+__all__ = ["ViewsEvaluator", "colored_mesh", "render_mesh_at_views"]
+
+#: The grey of a mesh without fitted colours.
+GREY = 0.7
+
+
+def colored_mesh(mesh: Mesh, colors=None) -> Mesh:
+    """``mesh`` with per-vertex colours (:class:`~geofit.structures.TexturesVertex`), clipped to
+    [0, 1]; ``colors`` None: uniform grey (0.7)."""
+    if colors is None:
+        colors = np.full((mesh.n_verts, 3), GREY)
+    return Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
+
+
+def render_mesh_at_views(mesh: Mesh, views: MultiViewDataset, colors=None, *,
+                         n_views: int | None = None) -> np.ndarray:
+    """Render ``mesh`` at the cameras of ``views`` (e.g. a dataset's held-out views).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The mesh; its own textures are used when ``colors`` is None and it has some, else
+        ``colors``, else uniform grey.
+    views : MultiViewDataset
+        Cameras, image size and lights (the dataset's lights, or the tutorial's point light at
+        (0, 0, -3) when it has none: the one light choice of the views fit).
+    colors : (V, 3) float64, optional
+        Vertex colours (clipped to [0, 1]).
+    n_views : int, optional
+        Render only the first ``n_views`` views.
+
+    Returns
+    -------
+    (N, H, W, 3) float64
+        Hard-rasterised (one ray per pixel) Phong-shaded RGB, as the held-out metrics of
+        :class:`ViewsEvaluator` see it.
+    """
+    if not isinstance(views, MultiViewDataset):
+        raise TypeError(f"views: expected a MultiViewDataset, got {type(views)!r}")
+    if colors is not None or mesh.textures is None:
+        mesh = colored_mesh(mesh, colors)
+    cams = views.cameras if n_views is None else views.cameras[np.arange(min(n_views,
+                                                                             len(views)))]
+    ras = MeshRasterizer(cams, RasterizationSettings(image_size=views.image_size))
+    r = MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=dataset_lights(views)))
+    return np.asarray(r(mesh)[..., :3], np.float64)
 
 
 class ViewsEvaluator:
@@ -44,19 +90,12 @@ class ViewsEvaluator:
         self.mesh_eval = None
         self.taus = tuple(taus)
         if target_mesh is not None:
-            from ..metrics import MeshEvaluator
 
             self.mesh_eval = MeshEvaluator(target_mesh, n_samples=n_samples, taus=self.taus)
 
     def __call__(self, mesh: Mesh, colors=None, *, surface: bool = True) -> dict[str, float]:
         """Metrics of a prediction (keys ``iou``, ``psnr`` if colours, ``chamfer_l2``,
         ``fscore@tau`` if a target mesh and ``surface``)."""
-        from ..render import (
-            MeshRasterizer,
-            MeshRenderer,
-            RasterizationSettings,
-            SoftPhongShader,
-        )
 
         h = self.heldout
         H, W = h.image_size
@@ -65,9 +104,7 @@ class ViewsEvaluator:
         frag = ras(mesh)
         out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
         if colors is not None and h.images is not None:
-            m = Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=dataset_lights(h)))
-            out["psnr"] = psnr(np.asarray(r(m)[..., :3], np.float64), h.images)
+            out["psnr"] = psnr(render_mesh_at_views(mesh, h, colors), h.images)
         if surface and self.mesh_eval is not None:
             mm = self.mesh_eval.evaluate(Mesh(mesh.verts, mesh.faces))
             out["chamfer_l2"] = float(mm.chamfer_l2)

@@ -17,6 +17,8 @@ import scipy.sparse.linalg as spla
 
 from ..datasets import MultiViewDataset
 from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
+from ..ops import uniform_laplacian
+from ..render import PointLights
 from ..render.blending import BlendParams
 from ..render.soft import (
     SoftPhongRenderer,
@@ -37,7 +39,6 @@ def dataset_lights(data: MultiViewDataset):
     """The dataset's lights, or the tutorial's point light at (0, 0, -3)."""
     if data.lights is not None:
         return data.lights
-    from ..render import PointLights
 
     return PointLights(location=[[0.0, 0.0, -3.0]])
 
@@ -83,6 +84,7 @@ class _Objective:
         self.settings = settings
         self.views_per_step = views_per_step
         self.rng = rng
+        self.clock = None  # the fit's Clock, whose deadline is checked between view batches
         self.sigma = sigma
         self.V = base.n_verts
         self.last: dict = {}
@@ -115,6 +117,8 @@ class _Objective:
         g_colors = np.zeros((self.V, 3)) if self.textured else None
         # views in batches of at most max_views: memory stays bounded, sums are the same
         for b in np.array_split(idx, -(-nv // self.max_views)):  # view batches
+            if self.clock is not None:  # a time budget holds inside long evaluations
+                self.clock.check()
             cams = self.data.cameras[b]
             tgt_s = self.data.silhouettes[b]
             if not self.textured:
@@ -157,8 +161,6 @@ def _lstsq_colors(mesh: Mesh, data: MultiViewDataset, reg: float) -> np.ndarray:
     equations ``(A^T A + reg L^T L) c = A^T (target - b)`` with the uniform Laplacian ``L``
     (which fills vertices no view sees from their neighbours), for each channel.
     """
-    from ..ops import uniform_laplacian
-
     settings = SoftRasterizationSettings(image_size=data.image_size, blur_radius=0.0,
                                          faces_per_pixel=1, dtype=np.float64)
     r = SoftPhongRenderer(data.cameras, dataset_lights(data), raster_settings=settings)

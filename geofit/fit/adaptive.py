@@ -116,6 +116,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
     time_budget, evaluator, w = plan.time_budget, plan.evaluator, plan.weights[0]
     rng = as_rng(seed)
     clock = Clock()
+    clock.deadline = time_budget
     history = FitHistory()
     cloud = target.cloud
     tgt = target.normalized

@@ -197,7 +197,6 @@ class _Stall:
         return min(self.values[-self.window:]) > (1.0 - self.rel) * before
 
 
-
 def _fit_levels(plan: Plan, run: _Solver) -> tuple[Mesh, str, str]:
     """The solves: ``n_stages`` sample redraws, per coarse-to-fine level (one level without).
 
@@ -313,6 +312,7 @@ class _Solver:
         self.p2s = (target.distance()
                     if plan.distance == "surface" or plan.c2f is not None else None)
         self.clock = Clock()
+        self.clock.deadline = plan.time_budget
         self.history = FitHistory()
         self.evaluator, self.every = plan.evaluator, plan.eval_every
         self.user_callback = callback
