@@ -125,10 +125,15 @@ class _Solver:
         status, message = "max_iter", ""
         for li, (level, n_iter_level) in enumerate(zip(o.levels, o.iterations)):  # levels
             t_level = self.clock.elapsed()
+            if o.time_budget is not None and self.clock.elapsed() >= o.time_budget:
+                status = "time_budget"  # no time to set the next level up
+                message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
+                break
             x0, info = self.setup_level(li, level)
             remaining = None if o.time_budget is None else o.time_budget - self.clock.elapsed()
             if remaining is not None and remaining <= 0:
-                status, message = "time_budget", f"time budget used up before level {level}"
+                status = "time_budget"
+                message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
                 info.update(status="time_budget", iterations=0, seconds=0.0)
                 self.stages.append(info)
                 break
@@ -346,7 +351,10 @@ class _Solver:
         if len(stages) > 1:
             per_level = ", ".join(f"{st['level']}^3 {st['status']}" for st in stages)
             message = f"levels: {per_level}; last level: {message}"
-        view_losses, message = self.view_losses(message)
+        # the per-view diagnostic costs one more evaluation: not when the time is up
+        view_losses = None
+        if status != "time_budget":
+            view_losses, message = self.view_losses(message)
         result_volume = self.current_volume()
         if result_volume is None:  # no level ran: the initial model
             grid = _Grid((o.S,) * 3, o.extent / o.S, np.zeros(3))

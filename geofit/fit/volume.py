@@ -238,7 +238,8 @@ class VolumeFitResult(FitResult):
     view_losses : (N,) float64 or None
         geofit's methods: each training view's mean loss (colour + silhouette Huber) at the
         end; a view far above the others (reported in ``message``) disagrees with the rest:
-        a wrong camera or a bad image.
+        a wrong camera or a bad image. None when the time budget ran out (the diagnostic costs
+        one more evaluation).
     """
 
     volume: Volume | None = None
