@@ -405,8 +405,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         Settings that override the recipe's (every field left None keeps the recipe's).
     time_budget : float, optional
         Wall-clock seconds for the whole fit (the clock paused during the evaluator's
-        checkpoints): the silhouette stage shares it over its solves, the textured stage gets
-        what is left.
+        checkpoints): the silhouette stage shares it over its solves (checking the clock between
+        view batches inside each evaluation), the textured SGD / L-BFGS gets what is left. The
+        ``"lstsq"`` colours are one sparse solve that runs to its end after the budget.
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
