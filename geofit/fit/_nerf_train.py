@@ -9,6 +9,7 @@ render the held-out views with the clock paused (:meth:`_Solver.checkpoint`).
 """
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -326,6 +327,11 @@ class _Solver:
                             stage=self.stage)
         return loss, seconds, None
 
+    def observer(self):
+        """The context of held-out evaluations: the clock paused, except under a time budget,
+        which is wall-clock and so pays for them."""
+        return contextlib.nullcontext() if self.time_budget is not None else self.clock.paused()
+
     # -- the loop
     def run(self) -> tuple[str, str]:
         """Steps until the budget, the callback, early stopping or a non-finite value stops
@@ -335,9 +341,18 @@ class _Solver:
             self.renderer.occupancy = self.density.update(self.field, self.rng,
                                                           self.n_threads)
         self.initial = None
+        self.restored = False  # a checkpoint's parameters were put back
+        self.last_render = None  # (step, renders, PSNR, loss) of the last checkpoint
+        reserve = 0.0  # with a time budget: the time of the final held-out render
         if self.test is not None:
-            with clock.paused():  # the untrained network's held-out loss: the reference
+            # the untrained network's held-out loss: the reference. With a time budget the
+            # held-out renders are charged to it (the budget is wall-clock), and the training
+            # stops early enough for the final render (timed on this one) to fit in
+            t0 = clock.elapsed()
+            with self.observer():
                 self.initial = self.evaluate()[2]
+            if self.time_budget is not None:
+                reserve = clock.elapsed() - t0
         next_eval = self.every
         status, message = "max_iter", f"completed {cfg.n_iter} steps"
         for step in range(1, cfg.n_iter + 1):  # Adam steps
@@ -346,7 +361,8 @@ class _Solver:
                 status, message = stop
                 break
             self.tick(step, seconds, loss)
-            out_of_time = self.time_budget is not None and seconds >= self.time_budget
+            out_of_time = self.time_budget is not None and \
+                seconds >= self.time_budget - reserve
             due = (seconds >= next_eval) if self.every_seconds else (step >= next_eval)
             if due or out_of_time or step == cfg.n_iter:
                 next_eval += self.every
@@ -401,12 +417,22 @@ class _Solver:
             if status == "diverged" and best["params"] is not None and last is not None and \
                     best["loss"] < last:
                 self.field.set_params(best["params"])
+                self.restored = True
                 message += f"; returning the best checkpoint (step {best['step']})"
         if self.early_stopping is not None and best["params"] is not None:
             self.field.set_params(best["params"])
+            self.restored = True
         return status, message
 
     # -- held-out views
+    def final_render(self):
+        """The held-out renders of the returned field: the last checkpoint's when it rendered
+        this very field (no step and no restored checkpoint since), else a new render."""
+        last = self.last_render
+        if last is not None and last[0] == len(self.history.steps) and not self.restored:
+            return last[1], last[2], last[3]
+        return self.evaluate()
+
     def evaluate(self):
         """Full renders of the held-out views, their PSNR and Huber loss (None, None when
         rendered at another size)."""
@@ -427,11 +453,12 @@ class _Solver:
     def checkpoint(self, step: int, loss: float) -> bool:
         """Record metrics (clock paused); True to stop."""
         clock, best = self.clock, self.best
-        with clock.paused():
+        with self.observer():
             seconds = clock.elapsed()
             metrics = None
             if self.test is not None:
-                _, p, hl = self.evaluate()
+                imgs, p, hl = self.evaluate()
+                self.last_render = (step, imgs, p, hl)  # reused by final_render
                 metrics = {"psnr": p, "held_out_loss": hl}
                 if hl < best["loss"]:
                     best.update(loss=hl, params={k: v.copy()

@@ -366,8 +366,9 @@ def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = N
         The settings, used instead of the recipe's (build them from a recipe with
         ``NerfConfig.scene(**changes)`` or ``NerfConfig.tutorial(**changes)``).
     time_budget : float, optional
-        Wall-clock seconds (checkpoints excluded); the fit stops with status
-        ``"time_budget"`` when used up.
+        Wall-clock seconds for the whole fit, held-out renders included: the training stops
+        (status ``"time_budget"``) early enough for the final held-out render, timed on the
+        first one, to end within the budget.
     seed : int or numpy.random.Generator
         Initialisation, view and ray choices.
     evaluator : "default", MultiViewDataset, (images, silhouettes, cameras) or None
@@ -415,7 +416,7 @@ def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = N
     n_steps = len(solver.history.steps)
     images_out = p_final = None
     if test is not None:
-        images_out, p_final, _ = solver.evaluate()
+        images_out, p_final, _ = solver.final_render()
     return NerfFitResult(
         status=status, message=message, history=solver.history, n_params=field.n_params,
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_steps,
