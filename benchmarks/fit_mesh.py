@@ -54,9 +54,9 @@ from _harness import (
 )
 
 from geofit import Mesh
-from geofit.fit import CoarseToFine, fit_mesh
+from geofit.fit import CoarseToFine, MeshFitOptions, fit_mesh
 from geofit.metrics import MeshEvaluator
-from geofit.tutorials.stability import MESH_MODES, fit_mesh_scenario
+from geofit.tutorials.stability import MESH_MODES, fit_mesh_scenario, mesh_fit_arguments
 
 # PyTorch3D's own tutorial run, as stated in the issue's acceptance text (PyTorch3D 0.7.9, CPU,
 # 2 cores, this machine; metrics by geofit.metrics as below). Not re-measured by this script.
@@ -69,15 +69,15 @@ ACCURACY = {"chamfer_l2": ("<=", PYTORCH3D["chamfer_l2"]),
             "fscore@0.01": (">=", PYTORCH3D["fscore@0.01"])}
 
 #: The runs: fit_mesh keyword arguments of each named run (recipe settings spelled out).
+#: ``recipe`` and MeshFitOptions fields (large_steps 0: the vertices directly).
 RUNS = {
-    "default": {},                                                   # fit_mesh(target)
-    "tutorial": {"method": "sgd"},                                   # recipe="tutorial"
-    "adam": {"method": "adam", "lr": 0.01},
-    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
-    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
-    "large-steps": {"method": "lbfgs", "large_steps": 10.0},         # init="sphere"
-    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0,       # recipe="coarse-to-fine"
-                       "coarse_to_fine": True},
+    "default": {"recipe": "default"},                                # fit_mesh(target)
+    "tutorial": {"recipe": "tutorial", "method": "sgd"},
+    "adam": {"recipe": "sphere", "method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"recipe": "sphere", "method": "lbfgs", "large_steps": 0.0},
+    "nlopt-lbfgs": {"recipe": "sphere", "method": "lbfgs-nlopt", "large_steps": 0.0},
+    "large-steps": {"recipe": "sphere", "method": "lbfgs", "large_steps": 10.0},
+    "coarse-to-fine": {"recipe": "coarse-to-fine", "method": "lbfgs", "large_steps": 10.0},
 }
 
 LABELS = {
@@ -122,7 +122,7 @@ def method_settings(name: str, quick: bool) -> tuple[dict, int | None]:
     (None for the default, which checkpoints after each of its rounds)."""
     kw = dict(RUNS[name])
     if name == "default":
-        return ({"time_budget": 3.0} if quick else kw), None
+        return (kw | {"time_budget": 3.0} if quick else kw), None
     stochastic = kw["method"] in ("sgd", "adam")
     every = 100 if stochastic else (5 if name == "coarse-to-fine" else 10)
     if quick:
@@ -133,17 +133,20 @@ def method_settings(name: str, quick: bool) -> tuple[dict, int | None]:
             kw.update(n_iter=15, n_stages=1)
             every = 5
         if name == "coarse-to-fine":
-            kw["coarse_to_fine"] = CoarseToFine(max_level=3)
+            kw["refine"] = CoarseToFine(max_level=3)
     return kw, every
 
 
 def run_method(name: str, target: Mesh, evaluator: MeshEvaluator, quick: bool) -> MethodRun:
     kw, every = method_settings(name, quick)
-    extra = {} if every is None else {"checkpoint_every": every, "progress": False}
+    extra = {} if every is None else {"eval_every": every, "progress": False}
+    kw = dict(kw)
+    if "time_budget" in kw:
+        extra["time_budget"] = kw.pop("time_budget")
     t0 = time.perf_counter()
-    res = fit_mesh(target, evaluator=evaluator, **extra, **kw)
+    res = fit_mesh(target, evaluator=evaluator, **extra, **mesh_fit_arguments(kw))
     wall = time.perf_counter() - t0
-    run = curve_run(name, LABELS[name], res, kw | {"checkpoint_every": every})
+    run = curve_run(name, LABELS[name], res, kw | {"eval_every": every})
     if "n_verts" not in run.curve:  # vertex count at each checkpoint (coarse-to-fine grows)
         a = res.history.as_arrays()
         steps = a["step"]
@@ -172,10 +175,11 @@ N_CLOUD = 20_000  # points sampled from the shape for the "points" fit
 #: The shapes part's fits: label (the call; every alternative with ``time_budget=10``).
 FITS = {
     "default": "fit_mesh(target)",
-    "sphere": 'fit_mesh(target, init="sphere")',
+    "sphere": 'fit_mesh(target, recipe="sphere")',
     "coarse-to-fine": 'fit_mesh(target, recipe="coarse-to-fine")',
     "tutorial": 'fit_mesh(target, recipe="tutorial")',
-    "sphere+remesh": "fit_mesh_adaptive(target, init=3, max_rounds=6, large_steps=10)",
+    "sphere+remesh": "fit_mesh(target, options=MeshFitOptions(init=3, large_steps=10, "
+                     "refine=Remeshing(max_rounds=6)))",
     "points": f"fit_mesh(P): {N_CLOUD // 1000}k points sampled from the shape",
 }
 #: Fits that are not settings of the same call (a point cloud is another input): not flagged.
@@ -208,7 +212,7 @@ def load_shapes(names=None) -> dict:
 
 def shape_fit(fit: str, target: Mesh, evaluator, seed: int, budget: float):
     """Run one fit of the shapes part (clock paused during the evaluator's checkpoints)."""
-    from geofit.fit import fit_mesh_adaptive
+    from geofit.fit import MeshFitOptions, Remeshing
     from geofit.ops import sample_points_from_meshes
 
     tb = {} if budget == SHAPE_TIME else {"time_budget": budget}  # the default's own is 10 s
@@ -216,12 +220,13 @@ def shape_fit(fit: str, target: Mesh, evaluator, seed: int, budget: float):
     if fit == "default":
         return fit_mesh(target, evaluator=evaluator, seed=seed, **tb)
     if fit == "sphere":
-        return fit_mesh(target, init="sphere", **alt)
+        return fit_mesh(target, recipe="sphere", **alt)
     if fit in ("coarse-to-fine", "tutorial"):
         return fit_mesh(target, recipe=fit, **alt)
     if fit == "sphere+remesh":
-        return fit_mesh_adaptive(target, init=3, max_rounds=6, large_steps=10.0,
-                                 time_budget=budget, evaluator=evaluator, seed=seed)
+        return fit_mesh(target, options=MeshFitOptions(init=3, large_steps=10.0,
+                                                       refine=Remeshing(max_rounds=6)),
+                        time_budget=budget, evaluator=evaluator, seed=seed)
     if fit == "points":
         P = sample_points_from_meshes(target, N_CLOUD, seed=100 + seed)
         return fit_mesh(P, evaluator=evaluator, seed=seed, **tb)
@@ -491,13 +496,13 @@ STABILITY_SHAPES = ("torus", "double_torus", "open_cylinder", "two_spheres", "su
 def scenario(mode: str, name: str, target: Mesh, quick: bool):
     """(source, target input, fit_mesh kwargs, reference mesh for scoring) of one cell.
 
-    The default is :func:`geofit.fit.fit_mesh_adaptive` with its own settings (its 10 s budget);
+    The default is ``fit_mesh(target)`` with its own settings (its 10 s budget);
     its ``step_x100`` multiplies all its weights by 100, its degenerate start is the collapsed
     ``ico_sphere(4)`` given as ``init``."""
     from geofit.fit import ADAPTIVE_WEIGHTS
 
     if name == "default":
-        sc = fit_mesh_scenario(mode, target, {"method": "lbfgs"}, seed=7)
+        sc = fit_mesh_scenario(mode, target, {"recipe": "default", "method": "lbfgs"}, seed=7)
         kw = ({"weights": {k: 100 * v for k, v in ADAPTIVE_WEIGHTS.items()}}
               if mode == "step_x100" else {})
         return sc._replace(kwargs=kw | ({"time_budget": 3.0} if quick else {}))
@@ -509,18 +514,19 @@ def scenario(mode: str, name: str, target: Mesh, quick: bool):
 
 def stability_cell(name: str, mode: str, target: Mesh, quick: bool, budget: float) -> dict:
     """Fit one (method, mode) cell and score it; never raises (an exception is the outcome)."""
-    from geofit.fit import fit_mesh_adaptive
-
     source, tin, kw, reference = scenario(mode, name, target, quick)
     row = {"method": name, "mode": mode}
     t0 = time.perf_counter()
     try:
         if name == "default":
-            res = fit_mesh_adaptive(tin, init="auto" if source is None else source,
-                                    evaluator=None, **kw)
+            kw = dict(kw)
+            tb = kw.pop("time_budget", None)
+            res = fit_mesh(tin, options=MeshFitOptions(
+                init="auto" if source is None else source, **kw), evaluator=None,
+                time_budget=tb, progress=False)
         else:
-            res = fit_mesh(tin, init=source, evaluator=None, progress=False,
-                           time_budget=budget, **kw)
+            res = fit_mesh(tin, evaluator=None, progress=False, time_budget=budget,
+                           **mesh_fit_arguments(kw, source))
     except Exception as exc:  # noqa: BLE001 - the table reports it
         msg = str(exc)
         row.update(outcome=f"failed: {type(exc).__name__}: {msg}", status="failed",
@@ -574,7 +580,7 @@ def stability_markdown(rows, budget: float, loads) -> str:
     text = ["# fit_mesh stability", "",
             ("Each method (its benchmark recipe from the tutorial's sphere; SGD/Adam shortened "
              f"to 500 steps; {budget:g} s time budget) on each failure mode of the dolphin, and "
-             "the default `fit_mesh(target)` (`fit_mesh_adaptive`, its own 10 s budget) on the "
+             "the default `fit_mesh(target)` (its own 10 s budget) on the "
              "dolphin and on test shapes (genus 1 and 2, open, several parts). Outcome: "
              "`converged`, `stopped: <status>` (see `geofit.fit.STATUSES`) or "
              "`failed: <exception>`; cd = chamfer-L2 and F = F-score@0.01 in the reference's "

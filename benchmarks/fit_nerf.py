@@ -32,7 +32,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -70,16 +70,17 @@ def run_method(name: str, label: str, config: NerfConfig, train, test, *, time_b
     cpu = []
 
     def cb(info):
-        run.add(info["seconds"], psnr=info["psnr"], held_out_loss=info["held_out_loss"],
-                loss=info["loss"], step=info["step"])
+        m = info.metrics
+        run.add(info.seconds, psnr=m["psnr"], held_out_loss=m["held_out_loss"],
+                loss=info.value, step=info.iteration)
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         if verbose:
-            print(f"  [{name}] step {info['step']:5d}  solver {info['seconds']:7.1f} s  "
-                  f"wall {wall[-1]:7.1f} s  loss {info['loss']:.4f}  held-out PSNR "
-                  f"{info['psnr']:.2f} dB  (load {load_average()[:1]})", flush=True)
+            print(f"  [{name}] step {info.iteration:5d}  solver {info.seconds:7.1f} s  "
+                  f"wall {wall[-1]:7.1f} s  loss {info.value:.4f}  held-out PSNR "
+                  f"{m['psnr']:.2f} dB  (load {load_average()[:1]})", flush=True)
 
-    res = fit_nerf(train, config=config, held_out=test, time_budget=time_budget,
+    res = fit_nerf(train, options=config, evaluator=test, time_budget=time_budget,
                    eval_every=eval_every, seed=seed, callback=cb, progress=False)
     run.curve["wall_seconds"] = wall
     run.curve["cpu_seconds"] = cpu
@@ -178,7 +179,8 @@ def main(argv=None) -> int:
             cfg = NerfConfig.tutorial(n_iter=tut_steps, n_rays_per_image=100, n_pts_per_ray=32)
         print(f"tutorial network, {tut_steps} steps ...", flush=True)
         t0, c0 = time.perf_counter(), time.process_time()
-        res = fit_nerf(train, config=cfg, seed=0, progress=False)
+        res = fit_nerf(train, recipe="tutorial", options=cfg, evaluator=None, seed=0,
+                       progress=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         hull = OccupancyGrid.from_silhouettes(train.silhouettes, train.cameras,
                                               resolution=96 if not quick else 32).dilate(1)
@@ -222,7 +224,7 @@ def main(argv=None) -> int:
                                        hull_resolution=32)
             print(f"{name}: {cfg.n_hidden_neurons} wide, budget {b:g} s ...", flush=True)
             run, res = run_method(name, label, cfg, train, test, time_budget=b,
-                                  eval_every=b / 12)
+                                  eval_every=None)
             run.label = f"{label} ({res.n_params:,} params)"
             report.add(run)
             f = run.final
@@ -375,10 +377,11 @@ def _run_cases(report: BenchmarkReport, rows: list, train, test, base: NerfConfi
         if steps > 0:
             cfg = NerfConfig(**{**asdict(cfg), "n_iter": int(steps)})
             limit = {"time_budget": None, "eval_every": max(int(steps) // n_checks, 1)}
-        else:
-            limit = {"time_budget": budget, "eval_every": budget / n_checks}
-        res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams), config=cfg,
-                       held_out=test, seed=0, progress=False, **limit, **extra)
+        else:  # checkpoints every 1/20 of the time budget (fit_nerf's default)
+            limit = {"time_budget": budget, "eval_every": None}
+        res = fit_nerf(MultiViewDataset(images=im, silhouettes=sil, cameras=cams),
+                       options=replace(cfg, **extra), evaluator=test, seed=0, progress=False,
+                       **limit)
         finite = bool(np.all(np.isfinite(res.field.get_flat())) and
                       np.all(np.isfinite(res.images)))
         losses = np.asarray(res.history.loss)

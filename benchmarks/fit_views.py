@@ -76,7 +76,7 @@ from geofit import (
 )
 from geofit.structures import MultiViewDataset
 from geofit.datasets import cow_mesh, tutorial_views
-from geofit.fit.views import RECIPES, ViewsEvaluator, fit_mesh_to_views
+from geofit.fit.views import RECIPES, ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
 from geofit.ops import topology
 from geofit.tutorials.stability import STABILITY_SHAPES
 
@@ -112,24 +112,36 @@ def settings(name: str, quick: bool, budget: float) -> dict:
         "tutorial": {"recipe": "tutorial", "silhouette_iters": tut, "textured_iters": tut,
                      "init_level": 4},
         "scipy-lbfgs": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
-                            "silhouette_iters": 2000, "silhouette_time": budget, "init_level": 4},
+                            "silhouette_iters": 2000, "time_budget": budget, "init_level": 4},
         "lbfgs-large-steps": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                                   "large_steps": 10.0, "silhouette_iters": 2000,
-                                  "silhouette_time": budget, "init_level": 4},
+                                  "time_budget": budget, "init_level": 4},
         "best": {"silhouette_method": "lbfgs", "textured_method": "lstsq",
                      "large_steps": 10.0, "levels": c2f, "silhouette_iters": 400,
-                     "silhouette_time": budget - 10.0 if not quick else budget,
+                     "time_budget": budget - 10.0 if not quick else budget,
                      "silhouette_weights": BEST_WEIGHTS, "init_level": 3},
         "nlopt-lbfgs": {"silhouette_method": "lbfgs-nlopt", "textured_method": "lstsq",
                             "large_steps": 10.0, "levels": c2f, "silhouette_iters": 600,
-                            "silhouette_time": budget, "init_level": 3},
+                            "time_budget": budget, "init_level": 3},
         "contour": {"recipe": "contour", "large_steps": 10.0,
-                        "levels": c2f, "silhouette_iters": 4000, "silhouette_time": budget,
+                        "levels": c2f, "silhouette_iters": 4000, "time_budget": budget,
                         "adam_lr": 0.01, "init_level": 3},
     }[name]
     if quick:
         out["init_level"] = max(out["init_level"] - 2, 1)
     return out
+
+
+_MONITOR = ("time_budget", "seed", "evaluator", "eval_every", "callback", "progress")
+
+
+def views_fit(ds, kw: dict, **monitor):
+    """``fit_mesh_to_views`` from a flat dict of settings: ``recipe``, the monitoring keywords
+    and :class:`ViewsFitOptions` fields."""
+    kw = dict(kw)
+    recipe = kw.pop("recipe", "default")
+    monitor.update({k: kw.pop(k) for k in _MONITOR if k in kw})
+    return fit_mesh_to_views(ds, recipe=recipe, options=ViewsFitOptions(**kw), **monitor)
 
 
 class CpuMeter:
@@ -143,9 +155,10 @@ class CpuMeter:
         return time.process_time() - self.t0 - self.excluded
 
 
-def _fit_with_curves(run: MethodRun, ds, ev, kw: dict, eval_every: float):
-    """``fit_mesh_to_views(ds, **kw)`` with held-out checkpoints every ``eval_every`` solver
-    seconds (clock paused) added to ``run``; returns the fit, its wall time and CPU meter."""
+def _fit_with_curves(run: MethodRun, ds, ev, kw: dict, eval_every: int):
+    """``fit_mesh_to_views`` of the settings ``kw`` with held-out checkpoints every
+    ``eval_every`` steps (clock paused) added to ``run``; returns the fit, its wall time and
+    CPU meter."""
     cpu = CpuMeter()
     grey = None
     cpu_at = []
@@ -163,7 +176,7 @@ def _fit_with_curves(run: MethodRun, ds, ev, kw: dict, eval_every: float):
         return m
 
     t0 = time.perf_counter()
-    fit = fit_mesh_to_views(ds, evaluate=evaluate, eval_every=eval_every, progress=False, **kw)
+    fit = views_fit(ds, kw, evaluator=evaluate, eval_every=eval_every, progress=False)
     wall = time.perf_counter() - t0
     a = fit.history.as_arrays()
     for i, s in enumerate(a["checkpoint_seconds"]):
@@ -249,7 +262,7 @@ def memory_report(ds) -> dict:
                       {"silhouette_method": "none", "textured_method": "lbfgs",
                            "textured_iters": 1})):
         tracemalloc.start()
-        fit_mesh_to_views(ds, init=m, progress=False, **kw)
+        views_fit(ds, dict(kw, init=m), progress=False)
         out[name] = {"peak_traced_mb": tracemalloc.get_traced_memory()[1] / 2 ** 20}
         tracemalloc.stop()
     return out
@@ -312,14 +325,14 @@ def table_methods(names, quick: bool, budget: float | None) -> dict:
             kw = settings("best", quick, budget or TIME_LIMIT)
             kw["init"] = ico_sphere(kw.pop("init_level"))
             if budget is None:
-                kw["_time_keys"] = ("silhouette_time",)
+                kw["_time_keys"] = ("time_budget",)
             out[n] = (f"the former hand-set 'best' ({LABELS['best']}), {per}", kw)
         elif n.startswith("recipe:"):
             r = n.split(":", 1)[1]
-            kw = {"recipe": r, "silhouette_time": budget, "textured_time": budget}
+            kw = {"recipe": r, "time_budget": budget}
             if budget is None:
-                kw["_time_keys"] = ("silhouette_time", "textured_time")
-            out[n] = (f"recipe={r!r}, {per} a stage", kw)
+                kw["_time_keys"] = ("time_budget",)
+            out[n] = (f"recipe={r!r}, {per}", kw)
         elif n == "default":
             continue
         else:
@@ -563,7 +576,7 @@ def run_shapes(args, out: Path) -> int:
                 for k in kw.pop("_time_keys", ()):  # equal time: the default's seconds
                     kw[k] = max(by_method["default"][-1].final["seconds"], 1.0)
                 r = run_shape_method(sname, mname, label, kw, ds, ev_curve, ev_final,
-                                     eval_every=(1.0 if quick else 10.0), seed=seed)
+                                     eval_every=(5 if quick else 20), seed=seed)
                 runs.append(r)
                 defaults = [x for x in runs if x.name.split(":")[1] == "default"]
                 if len(defaults) > 1:
@@ -653,13 +666,14 @@ def run_stability(ds, ev, quick: bool, budget: float, methods=STAB_METHODS,
                 del kw["init"]
             finite = []
 
-            def cb(rec, finite=finite):
-                finite.append(math.isfinite(rec["value"]) and math.isfinite(rec["grad_norm"])
-                              and bool(np.all(np.isfinite(rec["x"]))))
+            def cb(info, finite=finite):
+                finite.append(math.isfinite(info.value)
+                              and all(math.isfinite(v) for v in (info.terms or {}).values())
+                              and bool(np.all(np.isfinite(info.x))))
 
             t0 = time.perf_counter()
             try:
-                fit = fit_mesh_to_views(views, callback=cb, progress=False, **kw)
+                fit = views_fit(views, kw, callback=cb, progress=False)
                 m = ev(fit.mesh, fit.colors)
                 row = {"shape": shape, "case": case, "method": name, "status": fit.status,
                        "message": fit.message, "seconds": fit.seconds,
@@ -840,7 +854,7 @@ def main(argv=None) -> int:
     for name in names:  # methods
         print(f"running {name} ...", flush=True)
         t = time.perf_counter()
-        run = run_method(name, ds, ev, quick, budget, eval_every=(2.0 if quick else 10.0))
+        run = run_method(name, ds, ev, quick, budget, eval_every=(5 if quick else 20))
         report.add(run)
         f = run.final
         print(f"  {name}: {run.status} in {f['seconds']:.0f} s (cpu {f['cpu_seconds']:.0f} s, "

@@ -44,7 +44,7 @@ from _harness import (BenchmarkReport, MethodRun, add_shape_options, markdown_ta
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.structures import MultiViewDataset
 from geofit.datasets import held_out_views, tutorial_views
-from geofit.fit.volume import fit_volume, volume_metrics
+from geofit.fit.volume import VolumeFitOptions, fit_volume, volume_metrics
 
 #: PyTorch3D's CPU run of the tutorial on this machine (from the issue: 300 Adam steps of 10
 #: views, 128^3 voxels, 150 samples per ray).
@@ -68,7 +68,16 @@ def cpu_seconds() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run_method(name: str, label: str, train, test, *, verbose=True, monitor_every=10.0,
+def volume_fit(ds, kw: dict, **monitor):
+    """``fit_volume`` from a flat dict of settings: ``recipe``, ``time_budget``, ``seed`` and
+    :class:`VolumeFitOptions` fields."""
+    kw = dict(kw)
+    recipe = kw.pop("recipe", "default")
+    monitor.update({k: kw.pop(k) for k in ("time_budget", "seed") if k in kw})
+    return fit_volume(ds, recipe=recipe, options=VolumeFitOptions(**kw), **monitor)
+
+
+def run_method(name: str, label: str, train, test, *, verbose=True, eval_every=10,
                **kw) -> tuple[MethodRun, object]:
     """Fit with ``fit_volume(**kw)``, checkpointing held-out PSNR and IoU against solver time."""
     run = MethodRun(name, label, config={k: (list(v) if isinstance(v, tuple) else v)
@@ -91,8 +100,7 @@ def run_method(name: str, label: str, train, test, *, verbose=True, monitor_ever
                   f"IoU {m.iou:.4f}  (load {loads[-1]})", flush=True)
         return out
 
-    res = fit_volume(train, monitor=monitor, monitor_every=monitor_every, verbose=verbose,
-                     progress=False, **kw)
+    res = volume_fit(train, kw, evaluator=monitor, eval_every=eval_every, progress=False)
     wall_total = time.perf_counter() - t0
     cpu = cpu_seconds() - c0
     h = res.history
@@ -207,7 +215,7 @@ def stability(train, test, args, *, shape: str = "cow", size: int | None = None
     """Each stress case on one dataset: status, message, finiteness and held-out accuracy."""
     size = args.stability_size if size is None else size
     levels = tuple(s for s in (32, 64, 128) if s <= size)
-    common = {"volume_size": size, "levels": levels, "verbose": False}
+    common = {"volume_size": size, "levels": levels}
     if args.quick:
         common["iterations"] = 10
     rows, records = [], []
@@ -220,7 +228,7 @@ def stability(train, test, args, *, shape: str = "cow", size: int | None = None
             opts.pop("iterations", None)
         t0 = time.perf_counter()
         try:
-            res = fit_volume(MultiViewDataset(**inputs), progress=False, **opts)
+            res = volume_fit(MultiViewDataset(**inputs), opts, progress=False)
             error = None
         except Exception as exc:  # a stress case must end with a status, not a crash
             res, error = None, f"{type(exc).__name__}: {exc}"
@@ -284,10 +292,10 @@ def main(argv=None) -> int:
     p.add_argument("--shape-size", type=int, default=64,
                    help="grid size of the stress cases on the test shapes (default 64)")
     add_shape_options(p)
-    p.add_argument("--monitor-every", type=float, default=10.0,
-                   help="solver seconds between held-out checkpoints (default 10)")
-    p.add_argument("--tutorial-monitor-every", type=float, default=120.0,
-                   help="the same for the tutorial recipe (default 120)")
+    p.add_argument("--eval-every", type=int, default=10,
+                   help="steps between held-out checkpoints (default 10)")
+    p.add_argument("--tutorial-eval-every", type=int, default=30,
+                   help="the same for the tutorial recipe (default 30)")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -343,9 +351,9 @@ def main(argv=None) -> int:
         elif quick:
             kw.update(levels=(16, 32), iterations=(10, 10))
         print(f"== {name}: {kw}  (load {load_average()})", flush=True)
-        every = args.tutorial_monitor_every if name == "tutorial" else args.monitor_every
+        every = args.tutorial_eval_every if name == "tutorial" else args.eval_every
         run, res = run_method(name, labels.get(name, name), train, test,
-                              monitor_every=(1.0 if quick else every), **kw)
+                              eval_every=(2 if quick else every), **kw)
         report.add(run)
         runs.append(run)
         results[name] = res

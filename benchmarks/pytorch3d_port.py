@@ -9,9 +9,9 @@ Parts (``--parts``, default all):
   Acceptance (issue 27): chamfer-L2 <= 1e-4, F@0.01 >= 0.93 in <= 30 s on 2 cores.
 * ``t4``: fit_textured_mesh's silhouette loop as written (two random views per step, soft
   silhouettes at 128 px, K = 50), 2000 steps; held-out IoU on 16 Fibonacci views
-  (:func:`geofit.fit.views.cow_multiview_dataset`).
-* ``t4-geofit``: ``geofit.fit_mesh_to_views(train, silhouette_method="tutorial",
-  textured_method="none")`` on the same data, for the IoU comparison (within 0.01).
+  (:func:`geofit.datasets.tutorial_views`).
+* ``t4-geofit``: ``geofit.fit_mesh_to_views(train, recipe="tutorial",
+  options=ViewsFitOptions(textured_method="none"))`` on the same data, for the IoU comparison (within 0.01).
 
 Each part replaces its own entry in ``pytorch3d_port.json`` (the others are kept).
 """
@@ -148,15 +148,9 @@ def run_t1(n_iter: int, every: int, n_metric: int, tmp: Path) -> MethodRun:
 # ------------------------------------------------------------------------------ tutorial 4
 def _heldout(image_size: int):
     """(training views, ViewsEvaluator of the 16 held-out views and the true mesh)."""
+    from geofit.datasets import tutorial_views
     from geofit.fit.views import ViewsEvaluator
 
-    try:  # geofit's unified multi-view dataset
-        from geofit.datasets import tutorial_views
-    except ImportError:  # geofit 0.1
-        from geofit.fit.views import cow_multiview_dataset
-
-        split = cow_multiview_dataset(num_views=20, image_size=image_size, num_heldout=16)
-        return split.train, ViewsEvaluator(split.heldout, split.mesh)
     data = tutorial_views(4, image_size=image_size, num_held_out=16)
     return data, ViewsEvaluator(data.held_out, data.mesh)
 
@@ -271,22 +265,18 @@ def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
 
 
 def run_t4_geofit(n_iter: int, image_size: int) -> MethodRun:
-    import inspect
-
-    from geofit.fit.views import fit_mesh_to_views
+    from geofit.fit.views import ViewsFitOptions, fit_mesh_to_views
 
     train, evaluator = _heldout(image_size)
-    params = inspect.signature(fit_mesh_to_views).parameters
-    if "recipe" in params:
-        recipe = {"recipe": "tutorial", "textured_method": "none", "progress": False}
-    else:  # geofit 0.1's option names
-        recipe = {"silhouette_method": "tutorial", "textured_method": "none"}
-    del params
     run = MethodRun(name="t4-geofit",
-                    label='geofit.fit_mesh_to_views(silhouette_method="tutorial")',
-                    config={"n_iter": n_iter, "image_size": image_size, "seed": 0, **recipe})
-    res = fit_mesh_to_views(train, silhouette_iters=n_iter, evaluate=lambda m, c: evaluator(
-        m, surface=False), eval_every=60.0, seed=0, **recipe)
+                    label='geofit.fit_mesh_to_views(recipe="tutorial")',
+                    config={"n_iter": n_iter, "image_size": image_size, "seed": 0,
+                            "recipe": "tutorial", "textured_method": "none"})
+    res = fit_mesh_to_views(
+        train, recipe="tutorial",
+        options=ViewsFitOptions(silhouette_iters=n_iter, textured_method="none"),
+        evaluator=lambda m, c: evaluator(m, surface=False), eval_every=max(n_iter // 20, 1),
+        seed=0, progress=False)
     a = res.history.as_arrays()
     for s, iou in zip(a["checkpoint_seconds"], a["metrics"]["iou"]):
         run.add(s, iou=iou)
@@ -337,7 +327,7 @@ def main(argv=None) -> int:
         "source": "issue 3/17 acceptance text: PyTorch3D's deform tutorial, 2000 SGD steps, CPU, "
                   "this 2-core machine; not re-run here"},
         "acceptance_t1": ACCEPT_T1,
-        "acceptance_t4": "held-out IoU within 0.01 of fit_mesh_to_views(silhouette_method="
+        "acceptance_t4": "held-out IoU within 0.01 of fit_mesh_to_views(recipe="
                          "'tutorial')"}
     with tempfile.TemporaryDirectory() as tmp:
         for part in parts:  # parts

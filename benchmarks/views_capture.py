@@ -21,13 +21,13 @@ from _harness import BenchmarkReport, MethodRun, parser, print_machine, record_l
 
 import geofit.datasets
 from geofit.datasets import held_out_views
-from geofit.fit.volume import fit_volume, volume_metrics
+from geofit.fit.volume import VolumeFitOptions, fit_volume, volume_metrics
 from geofit.io import load_views, save_views
 
 
 def _fit(ds, **kw):
-    """``fit_volume(dataset, ...)`` without a progress bar."""
-    return fit_volume(ds, progress=False, **kw)
+    """``fit_volume(dataset, options=VolumeFitOptions(**kw))`` without a progress bar."""
+    return fit_volume(ds, options=VolumeFitOptions(**kw), progress=False)
 
 
 def main() -> None:

@@ -1,9 +1,13 @@
-"""Initial meshes from the data (geofit.fit.init) and the adaptive fit (geofit.fit.adaptive)."""
+"""Initial meshes from the data (geofit.fit.init) and the remeshing fit (geofit.fit.adaptive),
+the default recipe of fit_mesh."""
+import math
+
 import numpy as np
 import pytest
 
 from geofit import Mesh
-from geofit.fit.adaptive import fit_mesh_adaptive, refine_lengths
+from geofit.fit import MeshFitOptions, MeshFitResult, Remeshing, fit_mesh
+from geofit.fit.adaptive import refine_lengths
 from geofit.fit.init import decimate, initial_mesh, mesh_from_occupancy
 from geofit.metrics import evaluate_mesh
 from geofit.ops import topology
@@ -71,8 +75,9 @@ def test_refine_lengths_shorter_where_error_is_large():
 def test_fit_mesh_adaptive_genus_two():
     """The default fit of a genus-2 target keeps genus 2 and reaches F@0.01 >= 0.95."""
     target = double_torus(48)
-    res = fit_mesh_adaptive(target, n_faces=1200, n_iter=10, max_rounds=2, evaluator=None,
-                            time_budget=None)
+    res = fit_mesh(target, options=MeshFitOptions(
+        n_iter=10, refine=Remeshing(n_faces=1200, max_rounds=2)), evaluator=None,
+        time_budget=math.inf)
     assert res.init == "target" and res.topology.genus == 2
     m = evaluate_mesh(res.mesh, target, n_samples=20000, normalize=True)
     assert m.fscore[0.01] >= 0.95
@@ -83,26 +88,34 @@ def test_fit_mesh_adaptive_genus_two():
 def test_fit_mesh_adaptive_sphere_init_and_remesh():
     """From an ico-sphere the fit remeshes (the vertex count changes) and says it used a sphere."""
     target = ico_sphere(3).update_verts(ico_sphere(3).verts * [1.0, 0.6, 0.8])
-    res = fit_mesh_adaptive(target, init=1, n_iter=15, max_rounds=2, chamfer_l2=1e-9,
-                            fscore=1.0, evaluator=None, time_budget=None)
+    res = fit_mesh(target, options=MeshFitOptions(
+        init=1, n_iter=15, refine=Remeshing(max_rounds=2, chamfer_l2=1e-9, fscore=1.0)),
+        evaluator=None, time_budget=math.inf)
     assert res.init == "sphere"
     assert "remesh" in res.stages[0] and res.n_verts != 42
     r = res.topology
     assert r.genus == 0 and r.is_manifold and r.winding_consistent
 
 
-@pytest.mark.parametrize("kw, match", [
-    ({"n_faces": 1}, "n_faces"), ({"max_rounds": 0}, "max_rounds"), ({"fscore": 2.0}, "fscore"),
-    ({"large_steps": -1.0}, "large_steps"), ({"evaluator": "best"}, "evaluator"),
-    ({"weights": {"chamfer": 0.0}}, "chamfer"),
+@pytest.mark.parametrize("make, match", [
+    (lambda: {"options": MeshFitOptions(refine=Remeshing(n_faces=1))}, "n_faces"),
+    (lambda: {"options": MeshFitOptions(refine=Remeshing(max_rounds=0))}, "max_rounds"),
+    (lambda: {"options": MeshFitOptions(refine=Remeshing(fscore=2.0))}, "fscore"),
+    (lambda: {"options": MeshFitOptions(large_steps=-1.0)}, "large_steps"),
+    (lambda: {"options": MeshFitOptions(large_steps=0.0)}, "large_steps"),
+    (lambda: {"options": MeshFitOptions(method="sgd")}, "method"),
+    (lambda: {"options": MeshFitOptions(n_stages=2)}, "n_stages"),
+    (lambda: {"evaluator": "best"}, "evaluator"),
+    (lambda: {"options": MeshFitOptions(weights={"chamfer": 0.0})}, "chamfer"),
 ])
-def test_fit_mesh_adaptive_validation(kw, match):
+def test_fit_mesh_default_recipe_validation(make, match):
+    """Every invalid setting of the remeshing fit raises a ValueError naming it."""
     with pytest.raises(ValueError, match=match):
-        fit_mesh_adaptive(ico_sphere(1), **kw)
+        fit_mesh(ico_sphere(1), **make())
     with pytest.raises(TypeError, match="target"):
-        fit_mesh_adaptive("mesh.obj")
+        fit_mesh("mesh.obj")
     with pytest.raises(ValueError, match="target"):
-        fit_mesh_adaptive(Mesh(np.zeros((3, 3)), np.array([[0, 1, 2]])))
+        fit_mesh(Mesh(np.zeros((3, 3)), np.array([[0, 1, 2]])))
 
 
 def test_docstring_examples():
@@ -117,18 +130,19 @@ def test_docstring_examples():
 
 
 def test_fit_mesh_default_is_adaptive():
-    """fit_mesh(target) with no other option runs the adaptive fit; init='sphere' does not."""
-    from geofit.fit import AdaptiveMeshFitResult, fit_mesh
-
+    """fit_mesh(target) runs the remeshing fit from the target; recipe='sphere' does not, and
+    options of the default recipe keep it (no hidden switch)."""
     target = torus(1.0, 0.35, 32, 16)
     res = fit_mesh(target, evaluator=None, time_budget=3.0)
-    assert isinstance(res, AdaptiveMeshFitResult) and res.init == "target"
-    assert res.topology.genus == 1
-    res = fit_mesh(target, init="sphere", n_iter=2, n_stages=1, evaluator=None,
-                   progress=False)
-    assert not isinstance(res, AdaptiveMeshFitResult) and res.n_verts == 2562
+    assert isinstance(res, MeshFitResult) and res.init == "target"
+    assert res.topology.genus == 1 and res.recipe == "default"
+    res = fit_mesh(target, options=MeshFitOptions(n_iter=2), evaluator=None, time_budget=3.0)
+    assert res.init == "target" and res.topology is not None
+    res = fit_mesh(target, recipe="sphere", options=MeshFitOptions(n_iter=2, n_stages=1),
+                   evaluator=None, progress=False)
+    assert res.topology is None and res.n_verts == 2562
     with pytest.raises(ValueError, match="init"):
-        fit_mesh(target, init="poisson")
+        fit_mesh(target, recipe="sphere", options=MeshFitOptions(init="poisson"))
 
 
 def test_visual_hull_mesh_of_a_ball():
@@ -165,5 +179,5 @@ def test_fit_mesh_adaptive_budget_used_up_while_building_the_objective(monkeypat
             time.sleep(0.4)
 
     monkeypatch.setattr(fa, "MeshObjective", Slow)
-    res = fit_mesh_adaptive(torus(1.0, 0.35, 24, 12), time_budget=0.3, evaluator=None)
+    res = fit_mesh(torus(1.0, 0.35, 24, 12), time_budget=0.3, evaluator=None, progress=False)
     assert res.status == "time_budget" and res.n_evaluations <= 2  # no time left to iterate

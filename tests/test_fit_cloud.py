@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 
 from geofit import ico_sphere
-from geofit.fit import MeshObjective, fit_mesh
+from geofit.fit import MeshFitOptions, MeshObjective, Remeshing, fit_mesh
 from geofit.fit._cloud import CloudTarget, as_cloud_points, mesh_from_points, orient_normals
-from geofit.fit.adaptive import fit_mesh_adaptive
 from geofit.metrics import evaluate_mesh
 from geofit.ops import sample_points_from_meshes, topology
 from geofit.shapes import open_cylinder, torus
@@ -158,7 +157,8 @@ def test_cloud_types_give_the_same_points():
 def test_fit_mesh_adaptive_points_with_sphere_init():
     """init="sphere" with a point cloud starts from the ico-sphere and still fits the points."""
     P = sample_points_from_meshes(ico_sphere(3).scale_verts(2.0), 3000, seed=0)
-    res = fit_mesh_adaptive(P, init="sphere", max_rounds=1, n_iter=10, evaluator=None)
+    res = fit_mesh(P, options=MeshFitOptions(init="sphere", n_iter=10,
+                                             refine=Remeshing(max_rounds=1)), evaluator=None)
     assert res.init == "sphere"
     r = np.linalg.norm(res.mesh.verts, axis=1)
     assert abs(np.median(r) - 2.0) < 0.05

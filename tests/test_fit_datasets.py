@@ -107,30 +107,6 @@ def test_tutorial_views_layouts():
         tutorial_views(5, mesh=_object(), num_views=4, image_size=8, num_held_out=-1)
 
 
-def test_deprecated_dataset_names_warn_and_agree():
-    """The former stack still works for one release, with a DeprecationWarning, and returns
-    the same arrays as the new one."""
-    from geofit.fit.views import (
-        MultiViewData,
-        MultiViewSplit,
-        cow_multiview_dataset,
-        render_multiview_dataset,
-    )
-
-    obj = _object()
-    new = tutorial_views(4, mesh=obj, num_views=4, image_size=16, num_held_out=2)
-    with pytest.warns(DeprecationWarning, match="render_multiview_dataset"):
-        old = render_multiview_dataset(obj, num_views=4, image_size=16, num_heldout=2)
-    assert isinstance(old, MultiViewSplit) and old.mesh is obj
-    np.testing.assert_array_equal(old.train.silhouettes, new.silhouettes)
-    np.testing.assert_array_equal(old.heldout.images, new.held_out.images)
-    with pytest.warns(DeprecationWarning, match="MultiViewData"):
-        mv = MultiViewData(new.cameras, new.silhouettes, new.images)
-    assert isinstance(mv, MultiViewDataset) and type(mv[0]) is MultiViewDataset
-    with pytest.warns(DeprecationWarning, match="cow_multiview_dataset"):
-        cow_multiview_dataset(num_views=2, image_size=8, num_heldout=1)
-
-
 def test_generate_cow_renders_returns_cameras_images_silhouettes():
     """The tutorials' helper unpacks as ``cameras, images, silhouettes`` with the views of
     tutorial_views(5); data_dir and mesh together are refused."""
@@ -152,18 +128,25 @@ def test_generate_cow_renders_returns_cameras_images_silhouettes():
 def test_every_multi_view_fit_shows_a_progress_bar_unless_asked_not_to(capsys):
     """fit_mesh_to_views, fit_volume and fit_nerf draw a tqdm bar on stderr by default and
     nothing with progress=False."""
-    from geofit.fit import fit_mesh_to_views, fit_nerf, fit_volume
+    from geofit.fit import (
+        ViewsFitOptions,
+        VolumeFitOptions,
+        fit_mesh_to_views,
+        fit_nerf,
+        fit_volume,
+    )
     from geofit.fit.nerf import NerfConfig
 
     t4 = tutorial_views(4, mesh=_object(), num_views=3, image_size=16, num_held_out=0)
     t5 = tutorial_views(5, mesh=_object(), num_views=4, image_size=16, num_held_out=0)
     cfg = NerfConfig.scene(n_iter=3, n_hidden_neurons=8, n_rays_per_image=16, n_pts_per_ray=16,
                            hull_resolution=16, n_threads=1)
-    runs = {"fit_mesh_to_views": lambda p: fit_mesh_to_views(
-                t4, init=ico_sphere(1), silhouette_iters=2, textured_method="none", progress=p),
-            "fit_volume": lambda p: fit_volume(t5, volume_size=8, n_pts_per_ray=16,
-                                               iterations=2, progress=p),
-            "fit_nerf": lambda p: fit_nerf(t5, config=cfg, progress=p)}
+    runs = {"fit_mesh_to_views": lambda p: fit_mesh_to_views(t4,
+            options=ViewsFitOptions(init=ico_sphere(1), silhouette_iters=2,
+            textured_method="none"), progress=p),
+            "fit_volume": lambda p: fit_volume(t5, options=VolumeFitOptions(volume_size=8,
+                    n_pts_per_ray=16, iterations=2), progress=p),
+            "fit_nerf": lambda p: fit_nerf(t5, options=cfg, progress=p)}
     for name, run in runs.items():  # fits
         capsys.readouterr()
         run(True)

@@ -11,6 +11,7 @@ from geofit.fit import (
     TUTORIAL_WEIGHTS,
     CoarseToFine,
     LargeSteps,
+    MeshFitOptions,
     MeshObjective,
     fit_mesh,
 )
@@ -146,8 +147,8 @@ def test_result_in_original_frame():
     centre = np.array([5.0, -2.0, 1.0])
     s = ico_sphere(3)
     target = s.update_verts(3.0 * s.verts + centre)
-    res = fit_mesh(target, init=1, weights=FINE_WEIGHTS, n_samples=500, n_stages=1, n_iter=60,
-                   evaluator=None, progress=False)
+    res = fit_mesh(target, recipe="sphere", options=MeshFitOptions(init=1, weights=FINE_WEIGHTS,
+              n_samples=500, n_stages=1, n_iter=60), evaluator=None, progress=False)
     r = np.linalg.norm(res.mesh.verts - centre, axis=1)
     # 42 vertices straddle the sphere: vertices slightly outside, face centres inside
     assert np.all((r > 2.9) & (r < 3.25)), (r.min(), r.max())
@@ -163,8 +164,9 @@ def test_quasi_newton_paths_reach_small_loss(method):
     """ico_sphere(1) -> a scaled sphere: both L-BFGS wrappers get the data term near its floor."""
     s = ico_sphere(3)
     target = s.update_verts(s.verts * [1.0, 0.8, 0.6])
-    res = fit_mesh(target, init=1, method=method, weights=FINE_WEIGHTS, n_samples=500, n_stages=2,
-                   n_iter=80, evaluator=None, progress=False)
+    res = fit_mesh(target, recipe="sphere", options=MeshFitOptions(init=1, method=method,
+              weights=FINE_WEIGHTS, n_samples=500, n_stages=2, n_iter=80), evaluator=None,
+              progress=False)
     assert res.status in ("converged", "max_iter", "max_eval", "stalled"), res.message
     first, last = res.history.terms["chamfer"][0], res.history.terms["chamfer"][-1]
     assert last < 2e-3 and last < 0.05 * first
@@ -175,7 +177,8 @@ def test_quasi_newton_paths_reach_small_loss(method):
 def test_history_time_monotone_and_checkpoints():
     tgt = bumpy_target()
     ev = MeshEvaluator(tgt, n_samples=2000, normalize=True)
-    res = fit_mesh(tgt, init=1, n_samples=300, n_stages=2, n_iter=15, evaluator=ev, progress=False)
+    res = fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, n_samples=300, n_stages=2,
+              n_iter=15), evaluator=ev, progress=False)
     a = res.history.as_arrays()
     assert np.all(np.diff(a["seconds"]) >= 0) and np.all(np.diff(a["step"]) > 0)
     assert set(a["terms"]) == {"chamfer", "edge", "normal", "laplacian"}
@@ -194,8 +197,8 @@ def test_sgd_is_the_tutorial_update():
     """method='sgd' = PyTorch's SGD (lr 1, momentum 0.9) on the tutorial's stochastic objective."""
     tgt = bumpy_target()
     src = ico_sphere(1)
-    res = fit_mesh(tgt, init=src, method="sgd", n_samples=200, n_iter=3, evaluator=None, seed=4,
-                   progress=False)
+    res = fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=src, method="sgd",
+              n_samples=200, n_iter=3), evaluator=None, seed=4, progress=False)
     norm = tgt.normalize()
     obj = MeshObjective(src, norm.mesh, TUTORIAL_WEIGHTS, distance="points", n_samples=200,
                         resample="step", seed=np.random.default_rng(4))
@@ -212,16 +215,16 @@ def test_sgd_is_the_tutorial_update():
 
 def test_adam_reduces_loss():
     tgt = bumpy_target()
-    res = fit_mesh(tgt, init=2, method="adam", n_samples=500, n_iter=150, lr=0.01,
-                   evaluator=None, progress=False)
+    res = fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=2, method="adam",
+              n_samples=500, n_iter=150, lr=0.01), evaluator=None, progress=False)
     c = np.asarray(res.history.terms["chamfer"])
     assert c[-20:].mean() < 0.3 * c[:5].mean()
 
 
 def test_huge_lr_sgd_stops_with_status_and_finite_verts():
     tgt = bumpy_target()
-    res = fit_mesh(tgt, init=1, method="sgd", lr=100.0, n_samples=200, n_iter=500, evaluator=None,
-                   progress=False)
+    res = fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, method="sgd", lr=100.0,
+              n_samples=200, n_iter=500), evaluator=None, progress=False)
     assert res.status in ("diverged", "nonfinite"), res.message
     assert res.n_iterations < 500
     assert np.all(np.isfinite(res.mesh.verts))
@@ -233,7 +236,7 @@ def test_nan_target_raises_with_message():
     v = m.verts.copy()
     v[7, 1] = np.nan
     with pytest.raises(ValueError, match="target: the vertices contain 1 NaN"):
-        fit_mesh((v, m.faces), init=1, progress=False)
+        fit_mesh((v, m.faces), recipe="sphere", options=MeshFitOptions(init=1), progress=False)
 
 
 def test_degenerate_start_is_repaired_and_stays_finite():
@@ -245,13 +248,13 @@ def test_degenerate_start_is_repaired_and_stays_finite():
     src = src.update_verts(v)
     n_zero = int(np.sum(src.face_areas == 0))
     assert n_zero > 10
-    res = fit_mesh(bumpy_target(), init=src, n_samples=300, n_stages=1, n_iter=30, evaluator=None,
-                   progress=False)
+    res = fit_mesh(bumpy_target(), recipe="sphere", options=MeshFitOptions(init=src, n_samples=300,
+              n_stages=1, n_iter=30), evaluator=None, progress=False)
     assert np.all(np.isfinite(res.mesh.verts)) and res.ok
     assert f"{n_zero} zero-area triangles" in res.message
     assert res.history.events[0]["n_degenerate"] == n_zero
-    sgd = fit_mesh(bumpy_target(), init=src, method="sgd", n_samples=300, n_iter=30, evaluator=None,
-                   progress=False)
+    sgd = fit_mesh(bumpy_target(), recipe="sphere", options=MeshFitOptions(init=src, method="sgd",
+              n_samples=300, n_iter=30), evaluator=None, progress=False)
     # without the repair the 1e8 normal-consistency gradients make SGD diverge at once
     assert sgd.status == "max_iter", sgd.message
     assert sgd.history.terms["chamfer"][-1] < sgd.history.terms["chamfer"][0]
@@ -259,11 +262,11 @@ def test_degenerate_start_is_repaired_and_stays_finite():
 
 def test_time_budget_and_callback_stop():
     tgt = bumpy_target()
-    res = fit_mesh(tgt, init=1, n_samples=300, n_iter=10_000, n_stages=3, time_budget=0.3,
-                   evaluator=None, progress=False)
+    res = fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, n_samples=300,
+              n_iter=10_000, n_stages=3), time_budget=0.3, evaluator=None, progress=False)
     assert res.status == "time_budget" and res.seconds < 2.0
-    res = fit_mesh(tgt, init=1, n_samples=300, evaluator=None, progress=False,
-                   callback=lambda info: info.iteration >= 4)
+    res = fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, n_samples=300),
+              evaluator=None, progress=False, callback=lambda info: info.iteration >= 4)
     assert res.status == "callback" and res.n_iterations == 4
 
 
@@ -272,18 +275,18 @@ def test_coarse_to_fine_subdivides_only_when_needed():
     s = ico_sphere(3)
     target = s.update_verts(s.verts * [1.0, 0.9, 0.8])
     loose = CoarseToFine(start_level=1, max_level=3, chamfer_l2=1.0, fscore=0.0)
-    res = fit_mesh(target, coarse_to_fine=loose, n_samples=400, n_iter=30,
-                   evaluator=None, progress=False)
+    res = fit_mesh(target, recipe="coarse-to-fine", options=MeshFitOptions(refine=loose,
+              n_samples=400, n_iter=30), evaluator=None, progress=False)
     assert res.n_verts == 42 and "accuracy reached" in res.message
     strict = CoarseToFine(start_level=1, max_level=2, chamfer_l2=0.0, fscore=1.0)
-    res = fit_mesh(target, coarse_to_fine=strict, n_samples=400, n_iter=30,
-                   evaluator=None, progress=False)
+    res = fit_mesh(target, recipe="coarse-to-fine", options=MeshFitOptions(refine=strict,
+              n_samples=400, n_iter=30), evaluator=None, progress=False)
     assert res.n_verts == 162 and "max level" in res.message
     assert [s["n_verts"] for s in res.stages] == [42, 162]
     assert "estimate" in res.stages[0] and res.stages[0]["estimate"]["chamfer_l2"] > 0
     capped = CoarseToFine(start_level=1, max_level=4, chamfer_l2=0.0, fscore=1.0, max_verts=200)
-    res = fit_mesh(target, coarse_to_fine=capped, n_iter=10, evaluator=None,
-                   progress=False)
+    res = fit_mesh(target, recipe="coarse-to-fine", options=MeshFitOptions(refine=capped,
+              n_iter=10), evaluator=None, progress=False)
     assert res.n_verts == 162 and "max_verts" in res.message
     # default samples per L-BFGS stage: min(5000, max(1000, 8 V))
     assert [s["n_samples"] for s in res.stages] == [1000, 8 * 162]
@@ -298,8 +301,8 @@ def test_coarse_to_fine_stall_test_ends_a_level():
     s = ico_sphere(3)
     target = s.update_verts(s.verts * [1.0, 0.9, 0.8])
     c2f = CoarseToFine(start_level=1, max_level=1, stall_window=3, stall_rel=0.5)
-    res = fit_mesh(target, coarse_to_fine=c2f, n_samples=300, n_iter=200,
-                   evaluator=None, progress=False)
+    res = fit_mesh(target, recipe="coarse-to-fine", options=MeshFitOptions(refine=c2f,
+              n_samples=300, n_iter=200), evaluator=None, progress=False)
     assert res.stages[0]["status"] == "converged"
     assert "stall test" in res.stages[0]["message"]
     assert res.stages[0]["n_iterations"] < 200
@@ -312,8 +315,8 @@ def test_save_obj_round_trip(tmp_path):
 
     s = ico_sphere(2)
     target = s.update_verts(2.0 * s.verts + 1.0)
-    res = fit_mesh(target, init=1, n_samples=200, n_stages=1, n_iter=5, evaluator=None,
-                   progress=False)
+    res = fit_mesh(target, recipe="sphere", options=MeshFitOptions(init=1, n_samples=200,
+              n_stages=1, n_iter=5), evaluator=None, progress=False)
     path = tmp_path / "fit.obj"
     res.save_obj(path)
     back = load_mesh(path, load_textures=False)
@@ -324,53 +327,73 @@ def test_save_obj_round_trip(tmp_path):
 def test_validation():
     tgt = ico_sphere(2)
     with pytest.raises(ValueError, match="method"):
-        fit_mesh(tgt, init=1, method="bfgs", progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, method="bfgs"),
+            progress=False)
     with pytest.raises(ValueError, match="recipe"):
         fit_mesh(tgt, recipe="fast", progress=False)
     with pytest.raises(ValueError, match="unknown terms"):
-        fit_mesh(tgt, init=1, weights={"chamfer": 1, "smooth": 1}, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, weights={"chamfer": 1,
+            "smooth": 1}), progress=False)
     with pytest.raises(ValueError, match="edge"):
-        fit_mesh(tgt, init=1, weights={"chamfer": 1, "edge": -1}, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, weights={"chamfer": 1,
+            "edge": -1}), progress=False)
     with pytest.raises(ValueError, match="'chamfer' needs a weight"):
-        fit_mesh(tgt, init=1, weights={"edge": 1}, progress=False)
-    with pytest.raises(ValueError, match="coarse_to_fine"):
-        fit_mesh(tgt, method="sgd", coarse_to_fine=True, progress=False)
-    with pytest.raises(TypeError, match="coarse_to_fine"):
-        fit_mesh(tgt, coarse_to_fine="yes", progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, weights={"edge": 1}),
+            progress=False)
+    with pytest.raises(ValueError, match="refine: coarse-to-fine needs"):
+        fit_mesh(tgt, recipe="coarse-to-fine", options=MeshFitOptions(method="sgd"),
+            progress=False)
+    with pytest.raises(TypeError, match="options.refine"):
+        fit_mesh(tgt, recipe="coarse-to-fine", options=MeshFitOptions(refine="yes"),
+            progress=False)
     with pytest.raises(ValueError, match="n_stages"):
-        fit_mesh(tgt, init=1, method="adam", n_stages=2, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, method="adam", n_stages=2),
+            progress=False)
     with pytest.raises(ValueError, match="distance"):
-        fit_mesh(tgt, init=1, distance="l1", progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, distance="l1"),
+            progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh(tgt, init=1, large_steps="big", progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, large_steps="big"),
+            progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh(tgt, init=1, large_steps=-1.0, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, large_steps=-1.0),
+            progress=False)
     with pytest.raises(ValueError, match="n_samples"):
-        fit_mesh(tgt, init=1, n_samples=0, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, n_samples=0),
+            progress=False)
     with pytest.raises(ValueError, match="lr"):
-        fit_mesh(tgt, init=1, method="sgd", lr=-1, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1, method="sgd", lr=-1),
+            progress=False)
     with pytest.raises(ValueError, match="time_budget"):
-        fit_mesh(tgt, init=1, time_budget=0, progress=False)
-    with pytest.raises(ValueError, match="checkpoint_every"):
-        fit_mesh(tgt, init=1, checkpoint_every=0, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1), time_budget=0,
+            progress=False)
+    with pytest.raises(ValueError, match="eval_every"):
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1), eval_every=0,
+            progress=False)
     with pytest.raises(ValueError, match="evaluator"):
-        fit_mesh(tgt, init=1, evaluator="fast", progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1), evaluator="fast",
+            progress=False)
     with pytest.raises(TypeError, match="evaluator"):
-        fit_mesh(tgt, init=1, evaluator=3, progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=1), evaluator=3,
+            progress=False)
     with pytest.raises(TypeError, match="init"):
-        fit_mesh(tgt, init=object(), progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=object()), progress=False)
     with pytest.raises(ValueError, match="init"):  # strings: "auto" or "sphere" only
-        fit_mesh(tgt, init="cube", progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init="cube"), progress=False)
     with pytest.raises(TypeError, match="target"):
-        fit_mesh(object(), init=1, progress=False)
+        fit_mesh(object(), recipe="sphere", options=MeshFitOptions(init=1), progress=False)
     with pytest.raises(ValueError, match="target: a point cloud"):  # only the default call
-        fit_mesh(tgt.verts, init=1, progress=False)
+        fit_mesh(tgt.verts, recipe="sphere", options=MeshFitOptions(init=1), progress=False)
     with pytest.raises(ValueError, match="init: the surface has zero area"):
-        fit_mesh(tgt, init=Mesh(np.zeros((3, 3)), [[0, 1, 2]]), progress=False)
+        fit_mesh(tgt, recipe="sphere", options=MeshFitOptions(init=Mesh(np.zeros((3, 3)), [[0, 1,
+            2]])), progress=False)
     with pytest.raises(ValueError, match="target: expected a mesh with at least one face"):
-        fit_mesh((tgt.verts, np.zeros((0, 3), np.int64)), init=1, progress=False)
+        fit_mesh((tgt.verts, np.zeros((0, 3), np.int64)), recipe="sphere",
+            options=MeshFitOptions(init=1), progress=False)
     with pytest.raises(TypeError, match="positional"):
         fit_mesh(tgt, 1, tgt, progress=False)
+    with pytest.raises(TypeError, match="options: expected a MeshFitOptions"):
+        fit_mesh(tgt, options={"n_iter": 3}, progress=False)
     with pytest.raises(ValueError, match="start_level"):
         CoarseToFine(start_level=-1)
     with pytest.raises(ValueError, match="max_level"):
@@ -381,25 +404,6 @@ def test_validation():
         CoarseToFine(max_verts=2)
 
 
-def test_former_call_forms_warn_and_agree():
-    """fit_mesh(source, target), source=, "scipy-lbfgs" and the former recipe names still work
-    for one release, with a DeprecationWarning, and fit exactly as the current forms."""
-    tgt = ico_sphere(2).scale_verts(1.5)
-    kw = {"n_samples": 200, "n_stages": 1, "n_iter": 5, "evaluator": None, "progress": False}
-    new = fit_mesh(tgt, init=1, method="lbfgs", large_steps=None, **kw)
-    assert new.method == "lbfgs" and new.recipe == "default" and new.init.n_verts == 42
-    with pytest.warns(DeprecationWarning, match=r"fit_mesh\(source, target"):
-        old = fit_mesh(1, tgt, method="lbfgs", large_steps=None, **kw)
-    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
-    with pytest.warns(DeprecationWarning, match="scipy-lbfgs"):
-        old = fit_mesh(tgt, init=1, method="scipy-lbfgs", large_steps=None, **kw)
-    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
-    with pytest.warns(DeprecationWarning, match="source="):
-        fit_mesh(tgt, source=1, **kw)
-    with pytest.warns(DeprecationWarning, match="recipe 'nlopt-lbfgs'"):
-        assert RECIPES["nlopt-lbfgs"] == {"method": "lbfgs-nlopt", "large_steps": None}
-    with pytest.raises(KeyError):
-        RECIPES["fast"]
 
 
 def test_fit_docstring_examples():
@@ -430,5 +434,27 @@ def test_time_budget_used_up_while_building_the_objective(monkeypatch):
             time.sleep(0.3)
 
     monkeypatch.setattr(fm, "MeshObjective", Slow)
-    res = fit_mesh(ico_sphere(2), init=1, time_budget=0.1, evaluator=None, progress=False)
+    res = fit_mesh(ico_sphere(2), recipe="sphere", options=MeshFitOptions(init=1), time_budget=0.1,
+              evaluator=None, progress=False)
     assert res.status == "time_budget" and np.all(np.isfinite(res.mesh.verts))
+
+
+def test_recipes_are_frozen_option_presets():
+    """Each recipe is a MeshFitOptions preset; the user's options override only the fields
+    they set; the options object is frozen."""
+    import dataclasses
+
+    from geofit.fit import Remeshing
+
+    assert set(RECIPES) == {"default", "sphere", "coarse-to-fine", "tutorial"}
+    assert all(isinstance(r, MeshFitOptions) for r in RECIPES.values())
+    assert isinstance(RECIPES["default"].refine, Remeshing)
+    assert isinstance(RECIPES["coarse-to-fine"].refine, CoarseToFine)
+    assert RECIPES["tutorial"].method == "sgd" and RECIPES["sphere"].refine is None
+    opts = MeshFitOptions(n_iter=3)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.n_iter = 4
+    res = fit_mesh(ico_sphere(2), recipe="tutorial", options=MeshFitOptions(init=1, n_iter=3,
+                                                                           n_samples=100),
+                   evaluator=None, progress=False)
+    assert res.method == "sgd" and res.recipe == "tutorial" and res.n_iterations == 3

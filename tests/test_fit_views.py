@@ -16,7 +16,13 @@ from geofit.structures import MultiViewDataset
 from geofit.datasets import tutorial_views
 from geofit.fit._views_objective import _lstsq_colors, _Objective
 from geofit.fit.large_steps import IdentityParameterization, LargeSteps
-from geofit.fit.views import SILHOUETTE_METHODS, ViewsEvaluator, fit_mesh_to_views
+from geofit.fit.views import (
+    SILHOUETTE_METHODS,
+    ViewsEvaluator,
+    ViewsFitOptions,
+    fit_mesh_to_views,
+    render_mesh_at_views,
+)
 from geofit.metrics import psnr, silhouette_iou
 from geofit.render.soft import SoftRasterizationSettings
 
@@ -166,8 +172,8 @@ def test_silhouette_methods_improve_the_fit(data, method, kw):
     """Every silhouette method ends with a status from STATUSES, a lower loss, and a better
     held-out IoU than the starting sphere."""
     init = ico_sphere(2)
-    res = fit_mesh_to_views(data, init=init, silhouette_method=method,
-                            textured_method="none", **kw)
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(
+        init=init, silhouette_method=method, textured_method="none", **kw))
     h = res.history
     assert res.ok and res.status in ("converged", "max_iter", "max_eval", "stalled")
     assert len(h) > 3 and h.loss[-1] < h.loss[0]
@@ -186,16 +192,15 @@ def test_textured_fit_is_finite_at_every_step(data):
     seen = []
 
     def check(rec):
-        seen.append(rec["stage"])
-        assert math.isfinite(rec["value"]) and math.isfinite(rec["grad_norm"])
-        assert np.all(np.isfinite(rec["x"]))
-        assert all(math.isfinite(v) for v in rec["terms"].values())
+        seen.append(rec.stage)
+        assert math.isfinite(rec.value)
+        assert np.all(np.isfinite(rec.x))
+        assert all(math.isfinite(v) for v in rec.terms.values())
 
     for method, init in (("sgd", "sphere"), ("lbfgs", "silhouette")):
-        res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
-                                silhouette_iters=15, textured_method=method,
-                                textured_init=init, textured_iters=15, callback=check,
-                                progress=False)
+        res = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
+                silhouette_method="sgd", silhouette_iters=15, textured_method=method,
+                textured_init=init, textured_iters=15), callback=check, progress=False)
         assert res.ok, res.message
         assert np.all(np.isfinite(res.history.loss))
         assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
@@ -207,13 +212,13 @@ def test_textured_stage_improves_psnr(data):
     """Least-squares colours beat uniform grey on held-out views; the joint L-BFGS (positions
     and colours) then lowers its training loss without losing held-out PSNR."""
     ev = ViewsEvaluator(data.held_out)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), recipe="sphere-lbfgs",
-                            silhouette_iters=25, textured_method="lbfgs", textured_iters=10,
-                            progress=False)
+    res = fit_mesh_to_views(data, recipe="sphere-lbfgs",
+            options=ViewsFitOptions(init=ico_sphere(2), silhouette_iters=25,
+            textured_method="lbfgs", textured_iters=10), progress=False)
     sil = res.silhouette_mesh
     grey = ev(sil, np.full((sil.n_verts, 3), 0.5))["psnr"]
-    lsq = fit_mesh_to_views(data, init=sil, silhouette_method="none",
-                            textured_method="lstsq", progress=False)
+    lsq = fit_mesh_to_views(data, options=ViewsFitOptions(init=sil, silhouette_method="none",
+            textured_method="lstsq"), progress=False)
     assert lsq.stages[0]["name"] == "textured" and lsq.n_iterations == 0
     p_lsq = ev(lsq.mesh, lsq.colors)["psnr"]
     assert p_lsq > grey + 0.5
@@ -229,14 +234,14 @@ def test_evaluate_and_callback_hooks(data):
     """Checkpoints carry the evaluator's metrics with the clock paused; a callback returning
     True stops the stage with status 'callback'."""
     ev = ViewsEvaluator(data.held_out)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="lbfgs",
-                            silhouette_iters=10, textured_method="none",
-                            evaluate=lambda m, c: ev(m, c), eval_every=0.0, progress=False)
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
+            silhouette_method="lbfgs", silhouette_iters=10, textured_method="none"),
+            evaluator=lambda m, c: ev(m, c), eval_every=1, progress=False)
     assert len(res.history.checkpoints) == len(res.history)
     assert res.history.metric_names == ("iou",)
-    res = fit_mesh_to_views(data, init=ico_sphere(2), silhouette_method="sgd",
-                            silhouette_iters=50, textured_method="none",
-                            callback=lambda rec: rec["step"] >= 5, progress=False)
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
+            silhouette_method="sgd", silhouette_iters=50, textured_method="none"),
+            callback=lambda info: info.iteration >= 5, progress=False)
     assert res.status == "callback" and len(res.history) == 5
 
 
@@ -277,8 +282,8 @@ def test_stability_cases_end_with_a_clear_status(data, kind):
     if kind == "off_centre":
         init = init.update_verts(init.verts * 0.6 + [0.3, 0.2, 0.0])
     for method in ("lbfgs", "sgd"):
-        res = fit_mesh_to_views(views, init=init, silhouette_method=method, silhouette_iters=20,
-                                textured_method="lstsq", progress=False)
+        res = fit_mesh_to_views(views, options=ViewsFitOptions(init=init, silhouette_method=method,
+                silhouette_iters=20, textured_method="lstsq"), progress=False)
         assert res.status in ("converged", "max_iter", "max_eval", "stalled", "time_budget")
         assert np.all(np.isfinite(res.mesh.verts)) and np.all(np.isfinite(res.colors))
         assert _iou(data, res.mesh) >= _iou(data, init) - 1e-9
@@ -296,41 +301,46 @@ def test_validation(data):
     with pytest.raises(ValueError, match="recipe"):
         fit_mesh_to_views(tr, recipe="fast", progress=False)
     with pytest.raises(ValueError, match="silhouette_loss"):
-        fit_mesh_to_views(tr, silhouette_loss="hard", progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_loss="hard"), progress=False)
     with pytest.raises(ValueError, match="silhouette_loss"):
-        fit_mesh_to_views(tr, silhouette_loss="contour", silhouette_method="lbfgs", progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_loss="contour",
+                silhouette_method="lbfgs"), progress=False)
     with pytest.raises(ValueError, match="silhouette_method"):
-        fit_mesh_to_views(tr, silhouette_method="adamw", progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_method="adamw"), progress=False)
     with pytest.raises(ValueError, match="textured_method"):
-        fit_mesh_to_views(tr, textured_method="adam", progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(textured_method="adam"), progress=False)
     with pytest.raises(ValueError, match="textured_init"):
-        fit_mesh_to_views(tr, textured_init="cube", progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(textured_init="cube"), progress=False)
     with pytest.raises(ValueError, match="dataset"):
-        fit_mesh_to_views(MultiViewDataset(images=None, silhouettes=tr.silhouettes,
-                                           cameras=tr.cameras), textured_method="lstsq",
-                          progress=False)
+        fit_mesh_to_views(MultiViewDataset(images=None,
+                silhouettes=tr.silhouettes,
+                                           cameras=tr.cameras),
+                options=ViewsFitOptions(textured_method="lstsq"), progress=False)
     with pytest.raises(ValueError, match="silhouette_weights"):
-        fit_mesh_to_views(tr, silhouette_weights={"chamfer": 1.0}, progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_weights={"chamfer": 1.0}),
+                progress=False)
     with pytest.raises(ValueError, match="textured_weights"):
-        fit_mesh_to_views(tr, textured_weights={"rgb": -1.0}, progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(textured_weights={"rgb": -1.0}),
+                progress=False)
     with pytest.raises(TypeError, match="silhouette_weights"):
-        fit_mesh_to_views(tr, silhouette_weights=[1.0], progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_weights=[1.0]), progress=False)
     with pytest.raises(ValueError, match="silhouette_iters"):
-        fit_mesh_to_views(tr, silhouette_iters=0, progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_iters=0), progress=False)
     with pytest.raises(ValueError, match="views_per_step"):
-        fit_mesh_to_views(tr, views_per_step=7, progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(views_per_step=7), progress=False)
     with pytest.raises(ValueError, match="large_steps"):
-        fit_mesh_to_views(tr, large_steps=-1.0, progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(large_steps=-1.0), progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(0,)], progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(levels=[(0,)]), progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(-1, 1)], progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(levels=[(-1, 1)]), progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_mesh_to_views(tr, levels=[(0, 5)], progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(levels=[(0, 5)]), progress=False)
     with pytest.raises(TypeError, match="init"):
-        fit_mesh_to_views(tr, init=np.zeros((3, 3)), progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(init=np.zeros((3, 3))), progress=False)
     with pytest.raises(ValueError, match="nothing to fit"):
-        fit_mesh_to_views(tr, silhouette_method="none", textured_method="none", progress=False)
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_method="none",
+                textured_method="none"), progress=False)
     with pytest.raises(ValueError, match="factor"):
         tr.downsample(5)
     with pytest.raises(TypeError, match="mesh"):
@@ -346,38 +356,63 @@ def test_validation(data):
     assert SILHOUETTE_METHODS == ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 
 
-def test_former_method_names_and_data_type_warn_and_agree(data):
-    """"scipy-lbfgs", "tutorial", "contour" and MultiViewData work for one release with a
-    DeprecationWarning and fit exactly as the current names; the recipes set the stages."""
-    from geofit.fit.views import MultiViewData
+def test_recipes_are_option_presets_and_options_override(data):
+    """A recipe is a frozen ViewsFitOptions preset; the user's options override the fields
+    they set and agree with the same settings spelled out on another recipe."""
+    import dataclasses
 
-    kw = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_method": "none",
-          "progress": False}
-    new = fit_mesh_to_views(data, silhouette_method="lbfgs", **kw)
-    assert new.method == "lbfgs+none" and new.recipe == "default" and new.init == "user"
-    assert new.init_mesh is kw["init"]
-    with pytest.warns(DeprecationWarning, match="scipy-lbfgs"):
-        old = fit_mesh_to_views(data, silhouette_method="scipy-lbfgs", **kw)
-    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
-    with pytest.warns(DeprecationWarning, match="MultiViewData"):
-        mv = MultiViewData(data.cameras, data.silhouettes, data.images, data.lights)
-    np.testing.assert_array_equal(fit_mesh_to_views(mv, silhouette_method="lbfgs", **kw)
-                                  .mesh.verts, new.mesh.verts)
-    tut = fit_mesh_to_views(data, recipe="tutorial", init=ico_sphere(1), silhouette_iters=3,
-                            textured_iters=2, progress=False)
-    with pytest.warns(DeprecationWarning, match="silhouette_method='tutorial'"), \
-            pytest.warns(DeprecationWarning, match="textured_method='tutorial'"):
-        old = fit_mesh_to_views(data, silhouette_method="tutorial", textured_method="tutorial",
-                                textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
-                                textured_iters=2, progress=False)
-    cur = fit_mesh_to_views(data, silhouette_method="sgd", textured_method="sgd",
-                            textured_init="sphere", init=ico_sphere(1), silhouette_iters=3,
-                            textured_iters=2, progress=False)
-    assert tut.method == "sgd+sgd" and [s["method"] for s in old.stages] == ["sgd", "sgd"]
-    np.testing.assert_array_equal(old.colors, cur.colors)
-    with pytest.warns(DeprecationWarning, match="silhouette_method='contour'"):
-        old = fit_mesh_to_views(data, silhouette_method="contour", large_steps=5.0, **kw)
-    new = fit_mesh_to_views(data, silhouette_method="adam", silhouette_loss="contour",
-                            large_steps=5.0, **kw)
-    np.testing.assert_array_equal(old.mesh.verts, new.mesh.verts)
-    assert fit_mesh_to_views(data, recipe="contour", **kw).method == "adam+none"
+    from geofit.fit.views import RECIPES
+
+    assert all(isinstance(r, ViewsFitOptions) for r in RECIPES.values())
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        RECIPES["default"].silhouette_iters = 3
+    common = {"init": ico_sphere(1), "silhouette_iters": 3, "textured_iters": 2}
+    tut = fit_mesh_to_views(data, recipe="tutorial", options=ViewsFitOptions(**common),
+                            progress=False)
+    same = fit_mesh_to_views(data, recipe="sphere-lbfgs", options=ViewsFitOptions(
+        silhouette_method="sgd", textured_method="sgd", textured_init="sphere", **common),
+        progress=False)
+    assert tut.method == "sgd+sgd" and tut.recipe == "tutorial" and tut.init == "user"
+    np.testing.assert_array_equal(tut.colors, same.colors)
+    kw = dict(common, textured_method="none", large_steps=5.0)
+    a = fit_mesh_to_views(data, recipe="contour", options=ViewsFitOptions(**kw),
+                          progress=False)
+    b = fit_mesh_to_views(data, recipe="sphere-lbfgs", options=ViewsFitOptions(
+        silhouette_method="adam", silhouette_loss="contour", **kw), progress=False)
+    assert a.method == "adam+none"
+    np.testing.assert_array_equal(a.mesh.verts, b.mesh.verts)
+    with pytest.raises(TypeError, match="options: expected a ViewsFitOptions"):
+        fit_mesh_to_views(data, options={"silhouette_iters": 3}, progress=False)
+
+
+def test_textured_mesh_and_render_helper_match_the_evaluator(data):
+    """ViewsFitResult.textured_mesh carries the clipped colours; render_mesh_at_views (and
+    result.render) draw it as the ViewsEvaluator scores it (the same PSNR), with the dataset's
+    lights; without colours the mesh is grey."""
+    h = data.held_out
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
+                                                          silhouette_iters=3),
+                            progress=False)
+    tm = res.textured_mesh
+    np.testing.assert_array_equal(tm.textures.verts_features, np.clip(res.colors, 0.0, 1.0))
+    imgs = res.render(h)
+    assert imgs.shape == (len(h), *h.image_size, 3)
+    assert psnr(imgs, h.images) == pytest.approx(ViewsEvaluator(h)(res.mesh, res.colors)["psnr"],
+                                                 rel=1e-12)
+    np.testing.assert_array_equal(render_mesh_at_views(res.mesh, h, res.colors, n_views=2),
+                                  imgs[:2])
+    sil = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(1), silhouette_iters=2,
+                                                          textured_method="none"),
+                            progress=False)
+    np.testing.assert_array_equal(sil.textured_mesh.textures.verts_features, 0.7)
+    with pytest.raises(TypeError, match="views"):
+        render_mesh_at_views(res.mesh, h.images)
+
+
+def test_one_time_budget_bounds_both_stages(data):
+    """One wall-clock time_budget bounds the whole fit (silhouettes and the textured SGD)."""
+    res = fit_mesh_to_views(data, recipe="tutorial", options=ViewsFitOptions(
+        init=ico_sphere(2), silhouette_iters=10 ** 6, textured_iters=10 ** 6),
+        time_budget=1.0, progress=False)
+    assert [s["status"] for s in res.stages] == ["time_budget", "time_budget"]
+    assert res.seconds < 3.0 and res.cpu_seconds > 0

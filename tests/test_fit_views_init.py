@@ -10,7 +10,7 @@ import pytest
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import tutorial_views
-from geofit.fit import fit_mesh_to_views
+from geofit.fit import ViewsFitOptions, fit_mesh_to_views
 from geofit.fit._views_init import _hull_field, hull_start, pixel_footprint, remesh_to_length
 from geofit.fit.views import RECIPES, ViewsEvaluator
 from geofit.shapes import two_spheres
@@ -103,17 +103,17 @@ def test_remesh_to_length_keeps_the_hull_manifold(spheres, factor):
 def test_default_fit_starts_from_the_hull_and_reports_topology(spheres):
     """The plain call starts from the visual hull (two parts kept), remeshes, says so, and
     reports the fitted mesh's topology; init="sphere" keeps the tutorial's ico-sphere."""
-    res = fit_mesh_to_views(spheres, silhouette_iters=12, progress=False)
+    res = fit_mesh_to_views(spheres, options=ViewsFitOptions(silhouette_iters=12), progress=False)
     assert res.init == "hull" and res.ok
     assert res.topology.n_components == 2 and res.topology.is_closed
     assert "visual hull" in res.message and "result: genus" in res.message
     assert res.summary()["init"] == "hull" and "topology" in res.summary()
     ev = ViewsEvaluator(spheres.held_out)
     assert ev(res.mesh)["iou"] > ev(res.init_mesh)["iou"] + 0.01
-    sph = fit_mesh_to_views(spheres, init="sphere", silhouette_iters=2, remesh_rounds=0,
-                            textured_method="none", progress=False)
+    sph = fit_mesh_to_views(spheres, options=ViewsFitOptions(init="sphere", silhouette_iters=2,
+            remesh_rounds=0, textured_method="none"), progress=False)
     assert sph.init == "sphere" and sph.init_mesh.n_verts == 2562  # ico_sphere(4)
-    assert RECIPES["tutorial"]["init"] == "sphere"
+    assert RECIPES["tutorial"].init == "sphere"
 
 
 def test_self_intersecting_result_says_so(spheres):
@@ -124,19 +124,19 @@ def test_self_intersecting_result_says_so(spheres):
     s = ico_sphere(2)
     bad = Mesh(np.concatenate([0.4 * s.verts, 0.4 * s.verts + [0.3, 0.0, 0.0]]),
                np.concatenate([s.faces, s.faces + s.n_verts]))
-    res = fit_mesh_to_views(spheres, init=bad, silhouette_method="none",
-                            textured_method="lstsq", progress=False)
+    res = fit_mesh_to_views(spheres, options=ViewsFitOptions(init=bad, silhouette_method="none",
+            textured_method="lstsq"), progress=False)
     assert res.topology.n_self_intersecting_pairs > 0
     assert "self-intersects" in res.message
-    ok = fit_mesh_to_views(spheres, init=Mesh(0.4 * s.verts, s.faces),
-                           silhouette_method="none", textured_method="lstsq", progress=False)
+    ok = fit_mesh_to_views(spheres, options=ViewsFitOptions(init=Mesh(0.4 * s.verts, s.faces),
+            silhouette_method="none", textured_method="lstsq"), progress=False)
     assert "self-intersects" not in ok.message
 
 
 def test_invalid_init_and_remesh_options(spheres):
     with pytest.raises(ValueError, match="init"):
-        fit_mesh_to_views(spheres, init="cube", progress=False)
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(init="cube"), progress=False)
     with pytest.raises(ValueError, match="remesh_rounds"):
-        fit_mesh_to_views(spheres, remesh_rounds=-1, progress=False)
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(remesh_rounds=-1), progress=False)
     with pytest.raises(ValueError, match="edge_px"):
-        fit_mesh_to_views(spheres, edge_px=0.0, progress=False)
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(edge_px=0.0), progress=False)

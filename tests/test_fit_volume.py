@@ -9,7 +9,14 @@ import pytest
 import geofit.fit._volume_problem as fv
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.structures import MultiViewDataset
-from geofit.fit.volume import FIT_VOLUME_METHODS, VolumeFitResult, fit_volume, visual_hull
+from geofit.fit.volume import (
+    FIT_VOLUME_METHODS,
+    RECIPES,
+    VolumeFitOptions,
+    VolumeFitResult,
+    fit_volume,
+    visual_hull,
+)
 from geofit.loss import huber
 from geofit.render.volume.raymarching import EmissionAbsorptionRaymarcher
 from geofit.render.volume.raysampling import NDCMultinomialRaysampler
@@ -84,7 +91,7 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
     allowed = np.zeros(grid.size, bool)
     allowed[1:7, 2:6, 1:7] = True
     dens = np.where(allowed, 0.3, 0.0)
-    p = fv._Problem(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
+    p = fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
                     n_pixels=3 * 144, huber_scale=0.1, smoothness=smoothness)
     rng = np.random.default_rng(2)
     x = p.pack(fv._logit(dens).reshape(-1) + rng.normal(0, 0.5, grid.n),
@@ -102,7 +109,7 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
             2 * h)
         assert abs(grad[i] - fd) <= 1e-6 * np.abs(grad).max() + 1e-12
     # float32 arithmetic agrees to float32 precision
-    p32 = fv._Problem(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
+    p32 = fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
                       n_pixels=3 * 144, huber_scale=0.1, dtype=np.float32,
                       smoothness=smoothness)
     v32, g32, _ = p32.evaluate(x)
@@ -116,7 +123,7 @@ def test_objective_matches_renderer(scene):
     grid = fv._Grid((16, 16, 16), 3.0 / 16, np.zeros(3))
     o, d, L = fv._rays(cams[:2], SIZE, SIZE, N_PTS, 0.1, 3.0)
     allowed = truth.densities > 0
-    p = fv._Problem(grid, o, d, L, images[:2].reshape(-1, 3), sils[:2].reshape(-1),
+    p = fv._Objective(grid, o, d, L, images[:2].reshape(-1, 3), sils[:2].reshape(-1),
                     truth.densities, allowed, termination=None, n_pixels=2 * SIZE * SIZE,
                     huber_scale=0.1)
     x = p.pack(fv._logit(truth.densities).reshape(-1), fv._logit(truth.features).reshape(3, -1))
@@ -179,8 +186,9 @@ def test_visual_hull_validation(scene):
 def test_fit_recovers_the_scene(scene, method):
     """geofit's methods fit the training views well with fewer voxels and samples than dense."""
     images, sils, cams, _, renderer = scene
-    res = fit_volume(_ds(images, sils, cams), method=method, volume_size=16, n_pts_per_ray=N_PTS,
-                     levels=(8, 16), iterations=(40, 40), precision="float64", progress=False)
+    res = fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(method=method,
+            volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(40, 40),
+            precision="float64"), progress=False)
     assert isinstance(res, VolumeFitResult) and res.ok
     assert res.status in ("max_iter", "converged", "stalled", "max_eval")
     assert res.volume.grid_size == (16, 16, 16)
@@ -199,10 +207,10 @@ def test_tutorial_recipe_runs_dense(scene):
     """The tutorial recipe optimises every voxel with Adam on random view batches."""
     images, sils, cams, _, _ = scene
     seen = []
-    res = fit_volume(_ds(images, sils, cams), recipe="tutorial", volume_size=16,
-                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=12, seed=0,
-                     monitor=lambda v: seen.append(v) or {"n": float(len(seen))},
-                     monitor_every=1e9, progress=False)
+    res = fit_volume(_ds(images, sils, cams), recipe="tutorial",
+            options=VolumeFitOptions(volume_size=16, n_pts_per_ray=N_PTS, batch_size=3, n_iter=12),
+            seed=0, evaluator=lambda v: seen.append(v) or {"n": float(len(seen))}, eval_every=10**9,
+            progress=False)
     assert res.status == "max_iter" and res.n_iterations == 12
     assert res.n_active_voxels == 16 ** 3 and res.n_params == 4 * 16 ** 3
     assert len(res.history) == 12 and len(seen) == 1
@@ -220,11 +228,13 @@ def test_monitor_and_time_budget(scene):
         assert np.all(np.isfinite(vol.densities))
         return {"mean_density": float(vol.densities.mean())}
 
-    res = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                     iterations=(5, 5), monitor=monitor, progress=False)
+    res = fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(volume_size=16,
+            n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(5, 5)), evaluator=monitor,
+            progress=False)
     assert len(calls) >= 2 and "mean_density" in res.history.metric_names
-    quick = fit_volume(_ds(images, sils, cams), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                       iterations=(500, 500), time_budget=0.05, progress=False)
+    quick = fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(volume_size=16,
+            n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(500, 500)), time_budget=0.05,
+            progress=False)
     assert quick.status == "time_budget"
     assert np.all(np.isfinite(quick.volume.densities))
 
@@ -235,8 +245,9 @@ def test_monitor_and_time_budget(scene):
 def test_all_black_target_is_empty_not_nan(scene):
     """Black images and empty silhouettes: nothing is carved in, the volume stays finite."""
     images, sils, cams, _, renderer = scene
-    res = fit_volume(_ds(np.zeros_like(images), np.zeros_like(sils), cams), volume_size=16,
-                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10), progress=False)
+    res = fit_volume(_ds(np.zeros_like(images), np.zeros_like(sils), cams),
+            options=VolumeFitOptions(volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+            iterations=(10, 10)), progress=False)
     assert res.ok and np.all(np.isfinite(res.volume.densities))
     assert res.n_active_voxels == 0 and res.volume.densities.max() == 0.0
     img, _ = renderer(cams, res.volume)
@@ -246,13 +257,14 @@ def test_all_black_target_is_empty_not_nan(scene):
 def test_huge_learning_rate_stays_finite(scene):
     """Adam with lr 1e6 saturates the sigmoids but never produces NaN."""
     images, sils, cams, _, _ = scene
-    res = fit_volume(_ds(images, sils, cams), method="adam", lr=1e6, volume_size=16,
-                     n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10), progress=False)
+    res = fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(method="adam", lr=1e6,
+            volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(10, 10)),
+            progress=False)
     assert res.status == "diverged" and "learning rate" in res.message
     assert np.all(np.isfinite(res.volume.densities)) and np.all(np.isfinite(res.volume.features))
     assert np.all(np.isfinite(res.history.as_arrays()["loss"]))
-    tut = fit_volume(_ds(images, sils, cams), recipe="tutorial", lr=1e6, volume_size=16,
-                     n_pts_per_ray=N_PTS, batch_size=3, n_iter=6, progress=False)
+    tut = fit_volume(_ds(images, sils, cams), recipe="tutorial", options=VolumeFitOptions(lr=1e6,
+            volume_size=16, n_pts_per_ray=N_PTS, batch_size=3, n_iter=6), progress=False)
     assert tut.status == "diverged" and "saturation" in tut.message
     assert np.all(np.isfinite(tut.volume.densities))
 
@@ -267,8 +279,9 @@ def test_wrong_camera_and_noise_keep_a_usable_fit(scene):
     R[2], T[2] = look_at_view_transform(2.7, 40.0, 123.0)[0][0], look_at_view_transform(
         2.7, 40.0, 123.0)[1][0]
     wrong = FoVPerspectiveCameras(R=R, T=T)
-    res = fit_volume(_ds(noisy, sils, wrong), volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
-                     iterations=(30, 30), carve_tolerance=1, progress=False)
+    res = fit_volume(_ds(noisy, sils, wrong), options=VolumeFitOptions(volume_size=16,
+            n_pts_per_ray=N_PTS, levels=(8, 16), iterations=(30, 30), carve_tolerance=1),
+            progress=False)
     assert res.ok
     assert res.view_losses.shape == (len(images),) and np.argmax(res.view_losses) == 2
     assert "views [2] fit much worse" in res.message
@@ -287,53 +300,65 @@ def test_fit_validation(scene):
     with pytest.raises(ValueError, match="recipe"):
         fit_volume(_ds(images, sils, cams), recipe="dense", progress=False)
     with pytest.raises(ValueError, match="method"):
-        fit_volume(_ds(images, sils, cams), recipe="tutorial", method="lbfgs", progress=False)
+        fit_volume(_ds(images, sils, cams), recipe="tutorial",
+                options=VolumeFitOptions(method="lbfgs"), progress=False)
     with pytest.raises(ValueError, match="method"):
-        fit_volume(_ds(images, sils, cams), method="sgd", progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(method="sgd"),
+                progress=False)
     with pytest.raises(ValueError, match="levels"):
-        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(16, 8), progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(volume_size=16, levels=(16,
+                8)), progress=False)
     with pytest.raises(ValueError, match="volume_size"):
-        fit_volume(_ds(images, sils, cams), volume_size=1, progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(volume_size=1),
+                progress=False)
     with pytest.raises(ValueError, match="iterations"):
-        fit_volume(_ds(images, sils, cams), volume_size=16, levels=(8, 16), iterations=(0, 1),
-                   progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(volume_size=16, levels=(8,
+                16), iterations=(0, 1)), progress=False)
     with pytest.raises(ValueError, match="termination"):
-        fit_volume(_ds(images, sils, cams), termination=2.0, progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(termination=2.0),
+                progress=False)
     with pytest.raises(ValueError, match="precision"):
-        fit_volume(_ds(images, sils, cams), precision="float16", progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(precision="float16"),
+                progress=False)
     with pytest.raises(ValueError, match="max_depth"):
-        fit_volume(_ds(images, sils, cams), min_depth=3.0, max_depth=1.0, progress=False)
+        fit_volume(_ds(images, sils, cams), options=VolumeFitOptions(min_depth=3.0, max_depth=1.0),
+                progress=False)
     with pytest.raises(ValueError, match="batch_size"):
-        fit_volume(_ds(images, sils, cams), recipe="tutorial", batch_size=0, progress=False)
-    with pytest.raises(TypeError, match="monitor"):
-        fit_volume(_ds(images, sils, cams), monitor=3, progress=False)
+        fit_volume(_ds(images, sils, cams), recipe="tutorial",
+                options=VolumeFitOptions(batch_size=0), progress=False)
+    with pytest.raises(TypeError, match="evaluator"):
+        fit_volume(_ds(images, sils, cams), evaluator=3, progress=False)
     assert set(FIT_VOLUME_METHODS) == {"lbfgs", "lbfgs-nlopt", "adam"}
 
 
-def test_former_call_form_warns_and_agrees(scene):
-    """fit_volume(images, silhouettes, cameras), method="tutorial" and "nlopt-lbfgs" work for
-    one release with a DeprecationWarning; the former form still validates its arrays."""
-    images, sils, cams, _, _ = scene
-    kw = {"volume_size": 16, "n_pts_per_ray": N_PTS, "levels": (8, 16), "iterations": (3, 3)}
-    new = fit_volume(_ds(images, sils, cams), **kw, progress=False)
-    assert new.method == "lbfgs" and new.recipe == "default" and new.init is None
-    with pytest.warns(DeprecationWarning, match=r"fit_volume\(images, silhouettes, cameras"):
-        old = fit_volume(images, sils, cams, **kw, progress=False)
-    np.testing.assert_array_equal(old.volume.densities, new.volume.densities)
-    with pytest.warns(DeprecationWarning, match="method='tutorial'"):
-        tut = fit_volume(_ds(images, sils, cams), method="tutorial", volume_size=8,
-                         n_pts_per_ray=N_PTS, batch_size=2, n_iter=2, progress=False)
-    assert tut.recipe == "tutorial" and tut.method == "adam"
-    with pytest.warns(DeprecationWarning, match="nlopt-lbfgs"):
-        fit_volume(_ds(images, sils, cams), method="nlopt-lbfgs", **kw, progress=False)
-    for bad, name in ((images[..., :2], "images"), (np.full_like(images, np.nan), "images")):
-        with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=name):
-            fit_volume(bad, sils, cams, progress=False)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="silhouettes"):
-        fit_volume(images, sils[:3], cams, progress=False)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="cameras"):
-        fit_volume(images, sils, cams[:2], progress=False)
+def test_recipes_options_callback_and_checkpoints(scene):
+    """Recipes are frozen VolumeFitOptions presets; a callback(StepInfo) sees each step's level
+    and terms and stops the fit; the evaluator runs every eval_every steps."""
+    import dataclasses
 
+    images, sils, cams, _, _ = scene
+    opts = VolumeFitOptions(volume_size=16, n_pts_per_ray=N_PTS, levels=(8, 16),
+                            iterations=(3, 3))
+    assert RECIPES["tutorial"].method == "adam" and RECIPES["default"].method == "lbfgs"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        opts.lr = 1.0
+    new = fit_volume(_ds(images, sils, cams), options=opts, progress=False)
+    assert new.method == "lbfgs" and new.recipe == "default" and new.init is None
+    seen = []
+
+    def stop(info):
+        seen.append((info.stage, set(info.terms)))
+        return len(seen) >= 2
+
+    res = fit_volume(_ds(images, sils, cams), options=opts, callback=stop, progress=False)
+    assert res.status == "callback" and len(seen) == 2 and seen[0][0] == 0
+    assert seen[0][1] == {"colour", "silhouette", "smoothness"}
+    calls = []
+    res = fit_volume(_ds(images, sils, cams), options=opts, progress=False, eval_every=1,
+            evaluator=lambda vol: calls.append(vol.grid_size) or {"n": len(calls)})
+    assert len(res.history.checkpoints) >= len(res.history) and len(calls) >= len(res.history)
+    with pytest.raises(TypeError, match="options: expected a VolumeFitOptions"):
+        fit_volume(_ds(images, sils, cams), options={"volume_size": 8}, progress=False)
 
 # ------------------------------------------------------------------------------------- datasets
 

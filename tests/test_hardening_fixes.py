@@ -9,8 +9,8 @@ import pytest
 from geofit import Mesh, ico_sphere
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.structures import MultiViewDataset
-from geofit.fit import fit_mesh, fit_volume
-from geofit.fit.nerf import fit_nerf
+from geofit.fit import MeshFitOptions, VolumeFitOptions, fit_mesh, fit_volume
+from geofit.fit.nerf import NerfConfig, fit_nerf
 
 
 def _cameras(n: int) -> FoVPerspectiveCameras:
@@ -26,8 +26,11 @@ def test_fit_mesh_source_with_repeated_index_face():
     F[0] = [F[0, 0], F[0, 0], F[0, 1]]
     F[5] = [F[5, 0], F[5, 1], F[5, 1]]
     target = s.update_verts(s.verts * [1.5, 1.0, 0.8])
-    res = fit_mesh(target, init=Mesh(s.verts, F), n_iter=15, seed=0, progress=False)
-    ref = fit_mesh(target, init=s, n_iter=15, seed=0, progress=False)
+    res = fit_mesh(target, recipe="sphere",
+                   options=MeshFitOptions(init=Mesh(s.verts, F), n_iter=15), seed=0,
+                   progress=False)
+    ref = fit_mesh(target, recipe="sphere", options=MeshFitOptions(init=s, n_iter=15), seed=0,
+                   progress=False)
     assert "the source had 2 zero-area triangles" in res.message
     assert np.isfinite(res.mesh.verts).all()
     assert res.history.loss[-1] <= 1.1 * ref.history.loss[-1]
@@ -36,7 +39,7 @@ def test_fit_mesh_source_with_repeated_index_face():
 def test_fit_mesh_collapsed_face_repaired_over_rounds():
     """A face whose three vertices coincide (distinct indices) is repaired by moving them;
     several repair rounds run without the read-only error."""
-    from geofit.fit.mesh import _repair_degenerate
+    from geofit.fit._mesh_plan import repair_degenerate
 
     s = ico_sphere(2)
     V = s.verts.copy()
@@ -44,7 +47,7 @@ def test_fit_mesh_collapsed_face_repaired_over_rounds():
     V[f] = V[f[0]]
     nb = s.faces[np.isin(s.faces, f).any(axis=1)]
     V[np.unique(nb)] = V[f[0]]  # collapse the face's whole neighbourhood: needs more rounds
-    mesh, n_bad, n_moved = _repair_degenerate(Mesh(V, s.faces), max_rounds=10)
+    mesh, n_bad, n_moved = repair_degenerate(Mesh(V, s.faces), max_rounds=10)
     assert n_bad > 1 and n_moved >= 3
     assert (mesh.face_areas > 0).sum() > (Mesh(V, s.faces).face_areas > 0).sum()
 
@@ -58,8 +61,10 @@ def test_fits_refuse_8bit_images(fit):
     def data(im):
         return MultiViewDataset(images=im, silhouettes=sils, cameras=cams)
 
-    call = ((lambda im: fit_volume(data(im), volume_size=8, progress=False)) if fit == "volume"
-            else (lambda im: fit_nerf(data(im), n_iter=1, progress=False)))
+    call = ((lambda im: fit_volume(data(im), options=VolumeFitOptions(volume_size=8),
+            progress=False)) if fit == "volume"
+            else (lambda im: fit_nerf(data(im), options=NerfConfig.scene(n_iter=1),
+                                      progress=False)))
     with pytest.raises(ValueError, match=r"^images: expected float values in \[0, 1\], got "
                                          r"integer dtype uint8"):
         call(np.full((2, 8, 8, 3), 200, np.uint8))

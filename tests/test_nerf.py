@@ -197,13 +197,13 @@ def test_fit_nerf_composed_loss_matches_finite_differences(with_grid):
     # the training step's own loss (geofit.fit._nerf_train), on a stand-in for its state
     from types import SimpleNamespace
 
-    from geofit.fit._nerf_train import _NerfTraining
+    from geofit.fit._nerf_train import _Solver
 
     cfg = SimpleNamespace(huber_scale=0.1, n_pts_per_ray=8, opacity_regularization=0.05)
     state = SimpleNamespace(cfg=cfg, n_threads=1, renderer=ren, field=f, reg_on=True)
 
     def loss():
-        return _NerfTraining.loss_and_grads(state, flat, tgt_rgb, tgt_sil, sil_w)
+        return _Solver.loss_and_grads(state, flat, tgt_rgb, tgt_sil, sil_w)
 
     terms, grads, spr = loss()
     assert set(terms) == {"color", "silhouette", "opacity"}
@@ -418,8 +418,8 @@ def test_fit_scene_preset_learns_and_reports(toy_scene):
     returns full-image renders of the held-out views."""
     imgs, sils, cams = toy_scene
     train, test = np.arange(8), np.arange(8, 10)
-    res = fit_nerf(_ds(imgs[train], sils[train], cams[train]), config=small_config(),
-                   held_out=(imgs[test], sils[test], cams[test]), seed=0, progress=False)
+    res = fit_nerf(_ds(imgs[train], sils[train], cams[train]), options=small_config(),
+                   evaluator=(imgs[test], sils[test], cams[test]), seed=0, progress=False)
     assert res.status == "max_iter" and res.ok, res.message
     L = np.array(res.history.loss)
     assert L[-10:].mean() < 0.5 * L[:5].mean()
@@ -437,8 +437,8 @@ def test_fit_with_silhouette_margin(toy_scene):
     """With a silhouette margin the fit still learns (the band carries only the RGB loss)."""
     imgs, sils, cams = toy_scene
     res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]),
-                   config=small_config(silhouette_margin=1),
-                   held_out=(imgs[8:], sils[8:], cams[8:]), seed=0, progress=False)
+                   options=small_config(silhouette_margin=1),
+                   evaluator=(imgs[8:], sils[8:], cams[8:]), seed=0, progress=False)
     L = np.array(res.history.loss)
     assert res.ok and L[-10:].mean() < 0.7 * L[:5].mean() and res.psnr > 20, res.psnr
 
@@ -448,7 +448,7 @@ def test_fit_tutorial_preset_runs_montecarlo_recipe(toy_scene):
     imgs, sils, cams = toy_scene
     cfg = NerfConfig.tutorial(n_harmonic_functions=2, n_hidden_neurons=8, n_pts_per_ray=16,
                               n_rays_per_image=20, batch_size=2, n_iter=8, n_threads=2)
-    res = fit_nerf(_ds(imgs, sils, cams), config=cfg, seed=1, progress=False)
+    res = fit_nerf(_ds(imgs, sils, cams), options=cfg, seed=1, progress=False)
     assert res.status == "max_iter" and res.samples_per_ray == 16
     assert res.occupancy is None and res.psnr is None and res.images is None
     assert len(res.history.loss) == 8
@@ -459,8 +459,8 @@ def test_fit_huge_learning_rate_never_nan(toy_scene, lr):
     """A learning rate 250x / 2500x too large: no NaN anywhere, and status 'diverged' with a
     message saying the held-out loss got worse than the untrained network's."""
     imgs, sils, cams = toy_scene
-    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(lr=lr, n_iter=40),
-                   held_out=(imgs[8:], sils[8:], cams[8:]), seed=0, progress=False)
+    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), options=small_config(lr=lr, n_iter=40),
+                   evaluator=(imgs[8:], sils[8:], cams[8:]), seed=0, progress=False)
     assert np.all(np.isfinite(res.field.get_flat()))
     assert res.status == "diverged" and "no progress" in res.message
     assert np.all(np.isfinite(res.images)) and np.isfinite(res.psnr)
@@ -473,7 +473,7 @@ def test_fit_without_held_out_flags_a_stuck_training_loss(toy_scene, lr, status)
     """Without held-out views, a training loss that does not fall (a dead network) is
     reported as 'diverged'; a healthy run is not."""
     imgs, sils, cams = toy_scene
-    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(lr=lr, n_iter=60), seed=0,
+    res = fit_nerf(_ds(imgs, sils, cams), options=small_config(lr=lr, n_iter=60), seed=0,
                    progress=False)
     assert res.status == status
     if status == "diverged":
@@ -497,7 +497,7 @@ def test_fit_nonfinite_gradient_returns_last_finite(toy_scene, monkeypatch):
     monkeypatch.setattr(ImplicitRenderer, "backward", poisoned)
     # one chunk per step here, so that the 3rd backward call is the 3rd step
     monkeypatch.setattr("geofit.fit._nerf_train._MIN_PARTS", 1)
-    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=10), seed=0, progress=False)
+    res = fit_nerf(_ds(imgs, sils, cams), options=small_config(n_iter=10), seed=0, progress=False)
     assert res.status == "nonfinite" and "NaN" in res.message
     assert np.all(np.isfinite(res.field.get_flat())) and len(res.history.loss) == 3
 
@@ -507,8 +507,8 @@ def test_fit_early_stopping_on_held_out_loss(toy_scene):
     and the fit stops early with status 'converged', returning the best checkpoint."""
     imgs, sils, cams = toy_scene
     noise = np.random.default_rng(0).uniform(size=imgs[8:].shape)
-    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(n_iter=200),
-                   held_out=(noise, 1 - sils[8:], cams[8:]), eval_every=5, early_stopping=2,
+    res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), options=small_config(n_iter=200, early_stopping=2),
+                   evaluator=(noise, 1 - sils[8:], cams[8:]), eval_every=5,
                    seed=0, progress=False)
     assert res.status == "converged" and res.n_iterations < 200
     hl = [c["held_out_loss"] for c in res.history.checkpoints]
@@ -517,19 +517,18 @@ def test_fit_early_stopping_on_held_out_loss(toy_scene):
 
 def test_fit_time_budget_and_callback(toy_scene):
     imgs, sils, cams = toy_scene
-    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=10 ** 6), time_budget=0.5,
+    res = fit_nerf(_ds(imgs, sils, cams), options=small_config(n_iter=10 ** 6), time_budget=0.5,
                    seed=0, progress=False)
     assert res.status == "time_budget" and res.seconds >= 0.5
     seen = []
-    res = fit_nerf(_ds(imgs, sils, cams), config=small_config(n_iter=100), eval_every=4,
-                   callback=lambda info: seen.append(info["step"]) or len(seen) >= 2, seed=0,
+    res = fit_nerf(_ds(imgs, sils, cams), options=small_config(n_iter=100), eval_every=4,
+                   callback=lambda info: seen.append(info.iteration) or len(seen) >= 2, seed=0,
                    progress=False)
     assert res.status == "callback" and seen == [4, 8]
 
 
 @pytest.mark.parametrize("kw, match", [
     ({"recipe": "nerf"}, "recipe"),
-    ({"method": "sgd"}, "method"),
     ({"ray_sampling": "grid"}, "ray_sampling"),
     ({"occupancy": "all"}, "occupancy"),
     ({"lr_schedule": "cosine"}, "lr_schedule"),
@@ -545,16 +544,19 @@ def test_fit_time_budget_and_callback(toy_scene):
     ({"n_threads": 0}, "n_threads"),
     ({"bounds": (1, 2)}, "bounds"),
     ({"occupancy": "none"}, "ray_sampling"),
-    ({"unknown_option": 1}, "overrides"),
     ({"time_budget": -1.0}, "time_budget"),
-    ({"early_stopping": 2}, "held_out"),
-    ({"held_out": (1, 2)}, "held_out"),
+    ({"eval_every": 0}, "eval_every"),
+    ({"early_stopping": 2}, "evaluator"),
+    ({"early_stopping": 0}, "early_stopping"),
 ])
 def test_fit_validation(toy_scene, kw, match):
-    """Invalid settings raise ValueError naming the setting."""
+    """Invalid settings raise ValueError naming the setting (NerfConfig fields go into the
+    options, the rest are fit_nerf's own keywords)."""
     imgs, sils, cams = toy_scene
+    own = {k: kw.pop(k) for k in ("recipe", "time_budget", "eval_every") if k in kw}
+    opts = NerfConfig.scene(**kw) if kw else None
     with pytest.raises(ValueError, match=match):
-        fit_nerf(_ds(imgs, sils, cams), **kw, progress=False)
+        fit_nerf(_ds(imgs, sils, cams), options=opts, evaluator=None, progress=False, **own)
 
 
 def test_fit_input_validation(toy_scene):
@@ -563,41 +565,32 @@ def test_fit_input_validation(toy_scene):
         fit_nerf(imgs, progress=False)
     with pytest.raises(ValueError, match="dataset"):
         fit_nerf(MultiViewDataset(images=None, silhouettes=sils, cameras=cams), progress=False)
-    with pytest.raises(TypeError, match="config"):
-        fit_nerf(_ds(imgs, sils, cams), config={"lr": 1}, progress=False)
-    with pytest.raises(ValueError, match="early_stopping"):
-        fit_nerf(_ds(imgs, sils, cams), held_out=(imgs, sils, cams), early_stopping=0,
-                 progress=False)
+    with pytest.raises(TypeError, match="options"):
+        fit_nerf(_ds(imgs, sils, cams), options={"lr": 1}, progress=False)
+    with pytest.raises(TypeError, match="evaluator"):
+        fit_nerf(_ds(imgs, sils, cams), evaluator=(1, 2), progress=False)
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        fit_nerf(_ds(imgs, sils, cams), n_iter=3, progress=False)
 
 
-def test_fit_former_call_forms_warn_and_agree(toy_scene):
-    """fit_nerf(images, silhouettes, cameras) and preset= work for one release with a
-    DeprecationWarning and fit exactly as the current form; a dataset's held_out is the
-    default held_out, and False turns it off."""
+def test_fit_recipes_options_and_default_held_out(toy_scene):
+    """Recipes are frozen NerfConfig presets; a dataset's held_out is the default evaluator,
+    None turns it off."""
+    import dataclasses
+
+    from geofit.fit.nerf import RECIPES
+
     imgs, sils, cams = toy_scene
+    assert RECIPES["default"] == NerfConfig.scene() and RECIPES["tutorial"] == NerfConfig()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        RECIPES["default"].lr = 1.0
     cfg = small_config(n_iter=6)
-    new = fit_nerf(_ds(imgs, sils, cams), config=cfg, seed=0, progress=False)
+    new = fit_nerf(_ds(imgs, sils, cams), options=cfg, seed=0, progress=False)
     assert new.method == "adam" and new.recipe == "default" and new.init is None
-    with pytest.warns(DeprecationWarning, match=r"fit_nerf\(images, silhouettes, cameras"):
-        old = fit_nerf(imgs, sils, cams, config=cfg, seed=0, progress=False)
-    np.testing.assert_array_equal(old.field.get_flat(), new.field.get_flat())
-    with pytest.warns(DeprecationWarning, match="preset='scene'"):
-        res = fit_nerf(_ds(imgs, sils, cams), preset="scene", config=cfg, progress=False)
-    assert res.recipe == "default"
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="silhouettes"):
-        fit_nerf(imgs, sils[:3], cams, progress=False)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="cameras"):
-        fit_nerf(imgs, sils, cams[:2], progress=False)
-    with pytest.warns(DeprecationWarning), pytest.raises(TypeError, match="cameras"):
-        fit_nerf(imgs, sils, "cams", progress=False)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="images"):
-        fit_nerf(imgs[..., :2], sils, cams, progress=False)
-    with pytest.raises(ValueError, match="preset"):
-        fit_nerf(_ds(imgs, sils, cams), preset="nerf", progress=False)
     ds = _ds(imgs[:8], sils[:8], cams[:8])
     ds.held_out = _ds(imgs[8:], sils[8:], cams[8:])
-    assert fit_nerf(ds, config=cfg, progress=False).images.shape == (2, 16, 16, 4)
-    assert fit_nerf(ds, config=cfg, held_out=False, progress=False).images is None
+    assert fit_nerf(ds, options=cfg, progress=False).images.shape == (2, 16, 16, 4)
+    assert fit_nerf(ds, options=cfg, evaluator=None, progress=False).images is None
 
 
 @pytest.mark.parametrize("make, exc, match", [
@@ -665,7 +658,7 @@ def test_fit_same_seed_same_network_on_1_and_2_threads(toy_scene):
     imgs, sils, cams = toy_scene
     fields = []
     for n_threads in (1, 2):
-        res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), config=small_config(
+        res = fit_nerf(_ds(imgs[:8], sils[:8], cams[:8]), options=small_config(
             n_iter=25, n_threads=n_threads), seed=3, progress=False)
         fields.append(res.field)
     p1, p2 = (np.concatenate([np.ravel(v) for v in f.params.values()]) for f in fields)

@@ -534,14 +534,17 @@ def test_fit_mesh_takes_library_meshes():
     """fit_mesh accepts a trimesh target and an Open3D source (converted at the boundary)."""
     import trimesh
 
-    from geofit.fit import fit_mesh
+    from geofit.fit import MeshFitOptions, fit_mesh
 
     target = trimesh.creation.icosphere(2, radius=0.8)
     source = ico_sphere(1).to_open3d()
-    res = fit_mesh(target, init=source, n_samples=300, n_stages=1, n_iter=5, progress=False)
+    res = fit_mesh(target, recipe="sphere",
+                   options=MeshFitOptions(init=source, n_samples=300, n_stages=1, n_iter=5),
+                   progress=False)
     assert res.mesh.n_verts == 42
     with pytest.raises(TypeError, match="target: expected a geofit Mesh, trimesh.Trimesh"):
-        fit_mesh("sphere.obj", init=source, n_iter=1, progress=False)
+        fit_mesh("sphere.obj", recipe="sphere", options=MeshFitOptions(init=source, n_iter=1),
+                 progress=False)
 
 
 def test_docstring_examples_run():

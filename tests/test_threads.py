@@ -29,7 +29,7 @@ COMPONENTS = {
     "soft": "geofit.render.soft.fragments",
     "points": "geofit.render.points.rasterizer",
     "volume": "geofit.fit._volume_problem",
-    "nerf": "geofit.fit.nerf",
+    "nerf": "geofit.fit._nerf_render",
 }
 
 
@@ -38,7 +38,7 @@ def _workloads() -> dict:
     from geofit import FoVPerspectiveCameras, PointCloud, ico_sphere, look_at_view_transform
     from geofit.structures import MultiViewDataset
     from geofit.fit.nerf import render_nerf
-    from geofit.fit.volume import fit_volume
+    from geofit.fit.volume import VolumeFitOptions, fit_volume
     from geofit.render import (
         MeshRasterizer,
         PointsRasterizationSettings,
@@ -62,8 +62,9 @@ def _workloads() -> dict:
     images = np.full((2, 8, 8, 3), 0.5)
     sils = np.zeros((2, 8, 8))
     sils[:, 2:6, 2:6] = 1.0
-    fit_volume(MultiViewDataset(images=images, silhouettes=sils, cameras=cams), volume_size=8,
-               levels=(8,), iterations=1, n_pts_per_ray=16, progress=False)
+    fit_volume(MultiViewDataset(images=images, silhouettes=sils, cameras=cams),
+            options=VolumeFitOptions(volume_size=8, levels=(8,), iterations=1, n_pts_per_ray=16),
+            progress=False)
     field = NeuralRadianceField(n_harmonic_functions=2, n_hidden_neurons=4,
                                 n_harmonic_functions_dir=1, n_hidden_color=4, seed=0)
     pool_before = id(_threads._POOL)

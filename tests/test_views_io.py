@@ -356,10 +356,10 @@ def test_load_and_save_argument_errors(tmp_path):
 
 
 def _fit_volume(ds, **kw):
-    """``fit_volume(dataset, ...)`` without a progress bar."""
-    from geofit.fit.volume import fit_volume
+    """``fit_volume(dataset, options=VolumeFitOptions(**kw))`` without a progress bar."""
+    from geofit.fit.volume import VolumeFitOptions, fit_volume
 
-    return fit_volume(ds, progress=False, **kw)
+    return fit_volume(ds, options=VolumeFitOptions(**kw), progress=False)
 
 
 def test_fit_volume_on_a_written_capture_matches_the_direct_fit(tmp_path):

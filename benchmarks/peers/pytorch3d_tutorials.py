@@ -126,7 +126,7 @@ def peer_fit_mesh(steps: int | None, quick: bool) -> list[MethodRun]:
     p3d.add(seconds, chamfer_l2=m.chamfer_l2, fscore=m.fscore[0.01])
     p3d.final = {"seconds": seconds, "chamfer_l2": m.chamfer_l2, "fscore@0.01": m.fscore[0.01],
                  "n_verts": int(v.shape[0])}
-    res = fit_mesh(None, target, progress=False)
+    res = fit_mesh(target, progress=False)
     g = evaluator.evaluate(res.mesh)
     geo = MethodRun("geofit", "geofit fit_mesh default", config={"recipe": "default"},
                     status=res.status, message=res.message)
@@ -160,7 +160,7 @@ def peer_fit_volume(steps: int | None, quick: bool) -> list[MethodRun]:
                                     VolumeRenderer)
     from pytorch3d.structures import Volumes
 
-    from geofit import fit_volume
+    from geofit.fit import VolumeFitOptions, fit_volume
     from geofit.datasets import tutorial_views
     from geofit.metrics import psnr
 
@@ -210,7 +210,7 @@ def peer_fit_volume(steps: int | None, quick: bool) -> list[MethodRun]:
                             "n_pts_per_ray": 150, "lr": 0.1, "batch_size": 10})
     p3d.add(seconds, psnr=p_psnr, iou=float(np.mean(inter / union)))
     p3d.final = {"seconds": seconds, "psnr": p_psnr, "iou": float(np.mean(inter / union))}
-    res = fit_volume(data, volume_size=vsize, progress=False)
+    res = fit_volume(data, options=VolumeFitOptions(volume_size=vsize), progress=False)
     from geofit.fit.volume import volume_metrics
 
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)

@@ -15,6 +15,7 @@ import time
 import traceback
 import uuid
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,7 @@ HOLDOUT_EVERY = 8
 #: when given (not None). Everything else is the fit's own default.
 FIT_KEYWORDS: dict[str, dict[str, str]] = {
     "fit-mesh": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
-    "fit-views": {"recipe": "recipe", "time_budget": "silhouette_time", "seed": "seed"},
+    "fit-views": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
     "fit-volume": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
     "fit-nerf": {"recipe": "recipe", "time_budget": "time_budget", "seed": "seed"},
 }
@@ -313,7 +314,6 @@ def _task_render(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     from ..structures import MultiViewDataset
     from ..datasets import tutorial_views
-    from ..fit._views_objective import dataset_lights
     from ..fit.views import ViewsEvaluator
 
     t = time.perf_counter()
@@ -339,15 +339,8 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     _save_mesh(dest / "fit.obj", fit.mesh)
     _save_npz(dest / "fit_colors.npz", verts=fit.mesh.verts, faces=fit.mesh.faces,
               colors=colors)
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
-    from ..structures import Mesh, TexturesVertex
-
     k = min(4, len(heldout))
-    cams = heldout.cameras[np.arange(k)]
-    ras = MeshRasterizer(cams, RasterizationSettings(image_size=heldout.image_size))
-    tm = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0, 1)))
-    shader = SoftPhongShader(cameras=cams, lights=dataset_lights(heldout))
-    pred = np.asarray(MeshRenderer(ras, shader)(tm), np.float64)
+    pred = fit.render(heldout, n_views=k)
     target_rgb = heldout.images[:k] if heldout.images is not None else \
         np.repeat(heldout.silhouettes[:k, ..., None], 3, axis=-1)
     _save_png(dest / PICTURE_FILE, _rows(target_rgb, pred))

@@ -114,7 +114,7 @@ def _fit(train, time_budget: float, progress: bool):
     colours), with the silhouette stage capped at ``time_budget`` seconds."""
     from ..fit import fit_mesh_to_views
 
-    return fit_mesh_to_views(train, silhouette_time=time_budget, progress=progress)
+    return fit_mesh_to_views(train, time_budget=time_budget, progress=progress)
 
 
 def _label(img, text: str, xy, size: int, fill=(0, 0, 0)) -> None:
@@ -180,8 +180,6 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     from ..datasets import tutorial_views
     from ..fit.views import ViewsEvaluator
     from ..io import save_mesh
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
-    from ..structures import Mesh, TexturesVertex
 
     for val, nm, lo in ((views, "views", 2), (size, "size", 16), (heldout, "heldout", 1)):
         if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < lo:
@@ -205,17 +203,13 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     t1 = time.perf_counter()
     fit = _fit(train, float(time_budget), verbose)
     t_fit = time.perf_counter() - t1
-    colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
+    fitted = fit.textured_mesh
     metrics = ViewsEvaluator(train.held_out, mesh, n_samples=20000, taus=(0.01,))(
-        fit.mesh, colors)
-    fitted = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
+        fit.mesh, fitted.textures.verts_features)
 
     h = train.held_out
     k = min(4, len(h))
-    cams = h.cameras[np.arange(k)]
-    ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
-    preds = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=h.lights))(fitted)
-                       [..., :3], np.float64)
+    preds = fit.render(h, n_views=k)
     dest = Path(out)
     dest.mkdir(parents=True, exist_ok=True)
     mesh_file = dest / "fit.ply"

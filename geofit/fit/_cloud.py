@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._foreign import foreign_kind
 from .._validate import as_points, as_rng
-from ..structures import Mesh
+from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
+from .init import decimate
 
 __all__ = ["CloudTarget", "as_cloud_points", "is_cloud", "mesh_from_points", "orient_normals"]
 
@@ -35,9 +37,6 @@ MIN_POINTS = 20
 
 def is_cloud(target) -> bool:
     """Whether ``target`` is a point cloud (not a mesh) for :func:`geofit.fit.fit_mesh`."""
-    from .._foreign import foreign_kind
-    from ..structures import PointCloud, Pointclouds
-
     if isinstance(target, (PointCloud, Pointclouds)):
         return True
     if foreign_kind(target) in ("trimesh.PointCloud", "open3d.PointCloud"):
@@ -54,8 +53,6 @@ def as_cloud_points(target, name: str = "target") -> np.ndarray:
         If the cloud is not ``(k, 3)``, has NaN or inf coordinates, fewer than
         :data:`MIN_POINTS` points, or a batch holds more than one cloud.
     """
-    from ..structures import Pointclouds, as_pointcloud
-
     if isinstance(target, Pointclouds):
         if len(target) != 1:
             raise ValueError(f"{name}: expected one point cloud, got a batch of {len(target)}")
@@ -235,8 +232,6 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
         If the reconstruction is empty.
     """
     import open3d as o3d
-
-    from .init import decimate
 
     rng = as_rng(seed)
     P = cloud.points

@@ -17,7 +17,18 @@ from collections.abc import Mapping
 import numpy as np
 
 from .._validate import as_rng, check_choice
+from ..loss import (
+    ChamferTarget,
+    PointToSurface,
+    chamfer_distance,
+    mesh_edge_loss,
+    mesh_laplacian_smoothing,
+    mesh_normal_consistency,
+)
+from ..ops import barycentric_matrix, sample_points_from_meshes, sample_points_with_jacobian
+from ..raycast import PointToMeshDistance
 from ..structures import Mesh
+from ._cloud import CloudTarget
 from ._options import check_int, check_weights
 from .large_steps import LargeSteps
 
@@ -74,7 +85,6 @@ class MeshObjective:
     def __init__(self, source: Mesh, target: Mesh, weights: Mapping[str, float], *,
                  distance: str = "surface", n_samples: int = 5000, resample: str = "stage",
                  large_steps: LargeSteps | None = None, seed=0, target_distance=None):
-        from ..loss import PointToSurface
 
         check_choice(distance, "distance", ("surface", "points", "cloud"))
         check_choice(resample, "resample", ("stage", "step"))
@@ -91,7 +101,6 @@ class MeshObjective:
         if distance == "surface":
             self._p2s = target_distance if target_distance is not None else PointToSurface(target)
         elif distance == "cloud":
-            from ._cloud import CloudTarget
 
             self._cloud = (target_distance if target_distance is not None
                            else CloudTarget(np.asarray(target, dtype=np.float64)))
@@ -124,8 +133,6 @@ class MeshObjective:
     def resample(self, verts: np.ndarray | None = None) -> None:
         """Draw new fixed samples: source barycentrics on ``verts`` (area-weighted there) and
         target points (for ``resample="stage"``)."""
-        from ..loss import ChamferTarget
-        from ..ops import sample_points_with_jacobian
 
         mesh = self.source if verts is None else self.source.update_verts(verts)
         self._B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
@@ -134,7 +141,6 @@ class MeshObjective:
 
     def _target_samples(self, rng) -> np.ndarray:
         """``n_samples`` points of the target: surface samples, or a subsample of the cloud."""
-        from ..ops import sample_points_from_meshes
 
         if self._cloud is not None:
             return self._cloud.subsample(self.n_samples, rng)
@@ -142,10 +148,6 @@ class MeshObjective:
 
     # -- evaluation
     def _data(self, mesh: Mesh, V: np.ndarray):
-        from ..loss import chamfer_distance
-        from ..ops import barycentric_matrix
-        from ..ops import sample_points_with_jacobian
-        from ..raycast import PointToMeshDistance
 
         if self.resample_mode == "step":
             B = sample_points_with_jacobian(mesh, self.n_samples, seed=self.rng).B
@@ -178,7 +180,6 @@ class MeshObjective:
         A non-finite ``x`` (a solver that blew up) gives ``(nan, zeros)``, which every geofit
         solver turns into the status ``"nonfinite"``.
         """
-        from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
 
         self.n_evaluations += 1
         x = np.asarray(x, dtype=np.float64)
@@ -212,9 +213,6 @@ class MeshObjective:
         ``n_samples`` instead of 100 000 points: an unbiased, cheap estimate used by
         coarse-to-fine to decide whether to subdivide.
         """
-        from ..loss import PointToSurface
-        from ..ops import sample_points_from_meshes
-        from ..raycast import PointToMeshDistance
 
         rng = self.rng if seed is None else as_rng(seed)
         mesh = self.source.update_verts(verts)

@@ -1,14 +1,15 @@
 """The training loop of :func:`geofit.fit.nerf.fit_nerf` as named steps.
 
-:class:`_NerfTraining` holds one fit: the occupancy (visual hull, coarse density grid), the
+:class:`_Solver` holds one fit: the occupancy (visual hull, coarse density grid), the
 ray samplers, the Adam optimizer and its schedule, the held-out evaluation and the history.
-One step draws a batch of rays (:meth:`_NerfTraining.draw_batch`), renders them and
-backpropagates the Huber losses in chunks over threads (:meth:`_NerfTraining.loss_and_grads`),
-and takes an Adam step with a non-finite guard (:meth:`_NerfTraining.step`); checkpoints
-render the held-out views with the clock paused (:meth:`_NerfTraining.checkpoint`).
+One step draws a batch of rays (:meth:`_Solver.draw_batch`), renders them and
+backpropagates the Huber losses in chunks over threads (:meth:`_Solver.loss_and_grads`),
+and takes an Adam step with a non-finite guard (:meth:`_Solver.step`); checkpoints
+render the held-out views with the clock paused (:meth:`_Solver.checkpoint`).
 """
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -26,8 +27,10 @@ from ..render.volume import (
     OccupancyGrid,
     RayBundle,
 )
+from ._nerf_render import render_nerf, sample_images_at_xys
 from ._progress import progress_bar
 from .history import Clock, FitHistory
+from .solvers import StepInfo
 
 #: Candidate samples per chunk of a training step (bounds the memory of the caches).
 _CHUNK_SAMPLES = 1 << 17
@@ -86,16 +89,15 @@ class _DensityGrid:
         return OccupancyGrid(occ.occupied & hull.occupied, hull.bounds, grid)
 
 
-class _NerfTraining:
+class _Solver:
     """One :func:`~geofit.fit.nerf.fit_nerf` run: set-up, steps, checkpoints, diagnosis."""
 
     def __init__(self, cfg, data, test, field: NeuralRadianceField, *, rng, clock: Clock,
-                 n_threads: int, time_budget, eval_every, early_stopping, render_size,
-                 callback, verbose: bool, progress: bool):
+                 n_threads: int, time_budget, eval_every, callback, progress: bool):
         self.cfg, self.data, self.test, self.field = cfg, data, test, field
         self.rng, self.clock, self.n_threads = rng, clock, n_threads
-        self.time_budget, self.early_stopping = time_budget, early_stopping
-        self.callback, self.verbose = callback, verbose
+        self.time_budget, self.early_stopping = time_budget, cfg.early_stopping
+        self.callback = callback
         self.batch = min(cfg.batch_size, data.N)
         self.setup_rays()
         self.setup_schedule()
@@ -103,9 +105,12 @@ class _NerfTraining:
         # network has found the object: from the start it would empty the hull before that
         self.reg_on = cfg.opacity_regularization > 0 and (self.density is None
                                                          or cfg.density_grid_warmup == 0)
-        self.setup_evaluation(render_size)
+        self.setup_evaluation(cfg.render_size)
         self.history = FitHistory()
         self.n_params = field.n_params
+        # checkpoints every eval_every steps; by default every 1/20 of the steps, or with a
+        # time budget every 1/20 of its seconds
+        self.every_seconds = eval_every is None and time_budget is not None
         if eval_every is None:
             self.every = (time_budget / 20.0) if time_budget is not None else \
                 max(cfg.n_iter // 20, 1)
@@ -213,8 +218,6 @@ class _NerfTraining:
         cfg, data, rng = self.cfg, self.data, self.rng
         views = rng.choice(data.N, size=self.batch, replace=False)
         if cfg.ray_sampling == "montecarlo":
-            from .nerf import sample_images_at_xys
-
             bundle = self.sampler(data.cameras[views], seed=rng)
             xys = bundle.xys
             tgt_rgb = sample_images_at_xys(data.images[views], xys)
@@ -324,6 +327,11 @@ class _NerfTraining:
                             stage=self.stage)
         return loss, seconds, None
 
+    def observer(self):
+        """The context of held-out evaluations: the clock paused, except under a time budget,
+        which is wall-clock and so pays for them."""
+        return contextlib.nullcontext() if self.time_budget is not None else self.clock.paused()
+
     # -- the loop
     def run(self) -> tuple[str, str]:
         """Steps until the budget, the callback, early stopping or a non-finite value stops
@@ -333,9 +341,18 @@ class _NerfTraining:
             self.renderer.occupancy = self.density.update(self.field, self.rng,
                                                           self.n_threads)
         self.initial = None
+        self.restored = False  # a checkpoint's parameters were put back
+        self.last_render = None  # (step, renders, PSNR, loss) of the last checkpoint
+        reserve = 0.0  # with a time budget: the time of the final held-out render
         if self.test is not None:
-            with clock.paused():  # the untrained network's held-out loss: the reference
+            # the untrained network's held-out loss: the reference. With a time budget the
+            # held-out renders are charged to it (the budget is wall-clock), and the training
+            # stops early enough for the final render (timed on this one) to fit in
+            t0 = clock.elapsed()
+            with self.observer():
                 self.initial = self.evaluate()[2]
+            if self.time_budget is not None:
+                reserve = clock.elapsed() - t0
         next_eval = self.every
         status, message = "max_iter", f"completed {cfg.n_iter} steps"
         for step in range(1, cfg.n_iter + 1):  # Adam steps
@@ -344,9 +361,9 @@ class _NerfTraining:
                 status, message = stop
                 break
             self.tick(step, seconds, loss)
-            out_of_time = self.time_budget is not None and seconds >= self.time_budget
-            due = (seconds >= next_eval) if self.time_budget is not None else \
-                (step >= next_eval)
+            out_of_time = self.time_budget is not None and \
+                seconds >= self.time_budget - reserve
+            due = (seconds >= next_eval) if self.every_seconds else (step >= next_eval)
             if due or out_of_time or step == cfg.n_iter:
                 next_eval += self.every
                 if self.checkpoint(step, loss):
@@ -359,8 +376,8 @@ class _NerfTraining:
                                f"checkpoints; returning the best one (step {self.best['step']})")
                     break
             if out_of_time:
-                status, message = "time_budget", (f"stopped after {seconds:.1f} s (time budget "
-                                                  f"{self.time_budget:g} s) at step {step}")
+                status, message = "time_budget", (f"reached the time budget of "
+                                                  f"{self.time_budget:g} s after {step} steps")
                 break
         self.bar.close()
         return self.diagnose(status, message)
@@ -400,17 +417,25 @@ class _NerfTraining:
             if status == "diverged" and best["params"] is not None and last is not None and \
                     best["loss"] < last:
                 self.field.set_params(best["params"])
+                self.restored = True
                 message += f"; returning the best checkpoint (step {best['step']})"
         if self.early_stopping is not None and best["params"] is not None:
             self.field.set_params(best["params"])
+            self.restored = True
         return status, message
 
     # -- held-out views
+    def final_render(self):
+        """The held-out renders of the returned field: the last checkpoint's when it rendered
+        this very field (no step and no restored checkpoint since), else a new render."""
+        last = self.last_render
+        if last is not None and last[0] == len(self.history.steps) and not self.restored:
+            return last[1], last[2], last[3]
+        return self.evaluate()
+
     def evaluate(self):
         """Full renders of the held-out views, their PSNR and Huber loss (None, None when
         rendered at another size)."""
-        from .nerf import render_nerf
-
         cfg, test, size = self.cfg, self.test, self.size
         imgs = render_nerf(self.field, test.cameras, size, n_pts_per_ray=cfg.n_pts_per_ray,
                            min_depth=cfg.min_depth, max_depth=cfg.max_depth,
@@ -428,23 +453,22 @@ class _NerfTraining:
     def checkpoint(self, step: int, loss: float) -> bool:
         """Record metrics (clock paused); True to stop."""
         clock, best = self.clock, self.best
-        with clock.paused():
-            info = {"step": step, "seconds": clock.elapsed(), "loss": loss}
+        with self.observer():
+            seconds = clock.elapsed()
             metrics = None
             if self.test is not None:
-                _, p, hl = self.evaluate()
+                imgs, p, hl = self.evaluate()
+                self.last_render = (step, imgs, p, hl)  # reused by final_render
                 metrics = {"psnr": p, "held_out_loss": hl}
-                info.update(metrics)
                 if hl < best["loss"]:
                     best.update(loss=hl, params={k: v.copy()
                                                  for k, v in self.field.params.items()},
                                 step=step, since=0)
                 else:
                     best["since"] += 1
-            self.history.checkpoint(step, info["seconds"], metrics or {"loss": loss})
-            if self.verbose:
-                extra = "" if self.test is None else (f" held-out PSNR {info['psnr']:.2f} dB, "
-                                                      f"loss {info['held_out_loss']:.4f}")
-                print(f"fit_nerf: step {step}, {info['seconds']:.1f} s, loss {loss:.4f}, "
-                      f"samples/ray {self.spr_sum / max(step, 1):.1f}{extra}", flush=True)
-            return bool(self.callback(info)) if self.callback is not None else False
+            self.history.checkpoint(step, seconds, metrics or {"loss": loss})
+            if self.callback is None:
+                return False
+            info = StepInfo(step, step, self.field.get_flat(), float(loss), seconds,
+                            metrics=metrics)
+            return bool(self.callback(info))

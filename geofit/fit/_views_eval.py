@@ -6,12 +6,67 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..structures import MultiViewDataset
-from ..metrics import psnr, silhouette_iou
-from ..structures import Mesh, TexturesVertex
+from ..metrics import MeshEvaluator, psnr, silhouette_iou
+from ..render import (
+    BlendParams,
+    MeshRasterizer,
+    MeshRenderer,
+    RasterizationSettings,
+    SoftPhongShader,
+)
+from ..structures import Mesh, MultiViewDataset, TexturesVertex
 from ._views_objective import dataset_lights
 
-__all__ = ["ViewsEvaluator"]
+__all__ = ["ViewsEvaluator", "colored_mesh", "render_mesh_at_views"]
+
+#: The grey of a mesh without fitted colours.
+GREY = 0.7
+
+
+def colored_mesh(mesh: Mesh, colors=None) -> Mesh:
+    """``mesh`` with per-vertex colours (:class:`~geofit.structures.TexturesVertex`), clipped to
+    [0, 1]; ``colors`` None: uniform grey (0.7)."""
+    if colors is None:
+        colors = np.full((mesh.n_verts, 3), GREY)
+    return Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
+
+
+def render_mesh_at_views(mesh: Mesh, views: MultiViewDataset, colors=None, *,
+                         n_views: int | None = None) -> np.ndarray:
+    """Render ``mesh`` at the cameras of ``views`` (e.g. a dataset's held-out views).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The mesh; its own textures are used when ``colors`` is None and it has some, else
+        ``colors``, else uniform grey.
+    views : MultiViewDataset
+        Cameras, image size, lights and background: the dataset's lights, or unlit colour
+        (``AmbientLights``) when it has none (a capture: its lighting is in its pixels), the
+        one light choice of the views fit; the dataset's background colour when it has one.
+    colors : (V, 3) float64, optional
+        Vertex colours (clipped to [0, 1]).
+    n_views : int, optional
+        Render only the first ``n_views`` views.
+
+    Returns
+    -------
+    (N, H, W, 3) float64
+        Hard-rasterised (one ray per pixel) Phong-shaded RGB on the views' background, as the
+        held-out metrics of :class:`ViewsEvaluator` see it.
+    """
+    if not isinstance(views, MultiViewDataset):
+        raise TypeError(f"views: expected a MultiViewDataset, got {type(views)!r}")
+    if colors is not None or mesh.textures is None:
+        mesh = colored_mesh(mesh, colors)
+    cams = views.cameras if n_views is None else views.cameras[np.arange(min(n_views,
+                                                                             len(views)))]
+    ras = MeshRasterizer(cams, RasterizationSettings(image_size=views.image_size))
+    blend = BlendParams() if views.background is None else BlendParams(
+        background_color=tuple(np.asarray(views.background, np.float64).tolist()))
+    r = MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=dataset_lights(views),
+                                          blend_params=blend))
+    return np.asarray(r(mesh)[..., :3], np.float64)
 
 
 class ViewsEvaluator:
@@ -44,20 +99,12 @@ class ViewsEvaluator:
         self.mesh_eval = None
         self.taus = tuple(taus)
         if target_mesh is not None:
-            from ..metrics import MeshEvaluator
 
             self.mesh_eval = MeshEvaluator(target_mesh, n_samples=n_samples, taus=self.taus)
 
     def __call__(self, mesh: Mesh, colors=None, *, surface: bool = True) -> dict[str, float]:
         """Metrics of a prediction (keys ``iou``, ``psnr`` if colours, ``chamfer_l2``,
         ``fscore@tau`` if a target mesh and ``surface``)."""
-        from ..render import (
-            BlendParams,
-            MeshRasterizer,
-            MeshRenderer,
-            RasterizationSettings,
-            SoftPhongShader,
-        )
 
         h = self.heldout
         H, W = h.image_size
@@ -67,12 +114,7 @@ class ViewsEvaluator:
         if h.silhouettes is not None:
             out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
         if colors is not None and h.images is not None:
-            m = Mesh(mesh.verts, mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-            blend = BlendParams() if h.background is None else BlendParams(
-                background_color=tuple(h.background.tolist()))  # the capture's background
-            r = MeshRenderer(ras, SoftPhongShader(cameras=h.cameras, lights=dataset_lights(h),
-                                                  blend_params=blend))
-            out["psnr"] = psnr(np.asarray(r(m)[..., :3], np.float64), h.images)
+            out["psnr"] = psnr(render_mesh_at_views(mesh, h, colors), h.images)
         if surface and self.mesh_eval is not None:
             mm = self.mesh_eval.evaluate(Mesh(mesh.verts, mesh.faces))
             out["chamfer_l2"] = float(mm.chamfer_l2)

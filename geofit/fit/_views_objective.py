@@ -17,6 +17,8 @@ import scipy.sparse.linalg as spla
 
 from ..structures import MultiViewDataset
 from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
+from ..ops import uniform_laplacian
+from ..render import AmbientLights
 from ..render.blending import BlendParams
 from ..render.soft import (
     SoftPhongRenderer,
@@ -38,7 +40,6 @@ def dataset_lights(data: MultiViewDataset):
     has none (a capture: its lighting is in its pixels)."""
     if data.lights is not None:
         return data.lights
-    from ..render import AmbientLights
 
     return AmbientLights()
 
@@ -84,6 +85,7 @@ class _Objective:
         self.settings = settings
         self.views_per_step = views_per_step
         self.rng = rng
+        self.clock = None  # the fit's Clock, whose deadline is checked between view batches
         self.sigma = sigma
         self.V = base.n_verts
         self.last: dict = {}
@@ -116,6 +118,8 @@ class _Objective:
         g_colors = np.zeros((self.V, 3)) if self.textured else None
         # views in batches of at most max_views: memory stays bounded, sums are the same
         for b in np.array_split(idx, -(-nv // self.max_views)):  # view batches
+            if self.clock is not None:  # a time budget holds inside long evaluations
+                self.clock.check()
             cams = self.data.cameras[b]
             tgt_s = self.data.silhouettes[b]
             if not self.textured:
@@ -158,8 +162,6 @@ def _lstsq_colors(mesh: Mesh, data: MultiViewDataset, reg: float) -> np.ndarray:
     equations ``(A^T A + reg L^T L) c = A^T (target - b)`` with the uniform Laplacian ``L``
     (which fills vertices no view sees from their neighbours), for each channel.
     """
-    from ..ops import uniform_laplacian
-
     settings = SoftRasterizationSettings(image_size=data.image_size, blur_radius=0.0,
                                          faces_per_pixel=1, dtype=np.float64)
     r = SoftPhongRenderer(data.cameras, dataset_lights(data), raster_settings=settings)

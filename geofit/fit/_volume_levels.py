@@ -14,7 +14,7 @@ from ..structures.volume import carve as _carve
 from ..structures.volume import silhouette_distances
 from . import solvers
 from ._progress import progress_bar
-from ._volume_problem import _downsample, _Grid, _logit, _Problem, _rays, _resample, _sigmoid
+from ._volume_problem import _downsample, _Grid, _logit, _Objective, _rays, _resample, _sigmoid
 from .history import Clock, FitHistory
 
 
@@ -42,7 +42,7 @@ def _level_image_factor(H: int, W: int, level: int, S: int) -> int:
 
 
 @dataclass
-class _VolumeOptions:
+class _Plan:
     """The validated settings of one :func:`geofit.fit.volume.fit_volume` call."""
 
     imgs: np.ndarray            # (N, H, W, 3) in [0, 1]
@@ -57,9 +57,9 @@ class _VolumeOptions:
     huber_scale: float
     lr: float
     time_budget: float | None
-    monitor: Callable | None
-    monitor_every: float | None
-    verbose: bool
+    evaluator: Callable | None   # evaluator(volume) -> dict at checkpoints
+    eval_every: int | None       # steps between checkpoints (None: levels and end only)
+    callback: Callable | None    # callback(StepInfo) -> bool | None
     dtype: np.dtype
     progress: bool
     # geofit's levels
@@ -82,7 +82,7 @@ class _TrackedObjective:
     """``fun(x) -> (value, grad)`` of a level that remembers the terms of the last call, the
     first value and the best point seen (Adam keeps its best iterate)."""
 
-    def __init__(self, problem: _Problem, x0: np.ndarray):
+    def __init__(self, problem: _Objective, x0: np.ndarray):
         self.problem = problem
         self.terms: dict = {}
         self.first = None
@@ -98,12 +98,13 @@ class _TrackedObjective:
         return v, g
 
 
-class _LevelsFit:
+class _Solver:
     """geofit's method: the grid fitted level by level (hull, pruning, skipping)."""
 
-    def __init__(self, o: _VolumeOptions):
+    def __init__(self, o: _Plan):
         self.o = o
         self.clock = Clock()
+        self.clock.deadline = o.time_budget
         self.history = FitHistory()
         self.step_final = (o.max_depth - o.min_depth) / (o.n_pts - 1)
         self.sigma = None      # extinction grid of the previous level (per unit view depth)
@@ -112,7 +113,7 @@ class _LevelsFit:
         self.stages: list = []
         self.total_iter = self.total_eval = 0
         self.step_counter = 0
-        self.last_monitor = 0.0
+        self.last_monitor = 0    # the step of the last checkpoint
         self.problem = None
         self.state = {"ld": None, "lc": None, "grid": None, "n_pts": None}
         self.dist = None
@@ -124,10 +125,15 @@ class _LevelsFit:
         status, message = "max_iter", ""
         for li, (level, n_iter_level) in enumerate(zip(o.levels, o.iterations)):  # levels
             t_level = self.clock.elapsed()
+            if o.time_budget is not None and self.clock.elapsed() >= o.time_budget:
+                status = "time_budget"  # no time to set the next level up
+                message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
+                break
             x0, info = self.setup_level(li, level)
             remaining = None if o.time_budget is None else o.time_budget - self.clock.elapsed()
             if remaining is not None and remaining <= 0:
-                status, message = "time_budget", f"time budget used up before level {level}"
+                status = "time_budget"
+                message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
                 info.update(status="time_budget", iterations=0, seconds=0.0)
                 self.stages.append(info)
                 break
@@ -183,11 +189,12 @@ class _LevelsFit:
         dens = np.where(allowed, -np.expm1(-sigma_grid * step), 0.0)
         ld = _logit(dens).reshape(-1)
         lc = _logit(colour_grid).reshape(3, -1)
-        problem = _Problem(grid, orig, dirs, lengths, rgb, sil, dens, allowed,
-                           termination=o.termination if li > 0 else None,
-                           n_pixels=N * Rh * Rw, huber_scale=o.huber_scale, dtype=o.dtype,
-                           smoothness=tuple(v * (level / 64.0) ** 2 for v in o.smoothness))
+        problem = _Objective(grid, orig, dirs, lengths, rgb, sil, dens, allowed,
+                             termination=o.termination if li > 0 else None,
+                             n_pixels=N * Rh * Rw, huber_scale=o.huber_scale, dtype=o.dtype,
+                             smoothness=tuple(v * (level / 64.0) ** 2 for v in o.smoothness))
         self.problem = problem
+        problem.clock = self.clock
         self.state.update(ld=ld, lc=lc, grid=grid, n_pts=n_pts, allowed=allowed, step=step)
         x0 = problem.pack(ld, lc)
         info = {"level": level, "image_size": [Rh, Rw], "n_pts_per_ray": n_pts,
@@ -208,14 +215,17 @@ class _LevelsFit:
             self.step_counter += 1
             self.history.record(self.step_counter, si.seconds, si.value, fun.terms,
                                 n_params=p.n_params, stage=li)
-            if o.monitor is not None and o.monitor_every is not None and \
-                    si.seconds - self.last_monitor >= o.monitor_every:
+            if o.evaluator is not None and o.eval_every is not None and \
+                    self.step_counter - self.last_monitor >= o.eval_every:
                 state_ld, state_lc = self.state["ld"].copy(), self.state["lc"].copy()
                 p.unpack_into(np.asarray(si.x), self.state["ld"], self.state["lc"])
                 self.run_monitor(self.step_counter)
                 self.state["ld"], self.state["lc"] = state_ld, state_lc
             with self.clock.paused():
                 self.bar.update(1)
+                if o.callback is not None:
+                    return o.callback(si._replace(stage=li, terms=dict(fun.terms)))
+            return None
 
         return cb
 
@@ -286,11 +296,6 @@ class _LevelsFit:
                     evaluations=res.n_evaluations, seconds=self.clock.elapsed() - t_level,
                     final_loss=res.value)
         self.stages.append(info)
-        if self.o.verbose:
-            print(f"fit_volume[{self.o.method}] level {level}^3: {problem.n_free_density} free "
-                  f"voxels, {info['samples_per_ray']:.1f} samples/ray, {res.n_iterations} it, "
-                  f"loss {res.value:.5f}, {res.status}, {self.clock.elapsed():.1f} s",
-                  flush=True)
         self.run_monitor(self.step_counter)
         grid = st["grid"]
         dens_level = np.where(st["allowed"].reshape(-1), _sigmoid(ld), 0.0).reshape(grid.size)
@@ -314,13 +319,13 @@ class _LevelsFit:
         return g.volume(d, c)
 
     def run_monitor(self, step: int) -> None:
-        if self.o.monitor is None:
+        if self.o.evaluator is None:
             return
         with self.clock.paused():
             vol = self.current_volume()
             if vol is not None:
-                self.history.checkpoint(step, self.clock.elapsed(), self.o.monitor(vol))
-        self.last_monitor = self.clock.elapsed()
+                self.history.checkpoint(step, self.clock.elapsed(), self.o.evaluator(vol))
+        self.last_monitor = step
 
     def view_losses(self, message: str):
         """Each training view's mean loss at the end (a diagnostic: the clock is paused), and
@@ -346,13 +351,16 @@ class _LevelsFit:
         if len(stages) > 1:
             per_level = ", ".join(f"{st['level']}^3 {st['status']}" for st in stages)
             message = f"levels: {per_level}; last level: {message}"
-        view_losses, message = self.view_losses(message)
+        # the per-view diagnostic costs one more evaluation: not when the time is up
+        view_losses = None
+        if status != "time_budget":
+            view_losses, message = self.view_losses(message)
         result_volume = self.current_volume()
         if result_volume is None:  # no level ran: the initial model
             grid = _Grid((o.S,) * 3, o.extent / o.S, np.zeros(3))
             result_volume = grid.volume(np.zeros(grid.size), np.full((3,) + grid.size, 0.5))
         h = self.history
-        if o.monitor is not None and (not h.checkpoints
+        if o.evaluator is not None and (not h.checkpoints
                                       or h.checkpoints[-1]["step"] != self.step_counter):
             self.run_monitor(self.step_counter)
         last = stages[-1] if stages else {}
@@ -372,7 +380,7 @@ class _TutorialObjective:
     """The tutorial's stochastic objective on the dense grid: ``batch_size`` random views per
     call; ``x = [log-densities (n), colour logits (3n)]``."""
 
-    def __init__(self, o: _VolumeOptions):
+    def __init__(self, o: _Plan):
         N, H, W, _ = o.imgs.shape
         self.o = o
         self.grid = _Grid((o.S,) * 3, o.extent / o.S, np.zeros(3))
@@ -399,11 +407,11 @@ class _TutorialObjective:
         o, nv = self.o, self.nv
         N, H, W, _ = o.imgs.shape
         views = o.rng.permutation(N)[:self.batch]
-        p = _Problem(self.grid, self.orig[views].reshape(-1, 3),
-                     self.dirs[views].reshape(-1, 3), self.lengths,
-                     self.rgb[views].reshape(-1, 3), self.sil[views].reshape(-1), None,
-                     self.allowed, termination=None, n_pixels=self.batch * H * W,
-                     huber_scale=o.huber_scale, dtype=o.dtype)
+        p = _Objective(self.grid, self.orig[views].reshape(-1, 3),
+                       self.dirs[views].reshape(-1, 3), self.lengths,
+                       self.rgb[views].reshape(-1, 3), self.sil[views].reshape(-1), None,
+                       self.allowed, termination=None, n_pixels=self.batch * H * W,
+                       huber_scale=o.huber_scale, dtype=o.dtype)
         v, g_loc, terms = p.evaluate(p.pack(x[:nv], x[nv:].reshape(3, nv)))
         grad = np.zeros_like(x)
         cols = p.columns
@@ -415,38 +423,40 @@ class _TutorialObjective:
         return v, grad
 
 
-def _fit_tutorial(o: _VolumeOptions) -> dict:
+def _fit_tutorial(o: _Plan) -> dict:
     """PyTorch3D's recipe: dense grid, Adam on random view batches, lr x 0.1 at 75%; returns
     the fields of the result."""
     N, H, W, _ = o.imgs.shape
     clock, history = Clock(), FitHistory()
+    clock.deadline = o.time_budget
     fun = _TutorialObjective(o)
     x0 = fun.x0()
     bar = progress_bar(o.progress, o.n_iter, "fit_volume[tutorial]")
-    last_monitor = [0.0]
+    last_monitor = [0]
 
     def callback(si):
         step = len(history) + 1
         history.record(step, si.seconds, si.value, fun.terms, n_params=x0.size)
-        if o.monitor is not None and o.monitor_every is not None and \
-                si.seconds - last_monitor[0] >= o.monitor_every:
+        if o.evaluator is not None and o.eval_every is not None and \
+                step - last_monitor[0] >= o.eval_every:
             with clock.paused():
-                history.checkpoint(step, clock.elapsed(), o.monitor(fun.volume(np.asarray(si.x))))
-            last_monitor[0] = clock.elapsed()
+                history.checkpoint(step, clock.elapsed(),
+                                   o.evaluator(fun.volume(np.asarray(si.x))))
+            last_monitor[0] = step
         with clock.paused():
             bar.update(1)
-        if o.verbose and step % 10 == 0:
-            print(f"fit_volume[tutorial] step {step}: loss {si.value:.5f}, "
-                  f"{si.seconds:.1f} s", flush=True)
+            if o.callback is not None:
+                return o.callback(si._replace(terms=dict(fun.terms)))
+        return None
 
     res, n1 = _adam_then_tenth(fun, x0, o, callback, clock)
     bar.close()
     n_it, n_ev = res.n_iterations, res.n_evaluations
     res.status, res.message = _tutorial_status(res, np.asarray(history.loss), o.lr, n1)
     vol = fun.volume(res.x)
-    if o.monitor is not None:
+    if o.evaluator is not None:
         with clock.paused():
-            history.checkpoint(len(history), clock.elapsed(), o.monitor(vol))
+            history.checkpoint(len(history), clock.elapsed(), o.evaluator(vol))
     nv = fun.nv
     spr = fun.samples / max(fun.rays, 1)
     stages = [{"level": o.S, "image_size": [H, W], "n_pts_per_ray": o.n_pts,
@@ -461,7 +471,7 @@ def _fit_tutorial(o: _VolumeOptions) -> dict:
         n_pts_per_ray=o.n_pts, stages=stages, method="adam", recipe="tutorial")
 
 
-def _adam_then_tenth(fun, x0, o: _VolumeOptions, callback, clock):
+def _adam_then_tenth(fun, x0, o: _Plan, callback, clock):
     """Adam for 75 % of ``o.n_iter`` steps at ``o.lr``, the rest at a tenth (a new Adam, as
     the tutorial); returns the result (with both phases' counts) and the first phase's steps."""
     n1 = max(1, int(round(0.75 * o.n_iter)))

@@ -1,7 +1,7 @@
 """The per-level problem of :func:`geofit.fit.volume.fit_volume`: grids, rays, the sparse
 sampling operator and the emission-absorption objective with its analytic gradient.
 
-:class:`_Problem` holds one level: the free voxels (inside the hull, not pruned), the rays and
+:class:`_Objective` holds one level: the free voxels (inside the hull, not pruned), the rays and
 the contiguous sample ranges that can meet them (empty-space skipping, early termination), the
 sparse trilinear operator from free voxels to samples (built once per level), and
 ``evaluate(x) -> (value, grad, terms)`` for the flat parameter vector ``x`` of density and
@@ -99,7 +99,7 @@ def _ray_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     return t0, t1
 
 
-class _Problem:
+class _Objective:
     """One level: rays, kept sample ranges, the sparse operator and the loss.
 
     Parameters are ``[log-density of the free density voxels, colour logits (3 per column)]``;
@@ -110,6 +110,7 @@ class _Problem:
                  allowed, *, termination: float | None, n_pixels: int, huber_scale: float,
                  chunk_samples: int = 1 << 19, dtype=np.float64, smoothness=(0.0, 0.0)):
         self.grid = grid
+        self.clock = None  # the fit's Clock: its deadline is checked inside evaluate
         self.dtype = np.dtype(dtype)
         self.smoothness = (float(smoothness[0]), float(smoothness[1]))
         self.n_pts = n = len(lengths)
@@ -278,6 +279,8 @@ class _Problem:
             r0, r1, Wb = blk
             Y[r0:r1] = Wb @ X
         parallel_map(fwd, blocks)
+        if self.clock is not None:  # a time budget holds inside long evaluations
+            self.clock.check()
         G = np.empty_like(Y) if want_grad else None
         nch = len(self.layout.chunks)
         bounds = np.linspace(0, nch, len(blocks) + 1).astype(int).tolist()

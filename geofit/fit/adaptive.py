@@ -1,6 +1,8 @@
-"""Mesh-to-mesh fit that starts from the data's topology and remeshes where the error is.
+"""The remeshing solver of :func:`geofit.fit.fit_mesh` (its default recipe): a fit that starts
+from the data's topology and remeshes where the error is.
 
-:func:`fit_mesh_adaptive` (tutorial 1 for any shape):
+``fit_mesh(target)`` (tutorial 1 for any shape; options in
+:class:`~geofit.fit.MeshFitOptions` with ``refine=Remeshing(...)``):
 
 1. **Initialisation from the data** (:func:`geofit.fit.init.initial_mesh`): by default the
    normalised target decimated to ``n_faces`` faces (quadric error, Open3D), which keeps its
@@ -29,52 +31,22 @@ included); this module adds no new gradient.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from .._validate import as_rng, check_positive
+from .._validate import as_rng
+from ..ops import remesh, topology
 from ..structures import Mesh
+from ._cloud import mesh_from_points
+from ._mesh_objective import MeshObjective
+from ._mesh_plan import MeshFitResult, MeshTarget, Plan, empty_row_terms, repair_degenerate
+from ._progress import progress_bar
 from .history import Clock, FitHistory
-from ._mesh_objective import MeshObjective, mesh_weights
-from ._options import check_int
+from .init import InitialMesh, initial_mesh
 from .large_steps import LargeSteps
-from .mesh import MeshFitResult, _as_mesh, _repair_degenerate
 from .solvers import lbfgs_scipy
 
-__all__ = ["ADAPTIVE_WEIGHTS", "AdaptiveMeshFitResult", "fit_mesh_adaptive", "refine_lengths"]
-
-#: Weights of the adaptive fit: the exact two-way distance, and a light normal-consistency term.
-#: Starting on the target's own surface there is little for the smoothing terms to do, and the
-#: edge-length term (mean squared edge length) would shrink the surface; the large-steps
-#: parameterisation keeps the steps smooth.
-ADAPTIVE_WEIGHTS = {"chamfer": 1.0, "edge": 0.0, "normal": 1e-5, "laplacian": 0.0}
-
-
-@dataclass(kw_only=True)
-class AdaptiveMeshFitResult(MeshFitResult):
-    """Result of :func:`fit_mesh_adaptive` (a :class:`~geofit.fit.MeshFitResult`).
-
-    Attributes
-    ----------
-    init : str
-        The initialisation used: ``"target"`` (decimated target), ``"points"`` (Poisson
-        reconstruction of a point-cloud target), ``"sphere"`` or ``"user"``.
-    topology : geofit.ops.TopologyReport
-        Topology of the fitted mesh (genus, boundary loops, parts, non-manifold edges,
-        self-intersecting face pairs).
-    """
-
-    init: str = ""
-    topology: Any = None
-
-    def summary(self) -> dict[str, Any]:
-        d = super().summary()
-        d["init"] = self.init
-        if self.topology is not None:
-            d["topology"] = self.topology.as_dict()
-        return d
+__all__ = ["refine_lengths", "solve_remeshing"]
 
 
 def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float = 0.5,
@@ -96,6 +68,14 @@ def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float 
     -------
     (V,) float64
         ``min`` over each vertex's edges of ``l_e clip(sqrt(eps / d_e), lo, hi)``.
+
+    Examples
+    --------
+    >>> from geofit import ico_sphere
+    >>> m = ico_sphere(1)
+    >>> small = refine_lengths(m, np.full(len(m.edges), 1e-9), 1e-4)  # error far below eps
+    >>> bool(small.min() >= 1.5 * m.edge_lengths.min() - 1e-12)  # lengths grow by up to 1.5
+    True
     """
     E = mesh.edges
     le = mesh.edge_lengths
@@ -108,124 +88,42 @@ def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float 
     return lv
 
 
-def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
-                      chamfer_l2: float = 3e-5, fscore: float = 0.97, tau: float = 0.01,
-                      max_rounds: int = 4, max_verts: int = 30000, n_iter: int = 40,
-                      large_steps: float | None = None, weights=None, time_budget: float | None = 10.0,
-                      seed=0, evaluator="default") -> AdaptiveMeshFitResult:
-    """Fit a mesh to ``target`` from an initial shape with its topology, remeshing as it goes.
+def _start(plan: Plan, target: MeshTarget, p2s, rng) -> InitialMesh:
+    """The initial mesh: from the data (decimated target, or the cloud's Poisson
+    reconstruction), an ico-sphere, or the user's mesh."""
+    init, n_faces = plan.init, plan.refine.n_faces
+    if init is None:
+        init = "auto"
+    if not target.cloud:
+        return initial_mesh(init, target.normalized, n_faces=n_faces)
+    if isinstance(init, str) and init in ("auto", "target"):
+        m0 = mesh_from_points(p2s, n_faces=n_faces, seed=rng)
+        return InitialMesh(m0, "points", f"Poisson reconstruction of the "
+                                         f"{len(target.normalized)} points, trimmed and "
+                                         f"decimated to {m0.n_faces} faces ({m0.n_verts} "
+                                         "vertices, Open3D)")
+    return initial_mesh(init, None, n_faces=n_faces)
 
-    Parameters
-    ----------
-    target : Mesh, (verts, faces) or point cloud
-        The surface to fit (any genus, open, several parts), or a point cloud: a (k, 3) float64
-        array, a geofit ``PointCloud`` (or one-cloud ``Pointclouds``), a trimesh or Open3D point
-        cloud, at least 20 points.
-    init : {"auto", "sphere", "target"}, int or Mesh
-        Initial mesh (:func:`geofit.fit.init.initial_mesh`); ``"auto"`` (or ``"target"``) is the
-        decimated target, or for a point cloud the trimmed, decimated Poisson reconstruction of
-        the points. A given Mesh is taken in the target's normalised frame.
-    n_faces : int
-        Face budget of the decimated target.
-    chamfer_l2, fscore, tau : float
-        Accuracy target (normalised frame, estimated on fresh samples): stop refining once the
-        estimated chamfer-L2 is at most ``chamfer_l2`` and the F-score at ``tau`` at least
-        ``fscore``.
-    max_rounds : int
-        Solve-and-remesh rounds at most.
-    max_verts : int
-        Do not refine past this many vertices.
-    n_iter : int
-        L-BFGS iterations per round.
-    large_steps : float, optional
-        ``lambda`` of the large-steps parameterisation. Default: 2 from the data's own shape
-        (``init`` ``"target"`` or ``"points"``, already close), 10 from an ico-sphere or a
-        given mesh, which travel far and need smoother steps (on the dolphin from a collapsed
-        ``ico_sphere(4)``, F@0.01 0.87 with 10 against 0.18 with 2 in 10 s;
-        ``benchmarks/fit_mesh.py``'s stability part).
-    weights : dict, optional
-        Term weights (default :data:`ADAPTIVE_WEIGHTS`).
-    time_budget : float or None
-        Seconds of solver time for the whole fit.
-    seed : int or numpy.random.Generator
-        Sampling randomness.
-    evaluator : MeshEvaluator, "default" or None
-        Accuracy checkpoints of the initial mesh and after each round (``"default"``: 20 000
-        samples a side, F@0.01, normalised frame; each checkpoint also records ``n_verts``);
-        their time is not counted. A point-cloud target has no surface to score against, so
-        its ``"default"`` is None (pass a MeshEvaluator of the true surface when there is one).
 
-    Returns
-    -------
-    AdaptiveMeshFitResult
-        The fitted mesh (original and normalised frames), ``init``, ``topology``, ``stages``
-        (one per round: vertices, solver status, accuracy estimate, remeshing counts).
+def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
+                    progress: bool) -> MeshFitResult:
+    """Rounds of solve, accuracy estimate and remeshing (see the module's docstring).
 
-    Raises
-    ------
-    ValueError, TypeError
-        For invalid options or meshes.
-
-    Examples
-    --------
-    >>> from geofit.shapes import torus
-    >>> res = fit_mesh_adaptive(torus(), n_faces=500, max_rounds=1, n_iter=5, evaluator=None)
-    >>> res.init, res.topology.genus
-    ('target', 1)
+    Checkpoints (the evaluator's metrics, clock paused) follow the initial mesh and each round,
+    and every ``plan.eval_every`` evaluations when set.
     """
-    from ..loss import PointToSurface
-    from ..metrics import MeshEvaluator
-    from ..ops import remesh, topology
-    from ._cloud import CloudTarget, as_cloud_points, is_cloud, mesh_from_points
-    from .init import InitialMesh, initial_mesh
-
-    cloud = is_cloud(target)
-    if cloud:
-        points = as_cloud_points(target, "target")
-        target_mesh = None
-    else:
-        target_mesh = _as_mesh(target, "target")
-    n_faces = check_int(n_faces, "n_faces", 4)
-    max_rounds = check_int(max_rounds, "max_rounds")
-    max_verts = check_int(max_verts, "max_verts", 4)
-    n_iter = check_int(n_iter, "n_iter")
-    lam = None if large_steps is None else check_positive(large_steps, "large_steps")
-    chamfer_l2 = check_positive(chamfer_l2, "chamfer_l2", strict=False)
-    tau = check_positive(tau, "tau")
-    if not 0.0 <= float(fscore) <= 1.0:
-        raise ValueError(f"fscore: expected a number in [0, 1], got {fscore!r}")
-    if time_budget is not None:
-        time_budget = check_positive(time_budget, "time_budget")
-    w = mesh_weights(weights if weights is not None else ADAPTIVE_WEIGHTS)
-    if isinstance(evaluator, str):
-        if evaluator != "default":
-            raise ValueError(f"evaluator: expected a MeshEvaluator, 'default' or None, "
-                             f"got {evaluator!r}")
-        evaluator = None if cloud else MeshEvaluator(target_mesh, n_samples=20_000, taus=0.01,
-                                                     normalize=True)
-
+    rem = plan.refine
+    time_budget, evaluator, w = plan.time_budget, plan.evaluator, plan.weights[0]
     rng = as_rng(seed)
     clock = Clock()
+    clock.deadline = time_budget
     history = FitHistory()
-    if cloud:  # the same normalisation as Mesh.normalize, on the points
-        center = points.mean(0)
-        scale = float(np.abs(points - center).max())
-        tgt = (points - center) / scale
-        p2s = CloudTarget(tgt)
-        if isinstance(init, str) and init in ("auto", "target"):
-            m0 = mesh_from_points(p2s, n_faces=n_faces, seed=rng)
-            start = InitialMesh(m0, "points", f"Poisson reconstruction of the {len(tgt)} points,"
-                                f" trimmed and decimated to {m0.n_faces} faces "
-                                f"({m0.n_verts} vertices, Open3D)")
-        else:
-            start = initial_mesh(init, None, n_faces=n_faces)
-    else:
-        norm = target_mesh.normalize()
-        center, scale = norm.center, float(norm.scale)
-        tgt = norm.mesh
-        p2s = PointToSurface(tgt)
-        start = initial_mesh(init, tgt, n_faces=n_faces)
-    mesh, n_bad, n_moved = _repair_degenerate(start.mesh)  # a given start may have them
+    cloud = target.cloud
+    tgt = target.normalized
+    p2s = target.distance()
+    start = _start(plan, target, p2s, rng)
+    mesh, n_bad, n_moved = repair_degenerate(start.mesh)  # a given start may have them
+    lam = plan.lam
     if lam is None:
         lam = 2.0 if start.name in ("target", "points") else 10.0
     history.note(0, clock.elapsed(), f"initial mesh: {start.description}", init=start.name,
@@ -234,24 +132,27 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         history.note(0, clock.elapsed(), f"repaired {n_bad} zero-area faces of the initial "
                      f"mesh ({n_moved} vertices moved)", n_degenerate=n_bad, n_moved=n_moved)
     metrics = None
+    last_ckpt = 0
 
     def checkpoint(m: Mesh, step: int) -> None:
         """Evaluator metrics of ``m`` (normalised frame) as a history row, clock paused."""
-        nonlocal metrics
+        nonlocal metrics, last_ckpt
         if evaluator is None:
             return
         with clock.paused():
-            metrics = evaluator.evaluate(m.update_verts(m.verts * scale + center))
+            metrics = evaluator.evaluate(m.update_verts(target.undo(m.verts)))
+        last_ckpt = step
         history.checkpoint(step, clock.elapsed(), dict(metrics.as_dict(), n_verts=m.n_verts))
 
+    bar = progress_bar(progress, rem.max_rounds * plan.n_iter, "fit_mesh[default]")
     checkpoint(mesh, 0)
     stages: list[dict] = []
     evals = iters = 0
     status, message = "max_iter", ""
-    for rnd in range(max_rounds):  # solve-and-remesh rounds
+    for rnd in range(rem.max_rounds):  # solve-and-remesh rounds
         remaining = None if time_budget is None else time_budget - clock.elapsed()
         if remaining is not None and remaining <= 0:
-            status, message = "time_budget", f"time budget {time_budget:g} s used up"
+            status, message = "time_budget", f"reached the time budget of {time_budget:g} s"
             break
         ls = LargeSteps(mesh, lam)
         ns = min(8000, max(2000, 4 * mesh.n_verts))
@@ -262,17 +163,28 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         def cb(info, _obj=obj, _base=base, _rnd=rnd):
             nonlocal iters
             iters += 1
-            history.record(_base + info.n_evaluations, clock.elapsed(), info.value,
-                           _obj.last_terms, n_params=_obj.n_params, stage=_rnd)
+            step = _base + info.n_evaluations
+            history.record(step, clock.elapsed(), info.value, _obj.last_terms,
+                           n_params=_obj.n_params, stage=_rnd)
+            with clock.paused():
+                bar.update(1)
+            if plan.eval_every is not None and step - last_ckpt >= plan.eval_every:
+                with clock.paused():
+                    m = _obj.source.update_verts(_obj.verts_from_params(info.x))
+                checkpoint(m, step)
+            if callback is not None and callback(info):
+                return True
+            return None
 
         if time_budget is not None:  # what is left after building the objective
             remaining = max(time_budget - clock.elapsed(), 1e-6)
-        res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=n_iter,
+        res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=plan.n_iter,
                           time_budget=remaining, callback=cb, clock=clock)
         evals += res.n_evaluations
         mesh = mesh.update_verts(obj.verts_from_params(res.x))
-        checkpoint(mesh, evals)
-        est = obj.estimate_accuracy(mesh.verts, tau=tau)
+        if last_ckpt != evals:
+            checkpoint(mesh, evals)
+        est = obj.estimate_accuracy(mesh.verts, tau=rem.tau)
         stage = {"stage": rnd, "n_verts": mesh.n_verts, "status": res.status,
                  "message": res.message, "n_iterations": res.n_iterations,
                  "n_evaluations": res.n_evaluations, "seconds": res.seconds,
@@ -281,21 +193,23 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
         status, message = res.status, res.message
         history.note(evals, clock.elapsed(),
                      f"round {rnd}: estimated chamfer-L2 {est['chamfer_l2']:.3g}, "
-                     f"F@{tau:g} {est['fscore']:.4f} with {mesh.n_verts} vertices", **est)
-        if res.status in ("nonfinite", "diverged", "failed", "time_budget"):
+                     f"F@{rem.tau:g} {est['fscore']:.4f} with {mesh.n_verts} vertices", **est)
+        if res.status in ("nonfinite", "diverged", "failed", "time_budget", "callback"):
             break
-        if est["chamfer_l2"] <= chamfer_l2 and est["fscore"] >= fscore:
-            message = f"accuracy reached with {mesh.n_verts} vertices; {message}"
+        if est["chamfer_l2"] <= rem.chamfer_l2 and est["fscore"] >= rem.fscore:
+            message = (f"accuracy reached with {mesh.n_verts} vertices after {rnd + 1} rounds; "
+                       f"{message}")
             break
-        if rnd == max_rounds - 1 or mesh.n_verts >= max_verts:
-            message = (f"stopped at {mesh.n_verts} vertices "
-                       f"({'max_rounds' if rnd == max_rounds - 1 else 'max_verts'}); {message}")
+        if rnd == rem.max_rounds - 1 or mesh.n_verts >= rem.max_verts:
+            message = (f"stopped at {mesh.n_verts} vertices after {rnd + 1} rounds "
+                       f"({'max_rounds' if rnd == rem.max_rounds - 1 else 'max_verts'}); "
+                       f"{message}")
             break
         # remesh towards lengths set by the error at the edge midpoints
         E = mesh.edges
         mid = 0.5 * (mesh.verts[E[:, 0]] + mesh.verts[E[:, 1]])
         err = p2s.distances(mid) if cloud else p2s.query(mid).distances
-        eps = 0.25 * math.sqrt(chamfer_l2 / 2.0)
+        eps = 0.25 * math.sqrt(rem.chamfer_l2 / 2.0)
         lv = refine_lengths(mesh, err, eps)
         r = remesh(mesh, lv, n_passes=2)
         stage["remesh"] = {"n_split": r.n_split, "n_collapse": r.n_collapse, "n_flip": r.n_flip,
@@ -304,17 +218,19 @@ def fit_mesh_adaptive(target, *, init="auto", n_faces: int = 2000,
                      f"remeshed: {r.n_split} splits, {r.n_collapse} collapses, {r.n_flip} flips "
                      f"-> {r.mesh.n_verts} vertices", n_verts=r.mesh.n_verts)
         mesh = r.mesh
+    bar.close()
     with clock.paused():
         topo = topology(mesh)
     if not len(history):
-        history.record(evals, clock.elapsed(), math.inf, {k: math.inf for k in w},
+        history.record(evals, clock.elapsed(), math.inf, empty_row_terms(),
                        n_params=3 * mesh.n_verts)
-    message = f"init: {start.description}; {message}; result: {topo.describe()}"
+    message = f"{message}; init: {start.description}; result: {topo.describe()}"
     if topo.n_self_intersecting_pairs > 0:
         message += " (the fitted surface self-intersects)"
-    return AdaptiveMeshFitResult(
+    return MeshFitResult(
         status=status, message=message, history=history, n_params=3 * mesh.n_verts,
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=iters,
-        n_evaluations=evals, mesh=mesh.update_verts(mesh.verts * scale + center),
-        mesh_normalized=mesh, center=np.array(center, dtype=np.float64), scale=scale,
-        method="adaptive", metrics=metrics, stages=stages, init=start.name, topology=topo)
+        n_evaluations=evals, mesh=mesh.update_verts(target.undo(mesh.verts)),
+        mesh_normalized=mesh, center=np.array(target.center, dtype=np.float64),
+        scale=target.scale, method=plan.method, recipe=plan.recipe, metrics=metrics,
+        stages=stages, init=start.name, topology=topo)

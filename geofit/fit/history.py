@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult"]
+__all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult", "TimeUp"]
 
 #: Every status a solver or a fit can end with, and what it means.
 STATUSES: dict[str, str] = {
@@ -40,8 +40,17 @@ STATUSES: dict[str, str] = {
 CONVERGED_STATUSES = frozenset({"converged"})
 
 
+class TimeUp(Exception):
+    """Raised by :meth:`Clock.check` inside a long evaluation once the clock has passed its
+    ``deadline`` (the fit's time budget); the solvers turn it into status ``"time_budget"``."""
+
+
 class Clock:
     """A wall clock for a solver that can be paused while the observer works.
+
+    ``deadline`` (seconds of :meth:`elapsed`, None: none) is the fit's time budget: long
+    evaluations call :meth:`check` between their chunks so that a budget is kept within a
+    chunk's time, not only between solver steps.
 
     Examples
     --------
@@ -59,6 +68,13 @@ class Clock:
         self._cpu_paused_total = 0.0
         self._paused_at: float | None = None
         self._cpu_paused_at: float | None = None
+        self.deadline: float | None = None
+
+    def check(self) -> None:
+        """Raise :class:`TimeUp` when the clock runs (not paused) past its ``deadline``."""
+        if self.deadline is not None and self._paused_at is None and \
+                self.elapsed() > self.deadline:
+            raise TimeUp(f"reached the time budget of {self.deadline:g} s")
 
     def elapsed(self) -> float:
         """Wall-clock seconds since construction, minus the paused intervals."""

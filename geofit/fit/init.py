@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import as_array
+from ..shapes import ico_sphere
 from ..structures import Mesh
 
 __all__ = ["INITS", "InitialMesh", "decimate", "initial_mesh", "mesh_from_occupancy",
@@ -159,8 +161,6 @@ def initial_mesh(init, target: Mesh | None = None, *, n_faces: int = 2000,
     -------
     InitialMesh
     """
-    from ..shapes import ico_sphere
-
     if isinstance(init, Mesh):
         return InitialMesh(init, "user", f"the given mesh ({init.n_verts} vertices)")
     if isinstance(init, (int, np.integer)) and not isinstance(init, bool):
@@ -220,8 +220,6 @@ def visual_hull_mesh(silhouettes, cameras, *, extent: float = 1.5, resolution: i
         empty or fills the whole grid.
     """
     from scipy.ndimage import distance_transform_edt, map_coordinates
-
-    from .._validate import as_array
 
     if not isinstance(resolution, (int, np.integer)) or resolution < 8:
         raise ValueError(f"resolution: expected an integer >= 8, got {resolution!r}")

@@ -31,6 +31,12 @@ optimise ``u = (I + lambda L) V`` with ``L = D - A`` the combinatorial graph Lap
 topology with ``scipy.sparse.linalg.splu``) and ``dE/du = M^-1 dE/dV``. Gradient steps in ``u``
 are smooth (Sobolev) steps in ``V``, so large deformations keep a well-shaped mesh.
 
+The fit has one shape (as every fit of :mod:`geofit.fit`): the target is normalised once at the
+door (:func:`geofit.fit._mesh_plan.as_target`), the recipe and the options become a plan
+(:func:`geofit.fit._mesh_plan.plan`), the objective is :class:`MeshObjective`, the solver is
+either the stages and levels below (:class:`_Solver`) or the remeshing rounds of
+:mod:`geofit.fit.adaptive` (the default recipe), and both return a :class:`MeshFitResult`.
+
 Coarse-to-fine (:class:`CoarseToFine`): start from a coarse ico-sphere, fit, estimate the
 accuracy on fresh samples, and subdivide (midpoint, :func:`geofit.subdivide`) only while the
 estimate misses the requested accuracy, so the result has no more vertices than needed.
@@ -38,178 +44,142 @@ estimate misses the requested accuracy, so the result has no more vertices than 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
-from .._validate import as_array, as_faces, as_rng, check_choice, check_positive
-from ..structures import Mesh, as_mesh
-from ._mesh_objective import TERMS, MeshObjective, mesh_weights
-from ._options import Recipes, check_int, method_name, recipe_name, warn_deprecated
+from .._validate import as_rng
+from ..shapes import subdivide
+from ..structures import Mesh
+from ._mesh_objective import MeshObjective
+from ._mesh_plan import (
+    ADAPTIVE_WEIGHTS,
+    FINE_WEIGHTS,
+    METHODS,
+    RECIPES,
+    TUTORIAL_WEIGHTS,
+    CoarseToFine,
+    MeshFitOptions,
+    MeshFitResult,
+    MeshTarget,
+    Plan,
+    Remeshing,
+    as_target,
+    empty_row_terms,
+    plan,
+    repair_degenerate,
+    sphere_init,
+)
 from ._progress import progress_bar
-from .history import Clock, FitHistory, FitResult
+from .adaptive import solve_remeshing
+from .history import Clock, FitHistory
 from .large_steps import LargeSteps
 from .solvers import SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
 __all__ = [
+    "ADAPTIVE_WEIGHTS",
     "FINE_WEIGHTS",
     "METHODS",
     "RECIPES",
     "TUTORIAL_WEIGHTS",
     "CoarseToFine",
     "LargeSteps",
+    "MeshFitOptions",
     "MeshFitResult",
     "MeshObjective",
+    "Remeshing",
     "fit_mesh",
 ]
 
-#: Methods (solvers) :func:`fit_mesh` accepts.
-METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
-
-#: The tutorial's weights (chamfer 1, edge 1, normal consistency 0.01, Laplacian 0.1).
-TUTORIAL_WEIGHTS = {"chamfer": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 0.1}
-
-#: Lighter regularisation for the later, fine stages of the quasi-Newton fits: with exact
-#: point-to-surface distances there is no sampling noise for the regularisers to smooth out.
-FINE_WEIGHTS = {"chamfer": 1.0, "edge": 0.03, "normal": 0.003, "laplacian": 0.01}
-
-#: Recipes of :func:`fit_mesh` (``fit_mesh(target, recipe=name)``; every entry is also a dict
-#: of keyword options).
-RECIPES: dict[str, dict] = Recipes({
-    # L-BFGS, deterministic stages, exact point-to-surface distances, large steps (lambda 10)
-    "default": {"method": "lbfgs"},
-    # the tutorial exactly: SGD lr 1.0 momentum 0.9, 2000 steps, 5000 fresh samples a side
-    "tutorial": {"method": "sgd"},
-    # ico 2 -> 3 -> 4, subdividing only while the accuracy asks for it
-    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
-}, {
-    "adam": {"method": "adam", "lr": 0.01},
-    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
-    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
-    "large-steps": {"method": "lbfgs", "large_steps": 10.0},
-}, fit="fit_mesh")
-
-_STOCHASTIC = ("sgd", "adam")
+_FAILED = ("nonfinite", "diverged", "failed")
 
 
-# ------------------------------------------------------------------------------------ inputs
-def _as_mesh(m, name: str) -> Mesh:
-    """A Mesh from a Mesh or a (verts, faces) pair, with a message naming ``name``."""
-    if isinstance(m, (tuple, list)) and len(m) == 2:
-        verts = as_array(m[0], f"{name} verts", (None, 3), finite=False)
-        bad = int(np.count_nonzero(~np.isfinite(verts)))
-        if bad:
-            raise ValueError(f"{name}: the vertices contain {bad} NaN or inf coordinates; "
-                             "fix or drop them before fitting")
-        mesh = Mesh(verts, as_faces(m[1], f"{name} faces", len(verts)))
-    else:
-        mesh = as_mesh(m, name)  # a geofit, trimesh or Open3D mesh
-    if mesh.n_faces == 0:
-        raise ValueError(f"{name}: expected a mesh with at least one face, got 0 faces")
-    if not float(mesh.face_areas.sum()) > 0:
-        raise ValueError(f"{name}: the surface has zero area (every triangle is collapsed)")
-    return mesh
+def fit_mesh(target, *, recipe: str = "default", options: MeshFitOptions | None = None,
+             time_budget: float | None = None, seed=0, evaluator: Any = "default",
+             eval_every: int | None = None,
+             callback: Callable[[StepInfo], bool | None] | None = None,
+             progress: bool = True) -> MeshFitResult:
+    """Fit a mesh to ``target``: PyTorch3D's deform tutorial, and geofit's faster, more
+    accurate recipes.
 
-
-def _repair_degenerate(mesh: Mesh, max_rounds: int = 10) -> tuple[Mesh, int, int]:
-    """Move the vertices of zero-area triangles to their neighbours' centroid.
-
-    A collapsed triangle has no normal, and PyTorch3D's normal-consistency term (cosine with
-    norms clamped at 1e-8) then has gradients of order 1e8 there, which throw any solver off.
-    Each round replaces the vertices of the faces whose area is below ``1e-12`` of the mean
-    face area by the centroid of their edge neighbours (a uniform Laplacian step restricted to
-    them). Returns the mesh, the number of degenerate faces found and the number of vertices
-    moved.
-    """
-    areas = mesh.face_areas
-    tol = 1e-12 * float(areas.mean())
-    bad = areas <= tol
-    n_bad = int(bad.sum())
-    if n_bad == 0:
-        return mesh, 0, 0
-    F = mesh.faces
-    repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
-    bad &= ~repeated  # no vertex move gives such a face an area
-    A = mesh.topology.adjacency
-    deg = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)
-    V = mesh.verts.copy()
-    moved = np.zeros(mesh.n_verts, dtype=bool)
-    for _ in range(max_rounds):  # repair rounds
-        idx = np.unique(mesh.faces[bad])
-        moved[idx] = True
-        V[idx] = (A @ V)[idx] / deg[idx, None]
-        mesh = mesh.update_verts(V.copy())  # the mesh freezes the array it is given
-        bad = (mesh.face_areas <= tol) & ~repeated  # a repeated index stays degenerate
-        if not bad.any():
-            break
-    return mesh, n_bad, int(moved.sum())
-
-
-# ------------------------------------------------------------------------------------ config
-@dataclass
-class CoarseToFine:
-    """Coarse-to-fine schedule: start coarse, subdivide only while the accuracy asks for it.
-
-    Attributes
+    Parameters
     ----------
-    start_level : int
-        Ico-sphere level of the starting source when ``fit_mesh(None, ...)`` (2: 162 vertices).
-    max_level : int
-        Stop subdividing at this ico level (4: 2562 vertices); for a given source mesh, the number
-        of subdivisions is ``max_level - start_level``.
-    chamfer_l2 : float
-        Accept a level when its estimated chamfer-L2 (normalised frame, fresh samples, exact
-        distances) is at most this ...
-    fscore : float
-        ... and its estimated F-score at ``tau`` at least this.
-    tau : float
-        F-score threshold (normalised frame).
-    max_verts : int or None
-        Never subdivide past this many vertices.
-    coarse_weights : dict or None
-        Weights for the first (coarsest) level, where the mesh travels far from the sphere and
-        needs strong regularisation; later levels use the fit's ``weights``. Default: the
-        tutorial's weights.
-    stall_window, stall_rel : int or None, float
-        Stall test ending a level early: stop when the lowest data term of the last
-        ``stall_window`` iterations is not ``stall_rel`` (relative) below the lowest before them.
-        A coarse mesh reaches its best accuracy long before L-BFGS stops polishing the
-        regularisers (default 10 iterations, 1%; None disables it).
+    target : Mesh, (verts, faces) or point cloud
+        Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
+        the largest absolute coordinate) and returns the result in the original frame. A point
+        cloud ((k, 3) float64 array, geofit ``PointCloud``/one-cloud ``Pointclouds``, trimesh or
+        Open3D point cloud) is fitted by the default recipe: a first mesh from the points
+        (Poisson reconstruction, trimmed, decimated), then the remeshing fit to the points.
+    recipe : {"default", "sphere", "coarse-to-fine", "tutorial"}
+        Named settings (:data:`RECIPES`, presets of :class:`MeshFitOptions`):
+        ``"default"``, geofit's best for any shape: a first mesh from the target (its genus,
+        boundaries and parts), L-BFGS with large steps on exact distances, error-driven
+        remeshing (:mod:`geofit.fit.adaptive`); ``"sphere"``: L-BFGS with large steps from the
+        tutorial's ``ico_sphere(4)``; ``"coarse-to-fine"``: the same from ``ico_sphere(2)``,
+        subdividing while the accuracy asks for it; ``"tutorial"``: the tutorial's SGD exactly.
+    options : MeshFitOptions, optional
+        Settings that override the recipe's (every field left None keeps the recipe's).
+    time_budget : float, optional
+        Wall-clock seconds for the whole fit (the clock paused during the evaluator's
+        checkpoints). Default: 10 s for the default recipe, none for the others; ``math.inf``:
+        none.
+    seed : int or numpy.random.Generator
+        Sampling randomness (results are reproducible for a given seed).
+    evaluator : MeshEvaluator, "default" or None
+        Accuracy at checkpoints. ``"default"``: ``MeshEvaluator(target, n_samples=20000,
+        taus=0.01, normalize=True)`` (None for a point cloud, which has no surface to score
+        against); it is given the mesh in the original frame.
+    eval_every : int, optional
+        Evaluations between checkpoints (default: 200 steps for SGD/Adam; the end of each stage
+        or round for L-BFGS). The final mesh is always evaluated.
+    callback : callable, optional
+        ``callback(StepInfo) -> bool | None`` after each iteration (``info.x`` holds the
+        solver's parameters); True stops the fit with status ``"callback"``.
+    progress : bool
+        Show a tqdm progress bar (on stderr).
+
+    Returns
+    -------
+    MeshFitResult
+        ``mesh`` in the original frame, ``n_verts``, ``history`` (seconds, loss, each unweighted
+        term, metric checkpoints), ``status`` / ``message``, ``metrics``, ``stages``; the
+        remeshing fit also ``init`` (its name) and ``topology``.
+
+    Raises
+    ------
+    ValueError
+        For invalid options or meshes (a target with NaN or inf coordinates, no faces or zero
+        area), coarse-to-fine with SGD/Adam, or a point cloud with a recipe other than the
+        default.
+    TypeError
+        If ``target`` is not a mesh or a point cloud, or ``options`` not a MeshFitOptions.
 
     Notes
     -----
-    The default accuracy (chamfer-L2 <= 3e-5, F@0.01 >= 0.97) is stricter than what PyTorch3D's
-    tutorial reaches on the dolphin with 2562 vertices (6.1e-5 and 0.953 measured with
-    :mod:`geofit.metrics`), leaving room for the estimate's sampling error.
+    A starting mesh with zero-area (collapsed) triangles is repaired first: their vertices are
+    moved to the centroid of their neighbours (the message and ``history.events`` say how
+    many), because the normal-consistency gradient is of order 1e8 at a collapsed triangle.
+
+    The non-finite guard of :mod:`geofit.fit.solvers` makes every method end with finite
+    vertices: a blow-up stops it with status ``"nonfinite"`` or ``"diverged"`` and the best
+    finite vertices.
+
+    Examples
+    --------
+    >>> from geofit import ico_sphere
+    >>> target = ico_sphere(3).scale_verts(2.0)
+    >>> opts = MeshFitOptions(init=1, n_samples=500, n_stages=1)
+    >>> res = fit_mesh(target, recipe="sphere", options=opts, evaluator=None, progress=False)
+    >>> res.status in ("converged", "max_iter"), res.n_verts, bool(res.mesh.verts.max() > 1.5)
+    (True, 42, True)
     """
-
-    start_level: int = 2
-    max_level: int = 4
-    chamfer_l2: float = 3e-5
-    fscore: float = 0.97
-    tau: float = 0.01
-    max_verts: int | None = None
-    coarse_weights: dict | None = field(default_factory=lambda: dict(TUTORIAL_WEIGHTS))
-    stall_window: int | None = 10
-    stall_rel: float = 0.01
-
-    def __post_init__(self) -> None:
-        self.start_level = check_int(self.start_level, "start_level", 0)
-        self.max_level = check_int(self.max_level, "max_level", self.start_level)
-        self.chamfer_l2 = check_positive(self.chamfer_l2, "chamfer_l2", strict=False)
-        self.fscore = float(self.fscore)
-        if not 0.0 <= self.fscore <= 1.0:
-            raise ValueError(f"fscore: expected a number in [0, 1], got {self.fscore!r}")
-        self.tau = check_positive(self.tau, "tau")
-        if self.max_verts is not None:
-            self.max_verts = check_int(self.max_verts, "max_verts", 4)
-        if self.coarse_weights is not None:
-            self.coarse_weights = mesh_weights(self.coarse_weights, "coarse_weights")
-        if self.stall_window is not None:
-            self.stall_window = check_int(self.stall_window, "stall_window")
-        self.stall_rel = check_positive(self.stall_rel, "stall_rel", strict=False)
+    tgt = as_target(target)
+    p = plan(tgt, recipe, options, time_budget=time_budget, evaluator=evaluator,
+             eval_every=eval_every)
+    if p.remeshing:
+        return solve_remeshing(p, tgt, seed=seed, callback=callback, progress=progress)
+    run = _Solver(p, tgt, seed=seed, callback=callback, progress=progress)
+    mesh, status, message = _fit_levels(p, run)
+    return _mesh_result(p, run, mesh, status, message)
 
 
 class _Stall:
@@ -227,366 +197,25 @@ class _Stall:
         return min(self.values[-self.window:]) > (1.0 - self.rel) * before
 
 
-# ------------------------------------------------------------------------------------ result
-@dataclass(kw_only=True)
-class MeshFitResult(FitResult):
-    """Result of :func:`fit_mesh` (a :class:`~geofit.fit.FitResult`).
-
-    Attributes
-    ----------
-    mesh : Mesh
-        The fitted mesh in the target's **original** frame (normalisation undone).
-    mesh_normalized : Mesh
-        The same in the normalised frame the fit worked in.
-    center : (3,) float64
-        Normalisation centre: ``mesh.verts = mesh_normalized.verts * scale + center``.
-    scale : float
-        Normalisation scale.
-    metrics : MeshMetrics or None
-        Final accuracy (the evaluator's, see :func:`fit_mesh`), None without an evaluator.
-    stages : list of dict
-        One entry per solve: level, vertices, solver status and message, evaluations, seconds,
-        and (coarse-to-fine) the accuracy estimate that decided whether to subdivide.
-    """
-
-    mesh: Mesh
-    mesh_normalized: Mesh
-    center: np.ndarray
-    scale: float
-    metrics: Any = None
-    stages: list = field(default_factory=list)
-
-    @property
-    def n_verts(self) -> int:
-        """Number of vertices of the fitted mesh."""
-        return self.mesh.n_verts
-
-    def save_obj(self, path) -> None:
-        """Write the fitted mesh (original frame) as Wavefront OBJ (:func:`geofit.io.save_obj`)."""
-        from ..io import save_obj
-
-        save_obj(path, self.mesh)
-
-    def summary(self) -> dict[str, Any]:
-        d = super().summary()
-        d.update(method=self.method, n_verts=self.n_verts, n_faces=self.mesh.n_faces,
-                 stages=self.stages)
-        if self.metrics is not None:
-            d["metrics"] = self.metrics.as_dict()
-        return d
-
-
-# ------------------------------------------------------------------------------------ fit
-_FAILED = ("nonfinite", "diverged", "failed")
-
-
-_UNSET = object()
-
-
-def fit_mesh(target, *args, init=None, recipe: str = "default", method: str | None = None,
-             weights: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
-             distance: str | None = None, n_samples: int | None = None,
-             n_iter: int | None = None,
-             n_stages: int | None = None, lr: float | None = None, momentum: float = 0.9,
-             large_steps: float | str | None = "auto",
-             coarse_to_fine: CoarseToFine | bool | None = None,
-             time_budget: float | None = None, seed=0, evaluator: Any = "default",
-             checkpoint_every: int | None = None, progress: bool = True,
-             callback: Callable[[StepInfo], bool | None] | None = None,
-             solver_options: Mapping[str, Any] | None = None,
-             source=_UNSET) -> MeshFitResult:
-    """Deform a sphere (or ``init``) into ``target`` (PyTorch3D's deform tutorial, and faster
-    solvers).
-
-    Parameters
-    ----------
-    target : Mesh, (verts, faces) or point cloud
-        Target surface, any frame: the fit normalises it (centre on the vertex mean, divide by
-        the largest absolute coordinate) and returns the result in the original frame. A point
-        cloud ((k, 3) float64 array, geofit ``PointCloud``/one-cloud ``Pointclouds``, trimesh or
-        Open3D point cloud) is fitted by the default call: a first mesh from the points
-        (Poisson reconstruction, trimmed, decimated), then the adaptive fit to the points.
-    init : Mesh, (verts, faces), int, "auto", "sphere" or None
-        Starting mesh, an ico-sphere level, or None / ``"auto"``: with no other option (the
-        default recipe), :func:`geofit.fit.adaptive.fit_mesh_adaptive`, geofit's best fit for any
-        shape (initial mesh from the target's own topology, error-driven remeshing; its result
-        also reports ``init`` and ``topology``); otherwise, and with ``"sphere"``,
-        ``ico_sphere(4)`` (the tutorial's), or ``ico_sphere(coarse_to_fine.start_level)`` with
-        coarse-to-fine. It is placed as given
-        in the target's *normalised* frame (the unit ico-sphere, as in the tutorial).
-    recipe : {"default", "tutorial", "coarse-to-fine"}
-        Named settings (:data:`RECIPES`) that the other options override: ``"default"`` is
-        L-BFGS with large steps, ``"tutorial"`` the tutorial's SGD, ``"coarse-to-fine"``
-        L-BFGS from ``ico_sphere(2)`` subdividing while the accuracy asks for it.
-    method : {"lbfgs", "lbfgs-nlopt", "sgd", "adam"}, optional
-        Solver (default: the recipe's). ``"lbfgs"`` is scipy's L-BFGS-B, ``"lbfgs-nlopt"``
-        nlopt's LD_LBFGS. ``"sgd"`` reproduces the tutorial exactly by default (5000 fresh
-        samples a side per step, point-to-point chamfer, weights 1 / 1 / 0.01 / 0.1, lr 1.0,
-        momentum 0.9, 2000 steps). ``"adam"`` uses the same stochastic objective. The L-BFGS
-        solvers use deterministic stages (fixed samples, redrawn between stages).
-    weights : dict or sequence of dict, optional
-        Term weights (``"chamfer"``, ``"edge"``, ``"normal"``, ``"laplacian"``). A sequence gives
-        the weights of stage 0, 1, ... (the last one repeats). Default: the tutorial's for
-        SGD/Adam; for L-BFGS the tutorial's in the first stage, then :data:`FINE_WEIGHTS`. With
-        coarse-to-fine, the coarsest level uses ``coarse_to_fine.coarse_weights`` (when set)
-        and every finer level the last entry (default :data:`FINE_WEIGHTS`).
-    distance : {"surface", "points"}, optional
-        Data term. Default ``"points"`` for SGD/Adam (the tutorial), ``"surface"`` for L-BFGS.
-    n_samples : int, optional
-        Samples per surface per step (SGD/Adam, default 5000 as the tutorial) or per stage
-        (L-BFGS, default ``min(5000, max(1000, 8 V))`` for a source of ``V`` vertices: 1296 on
-        ``ico_sphere(2)``, 5000 from ``ico_sphere(3)`` on).
-    n_iter : int, optional
-        Steps (SGD/Adam, default 2000) or maximum iterations per stage (L-BFGS, default 100).
-    n_stages : int, optional
-        L-BFGS stages, i.e. sample redraws (default 3; with coarse-to-fine, per level, default 1:
-        every level draws new samples anyway).
-    lr : float, optional
-        Step size for SGD (default 1.0) or Adam (default 0.01).
-    momentum : float
-        SGD momentum.
-    large_steps : float, "auto" or None
-        ``lambda`` of the large-steps parameterisation; None optimises the vertices directly.
-        ``"auto"`` (default): 10 for the L-BFGS methods (in vertex space they stall in folded
-        local minima on the dolphin, see ``benchmarks/fit_mesh.py``), None for SGD/Adam (the
-        tutorial).
-    coarse_to_fine : CoarseToFine or bool, optional
-        Coarse-to-fine schedule (True: the defaults of :class:`CoarseToFine`). Needs a
-        deterministic method (L-BFGS).
-    time_budget : float, optional
-        Seconds of solver time for the whole fit.
-    seed : int or numpy.random.Generator
-        Sampling randomness (results are reproducible for a given seed).
-    evaluator : MeshEvaluator, "default" or None
-        Accuracy at checkpoints. ``"default"``: ``MeshEvaluator(target, n_samples=20000,
-        taus=0.01, normalize=True)``; it is given the mesh in the original frame. Its time is
-        excluded from the solver's clock.
-    checkpoint_every : int, optional
-        Evaluations between checkpoints (default: 200 steps for SGD/Adam; the end of each
-        stage for L-BFGS). The final mesh is always evaluated.
-    progress : bool
-        Show a tqdm progress bar (on stderr).
-    callback : callable, optional
-        ``callback(StepInfo) -> bool | None`` after each iteration (``info.x`` holds the
-        solver's parameters); True stops the fit with status ``"callback"``.
-    solver_options : dict, optional
-        Extra keyword options for the solver (e.g. ``{"ftol": 1e-12}``, ``{"betas": ...}``).
-
-    Returns
-    -------
-    MeshFitResult
-        ``mesh`` in the original frame, ``n_verts``, ``history`` (seconds, loss, each unweighted
-        term, metric checkpoints), ``status`` / ``message``, ``metrics``, ``stages``.
-
-    Raises
-    ------
-    ValueError
-        For invalid options or meshes (a target with NaN or inf coordinates, no faces or zero
-        area), or coarse-to-fine with SGD/Adam.
-    TypeError
-        If ``source`` or ``target`` is not a mesh.
-
-    Notes
-    -----
-    A source with zero-area (collapsed) triangles is repaired first: their vertices are moved to
-    the centroid of their neighbours (the message and ``history.events`` say how many), because
-    the normal-consistency gradient is of order 1e8 at a collapsed triangle.
-
-    Solver time is measured on a :class:`~geofit.fit.Clock` paused during metric checkpoints
-    and progress-bar updates. The non-finite guard of :mod:`geofit.fit.solvers` makes every
-    method end with finite vertices: a blow-up stops it with status ``"nonfinite"`` or
-    ``"diverged"`` and the best finite vertices.
-
-    Examples
-    --------
-    >>> from geofit import ico_sphere
-    >>> target = ico_sphere(3).scale_verts(2.0)
-    >>> res = fit_mesh(target, init=1, n_samples=500, n_stages=1, evaluator=None,
-    ...                progress=False)
-    >>> res.status in ("converged", "max_iter"), res.n_verts, bool(res.mesh.verts.max() > 1.5)
-    (True, 42, True)
-    """
-    target, init = _init_argument(target, args, init, source)
-    # the default call: the adaptive fit (initial mesh and topology from the data, remeshing)
-    if isinstance(init, str):
-        check_choice(init, "init", ("auto", "sphere"))
-    if (init is None or init == "auto") and recipe == "default" and method is None \
-            and weights is None and distance is None and n_samples is None and n_iter is None \
-            and n_stages is None and large_steps == "auto" and coarse_to_fine in (None, False) \
-            and callback is None and checkpoint_every is None and not solver_options:
-        from .adaptive import fit_mesh_adaptive
-
-        return fit_mesh_adaptive(target, seed=seed, evaluator=evaluator,
-                                 **({} if time_budget is None else {"time_budget": time_budget}))
-    from ._cloud import is_cloud
-
-    if is_cloud(target):
-        raise ValueError("target: a point cloud is fitted by the default call (fit_mesh(P), "
-                         "optionally with time_budget, seed, evaluator) or by "
-                         "geofit.fit.fit_mesh_adaptive; the other options need a target mesh")
-    if isinstance(init, str):  # "sphere": the tutorial's start
-        init = None
-    plan = _MeshPlan.validate(
-        target, init, recipe=recipe, method=method, weights=weights, distance=distance,
-        n_samples=n_samples, n_iter=n_iter, n_stages=n_stages, lr=lr, momentum=momentum,
-        large_steps=large_steps, coarse_to_fine=coarse_to_fine, time_budget=time_budget,
-        evaluator=evaluator, checkpoint_every=checkpoint_every,
-        solver_options=solver_options)
-    run = _Run(plan, seed=seed, callback=callback, progress=progress)
-    mesh, status, message = _fit_levels(plan, run)
-    return _mesh_result(plan, run, mesh, status, message)
-
-
-@dataclass
-class _MeshPlan:
-    """The validated options of one :func:`fit_mesh` call (defaults resolved)."""
-
-    method: str
-    recipe: str
-    target: Mesh
-    init: Mesh
-    n_degenerate: int
-    n_moved: int
-    c2f: CoarseToFine | None
-    distance: str
-    n_samples: int | None
-    n_iter: int
-    n_stages: int
-    weights: list
-    lr: float
-    momentum: float
-    time_budget: float | None
-    lam: float | None
-    checkpoint_every: int | None
-    evaluator: Any
-    opts: dict
-
-    @property
-    def stochastic(self) -> bool:
-        return self.method in _STOCHASTIC
-
-    @classmethod
-    def validate(cls, target, init, *, recipe, method, weights, distance, n_samples, n_iter,
-                 n_stages, lr, momentum, large_steps, coarse_to_fine, time_budget, evaluator,
-                 checkpoint_every, solver_options) -> _MeshPlan:
-        """Check every option once and fill in the recipe's and the method's defaults."""
-        from ..metrics import MeshEvaluator
-
-        recipe = recipe_name(recipe, RECIPES, fit="fit_mesh")
-        settings = RECIPES[recipe]
-        method = method_name(method if method is not None else settings["method"], "method",
-                             METHODS, fit="fit_mesh", stacklevel=5)
-        stochastic = method in _STOCHASTIC
-        if coarse_to_fine is None:
-            coarse_to_fine = settings.get("coarse_to_fine")
-        if isinstance(large_steps, str) and large_steps == "auto" and "large_steps" in settings:
-            large_steps = settings["large_steps"]
-        c2f = _coarse_to_fine(coarse_to_fine, method)
-        target_mesh = _as_mesh(target, "target")
-        source, n_degenerate, n_moved = _repair_degenerate(_init_mesh(init, c2f))
-        distance = distance or ("points" if stochastic else "surface")
-        check_choice(distance, "distance", ("surface", "points"))
-        if n_samples is not None:
-            n_samples = check_int(n_samples, "n_samples")
-        n_iter = check_int(n_iter if n_iter is not None else (2000 if stochastic else 100),
-                           "n_iter")
-        default_stages = 1 if stochastic or c2f is not None else 3
-        n_stages = check_int(n_stages if n_stages is not None else default_stages, "n_stages")
-        if stochastic and n_stages != 1:
-            raise ValueError("n_stages: SGD/Adam redraw samples at every step; expected 1")
-        lr = check_positive(lr if lr is not None else (1.0 if method == "sgd" else 0.01), "lr")
-        if time_budget is not None:
-            time_budget = check_positive(time_budget, "time_budget")
-        if isinstance(large_steps, str):
-            check_choice(large_steps, "large_steps", ("auto",))
-            large_steps = None if stochastic else 10.0
-        lam = check_positive(large_steps, "large_steps") if large_steps is not None else None
-        if checkpoint_every is not None:
-            checkpoint_every = check_int(checkpoint_every, "checkpoint_every")
-        elif stochastic:
-            checkpoint_every = 200
-        if isinstance(evaluator, str):
-            check_choice(evaluator, "evaluator", ("default",))
-            evaluator = MeshEvaluator(target_mesh, n_samples=20_000, taus=0.01, normalize=True)
-        elif evaluator is not None and not callable(getattr(evaluator, "evaluate", None)):
-            raise TypeError(f"evaluator: expected a MeshEvaluator, 'default' or None, "
-                            f"got {type(evaluator)!r}")
-        return cls(method, recipe, target_mesh, source, n_degenerate, n_moved, c2f, distance,
-                   n_samples, n_iter, n_stages, _stage_weights(weights, stochastic), lr,
-                   float(momentum), time_budget, lam, checkpoint_every, evaluator,
-                   dict(solver_options or {}))
-
-    def stage_weights(self, level: int, stage: int) -> dict:
-        """The weights of one solve: per stage, or per coarse-to-fine level."""
-        if self.c2f is not None:
-            if level == 0 and self.c2f.coarse_weights is not None:
-                return self.c2f.coarse_weights
-            return self.weights[-1]
-        return self.weights[min(stage, len(self.weights) - 1)]
-
-    def stage_samples(self, mesh: Mesh) -> int:
-        """Samples a side of one solve (5000, or ``min(5000, max(1000, 8 V))`` for L-BFGS)."""
-        if self.n_samples:
-            return self.n_samples
-        return 5000 if self.stochastic else min(5000, max(1000, 8 * mesh.n_verts))
-
-
-def _coarse_to_fine(coarse_to_fine, method: str) -> CoarseToFine | None:
-    if coarse_to_fine is True:
-        coarse_to_fine = CoarseToFine()
-    elif coarse_to_fine is False:
-        coarse_to_fine = None
-    elif coarse_to_fine is not None and not isinstance(coarse_to_fine, CoarseToFine):
-        raise TypeError(f"coarse_to_fine: expected a CoarseToFine, bool or None, "
-                        f"got {type(coarse_to_fine)!r}")
-    if coarse_to_fine is not None and method in _STOCHASTIC:
-        raise ValueError(f"coarse_to_fine: needs a deterministic method (lbfgs or "
-                         f"lbfgs-nlopt), got method={method!r}")
-    return coarse_to_fine
-
-
-def _init_mesh(init, c2f: CoarseToFine | None) -> Mesh:
-    """The starting mesh: ``init`` as a Mesh, an ico-sphere level, or the default sphere."""
-    from ..shapes import ico_sphere
-
-    if init is None:
-        init = ico_sphere(c2f.start_level if c2f is not None else 4)
-    elif isinstance(init, (int, np.integer)) and not isinstance(init, bool):
-        init = ico_sphere(int(init))
-    return _as_mesh(init, "init")
-
-
-def _stage_weights(weights, stochastic: bool) -> list[dict]:
-    if weights is None:
-        weights = [TUTORIAL_WEIGHTS] if stochastic else [TUTORIAL_WEIGHTS, FINE_WEIGHTS]
-    elif isinstance(weights, Mapping):
-        weights = [weights]
-    weights = [mesh_weights(w, f"weights[{i}]") for i, w in enumerate(weights)]
-    if not weights:
-        raise ValueError("weights: expected at least one dict of weights")
-    return weights
-
-
-def _fit_levels(plan: _MeshPlan, run: _Run) -> tuple[Mesh, str, str]:
+def _fit_levels(plan: Plan, run: _Solver) -> tuple[Mesh, str, str]:
     """The solves: ``n_stages`` sample redraws, per coarse-to-fine level (one level without).
 
     Returns the final mesh (normalised frame), status and message.
     """
-    from ..shapes import subdivide
-
-    if plan.n_degenerate:
-        run.history.note(0, 0.0, f"source: {plan.n_degenerate} zero-area triangles; moved "
-                                 f"{plan.n_moved} vertices to their neighbours' centroid "
-                                 "before fitting", n_degenerate=plan.n_degenerate,
-                         n_moved=plan.n_moved)
-    mesh = plan.init
+    if run.n_degenerate:
+        run.history.note(0, 0.0, f"source: {run.n_degenerate} zero-area triangles; moved "
+                                 f"{run.n_moved} vertices to their neighbours' centroid "
+                                 "before fitting", n_degenerate=run.n_degenerate,
+                         n_moved=run.n_moved)
+    mesh = run.init
     status, message = "max_iter", ""
     level = 0
     while True:  # coarse-to-fine levels (a single pass without coarse-to-fine)
         ls = LargeSteps(mesh, plan.lam) if plan.lam is not None else None
         for s in range(plan.n_stages):  # stages: sample redraws
             if plan.time_budget is not None and run.clock.elapsed() >= plan.time_budget:
-                return mesh, "time_budget", f"time budget {plan.time_budget:g} s used up"
+                return mesh, "time_budget", (f"reached the time budget of "
+                                             f"{plan.time_budget:g} s after {run.iters} steps")
             obj, res = _solve_stage(plan, run, mesh, ls, level, s)
             mesh = mesh.update_verts(obj.verts_from_params(res.x))
             status, message = res.status, res.message
@@ -603,11 +232,11 @@ def _fit_levels(plan: _MeshPlan, run: _Run) -> tuple[Mesh, str, str]:
         level += 1
 
 
-def _solve_stage(plan: _MeshPlan, run: _Run, mesh: Mesh, ls, level: int, stage: int):
+def _solve_stage(plan: Plan, run: _Solver, mesh: Mesh, ls, level: int, stage: int):
     """One solve with fixed (or per-step) samples; returns the objective and the solver's
     result."""
     c2f = plan.c2f
-    obj = MeshObjective(mesh, run.target, plan.stage_weights(level, stage),
+    obj = MeshObjective(mesh, run.target.normalized, plan.stage_weights(level, stage),
                         distance=plan.distance, n_samples=plan.stage_samples(mesh),
                         resample="step" if plan.stochastic else "stage", large_steps=ls,
                         seed=run.rng, target_distance=run.p2s)
@@ -629,7 +258,7 @@ def _solve_stage(plan: _MeshPlan, run: _Run, mesh: Mesh, ls, level: int, stage: 
     return obj, res
 
 
-def _coarse_to_fine_stop(plan: _MeshPlan, run: _Run, mesh: Mesh, obj: MeshObjective,
+def _coarse_to_fine_stop(plan: Plan, run: _Solver, mesh: Mesh, obj: MeshObjective,
                          level: int) -> str | None:
     """Why coarse-to-fine stops at this level (None: subdivide): the estimated accuracy is
     reached, or the last level or the vertex cap."""
@@ -647,60 +276,45 @@ def _coarse_to_fine_stop(plan: _MeshPlan, run: _Run, mesh: Mesh, obj: MeshObject
     return None
 
 
-def _mesh_result(plan: _MeshPlan, run: _Run, mesh: Mesh, status: str,
+def _mesh_result(plan: Plan, run: _Solver, mesh: Mesh, status: str,
                  message: str) -> MeshFitResult:
     """The final checkpoint and the result, in the target's original frame."""
     run.bar.close()
     run.checkpoint(mesh)  # the final mesh (skipped if just evaluated)
     if not len(run.history):  # no iteration completed (e.g. a non-finite first evaluation)
         run.history.record(run.evals, run.clock.elapsed(), math.inf,
-                           {k: math.inf for k in TERMS}, n_params=3 * mesh.n_verts)
-    if plan.n_degenerate:
-        message = (f"{message}; the source had {plan.n_degenerate} zero-area triangles "
-                   f"({plan.n_moved} vertices moved to their neighbours' centroid first)")
-    norm = run.norm
+                           empty_row_terms(), n_params=3 * mesh.n_verts)
+    if run.n_degenerate:
+        message = (f"{message}; the source had {run.n_degenerate} zero-area triangles "
+                   f"({run.n_moved} vertices moved to their neighbours' centroid first)")
+    target = run.target
     return MeshFitResult(
         status=status, message=message, history=run.history, n_params=3 * mesh.n_verts,
         seconds=run.clock.elapsed(), cpu_seconds=run.clock.cpu_elapsed(),
         n_iterations=run.iters, n_evaluations=run.evals,
-        mesh=mesh.update_verts(norm.undo(mesh.verts)), mesh_normalized=mesh,
-        center=norm.center.copy(), scale=float(norm.scale), method=plan.method,
-        recipe=plan.recipe, init=plan.init, metrics=run.metrics, stages=run.stages,
+        mesh=mesh.update_verts(target.undo(mesh.verts)), mesh_normalized=mesh,
+        center=target.center.copy(), scale=float(target.scale), method=plan.method,
+        recipe=plan.recipe, init=run.init, metrics=run.metrics, stages=run.stages,
     )
 
 
-def _init_argument(target, args: tuple, init, source):
-    """``(target, init)`` from the current call form, or from the former ``fit_mesh(source,
-    target)`` and ``source=`` (with a DeprecationWarning)."""
-    if len(args) > 1:
-        raise TypeError(f"fit_mesh: expected one positional argument (target), got "
-                        f"{1 + len(args)}")
-    if args:
-        warn_deprecated("fit_mesh(source, target, ...)", "fit_mesh(target, init=source, ...)",
-                        4)
-        return args[0], target
-    if source is not _UNSET:
-        warn_deprecated("fit_mesh(source=...)", "fit_mesh(target, init=...)", 4)
-        return target, source
-    return target, init
-
-
-class _Run:
+class _Solver:
     """The state shared by the solves of one fit: the normalised target, the clock, history
     rows, checkpoints, stage records and the progress bar."""
 
-    def __init__(self, plan: _MeshPlan, *, seed, callback, progress: bool):
-        from ..loss import PointToSurface
-
+    def __init__(self, plan: Plan, target: MeshTarget, *, seed, callback, progress: bool):
+        c2f = plan.c2f
+        self.init, self.n_degenerate, self.n_moved = repair_degenerate(
+            sphere_init(plan.init, c2f.start_level if c2f is not None else 4))
         # the fit works in the target's normalised frame
-        self.norm = plan.target.normalize()
-        self.target = self.norm.mesh
+        self.target = target
         self.rng = as_rng(seed)
-        self.p2s = (PointToSurface(self.target)
+        self.p2s = (target.distance()
                     if plan.distance == "surface" or plan.c2f is not None else None)
         self.clock = Clock()
+        self.clock.deadline = plan.time_budget
         self.history = FitHistory()
-        self.evaluator, self.every = plan.evaluator, plan.checkpoint_every
+        self.evaluator, self.every = plan.evaluator, plan.eval_every
         self.user_callback = callback
         self.stages: list[dict] = []
         self.evals = 0
@@ -708,12 +322,11 @@ class _Run:
         self.last_ckpt = -1
         self.metrics = None
         self.stalled = False
-        c2f = plan.c2f
         n_levels = c2f.max_level - c2f.start_level + 1 if c2f is not None else 1
         self.bar = progress_bar(progress, plan.n_iter * plan.n_stages * n_levels,
-                                f"fit_mesh[{plan.method}]")
+                                f"fit_mesh[{plan.recipe}]")
 
-    def end_stage(self, plan: _MeshPlan, mesh: Mesh, res: SolveResult, level: int,
+    def end_stage(self, plan: Plan, mesh: Mesh, res: SolveResult, level: int,
                   obj: MeshObjective) -> None:
         """Record a finished solve (stage list, history event, checkpoint for L-BFGS)."""
         self.evals += res.n_evaluations
@@ -726,7 +339,7 @@ class _Run:
         self.history.note(self.evals, self.clock.elapsed(),
                           f"stage {len(self.stages) - 1} ended: {res.status}",
                           n_verts=mesh.n_verts)
-        if not plan.stochastic and plan.checkpoint_every is None:
+        if not plan.stochastic and plan.eval_every is None:
             self.checkpoint(mesh)
 
     def _evaluate(self, mesh: Mesh) -> dict | None:
@@ -734,7 +347,7 @@ class _Run:
         if self.evaluator is None or self.last_ckpt == self.evals:
             return None
         with self.clock.paused():
-            self.metrics = self.evaluator.evaluate(mesh.update_verts(self.norm.undo(mesh.verts)))
+            self.metrics = self.evaluator.evaluate(mesh.update_verts(self.target.undo(mesh.verts)))
         self.last_ckpt = self.evals
         return self.metrics.as_dict()
 

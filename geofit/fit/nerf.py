@@ -52,29 +52,25 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
 
-from .._threads import get_num_threads, parallel_map
+from .._memory import check_allocation
+from .._threads import get_num_threads
 from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
+from ..structures import MultiViewDataset
 from ..loss.robust import huber
-from ..render.volume import (
-    EmissionAbsorptionRaymarcher,
-    ImplicitRenderer,
-    NDCMultinomialRaysampler,
-    NeuralRadianceField,
-    OccupancyGrid,
-    RayBundle,
-)
-from ._nerf_train import _NerfTraining
-from ._options import Recipes, dataset_argument, method_name, recipe_name, warn_deprecated
+from ..render.volume import NeuralRadianceField, OccupancyGrid
+from ._nerf_render import render_nerf, sample_images_at_xys
+from ._nerf_train import _CHUNK_SAMPLES, _Solver
+from ._options import as_dataset, check_int, recipe_name
 from .history import Clock, FitResult
+from .solvers import StepInfo
 
 __all__ = [
-    "NERF_PRESETS",
     "RECIPES",
     "NerfConfig",
     "NerfFitResult",
@@ -84,24 +80,16 @@ __all__ = [
     "sample_images_at_xys",
 ]
 
-#: Recipes of :func:`fit_nerf`: geofit's scene-sized field, or the tutorial's.
-RECIPES: dict[str, dict] = Recipes({"default": {"method": "adam", "config": "NerfConfig.scene"},
-                                    "tutorial": {"method": "adam",
-                                                 "config": "NerfConfig.tutorial"}},
-                                   fit="fit_nerf")
-
-#: Deprecated: the former ``preset`` names (``"scene"`` is the recipe ``"default"``).
-NERF_PRESETS = ("scene", "tutorial")
-
 
 # --------------------------------------------------------------------------------------------
 # Configuration
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(frozen=True)
 class NerfConfig:
-    """Every setting of :func:`fit_nerf`; :meth:`tutorial` and :meth:`scene` are the recipes.
+    """Every setting of :func:`fit_nerf` (its options object); :meth:`tutorial` and
+    :meth:`scene` are the recipes (:data:`RECIPES`).
 
     Network (see :class:`~geofit.render.NeuralRadianceField`): ``n_harmonic_functions``,
     ``omega0``, ``append_input``, ``n_hidden_neurons``, ``n_hidden_layers``,
@@ -134,6 +122,13 @@ class NerfConfig:
 
     Execution: ``dtype`` of the network, ``n_threads`` (None: :func:`geofit.get_num_threads`),
     ``chunk_rays`` for the full-image renders.
+
+    Start and stop: ``init`` (a :class:`~geofit.render.NeuralRadianceField` to start from: a
+    copy of it is trained, and its architecture replaces the configuration's; the density grid
+    starts from the visual hull as usual); ``early_stopping`` (stop with status
+    ``"converged"`` when the held-out loss has not improved for this many checkpoints, and
+    return the best checkpoint's field); ``render_size`` (size of the final held-out renders;
+    None: the held-out images' size).
     """
 
     n_harmonic_functions: int = 60
@@ -173,6 +168,9 @@ class NerfConfig:
     dtype: str = "float32"
     n_threads: int | None = None
     chunk_rays: int = 4096
+    init: Any = None
+    early_stopping: int | None = None
+    render_size: int | None = None
 
     @classmethod
     def tutorial(cls, **overrides) -> NerfConfig:
@@ -236,6 +234,11 @@ class NerfConfig:
             raise ValueError(f"n_threads: expected None or an integer >= 1, got "
                              f"{self.n_threads!r}")
         as_array(self.bounds, "bounds", (2, 3))
+        if self.early_stopping is not None and (
+                not isinstance(self.early_stopping, (int, np.integer))
+                or isinstance(self.early_stopping, bool) or self.early_stopping < 1):
+            raise ValueError(f"early_stopping: expected an integer >= 1, got "
+                             f"{self.early_stopping!r}")
         if self.ray_sampling == "pixels" and self.occupancy == "none":
             raise ValueError("ray_sampling: 'pixels' draws rays among the pixels that meet the "
                              "occupancy grid; use occupancy='hull' or 'density'")
@@ -243,52 +246,14 @@ class NerfConfig:
 
 
 # --------------------------------------------------------------------------------------------
-# Target sampling (the tutorial's sample_images_at_mc_locs)
-# --------------------------------------------------------------------------------------------
-
-
-def sample_images_at_xys(images, xys) -> np.ndarray:
-    """The tutorial's ``sample_images_at_mc_locs``: bilinear samples at NDC ``xys``.
-
-    ``grid_sample(images, -xys, align_corners=True)`` with zero padding: image column ``u =
-    (1 - x) (W - 1) / 2`` and row ``v = (1 - y) (H - 1) / 2``.
-
-    Parameters
-    ----------
-    images : (B, H, W, C) float64
-    xys : (B, ..., 2) float64
-
-    Returns
-    -------
-    samples : (B, ..., C) float64
-    """
-    im = as_array(images, "images", (None, None, None, None))
-    xy = as_array(xys, "xys")
-    if xy.ndim < 2 or xy.shape[0] != im.shape[0] or xy.shape[-1] != 2:
-        raise ValueError(f"xys: expected shape ({im.shape[0]}, ..., 2), got {xy.shape}")
-    B, H, W, C = im.shape
-    lead = xy.shape[1:-1]
-    flat = xy.reshape(B, -1, 2)
-    u = (1.0 - flat[..., 0]) * (W - 1) / 2.0
-    v = (1.0 - flat[..., 1]) * (H - 1) / 2.0
-    u0 = np.floor(u)
-    v0 = np.floor(v)
-    fu, fv = u - u0, v - v0
-    out = np.zeros(flat.shape[:2] + (C,))
-    b = np.arange(B)[:, None]
-    for du, dv, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)),
-                      (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):  # the four corners
-        uu = (u0 + du).astype(np.int64)
-        vv = (v0 + dv).astype(np.int64)
-        ok = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
-        val = im[b, np.clip(vv, 0, H - 1), np.clip(uu, 0, W - 1)]
-        out += (w * ok)[..., None] * val
-    return out.reshape((B,) + lead + (C,))
-
-
-# --------------------------------------------------------------------------------------------
 # Result
 # --------------------------------------------------------------------------------------------
+
+
+#: Recipes of :func:`fit_nerf` (:class:`NerfConfig` presets): geofit's scene-sized field, or
+#: the tutorial's.
+RECIPES: dict[str, NerfConfig] = {"default": NerfConfig.scene(),
+                                  "tutorial": NerfConfig.tutorial()}
 
 
 @dataclass(kw_only=True)
@@ -324,67 +289,9 @@ class NerfFitResult(FitResult):
     def summary(self) -> dict[str, Any]:
         d = super().summary()
         d.update({"samples_per_ray": self.samples_per_ray, "psnr": self.psnr,
-                  "wall_seconds": self.wall_seconds, "config": asdict(self.config)})
+                  "wall_seconds": self.wall_seconds, "config": {f.name: getattr(self.config, f.name)
+                             for f in fields(self.config) if f.name != "init"}})
         return d
-
-
-# --------------------------------------------------------------------------------------------
-# Rendering
-# --------------------------------------------------------------------------------------------
-
-
-def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128, *,
-                n_pts_per_ray: int = 128, min_depth: float = 0.1, max_depth: float = 3.0,
-                occupancy: OccupancyGrid | None = None, chunk_rays: int = 4096,
-                n_threads: int | None = None) -> np.ndarray:
-    """Full-image renders of a field (the tutorial's grid renderer).
-
-    Parameters
-    ----------
-    field : NeuralRadianceField
-    cameras : CamerasBase
-        ``N`` cameras.
-    image_size : int or (H, W)
-        Output size.
-    n_pts_per_ray, min_depth, max_depth
-        The ``NDCMultinomialRaysampler`` settings (the field was trained with them).
-    occupancy : OccupancyGrid, optional
-        Skip samples outside it (exactly the render of the field with density 0 outside).
-    chunk_rays : int
-        Rays per chunk (bounds memory).
-    n_threads : int, optional
-        Threads over chunks (None: :func:`geofit.get_num_threads`).
-
-    Returns
-    -------
-    images : (N, H, W, 4) float64
-        RGB and opacity.
-    """
-    if not isinstance(field, NeuralRadianceField):
-        raise TypeError(f"field: expected a NeuralRadianceField, got {type(field)!r}")
-    if not isinstance(cameras, CamerasBase):
-        raise TypeError(f"cameras: expected a geofit cameras batch, got {type(cameras)!r}")
-    H, W = (image_size, image_size) if np.isscalar(image_size) else map(int, image_size)
-    sampler = NDCMultinomialRaysampler(image_width=int(W), image_height=int(H),
-                                       n_pts_per_ray=n_pts_per_ray, min_depth=min_depth,
-                                       max_depth=max_depth)
-    renderer = ImplicitRenderer(sampler, EmissionAbsorptionRaymarcher(), occupancy=occupancy)
-    n_threads = get_num_threads() if n_threads is None else max(int(n_threads), 1)
-    r = len(cameras) * int(H) * int(W)
-    from geofit._memory import check_allocation  # memory guard (issue 18), measured ~7
-    per = 7 * np.dtype(field.dtype).itemsize * field.config["n_hidden_neurons"]  # B/sample
-    check_allocation(per * min(chunk_rays, r) * n_pts_per_ray * n_threads, "chunk_rays and "
-                     "n_pts_per_ray", "the network activations of one chunk of rays per thread")
-    bundle = sampler(cameras)
-    flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
-    r = flat.origins.shape[0]
-    chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]
-
-    def work(sl):
-        return renderer._render_flat(RayBundle(*(a[sl] for a in flat)), field, cache=False)[0]
-
-    out = np.concatenate(parallel_map(work, chunks, n_threads), axis=0)
-    return out.reshape(len(cameras), int(H), int(W), 4)
 
 
 # --------------------------------------------------------------------------------------------
@@ -392,8 +299,8 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
 # --------------------------------------------------------------------------------------------
 
 
-class _Data:
-    """Validated training / held-out data."""
+class _Dataset:
+    """Training or held-out views, validated once at the door."""
 
     def __init__(self, images, silhouettes, cameras, name: str):
         self.images = as_unit_images(images, f"{name}images", (None, None, None, 3))
@@ -412,80 +319,65 @@ class _Data:
         self.N, self.H, self.W = N, H, W
 
 
-def _held_out(held_out) -> _Data | None:
-    if held_out is None or held_out is False:
+def _as_dataset(dataset) -> _Dataset:
+    """The training views (a MultiViewDataset with RGB images), checked once."""
+    return _Dataset(dataset.images, dataset.silhouettes, dataset.cameras, "")
+
+
+def _held_out(evaluator, dataset) -> _Dataset | None:
+    """The held-out views of ``evaluator``: "default" (the dataset's), None, or views."""
+    if isinstance(evaluator, str):
+        check_choice(evaluator, "evaluator", ("default",))
+        evaluator = dataset.held_out
+    if evaluator is None:
         return None
-    if hasattr(held_out, "images") and hasattr(held_out, "cameras"):
-        return _Data(held_out.images, held_out.silhouettes, held_out.cameras, "held_out.")
+    if hasattr(evaluator, "images") and hasattr(evaluator, "cameras"):
+        return _Dataset(evaluator.images, evaluator.silhouettes, evaluator.cameras,
+                        "evaluator.")
     try:
-        images, silhouettes, cameras = held_out
+        images, silhouettes, cameras = evaluator
     except (TypeError, ValueError):
-        raise ValueError("held_out: expected (images, silhouettes, cameras) or an object with "
-                         "those attributes") from None
-    return _Data(images, silhouettes, cameras, "held_out.")
+        raise TypeError("evaluator: expected 'default', None, a MultiViewDataset or (images, "
+                        "silhouettes, cameras)") from None
+    return _Dataset(images, silhouettes, cameras, "evaluator.")
 
 
-def _recipe(recipe: str, preset: str | None) -> str:
-    """The recipe of :func:`fit_nerf` (the former ``preset=`` warns)."""
-    if preset is not None:
-        check_choice(preset, "preset", NERF_PRESETS)
-        new = "default" if preset == "scene" else "tutorial"
-        warn_deprecated(f"fit_nerf(preset={preset!r})", f"fit_nerf(dataset, recipe={new!r})", 5)
-        recipe = new
-    return recipe_name(recipe, RECIPES, fit="fit_nerf")
-
-
-def fit_nerf(dataset, *args, recipe: str = "default", method: str | None = None,
-             config: NerfConfig | None = None, held_out=None, time_budget: float | None = None,
-             eval_every: float | None = None, early_stopping: int | None = None,
-             render_size: int | None = None, init: NeuralRadianceField | None = None, seed=0,
-             callback: Callable[[dict], bool | None] | None = None, verbose: bool = False,
-             preset: str | None = None, progress: bool = True,
-             **overrides) -> NerfFitResult:
+def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = None,
+             time_budget: float | None = None, seed=0, evaluator="default",
+             eval_every: int | None = None,
+             callback: Callable[[StepInfo], bool | None] | None = None,
+             progress: bool = True) -> NerfFitResult:
     """Fit a neural radiance field to posed RGB images and silhouettes.
 
     Parameters
     ----------
     dataset : MultiViewDataset
         Training images in [0, 1] (black background, as the tutorial's renders), silhouettes
-        in [0, 1] and the ``N`` cameras; ``dataset.held_out`` is the default ``held_out``.
+        in [0, 1] and the ``N`` cameras.
     recipe : {"default", "tutorial"}
-        Base settings: geofit's scene-sized recipe (:meth:`NerfConfig.scene`) or the tutorial's
-        (:meth:`NerfConfig.tutorial`).
-    method : {"adam"}, optional
-        The solver (Adam is the only one: the objective is stochastic).
-    config : NerfConfig, optional
-        Settings to use instead of the recipe's.
-    held_out : MultiViewDataset, (images, silhouettes, cameras), None or False
-        Views not trained on: rendered in full at checkpoints (PSNR and Huber loss) and at the
-        end. None: ``dataset.held_out``; False: none.
+        Named settings (:data:`RECIPES`): geofit's scene-sized recipe (:meth:`NerfConfig.scene`)
+        or the tutorial's (:meth:`NerfConfig.tutorial`).
+    options : NerfConfig, optional
+        The settings, used instead of the recipe's (build them from a recipe with
+        ``NerfConfig.scene(**changes)`` or ``NerfConfig.tutorial(**changes)``).
     time_budget : float, optional
-        Seconds of solver time (checkpoints excluded); the fit stops with status
-        ``"time_budget"`` when used up.
-    eval_every : float, optional
-        Checkpoint interval: seconds of solver time if ``time_budget`` is set, else steps
-        (default: 1/20 of the budget or of ``n_iter``).
-    early_stopping : int, optional
-        Stop (status ``"converged"``) when the held-out loss has not improved for this many
-        checkpoints, and return the best checkpoint's field.
-    render_size : int, optional
-        Size of the final held-out renders (default: the held-out images' size).
-    init : NeuralRadianceField, optional
-        Start from a copy of this network (its architecture replaces the configuration's);
-        the density grid starts from the visual hull as usual.
+        Wall-clock seconds for the whole fit, held-out renders included: the training stops
+        (status ``"time_budget"``) early enough for the final held-out render, timed on the
+        first one, to end within the budget.
     seed : int or numpy.random.Generator
         Initialisation, view and ray choices.
+    evaluator : "default", MultiViewDataset, (images, silhouettes, cameras) or None
+        Held-out views, rendered in full at checkpoints (PSNR and Huber loss) and at the end;
+        ``"default"``: ``dataset.held_out``; None: none.
+    eval_every : int, optional
+        Steps between checkpoints (default: 1/20 of ``n_iter``; with a time budget, every
+        1/20 of the budget).
     callback : callable, optional
-        ``callback(info: dict) -> bool | None`` at each checkpoint (``step``, ``seconds``,
-        ``loss``, and the held-out metrics); True stops the fit (status ``"callback"``).
-    verbose : bool
-        Print a line per checkpoint.
+        ``callback(StepInfo) -> bool | None`` at each checkpoint (``info.x`` the network's
+        flat parameters, ``info.value`` the training loss, ``info.metrics`` the held-out PSNR
+        and loss); True stops the fit (status ``"callback"``).
     progress : bool
         Show a tqdm progress bar (on stderr; steps, or seconds of the time budget).
-    preset : {"scene", "tutorial"}, optional
-        Deprecated: ``recipe`` (``"scene"`` is ``"default"``).
-    **overrides
-        Fields of :class:`NerfConfig` replacing the recipe's.
 
     Returns
     -------
@@ -497,53 +389,42 @@ def fit_nerf(dataset, *args, recipe: str = "default", method: str | None = None,
         too large kills the network rather than making it NaN).
     """
     t_wall = time.perf_counter()
-    data = dataset_argument(dataset, args, fit="fit_nerf")
-    if held_out is None:
-        held_out = data.held_out
-    recipe = _recipe(recipe, preset)
-    method = method_name("adam" if method is None else method, "method", ("adam",),
-                         fit="fit_nerf")
-    cfg = _config(recipe, config, overrides)
-    data = _Data(data.images, data.silhouettes, data.cameras, "")
-    test = _held_out(held_out)
+    dataset = as_dataset(dataset, fit="fit_nerf", silhouettes="full")
+    data = _as_dataset(dataset)
+    test = _held_out(evaluator, dataset)
+    recipe = recipe_name(recipe, RECIPES, fit="fit_nerf")
+    cfg = _config(recipe, options)
     if time_budget is not None:
         time_budget = check_positive(time_budget, "time_budget")
     if eval_every is not None:
-        eval_every = check_positive(eval_every, "eval_every")
-    if early_stopping is not None:
-        if test is None:
-            raise ValueError("early_stopping: needs held_out views")
-        if not isinstance(early_stopping, (int, np.integer)) or early_stopping < 1:
-            raise ValueError(f"early_stopping: expected an integer >= 1, got {early_stopping!r}")
+        eval_every = check_int(eval_every, "eval_every")
+    if cfg.early_stopping is not None and test is None:
+        raise ValueError("options.early_stopping: needs held-out views (evaluator)")
     rng = as_rng(seed)
     clock = Clock()  # the set-up (hull, rays) is part of the method's time
     n_threads = get_num_threads() if cfg.n_threads is None else int(cfg.n_threads)
-    field, cfg = _initial_field(init, cfg, rng)
+    field, cfg = _initial_field(cfg, rng)
     _check_step_memory(cfg, data.N, n_threads)
-    training = _NerfTraining(cfg, data, test, field, rng=rng, clock=clock, n_threads=n_threads,
-                             time_budget=time_budget, eval_every=eval_every,
-                             early_stopping=early_stopping, render_size=render_size,
-                             callback=callback, verbose=verbose, progress=progress)
-    status, message = training.run()
-    n_steps = len(training.history.steps)
+    solver = _Solver(cfg, data, test, field, rng=rng, clock=clock, n_threads=n_threads,
+                     time_budget=time_budget, eval_every=eval_every, callback=callback,
+                     progress=progress)
+    status, message = solver.run()
+    n_steps = len(solver.history.steps)
     images_out = p_final = None
     if test is not None:
-        images_out, p_final, _ = training.evaluate()
+        images_out, p_final, _ = solver.final_render()
     return NerfFitResult(
-        status=status, message=message, history=training.history, n_params=field.n_params,
+        status=status, message=message, history=solver.history, n_params=field.n_params,
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_steps,
-        n_evaluations=n_steps, field=field, config=cfg, occupancy=training.hull,
-        samples_per_ray=training.spr_sum / max(n_steps, 1), psnr=p_final, images=images_out,
-        wall_seconds=time.perf_counter() - t_wall, method=method, recipe=recipe, init=init)
+        n_evaluations=n_steps, field=field, config=cfg, occupancy=solver.hull,
+        samples_per_ray=solver.spr_sum / max(n_steps, 1), psnr=p_final, images=images_out,
+        wall_seconds=time.perf_counter() - t_wall, method="adam", recipe=recipe,
+        init=cfg.init)
 
 
 def _check_step_memory(cfg: NerfConfig, n_views: int, n_threads: int) -> None:
     """Memory guard (issue 18): one training step's samples and network activations
     (measured ~13 B per hidden unit and sample)."""
-    from geofit._memory import check_allocation
-
-    from ._nerf_train import _CHUNK_SAMPLES
-
     batch = min(cfg.batch_size, n_views)
     per, step = 13 * np.dtype(cfg.dtype).itemsize * cfg.n_hidden_neurons, batch * \
         cfg.n_rays_per_image * cfg.n_pts_per_ray  # B per sample, samples per step
@@ -552,25 +433,23 @@ def _check_step_memory(cfg: NerfConfig, n_views: int, n_threads: int) -> None:
                      "one training step's samples and network activations")
 
 
-def _config(recipe: str, config, overrides) -> NerfConfig:
-    """The recipe's configuration (or ``config``) with ``overrides``, validated."""
-    if config is None:
-        config = NerfConfig.scene() if recipe == "default" else NerfConfig.tutorial()
-    elif not isinstance(config, NerfConfig):
-        raise TypeError(f"config: expected a NerfConfig, got {type(config)!r}")
-    try:
-        return replace(config, **overrides).validate()
-    except TypeError as exc:
-        raise ValueError(f"overrides: {exc}") from None
+def _config(recipe: str, options) -> NerfConfig:
+    """The recipe's configuration, or ``options``, validated."""
+    if options is None:
+        options = NerfConfig.scene() if recipe == "default" else NerfConfig.tutorial()
+    elif not isinstance(options, NerfConfig):
+        raise TypeError(f"options: expected a NerfConfig, got {type(options)!r}")
+    return options.validate()
 
 
-def _initial_field(init, cfg: NerfConfig, rng) -> tuple[NeuralRadianceField, NerfConfig]:
-    """A new network of the configuration, or a copy of ``init`` (whose architecture then
+def _initial_field(cfg: NerfConfig, rng) -> tuple[NeuralRadianceField, NerfConfig]:
+    """A new network of the configuration, or a copy of ``cfg.init`` (whose architecture then
     replaces the configuration's)."""
+    init = cfg.init
     if init is None:
         return cfg.network(seed=rng), cfg
     if not isinstance(init, NeuralRadianceField):
-        raise TypeError(f"init: expected a NeuralRadianceField, got {type(init)!r}")
+        raise TypeError(f"options.init: expected a NeuralRadianceField, got {type(init)!r}")
     field = init.astype(cfg.dtype)
     c = field.config
     cfg = replace(cfg, **{k: c[k] for k in (

@@ -34,10 +34,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, check_positive
+from .._validate import as_array, check_choice, check_positive
 from ..nn.optim import adam_step, check_betas
 from ._options import check_int
-from .history import STATUSES, Clock
+from .history import STATUSES, Clock, TimeUp
 
 __all__ = [
     "SOLVERS",
@@ -71,6 +71,12 @@ class StepInfo(NamedTuple):
         Objective value at ``x``.
     seconds : float
         The clock's reading (solver time, paused intervals excluded).
+    stage : int
+        The fit's stage (level, round) of this solve (0 for a single solve).
+    terms : dict or None
+        The fit's unweighted loss terms at ``x``, when the fit reports them.
+    metrics : dict or None
+        The evaluator's metrics when this step was a checkpoint.
     """
 
     iteration: int
@@ -78,6 +84,9 @@ class StepInfo(NamedTuple):
     x: np.ndarray
     value: float
     seconds: float
+    stage: int = 0
+    terms: dict | None = None
+    metrics: dict | None = None
 
 
 @dataclass
@@ -145,7 +154,10 @@ class _Tracker:
     def __call__(self, x: np.ndarray):
         if self.max_eval is not None and self.n_eval >= self.max_eval:
             raise _Stop("max_eval", f"stopped after {self.n_eval} evaluations (max_eval)")
-        value, grad = self.fun(x)
+        try:
+            value, grad = self.fun(x)
+        except TimeUp:  # the clock's deadline passed inside the evaluation
+            raise _Stop("time_budget", self.time_up()) from None
         self.n_eval += 1
         value = float(value)
         grad = np.asarray(grad, dtype=np.float64)
@@ -161,9 +173,14 @@ class _Tracker:
             self.best_value = value
             self.best_x = self.last_x
         if self.time_budget is not None and self.seconds() > self.time_budget:
-            raise _Stop("time_budget", f"stopped after {self.seconds():.3g} s "
-                                       f"(time budget {self.time_budget:g} s)")
+            raise _Stop("time_budget", self.time_up())
         return value, grad
+
+    def time_up(self) -> str:
+        """The status message of a used-up time budget."""
+        budget = self.clock.deadline if self.clock.deadline is not None else self.time_budget
+        return (f"reached the time budget of {budget:g} s after {self.n_iter} steps "
+                f"({self.seconds():.1f} s)")
 
     def iteration(self, x: np.ndarray, value: float) -> None:
         """Count an iteration and run the callback (raises _Stop when it asks to stop)."""
@@ -260,17 +277,18 @@ def lbfgs_scipy(fun: Objective, x0, *, max_iter: int | None = 1000, max_eval: in
         return tr.result(tr.best_x, tr.best_value, stop.status, stop.message)
     msg = str(res.message)
     if res.status == 0:
-        status = "converged"
+        status, words = "converged", f"converged after {tr.n_iter} iterations"
     elif res.status == 1:
         status = "max_iter" if "ITERATIONS" in msg.upper() else "max_eval"
+        words = f"completed {tr.n_iter} iterations"
     elif res.status == 2:
-        status = "stalled"
+        status, words = "stalled", f"no further decrease after {tr.n_iter} iterations"
     else:  # pragma: no cover - scipy reserves other codes
-        status = "failed"
+        status, words = "failed", "failed"
     x, val = res.x, float(res.fun)
     if tr.best_value < val:  # the line search may end above a point it already visited
         x, val = tr.best_x, tr.best_value
-    return tr.result(x, val, status, f"scipy L-BFGS-B: {msg}")
+    return tr.result(x, val, status, f"{words} (scipy L-BFGS-B: {msg.lower()})")
 
 
 _NLOPT_STATUS = {1: ("converged", "success"), 2: ("converged", "stopval reached"),
@@ -399,8 +417,7 @@ def _first_order(fun, x0, step_rule, *, n_iter, time_budget, divergence, callbac
             x = x_new
             tr.iteration(x, value)
             if time_budget is not None and tr.seconds() > time_budget:
-                raise _Stop("time_budget", f"{name}: stopped after {tr.seconds():.3g} s "
-                                           f"(time budget {time_budget:g} s)")
+                raise _Stop("time_budget", f"{name}: {tr.time_up()}")
     except _Stop as stop:
         if stop.status in ("nonfinite", "diverged"):
             return tr.result(tr.best_x, tr.best_value, stop.status, stop.message)
@@ -525,8 +542,7 @@ def minimize(fun: Objective, x0, method: str = "lbfgs", **options) -> SolveResul
     x0 : (n,) float64
         Starting point.
     method : str
-        ``"lbfgs"`` (scipy), ``"lbfgs-nlopt"``, ``"sgd"`` or ``"adam"`` (the former
-        ``"scipy-lbfgs"`` and ``"nlopt-lbfgs"`` warn).
+        ``"lbfgs"`` (scipy), ``"lbfgs-nlopt"``, ``"sgd"`` or ``"adam"``.
     **options
         Keyword options of the chosen solver.
 
@@ -537,8 +553,6 @@ def minimize(fun: Objective, x0, method: str = "lbfgs", **options) -> SolveResul
     >>> res.status, bool(np.allclose(res.x, 0))
     ('converged', True)
     """
-    from ._options import method_name
-
-    method = method_name(method, "method", SOLVERS, fit="minimize", stacklevel=4)
+    check_choice(method, "method", SOLVERS)
     solver = {"lbfgs": lbfgs_scipy, "lbfgs-nlopt": lbfgs_nlopt, "sgd": sgd, "adam": adam}[method]
     return solver(fun, x0, **options)

@@ -63,31 +63,20 @@ from typing import Any
 import numpy as np
 
 from .._validate import as_rng, check_choice, check_positive
+from ..ops import topology
 from ..structures import MultiViewDataset
 from ..render.soft import SoftRasterizationSettings
+from ..render.soft.contour import ContourSilhouetteLoss
 from ..shapes import ico_sphere, subdivide
-from ..structures import Mesh, TexturesVertex, as_mesh
-from ._options import (
-    Recipes,
-    check_int,
-    check_weights,
-    method_name,
-    recipe_name,
-    warn_deprecated,
-)
+from ..structures import Mesh, as_mesh
+from ._options import as_dataset, check_int, check_weights, merge_options, recipe_name
 from ._progress import NoBar, progress_bar
-from ._views_eval import ViewsEvaluator
-from ._views_init import initial_mesh
-from ._views_objective import (
-    REG_TERMS,
-    _ContourObjective,
-    _lstsq_colors,
-    _Objective,
-    dataset_lights,
-)
+from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
+from ._views_init import initial_mesh, remesh_to_length
+from ._views_objective import REG_TERMS, _ContourObjective, _lstsq_colors, _Objective
 from .history import Clock, FitHistory, FitResult
 from .large_steps import vertex_parameterization
-from .solvers import adam, lbfgs_nlopt, lbfgs_scipy, sgd
+from .solvers import StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
 __all__ = [
     "HULL_SILHOUETTE_WEIGHTS",
@@ -98,22 +87,12 @@ __all__ = [
     "TEXTURED_METHODS",
     "TUTORIAL_SILHOUETTE_WEIGHTS",
     "TUTORIAL_TEXTURED_WEIGHTS",
-    "MultiViewData",
-    "MultiViewSplit",
     "ViewsEvaluator",
+    "ViewsFitOptions",
     "ViewsFitResult",
-    "cow_multiview_dataset",
     "fit_mesh_to_views",
-    "render_multiview_dataset",
+    "render_mesh_at_views",
 ]
-
-# deprecated names of the former dataset stack (one release)
-from ._deprecated import (  # noqa: E402
-    MultiViewData,
-    MultiViewSplit,
-    cow_multiview_dataset,
-    render_multiview_dataset,
-)
 
 #: Silhouette-stage methods of :func:`fit_mesh_to_views` (``"none"`` skips the stage).
 SILHOUETTE_METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
@@ -136,26 +115,6 @@ HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "lapl
 #: that they weigh the same against the silhouettes at any object scale and image size.
 TUTORIAL_PIXEL = 2.0 * 2.7 * math.tan(math.radians(30.0)) / 128
 
-#: Recipes of :func:`fit_mesh_to_views`: the stage methods and their settings. ``"default"``
-#: starts from the visual hull and remeshes as the surface moves; ``"sphere-lbfgs"`` is the
-#: former default (L-BFGS on all views from the tutorial's ``ico_sphere(4)``).
-RECIPES: dict[str, dict] = Recipes({
-    "default": {"silhouette_method": "lbfgs", "silhouette_loss": "soft",
-                "textured_method": "lstsq", "textured_init": "silhouette", "large_steps": 10.0,
-                "init": "hull", "levels": [(0, 2), (0, 1)], "remesh_rounds": 2,
-                "silhouette_iters": 120, "silhouette_weights": HULL_SILHOUETTE_WEIGHTS},
-    "sphere-lbfgs": {"silhouette_method": "lbfgs", "silhouette_loss": "soft",
-                     "textured_method": "lstsq", "textured_init": "silhouette",
-                     "large_steps": None, "init": "sphere", "levels": None,
-                     "remesh_rounds": 0, "silhouette_iters": 2000},
-    "tutorial": {"silhouette_method": "sgd", "silhouette_loss": "soft",
-                 "textured_method": "sgd", "textured_init": "sphere", "large_steps": None,
-                 "init": "sphere", "levels": None, "remesh_rounds": 0, "silhouette_iters": 2000},
-    "contour": {"silhouette_method": "adam", "silhouette_loss": "contour",
-                "textured_method": "lstsq", "textured_init": "silhouette", "large_steps": 10.0,
-                "init": "sphere", "levels": None, "remesh_rounds": 0, "silhouette_iters": 2000},
-}, fit="fit_mesh_to_views")
-
 #: Initialisations of :func:`fit_mesh_to_views` (or a Mesh).
 INITS = ("hull", "sphere")
 
@@ -164,6 +123,128 @@ TUTORIAL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 1.0, "normal": 0.01, "
 #: The tutorial's loss weights for the textured stage.
 TUTORIAL_TEXTURED_WEIGHTS = {"rgb": 1.0, "silhouette": 1.0, "edge": 1.0, "normal": 0.01,
                              "laplacian": 1.0}
+
+
+@dataclass(frozen=True)
+class ViewsFitOptions:
+    """The settings of :func:`fit_mesh_to_views`; None means "the recipe's".
+
+    Attributes
+    ----------
+    init : {"hull", "sphere"} or Mesh
+        Starting mesh. ``"hull"``: the visual hull of the silhouettes (carved at their 0.5
+        level, marching cubes, decimated to edges of ``2 edge_px`` pixels;
+        :mod:`geofit.fit._views_init`). ``"sphere"``: the tutorial's ``ico_sphere(4)``
+        (``ico_sphere(4 - subdivisions)`` when ``levels`` subdivide). A Mesh (geofit, trimesh
+        or Open3D) is used as given. The result's ``init`` says which.
+    silhouette_method : {"lbfgs", "lbfgs-nlopt", "sgd", "adam", "none"}
+        Solver of the silhouette stage (see the module docstring); ``"sgd"`` draws
+        ``views_per_step`` random views per step, the others use all views.
+    silhouette_loss : {"soft", "contour"}
+        The soft silhouettes' squared error, or the hard silhouette's contour gradients
+        (``"adam"`` only).
+    textured_method : {"lstsq", "lbfgs", "sgd", "none"}
+        Method of the textured stage.
+    silhouette_weights, textured_weights : dict
+        Term weights (:data:`HULL_SILHOUETTE_WEIGHTS` for ``"default"``, else the tutorial's,
+        :data:`TUTORIAL_SILHOUETTE_WEIGHTS`; :data:`TUTORIAL_TEXTURED_WEIGHTS`). With
+        ``recipe="default"`` the silhouette stage's edge and Laplacian weights hold at the
+        tutorial's pixel size (:data:`TUTORIAL_PIXEL`) and are scaled by
+        ``(TUTORIAL_PIXEL / p)**2`` and ``TUTORIAL_PIXEL / p`` for the data's pixel size ``p``.
+    silhouette_iters, textured_iters : int
+        Iteration budgets per stage (SGD / Adam steps or L-BFGS iterations; for coarse-to-fine
+        split over the levels in proportion to their downsampling factor, then evenly over a
+        level's remeshing rounds). 120 and 2000 for ``"default"``, 2000 and 2000 otherwise.
+    large_steps : float
+        ``lambda`` of the large-steps parameterisation (0: plain vertex positions).
+    levels : sequence of (int, int)
+        Coarse-to-fine schedule of the L-BFGS and contour methods: per level the number of
+        midpoint subdivisions to apply first and the image downsampling factor, e.g.
+        ``[(0, 2), (1, 1)]`` = start mesh at half resolution, then subdivide once at full
+        resolution (``[(0, 1)]``: one level at full resolution). The edge, normal and Laplacian
+        weights of a level with ``s`` subdivisions still to come are multiplied by ``4**-s``.
+    remesh_rounds : int
+        Remesh-and-solve rounds per level (0: no remeshing). Before each solve the mesh is
+        remeshed (:func:`geofit.ops.remesh`) to edges of ``edge_px`` pixels of that level's
+        images (at most a fifteenth of the initial mesh's bounding-box diagonal, and long
+        enough to keep about 4000 faces at full resolution, 1000 at half).
+    edge_px : float
+        Target edge length of the remeshing in pixels (measured at the initial mesh's centre).
+    textured_init : {"silhouette", "sphere"}
+        Start the textured stage from the silhouette result or, as the tutorial does, from the
+        initial mesh.
+    views_per_step : int
+        Random views per step of the SGD methods (2).
+    lr, momentum : float
+        SGD settings (1.0, 0.9).
+    adam_lr : float
+        Step size of the contour method's Adam at the first level (each level ``l`` runs three
+        phases with step sizes ``a``, ``a * 0.3`` and ``a * 0.1``, ``a = adam_lr * 0.3**l``).
+    faces_per_pixel : int
+        K of the soft rasterizer (50).
+    color_reg : float
+        Weight of the Laplacian smoothness of the colours in the ``lstsq`` solve (fills
+        vertices no view sees).
+    contour_threshold : float
+        The contour method compares the mesh's hard silhouette with the targets binarised at
+        this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
+        the true hard masks, 3514 of 327680, against 5478 at 0.5 and 3311 at 0.95, which loses
+        interior pixels); 0: the targets as they are, compared at 0.5.
+    """
+    init: Any = None
+    silhouette_method: str | None = None
+    silhouette_loss: str | None = None
+    textured_method: str | None = None
+    silhouette_weights: Mapping[str, float] | None = None
+    textured_weights: Mapping[str, float] | None = None
+    silhouette_iters: int | None = None
+    textured_iters: int | None = None
+    large_steps: float | None = None
+    levels: Any = None
+    remesh_rounds: int | None = None
+    edge_px: float | None = None
+    textured_init: str | None = None
+    views_per_step: int | None = None
+    lr: float | None = None
+    momentum: float | None = None
+    adam_lr: float | None = None
+    faces_per_pixel: int | None = None
+    color_reg: float | None = None
+    contour_threshold: float | None = None
+
+
+#: Settings every recipe shares unless it says otherwise.
+_COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
+               adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
+               textured_weights=TUTORIAL_TEXTURED_WEIGHTS)
+
+#: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
+#: ``"default"`` starts from the visual hull and remeshes as the surface moves;
+#: ``"sphere-lbfgs"`` is L-BFGS on all views from the tutorial's ``ico_sphere(4)``;
+#: ``"tutorial"`` the tutorial's SGD for both stages; ``"contour"`` Adam on the hard
+#: silhouette's contour gradients.
+RECIPES: dict[str, ViewsFitOptions] = {
+    "default": ViewsFitOptions(
+        silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
+        textured_init="silhouette", large_steps=10.0, init="hull", levels=((0, 2), (0, 1)),
+        remesh_rounds=2, silhouette_iters=120, silhouette_weights=HULL_SILHOUETTE_WEIGHTS,
+        **_COMMON),
+    "sphere-lbfgs": ViewsFitOptions(
+        silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
+        textured_init="silhouette", large_steps=0.0, init="sphere", levels=((0, 1),),
+        remesh_rounds=0, silhouette_iters=2000,
+        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, **_COMMON),
+    "tutorial": ViewsFitOptions(
+        silhouette_method="sgd", silhouette_loss="soft", textured_method="sgd",
+        textured_init="sphere", large_steps=0.0, init="sphere", levels=((0, 1),),
+        remesh_rounds=0, silhouette_iters=2000,
+        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, **_COMMON),
+    "contour": ViewsFitOptions(
+        silhouette_method="adam", silhouette_loss="contour", textured_method="lstsq",
+        textured_init="silhouette", large_steps=10.0, init="sphere", levels=((0, 1),),
+        remesh_rounds=0, silhouette_iters=2000,
+        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, **_COMMON),
+}
 
 _MAX_FACES = 4000  # the default's remeshing keeps at most about this many faces (full size)
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
@@ -209,6 +290,17 @@ class ViewsFitResult(FitResult):
     init_mesh: Mesh = None
     topology: Any = None
 
+    @property
+    def textured_mesh(self) -> Mesh:
+        """The fitted mesh with its vertex colours (clipped to [0, 1]; uniform grey 0.7 when no
+        textured stage ran), ready to render or save."""
+        return colored_mesh(self.mesh, self.colors)
+
+    def render(self, views: MultiViewDataset, *, n_views: int | None = None) -> np.ndarray:
+        """(N, H, W, 3) float64 renders of :attr:`textured_mesh` at ``views`` (e.g. the
+        dataset's held-out views; :func:`render_mesh_at_views`)."""
+        return render_mesh_at_views(self.textured_mesh, views, n_views=n_views)
+
     def summary(self) -> dict[str, Any]:
         d = super().summary()
         d["init"] = self.init
@@ -221,42 +313,6 @@ class ViewsFitResult(FitResult):
 # =========================================================================================
 # The fit
 # =========================================================================================
-
-
-def _stage_options(settings, silhouette_method, silhouette_loss, textured_method,
-                   textured_init, large_steps):
-    """The stage options in the current vocabulary: the recipe's where not given; the former
-    ``"tutorial"`` and ``"contour"`` methods translated with a DeprecationWarning."""
-    if silhouette_method == "tutorial":
-        warn_deprecated("fit_mesh_to_views(silhouette_method='tutorial')",
-                        "recipe='tutorial' or silhouette_method='sgd'", 5)
-        silhouette_method = "sgd"
-    elif silhouette_method == "contour":
-        warn_deprecated("fit_mesh_to_views(silhouette_method='contour')",
-                        "recipe='contour' or silhouette_method='adam', silhouette_loss='contour'",
-                        5)
-        silhouette_method, silhouette_loss = "adam", "contour"
-    if textured_method == "tutorial":
-        warn_deprecated("fit_mesh_to_views(textured_method='tutorial')",
-                        "recipe='tutorial' or textured_method='sgd'", 5)
-        textured_method = "sgd"
-    sm = settings["silhouette_method"] if silhouette_method is None else silhouette_method
-    if sm != "none":
-        sm = method_name(sm, "silhouette_method", SILHOUETTE_METHODS + ("none",),
-                         fit="fit_mesh_to_views", stacklevel=5)
-    loss = settings["silhouette_loss"] if silhouette_loss is None else silhouette_loss
-    check_choice(loss, "silhouette_loss", SILHOUETTE_LOSSES)
-    if loss == "contour" and sm not in ("adam", "none"):
-        raise ValueError(f"silhouette_loss: 'contour' gradients are not those of a smooth "
-                         f"objective; expected silhouette_method='adam', got {sm!r}")
-    tm = settings["textured_method"] if textured_method is None else textured_method
-    tm = method_name(tm, "textured_method", TEXTURED_METHODS, fit="fit_mesh_to_views",
-                     stacklevel=5)
-    ti = settings["textured_init"] if textured_init is None else textured_init
-    check_choice(ti, "textured_init", ("silhouette", "sphere"))
-    if isinstance(large_steps, str) and large_steps == "auto":
-        large_steps = settings["large_steps"]
-    return sm, loss, tm, ti, large_steps
 
 
 def _levels(levels, mesh_level_final: int, image_size):
@@ -284,12 +340,12 @@ class _Recorder:
     h: FitHistory
     clock: Clock
     evaluate: Callable | None
-    eval_every: float
+    eval_every: int
     callback: Callable | None
     stage: int
     step0: int
     bar: object = field(default_factory=NoBar)
-    last_eval: float = -math.inf
+    last_eval: float = -math.inf  # the step of the last checkpoint
     steps: int = 0
 
     def __call__(self, obj: _Objective, info, mesh_fn, colors_fn, force_eval=False) -> bool:
@@ -300,11 +356,11 @@ class _Recorder:
         step = self.step0 + self.steps
         seconds = self.clock.elapsed()
         metrics = None
-        if self.evaluate is not None and (force_eval or seconds - self.last_eval
+        if self.evaluate is not None and (force_eval or step - self.last_eval
                                           >= self.eval_every):
             with self.clock.paused():
                 metrics = self.evaluate(mesh_fn(info.x), colors_fn(info.x))
-            self.last_eval = seconds
+            self.last_eval = step
         if self.h.terms and set(terms) != set(self.h.terms):
             terms = {k: terms.get(k, 0.0) for k in self.h.terms}
         self.h.record(step, seconds, value, terms, metrics, n_params=len(info.x),
@@ -315,29 +371,17 @@ class _Recorder:
                 self.bar.set_postfix(loss=f"{value:.4g}", stage=self.stage)
         if self.callback is not None:
             with self.clock.paused():
-                stop = self.callback({"stage": self.stage, "step": step, "seconds": seconds,
-                                      "value": value, "terms": dict(terms),
-                                      "grad_norm": last.get("grad_norm", float("nan")),
-                                      "x": info.x, "metrics": metrics})
+                stop = self.callback(info._replace(stage=self.stage, terms=dict(terms),
+                                                   metrics=metrics))
             return bool(stop)
         return False
 
 
-def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = None,
-                      recipe: str = "default", silhouette_method: str | None = None,
-                      silhouette_loss: str | None = None, textured_method: str | None = None,
-                      silhouette_weights: Mapping[str, float] | None = None,
-                      textured_weights: Mapping[str, float] | None = None,
-                      silhouette_iters: int | None = None, textured_iters: int = 2000,
-                      silhouette_time: float | None = None, textured_time: float | None = None,
-                      large_steps: float | str | None = "auto", levels="auto",
-                      remesh_rounds: int | None = None, edge_px: float = 3.0,
-                      textured_init: str | None = None, views_per_step: int = 2,
-                      lr: float = 1.0, momentum: float = 0.9, adam_lr: float = 0.01,
-                      faces_per_pixel: int = 50, color_reg: float = 1e-4,
-                      contour_threshold: float | None = 0.9,
-                      evaluate: Callable | None = None, eval_every: float = 5.0,
-                      callback: Callable | None = None, seed=0,
+def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
+                      options: ViewsFitOptions | None = None,
+                      time_budget: float | None = None, seed=0,
+                      evaluator: Callable | None = None, eval_every: int | None = None,
+                      callback: Callable[[StepInfo], bool | None] | None = None,
                       progress: bool = True) -> ViewsFitResult:
     """Fit a mesh to multi-view silhouettes, then its vertex colours (tutorial 4).
 
@@ -350,92 +394,32 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
     ----------
     dataset : MultiViewDataset
         Training views: cameras, soft silhouettes and (for a textured stage) RGB images.
-    init : {"hull", "sphere"} or Mesh, optional
-        Starting mesh (default: the recipe's). ``"hull"``: the visual hull of the silhouettes
-        (carved at their 0.5 level, marching cubes, decimated to
-        edges of ``2 edge_px`` pixels; :mod:`geofit.fit._views_init`). ``"sphere"``: the
-        tutorial's ``ico_sphere(4)`` (``ico_sphere(4 - subdivisions)`` when ``levels``
-        subdivide). A Mesh is used as given. The result's ``init`` says which.
     recipe : {"default", "sphere-lbfgs", "tutorial", "contour"}
-        Named settings (:data:`RECIPES`) for the options left at None / "auto": ``"default"``
-        the visual hull, large steps, coarse-to-fine and remeshing as above; ``"sphere-lbfgs"``
-        (the former default) L-BFGS on the soft silhouettes of all views from the ico-sphere;
+        Named settings (:data:`RECIPES`, presets of :class:`ViewsFitOptions`): ``"default"``
+        the visual hull, large steps, coarse-to-fine and remeshing as above;
+        ``"sphere-lbfgs"`` L-BFGS on the soft silhouettes of all views from the ico-sphere;
         ``"tutorial"`` the tutorial's SGD (two random views per step) for both stages, the
         textured one from the sphere; ``"contour"`` Adam on the hard silhouette's contour
         gradients, large steps 10.
-    silhouette_method : {"lbfgs", "lbfgs-nlopt", "sgd", "adam", "none"}, optional
-        Solver of the silhouette stage (see the module docstring); ``"sgd"`` draws
-        ``views_per_step`` random views per step, the others use all views.
-    silhouette_loss : {"soft", "contour"}, optional
-        The soft silhouettes' squared error, or the hard silhouette's contour gradients
-        (``"adam"`` only).
-    textured_method : {"lstsq", "lbfgs", "sgd", "none"}, optional
-        Method of the textured stage.
-    silhouette_weights, textured_weights : dict, optional
-        Term weights (defaults: the recipe's; :data:`HULL_SILHOUETTE_WEIGHTS` for
-        ``"default"``, else the tutorial's, :data:`TUTORIAL_SILHOUETTE_WEIGHTS`, and
-        :data:`TUTORIAL_TEXTURED_WEIGHTS`). With ``recipe="default"`` the silhouette stage's
-        edge and Laplacian weights hold at the tutorial's pixel size (:data:`TUTORIAL_PIXEL`)
-        and are scaled by ``(TUTORIAL_PIXEL / p)**2`` and ``TUTORIAL_PIXEL / p`` for the data's
-        pixel size ``p``.
-    silhouette_iters, textured_iters : int
-        Iteration budgets per stage (SGD / Adam steps or L-BFGS iterations; for coarse-to-fine
-        split over the levels in proportion to their downsampling factor, then evenly over a
-        level's remeshing rounds). ``silhouette_iters`` None: the
-        recipe's (120 for ``"default"``, 2000 for the others).
-    silhouette_time, textured_time : float, optional
-        Time budgets in seconds per stage (solver time).
-    large_steps : float, "auto" or None
-        ``lambda`` of the large-steps parameterisation (None: plain vertex positions; "auto":
-        the recipe's).
-    levels : sequence of (int, int), optional
-        Coarse-to-fine schedule for the L-BFGS and contour methods: per level the number of
-        midpoint subdivisions to apply first and the image downsampling factor, e.g.
-        ``[(0, 2), (1, 1)]`` = start mesh at half resolution, then subdivide once at full
-        resolution. ``"auto"``: the recipe's (``[(0, 2), (0, 1)]`` for ``"default"``); None:
-        one level at full resolution. The edge, normal and Laplacian
-        weights of a level with ``s`` subdivisions still to come are multiplied by ``4**-s``
-        (the three terms scale with the squared edge length).
-    remesh_rounds : int, optional
-        Remesh-and-solve rounds per level (0: no remeshing; None: the recipe's, 2 for
-        ``"default"``). Before each solve the mesh is remeshed (:func:`geofit.ops.remesh`:
-        split, collapse, flip; manifold kept) to edges of ``edge_px`` pixels of that level's
-        images (at most a fifteenth of the initial mesh's bounding-box diagonal, and long enough
-        to keep about 4000 faces at full resolution, 1000 at half: a bounded time per
-        evaluation).
-    edge_px : float
-        Target edge length of the remeshing in pixels (measured at the initial mesh's centre).
-    textured_init : {"silhouette", "sphere"}, optional
-        Start the textured stage from the silhouette result (default) or, as the tutorial
-        does, from the initial mesh ``init``.
-    views_per_step : int
-        Random views per step of the tutorial recipe (2).
-    lr, momentum : float
-        SGD settings of the tutorial recipe (1.0, 0.9).
-    adam_lr : float
-        Step size of the contour method's Adam at the first level (each level ``l`` runs three
-        phases with step sizes ``a``, ``a * 0.3`` and ``a * 0.1``, ``a = adam_lr * 0.3**l``,
-        splitting its iterations and time).
-    faces_per_pixel : int
-        K of the soft rasterizer (50).
-    contour_threshold : float or None
-        The contour method compares the mesh's hard silhouette with the targets binarised at
-        this level (None: the targets as they are, compared at 0.5). The tutorial's soft
-        silhouettes exceed 0.5 up to a pixel outside the cow's outline; on its 20 views the 0.9
-        level misclassifies the fewest pixels against the true hard masks (3514 of 327680,
-        against 5478 at 0.5 and 3311 at 0.95, which loses interior pixels), hence the default.
-    color_reg : float
-        Weight of the Laplacian smoothness of the colours in the ``lstsq`` solve (fills vertices
-        no view sees).
-    evaluate : callable, optional
-        ``evaluate(mesh, colors) -> dict`` run at checkpoints every ``eval_every`` seconds with
-        the clock paused (e.g. a :class:`ViewsEvaluator`).
-    callback : callable, optional
-        ``callback(record: dict) -> bool`` after every step with ``stage``, ``step``,
-        ``seconds``, ``value``, ``terms``, ``grad_norm``, ``x``, ``metrics``; True stops the
-        stage.
+    options : ViewsFitOptions, optional
+        Settings that override the recipe's (every field left None keeps the recipe's).
+    time_budget : float, optional
+        Wall-clock seconds for the whole fit (the clock paused during the evaluator's
+        checkpoints): the silhouette stage shares it over its solves (checking the clock between
+        view batches inside each evaluation), the textured SGD / L-BFGS gets what is left. The
+        ``"lstsq"`` colours are one sparse solve that runs to its end after the budget.
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
+    evaluator : callable, optional
+        ``evaluator(mesh, colors) -> dict`` run at checkpoints with the clock paused (e.g. a
+        :class:`ViewsEvaluator` of held-out views).
+    eval_every : int, optional
+        Steps between checkpoints (default 10); the colours of the ``lstsq`` stage are always
+        evaluated.
+    callback : callable, optional
+        ``callback(StepInfo) -> bool | None`` after every step; ``info.stage`` is the stage
+        (the silhouette level, or 100 for the textured stage), ``info.terms`` the unweighted
+        terms and ``info.metrics`` the checkpoint's metrics (or None). True stops the stage.
     progress : bool
         Show a tqdm progress bar (on stderr; one tick per iteration of either stage).
 
@@ -444,20 +428,13 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
     ViewsFitResult
         ``status`` is the most serious of the stages' statuses, in the order ``nonfinite``,
         ``failed``, ``diverged``, ``callback``, ``stalled``, ``time_budget``, ``max_eval``,
-        ``max_iter``, ``converged``; ``stages`` has each stage's own status and message.
+        ``max_iter``, ``converged``; ``stages`` has each stage's own status and message;
+        ``textured_mesh`` the coloured result.
     """
-    plan = _ViewsPlan.validate(
-        dataset, init=init, recipe=recipe, silhouette_method=silhouette_method,
-        silhouette_loss=silhouette_loss, textured_method=textured_method,
-        silhouette_weights=silhouette_weights, textured_weights=textured_weights,
-        silhouette_iters=silhouette_iters, textured_iters=textured_iters,
-        silhouette_time=silhouette_time, textured_time=textured_time,
-        large_steps=large_steps, levels=levels, textured_init=textured_init,
-        views_per_step=views_per_step, lr=lr, momentum=momentum, adam_lr=adam_lr,
-        faces_per_pixel=faces_per_pixel, color_reg=color_reg,
-        contour_threshold=contour_threshold, remesh_rounds=remesh_rounds, edge_px=edge_px)
-    run = _ViewsRun(plan, seed=seed, evaluate=evaluate, eval_every=eval_every,
-                    callback=callback, progress=progress)
+    views = _as_dataset(dataset)
+    plan = _Plan.validate(views, recipe, options, time_budget)
+    run = _Solver(plan, seed=seed, evaluator=evaluator, eval_every=eval_every,
+                  callback=callback, progress=progress)
     initial_mesh(plan, run)
     sil_mesh = _silhouette_stage(plan, run) if plan.silhouette_method != "none" else plan.init
     mesh, colors = sil_mesh, None
@@ -467,10 +444,14 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, init: Mesh | str | None = No
     return _views_result(plan, run, mesh, colors, sil_mesh)
 
 
-@dataclass
-class _ViewsPlan:
-    """The validated options of one :func:`fit_mesh_to_views` call (recipe resolved)."""
+def _as_dataset(dataset) -> MultiViewDataset:
+    """The training views, checked once at the door (silhouettes must be known)."""
+    return as_dataset(dataset, fit="fit_mesh_to_views", images_required=False)
 
+
+@dataclass
+class _Plan:
+    """The validated settings of one :func:`fit_mesh_to_views` call (recipe resolved)."""
     views: MultiViewDataset
     init: Mesh
     recipe: str
@@ -482,8 +463,7 @@ class _ViewsPlan:
     textured_weights: dict
     silhouette_iters: int
     textured_iters: int
-    silhouette_time: float | None
-    textured_time: float | None
+    time_budget: float | None
     large_steps: float | None
     levels: list
     views_per_step: int
@@ -499,49 +479,43 @@ class _ViewsPlan:
     init_info: dict = field(default_factory=dict)
 
     @classmethod
-    def validate(cls, dataset, *, init, recipe, silhouette_method, silhouette_loss,
-                 textured_method, textured_init, silhouette_weights, textured_weights,
-                 silhouette_iters, textured_iters, large_steps, levels, views_per_step,
-                 faces_per_pixel, **rest) -> _ViewsPlan:
+    def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
         """Check every option once and fill in the recipe's."""
-        if not isinstance(dataset, MultiViewDataset):
-            raise TypeError(f"dataset: expected a MultiViewDataset, got {type(dataset)!r}")
-        dataset.require_silhouettes("fit_mesh_to_views")
         recipe = recipe_name(recipe, RECIPES, fit="fit_mesh_to_views")
         rec = RECIPES[recipe]
-        silhouette_method, silhouette_loss, textured_method, textured_init, large_steps = \
-            _stage_options(RECIPES[recipe], silhouette_method, silhouette_loss,
-                           textured_method, textured_init, large_steps)
-        if silhouette_method == "none" and textured_method == "none":
-            raise ValueError("silhouette_method and textured_method are both 'none': nothing "
-                             "to fit")
-        if textured_method != "none" and dataset.images is None:
+        o = merge_options(rec, options, ViewsFitOptions, "options")
+        sm, loss, tm, ti = (o.silhouette_method, o.silhouette_loss, o.textured_method,
+                            o.textured_init)
+        check_choice(sm, "options.silhouette_method", SILHOUETTE_METHODS + ("none",))
+        check_choice(loss, "options.silhouette_loss", SILHOUETTE_LOSSES)
+        if loss == "contour" and sm not in ("adam", "none"):
+            raise ValueError(f"options.silhouette_loss: 'contour' gradients are not those of a "
+                             f"smooth objective; expected silhouette_method='adam', got {sm!r}")
+        check_choice(tm, "options.textured_method", TEXTURED_METHODS)
+        check_choice(ti, "options.textured_init", ("silhouette", "sphere"))
+        if sm == "none" and tm == "none":
+            raise ValueError("options: silhouette_method and textured_method are both 'none': "
+                             "nothing to fit")
+        if tm != "none" and dataset.images is None:
             raise ValueError("dataset: a textured stage needs RGB images (dataset.images is "
                              "None)")
-        sw = check_weights(silhouette_weights,
-                           rec.get("silhouette_weights", TUTORIAL_SILHOUETTE_WEIGHTS),
-                           "silhouette_weights")
-        if silhouette_iters is None:
-            silhouette_iters = rec["silhouette_iters"]
-        remesh_rounds = rec["remesh_rounds"] if rest["remesh_rounds"] is None else \
-            check_int(rest["remesh_rounds"], "remesh_rounds", 0)
-        edge_px = check_positive(rest["edge_px"], "edge_px")
-        tw = check_weights(textured_weights, TUTORIAL_TEXTURED_WEIGHTS, "textured_weights")
-        for nm, v in (("silhouette_iters", silhouette_iters),
-                      ("textured_iters", textured_iters), ("views_per_step", views_per_step),
-                      ("faces_per_pixel", faces_per_pixel)):
-            check_int(v, nm)
-        if views_per_step > len(dataset):
-            raise ValueError(f"views_per_step: expected at most {len(dataset)} (the number of "
-                             f"views), got {views_per_step}")
-        if large_steps is not None:
-            large_steps = check_positive(large_steps, "large_steps")
-        if isinstance(levels, str) and levels == "auto":
-            levels = rec["levels"]
-        lv = _levels(levels, 4, dataset.image_size)
-        init = rec["init"] if init is None else init
+        user = options if options is not None else ViewsFitOptions()
+        sw = check_weights(user.silhouette_weights, rec.silhouette_weights,
+                           "options.silhouette_weights")
+        tw = check_weights(user.textured_weights, rec.textured_weights,
+                           "options.textured_weights")
+        remesh_rounds = check_int(o.remesh_rounds, "options.remesh_rounds", 0)
+        edge_px = check_positive(o.edge_px, "options.edge_px")
+        for nm in ("silhouette_iters", "textured_iters", "views_per_step", "faces_per_pixel"):
+            check_int(getattr(o, nm), f"options.{nm}")
+        if o.views_per_step > len(dataset):
+            raise ValueError(f"options.views_per_step: expected at most {len(dataset)} (the "
+                             f"number of views), got {o.views_per_step}")
+        large_steps = check_positive(o.large_steps, "options.large_steps", strict=False) or None
+        lv = _levels(o.levels, 4, dataset.image_size)
+        init = o.init
         if isinstance(init, str):
-            check_choice(init, "init", INITS)
+            check_choice(init, "options.init", INITS)
             init_name = init
             init = ico_sphere(max(4 - sum(s for s, _ in lv), 0)) if init == "sphere" else None
         else:
@@ -550,12 +524,18 @@ class _ViewsPlan:
         H, W = dataset.image_size
         for _, f_ in lv:
             if H % f_ or W % f_:
-                raise ValueError(f"levels: factor {f_} does not divide the image size {(H, W)}")
-        return cls(dataset, init, recipe, silhouette_method, silhouette_loss, textured_method,
-                   textured_init, sw, tw, silhouette_iters, textured_iters,
-                   rest["silhouette_time"], rest["textured_time"], large_steps, lv,
-                   views_per_step, rest["lr"], rest["momentum"], rest["adam_lr"],
-                   faces_per_pixel, rest["color_reg"], rest["contour_threshold"],
+                raise ValueError(f"options.levels: factor {f_} does not divide the image size "
+                                 f"{(H, W)}")
+        if time_budget is not None:
+            time_budget = check_positive(time_budget, "time_budget")
+        threshold = check_positive(o.contour_threshold, "options.contour_threshold",
+                                   strict=False) or None
+        return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
+                   o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
+                   check_positive(o.lr, "options.lr"),
+                   check_positive(o.momentum, "options.momentum", strict=False),
+                   check_positive(o.adam_lr, "options.adam_lr"), o.faces_per_pixel,
+                   check_positive(o.color_reg, "options.color_reg", strict=False), threshold,
                    init_name, remesh_rounds, edge_px)
 
     def settings(self, size, persp=None) -> SoftRasterizationSettings:
@@ -565,15 +545,25 @@ class _ViewsPlan:
         return SoftRasterizationSettings.tutorial(size, faces_per_pixel=self.faces_per_pixel,
                                                   perspective_correct=persp, dtype=np.float64)
 
+    def remaining(self, clock: Clock) -> float | None:
+        """Seconds left of the time budget (None: no budget)."""
+        if self.time_budget is None:
+            return None
+        return self.time_budget - clock.elapsed()
 
-class _ViewsRun:
+
+class _Solver:
     """The state shared by the stages of one fit: clock, history, progress bar, counters."""
-
-    def __init__(self, plan: _ViewsPlan, *, seed, evaluate, eval_every, callback, progress):
+    def __init__(self, plan: _Plan, *, seed, evaluator, eval_every, callback, progress):
         self.rng = as_rng(seed)
         self.clock = Clock()
+        self.clock.deadline = plan.time_budget  # checked between view batches too
         self.history = FitHistory()
-        self.evaluate, self.eval_every, self.callback = evaluate, eval_every, callback
+        if evaluator is not None and not callable(evaluator):
+            raise TypeError(f"evaluator: expected a callable (mesh, colors) -> dict or None, "
+                            f"got {type(evaluator)!r}")
+        eval_every = 10 if eval_every is None else check_int(eval_every, "eval_every")
+        self.evaluate, self.eval_every, self.callback = evaluator, eval_every, callback
         total = (plan.silhouette_iters if plan.silhouette_method != "none" else 0) + \
             (plan.textured_iters if plan.textured_method in ("sgd", "lbfgs") else 0)
         self.bar = progress_bar(progress, total, f"fit_mesh_to_views[{plan.silhouette_method}"
@@ -595,11 +585,9 @@ class _ViewsRun:
         self.n_evaluations += res.n_evaluations
 
 
-def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
+def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
     """Deform the mesh to the silhouettes, level by level (remeshing before each solve when
     ``remesh_rounds``); returns the mesh."""
-    from ._views_init import remesh_to_length
-
     t_stage = run.clock.elapsed()
     # the tutorial's SGD (random views per step) runs one level at full resolution
     sub_levels = [(0, 1)] if plan.silhouette_method == "sgd" else plan.levels
@@ -632,9 +620,8 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
                     "pixel_size"], plan.init_info["max_edge"]), floor))
             k = li * rounds + ri
             budget = None
-            if plan.silhouette_time is not None:
-                remaining = plan.silhouette_time - (run.clock.elapsed() - t_stage)
-                budget = max(remaining / (n_solves - k), 1e-3)
+            if plan.time_budget is not None:
+                budget = max(plan.remaining(run.clock) / (n_solves - k), 1e-3)
             obj = _silhouette_objective(plan, run, mesh, data, weights)
             iters = max(1, round(plan.silhouette_iters * fac / (rounds * total_fac)))
             mesh, res = _silhouette_solve(plan, run, obj, mesh, li, iters, budget)
@@ -652,22 +639,23 @@ def _silhouette_stage(plan: _ViewsPlan, run: _ViewsRun) -> Mesh:
     return mesh
 
 
-def _silhouette_objective(plan: _ViewsPlan, run: _ViewsRun, mesh: Mesh,
+def _silhouette_objective(plan: _Plan, run: _Solver, mesh: Mesh,
                           data: MultiViewDataset, weights: dict):
     """The objective of one level: soft silhouettes, or the contour term."""
     param = vertex_parameterization(mesh, plan.large_steps)
     if plan.silhouette_loss == "contour":
-        from ..render.soft.contour import ContourSilhouetteLoss
 
         closs = ContourSilhouetteLoss(data.cameras, data.silhouettes,
                                       threshold=plan.contour_threshold)
         return _ContourObjective(mesh, closs, weights, param)
     vps = plan.views_per_step if plan.silhouette_method == "sgd" else None
-    return _Objective(mesh, data, weights, textured=False, param=param,
-                      settings=plan.settings(data.image_size), views_per_step=vps, rng=run.rng)
+    obj = _Objective(mesh, data, weights, textured=False, param=param,
+                     settings=plan.settings(data.image_size), views_per_step=vps, rng=run.rng)
+    obj.clock = run.clock
+    return obj
 
 
-def _silhouette_solve(plan: _ViewsPlan, run: _ViewsRun, obj, mesh: Mesh, li: int,
+def _silhouette_solve(plan: _Plan, run: _Solver, obj, mesh: Mesh, li: int,
                       iters: int, budget: float | None):
     """Run the silhouette method on one level's objective; returns the mesh and the result."""
     rec = run.recorder(li)
@@ -712,7 +700,7 @@ def _adam_phases(obj, x0, *, lr, decay, iters, budget, callback, clock):
     return replace(res, n_iterations=n_it, n_evaluations=n_ev)
 
 
-def _textured_stage(plan: _ViewsPlan, run: _ViewsRun, sil_mesh: Mesh):
+def _textured_stage(plan: _Plan, run: _Solver, sil_mesh: Mesh):
     """Fit the vertex colours (and, for sgd / lbfgs, the positions); returns the textured
     mesh and the colours."""
     t_stage = run.clock.elapsed()
@@ -732,13 +720,13 @@ def _textured_stage(plan: _ViewsPlan, run: _ViewsRun, sil_mesh: Mesh):
         if plan.textured_method == "lbfgs":
             tex_mesh, colors, res = _textured_solve(plan, run, tex_mesh, colors)
             status, message = res.status, res.message
-    mesh = Mesh(tex_mesh.verts, tex_mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
+    mesh = colored_mesh(tex_mesh, colors)
     run.stages.append({"name": "textured", "method": plan.textured_method, "status": status,
                        "message": message, "seconds": run.clock.elapsed() - t_stage})
     return mesh, colors
 
 
-def _textured_solve(plan: _ViewsPlan, run: _ViewsRun, tex_mesh: Mesh, colors):
+def _textured_solve(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors):
     """Positions and colours by the tutorial's SGD (``colors`` None: from 0.5, random views)
     or by joint L-BFGS over all views from ``colors``."""
     sgd_ = colors is None
@@ -747,6 +735,7 @@ def _textured_solve(plan: _ViewsPlan, run: _ViewsRun, tex_mesh: Mesh, colors):
                      settings=plan.settings(plan.views.image_size, persp=False),
                      views_per_step=plan.views_per_step if sgd_ else None,
                      rng=run.rng if sgd_ else None)
+    obj.clock = run.clock
     c0 = np.full(3 * tex_mesh.n_verts, 0.5) if sgd_ else colors.ravel()
     x0 = np.concatenate([param.to_params(tex_mesh.verts).ravel(), c0])
     rec = run.recorder(100)
@@ -755,24 +744,24 @@ def _textured_solve(plan: _ViewsPlan, run: _ViewsRun, tex_mesh: Mesh, colors):
         return rec(obj, info, lambda x: obj.base.update_verts(obj.split(x)[0]),
                    lambda x: obj.split(x)[1])
 
+    budget = None if plan.time_budget is None else max(plan.remaining(run.clock), 1e-3)
     if sgd_:
         res = sgd(obj, x0, lr=plan.lr, momentum=plan.momentum, n_iter=plan.textured_iters,
-                  time_budget=plan.textured_time, callback=cb, clock=run.clock)
+                  time_budget=budget, callback=cb, clock=run.clock)
     else:
-        res = lbfgs_scipy(obj, x0, max_iter=plan.textured_iters,
-                          time_budget=plan.textured_time, callback=cb, clock=run.clock)
+        res = lbfgs_scipy(obj, x0, max_iter=plan.textured_iters, time_budget=budget,
+                          callback=cb, clock=run.clock)
     v, colors = obj.split(res.x)
     run.add(res, rec)
     return tex_mesh.update_verts(v), colors, res
 
 
-def _views_result(plan: _ViewsPlan, run: _ViewsRun, mesh: Mesh, colors,
+def _views_result(plan: _Plan, run: _Solver, mesh: Mesh, colors,
                   sil_mesh: Mesh) -> ViewsFitResult:
     """The overall status (the most serious of the stages') and the result."""
     run.bar.close()
     statuses = [s["status"] for s in run.stages]
     final = next(s for s in _STATUS_ORDER if s in statuses)
-    from ..ops import topology
 
     msg = "; ".join(f"{s['name']} ({s['method']}): {s['status']} - {s['message']}"
                     for s in run.stages)

@@ -53,27 +53,26 @@ from typing import Any
 
 import numpy as np
 
+from .._memory import check_allocation
 from .._threads import one_blas_thread
 from .._validate import as_array, as_rng, check_choice, check_positive
 from ..cameras import CamerasBase
+from ..structures import MultiViewDataset
 from ..loss.robust import huber
 from ..metrics import psnr as image_psnr
+from ..render.volume import VolumeRenderer
+from ..render.volume.raymarching import EmissionAbsorptionRaymarcher
 from ..render.volume.raysampling import NDCMultinomialRaysampler
 from ..structures.volume import Volume, visual_hull
-from ._options import (
-    Recipes,
-    check_int,
-    dataset_argument,
-    method_name,
-    recipe_name,
-    warn_deprecated,
-)
-from ._volume_levels import _fit_tutorial, _LevelsFit, _VolumeOptions
+from ._options import as_dataset, check_int, merge_options, recipe_name
+from ._volume_levels import _fit_tutorial, _Plan, _Solver
 from .history import FitResult
+from .solvers import StepInfo
 
 __all__ = [
     "FIT_VOLUME_METHODS",
     "RECIPES",
+    "VolumeFitOptions",
     "VolumeFitResult",
     "VolumeMetrics",
     "fit_volume",
@@ -87,8 +86,6 @@ __all__ = [
 FIT_VOLUME_METHODS = ("lbfgs", "lbfgs-nlopt", "adam")
 
 #: Recipes of :func:`fit_volume`: geofit's reduced model, or the tutorial's dense grid and Adam.
-RECIPES: dict[str, dict] = Recipes({"default": {"method": "lbfgs"},
-                                    "tutorial": {"method": "adam"}}, fit="fit_volume")
 
 _EPS = 1e-10          # PyTorch3D's EA eps
 _LOGIT_CLIP = 1e-6    # opacities/colours are kept in [clip, 1 - clip] when converted to logits
@@ -138,9 +135,6 @@ def render_volume(volume: Volume, cameras: CamerasBase, image_size=128, *,
     >>> images.shape, bool(images[0, 8, 8, 3] > 0.99), bool(np.allclose(images[..., :3], 1.0))
     ((1, 16, 16, 4), True, False)
     """
-    from ..render.volume.raymarching import EmissionAbsorptionRaymarcher
-    from ..render.volume import VolumeRenderer
-
     if isinstance(image_size, (numbers.Integral, np.integer)):
         image_size = (int(image_size), int(image_size))
     H, W = (int(v) for v in image_size)
@@ -244,7 +238,8 @@ class VolumeFitResult(FitResult):
     view_losses : (N,) float64 or None
         geofit's methods: each training view's mean loss (colour + silhouette Huber) at the
         end; a view far above the others (reported in ``message``) disagrees with the rest:
-        a wrong camera or a bad image.
+        a wrong camera or a bad image. None when the time budget ran out (the diagnostic costs
+        one more evaluation).
     """
 
     volume: Volume | None = None
@@ -273,17 +268,101 @@ class VolumeFitResult(FitResult):
 # --------------------------------------------------------------------------------------------
 
 
-def fit_volume(dataset, *args, recipe: str = "default", method: str | None = None,
-               volume_size: int = 128, volume_extent: float = 3.0, n_pts_per_ray: int = 150,
-               min_depth: float = 0.1, max_depth: float = 3.0, levels=None,
-               iterations=None, carve: bool = True, carve_tolerance: int | None = None,
-               carve_margin: float = 2.0,
-               prune_threshold: float = 1e-3, prune_dilation: int = 2,
-               termination: float | None = 1e-3, smoothness=0.03, huber_scaling: float = 0.1,
-               lr: float = 0.1, batch_size: int = 10, n_iter: int = 300,
-               time_budget: float | None = None, precision: str = "float32", seed=0,
-               monitor: Callable[[Volume], dict] | None = None,
-               monitor_every: float | None = None, verbose: bool = False,
+@dataclass(frozen=True)
+class VolumeFitOptions:
+    """The settings of :func:`fit_volume`; None means "the recipe's".
+
+    Attributes
+    ----------
+    method : {"lbfgs", "lbfgs-nlopt", "adam"}
+        Solver of the default recipe: full-batch scipy L-BFGS (default), nlopt L-BFGS or Adam
+        (lr ``lr``, x 0.1 for the last quarter of each level). The tutorial recipe is Adam.
+    volume_size : int
+        Final grid size (a cube, as the tutorial's 128).
+    volume_extent : float
+        World size of the grid's box (3.0); ``voxel_size = volume_extent / volume_size``.
+    n_pts_per_ray, min_depth, max_depth
+        The final renderer's ray sampling (150 samples over view depths [0.1, 3.0]).
+    levels : sequence of int
+        Grid sizes of the coarse-to-fine levels, ending with ``volume_size`` (default: halving
+        down to >= 32, e.g. (32, 64, 128)); ignored by ``"tutorial"``. The image size of a level
+        is ``H * level / volume_size`` (rounded to a divisor of H and W) and its samples per ray
+        ``n_pts_per_ray * level / volume_size``.
+    iterations : int or sequence of int
+        Iteration budget per level (solver iterations for L-BFGS, steps for Adam); default
+        (30, 30, 40) for L-BFGS and (50, 50, 50) for Adam, the last entry repeated for any
+        further level.
+    carve : bool
+        Carve the visual hull (True; the tutorial recipe never carves).
+    carve_tolerance : int
+        Views allowed to disagree when carving (default 1 with 10 views or more, else 0).
+    carve_margin : float
+        Extra silhouette dilation for carving, in pixels (2: the tutorial's silhouettes are the
+        mesh dilated by ~1.9 px in every image, which is not consistent in 3D near thin parts
+        seen at different depths, so a tight hull would cut into what the views show).
+    prune_threshold, prune_dilation : float, int
+        At each new level, voxels whose upsampled opacity per final-resolution sample is below
+        ``prune_threshold`` (1e-3), and that are more than ``prune_dilation`` (2) voxels from
+        one above it, are fixed empty.
+    termination : float
+        From the second level on, rays stop where the upsampled model's transmittance falls
+        below this (1e-3; 0: march the whole range).
+    smoothness : float or (2,) float
+        Weights ``(lambda_density, lambda_colour)`` (one number: both; 0.03) of a smoothness
+        prior for geofit's methods: ``lambda (level / 64)^2`` times the mean squared difference
+        between face-neighbouring free voxels of the densities and of the colours (0: none,
+        the tutorial's objective). It fills what the views do not constrain (e.g. the top of
+        the cow, never seen from elevation 0) smoothly instead of with stripes.
+    huber_scaling : float
+        Scale of the Huber losses (0.1 as the tutorial).
+    lr, batch_size, n_iter
+        Adam settings (0.1; ``batch_size`` 10 and ``n_iter`` 300 for the tutorial recipe).
+    precision : {"float32", "float64"}
+        Arithmetic of the sampled values, the raymarching and the sparse products (float32
+        halves the memory traffic; the loss is summed and the parameters kept in float64).
+    """
+
+    method: str | None = None
+    volume_size: int | None = None
+    volume_extent: float | None = None
+    n_pts_per_ray: int | None = None
+    min_depth: float | None = None
+    max_depth: float | None = None
+    levels: Any = None
+    iterations: Any = None
+    carve: bool | None = None
+    carve_tolerance: int | None = None
+    carve_margin: float | None = None
+    prune_threshold: float | None = None
+    prune_dilation: int | None = None
+    termination: float | None = None
+    smoothness: Any = None
+    huber_scaling: float | None = None
+    lr: float | None = None
+    batch_size: int | None = None
+    n_iter: int | None = None
+    precision: str | None = None
+
+
+_COMMON = dict(volume_size=128, volume_extent=3.0, n_pts_per_ray=150, min_depth=0.1,
+               max_depth=3.0, carve=True, carve_margin=2.0, prune_threshold=1e-3,
+               prune_dilation=2, termination=1e-3, smoothness=0.03, huber_scaling=0.1, lr=0.1,
+               batch_size=10, n_iter=300, precision="float32")
+
+#: Recipes of :func:`fit_volume` (presets of :class:`VolumeFitOptions`): geofit's reduced model
+#: (hull, coarse to fine, pruning, empty-space skipping; L-BFGS), or the tutorial's dense grid
+#: and Adam (``n_iter`` steps of ``batch_size`` random views, lr x 0.1 at 75%).
+RECIPES: dict[str, VolumeFitOptions] = {
+    "default": VolumeFitOptions(method="lbfgs", **_COMMON),
+    "tutorial": VolumeFitOptions(method="adam", **_COMMON),
+}
+
+
+def fit_volume(dataset, *, recipe: str = "default", options: VolumeFitOptions | None = None,
+               time_budget: float | None = None, seed=0,
+               evaluator: Callable[[Volume], dict] | None = None,
+               eval_every: int | None = None,
+               callback: Callable[[StepInfo], bool | None] | None = None,
                progress: bool = True) -> VolumeFitResult:
     """Fit a grid of densities and colours to posed images and silhouettes.
 
@@ -293,70 +372,26 @@ def fit_volume(dataset, *args, recipe: str = "default", method: str | None = Non
         Target RGB images in [0, 1] with a black background (the tutorial's renders), target
         silhouettes in [0, 1] and the ``N`` cameras (PyTorch3D conventions).
     recipe : {"default", "tutorial"}
-        ``"tutorial"``: PyTorch3D's recipe on the dense grid (Adam, ``n_iter`` steps of
-        ``batch_size`` random views, lr x 0.1 at 75%). ``"default"``: geofit's reduced model
-        (hull, coarse to fine, pruning, empty-space skipping).
-    method : {"lbfgs", "lbfgs-nlopt", "adam"}, optional
-        Solver of the default recipe: full-batch scipy L-BFGS (default), nlopt L-BFGS or Adam
-        (lr ``lr``, x 0.1 for the last quarter of each level). The tutorial recipe is Adam.
-    volume_size : int
-        Final grid size (a cube, as the tutorial's 128).
-    volume_extent : float
-        World size of the grid's box; ``voxel_size = volume_extent / volume_size``.
-    n_pts_per_ray, min_depth, max_depth
-        The final renderer's ray sampling (150 samples over view depths [0.1, 3.0]).
-    levels : sequence of int, optional
-        Grid sizes of the coarse-to-fine levels, ending with ``volume_size`` (default: halving
-        down to >= 32, e.g. (32, 64, 128)); ignored by ``"tutorial"``. The image size of a level
-        is ``H * level / volume_size`` (rounded to a divisor of H and W) and its samples per ray
-        ``n_pts_per_ray * level / volume_size``.
-    iterations : int or sequence of int, optional
-        Iteration budget per level (solver iterations for L-BFGS, steps for Adam); default
-        (30, 30, 40) for L-BFGS and (50, 50, 50) for Adam, the last entry repeated for any
-        further level.
-    carve : bool
-        Carve the visual hull (geofit's methods; the tutorial recipe never carves).
-    carve_tolerance : int, optional
-        Views allowed to disagree when carving (default 1 with 10 views or more, else 0).
-    carve_margin : float
-        Extra silhouette dilation for carving, in pixels (default 2: the tutorial's silhouettes
-        are the mesh dilated by ~1.9 px in every image, which is not consistent in 3D near thin
-        parts seen at different depths, so a tight hull would cut into what the views show).
-    prune_threshold : float
-        At each new level, voxels whose upsampled opacity per final-resolution sample is below
-        this, and that are more than ``prune_dilation`` voxels from one above it, are fixed empty.
-    prune_dilation : int
-        See ``prune_threshold``.
-    termination : float or None
-        From the second level on, rays stop where the upsampled model's transmittance falls
-        below this (None: march the whole range).
-    smoothness : float or (2,) float
-        Weights ``(lambda_density, lambda_colour)`` (one number: both) of a smoothness prior for
-        geofit's methods: ``lambda (level / 64)^2`` times the mean squared difference between
-        face-neighbouring free voxels of the densities and of the colours, so that it weighs the
-        same squared gradient in world units at every level (0: none, the tutorial's
-        objective; default 0.03). It fills what the views do not constrain (e.g. the top of
-        the cow, never seen from elevation 0) smoothly instead of with stripes. Ignored by
-        ``"tutorial"``.
-    huber_scaling : float
-        Scale of the Huber losses (0.1 as the tutorial).
-    lr, batch_size, n_iter
-        Adam settings (``batch_size`` and ``n_iter`` for the tutorial recipe).
+        Named settings (:data:`RECIPES`): ``"default"``, geofit's reduced model (hull, coarse
+        to fine, pruning, empty-space skipping, L-BFGS); ``"tutorial"``, PyTorch3D's recipe on
+        the dense grid (Adam, ``n_iter`` steps of ``batch_size`` random views, lr x 0.1 at
+        75%).
+    options : VolumeFitOptions, optional
+        Settings that override the recipe's (every field left None keeps the recipe's).
     time_budget : float, optional
-        Seconds of solver time for the whole fit (set-up work included).
-    precision : {"float32", "float64"}
-        Arithmetic of the sampled values, the raymarching and the sparse products (float32
-        halves the memory traffic; the loss is summed and the parameters kept in float64).
+        Wall-clock seconds for the whole fit (set-up work included; the clock paused during
+        the evaluator's checkpoints).
     seed : int or numpy.random.Generator
         For the tutorial recipe's random view batches.
-    monitor : callable, optional
-        ``monitor(volume) -> dict`` of metrics, called with the clock paused at the end of
-        every level, every ``monitor_every`` seconds of solver time, and at the end; the
-        metrics go into the history's checkpoints.
-    monitor_every : float, optional
-        Seconds of solver time between monitor calls (None: levels and end only).
-    verbose : bool
-        Print one line per level.
+    evaluator : callable, optional
+        ``evaluator(volume) -> dict`` of metrics, called with the clock paused at the end of
+        every level, every ``eval_every`` steps, and at the end; the metrics go into the
+        history's checkpoints.
+    eval_every : int, optional
+        Steps between checkpoints (None: levels and end only).
+    callback : callable, optional
+        ``callback(StepInfo) -> bool | None`` after each step (``info.stage`` the level,
+        ``info.terms`` the loss terms); True stops the fit with status ``"callback"``.
     progress : bool
         Show a tqdm progress bar (on stderr; one tick per solver iteration).
 
@@ -367,44 +402,66 @@ def fit_volume(dataset, *args, recipe: str = "default", method: str | None = Non
         search could not improve: usually converged to float precision), ``"diverged"`` or
         ``"nonfinite"`` (both return the best finite parameters), with the fitted volume, the
         history (loss, colour and silhouette terms), and the model size. The volume never holds
-        NaN. A level that ends with ``"time_budget"``, ``"diverged"``, ``"nonfinite"`` or
-        ``"failed"`` ends the fit: the volume is then that level's (coarser) grid, in the same
-        world box.
+        NaN. A level that ends with ``"time_budget"``, ``"diverged"``, ``"nonfinite"``,
+        ``"callback"`` or ``"failed"`` ends the fit: the volume is then that level's (coarser)
+        grid, in the same world box.
 
     Raises
     ------
     ValueError
         On inconsistent shapes, non-finite inputs or invalid settings.
     """
-    dataset = dataset_argument(dataset, args, fit="fit_volume")
-    recipe, method = _recipe_and_method(recipe, method)
-    o = _VolumeOptions(
-        dataset.images, dataset.silhouettes, dataset.cameras, _grid_size(volume_size),
-        check_positive(volume_extent, "volume_extent"),
-        check_int(n_pts_per_ray, "n_pts_per_ray", 2),
-        *_depths(min_depth, max_depth), method, check_positive(huber_scaling, "huber_scaling"),
-        check_positive(lr, "lr"),
-        None if time_budget is None else check_positive(time_budget, "time_budget"),
-        _monitor(monitor), None if monitor_every is None else check_positive(
-            monitor_every, "monitor_every"), bool(verbose), _precision(precision),
-        bool(progress))
+    dataset = _as_dataset(dataset)
+    plan = _plan(dataset, recipe, options, time_budget=time_budget, evaluator=evaluator,
+                 eval_every=eval_every, callback=callback, progress=progress)
     if recipe == "tutorial":
-        o.batch_size = check_int(batch_size, "batch_size")
-        o.n_iter = check_int(n_iter, "n_iter")
-        o.rng = as_rng(seed)
+        plan.rng = as_rng(seed)
         with one_blas_thread():
-            return VolumeFitResult(**_fit_tutorial(o))
-    _level_options(o, levels=levels, iterations=iterations, carve=carve,
-                   carve_tolerance=carve_tolerance, carve_margin=carve_margin,
-                   prune_threshold=prune_threshold, prune_dilation=prune_dilation,
-                   termination=termination, smoothness=smoothness)
+            return VolumeFitResult(**_fit_tutorial(plan))
     with one_blas_thread():
-        return VolumeFitResult(**_LevelsFit(o).run())
+        return VolumeFitResult(**_Solver(plan).run())
+
+
+def _as_dataset(dataset) -> MultiViewDataset:
+    """The training views, checked once at the door (RGB images needed; unknown silhouettes
+    fitted as full)."""
+    return as_dataset(dataset, fit="fit_volume", silhouettes="full")
+
+
+def _plan(dataset: MultiViewDataset, recipe, options, *, time_budget, evaluator, eval_every,
+          callback, progress) -> _Plan:
+    """Check every setting once and fill in the recipe's."""
+    recipe = recipe_name(recipe, RECIPES, fit="fit_volume")
+    o = merge_options(RECIPES[recipe], options, VolumeFitOptions, "options")
+    check_choice(o.method, "options.method", FIT_VOLUME_METHODS)
+    if recipe == "tutorial" and o.method != "adam":
+        raise ValueError(f"options.method: the tutorial recipe is Adam's; got {o.method!r}")
+    if evaluator is not None and not callable(evaluator):
+        raise TypeError(f"evaluator: expected a callable (volume) -> dict, got "
+                        f"{type(evaluator)!r}")
+    if callback is not None and not callable(callback):
+        raise TypeError(f"callback: expected a callable, got {type(callback)!r}")
+    plan = _Plan(
+        dataset.images, dataset.silhouettes, dataset.cameras, _grid_size(o.volume_size),
+        check_positive(o.volume_extent, "volume_extent"),
+        check_int(o.n_pts_per_ray, "n_pts_per_ray", 2),
+        *_depths(o.min_depth, o.max_depth), o.method,
+        check_positive(o.huber_scaling, "huber_scaling"), check_positive(o.lr, "lr"),
+        None if time_budget is None else check_positive(time_budget, "time_budget"),
+        evaluator, None if eval_every is None else check_int(eval_every, "eval_every"),
+        callback, _precision(o.precision), bool(progress))
+    if recipe == "tutorial":
+        plan.batch_size = check_int(o.batch_size, "batch_size")
+        plan.n_iter = check_int(o.n_iter, "n_iter")
+        return plan
+    _level_options(plan, levels=o.levels, iterations=o.iterations, carve=o.carve,
+                   carve_tolerance=o.carve_tolerance, carve_margin=o.carve_margin,
+                   prune_threshold=o.prune_threshold, prune_dilation=o.prune_dilation,
+                   termination=o.termination or None, smoothness=o.smoothness)
+    return plan
 
 
 def _grid_size(volume_size) -> int:
-    from geofit._memory import check_allocation
-
     S = int(volume_size) if isinstance(volume_size, (numbers.Integral, np.integer)) else -1
     if S < 2 or isinstance(volume_size, bool):
         raise ValueError(f"volume_size: expected an integer >= 2, got {volume_size!r}")
@@ -423,18 +480,12 @@ def _depths(min_depth, max_depth) -> tuple[float, float]:
     return min_depth, max_depth
 
 
-def _monitor(monitor):
-    if monitor is not None and not callable(monitor):
-        raise TypeError(f"monitor: expected a callable, got {type(monitor)!r}")
-    return monitor
-
-
 def _precision(precision) -> np.dtype:
     check_choice(precision, "precision", ("float32", "float64"))
     return np.dtype(precision)
 
 
-def _level_options(o: _VolumeOptions, *, levels, iterations, carve, carve_tolerance,
+def _level_options(o: _Plan, *, levels, iterations, carve, carve_tolerance,
                    carve_margin, prune_threshold, prune_dilation, termination,
                    smoothness) -> None:
     """Check the settings of geofit's levels and store them in ``o``."""
@@ -477,20 +528,3 @@ def _level_options(o: _VolumeOptions, *, levels, iterations, carve, carve_tolera
     if any(v < 1 for v in iterations):
         raise ValueError(f"iterations: expected integers >= 1, got {iterations}")
     o.levels, o.iterations = levels, iterations
-
-
-def _recipe_and_method(recipe, method) -> tuple[str, str]:
-    """The recipe and method of :func:`fit_volume` (the former ``method="tutorial"`` is the
-    tutorial recipe, with a DeprecationWarning)."""
-    if method == "tutorial":
-        warn_deprecated("fit_volume(method='tutorial')", "fit_volume(dataset, recipe='tutorial')",
-                        5)
-        recipe, method = "tutorial", None
-    recipe = recipe_name(recipe, RECIPES, fit="fit_volume")
-    method = method_name(RECIPES[recipe]["method"] if method is None else method, "method",
-                         FIT_VOLUME_METHODS, fit="fit_volume", stacklevel=5)
-    if recipe == "tutorial" and method != "adam":
-        raise ValueError(f"method: the tutorial recipe is Adam's; got method={method!r}")
-    return recipe, method
-
-

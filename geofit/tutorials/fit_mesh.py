@@ -11,7 +11,7 @@ from ._common import (
     _GF, _P3D, StepResult, _bar, _begin, _cameras, _fit_row, _pick, _record_fit, _series,
     _recipe_cut, _settings_text, _shade_mesh, _try,
 )
-from .stability import fit_mesh_scenario
+from .stability import fit_mesh_scenario, mesh_fit_arguments
 
 __all__ = ["step_fit_mesh"]
 
@@ -30,13 +30,14 @@ _FIT_MESH_LABELS = {
 }
 
 
+# recipe and MeshFitOptions fields of each run (large_steps 0: the vertices directly)
 _FIT_MESH_RUNS = {
-    "tutorial": {"method": "sgd"},
-    "adam": {"method": "adam", "lr": 0.01},
-    "scipy-lbfgs": {"method": "lbfgs", "large_steps": None},
-    "nlopt-lbfgs": {"method": "lbfgs-nlopt", "large_steps": None},
-    "large-steps": {"method": "lbfgs", "large_steps": 10.0},
-    "coarse-to-fine": {"method": "lbfgs", "large_steps": 10.0, "coarse_to_fine": True},
+    "tutorial": {"recipe": "tutorial", "method": "sgd"},
+    "adam": {"recipe": "sphere", "method": "adam", "lr": 0.01},
+    "scipy-lbfgs": {"recipe": "sphere", "method": "lbfgs", "large_steps": 0.0},
+    "nlopt-lbfgs": {"recipe": "sphere", "method": "lbfgs-nlopt", "large_steps": 0.0},
+    "large-steps": {"recipe": "sphere", "method": "lbfgs", "large_steps": 10.0},
+    "coarse-to-fine": {"recipe": "coarse-to-fine", "method": "lbfgs", "large_steps": 10.0},
 }
 
 
@@ -46,24 +47,24 @@ def _fit_mesh_settings(name: str, size: str) -> dict:
     kw = dict(_FIT_MESH_RUNS[name])
     stochastic = kw["method"] in ("sgd", "adam")
     if size == "full":
-        kw["checkpoint_every"] = 100 if stochastic else 10
+        kw["eval_every"] = 100 if stochastic else 10
         return kw
     if stochastic:
         kw.update(n_iter=_pick(size, 20, 300, _TUTORIAL_STEPS),
-                  checkpoint_every=_pick(size, 10, 50, 100))
+                  eval_every=_pick(size, 10, 50, 100))
         if size == "tiny":
             kw.update(n_samples=500)
     else:
         kw.update(n_iter=_pick(size, 8, 30, 100), n_stages=_pick(size, 1, 2, 3),
-                  checkpoint_every=_pick(size, 4, 10, 10))
+                  eval_every=_pick(size, 4, 10, 10))
         if size == "tiny":
             kw.update(n_samples=500)
     if name == "coarse-to-fine":
-        kw["coarse_to_fine"] = CoarseToFine(max_level=_pick(size, 2, 4, 4),
+        kw["refine"] = CoarseToFine(max_level=_pick(size, 2, 4, 4),
                                             start_level=_pick(size, 1, 2, 2))
         kw.pop("n_stages", None)
     elif size == "tiny":
-        kw["source"] = 2
+        kw["init"] = 2
     return kw
 
 
@@ -95,15 +96,14 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
     for name in methods:  # methods
         for case, mode in cases.items():  # failure cases
             kw = _fit_mesh_settings(name, size)
-            kw.pop("checkpoint_every", None)
-            source = kw.pop("source", None)
+            kw.pop("eval_every", None)
+            source = kw.pop("init", None)
             if kw["method"] in ("sgd", "adam"):
                 kw["n_iter"] = min(kw["n_iter"], _pick(size, 10, 100, 500))
             sc = fit_mesh_scenario(mode, target, kw, source_level=source, seed=seed + 7)
-            res, err = _try(lambda **k: fit_mesh(sc.target, init=sc.source if sc.source is not None
-                                              else source, **k),
-                            evaluator=None, progress=False, time_budget=budget, seed=seed,
-                            **sc.kwargs)
+            args = mesh_fit_arguments(sc.kwargs, sc.source if sc.source is not None else source)
+            res, err = _try(lambda **k: fit_mesh(sc.target, **k), evaluator=None,
+                            progress=False, time_budget=budget, seed=seed, **args)
             rows.append(_fit_row(name, case, res, err, measure))
             bar.update(1)
     bar.close()
@@ -141,9 +141,9 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     results = {}
     for name in names:  # methods
         kw = _fit_mesh_settings(name, size)
-        source = kw.pop("source", None)
-        fit = fit_mesh(target, init=source, evaluator=evaluator, progress=progress, seed=seed,
-                       **kw)
+        every = kw.pop("eval_every", None)
+        fit = fit_mesh(target, evaluator=evaluator, progress=progress, seed=seed,
+                       eval_every=every, **mesh_fit_arguments(kw))
         results[name] = fit
         m = fit.metrics
         final = {"seconds": fit.seconds, "n_verts": fit.n_verts, "n_params": fit.n_params,

@@ -33,12 +33,11 @@ def _views_settings(size: str) -> dict:
         # coarse-to-fine; least-squares colours, then joint L-BFGS
         "geofit": {"silhouette_method": "lbfgs", "textured_method": "lbfgs",
                    "large_steps": 10.0,
-                   "levels": _pick(size, None, [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
+                   "levels": _pick(size, [(0, 1)], [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
                    "silhouette_iters": _pick(size, 4, 60, 2000),
-                   "textured_iters": _pick(size, 4, 30, 200),
-                   "textured_time": _pick(size, None, 10.0, 120.0)},
+                   "textured_iters": _pick(size, 4, 30, 200)},
         "init_level": _pick(size, 2, 4, 4),
-        "eval_every": _pick(size, 1e9, 4.0, 20.0),
+        "eval_every": _pick(size, 10 ** 9, 20, 100),  # steps
     }
 
 
@@ -52,11 +51,9 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     signature and the StepResult are :func:`run_step`'s.
     """
     from ..datasets import tutorial_views
-    from ..fit.views import ViewsEvaluator, fit_mesh_to_views
+    from ..fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
     from ..io import save_obj
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
     from ..shapes import ico_sphere
-    from ..structures import Mesh, TexturesVertex
 
     res, d, t0 = _begin(out, "fit_views", size)
     cfg = _views_settings(size)
@@ -86,9 +83,11 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     fits = {}
     for name, label in labels.items():  # methods
         kw = dict(cfg[name])
-        init = ico_sphere(cfg["init_level"] - (1 if kw.get("levels") else 0))
-        fit = fit_mesh_to_views(ds, init=init, evaluate=evaluate,
-                                eval_every=cfg["eval_every"], seed=seed, **kw)
+        kw["init"] = ico_sphere(cfg["init_level"] - (1 if len(kw.get("levels", ())) > 1
+                                                     else 0))
+        fit = fit_mesh_to_views(ds, options=ViewsFitOptions(**kw), evaluator=evaluate,
+                                eval_every=cfg["eval_every"], seed=seed)
+        kw.pop("init")
         fits[name] = fit
         final = ev(fit.mesh, fit.colors)
         n_colors = 0 if fit.colors is None else int(np.size(fit.colors))
@@ -114,15 +113,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     # held-out renders of each result next to the held-out targets
     h = ds.held_out
     k = min(3, len(h))
-    cams = h.cameras[np.arange(k)]
-    ras = MeshRasterizer(cams, RasterizationSettings(image_size=h.image_size))
-    renders = {}
-    for name, fit in fits.items():
-        colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
-        m = Mesh(fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(colors, 0.0, 1.0)))
-        renders[name] = np.asarray(MeshRenderer(ras, SoftPhongShader(cameras=cams,
-                                                                     lights=h.lights))(
-            m.extend(k))[..., :3], dtype=np.float64)
+    renders = {name: fit.render(h, n_views=k) for name, fit in fits.items()}
     _heldout_comparison(res, d, h.images[:k], renders, fits,
                         f"Held-out views of the {ds.name} (never trained on) and the fitted "
                         "meshes rendered from them.")
@@ -141,7 +132,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:
     from ..structures import MultiViewDataset
-    from ..fit.views import fit_mesh_to_views
+    from ..fit.views import ViewsFitOptions, fit_mesh_to_views
     from ..shapes import ico_sphere
 
     tr = ds
@@ -172,8 +163,9 @@ def _views_stability(ds, size: str, seed: int) -> list[dict]:
             def run(make=make, kw=kw):
                 views = make()
                 vps = min(2, len(views))
-                return fit_mesh_to_views(views, init=ico_sphere(2), silhouette_iters=iters,
-                                         views_per_step=vps, seed=seed, **kw)
+                return fit_mesh_to_views(views, options=ViewsFitOptions(
+                    init=ico_sphere(2), silhouette_iters=iters, views_per_step=vps, **kw),
+                    seed=seed)
             fit, err = _try(run)
             rows.append(_fit_row(method, case, fit, err, lambda f: {
                 "NaN vertices": bool(np.isnan(f.mesh.verts).any()),

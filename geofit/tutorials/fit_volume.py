@@ -30,7 +30,7 @@ def _volume_settings(size: str) -> dict:
                      "batch_size": _pick(size, 2, 10, 10), "time_budget": budget},
         "lbfgs": {"method": "lbfgs", "levels": _pick(size, (8, 16), (32, 64), (32, 64, 128)),
                   "iterations": _pick(size, (4, 4), (60, 40), None), "time_budget": budget},
-        "monitor_every": _pick(size, None, 3.0, 30.0),
+        "eval_every": _pick(size, None, 10, 30),  # steps
     }
 
 
@@ -44,7 +44,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     random view batches. Writes into ``out/fit_volume``; the signature and the StepResult are
     :func:`run_step`'s.
     """
-    from ..fit.volume import fit_volume
+    from ..fit.volume import VolumeFitOptions, fit_volume
 
     res, d, t0 = _begin(out, "fit_volume", size)
     cfg = _volume_settings(size)
@@ -71,9 +71,10 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     fits, renders = {}, {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
-        fit = fit_volume(train, volume_size=S,
-                         n_pts_per_ray=n_pts, seed=seed, monitor=monitor,
-                         monitor_every=cfg["monitor_every"], **kw)
+        recipe, budget = kw.pop("recipe", "default"), kw.pop("time_budget")
+        fit = fit_volume(train, recipe=recipe, options=VolumeFitOptions(
+            volume_size=S, n_pts_per_ray=n_pts, **kw), time_budget=budget, seed=seed,
+            evaluator=monitor, eval_every=cfg["eval_every"])
         fits[key] = fit
         renders[key] = _render_volume(fit.volume, test.cameras, img, n_pts)
         final = monitor(fit.volume)
@@ -113,7 +114,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
 
 
 def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[dict]:
-    from ..fit.volume import fit_volume
+    from ..fit.volume import VolumeFitOptions, fit_volume
 
     small = max(8, S // 4)
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
@@ -131,8 +132,11 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
                        ("lbfgs", {"method": "lbfgs", "levels": (small,),
                                   "iterations": _pick(size, 2, 10, 30)})):
         for case, (i_, s_, c_) in cases.items():  # failure cases
-            fit, err = _try(lambda **k: fit_volume(_views(i_, s_, c_), **k), volume_size=small,
-                            n_pts_per_ray=max(16, n_pts // 4), seed=seed, **kw)
+            opts = {k: v for k, v in kw.items() if k != "recipe"}
+            fit, err = _try(lambda **k: fit_volume(_views(i_, s_, c_), **k),
+                            recipe=kw.get("recipe", "default"), seed=seed,
+                            options=VolumeFitOptions(volume_size=small,
+                                                     n_pts_per_ray=max(16, n_pts // 4), **opts))
             rows.append(_fit_row(method, case, fit, err, lambda f: {
                 "NaN in volume": bool(np.isnan(f.volume.densities).any()),
                 "occupied voxels": int(f.n_occupied_voxels),

@@ -3,6 +3,7 @@ preset next to geofit's, and the stability cases."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -33,7 +34,7 @@ def _nerf_settings(size: str) -> dict:
                      "n_pts_per_ray": _pick(size, 8, 64, 128)},
         "scene": scene,
         "time_budget": budget,
-        "eval_every": _pick(size, 2, budget / 5 if budget else None, None),
+        "eval_every": _pick(size, 2, None, None),  # steps (None: 1/20 of the run)
     }
 
 
@@ -47,7 +48,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     Progress: a progress bar over the fits; seed: initialisation, view and ray choices. Writes
     into ``out/nerf``; the signature and the StepResult are :func:`run_step`'s.
     """
-    from ..fit.nerf import fit_nerf, render_nerf
+    from ..fit.nerf import RECIPES, fit_nerf, render_nerf
 
     res, d, t0 = _begin(out, "nerf", size)
     cfg = _nerf_settings(size)
@@ -67,9 +68,11 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     fits = {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
-        fit = fit_nerf(train, held_out=test,
-                       time_budget=cfg["time_budget"], eval_every=cfg["eval_every"], seed=seed,
-                       **kw)
+        recipe = kw.pop("recipe")
+        fit = fit_nerf(train, recipe=recipe, options=replace(RECIPES[recipe], **kw),
+                       evaluator=test, time_budget=cfg["time_budget"],
+                       eval_every=cfg["eval_every"], seed=seed)
+        kw["recipe"] = recipe
         fits[key] = fit
         _record_fit(res, d, key, label, fit, ("psnr",),
                     final={"seconds": fit.seconds, "psnr": fit.psnr, "n_params": fit.n_params},
@@ -104,7 +107,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
 
 
 def _nerf_stability(train, size: str, seed: int) -> list[dict]:
-    from ..fit.nerf import fit_nerf
+    from ..fit.nerf import RECIPES, fit_nerf
 
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
     nan_i = imgs.copy()
@@ -124,7 +127,9 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
                   "n_rays_per_image": 64}
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
-            fit, err = _try(lambda: fit_nerf(_views(i_, s_, c_), seed=seed, **kw))
+            recipe = kw.pop("recipe")
+            fit, err = _try(lambda: fit_nerf(_views(i_, s_, c_), recipe=recipe, seed=seed,
+                                             options=replace(RECIPES[recipe], **kw)))
             rows.append(_fit_row(method, case, fit, err, lambda f: {
                 "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
                 "seconds": round(f.seconds, 2)}))

@@ -13,7 +13,7 @@ a file of ``$GEOFIT_DATA/shapes/``) and :func:`shape_views` its multi-view rende
 """
 from __future__ import annotations
 
-import copy
+import dataclasses
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -21,7 +21,7 @@ import numpy as np
 from ..structures import Mesh
 
 __all__ = ["MESH_MODES", "STABILITY_SHAPES", "MeshScenario", "collapse_edges",
-           "fit_mesh_scenario", "shape_views", "stability_shape"]
+           "fit_mesh_scenario", "mesh_fit_arguments", "shape_views", "stability_shape"]
 
 #: Scenario key -> what it does (the stability table's legend).
 MESH_MODES = {
@@ -47,7 +47,8 @@ class MeshScenario(NamedTuple):
     target : Mesh or (verts, faces)
         What to fit (may hold a NaN on purpose).
     kwargs : dict
-        fit_mesh keyword arguments (a modified copy of the method's).
+        The method's settings (a modified copy): ``recipe`` and :class:`geofit.fit.MeshFitOptions`
+        fields (see :func:`mesh_fit_arguments`).
     reference : Mesh
         What to score the result against (the clean target).
     """
@@ -66,6 +67,18 @@ def collapse_edges(mesh: Mesh, every: int = 7) -> Mesh:
     return mesh.update_verts(v)
 
 
+def mesh_fit_arguments(settings: dict, init=None) -> dict:
+    """``fit_mesh`` keyword arguments (``recipe``, ``options``) from a flat dict of settings:
+    ``recipe`` and :class:`geofit.fit.MeshFitOptions` fields (``init`` set when given)."""
+    from ..fit import MeshFitOptions
+
+    kw = dict(settings)
+    recipe = kw.pop("recipe", "sphere")
+    if init is not None:
+        kw["init"] = init
+    return {"recipe": recipe, "options": MeshFitOptions(**kw)}
+
+
 def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: int | None = None,
                       seed: int = 7) -> MeshScenario:
     """The inputs of the stability run ``mode`` for a method's fit_mesh ``kwargs``.
@@ -77,7 +90,8 @@ def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: in
     target : Mesh
         The clean target.
     kwargs : dict
-        The method's fit_mesh keyword arguments (not modified).
+        The method's settings: ``recipe`` and :class:`geofit.fit.MeshFitOptions` fields (not
+        modified).
     source_level : int, optional
         Ico-sphere level of the start when the method has no coarse-to-fine schedule
         (default 4, the tutorial's).
@@ -113,11 +127,11 @@ def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: in
     elif mode == "torus":
         tin = reference = torus()
     elif mode == "degenerate_start":
-        c2f = kw.get("coarse_to_fine")
+        c2f = kw.get("refine")
         if isinstance(c2f, CoarseToFine):
             level = c2f.start_level
         else:
-            level = 2 if c2f else (source_level or 4)
+            level = 2 if kw.get("recipe") == "coarse-to-fine" else (source_level or 4)
         source = collapse_edges(ico_sphere(level))
     elif mode == "step_x100":
         if kw["method"] == "sgd":
@@ -127,11 +141,10 @@ def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: in
         else:
             x100 = {k: 100 * v for k, v in TUTORIAL_WEIGHTS.items()}
             kw["weights"] = [x100, {k: 100 * v for k, v in FINE_WEIGHTS.items()}]
-            c2f = kw.get("coarse_to_fine")
-            if c2f is not None and c2f is not False:
-                c2f = copy.copy(c2f) if isinstance(c2f, CoarseToFine) else CoarseToFine()
-                c2f.coarse_weights = x100
-                kw["coarse_to_fine"] = c2f
+            c2f = kw.get("refine")
+            if c2f is not None or kw.get("recipe") == "coarse-to-fine":
+                c2f = c2f if isinstance(c2f, CoarseToFine) else CoarseToFine()
+                kw["refine"] = dataclasses.replace(c2f, coarse_weights=x100)
     elif mode == "nan_target":
         v = target.verts.copy()
         v[0, 0] = np.nan
