@@ -34,7 +34,6 @@ procedural textured stand-in is used and ``name`` says so.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -51,7 +50,6 @@ __all__ = [
     "TUTORIALS",
     "MultiViewDataset",
     "cow_mesh",
-    "generate_cow_renders",
     "held_out_views",
     "load_views",
     "render_views",
@@ -168,13 +166,6 @@ class MultiViewDataset:
         """``(H, W)`` in pixels."""
         return tuple(int(s) for s in self.silhouettes.shape[1:])
 
-    @property
-    def mesh_name(self) -> str:
-        """Deprecated: use :attr:`name`."""
-        warnings.warn("MultiViewDataset.mesh_name is deprecated; use .name", DeprecationWarning,
-                      stacklevel=2)
-        return self.name
-
     def __repr__(self) -> str:
         N, H, W = self.silhouettes.shape
         parts = [f"{N} views of {self.name!r}", f"{H}x{W}"]
@@ -286,8 +277,7 @@ def _angles(azim, elev) -> tuple[np.ndarray, np.ndarray]:
 
 def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float = 2.7,
                  background=(0.0, 0.0, 0.0), light_location=(0.0, 0.0, -3.0),
-                 silhouettes: str = "threshold", name: str = "mesh",
-                 mesh_name: str | None = None) -> MultiViewDataset:
+                 silhouettes: str = "threshold", name: str = "mesh") -> MultiViewDataset:
     """Render a textured mesh from given angles: geofit's one renderer of synthetic datasets.
 
     Parameters
@@ -308,8 +298,6 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
         What to store as silhouettes (see the module docstring).
     name : str
         Stored in the result.
-    mesh_name : str, optional
-        Deprecated spelling of ``name``.
 
     Returns
     -------
@@ -326,10 +314,6 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
     )
     from .render.soft import SoftRasterizationSettings, rasterize_soft, sigmoid_alpha_blend
 
-    if mesh_name is not None:
-        warnings.warn("render_views(mesh_name=...) is deprecated; use name=...",
-                      DeprecationWarning, stacklevel=2)
-        name = mesh_name
     mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     if mesh.textures is None:
         raise ValueError("mesh: expected a textured mesh (TexturesUV or TexturesVertex)")
@@ -504,14 +488,3 @@ def tutorial_views(tutorial: int = 5, *, mesh: Mesh | None = None, num_views: in
             data.held_out = held
     data.config.update(tutorial=tutorial, num_views=n_views, num_held_out=n_held)
     return data
-
-
-def generate_cow_renders(num_views: int = 40, azimuth_range: float = 180.0,
-                         image_size: int = 128, background=(0.0, 0.0, 0.0), elev: float = 0.0,
-                         *, dist: float = 2.7, mesh: Mesh | None = None) -> MultiViewDataset:
-    """Deprecated: use ``tutorial_views(5, ...)`` (the same views, held-out views attached)."""
-    warnings.warn("generate_cow_renders is deprecated; use geofit.datasets.tutorial_views(5, "
-                  "num_views=..., num_held_out=0)", DeprecationWarning, stacklevel=2)
-    return tutorial_views(5, mesh=mesh, num_views=num_views, image_size=image_size,
-                          num_held_out=0, azimuth_range=azimuth_range, elev=elev, dist=dist,
-                          background=background, name=None if mesh is None else "mesh")

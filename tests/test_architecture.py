@@ -148,3 +148,16 @@ def test_every_allowed_exception_is_still_used():
 def test_the_checker_finds_upward_imports(module, source, n_bad):
     """The checker itself: relative, absolute and function-local imports are all seen."""
     assert len(violations(module, source)) == n_bad
+
+
+def test_one_version_and_a_changelog_section_for_it():
+    """setup.cfg's version is geofit.__version__, and CHANGELOG.md has a section for it."""
+    import configparser
+
+    import geofit
+
+    cfg = configparser.ConfigParser()
+    cfg.read(PACKAGE.parent / "setup.cfg", encoding="utf-8")
+    assert cfg["metadata"]["version"] == geofit.__version__
+    changelog = (PACKAGE.parent / "CHANGELOG.md").read_text(encoding="utf-8")
+    assert f"## [{geofit.__version__}]" in changelog

@@ -1,5 +1,5 @@
 """Tests for geofit.datasets.MultiViewDataset (the one multi-view dataset type of tutorials 4, 5
-and 6), its renderer and the deprecated names of the former dataset stack."""
+and 6), and its renderer."""
 from __future__ import annotations
 
 import numpy as np
@@ -106,35 +106,16 @@ def test_tutorial_views_layouts():
         tutorial_views(5, mesh=_object(), num_views=4, image_size=8, num_held_out=-1)
 
 
-def test_deprecated_dataset_names_warn_and_agree():
-    """The former stack still works for one release, with a DeprecationWarning, and returns
-    the same arrays as the new one."""
-    from geofit.datasets import generate_cow_renders
-    from geofit.fit.views import (
-        MultiViewData,
-        MultiViewSplit,
-        cow_multiview_dataset,
-        render_multiview_dataset,
-    )
+def test_the_0_1_dataset_names_are_gone():
+    """0.2.0 removed the deprecated spellings (CHANGELOG.md): generate_cow_renders,
+    MultiViewDataset.mesh_name and render_views(mesh_name=...)."""
+    import geofit.datasets as ds
 
-    obj = _object()
-    new = tutorial_views(4, mesh=obj, num_views=4, image_size=16, num_held_out=2)
-    with pytest.warns(DeprecationWarning, match="render_multiview_dataset"):
-        old = render_multiview_dataset(obj, num_views=4, image_size=16, num_heldout=2)
-    assert isinstance(old, MultiViewSplit) and old.mesh is obj
-    np.testing.assert_array_equal(old.train.silhouettes, new.silhouettes)
-    np.testing.assert_array_equal(old.heldout.images, new.held_out.images)
-    with pytest.warns(DeprecationWarning, match="MultiViewData"):
-        mv = MultiViewData(new.cameras, new.silhouettes, new.images)
-    assert isinstance(mv, MultiViewDataset) and type(mv[0]) is MultiViewDataset
-    with pytest.warns(DeprecationWarning, match="cow_multiview_dataset"):
-        cow_multiview_dataset(num_views=2, image_size=8, num_heldout=1)
-    with pytest.warns(DeprecationWarning, match="generate_cow_renders"):
-        g = generate_cow_renders(num_views=2, image_size=8, mesh=obj)
-    t5 = tutorial_views(5, mesh=obj, num_views=2, image_size=8, num_held_out=0)
-    np.testing.assert_array_equal(g.images, t5.images)
-    with pytest.warns(DeprecationWarning, match="mesh_name"):
-        assert g.mesh_name == "mesh"
+    assert not hasattr(ds, "generate_cow_renders")
+    t5 = tutorial_views(5, mesh=_object(), num_views=2, image_size=8, num_held_out=0)
+    assert not hasattr(t5, "mesh_name")
+    with pytest.raises(TypeError, match="mesh_name"):
+        ds.render_views(_object(), [0.0], [0.0], image_size=8, mesh_name="x")
 
 
 def test_every_multi_view_fit_shows_a_progress_bar_unless_asked_not_to(capsys):

@@ -20,5 +20,5 @@ __all__ = ["Parameter", "Tensor", "full", "io", "loss", "manual_seed", "nn", "no
 __getattr__ = missing_names("geofit.pytorch3d", {
     "implicitron": "not provided; the NeRF tutorial's model is "
                    "geofit's NeuralRadianceField (geofit.render)",
-    "datasets": "geofit.datasets.generate_cow_renders, geofit.data for the tutorial files",
+    "datasets": "geofit.datasets.tutorial_views, geofit.data for the tutorial files",
 })

@@ -17,22 +17,13 @@ __all__ = ["EmissionAbsorptionRaymarcher", "HarmonicEmbedding", "ImplicitRendere
            "MonteCarloRaysampler", "NDCMultinomialRaysampler", "RayBundle", "VolumeRenderer",
            "ray_bundle_to_ray_points"]
 
-try:  # geofit.render exports every renderer
-    from ...render import EmissionAbsorptionRaymarcher as _EA
-    from ...render import HarmonicEmbedding as _HE
-    from ...render import MonteCarloRaysampler as _MC
-    from ...render import NDCMultinomialRaysampler as _NDC
-    from ...render import RayBundle
-    from ...render import VolumeRenderer as _VR
-    from ...render import ray_bundle_to_ray_points as _points
-except ImportError:  # geofit 0.1's flat module layout
-    from ...render.harmonic import HarmonicEmbedding as _HE
-    from ...render.raymarching import EmissionAbsorptionRaymarcher as _EA
-    from ...render.raysampling import MonteCarloRaysampler as _MC
-    from ...render.raysampling import NDCMultinomialRaysampler as _NDC
-    from ...render.raysampling import RayBundle
-    from ...render.raysampling import ray_bundle_to_ray_points as _points
-    from ...render.volume import VolumeRenderer as _VR
+from ...render import EmissionAbsorptionRaymarcher as _EA
+from ...render import HarmonicEmbedding as _HE
+from ...render import MonteCarloRaysampler as _MC
+from ...render import NDCMultinomialRaysampler as _NDC
+from ...render import RayBundle
+from ...render import VolumeRenderer as _VR
+from ...render import ray_bundle_to_ray_points as _points
 
 NDCMultinomialRaysampler = drop_device(_NDC)
 MonteCarloRaysampler = drop_device(_MC)
