@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from .._json import json_text
+
 RESULT_SCHEMA = "geofit-batch-result/1"
 RESULT_FILE = "result.json"
 PICTURE_FILE = "picture.png"
@@ -62,9 +64,7 @@ def atomic_write(path: Path, write: Callable[[Path], Any]) -> Path:
 
 def write_json(path: Path, data: dict) -> Path:
     """Write ``data`` as indented JSON, atomically (non-finite floats as strings)."""
-    from ..fit.history import _json_safe
-
-    text = json.dumps(_json_safe(data), indent=1) + "\n"
+    text = json_text(data)
     return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
 
 

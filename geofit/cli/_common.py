@@ -7,10 +7,11 @@ A private module: the command line skips modules whose name starts with ``_`` wh
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
+
+from .._json import json_text
 
 
 def cow_views(args: argparse.Namespace):
@@ -139,9 +140,9 @@ def finish(command: str, res, details: str, out: Path) -> int:
 
 def write_json(path: Path, obj) -> None:
     """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain)."""
-    from ..fit.history import _json_safe
-
-    path.write_text(json.dumps(_json_safe(obj), indent=1) + "\n", encoding="utf-8")
+    # TODO(integrator): not atomic; batch._tasks.write_json is (hardening's atomic writer):
+    # one of the two should call the other.
+    path.write_text(json_text(obj), encoding="utf-8")
 
 
 def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float = 180.0) -> None:
