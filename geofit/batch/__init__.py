@@ -45,13 +45,17 @@ from pathlib import Path
 from typing import Any
 
 from .._threads import ENV_VAR, cpu_count
+from ._summary import write_summary
 from ._tasks import (
+    ACCURACY,
     CAPTURE_MARKERS,
     MESH_SUFFIXES,
     RESULT_FILE,
     RESULT_SCHEMA,
+    atomic_write,
     is_capture,
     run_target,
+    write_json,
 )
 
 __all__ = [
@@ -152,14 +156,6 @@ TASK_OPTIONS: dict[str, dict[str, Option]] = {
 #: (rendered into synthetic views first).
 TASKS = tuple(TASK_OPTIONS)
 
-#: Per task, the metric plotted as accuracy in ``summary.png`` and its label.
-ACCURACY: dict[str, tuple[str, str]] = {
-    "fit-mesh": ("fscore@0.01", "F-score@0.01 (normalised frame)"),
-    "render": ("coverage", "share of pixels on the mesh"),
-    "fit-views": ("iou", "held-out silhouette IoU"),
-    "fit-volume": ("psnr", "held-out PSNR (dB)"),
-    "fit-nerf": ("psnr", "held-out PSNR (dB)"),
-}
 
 
 def _check_task(task) -> str:
@@ -433,8 +429,6 @@ class BatchResult(Sequence):
 
     def to_csv(self, path: str | os.PathLike) -> Path:
         """One line per target: the row's fields and one column per metric (written atomically)."""
-        from ._tasks import atomic_write
-
         metrics = self.metric_names()
 
         def write(p: Path) -> None:
@@ -730,8 +724,6 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
                          n_workers=used_workers, threads_per_worker=threads_per_worker or 1,
                          scheduler=where, timings=timings)
     if summary:
-        from ._summary import write_summary
-
         t = time.perf_counter()
         result.seconds = t - t0
         write_summary(result)  # summary.json holds the seconds up to here
@@ -784,8 +776,6 @@ def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
 
 def _lost(spec: dict, exc: BaseException) -> dict:
     """The record of a task that did not return (its worker died): written by the client."""
-    from ._tasks import write_json
-
     rec = {"schema": RESULT_SCHEMA, "name": spec["name"], "target": spec["path"],
            "task": spec["task"], "settings": spec["settings"],
            "settings_hash": spec["settings_hash"], "status": "failed",

@@ -4,7 +4,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from ._tasks import atomic_write, write_json
+from ._tasks import ACCURACY, atomic_write, write_json
 
 SUMMARY_FILES = ("summary.json", "summary.csv", "summary.png", "index.html")
 
@@ -26,7 +26,6 @@ def _plot(result, path: Path) -> Path:
     from matplotlib.figure import Figure
 
     from ..viz import chart_style
-    from . import ACCURACY
 
     label = ACCURACY[result.task][1]
     ok = [r for r in result.rows if r.ok and r.accuracy >= 0]
@@ -54,8 +53,6 @@ def _plot(result, path: Path) -> Path:
 
 
 def _html(result, path: Path) -> Path:
-    from . import ACCURACY
-
     label = ACCURACY[result.task][1]
     e = html.escape
     rows = []

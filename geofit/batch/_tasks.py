@@ -21,6 +21,16 @@ from typing import Any
 import numpy as np
 
 from .._json import json_text
+from .._threads import get_num_threads, set_num_threads
+
+#: Per task, the metric plotted as accuracy in ``summary.png`` and its label.
+ACCURACY: dict[str, tuple[str, str]] = {
+    "fit-mesh": ("fscore@0.01", "F-score@0.01 (normalised frame)"),
+    "render": ("coverage", "share of pixels on the mesh"),
+    "fit-views": ("iou", "held-out silhouette IoU"),
+    "fit-volume": ("psnr", "held-out PSNR (dB)"),
+    "fit-nerf": ("psnr", "held-out PSNR (dB)"),
+}
 
 RESULT_SCHEMA = "geofit-batch-result/1"
 RESULT_FILE = "result.json"
@@ -93,19 +103,14 @@ def _rows(*rows: np.ndarray) -> np.ndarray:
 
 
 def limit_threads(n: int) -> int:
-    """Limit this worker's compute threads to ``n``: ``geofit.set_num_threads`` when geofit
-    has it (geofit's pool for ray casting and rendering, BLAS through threadpoolctl, Open3D),
-    and ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` for anything that reads them later.
-    Returns the count geofit reports back (``geofit.get_num_threads()``), else ``n``."""
-    import geofit
-
+    """Limit this worker's compute threads to ``n``: :func:`geofit.set_num_threads` (geofit's
+    pool for ray casting and rendering, BLAS through threadpoolctl, Open3D), and
+    ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` for anything that reads them later.
+    Returns the count geofit reports back (:func:`geofit.get_num_threads`)."""
     os.environ["GEOFIT_NUM_THREADS"] = str(n)
     os.environ["OMP_NUM_THREADS"] = str(n)
-    setter = getattr(geofit, "set_num_threads", None)
-    if setter is not None:
-        setter(n)
-    getter = getattr(geofit, "get_num_threads", None)
-    return int(getter()) if getter is not None else n
+    set_num_threads(n)
+    return int(get_num_threads())
 
 
 #: What a worker imports before its first task (:func:`warm_up`): the geofit modules of each
@@ -336,7 +341,7 @@ def _task_render(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     from ..datasets import MultiViewDataset, tutorial_views
-    from ..fit._views_objective import dataset_lights
+    from ..fit.views import dataset_lights
     from ..fit.views import ViewsEvaluator
 
     t = time.perf_counter()

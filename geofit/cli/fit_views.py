@@ -30,7 +30,7 @@ __all__ = ["register", "run"]
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code."""
     from ..datasets import tutorial_views
-    from ..fit._views_objective import dataset_lights
+    from ..fit.views import dataset_lights
     from ..fit.views import ViewsEvaluator, fit_mesh_to_views
     from ..io import save_obj
     from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
