@@ -26,11 +26,13 @@ import platform
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+from importlib import metadata
+import shutil
 
 import numpy as np
 
-from ._threads import cpu_count, get_num_threads
 from ._json import json_text
+from ._threads import cpu_count, get_num_threads
 
 __all__ = ["SCHEMA", "ReportFiles", "format_value", "machine_summary", "markdown_table",
            "package_version", "write_gallery", "write_report"]
@@ -170,8 +172,6 @@ def _cpu_model() -> str:
 
 def package_version(*dists: str) -> str | None:
     """Installed version of the first distribution found among ``dists``, else None."""
-    from importlib import metadata
-
     for d in dists:
         try:
             return metadata.version(d)
@@ -402,8 +402,6 @@ def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str
     list of Path
         The images written, in the order listed in ``dest/README.md``.
     """
-    import shutil
-
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     written: list[tuple[str, Path]] = []

@@ -43,8 +43,12 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
+import inspect
+import uuid
 
-from .._threads import ENV_VAR, cpu_count
+from .._threads import ENV_VAR, cpu_count, thread_environ
+from ..fit import RECIPES
+from ..fit.volume import FIT_VOLUME_METHODS
 from ._summary import write_summary
 from ._tasks import (
     ACCURACY,
@@ -57,6 +61,7 @@ from ._tasks import (
     run_target,
     write_json,
 )
+from ._warm import WarmUp
 
 __all__ = [
     "ACCURACY",
@@ -92,14 +97,10 @@ class Option:
 
 
 def _recipes() -> tuple:
-    from ..fit import RECIPES
-
     return tuple(RECIPES)
 
 
 def _volume_methods() -> tuple:
-    from ..fit.volume import FIT_VOLUME_METHODS
-
     return tuple(FIT_VOLUME_METHODS)
 
 
@@ -495,8 +496,6 @@ def thread_env(threads: int) -> dict[str, str]:
     sets all three to 1 before it starts a worker (``distributed.nanny.pre-spawn-environ``),
     and geofit leaves BLAS alone when its thread count equals the cores, so a 1 worker x 2
     threads cluster would otherwise run BLAS on one thread."""
-    from .._threads import thread_environ
-
     return thread_environ(int(threads))
 
 
@@ -535,8 +534,8 @@ def _start_local(n_workers: int, threads: int):
     (its ``env`` is applied after numpy has loaded BLAS): they go into Dask's
     ``distributed.nanny.pre-spawn-environ``, whose values Dask takes from ``os.environ`` when
     set there, hence :func:`_environ` around the start."""
-    import dask
-    from distributed import Client, LocalCluster
+    import dask  # kept local: Dask, loaded only when used (start-up)
+    from distributed import Client, LocalCluster  # kept local: start-up
 
     env = thread_env(threads)
     at_spawn = {k: v for k, v in env.items() if k != ENV_VAR}
@@ -553,8 +552,6 @@ def _start_local(n_workers: int, threads: int):
 def _warm_up(client, task: str, threads: int) -> dict:
     """Register the warm-up plugin (thread limits and imports on every worker, present and
     future); returns once every current worker has run it."""
-    from ._warm import WarmUp
-
     return client.register_plugin(WarmUp(task, threads))
 
 
@@ -586,8 +583,6 @@ def _remote_threads(client, threads: int | None) -> int:
 def _workers(client) -> dict:
     """The scheduler's ``{address: info}`` of every worker (recent ``distributed`` lists only
     the first five unless asked for all)."""
-    import inspect
-
     if "n_workers" in inspect.signature(client.scheduler_info).parameters:
         return client.scheduler_info(n_workers=-1)["workers"]
     return client.scheduler_info()["workers"]  # pragma: no cover - older distributed
@@ -694,7 +689,7 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
         try:
             t = time.perf_counter()
             if client is None and scheduler is not None:
-                from distributed import Client
+                from distributed import Client  # kept local: start-up
 
                 client = Client(scheduler)
             elif client is None:
@@ -741,10 +736,8 @@ def largest_first(todo: list[dict]) -> list[dict]:
 def _run(client, todo: list[dict], progress: bool) -> dict[str, TargetResult]:
     """Submit one task per spec, largest input first, and collect the records in batches as
     they finish."""
-    import uuid
-
-    from distributed import as_completed
-    from tqdm.auto import tqdm
+    from distributed import as_completed  # kept local: start-up
+    from tqdm.auto import tqdm  # kept local: tqdm, loaded only when used (start-up)
 
     todo = largest_first(todo)
     # One task group for the scheduler (the first element of a tuple key names it), so the

@@ -17,11 +17,30 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+import importlib
+from dataclasses import asdict
 
 import numpy as np
 
 from .._json import json_text
-from .._threads import get_num_threads, set_num_threads
+from .._threads import blas_threads, get_num_threads, set_num_threads
+from ..cameras import FoVPerspectiveCameras, look_at_view_transform
+from ..datasets import MultiViewDataset, load_views, render_views, training_azimuths, tutorial_views
+from ..fit import fit_mesh
+from ..fit.nerf import fit_nerf
+from ..fit.views import ViewsEvaluator, dataset_lights, fit_mesh_to_views
+from ..fit.volume import fit_volume, volume_metrics
+from ..io import load_mesh, save_obj
+from ..metrics import MeshEvaluator
+from ..render import (
+    HardPhongShader,
+    MeshRasterizer,
+    MeshRenderer,
+    PointLights,
+    RasterizationSettings,
+    SoftPhongShader,
+)
+from ..structures import Mesh, TexturesVertex
 
 #: Per task, the metric plotted as accuracy in ``summary.png`` and its label.
 ACCURACY: dict[str, tuple[str, str]] = {
@@ -79,16 +98,13 @@ def write_json(path: Path, data: dict) -> Path:
 
 
 def _save_png(path: Path, image: np.ndarray) -> Path:
-    from PIL import Image
+    from PIL import Image  # kept local: Pillow, loaded only when used (start-up)
 
     arr = (np.clip(np.asarray(image, np.float64), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     return atomic_write(path, lambda p: Image.fromarray(arr).save(p))
 
 
 def _save_mesh(path: Path, mesh) -> Path:
-    from ..io import save_obj
-    from ..structures import Mesh
-
     plain = Mesh(mesh.verts, mesh.faces)
     return atomic_write(path, lambda p: save_obj(p, plain))
 
@@ -141,10 +157,6 @@ def warm_up(task: str, threads: int) -> dict:
     "blas_threads", "skipped"}`` (``blas_threads``: each loaded BLAS's thread count, read back
     by threadpoolctl), also kept in ``_WARMED[task]``.
     """
-    import importlib
-
-    from .._threads import blas_threads
-
     t = time.perf_counter()
     got = limit_threads(int(threads))
     skipped = []
@@ -162,8 +174,6 @@ def warm_up(task: str, threads: int) -> dict:
 
 # ------------------------------------------------------------------------------ inputs
 def _load_mesh(path: Path, textures: bool = False):
-    from ..io import load_mesh
-
     mesh = load_mesh(path, load_textures=textures) if path.suffix.lower() == ".obj" \
         else load_mesh(path)
     if mesh.n_faces == 0:
@@ -174,8 +184,6 @@ def _load_mesh(path: Path, textures: bool = False):
 def _coloured(mesh):
     """The mesh normalised (as the tutorials), with vertex colours from its normals when it has
     no texture, so that RGB renders carry information."""
-    from ..structures import Mesh, TexturesVertex
-
     m = mesh.normalize().mesh
     if m.textures is None:
         m = Mesh(m.verts, m.faces, TexturesVertex(0.25 + 0.5 * np.abs(m.verts_normals)))
@@ -189,8 +197,6 @@ def _load_capture(folder: Path, background: tuple):
     The one place that knows ``geofit.datasets.load_views``' contract (a dataset with
     ``images``, ``silhouettes`` and ``cameras``).
     """
-    from ..datasets import load_views
-
     ds = load_views(folder, background=background)
     return (np.asarray(ds.images, np.float64)[..., :3], np.asarray(ds.silhouettes, np.float64),
             ds.cameras)
@@ -216,8 +222,6 @@ def _tutorial5_views(path: Path, s: dict):
     it at elevation 0, black background; held out: the azimuths half-way, elevation 20)."""
     if path.is_dir():
         return _split(*_load_capture(path, (0.0, 0.0, 0.0))) + (None,)
-    from ..datasets import render_views, training_azimuths
-
     mesh = _coloured(_load_mesh(path, textures=True))
     az = training_azimuths(s["views"])
     train = render_views(mesh, az, 0.0, image_size=s["image_size"])
@@ -231,32 +235,22 @@ def _tutorial5_views(path: Path, s: dict):
 # ------------------------------------------------------------------------------ adapters
 def _fit_mesh_call(target, **kwargs):
     """geofit's mesh fit with its default start."""
-    from ..fit import fit_mesh
-
     return fit_mesh(target, **kwargs)
 
 
 def _fit_views_call(train, **kwargs):
     """geofit's mesh-from-views fit (tutorial 4) with its defaults."""
-    from ..fit.views import fit_mesh_to_views
-
     return fit_mesh_to_views(train, progress=False, **kwargs)
 
 
 def _fit_volume_call(images, silhouettes, cameras, **kwargs):
     """geofit's volume fit (tutorial 5) with its defaults."""
-    from ..datasets import MultiViewDataset
-    from ..fit.volume import fit_volume
-
     return fit_volume(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
                       progress=False, **kwargs)
 
 
 def _fit_nerf_call(images, silhouettes, cameras, **kwargs):
     """geofit's NeRF fit (tutorial 6) with its defaults."""
-    from ..datasets import MultiViewDataset
-    from ..fit.nerf import fit_nerf
-
     return fit_nerf(MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras),
                     progress=False, **kwargs)
 
@@ -267,8 +261,6 @@ def _given(s: dict, mapping: dict) -> dict:
 
 
 def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..metrics import MeshEvaluator
-
     t = time.perf_counter()
     target = _load_mesh(path)
     clock["load_seconds"] = time.perf_counter() - t
@@ -291,8 +283,6 @@ def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 def _render_pair(target, fitted, size: int = 160):
     """Target (top) and fitted mesh (bottom) from three directions, both in the target's
     normalised frame."""
-    from ..structures import Mesh
-
     norm = target.normalize()
     fit_n = Mesh((fitted.verts - norm.center) / norm.scale, fitted.faces)
     return _rows(_views(norm.mesh, 3, size), _views(fit_n, 3, size))
@@ -300,15 +290,6 @@ def _render_pair(target, fitted, size: int = 160):
 
 def _views(mesh, n: int, size: int, *, dist: float = 2.7, elev: float = 20.0):
     """``n`` Phong renders (n, size, size, 4) of ``mesh`` at azimuths spread around it."""
-    from ..cameras import FoVPerspectiveCameras, look_at_view_transform
-    from ..render import (
-        HardPhongShader,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-    )
-
     az = np.linspace(0.0, 360.0, n, endpoint=False) + 30.0
     R, T = look_at_view_transform(dist, np.full(n, elev), az)
     cams = FoVPerspectiveCameras(R=R, T=T)
@@ -340,10 +321,6 @@ def _task_render(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..datasets import MultiViewDataset, tutorial_views
-    from ..fit.views import dataset_lights
-    from ..fit.views import ViewsEvaluator
-
     t = time.perf_counter()
     if path.is_dir():
         (tr, te) = _split(*_load_capture(path, (1.0, 1.0, 1.0)))
@@ -367,9 +344,6 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     _save_mesh(dest / "fit.obj", fit.mesh)
     _save_npz(dest / "fit_colors.npz", verts=fit.mesh.verts, faces=fit.mesh.faces,
               colors=colors)
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
-    from ..structures import Mesh, TexturesVertex
-
     k = min(4, len(heldout))
     cams = heldout.cameras[np.arange(k)]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=heldout.image_size))
@@ -385,8 +359,6 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_volume(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..fit.volume import volume_metrics
-
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
@@ -407,8 +379,6 @@ def _task_fit_volume(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_nerf(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from dataclasses import asdict
-
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t

@@ -2,6 +2,11 @@
 
 Each workflow lives in its own module in this package and defines ``register(subparsers)``,
 which adds one sub-command whose ``func(args) -> int`` runs it. ``main`` discovers them.
+
+Imports of geofit's packages are made inside each sub-command's ``func``, not at module level,
+on purpose: ``geofit --help`` and argument errors answer without importing Open3D, Embree,
+matplotlib and the fits (docs/architecture.md: the command line's start-up is one of the two
+reasons for a function-local import).
 """
 from __future__ import annotations
 

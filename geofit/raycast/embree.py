@@ -22,7 +22,7 @@ from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_points
 from ..structures import Meshes, as_meshes
 
-__all__ = ["EmbreeScene", "RayCaster", "RayHits", "moller_trumbore"]
+__all__ = ["EmbreeScene", "RayCaster", "RayHits"]  # moller_trumbore: shared inside geofit
 
 # Bounding-sphere radius of the normalised box [-1, 1]^3, with a margin.
 _R = 1.75
@@ -199,7 +199,7 @@ class EmbreeScene:
     """
 
     def __init__(self, meshes, *, robust: bool = True):
-        from embreex import mesh_construction, rtcore_scene
+        from embreex import mesh_construction, rtcore_scene  # kept local: start-up
 
         meshes = [(np.asarray(v, dtype=np.float64), np.asarray(f)) for v, f in meshes]
         used = [v[f.ravel()] for v, f in meshes if len(f)]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import gc
 from typing import NamedTuple
+import os, sys
 
 import numpy as np
 
@@ -62,7 +63,7 @@ def mesh_to_open3d(mesh: Mesh):
     (open3d.geometry.TriangleMesh, open3d.geometry.Image or None)
         The mesh and its texture image (None without a UV texture).
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     tex = mesh.textures
     if isinstance(tex, TexturesFlat) and tex.per_face:
@@ -135,7 +136,7 @@ atexit.register(_release_renderer)
 
 def _offscreen(W: int, H: int):
     """The cached OffscreenRenderer of size W x H (starting Filament costs seconds)."""
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     if _RENDERER.get("size") != (W, H):
         _release_renderer()
@@ -179,7 +180,7 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     compilation take seconds on a software Vulkan device); it is released at exit or when
     another size is asked for.
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     H, W = _size(image_size)
     views, cams = _as_views(meshes, cameras)
@@ -239,14 +240,13 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
         ``run=True`` on Linux, if there is no display at all (checked first: the event loop
         would otherwise wait for a window no one can close).
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     _check_pinhole(cameras)
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)
-    import os, sys  # noqa: E401 - display check (issue 18): run() would wait for ever
     if run and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
                                                          or os.environ.get("WAYLAND_DISPLAY")):
         raise RuntimeError("show_open3d: no display (DISPLAY and WAYLAND_DISPLAY are unset), so "

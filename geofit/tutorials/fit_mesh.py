@@ -6,10 +6,25 @@ import time
 
 import numpy as np
 
+from ..data import load_target_mesh
+from ..fit import CoarseToFine, fit_mesh
+from ..metrics import MeshEvaluator
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from .shared import (
-    GEOFIT_COLUMN, P3D_COLUMN, StepResult, begin_step, fit_row, look_at_cameras, method_series,
-    pick_size, progress_bar, recipe_cut, record_fit, settings_text, shade_mesh, try_call,
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    StepResult,
+    begin_step,
+    fit_row,
+    look_at_cameras,
+    method_series,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    settings_text,
+    shade_mesh,
+    try_call,
 )
 from .stability import fit_mesh_scenario
 
@@ -41,8 +56,6 @@ _FIT_MESH_RUNS = {
 
 
 def _fit_mesh_settings(name: str, size: str) -> dict:
-    from ..fit import CoarseToFine
-
     kw = dict(_FIT_MESH_RUNS[name])
     stochastic = kw["method"] in ("sgd", "adam")
     if size == "full":
@@ -70,9 +83,6 @@ def _fit_mesh_settings(name: str, size: str) -> dict:
 def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -> list[dict]:
     """Each method on noisy / holed / NaN targets, a degenerate start and a 100x step (the
     scenarios of :mod:`geofit.tutorials.stability`, shared with benchmarks/fit_mesh.py)."""
-    from ..fit import fit_mesh
-    from ..metrics import MeshEvaluator
-
     budget = pick_size(size, 0.5, 2.0, 20.0)
     n_metric = pick_size(size, 1000, 5000, 20000)
     cases = {
@@ -119,10 +129,6 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     Progress: tqdm progress bars; seed: sampling seed. Writes into ``out/fit_mesh``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..data import load_target_mesh
-    from ..fit import fit_mesh
-    from ..metrics import MeshEvaluator
-
     res, d, t0 = begin_step(out, "fit_mesh", size)
     data = load_target_mesh()
     target = data.mesh

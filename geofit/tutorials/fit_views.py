@@ -5,9 +5,24 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..datasets import MultiViewDataset, tutorial_views
+from ..fit.views import ViewsEvaluator, fit_mesh_to_views
+from ..io import save_obj
+from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
+from ..shapes import ico_sphere
+from ..structures import Mesh, TexturesVertex
 from .shared import (
-    StepResult, begin_step, close_comparison, fit_row, heldout_comparison, pick_size, progress_bar,
-    recipe_cut, record_fit, try_call, views_config,
+    StepResult,
+    begin_step,
+    close_comparison,
+    fit_row,
+    heldout_comparison,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    try_call,
+    views_config,
 )
 
 __all__ = ["step_fit_views"]
@@ -51,13 +66,6 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     stages; seed: random view choices of the SGD recipe. Writes into ``out/fit_views``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..datasets import tutorial_views
-    from ..fit.views import ViewsEvaluator, fit_mesh_to_views
-    from ..io import save_obj
-    from ..render import MeshRasterizer, MeshRenderer, RasterizationSettings, SoftPhongShader
-    from ..shapes import ico_sphere
-    from ..structures import Mesh, TexturesVertex
-
     res, d, t0 = begin_step(out, "fit_views", size)
     cfg = _views_settings(size)
     ds = tutorial_views(4, num_views=cfg["num_views"], image_size=cfg["image_size"],
@@ -140,10 +148,6 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
 
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:
-    from ..datasets import MultiViewDataset
-    from ..fit.views import fit_mesh_to_views
-    from ..shapes import ico_sphere
-
     tr = ds
     iters = pick_size(size, 2, 10, 40)
     nan_sil = tr.silhouettes.copy()

@@ -2,14 +2,27 @@
 next to geofit's method, and the stability cases."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
+from ..datasets import MultiViewDataset
+from ..fit.volume import fit_volume
 from ..metrics import psnr
 from .shared import (
-    StepResult, begin_step, close_comparison, cow_views, fit_row, heldout_comparison, mask_iou,
-    pick_size, progress_bar, recipe_cut, record_fit, render_volume_views, try_call, views_config,
+    StepResult,
+    begin_step,
+    close_comparison,
+    cow_views,
+    fit_row,
+    heldout_comparison,
+    mask_iou,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    render_volume_views,
+    try_call,
+    views_config,
 )
 
 __all__ = ["step_fit_volume"]
@@ -44,8 +57,6 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     random view batches. Writes into ``out/fit_volume``; the signature and the StepResult are
     :func:`run_step`'s.
     """
-    from ..fit.volume import fit_volume
-
     res, d, t0 = begin_step(out, "fit_volume", size)
     cfg = _volume_settings(size)
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
@@ -113,8 +124,6 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
 
 
 def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[dict]:
-    from ..fit.volume import fit_volume
-
     small = max(8, S // 4)
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
     nan_i = imgs.copy()
@@ -142,6 +151,4 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
 
 def _views(images, silhouettes, cameras):
     """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-    from ..datasets import MultiViewDataset
-
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

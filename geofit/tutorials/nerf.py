@@ -2,13 +2,24 @@
 preset next to geofit's, and the stability cases."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
+from ..datasets import MultiViewDataset
+from ..fit.nerf import fit_nerf, render_nerf
 from .shared import (
-    StepResult, begin_step, close_comparison, cow_views, fit_row, heldout_comparison, pick_size,
-    progress_bar, recipe_cut, record_fit, try_call, views_config,
+    StepResult,
+    begin_step,
+    close_comparison,
+    cow_views,
+    fit_row,
+    heldout_comparison,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    try_call,
+    views_config,
 )
 
 __all__ = ["step_nerf"]
@@ -47,8 +58,6 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     Progress: a progress bar over the fits; seed: initialisation, view and ray choices. Writes
     into ``out/nerf``; the signature and the StepResult are :func:`run_step`'s.
     """
-    from ..fit.nerf import fit_nerf, render_nerf
-
     res, d, t0 = begin_step(out, "nerf", size)
     cfg = _nerf_settings(size)
     img = cfg["image_size"]
@@ -104,8 +113,6 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
 
 
 def _nerf_stability(train, size: str, seed: int) -> list[dict]:
-    from ..fit.nerf import fit_nerf
-
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
     nan_i = imgs.copy()
     nan_i[0, 0, 0, 0] = np.nan
@@ -133,6 +140,4 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
 
 def _views(images, silhouettes, cameras):
     """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-    from ..datasets import MultiViewDataset
-
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

@@ -6,10 +6,29 @@ import time
 
 import numpy as np
 
+from ..render import (
+    Materials,
+    MeshRasterizer,
+    MeshRenderer,
+    PointLights,
+    RasterizationSettings,
+    SoftPhongShader,
+    make_grid,
+)
+from ..structures import Mesh
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from .shared import (
-    GEOFIT_COLUMN, P3D_COLUMN, StepResult, begin_textured_step, look_at_cameras, method_record,
-    method_series, pick_size, progress_bar, recipe_cut, run_cases,
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    StepResult,
+    begin_textured_step,
+    look_at_cameras,
+    method_record,
+    method_series,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    run_cases,
 )
 
 __all__ = ["step_render_mesh"]
@@ -22,11 +41,6 @@ __all__ = ["step_render_mesh"]
 
 def _render_stability(mesh, size: str) -> list[dict]:
     """The mesh renderer on awkward input: where does it break, and how."""
-    from ..render import (
-        MeshRasterizer, MeshRenderer, PointLights, RasterizationSettings, SoftPhongShader,
-    )
-    from ..structures import Mesh
-
     s = pick_size(size, 32, 128, 256)
 
     def render(m, cams, **settings):
@@ -66,9 +80,6 @@ def step_render_mesh(out, size: str = "default", *, progress: bool = True, seed:
     (rendering is deterministic); kept for a common signature. Writes into ``out/render_mesh``;
     the signature and the StepResult are :func:`run_step`'s.
     """
-    from ..render import (Materials, MeshRasterizer, MeshRenderer, PointLights,
-                          RasterizationSettings, SoftPhongShader, make_grid)
-
     res, d, t0, data, mesh = begin_textured_step(out, "render_mesh", size)
     S = pick_size(size, 64, 512, 512)
     SB = pick_size(size, 64, 256, 512)

@@ -6,10 +6,25 @@ import time
 
 import numpy as np
 
+from ..data import find
+from ..io import load_pointcloud
+from ..ops import sample_points_from_meshes
+from ..render import AlphaCompositor
+from ..render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
+from ..structures import PointCloud
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
 from .shared import (
-    GEOFIT_COLUMN, P3D_COLUMN, StepResult, begin_textured_step, look_at_cameras, mask_iou,
-    method_record, method_series, pick_size, progress_bar, run_cases,
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    StepResult,
+    begin_textured_step,
+    look_at_cameras,
+    mask_iou,
+    method_record,
+    method_series,
+    pick_size,
+    progress_bar,
+    run_cases,
 )
 
 __all__ = ["step_render_points"]
@@ -25,10 +40,6 @@ BRIDGE_FILE = "PittsburghBridge/pointcloud.npz"
 
 
 def _points_stability(cloud, cameras, size: str) -> list[dict]:
-    from ..render import AlphaCompositor
-    from ..render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
-    from ..structures import PointCloud
-
     s = pick_size(size, 32, 128, 256)
 
     def render(c, cams=cameras, radius=0.003, K=10):
@@ -64,16 +75,11 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     a progress bar over the renders; seed: sampling seed. Writes into ``out/render_points``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..data import find
-    from ..io import load_pointcloud
-    from ..ops import sample_points_from_meshes
     from ..render import (
         AlphaCompositor, AmbientLights, BlendParams, HardPhongShader, MeshRasterizer,
         MeshRenderer, NormWeightedCompositor, PointsRasterizationSettings, PointsRasterizer,
         PointsRenderer, RasterizationSettings,
     )
-    from ..structures import PointCloud
-
     res, d, t0, data, mesh = begin_textured_step(out, "render_points", size)
     N = pick_size(size, 5_000, 100_000, 500_000)
     S = pick_size(size, 64, 256, 512)

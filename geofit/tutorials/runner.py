@@ -8,16 +8,24 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from .._validate import check_choice
+from ..data import data_dir, find
+from ..report import write_gallery, write_report
 from ..viz import plot_model_sizes
-from .shared import (
-    GEOFIT_COLUMN, P3D_COLUMN, SIZES, STEP_TITLES, StepResult, TutorialsRun, failure_text,
-)
 from .fit_mesh import step_fit_mesh
 from .fit_views import step_fit_views
 from .fit_volume import step_fit_volume
 from .nerf import step_nerf
 from .render_mesh import step_render_mesh
 from .render_points import BRIDGE_FILE, step_render_points
+from .shared import (
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    SIZES,
+    STEP_TITLES,
+    StepResult,
+    TutorialsRun,
+    failure_text,
+)
 
 __all__ = ["STEPS", "run_step", "run_tutorials"]
 
@@ -99,8 +107,6 @@ def _size_chart(steps: Sequence[StepResult], path: Path) -> Path | None:
 
 def _data_note() -> str:
     """Which tutorial files were found, and where (the data the run used)."""
-    from ..data import data_dir, find
-
     instead = {"dolphin/dolphin.obj": "the procedural target used instead",
                "cow_mesh/cow.obj": "the procedural textured mesh used instead",
                BRIDGE_FILE: "the tutorial's cloud not rendered"}
@@ -143,8 +149,6 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     ValueError
         For an unknown size or step name.
     """
-    from ..report import write_report
-
     check_choice(size, "size", SIZES)
     names = list(STEPS) if only is None else list(only)
     if not names:
@@ -157,7 +161,7 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     steps = []
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # kept local: tqdm, loaded only when used (start-up)
 
         bar = tqdm(total=len(names), desc="geofit tutorials", unit="step", dynamic_ncols=True)
     for n in names:  # workflows
@@ -180,8 +184,6 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     report = dict(write_report(steps, out, command=command, size=size, seconds=seconds,
                                charts=charts, notes=notes))
     if gallery is not None:
-        from ..report import write_gallery
-
         report["gallery"] = write_gallery(steps, gallery, command=command, charts=charts,
                                           size=size, seconds=seconds, notes=notes[1:])
     return TutorialsRun(steps, seconds, out, report, charts)

@@ -10,10 +10,26 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_choice
 from .._json import json_safe
+from .._validate import check_choice
+from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
+from ..data import load_textured_mesh
+from ..datasets import held_out_views, tutorial_views
 from ..fit.history import FitHistory
-from ..viz import Series, image_panel, save_png
+from ..render import (
+    BlendParams,
+    EmissionAbsorptionRaymarcher,
+    HardPhongShader,
+    MeshRasterizer,
+    MeshRenderer,
+    NDCMultinomialRaysampler,
+    PointLights,
+    RasterizationSettings,
+    TexturesFlat,
+)
+from ..render.volume import VolumeRenderer
+from ..structures import Mesh
+from ..viz import Series, image_panel, plot_accuracy_vs_time, save_png
 
 __all__ = ["SIZES", "StepResult", "TutorialsRun"]
 
@@ -226,14 +242,12 @@ def try_call(fn: Callable[..., Any], *args, **kwargs) -> tuple[Any, str | None]:
 
 def progress_bar(progress: bool, total: int, desc: str):
     """A tqdm progress bar over ``total`` steps; a disabled one (no output) without ``progress``."""
-    from tqdm import tqdm
+    from tqdm import tqdm  # kept local: tqdm, loaded only when used (start-up)
 
     return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True, disable=not progress)
 
 
 def look_at_cameras(dist, elev, azim, *, ortho: bool = False, **kw):
-    from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-
     R, T = look_at_view_transform(dist, elev, azim)
     if ortho:
         return FoVOrthographicCameras(R=R, T=T, **kw)
@@ -243,12 +257,6 @@ def look_at_cameras(dist, elev, azim, *, ortho: bool = False, **kw):
 def shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), light=(2.0, 2.0, 2.0),
                 background=(1.0, 1.0, 1.0)) -> np.ndarray:
     """(N, H, W, 3) Phong render of an untextured mesh in a flat colour (one per camera)."""
-    from ..render import (
-        BlendParams, HardPhongShader, MeshRasterizer, MeshRenderer, PointLights,
-        RasterizationSettings, TexturesFlat,
-    )
-    from ..structures import Mesh
-
     m = Mesh(mesh.verts, mesh.faces, TexturesFlat(list(color)))
     n = len(cameras)
     renderer = MeshRenderer(MeshRasterizer(cameras, RasterizationSettings(image_size=image_size)),
@@ -280,8 +288,6 @@ def accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list,
 def begin_textured_step(out, name: str, size: str):
     """:func:`begin_step` for the rendering steps, plus the textured default mesh (the cow when
     found): ``(res, folder, t0, data, mesh)``, ``mesh`` normalised as the tutorials do."""
-    from ..data import load_textured_mesh
-
     res, d, t0 = begin_step(out, name, size)
     data = load_textured_mesh()
     return res, d, t0, data, data.mesh.normalize().mesh
@@ -347,8 +353,6 @@ def close_comparison(res: StepResult, d: Path, t0: float, *, chart: str, panels:
     """Finish a recipe-against-method step: the speed/accuracy chart of ``res.methods``
     (``chart`` its heading, ``panels`` as :func:`geofit.viz.plot_accuracy_vs_time`), the
     stability rows, one headline per recipe (``headline(metrics, index)``) and the seconds."""
-    from ..viz import plot_accuracy_vs_time
-
     res.charts[f"Speed and accuracy: {chart} against solver time"] = plot_accuracy_vs_time(
         method_series(res.methods), panels, d / "speed_accuracy.png", title=title)
     res.stability = stability
@@ -391,8 +395,6 @@ def cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
     0/1 silhouettes). Held out: views half-way between the training azimuths, at elevations 0
     and 20 degrees (20 only when a single view is asked for).
     """
-    from ..datasets import held_out_views, tutorial_views
-
     train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     elevations = (0.0, 20.0) if n_heldout >= 2 else (20.0,)
     test = held_out_views(num_views=n_views, elevations=elevations,
@@ -402,9 +404,6 @@ def cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
 
 
 def render_volume_views(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
-    from ..render import EmissionAbsorptionRaymarcher, NDCMultinomialRaysampler
-    from ..render.volume import VolumeRenderer
-
     r = VolumeRenderer(NDCMultinomialRaysampler(image_width=image_size, image_height=image_size,
                                                 n_pts_per_ray=n_pts, min_depth=0.1,
                                                 max_depth=3.0),

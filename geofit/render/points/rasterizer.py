@@ -37,6 +37,7 @@ from ...cameras import CamerasBase
 from ...structures.pointcloud import Pointclouds, as_pointclouds
 from .._settings import float_dtype
 from .compositing import AlphaCompositor, NormWeightedCompositor
+from geofit._memory import check_allocation
 
 __all__ = [
     "PointFragments",
@@ -290,7 +291,6 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
 def _rasterize(xy, z, radius, image_index, n_images, image_size, K, dtype=np.float64):
     """``rasterize_points`` on validated inputs; ``zbuf`` and ``dists`` of type ``dtype``."""
     H, W = image_size
-    from geofit._memory import check_allocation  # memory guard (issue 18): ~64 B per slot
     check_allocation(64 * n_images * H * W * K, "points_per_pixel and image_size",
                      f"the ({n_images}, {H}, {W}, K={K}) point fragments")
     n_pix = n_images * H * W

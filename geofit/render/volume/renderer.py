@@ -21,6 +21,7 @@ from ...structures.volume import Volume, trilinear_matrix
 from .raymarching import AbsorptionOnlyRaymarcher, EmissionAbsorptionRaymarcher, sample_deltas
 from .raysampling import RayBundle
 from .skipping import cell_table, range_layout, range_operator, sample_ranges
+from geofit._memory import check_allocation
 
 __all__ = ["VolumeGradients", "VolumeRenderer"]
 
@@ -104,7 +105,6 @@ class VolumeRenderer:
         self.raymarcher = raymarcher
         self.sample_mode = sample_mode
         self.chunk_size = int(chunk_size)
-        from geofit._memory import check_allocation  # memory guard (issue 18)
         check_allocation(256 * self.chunk_size, "chunk_size", "one chunk of samples")
         if not isinstance(skip_empty, (bool, np.bool_)):
             raise TypeError(f"skip_empty: expected True or False, got {skip_empty!r}")
