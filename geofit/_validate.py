@@ -10,6 +10,7 @@ import numbers
 from typing import Iterable, Sequence
 
 import numpy as np
+
 from ._foreign import ARRAY_HINTS, geometry_kind
 
 __all__ = [

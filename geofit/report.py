@@ -23,11 +23,11 @@ import html
 import math
 import os
 import platform
+import shutil
 from collections.abc import Mapping, Sequence
+from importlib import metadata
 from pathlib import Path
 from typing import Any
-from importlib import metadata
-import shutil
 
 import numpy as np
 

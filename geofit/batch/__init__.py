@@ -35,16 +35,16 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import inspect
 import json
 import os
 import time
+import uuid
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
-import inspect
-import uuid
 
 from .._threads import ENV_VAR, cpu_count, thread_environ
 from ..fit import RECIPES
@@ -61,7 +61,6 @@ from ._tasks import (
     run_target,
     write_json,
 )
-from ._warm import WarmUp
 
 __all__ = [
     "ACCURACY",
@@ -552,6 +551,8 @@ def _start_local(n_workers: int, threads: int):
 def _warm_up(client, task: str, threads: int) -> dict:
     """Register the warm-up plugin (thread limits and imports on every worker, present and
     future); returns once every current worker has run it."""
+    from ._warm import WarmUp  # kept local: imports Dask's distributed (start-up)
+
     return client.register_plugin(WarmUp(task, threads))
 
 

@@ -8,6 +8,7 @@ workflow's signature changes, one line changes here.
 """
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import socket
@@ -15,10 +16,9 @@ import time
 import traceback
 import uuid
 from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
-import importlib
-from dataclasses import asdict
 
 import numpy as np
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import atexit
 import gc
+import os
+import sys
 from typing import NamedTuple
-import os, sys
 
 import numpy as np
 
@@ -247,6 +248,7 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
     if not isinstance(index, (int, np.integer)) or not -len(cameras) <= index < len(cameras):
         raise ValueError(f"index: expected an integer in [0, {len(cameras)}), got {index!r}")
     H, W = _size(image_size)
+    # display check (issue 18): without a display, run() would wait for ever
     if run and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
                                                          or os.environ.get("WAYLAND_DISPLAY")):
         raise RuntimeError("show_open3d: no display (DISPLAY and WAYLAND_DISPLAY are unset), so "

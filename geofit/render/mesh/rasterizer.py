@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._threads import parallel_map
 from ..._validate import check_positive
 from ...cameras import CamerasBase, ndc_grid
@@ -26,7 +27,6 @@ from ...structures import Mesh, Meshes, as_meshes
 from .._fragments import DenseFragmentImages
 from .._settings import image_hw
 from . import _raycast
-from geofit._memory import check_allocation
 
 __all__ = ["Fragments", "MeshRasterizer", "RasterizationSettings"]
 

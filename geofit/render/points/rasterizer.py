@@ -31,13 +31,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._threads import get_num_threads, parallel_map
 from ..._validate import as_array, check_choice, check_int
 from ...cameras import CamerasBase
 from ...structures.pointcloud import Pointclouds, as_pointclouds
 from .._settings import float_dtype
 from .compositing import AlphaCompositor, NormWeightedCompositor
-from geofit._memory import check_allocation
 
 __all__ = [
     "PointFragments",

@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._validate import check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh, as_mesh
 from .._settings import float_dtype, image_hw
 from .fragments import _EPS, SoftFragments, _map_views, _n_threads
-from geofit._memory import check_allocation
 
 __all__ = [
     "TUTORIAL_BLUR_RADIUS",

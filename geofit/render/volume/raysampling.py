@@ -20,9 +20,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._validate import as_array, as_rng, check_finite as _finite_float, check_int as _positive_int
 from ...cameras import CamerasBase, ndc_grid
-from geofit._memory import check_allocation
 
 __all__ = [
     "MonteCarloRaysampler",

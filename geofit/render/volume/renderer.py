@@ -15,13 +15,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._validate import as_array, check_choice
 from ...cameras import CamerasBase
 from ...structures.volume import Volume, trilinear_matrix
 from .raymarching import AbsorptionOnlyRaymarcher, EmissionAbsorptionRaymarcher, sample_deltas
 from .raysampling import RayBundle
 from .skipping import cell_table, range_layout, range_operator, sample_ranges
-from geofit._memory import check_allocation
 
 __all__ = ["VolumeGradients", "VolumeRenderer"]
 
