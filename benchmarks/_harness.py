@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from geofit.fit.history import _json_safe
-from geofit.report import _version, machine_summary
+from geofit._json import json_safe  # layer 0, allowed to benchmarks (docs/architecture.md)
+from geofit.report import machine_summary, package_version
 from geofit.viz import STYLE, chart_style
 from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
 
@@ -76,7 +76,7 @@ def machine_info() -> dict[str, Any]:
         mem = None
     info = machine_summary()  # other processes share the cores: read times with its load
     info["memory_gib"] = round(mem, 1) if mem else None
-    info["versions"]["trimesh"] = _version("trimesh")
+    info["versions"]["trimesh"] = package_version("trimesh")
     return info
 
 
@@ -127,18 +127,6 @@ def time_call(fn: Callable[[], Any], *, repeat: int = 1) -> tuple[Any, float]:
         out = fn()
         best = min(best, time.perf_counter() - t0)
     return out, float(best)
-
-
-def json_safe(obj):
-    """Plain-JSON version of ``obj``: :func:`geofit.fit.history._json_safe` (numpy scalars and
-    arrays converted, NaN/inf as strings), and paths as strings."""
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, Mapping):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    return _json_safe(obj)
 
 
 # ---------------------------------------------------------------------------------------- data

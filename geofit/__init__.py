@@ -149,7 +149,7 @@ __getattr__, __dir__, _ = _lazy.attach(
     },
 )
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
     "__version__",

@@ -141,7 +141,7 @@ def _controller():
     """A cached ``threadpoolctl.ThreadpoolController``, refreshed when modules were imported
     since (a new extension module may have loaded another BLAS)."""
     global _CONTROLLER
-    import threadpoolctl
+    import threadpoolctl  # kept local: threadpoolctl, loaded only when used (start-up)
 
     key = len(sys.modules)
     if _CONTROLLER is None or _CONTROLLER[0] != key:
@@ -178,7 +178,7 @@ def _sync_open3d() -> None:
 
 def open3d_threads() -> int:
     """Apply the policy to Open3D (import it first) and return its thread count, read back."""
-    import open3d
+    import open3d  # kept local: Open3D takes ~1 s to import, loaded only when used (start-up)
 
     with _LOCK:
         _sync_open3d()
@@ -187,7 +187,7 @@ def open3d_threads() -> int:
 
 def blas_threads() -> list[int]:
     """The thread count of every BLAS library loaded in this process, read by threadpoolctl."""
-    import threadpoolctl
+    import threadpoolctl  # kept local: threadpoolctl, loaded only when used (start-up)
 
     return [int(i["num_threads"]) for i in threadpoolctl.threadpool_info()
             if i.get("user_api") == "blas"]

@@ -11,6 +11,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from ._foreign import ARRAY_HINTS, geometry_kind
+
 __all__ = [
     "as_array",
     "as_points",
@@ -69,8 +71,6 @@ def as_array(
         For a mesh or point cloud object (geofit, trimesh, Open3D), saying how to convert it.
     """
     if not isinstance(x, (np.ndarray, list, tuple, numbers.Number)):
-        from ._foreign import ARRAY_HINTS, geometry_kind
-
         kind = geometry_kind(x)
         if kind is not None:
             raise TypeError(f"{name}: expected an array, got a {kind}; {ARRAY_HINTS[kind]}")

@@ -30,7 +30,6 @@ procedural textured stand-in is used and ``name`` says so.
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
@@ -55,7 +54,6 @@ __all__ = [
     "SILHOUETTE_KINDS",
     "TUTORIALS",
     "cow_mesh",
-    "generate_cow_renders",
     "held_out_views",
     "render_views",
     "training_azimuths",
@@ -132,8 +130,7 @@ def _angles(azim, elev) -> tuple[np.ndarray, np.ndarray]:
 
 def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float = 2.7,
                  background=(0.0, 0.0, 0.0), light_location=(0.0, 0.0, -3.0),
-                 silhouettes: str = "threshold", name: str = "mesh",
-                 mesh_name: str | None = None) -> MultiViewDataset:
+                 silhouettes: str = "threshold", name: str = "mesh") -> MultiViewDataset:
     """Render a textured mesh from given angles: geofit's one renderer of synthetic datasets.
 
     Parameters
@@ -154,18 +151,12 @@ def render_views(mesh: Mesh, azim, elev, *, image_size: int = 128, dist: float =
         What to store as silhouettes (see the module docstring).
     name : str
         Stored in the result.
-    mesh_name : str, optional
-        Deprecated spelling of ``name``.
 
     Returns
     -------
     MultiViewDataset
         With ``lights``, ``azim``, ``elev``, ``dist`` and ``mesh`` set.
     """
-    if mesh_name is not None:
-        warnings.warn("render_views(mesh_name=...) is deprecated; use name=...",
-                      DeprecationWarning, stacklevel=2)
-        name = mesh_name
     mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     if mesh.textures is None:
         raise ValueError("mesh: expected a textured mesh (TexturesUV or TexturesVertex)")

@@ -154,7 +154,7 @@ class _Surface:
     def closest(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distances (k,) from P to this surface and the face normals (k, 3) there."""
         if self.degenerate:
-            from scipy.spatial import cKDTree
+            from scipy.spatial import cKDTree  # kept local: start-up
 
             d, _ = cKDTree(self.points).query(P)
             return d, np.zeros_like(P)

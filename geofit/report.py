@@ -20,21 +20,22 @@ from __future__ import annotations
 
 import datetime as _dt
 import html
-import json
 import math
 import os
 import platform
+import shutil
 from collections.abc import Mapping, Sequence
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._json import json_text
 from ._threads import cpu_count, get_num_threads
-from .fit.history import _json_safe
 
 __all__ = ["SCHEMA", "ReportFiles", "format_value", "machine_summary", "markdown_table",
-           "write_gallery", "write_report"]
+           "package_version", "write_gallery", "write_report"]
 
 #: The JSON layout shared with ``benchmarks/_harness.py``.
 SCHEMA = "geofit-benchmark/1"
@@ -169,10 +170,8 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def _version(*dists: str) -> str | None:
+def package_version(*dists: str) -> str | None:
     """Installed version of the first distribution found among ``dists``, else None."""
-    from importlib import metadata
-
     for d in dists:
         try:
             return metadata.version(d)
@@ -199,7 +198,7 @@ def machine_summary() -> dict[str, Any]:
         "load_average_1_5_15min": _load_average(),
         "os": platform.platform(),
         "python": platform.python_version(),
-        "versions": {k: _version(*v) for k, v in {
+        "versions": {k: package_version(*v) for k, v in {
             "geofit": ("geofit",), "numpy": ("numpy",), "scipy": ("scipy",),
             "open3d": ("open3d-cpu", "open3d"), "embreex": ("embreex",), "nlopt": ("nlopt",),
             "matplotlib": ("matplotlib",), "pillow": ("pillow",)}.items()},
@@ -368,7 +367,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
         "tables": {"steps": [s.to_dict(out) for s in steps]},
     }
     json_path = out / "report.json"
-    json_path.write_text(json.dumps(_json_safe(data), indent=1) + "\n", encoding="utf-8")
+    json_path.write_text(json_text(data), encoding="utf-8")
     return ReportFiles(html=html_path, md=md_path, json=json_path)
 
 
@@ -403,8 +402,6 @@ def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str
     list of Path
         The images written, in the order listed in ``dest/README.md``.
     """
-    import shutil
-
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     written: list[tuple[str, Path]] = []

@@ -210,7 +210,7 @@ def implicit_surface(sdf, bounds: float = 1.0, resolution: int = 64) -> Mesh:
     Mesh
         Outward-oriented faces (scikit-image's ``marching_cubes``), deterministic.
     """
-    from skimage.measure import marching_cubes
+    from skimage.measure import marching_cubes  # kept local: start-up
 
     if not isinstance(resolution, (int, np.integer)) or resolution < 8:
         raise ValueError(f"resolution: expected an integer >= 8, got {resolution!r}")

@@ -63,10 +63,10 @@ class Series(NamedTuple):
 @contextmanager
 def chart_style():
     """Context manager: matplotlib on the Agg backend with :data:`STYLE`; yields ``pyplot``."""
-    import matplotlib
+    import matplotlib  # kept local: matplotlib, loaded only when used (start-up)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # kept local: matplotlib, loaded only when used (start-up)
 
     with plt.rc_context(STYLE):
         yield plt
@@ -174,7 +174,7 @@ def plot_accuracy_vs_time(methods: Sequence[Any], panels: Sequence[Mapping[str, 
 def _plain_log_labels(axis, limits) -> None:
     """Log-axis tick labels as plain numbers (0.05, 2, 10); minor labels at 2x and 5x only when
     the axis spans two decades or less (so they never crowd)."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # kept local: start-up
 
     fmt = FuncFormatter(lambda v, _pos: f"{v:g}")
     axis.set_major_formatter(fmt)
@@ -280,7 +280,7 @@ def to_uint8(image) -> np.ndarray:
 
 def save_png(image, path: str | Path) -> Path:
     """Write a float image in [0, 1] (see :func:`to_uint8`) or a uint8 image as a PNG."""
-    from PIL import Image
+    from PIL import Image  # kept local: Pillow, loaded only when used (start-up)
 
     a = np.asarray(image)
     u8 = a if a.dtype == np.uint8 else to_uint8(a)
@@ -291,7 +291,7 @@ def save_png(image, path: str | Path) -> Path:
 
 
 def _font(size: int):
-    from PIL import ImageFont
+    from PIL import ImageFont  # kept local: Pillow, loaded only when used (start-up)
 
     try:
         return ImageFont.load_default(size=size)
@@ -349,7 +349,7 @@ def image_panel(rows: Sequence[Sequence[Any]], path: str | Path, *,
     ValueError
         For an empty grid, label lists of the wrong length or a bad image shape.
     """
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw  # kept local: Pillow, loaded only when used (start-up)
 
     rows = [list(r) for r in rows]
     n_cols = max((len(r) for r in rows), default=0)

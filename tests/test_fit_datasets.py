@@ -1,5 +1,5 @@
 """Tests for geofit.structures.MultiViewDataset (the one multi-view dataset type of tutorials 4, 5
-and 6), its renderer and the deprecated names of the former dataset stack."""
+and 6), and its renderer."""
 from __future__ import annotations
 
 import numpy as np
@@ -123,6 +123,17 @@ def test_generate_cow_renders_returns_cameras_images_silhouettes():
     assert set(np.unique(silhouettes)) <= {0.0, 1.0}
     with pytest.raises(ValueError, match="data_dir"):
         generate_cow_renders(num_views=2, data_dir="x", mesh=obj)
+
+
+def test_the_0_1_dataset_names_are_gone():
+    """0.2.0 removed the deprecated spellings (CHANGELOG.md): MultiViewDataset.mesh_name and
+    render_views(mesh_name=...)."""
+    import geofit.datasets as ds
+
+    t5 = tutorial_views(5, mesh=_object(), num_views=2, image_size=8, num_held_out=0)
+    assert not hasattr(t5, "mesh_name")
+    with pytest.raises(TypeError, match="mesh_name"):
+        ds.render_views(_object(), [0.0], [0.0], image_size=8, mesh_name="x")
 
 
 def test_every_multi_view_fit_shows_a_progress_bar_unless_asked_not_to(capsys):

@@ -831,17 +831,16 @@ def test_every_public_renderer_imports_from_geofit_render():
     assert Volume.__module__ == "geofit.structures.volume"
 
 
-def test_flat_module_paths_warn_and_give_the_moved_module():
-    """The 0.1 flat paths (geofit.render.raysampling, ...) import the moved module, with a
-    DeprecationWarning naming the new path."""
+def test_the_0_1_flat_module_paths_are_gone():
+    """0.2.0 removed the import hook of the 0.1 flat layout (CHANGELOG.md): the old paths do
+    not import, the new ones do."""
     import importlib
-    import sys
 
-    import geofit.render as gr
-
-    for old, new in gr.MOVED_MODULES.items():
-        sys.modules.pop(f"geofit.render.{old}", None)
-        with pytest.warns(DeprecationWarning, match=f"geofit.render.{new}"):
-            mod = importlib.import_module(f"geofit.render.{old}")
-        assert mod is importlib.import_module(f"geofit.render.{new}")
-        assert mod.__spec__.name == f"geofit.render.{new}"
+    old_to_new = {"raysampling": "volume.raysampling", "raymarching": "volume.raymarching",
+                  "implicit": "volume.implicit", "harmonic": "volume.harmonic",
+                  "compositing": "points.compositing", "contour": "soft.contour",
+                  "shading": "mesh.shading", "textures": "mesh.textures"}
+    for old, new in old_to_new.items():
+        with pytest.raises(ModuleNotFoundError):
+            importlib.import_module(f"geofit.render.{old}")
+        importlib.import_module(f"geofit.render.{new}")

@@ -218,10 +218,10 @@ def test_fitting_steps_run_at_tiny_size(tmp_path, procedural, name):
         assert m["final"]["n_params"] > 0
         assert m["status"] in STATUSES
     # the tiny size cuts PyTorch3D's recipe: the row and the summary say so, not only the settings
-    from geofit.tutorials._common import _P3D
+    from geofit.tutorials.shared import P3D_COLUMN
 
     assert "(recipe cut to " in res.metrics[0]["method"]
-    assert "(recipe cut to " in res.headline[_P3D]
+    assert "(recipe cut to " in res.headline[P3D_COLUMN]
     assert all("(recipe cut to " not in r["method"] for r in res.metrics[1:])
     if name == "fit_mesh":
         from geofit.io import load_mesh
@@ -294,12 +294,12 @@ def test_write_report_structure(tmp_path):
 
 
 def test_recipe_cut_marks_only_a_shortened_baseline():
-    from geofit.tutorials._common import _recipe_cut
+    from geofit.tutorials.shared import recipe_cut
 
-    assert _recipe_cut(300, 2000) == " (recipe cut to 300 of 2000 steps)"
-    assert _recipe_cut(256, 512, "px per side") == " (recipe cut to 256 of 512 px per side)"
-    assert _recipe_cut(2000, 2000) == "" and _recipe_cut(2500, 2000) == ""
-    assert _recipe_cut(None, 2000) == ""
+    assert recipe_cut(300, 2000) == " (recipe cut to 300 of 2000 steps)"
+    assert recipe_cut(256, 512, "px per side") == " (recipe cut to 256 of 512 px per side)"
+    assert recipe_cut(2000, 2000) == "" and recipe_cut(2500, 2000) == ""
+    assert recipe_cut(None, 2000) == ""
 
 
 def test_format_value_and_markdown_table():

@@ -40,9 +40,11 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import inspect
 import json
 import os
 import time
+import uuid
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
@@ -376,8 +378,6 @@ class BatchResult(Sequence):
 
     def to_csv(self, path: str | os.PathLike) -> Path:
         """One line per target: the row's fields and one column per metric (written atomically)."""
-        from ._tasks import atomic_write
-
         metrics = self.metric_names()
 
         def write(p: Path) -> None:
@@ -388,6 +388,8 @@ class BatchResult(Sequence):
                     d = asdict(r)
                     w.writerow([d[k] for k in _CSV_FIELDS] + [r.metrics.get(m, "")
                                                               for m in metrics])
+
+        from ._tasks import atomic_write  # the workers' module (heavy): imported when used
 
         return atomic_write(Path(path), write)
 
@@ -449,7 +451,7 @@ def thread_env(threads: int) -> dict[str, str]:
     sets all three to 1 before it starts a worker (``distributed.nanny.pre-spawn-environ``),
     and geofit leaves BLAS alone when its thread count equals the cores, so a 1 worker x 2
     threads cluster would otherwise run BLAS on one thread."""
-    from .._threads import thread_environ
+    from .._threads import thread_environ  # geofit.batch stays light for the CLI's checks
 
     return thread_environ(int(threads))
 
@@ -489,8 +491,8 @@ def _start_local(n_workers: int, threads: int):
     (its ``env`` is applied after numpy has loaded BLAS): they go into Dask's
     ``distributed.nanny.pre-spawn-environ``, whose values Dask takes from ``os.environ`` when
     set there, hence :func:`_environ` around the start."""
-    import dask
-    from distributed import Client, LocalCluster
+    import dask  # kept local: Dask, loaded only when used (start-up)
+    from distributed import Client, LocalCluster  # kept local: start-up
 
     from .._threads import ENV_VAR
 
@@ -509,7 +511,7 @@ def _start_local(n_workers: int, threads: int):
 def _warm_up(client, task: str, threads: int) -> dict:
     """Register the warm-up plugin (thread limits and imports on every worker, present and
     future); returns once every current worker has run it."""
-    from ._warm import WarmUp
+    from ._warm import WarmUp  # kept local: imports Dask's distributed (start-up)
 
     return client.register_plugin(WarmUp(task, threads))
 
@@ -544,8 +546,6 @@ def _remote_threads(client, threads: int | None) -> int:
 def _workers(client) -> dict:
     """The scheduler's ``{address: info}`` of every worker (recent ``distributed`` lists only
     the first five unless asked for all)."""
-    import inspect
-
     if "n_workers" in inspect.signature(client.scheduler_info).parameters:
         return client.scheduler_info(n_workers=-1)["workers"]
     return client.scheduler_info()["workers"]  # pragma: no cover - older distributed
@@ -654,7 +654,7 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
         try:
             t = time.perf_counter()
             if client is None and scheduler is not None:
-                from distributed import Client
+                from distributed import Client  # kept local: start-up
 
                 client = Client(scheduler)
             elif client is None:
@@ -690,10 +690,10 @@ def fit_many(targets, task: str = "fit-mesh", out: str | os.PathLike = "batch_ou
                          n_workers=used_workers, threads_per_worker=threads_per_worker or 1,
                          scheduler=where, timings=timings, notes=notes)
     if summary:
-        from ._summary import write_summary
-
         t = time.perf_counter()
         result.seconds = t - t0
+        from ._summary import write_summary  # matplotlib: imported when used
+
         write_summary(result)  # summary.json holds the seconds up to here
         timings["summary"] = time.perf_counter() - t
     result.seconds = time.perf_counter() - t0

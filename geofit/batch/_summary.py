@@ -4,7 +4,8 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from ._tasks import atomic_write, write_json
+from ..viz import chart_style
+from ._tasks import ACCURACY, atomic_write, write_json
 
 SUMMARY_FILES = ("summary.json", "summary.csv", "summary.png", "index.html")
 
@@ -23,10 +24,7 @@ def write_summary(result) -> list[Path]:
 
 
 def _plot(result, path: Path) -> Path:
-    from matplotlib.figure import Figure
-
-    from ..viz import chart_style
-    from . import ACCURACY
+    from matplotlib.figure import Figure  # kept local: matplotlib, loaded only when used (start-up)
 
     label = ACCURACY[result.task][1]
     ok = [r for r in result.rows if r.ok and r.accuracy >= 0]
@@ -68,8 +66,6 @@ def _where(result) -> str:
 
 
 def _html(result, path: Path) -> Path:
-    from . import ACCURACY
-
     label = ACCURACY[result.task][1]
     e = html.escape
     rows = []

@@ -8,6 +8,7 @@ batch target fits exactly as ``geofit.fit_*`` and the command line do.
 """
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import socket
@@ -15,12 +16,27 @@ import time
 import traceback
 import uuid
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._json import json_text
+from .._threads import blas_threads, get_num_threads, set_num_threads
+from ..cameras import FoVPerspectiveCameras, look_at_view_transform
+from ..datasets import render_views, training_azimuths
+from ..fit.volume import volume_metrics
+from ..io import load_mesh, save_obj
+from ..metrics import MeshEvaluator
+from ..render import (
+    HardPhongShader,
+    MeshRasterizer,
+    MeshRenderer,
+    PointLights,
+    RasterizationSettings,
+)
+from ..structures import Mesh, TexturesVertex
 from ._options import (  # noqa: F401 - CAPTURE_MARKERS, MESH_SUFFIXES, is_capture: re-exported
     CAPTURE_MARKERS,
     MESH_SUFFIXES,
@@ -64,23 +80,18 @@ def atomic_write(path: Path, write: Callable[[Path], Any]) -> Path:
 
 def write_json(path: Path, data: dict) -> Path:
     """Write ``data`` as indented JSON, atomically (non-finite floats as strings)."""
-    from ..fit.history import _json_safe
-
-    text = json.dumps(_json_safe(data), indent=1) + "\n"
+    text = json_text(data)
     return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
 
 
 def _save_png(path: Path, image: np.ndarray) -> Path:
-    from PIL import Image
+    from PIL import Image  # kept local: Pillow, loaded only when used (start-up)
 
     arr = (np.clip(np.asarray(image, np.float64), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     return atomic_write(path, lambda p: Image.fromarray(arr).save(p))
 
 
 def _save_mesh(path: Path, mesh) -> Path:
-    from ..io import save_obj
-    from ..structures import Mesh
-
     plain = Mesh(mesh.verts, mesh.faces)
     return atomic_write(path, lambda p: save_obj(p, plain))
 
@@ -95,19 +106,14 @@ def _rows(*rows: np.ndarray) -> np.ndarray:
 
 
 def limit_threads(n: int) -> int:
-    """Limit this worker's compute threads to ``n``: ``geofit.set_num_threads`` when geofit
-    has it (geofit's pool for ray casting and rendering, BLAS through threadpoolctl, Open3D),
-    and ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` for anything that reads them later.
-    Returns the count geofit reports back (``geofit.get_num_threads()``), else ``n``."""
-    import geofit
-
+    """Limit this worker's compute threads to ``n``: :func:`geofit.set_num_threads` (geofit's
+    pool for ray casting and rendering, BLAS through threadpoolctl, Open3D), and
+    ``GEOFIT_NUM_THREADS`` / ``OMP_NUM_THREADS`` for anything that reads them later.
+    Returns the count geofit reports back (:func:`geofit.get_num_threads`)."""
     os.environ["GEOFIT_NUM_THREADS"] = str(n)
     os.environ["OMP_NUM_THREADS"] = str(n)
-    setter = getattr(geofit, "set_num_threads", None)
-    if setter is not None:
-        setter(n)
-    getter = getattr(geofit, "get_num_threads", None)
-    return int(getter()) if getter is not None else n
+    set_num_threads(n)
+    return int(get_num_threads())
 
 
 #: What a worker imports before its first task (:func:`warm_up`): the geofit modules of each
@@ -138,10 +144,6 @@ def warm_up(task: str, threads: int) -> dict:
     "blas_threads", "skipped"}`` (``blas_threads``: each loaded BLAS's thread count, read back
     by threadpoolctl), also kept in ``_WARMED[task]``.
     """
-    import importlib
-
-    from .._threads import blas_threads
-
     t = time.perf_counter()
     got = limit_threads(int(threads))
     skipped = []
@@ -159,8 +161,6 @@ def warm_up(task: str, threads: int) -> dict:
 
 # ------------------------------------------------------------------------------ inputs
 def _load_mesh(path: Path, textures: bool = False):
-    from ..io import load_mesh
-
     mesh = load_mesh(path, load_textures=textures) if path.suffix.lower() == ".obj" \
         else load_mesh(path)
     if mesh.n_faces == 0:
@@ -171,8 +171,6 @@ def _load_mesh(path: Path, textures: bool = False):
 def _coloured(mesh):
     """The mesh normalised (as the tutorials), with vertex colours from its normals when it has
     no texture, so that RGB renders carry information."""
-    from ..structures import Mesh, TexturesVertex
-
     m = mesh.normalize().mesh
     if m.textures is None:
         m = Mesh(m.verts, m.faces, TexturesVertex(0.25 + 0.5 * np.abs(m.verts_normals)))
@@ -213,8 +211,6 @@ def _tutorial5_views(path: Path, s: dict):
     it at elevation 0, black background; held out: the azimuths half-way, elevation 20)."""
     if path.is_dir():
         return _split(*_load_capture(path, (0.0, 0.0, 0.0))) + (None,)
-    from ..datasets import render_views, training_azimuths
-
     mesh = _coloured(_load_mesh(path, textures=True))
     az = training_azimuths(s["views"])
     train = render_views(mesh, az, 0.0, image_size=s["image_size"])
@@ -240,8 +236,6 @@ def _dataset(images, silhouettes, cameras):
 
 
 def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..metrics import MeshEvaluator
-
     t = time.perf_counter()
     target = _load_mesh(path)
     clock["load_seconds"] = time.perf_counter() - t
@@ -263,8 +257,6 @@ def _task_fit_mesh(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 def _render_pair(target, fitted, size: int = 160):
     """Target (top) and fitted mesh (bottom) from three directions, both in the target's
     normalised frame."""
-    from ..structures import Mesh
-
     norm = target.normalize()
     fit_n = Mesh((fitted.verts - norm.center) / norm.scale, fitted.faces)
     return _rows(_views(norm.mesh, 3, size), _views(fit_n, 3, size))
@@ -272,15 +264,6 @@ def _render_pair(target, fitted, size: int = 160):
 
 def _views(mesh, n: int, size: int, *, dist: float = 2.7, elev: float = 20.0):
     """``n`` Phong renders (n, size, size, 4) of ``mesh`` at azimuths spread around it."""
-    from ..cameras import FoVPerspectiveCameras, look_at_view_transform
-    from ..render import (
-        HardPhongShader,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-    )
-
     az = np.linspace(0.0, 360.0, n, endpoint=False) + 30.0
     R, T = look_at_view_transform(dist, np.full(n, elev), az)
     cams = FoVPerspectiveCameras(R=R, T=T)
@@ -350,8 +333,6 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_volume(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from ..fit.volume import volume_metrics
-
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t
@@ -373,8 +354,6 @@ def _task_fit_volume(path: Path, dest: Path, s: dict, clock: dict) -> dict:
 
 
 def _task_fit_nerf(path: Path, dest: Path, s: dict, clock: dict) -> dict:
-    from dataclasses import asdict
-
     t = time.perf_counter()
     (tr, te, _) = _tutorial5_views(path, s)
     clock["load_seconds"] = time.perf_counter() - t

@@ -337,7 +337,7 @@ def quaternion_to_matrix(quaternions) -> np.ndarray:
             [ 1.,  0.,  0.],
             [ 0.,  0.,  1.]]])
     """
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # kept local: start-up
 
     q = _batch_items(quaternions, "quaternions", (4,))
     norm = np.linalg.norm(q, axis=1)
@@ -366,7 +366,7 @@ def matrix_to_quaternion(matrix) -> np.ndarray:
     ValueError
         If a matrix is not a rotation.
     """
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # kept local: start-up
 
     R = _batch_items(matrix, "matrix", (3, 3))
     _check_rotations(R, "matrix")
@@ -443,7 +443,7 @@ def to_open3d(cameras, image_size) -> list:
     TypeError, ValueError
         As ``opencv_from_cameras_projection``.
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     R, tvec, K = opencv_from_cameras_projection(cameras, image_size)
     sizes = np.broadcast_to(_image_sizes(image_size), (len(cameras), 2))
@@ -486,7 +486,7 @@ def from_open3d(params_list, image_size=None, *, znear=1.0, zfar=100.0
     TypeError
         If an entry is not a ``PinholeCameraParameters``.
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     if isinstance(params_list, o3d.camera.PinholeCameraParameters):
         params_list = [params_list]

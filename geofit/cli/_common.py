@@ -20,6 +20,8 @@ from pathlib import Path
 #: The package folder: API docstrings are read from its sources (with ``ast``, no import).
 _PACKAGE = Path(__file__).resolve().parents[1]
 
+from .._json import json_text
+
 
 #: The flags that choose the tutorial's views -> ``geofit.datasets.tutorial_views``' keywords
 #: (passed on only when given: the tutorial's own counts and sizes otherwise).

@@ -17,20 +17,16 @@ from scipy import ndimage
 from .._threads import get_num_threads, parallel_map
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
-from ..render.volume.raymarching import (
-    _exclusive_product,
-    _shifted_cumprod,
-    _suffix_from,
-    _through_transmittance,
-)
+from ..render.volume.raymarching import exclusive_product as _exclusive_product
+from ..render.volume.raymarching import shifted_cumprod as _shifted_cumprod
+from ..render.volume.raymarching import suffix_from as _suffix_from
+from ..render.volume.raymarching import through_transmittance as _through_transmittance
 from ..render.volume.raysampling import NDCMultinomialRaysampler
-from ..render.volume.renderer import (
-    _cell_table,
-    _range_layout,
-    _range_operator,
-    _ray_pixel_affine,
-    _sample_ranges,
-)
+from ..render.volume.skipping import cell_table as _cell_table
+from ..render.volume.skipping import range_layout as _range_layout
+from ..render.volume.skipping import range_operator as _range_operator
+from ..render.volume.skipping import ray_voxel_affine as _ray_pixel_affine
+from ..render.volume.skipping import sample_ranges as _sample_ranges
 from ..structures.volume import Volume
 
 _EPS = 1e-10          # PyTorch3D's EA eps

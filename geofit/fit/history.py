@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from .._json import json_safe as _json_safe
+
 __all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult", "TimeUp"]
 
 #: Every status a solver or a fit can end with, and what it means.
@@ -287,26 +289,6 @@ class FitHistory:
             with open(path, "w", encoding="utf-8") as fh:
                 fh.write(text)
         return text
-
-
-def _json_safe(obj):
-    """Convert numpy scalars/arrays and non-finite floats into plain JSON values."""
-    if isinstance(obj, Mapping):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_json_safe(v) for v in obj.tolist()]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        if np.isfinite(v):
-            return v
-        return "nan" if np.isnan(v) else ("inf" if v > 0 else "-inf")
-    return obj
 
 
 @dataclass(kw_only=True)

@@ -65,8 +65,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._threads import in_worker, parallel_map
-from .._validate import as_array, as_points, check_choice
 from .._foreign import foreign_kind
+from .._validate import as_array, as_points, check_choice
 from ..structures.pointcloud import PointCloud, as_pointcloud
 from ._chamfer_search import WitnessSearch, far_share, leaf_level, morton_codes, morton_frame
 
@@ -221,7 +221,7 @@ class _NearestIndex:
         """Indices into ``self._tree_points`` of the nearest point of each query (with
         ``backend``, or the one :meth:`_pick` takes)."""
         if (backend or self._pick(len(q), norm)) == "open3d":
-            import open3d as o3d
+            import open3d as o3d  # kept local: start-up
 
             if self._open3d is None:
                 self._open3d = o3d.core.nns.NearestNeighborSearch(

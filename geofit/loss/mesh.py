@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import check_choice, check_finite
-from ..ops.laplacian import _cot_laplacian, _uniform_laplacian_topology, topology_cache
+from ..ops.laplacian import topology_cache, topology_cot_laplacian, topology_uniform_laplacian
 from ..structures.mesh import Mesh, Meshes, Topology, as_mesh
 
 __all__ = [
@@ -363,7 +363,7 @@ def _uniform_LT(topology: Topology) -> sp.csr_matrix:
     cache = topology_cache(topology)
     LT = cache.get("uniform_LT")
     if LT is None:
-        LT = _uniform_laplacian_topology(topology).T.tocsr()
+        LT = topology_uniform_laplacian(topology).T.tocsr()
         cache["uniform_LT"] = LT
     return LT
 
@@ -382,12 +382,12 @@ def _laplacian_one(mesh: Mesh, method: str):
     V = mesh.verts
     topo = mesh.topology
     if method == "uniform":
-        L = _uniform_laplacian_topology(topo)
+        L = topology_uniform_laplacian(topo)
         r = L @ V
         nr, u = _unit_rows(r)
         grad = _uniform_LT(topo) @ u
     else:
-        L, inv_areas = _cot_laplacian(V, topo.faces, 1e-12, topo)
+        L, inv_areas = topology_cot_laplacian(V, topo, 1e-12)
         LV = L @ V
         rowsum = np.asarray(L.sum(axis=1)).ravel()
         if method == "cot":

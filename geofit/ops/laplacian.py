@@ -20,6 +20,8 @@ import scipy.sparse as sp
 from .._validate import as_array, as_faces, as_points, check_positive
 from ..structures.mesh import Mesh, Meshes, Topology, as_mesh
 
+# topology_uniform_laplacian / topology_cot_laplacian: public within geofit (geofit.loss uses
+# them), not in the package API
 __all__ = ["cot_laplacian", "norm_laplacian", "uniform_laplacian"]
 
 # Per-topology caches (sparsity patterns, scatter matrices, normal-consistency pairs). Keyed by
@@ -29,7 +31,7 @@ _TOPOLOGY_CACHE: weakref.WeakKeyDictionary[Topology, dict] = weakref.WeakKeyDict
 
 
 def topology_cache(topology: Topology) -> dict:
-    """The per-topology cache dict (private helper shared with :mod:`geofit.loss`)."""
+    """The per-topology cache dict (shared with :mod:`geofit.loss`)."""
     d = _TOPOLOGY_CACHE.get(topology)
     if d is None:
         d = {}
@@ -43,7 +45,12 @@ def _freeze(M: sp.csr_matrix) -> sp.csr_matrix:
     return M
 
 
-def _uniform_laplacian_topology(topology: Topology) -> sp.csr_matrix:
+def topology_uniform_laplacian(topology: Topology) -> sp.csr_matrix:
+    """:func:`uniform_laplacian` of a mesh's :class:`Topology` (no validation; cached on it).
+
+    For callers inside geofit that already hold a topology (the Laplacian smoothing loss).
+    Returns the shared, read-only ``(V, V)`` csr matrix.
+    """
     cache = topology_cache(topology)
     L = cache.get("uniform_L")
     if L is None:
@@ -85,9 +92,9 @@ def uniform_laplacian(mesh) -> sp.csr_matrix:
     if not isinstance(mesh, (Mesh, Meshes)):
         mesh = as_mesh(mesh, "mesh")  # a trimesh or Open3D mesh
     if isinstance(mesh, Mesh):
-        return _uniform_laplacian_topology(mesh.topology)
+        return topology_uniform_laplacian(mesh.topology)
     if isinstance(mesh, Meshes):
-        return sp.block_diag([_uniform_laplacian_topology(m.topology) for m in mesh],
+        return sp.block_diag([topology_uniform_laplacian(m.topology) for m in mesh],
                              format="csr")
     raise TypeError(f"mesh: expected a Mesh or Meshes, got {type(mesh)!r}")
 
@@ -166,6 +173,15 @@ def _cot_weights(verts: np.ndarray, faces_cols, eps: float):
     area = np.sqrt(np.maximum(s * (s - A) * (s - B) * (s - C), eps))
     inv4 = 0.25 / area
     return ((B2 + C2 - A2) * inv4, (A2 + C2 - B2) * inv4, (A2 + B2 - C2) * inv4), area
+
+
+def topology_cot_laplacian(verts, topology: Topology, eps: float = 1e-12):
+    """:func:`cot_laplacian` of ``verts (V, 3) float64`` over a mesh's :class:`Topology`.
+
+    No validation (callers inside geofit pass a mesh's own arrays); the sparsity pattern is
+    cached on the topology. Returns ``(L csr (V, V), inv_areas (V,) float64)``.
+    """
+    return _cot_laplacian(verts, topology.faces, eps, topology)
 
 
 def _cot_laplacian(verts, faces, eps, topology=None):

@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..structures import Mesh
+from .topology import _open3d
 
 __all__ = ["RemeshResult", "remesh"]
 
@@ -87,8 +88,6 @@ def _edge_faces(mesh: Mesh):
 def _boundary_verts(mesh: Mesh) -> np.ndarray:
     """(V,) bool: vertices on a boundary or non-manifold edge, or whose faces form several fans
     (Open3D's ``get_non_manifold_vertices``); collapses never move them."""
-    from .topology import _open3d
-
     topo = mesh.topology
     b = np.zeros(mesh.n_verts, dtype=bool)
     counts = topo.edge_face_counts

@@ -88,7 +88,7 @@ class TopologyReport:
 
 
 def _open3d(mesh: Mesh):
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     return o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(np.array(mesh.verts, dtype=np.float64)),

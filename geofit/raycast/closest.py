@@ -242,7 +242,7 @@ class PointToMeshDistance:
         self._build(mesh.verts)
 
     def _build(self, verts: np.ndarray) -> None:
-        import open3d as o3d
+        import open3d as o3d  # kept local: start-up
 
         open3d_threads()  # geofit's thread count, if overridden, bounds Open3D's TBB threads
 
@@ -286,7 +286,7 @@ class PointToMeshDistance:
 
     # ------------------------------------------------------------------ queries
     def _o3d_points(self, P: np.ndarray):
-        import open3d as o3d
+        import open3d as o3d  # kept local: start-up
 
         return o3d.core.Tensor(np.ascontiguousarray((P - self._center) / self._scale,
                                                     dtype=np.float32))

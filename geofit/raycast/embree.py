@@ -22,7 +22,7 @@ from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, as_points
 from ..structures import Meshes, as_meshes
 
-__all__ = ["EmbreeScene", "RayCaster", "RayHits"]
+__all__ = ["EmbreeScene", "RayCaster", "RayHits"]  # moller_trumbore: shared inside geofit
 
 # Bounding-sphere radius of the normalised box [-1, 1]^3, with a margin.
 _R = 1.75
@@ -97,11 +97,22 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
-def _moller_trumbore(o, d, A, B, C):
-    """Float64 ray/plane parameters for ray ``i`` against triangle ``i`` (all (n, 3)).
+def moller_trumbore(o, d, A, B, C):
+    """Moller-Trumbore: float64 parameters of ray ``i`` against the plane of triangle ``i``.
 
-    Returns ``t, u, v, det`` with the hit point ``o + t d = (1-u-v) A + u B + v C`` whenever
-    ``det != 0`` (for ``det == 0`` the ray is parallel to the plane and t, u, v are 0).
+    Parameters
+    ----------
+    o, d : (n, 3) float64
+        Ray origins and directions.
+    A, B, C : (n, 3) float64
+        The corners of the triangle each ray is tested against.
+
+    Returns
+    -------
+    t, u, v, det : (n,) float64
+        The hit point ``o + t d = (1-u-v) A + u B + v C`` whenever ``det != 0`` (for
+        ``det == 0`` the ray is parallel to the plane and t, u, v are 0). Whether the point is
+        inside the triangle (``u, v >= 0, u + v <= 1``) is for the caller to test.
     """
     e1 = B - A
     e2 = C - A
@@ -188,7 +199,7 @@ class EmbreeScene:
     """
 
     def __init__(self, meshes, *, robust: bool = True):
-        from embreex import mesh_construction, rtcore_scene
+        from embreex import mesh_construction, rtcore_scene  # kept local: start-up
 
         meshes = [(np.asarray(v, dtype=np.float64), np.asarray(f)) for v, f in meshes]
         used = [v[f.ravel()] for v, f in meshes if len(f)]
@@ -419,7 +430,7 @@ class RayCaster:
         face = prim[h].astype(np.int64)
         tri = self._faces_packed[self._face_first[mesh] + face]
         V = self._verts_packed
-        t, bu, bv, det = _moller_trumbore(o[h], d[h], V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
+        t, bu, bv, det = moller_trumbore(o[h], d[h], V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
         # Parallel to the plane in float64 (det == 0): keep Embree's float32 answer.
         par = det == 0
         if np.any(par):

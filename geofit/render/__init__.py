@@ -27,18 +27,8 @@ Phong shading with ``softmax_rgb_blend`` of the fragments it is given. On the ha
 fragments (K = 1, the render tutorial's setting) it is a forward renderer; on
 :class:`SoftFragments` from :func:`rasterize_soft` (K faces, blur) it is the differentiable
 blend, and :class:`SoftPhongRenderer` bundles that path with its ``vjp``.
-
-The modules of the flat layout of geofit 0.1 (``geofit.render.raysampling``, ``.raymarching``,
-``.implicit``, ``.harmonic``, ``.compositing``, ``.contour``, ``.shading``, ``.textures``) still
-import, with a DeprecationWarning naming the new path.
 """
 from __future__ import annotations
-
-import importlib
-import importlib.abc
-import importlib.util
-import sys
-import warnings
 
 from . import mesh, points, soft, volume
 from .blending import BlendParams, hard_rgb_blend, sigmoid_alpha, softmax_rgb_blend
@@ -54,55 +44,3 @@ _SHARED = ["AmbientLights", "BlendParams", "DirectionalLights", "Materials", "Po
            "hard_rgb_blend", "image_grid", "make_grid", "plot_texture_uv", "sigmoid_alpha",
            "softmax_rgb_blend", "texturesuv_image_matplotlib"]
 __all__ = _SHARED + mesh.__all__ + soft.__all__ + points.__all__ + volume.__all__
-
-# Modules of the flat layout (geofit 0.1) -> their new homes.
-MOVED_MODULES = {
-    "raysampling": "volume.raysampling",
-    "raymarching": "volume.raymarching",
-    "implicit": "volume.implicit",
-    "harmonic": "volume.harmonic",
-    "compositing": "points.compositing",
-    "contour": "soft.contour",
-    "shading": "mesh.shading",
-    "textures": "mesh.textures",
-}
-
-
-def _moved_warning(old: str) -> None:
-    new = f"{__name__}.{MOVED_MODULES[old]}"
-    warnings.warn(f"{__name__}.{old} moved to {new} (same names; also exported by "
-                  f"{__name__}); the old path will be removed in the next release",
-                  DeprecationWarning, stacklevel=3)
-
-
-class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """``import geofit.render.<old>`` gives the module at its new path, with a warning."""
-
-    def find_spec(self, fullname, path=None, target=None):
-        head, _, tail = fullname.rpartition(".")
-        if head == __name__ and tail in MOVED_MODULES:
-            return importlib.util.spec_from_loader(fullname, self)
-        return None
-
-    _specs: dict = {}
-
-    def create_module(self, spec):
-        old = spec.name.rpartition(".")[2]
-        _moved_warning(old)
-        module = importlib.import_module(f"{__name__}.{MOVED_MODULES[old]}")
-        self._specs[module.__name__] = module.__spec__
-        return module
-
-    def exec_module(self, module):
-        # the import system set the alias's spec on the module: give it back its own
-        module.__spec__ = self._specs.pop(module.__name__, module.__spec__)
-
-
-if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):
-    sys.meta_path.append(_MovedModuleFinder())
-
-
-def __getattr__(name: str):
-    if name in MOVED_MODULES:
-        return importlib.import_module(f"{__name__}.{name}")
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

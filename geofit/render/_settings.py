@@ -1,4 +1,24 @@
-"""Validation shared by the rasterization settings (:mod:`.mesh`, :mod:`.soft`)."""
+"""Validation shared by the rasterization settings (:mod:`.mesh`, :mod:`.soft`).
+
+Why three settings classes, and not one: each is the contract of one rasterizer and validates at
+construction what that rasterizer can do, so a setting it would ignore or cannot honour fails
+where it is written, not deep inside a render.
+
+- :class:`~geofit.render.mesh.RasterizationSettings`: the hard mesh rasterizer (Embree ray
+  casting, one ray per pixel centre). It only does PyTorch3D's hard case (``blur_radius == 0``,
+  ``faces_per_pixel == 1``) and has ray-casting knobs (``supersample``, PyTorch3D's binning
+  fields accepted and ignored).
+- :class:`~geofit.render.soft.SoftRasterizationSettings`: the differentiable soft rasterizer
+  (projected triangles, ``K`` faces per pixel within ``blur_radius``, with vjps). Its knobs are
+  the blur, ``K``, the candidate-pair memory bound ``max_pairs`` and the storage ``dtype``.
+- :class:`~geofit.render.points.PointsRasterizationSettings`: points, not triangles (a radius per
+  point in NDC or world units, ``points_per_pixel``), as PyTorch3D's class of the same name.
+
+PyTorch3D has one ``RasterizationSettings`` for meshes because one CUDA kernel does both the hard
+and the blurred case; :mod:`geofit.pytorch3d` keeps that single class and picks the hard or the
+soft rasterizer from its ``blur_radius`` and ``faces_per_pixel``. What the classes share, the
+``image_size`` rule and the float dtype, lives here.
+"""
 from __future__ import annotations
 
 import numpy as np

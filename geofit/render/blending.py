@@ -6,6 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._threads import parallel_map
 from .._validate import as_array, check_positive
 
 __all__ = ["BlendParams", "hard_rgb_blend", "sigmoid_alpha", "softmax_rgb_blend"]
@@ -48,8 +49,6 @@ def new_images(fragments, bg: np.ndarray, n_threads: int = 1) -> np.ndarray:
     out = np.empty((N * H * W, 4), dtype=np.float32)
     fill = np.append(bg, np.float32(0.0))
     if n_threads > 1 and len(out) >= 1 << 20:
-        from .._threads import parallel_map
-
         bounds = np.linspace(0, len(out), n_threads + 1).astype(np.int64)
 
         def run(i):

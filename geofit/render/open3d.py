@@ -65,7 +65,7 @@ def mesh_to_open3d(mesh: Mesh):
     (open3d.geometry.TriangleMesh, open3d.geometry.Image or None)
         The mesh and its texture image (None without a UV texture).
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     tex = mesh.textures
     if isinstance(tex, TexturesFlat) and tex.per_face:
@@ -172,7 +172,7 @@ def quiet_open3d():
 
 def _offscreen(W: int, H: int):
     """The cached OffscreenRenderer of size W x H (starting Filament costs seconds)."""
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     if _RENDERER.get("size") != (W, H):
         _release_renderer()
@@ -217,7 +217,7 @@ def render_open3d(meshes, cameras, image_size, *, background_color=(1.0, 1.0, 1.
     compilation take seconds on a software Vulkan device); it is released at exit or when
     another size is asked for.
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     H, W = _size(image_size)
     views, cams = _as_views(meshes, cameras)
@@ -330,7 +330,7 @@ def show_open3d(mesh, cameras, image_size=(512, 512), *, index: int = 0, run: bo
         ``DISPLAY``, which would otherwise hang in ``create_window``). Also if Open3D cannot
         create a window.
     """
-    import open3d as o3d
+    import open3d as o3d  # kept local: start-up
 
     mesh = as_mesh(mesh, "mesh")  # a geofit, trimesh or Open3D mesh
     _check_pinhole(cameras)

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_rng
 from ..structures import TexturesUV
 
 __all__ = ["image_grid", "make_grid", "plot_texture_uv", "texturesuv_image_matplotlib"]
@@ -111,7 +111,7 @@ def image_grid(images, rows: int | None = None, cols: int | None = None, fill: b
     -------
     matplotlib.figure.Figure
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # kept local: matplotlib, loaded only when used (start-up)
 
     a = _images(images)
     N = a.shape[0]
@@ -142,7 +142,7 @@ def _check_uv(textures) -> TexturesUV:
 def _texture_axes(textures, ax, *, cmap_gray: bool = False, interpolation=None):
     """The checked TexturesUV and the axes (new 7x7 figure if None) with its map drawn on
     the unit UV square."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # kept local: matplotlib, loaded only when used (start-up)
 
     tex = _check_uv(textures)
     if ax is None:
@@ -178,7 +178,7 @@ def plot_texture_uv(textures, ax=None, *, color=(1.0, 0.0, 0.0), linewidth: floa
     -------
     matplotlib.axes.Axes
     """
-    from matplotlib.collections import LineCollection
+    from matplotlib.collections import LineCollection  # kept local: start-up
 
     tex, ax = _texture_axes(textures, ax, cmap_gray=True, interpolation="bilinear")
     uv = tex.face_uvs()                                      # (F, 3, 2)
@@ -211,9 +211,7 @@ def texturesuv_image_matplotlib(textures, *, subsample: int | None = 10000, ax=N
     -------
     matplotlib.axes.Axes
     """
-    from matplotlib.collections import EllipseCollection
-
-    from .._validate import as_rng
+    from matplotlib.collections import EllipseCollection  # kept local: start-up
 
     tex, ax = _texture_axes(textures, ax)
     uv = tex.verts_uvs

@@ -12,6 +12,8 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from .. import _foreign
+from .._foreign import foreign_kind, to_uint8
 from .._validate import as_array, as_faces, as_points
 from .textures import TexturesBase, TexturesUV, TexturesVertex
 
@@ -352,8 +354,6 @@ class Mesh:
         at UV seams and the unquantised colours, and this method uses that record while it
         still agrees with the trimesh object (same vertex count, same 8-bit colours).
         """
-        from .. import _foreign
-
         kind = _foreign.foreign_kind(mesh)
         if kind == "trimesh.Scene":
             mesh = _foreign.scene_to_mesh(mesh)
@@ -414,8 +414,6 @@ class Mesh:
             the distinct per-corner UVs in order of first use), else a :class:`TexturesVertex`
             from ``vertex_colors`` when present, else no textures.
         """
-        from .. import _foreign
-
         if _foreign.foreign_kind(mesh) != "open3d.TriangleMesh":
             raise TypeError(f"mesh: expected an open3d.geometry.TriangleMesh, got {type(mesh)!r}")
         verts = np.asarray(mesh.vertices, dtype=np.float64)
@@ -451,14 +449,12 @@ class Mesh:
         ``metadata["geofit"]`` records the seam split and the colours before 8-bit
         quantisation, so :meth:`from_trimesh` gives this mesh back exactly.
         """
-        import trimesh
-
-        from .._foreign import to_uint8
+        import trimesh  # kept local: trimesh, loaded only when used (start-up)
 
         tex = self.textures
         info: dict = {}
         if isinstance(tex, TexturesUV):
-            from PIL import Image
+            from PIL import Image  # kept local: Pillow, loaded only when used (start-up)
 
             vi, ui, faces = _split_seams(self.faces, tex.faces_uvs, self.n_verts)
             uv = np.where((ui >= 0)[:, None], tex.verts_uvs[np.maximum(ui, 0)], 0.0)
@@ -491,9 +487,7 @@ class Mesh:
             TexturesVertex; ``triangle_uvs`` (per corner, float64), one 8-bit texture image
             and ``triangle_material_ids`` (all 0) for a TexturesUV.
         """
-        import open3d as o3d
-
-        from .._foreign import to_uint8
+        import open3d as o3d  # kept local: start-up
 
         # Open3D's Vector3dVector rejects read-only arrays: pass copies.
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.array(self._verts)),
@@ -756,7 +750,6 @@ def as_mesh(mesh, name: str = "mesh") -> Mesh:
     """
     if isinstance(mesh, Mesh):
         return mesh
-    from .._foreign import foreign_kind
 
     kind = foreign_kind(mesh)
     if kind in ("trimesh.Trimesh", "trimesh.Scene"):

@@ -5,7 +5,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .._validate import as_array, as_points
+from .._foreign import foreign_kind, from_uint8, geofit_record, stash_matches, to_uint8
+from .._validate import as_array, as_points, as_rng
 
 __all__ = ["PointCloud", "Pointclouds", "as_pointcloud", "as_pointclouds"]
 
@@ -64,8 +65,6 @@ class PointCloud:
 
     def subsample(self, n: int, *, seed=None) -> "PointCloud":
         """A random subset of ``min(n, len)`` points without replacement (reproducible with ``seed``)."""
-        from .._validate import as_rng
-
         rng = as_rng(seed)
         k = len(self)
         idx = np.sort(rng.choice(k, size=min(int(n), k), replace=False))
@@ -95,8 +94,6 @@ class PointCloud:
             normals are kept in ``cloud.metadata["geofit"]``, and used while they still agree
             with the trimesh object).
         """
-        from .._foreign import foreign_kind, from_uint8, geofit_record, stash_matches
-
         if foreign_kind(cloud) != "trimesh.PointCloud":
             raise TypeError(f"cloud: expected a trimesh.PointCloud, got {type(cloud)!r}")
         points = np.asarray(cloud.vertices, dtype=np.float64)
@@ -128,8 +125,6 @@ class PointCloud:
         cloud : open3d.geometry.PointCloud
             Its ``colors`` (float64 RGB) become ``features``, its ``normals`` ``normals``.
         """
-        from .._foreign import foreign_kind
-
         if foreign_kind(cloud) != "open3d.PointCloud":
             raise TypeError(f"cloud: expected an open3d.geometry.PointCloud, got {type(cloud)!r}")
         points = np.asarray(cloud.points, dtype=np.float64)
@@ -143,9 +138,7 @@ class PointCloud:
         The unquantised features and the normals (trimesh has no place for either) are kept
         in ``metadata["geofit"]``, so :meth:`from_trimesh` gives this cloud back exactly.
         """
-        import trimesh
-
-        from .._foreign import to_uint8
+        import trimesh  # kept local: trimesh, loaded only when used (start-up)
 
         colors = None
         info: dict = {}
@@ -161,7 +154,7 @@ class PointCloud:
     def to_open3d(self):
         """An ``open3d.geometry.PointCloud`` with colours (the first three feature channels,
         clipped to [0, 1]) and normals."""
-        import open3d as o3d
+        import open3d as o3d  # kept local: start-up
 
         # Open3D's Vector3dVector rejects read-only arrays: pass copies.
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(self.points)))
@@ -284,7 +277,6 @@ def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
     """
     if isinstance(cloud, PointCloud):
         return cloud
-    from .._foreign import foreign_kind
 
     kind = foreign_kind(cloud)
     if kind == "trimesh.PointCloud":

@@ -25,7 +25,7 @@ same data, and measures both the same way.
 A step that raises is recorded as ``"failed: <exception>: <message>"`` (with the traceback in
 ``<out>/<step>/error.txt``); it is never silently dropped.
 """
-from ._common import SIZES, StepResult, TutorialsRun
+from .shared import SIZES, StepResult, TutorialsRun
 from .fit_mesh import step_fit_mesh
 from .fit_views import step_fit_views
 from .fit_volume import step_fit_volume

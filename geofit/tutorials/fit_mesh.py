@@ -6,10 +6,25 @@ import time
 
 import numpy as np
 
+from ..data import load_target_mesh
+from ..fit import CoarseToFine, fit_mesh
+from ..metrics import MeshEvaluator
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
-from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin, _cameras, _fit_row, _pick, _record_fit, _series,
-    _recipe_cut, _settings_text, _shade_mesh, _try,
+from .shared import (
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    StepResult,
+    begin_step,
+    fit_row,
+    look_at_cameras,
+    method_series,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    settings_text,
+    shade_mesh,
+    try_call,
 )
 from .stability import fit_mesh_scenario, mesh_fit_arguments
 
@@ -42,26 +57,24 @@ _FIT_MESH_RUNS = {
 
 
 def _fit_mesh_settings(name: str, size: str) -> dict:
-    from ..fit import CoarseToFine
-
     kw = dict(_FIT_MESH_RUNS[name])
     stochastic = kw["method"] in ("sgd", "adam")
     if size == "full":
         kw["eval_every"] = 100 if stochastic else 10
         return kw
     if stochastic:
-        kw.update(n_iter=_pick(size, 20, 300, _TUTORIAL_STEPS),
-                  eval_every=_pick(size, 10, 50, 100))
+        kw.update(n_iter=pick_size(size, 20, 300, _TUTORIAL_STEPS),
+                  eval_every=pick_size(size, 10, 50, 100))
         if size == "tiny":
             kw.update(n_samples=500)
     else:
-        kw.update(n_iter=_pick(size, 8, 30, 100), n_stages=_pick(size, 1, 2, 3),
-                  eval_every=_pick(size, 4, 10, 10))
+        kw.update(n_iter=pick_size(size, 8, 30, 100), n_stages=pick_size(size, 1, 2, 3),
+                  eval_every=pick_size(size, 4, 10, 10))
         if size == "tiny":
             kw.update(n_samples=500)
     if name == "coarse-to-fine":
-        kw["refine"] = CoarseToFine(max_level=_pick(size, 2, 4, 4),
-                                            start_level=_pick(size, 1, 2, 2))
+        kw["refine"] = CoarseToFine(max_level=pick_size(size, 2, 4, 4),
+                                            start_level=pick_size(size, 1, 2, 2))
         kw.pop("n_stages", None)
     elif size == "tiny":
         kw["init"] = 2
@@ -71,11 +84,8 @@ def _fit_mesh_settings(name: str, size: str) -> dict:
 def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -> list[dict]:
     """Each method on noisy / holed / NaN targets, a degenerate start and a 100x step (the
     scenarios of :mod:`geofit.tutorials.stability`, shared with benchmarks/fit_mesh.py)."""
-    from ..fit import fit_mesh
-    from ..metrics import MeshEvaluator
-
-    budget = _pick(size, 0.5, 2.0, 20.0)
-    n_metric = _pick(size, 1000, 5000, 20000)
+    budget = pick_size(size, 0.5, 2.0, 20.0)
+    n_metric = pick_size(size, 1000, 5000, 20000)
     cases = {
         "noisy target (sigma 1%)": "noise",
         "target with 4 holes": "holes",
@@ -92,19 +102,19 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
                 "seconds": round(res.seconds, 2)}
 
     rows = []
-    bar = _bar(progress, len(cases) * len(methods), "fit_mesh stability")
+    bar = progress_bar(progress, len(cases) * len(methods), "fit_mesh stability")
     for name in methods:  # methods
         for case, mode in cases.items():  # failure cases
             kw = _fit_mesh_settings(name, size)
             kw.pop("eval_every", None)
             source = kw.pop("init", None)
             if kw["method"] in ("sgd", "adam"):
-                kw["n_iter"] = min(kw["n_iter"], _pick(size, 10, 100, 500))
+                kw["n_iter"] = min(kw["n_iter"], pick_size(size, 10, 100, 500))
             sc = fit_mesh_scenario(mode, target, kw, source_level=source, seed=seed + 7)
             args = mesh_fit_arguments(sc.kwargs, sc.source if sc.source is not None else source)
-            res, err = _try(lambda **k: fit_mesh(sc.target, **k), evaluator=None,
+            res, err = try_call(lambda **k: fit_mesh(sc.target, **k), evaluator=None,
                             progress=False, time_budget=budget, seed=seed, **args)
-            rows.append(_fit_row(name, case, res, err, measure))
+            rows.append(fit_row(name, case, res, err, measure))
             bar.update(1)
     bar.close()
     return rows
@@ -119,14 +129,10 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     Progress: tqdm progress bars; seed: sampling seed. Writes into ``out/fit_mesh``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..data import load_target_mesh
-    from ..fit import fit_mesh
-    from ..metrics import MeshEvaluator
-
-    res, d, t0 = _begin(out, "fit_mesh", size)
+    res, d, t0 = begin_step(out, "fit_mesh", size)
     data = load_target_mesh()
     target = data.mesh
-    n_metric = _pick(size, 2000, 10_000, 100_000)
+    n_metric = pick_size(size, 2000, 10_000, 100_000)
     evaluator = MeshEvaluator(target, n_samples=n_metric, taus=0.01, normalize=True, seed=0)
     names = ["tutorial", "scipy-lbfgs", "large-steps", "coarse-to-fine"]
     if size == "tiny":
@@ -151,27 +157,27 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
                  "normal_consistency": m.normal_consistency}
         res.files[f"{name} mesh"] = d / f"{name}.obj"
         fit.save_obj(res.files[f"{name} mesh"])
-        _record_fit(res, d, name, _FIT_MESH_LABELS[name], fit, ("chamfer_l2", "fscore@0.01"),
+        record_fit(res, d, name, _FIT_MESH_LABELS[name], fit, ("chamfer_l2", "fscore@0.01"),
                     final=final, config={k: repr(v) if not isinstance(v, (int, float, str))
                                          else v for k, v in kw.items()})
-        cut = _recipe_cut(fit.n_iterations, _TUTORIAL_STEPS) if name == "tutorial" else ""
+        cut = recipe_cut(fit.n_iterations, _TUTORIAL_STEPS) if name == "tutorial" else ""
         res.metrics.append({"method": _FIT_MESH_LABELS[name] + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
                             "chamfer-L2": m.chamfer_l2, "F@0.01": m.fscore[0.01],
                             "normal consistency": m.normal_consistency})
         res.param_counts.append({"method": _FIT_MESH_LABELS[name], "vertices": fit.n_verts,
                                  "free parameters": fit.n_params})
-    res.config.update({f"{n} settings": _settings_text(res.methods[i]["config"])
+    res.config.update({f"{n} settings": settings_text(res.methods[i]["config"])
                        for i, n in enumerate(names)})
 
     # images: the target and every result from two views, in the normalised frame
     norm = target.normalize()
-    cams = _cameras(2.1, [15.0, 15.0], [40.0, 140.0])
-    img_size = _pick(size, 96, 256, 256)
-    shots = {"target": _shade_mesh(norm.mesh, cams, img_size)}
+    cams = look_at_cameras(2.1, [15.0, 15.0], [40.0, 140.0])
+    img_size = pick_size(size, 96, 256, 256)
+    shots = {"target": shade_mesh(norm.mesh, cams, img_size)}
     for name, fit in results.items():
         verts = (fit.mesh.verts - norm.center) / norm.scale  # the target's normalised frame
-        shots[name] = _shade_mesh(fit.mesh.update_verts(verts), cams, img_size)
+        shots[name] = shade_mesh(fit.mesh.update_verts(verts), cams, img_size)
     for k, imgs in shots.items():
         dest = res.targets if k == "target" else res.images
         dest[k] = save_png(np.concatenate(list(imgs), axis=1), d / f"{k}.png")
@@ -186,7 +192,7 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     pt = results["tutorial"]
     res.charts["Speed and accuracy: chamfer-L2 and F-score against solver time"] = \
         plot_accuracy_vs_time(
-            _series(res.methods),
+            method_series(res.methods),
             [{"metric": "chamfer_l2", "label": "chamfer-L2 (normalised frame, log)",
               "logy": True, "target": pt.metrics.chamfer_l2,
               "target_label": "PyTorch3D recipe's final accuracy"},
@@ -197,10 +203,10 @@ def step_fit_mesh(out, size: str = "default", *, progress: bool = True, seed: in
     res.stability = _fit_mesh_stability(target, ["tutorial", "large-steps"], size, seed,
                                         progress)
     res.headline = {
-        _P3D: f"chamfer-L2 {pt.metrics.chamfer_l2:.3g}, F {pt.metrics.fscore[0.01]:.3f} in "
+        P3D_COLUMN: f"chamfer-L2 {pt.metrics.chamfer_l2:.3g}, F {pt.metrics.fscore[0.01]:.3f} in "
               f"{pt.seconds:.1f} s, {pt.n_params:,} params"
-              + _recipe_cut(pt.n_iterations, _TUTORIAL_STEPS),
-        _GF: f"{best}: chamfer-L2 {results[best].metrics.chamfer_l2:.3g}, "
+              + recipe_cut(pt.n_iterations, _TUTORIAL_STEPS),
+        GEOFIT_COLUMN: f"{best}: chamfer-L2 {results[best].metrics.chamfer_l2:.3g}, "
              f"F {results[best].metrics.fscore[0.01]:.3f} in "
              f"{results[best].seconds:.1f} s, {results[best].n_params:,} params",
     }

@@ -5,9 +5,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import (
-    StepResult, _bar, _begin, _close_comparison, _fit_row, _heldout_comparison, _pick, _recipe_cut,
-    _record_fit, _try, _views_config,
+from ..datasets import tutorial_views
+from ..fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
+from ..io import save_obj
+from ..shapes import ico_sphere
+from ..structures import MultiViewDataset
+from .shared import (
+    StepResult,
+    begin_step,
+    close_comparison,
+    fit_row,
+    heldout_comparison,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    try_call,
+    views_config,
 )
 
 __all__ = ["step_fit_views"]
@@ -20,24 +34,24 @@ __all__ = ["step_fit_views"]
 
 def _views_settings(size: str) -> dict:
     return {
-        "num_views": _pick(size, 4, 20, 20),
-        "image_size": _pick(size, 32, 64, 128),
-        "num_heldout": _pick(size, 2, 8, 16),
+        "num_views": pick_size(size, 4, 20, 20),
+        "image_size": pick_size(size, 32, 64, 128),
+        "num_heldout": pick_size(size, 2, 8, 16),
         # PyTorch3D's recipe (fit_textured_mesh): SGD on 2 random views, then the textured
         # stage from the sphere
         "tutorial": {"silhouette_method": "sgd", "textured_method": "sgd",
                      "textured_init": "sphere",
-                     "silhouette_iters": _pick(size, 4, 150, 2000),
-                     "textured_iters": _pick(size, 4, 150, 2000)},
+                     "silhouette_iters": pick_size(size, 4, 150, 2000),
+                     "textured_iters": pick_size(size, 4, 150, 2000)},
         # geofit's best (benchmarks/fit_views.py "best"): L-BFGS on all views, large steps,
         # coarse-to-fine; least-squares colours, then joint L-BFGS
         "geofit": {"silhouette_method": "lbfgs", "textured_method": "lbfgs",
                    "large_steps": 10.0,
-                   "levels": _pick(size, [(0, 1)], [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
-                   "silhouette_iters": _pick(size, 4, 60, 2000),
-                   "textured_iters": _pick(size, 4, 30, 200)},
-        "init_level": _pick(size, 2, 4, 4),
-        "eval_every": _pick(size, 10 ** 9, 20, 100),  # steps
+                   "levels": pick_size(size, [(0, 1)], [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
+                   "silhouette_iters": pick_size(size, 4, 60, 2000),
+                   "textured_iters": pick_size(size, 4, 30, 200)},
+        "init_level": pick_size(size, 2, 4, 4),
+        "eval_every": pick_size(size, 10 ** 9, 20, 100),  # steps
     }
 
 
@@ -50,23 +64,18 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     stages; seed: random view choices of the SGD recipe. Writes into ``out/fit_views``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..datasets import tutorial_views
-    from ..fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
-    from ..io import save_obj
-    from ..shapes import ico_sphere
-
-    res, d, t0 = _begin(out, "fit_views", size)
+    res, d, t0 = begin_step(out, "fit_views", size)
     cfg = _views_settings(size)
     ds = tutorial_views(4, num_views=cfg["num_views"], image_size=cfg["image_size"],
                         num_held_out=cfg["num_heldout"])
-    res.config = _views_config(ds.name, cfg["num_views"], cfg["num_heldout"], cfg["image_size"],
+    res.config = views_config(ds.name, cfg["num_views"], cfg["num_heldout"], cfg["image_size"],
                                cfg["tutorial"], cfg["geofit"])
     res.description = (
         "A sphere is deformed to match the soft silhouettes of the training views, then its "
         "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "
         "views: silhouette IoU and RGB PSNR (hard renders), and chamfer-L2 / F-score at 0.01 "
         "against the true mesh. Times are solver times (the clock is paused at checkpoints).")
-    ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=_pick(size, 2000, 10_000, 20_000),
+    ev = ViewsEvaluator(ds.held_out, ds.mesh, n_samples=pick_size(size, 2000, 10_000, 20_000),
                         taus=(0.01,))
     labels = {"tutorial": "PyTorch3D recipe: SGD, 2 random views per step",
               "geofit": "geofit: L-BFGS on all views, large steps, coarse-to-fine; "
@@ -79,7 +88,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
             colors = np.full((mesh.n_verts, 3), 0.5)
         return ev(mesh, colors)
 
-    bar = _bar(progress, len(labels), "fit_views")
+    bar = progress_bar(progress, len(labels), "fit_views")
     fits = {}
     for name, label in labels.items():  # methods
         kw = dict(cfg[name])
@@ -93,13 +102,13 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
         n_colors = 0 if fit.colors is None else int(np.size(fit.colors))
         res.files[f"{name} mesh"] = d / f"{name}.obj"
         save_obj(res.files[f"{name} mesh"], fit.mesh)
-        _record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
+        record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
                     final={"seconds": fit.seconds, **final,
                            "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
         cut = ""
         if name == "tutorial":
             full = _views_settings("full")["tutorial"]
-            cut = _recipe_cut(kw["silhouette_iters"] + kw["textured_iters"],
+            cut = recipe_cut(kw["silhouette_iters"] + kw["textured_iters"],
                               full["silhouette_iters"] + full["textured_iters"])
         res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), **final})
@@ -114,14 +123,14 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     h = ds.held_out
     k = min(3, len(h))
     renders = {name: fit.render(h, n_views=k) for name, fit in fits.items()}
-    _heldout_comparison(res, d, h.images[:k], renders, fits,
+    heldout_comparison(res, d, h.images[:k], renders, fits,
                         f"Held-out views of the {ds.name} (never trained on) and the fitted "
                         "meshes rendered from them.")
     panels = [{"metric": "iou", "label": "held-out silhouette IoU"}]
     if any("chamfer_l2" in m["curve"] for m in res.methods):
         panels.append({"metric": "chamfer_l2", "label": "chamfer-L2 vs true mesh (log)",
                        "logy": True})
-    return _close_comparison(
+    return close_comparison(
         res, d, t0, chart="held-out IoU and chamfer-L2", panels=panels,
         title=f"fit_mesh_to_views on the {ds.name} ({size} size)",
         stability=_views_stability(ds, size, seed),
@@ -131,12 +140,11 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
 
 
 def _views_stability(ds, size: str, seed: int) -> list[dict]:
-    from ..structures import MultiViewDataset
     from ..fit.views import ViewsFitOptions, fit_mesh_to_views
     from ..shapes import ico_sphere
 
     tr = ds
-    iters = _pick(size, 2, 10, 40)
+    iters = pick_size(size, 2, 10, 40)
     nan_sil = tr.silhouettes.copy()
     nan_sil[0, 0, 0] = np.nan
     rng = np.random.default_rng(seed + 3)
@@ -166,8 +174,8 @@ def _views_stability(ds, size: str, seed: int) -> list[dict]:
                 return fit_mesh_to_views(views, options=ViewsFitOptions(
                     init=ico_sphere(2), silhouette_iters=iters, views_per_step=vps, **kw),
                     seed=seed)
-            fit, err = _try(run)
-            rows.append(_fit_row(method, case, fit, err, lambda f: {
+            fit, err = try_call(run)
+            rows.append(fit_row(method, case, fit, err, lambda f: {
                 "NaN vertices": bool(np.isnan(f.mesh.verts).any()),
                 "seconds": round(f.seconds, 2)}))
     return rows

@@ -2,14 +2,27 @@
 next to geofit's method, and the stability cases."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
+from ..fit.volume import VolumeFitOptions, fit_volume
 from ..metrics import psnr
-from ._common import (
-    StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _iou,
-    _pick, _recipe_cut, _record_fit, _render_volume, _try, _views_config,
+from ..structures import MultiViewDataset
+from .shared import (
+    StepResult,
+    begin_step,
+    close_comparison,
+    cow_views,
+    fit_row,
+    heldout_comparison,
+    mask_iou,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    render_volume_views,
+    try_call,
+    views_config,
 )
 
 __all__ = ["step_fit_volume"]
@@ -21,16 +34,16 @@ __all__ = ["step_fit_volume"]
 
 
 def _volume_settings(size: str) -> dict:
-    budget = _pick(size, None, 30.0, None)
+    budget = pick_size(size, None, 30.0, None)
     return {
-        "n_views": _pick(size, 6, 20, 40), "image_size": _pick(size, 32, 64, 128),
-        "n_heldout": _pick(size, 2, 4, 8), "volume_size": _pick(size, 16, 64, 128),
-        "n_pts_per_ray": _pick(size, 32, 75, 150),
-        "tutorial": {"recipe": "tutorial", "n_iter": _pick(size, 4, 300, 300),
-                     "batch_size": _pick(size, 2, 10, 10), "time_budget": budget},
-        "lbfgs": {"method": "lbfgs", "levels": _pick(size, (8, 16), (32, 64), (32, 64, 128)),
-                  "iterations": _pick(size, (4, 4), (60, 40), None), "time_budget": budget},
-        "eval_every": _pick(size, None, 10, 30),  # steps
+        "n_views": pick_size(size, 6, 20, 40), "image_size": pick_size(size, 32, 64, 128),
+        "n_heldout": pick_size(size, 2, 4, 8), "volume_size": pick_size(size, 16, 64, 128),
+        "n_pts_per_ray": pick_size(size, 32, 75, 150),
+        "tutorial": {"recipe": "tutorial", "n_iter": pick_size(size, 4, 300, 300),
+                     "batch_size": pick_size(size, 2, 10, 10), "time_budget": budget},
+        "lbfgs": {"method": "lbfgs", "levels": pick_size(size, (8, 16), (32, 64), (32, 64, 128)),
+                  "iterations": pick_size(size, (4, 4), (60, 40), None), "time_budget": budget},
+        "eval_every": pick_size(size, None, 10, 30),  # steps
     }
 
 
@@ -44,13 +57,11 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     random view batches. Writes into ``out/fit_volume``; the signature and the StepResult are
     :func:`run_step`'s.
     """
-    from ..fit.volume import VolumeFitOptions, fit_volume
-
-    res, d, t0 = _begin(out, "fit_volume", size)
+    res, d, t0 = begin_step(out, "fit_volume", size)
     cfg = _volume_settings(size)
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
-    train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
-    res.config = _views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+    train, test, name = cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
+    res.config = views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
                                cfg["lbfgs"], grid=f"{S}^3", **{"samples per ray": n_pts})
     res.description = (
         "A grid of densities and colours is fitted to the renders (black background) with "
@@ -62,12 +73,12 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
               "lbfgs": "geofit: visual hull, coarse-to-fine, pruning, L-BFGS on all rays"}
 
     def monitor(volume):
-        out_ = _render_volume(volume, test.cameras, img, n_pts)
+        out_ = render_volume_views(volume, test.cameras, img, n_pts)
         return {"psnr": float(psnr(out_[..., :3], test.images)),
-                "iou": float(np.mean([_iou(out_[i, ..., 3], test.silhouettes[i])
+                "iou": float(np.mean([mask_iou(out_[i, ..., 3], test.silhouettes[i])
                                       for i in range(len(test.images))]))}
 
-    bar = _bar(progress, len(labels), "fit_volume")
+    bar = progress_bar(progress, len(labels), "fit_volume")
     fits, renders = {}, {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
@@ -76,9 +87,9 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
             volume_size=S, n_pts_per_ray=n_pts, **kw), time_budget=budget, seed=seed,
             evaluator=monitor, eval_every=cfg["eval_every"])
         fits[key] = fit
-        renders[key] = _render_volume(fit.volume, test.cameras, img, n_pts)
+        renders[key] = render_volume_views(fit.volume, test.cameras, img, n_pts)
         final = monitor(fit.volume)
-        _record_fit(res, d, key, label, fit, ("psnr", "iou"),
+        record_fit(res, d, key, label, fit, ("psnr", "iou"),
                     final={"seconds": fit.seconds, **final, "n_params": fit.n_params},
                     config={k: repr(v) for k, v in kw.items()})
         vol = fit.volume
@@ -86,7 +97,7 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                             features=vol.features, voxel_size=vol.voxel_size,
                             volume_translation=vol.volume_translation)
         res.files[f"{key} volume"] = d / f"{key}_volume.npz"
-        cut = _recipe_cut(fit.n_iterations, _volume_settings("full")["tutorial"]["n_iter"]) \
+        cut = recipe_cut(fit.n_iterations, _volume_settings("full")["tutorial"]["n_iter"]) \
             if key == "tutorial" else ""
         res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "held-out PSNR (dB)": final["psnr"],
@@ -99,10 +110,10 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                                  "free parameters": fit.n_params})
         bar.update(1)
     bar.close()
-    _heldout_comparison(res, d, test.images[:3], renders, fits,
+    heldout_comparison(res, d, test.images[:3], renders, fits,
                         f"Held-out views of the {name} and the fitted volumes rendered from them.")
-    cut = _recipe_cut(fits["tutorial"].n_iterations, _volume_settings("full")["tutorial"]["n_iter"])
-    return _close_comparison(
+    cut = recipe_cut(fits["tutorial"].n_iterations, _volume_settings("full")["tutorial"]["n_iter"])
+    return close_comparison(
         res, d, t0, chart="held-out PSNR and IoU",
         panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"},
                 {"metric": "iou", "label": "held-out silhouette IoU"}],
@@ -127,17 +138,17 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
         "silhouettes of the wrong size": (imgs, sils[:, :-1], cams),
     }
     rows = []
-    for method, kw in (("tutorial", {"recipe": "tutorial", "n_iter": _pick(size, 2, 10, 30),
+    for method, kw in (("tutorial", {"recipe": "tutorial", "n_iter": pick_size(size, 2, 10, 30),
                                      "batch_size": 1}),
                        ("lbfgs", {"method": "lbfgs", "levels": (small,),
-                                  "iterations": _pick(size, 2, 10, 30)})):
+                                  "iterations": pick_size(size, 2, 10, 30)})):
         for case, (i_, s_, c_) in cases.items():  # failure cases
             opts = {k: v for k, v in kw.items() if k != "recipe"}
-            fit, err = _try(lambda **k: fit_volume(_views(i_, s_, c_), **k),
+            fit, err = try_call(lambda **k: fit_volume(_views(i_, s_, c_), **k),
                             recipe=kw.get("recipe", "default"), seed=seed,
                             options=VolumeFitOptions(volume_size=small,
                                                      n_pts_per_ray=max(16, n_pts // 4), **opts))
-            rows.append(_fit_row(method, case, fit, err, lambda f: {
+            rows.append(fit_row(method, case, fit, err, lambda f: {
                 "NaN in volume": bool(np.isnan(f.volume.densities).any()),
                 "occupied voxels": int(f.n_occupied_voxels),
                 "seconds": round(f.seconds, 2)}))
@@ -146,6 +157,5 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
 
 def _views(images, silhouettes, cameras):
     """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-    from ..structures import MultiViewDataset
 
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

@@ -2,14 +2,25 @@
 preset next to geofit's, and the stability cases."""
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import numpy as np
 
-from ._common import (
-    StepResult, _bar, _begin, _close_comparison, _cow_views, _fit_row, _heldout_comparison, _pick,
-    _recipe_cut, _record_fit, _try, _views_config,
+from ..fit.nerf import RECIPES, fit_nerf, render_nerf
+from ..structures import MultiViewDataset
+from .shared import (
+    StepResult,
+    begin_step,
+    close_comparison,
+    cow_views,
+    fit_row,
+    heldout_comparison,
+    pick_size,
+    progress_bar,
+    recipe_cut,
+    record_fit,
+    try_call,
+    views_config,
 )
 
 __all__ = ["step_nerf"]
@@ -21,20 +32,20 @@ __all__ = ["step_nerf"]
 
 
 def _nerf_settings(size: str) -> dict:
-    budget = _pick(size, None, 20.0, None)
-    scene = {"recipe": "default", "n_iter": _pick(size, 2, 20000, 20000),
-             "n_pts_per_ray": _pick(size, 8, 64, 128)}
+    budget = pick_size(size, None, 20.0, None)
+    scene = {"recipe": "default", "n_iter": pick_size(size, 2, 20000, 20000),
+             "n_pts_per_ray": pick_size(size, 8, 64, 128)}
     if size == "tiny":
         scene.update(n_rays_per_image=32, hull_resolution=24)
     return {
-        "n_views": _pick(size, 4, 20, 40), "image_size": _pick(size, 24, 64, 128),
-        "n_heldout": _pick(size, 1, 2, 8), "heldout_size": _pick(size, 24, 32, 128),
-        "tutorial": {"recipe": "tutorial", "n_iter": _pick(size, 2, 3000, 3000),
-                     "n_rays_per_image": _pick(size, 32, 128, 750),
-                     "n_pts_per_ray": _pick(size, 8, 64, 128)},
+        "n_views": pick_size(size, 4, 20, 40), "image_size": pick_size(size, 24, 64, 128),
+        "n_heldout": pick_size(size, 1, 2, 8), "heldout_size": pick_size(size, 24, 32, 128),
+        "tutorial": {"recipe": "tutorial", "n_iter": pick_size(size, 2, 3000, 3000),
+                     "n_rays_per_image": pick_size(size, 32, 128, 750),
+                     "n_pts_per_ray": pick_size(size, 8, 64, 128)},
         "scene": scene,
         "time_budget": budget,
-        "eval_every": _pick(size, 2, None, None),  # steps (None: 1/20 of the run)
+        "eval_every": pick_size(size, 2, None, None),  # steps (None: 1/20 of the run)
     }
 
 
@@ -48,13 +59,11 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     Progress: a progress bar over the fits; seed: initialisation, view and ray choices. Writes
     into ``out/nerf``; the signature and the StepResult are :func:`run_step`'s.
     """
-    from ..fit.nerf import RECIPES, fit_nerf, render_nerf
-
-    res, d, t0 = _begin(out, "nerf", size)
+    res, d, t0 = begin_step(out, "nerf", size)
     cfg = _nerf_settings(size)
     img = cfg["image_size"]
-    train, test, name = _cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
-    res.config = _views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+    train, test, name = cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
+    res.config = views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
                                cfg["scene"], **{"held-out image size": cfg["heldout_size"],
                                                 "time budget per method (s)": cfg["time_budget"]})
     res.description = (
@@ -64,7 +73,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         "size: the network's weights.")
     labels = {"tutorial": "PyTorch3D recipe: 60 frequencies, 2 x 256 Softplus, MC rays",
               "scene": "geofit: scene-sized network, visual hull, density grid"}
-    bar = _bar(progress, len(labels), "nerf")
+    bar = progress_bar(progress, len(labels), "nerf")
     fits = {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
@@ -74,12 +83,12 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
                        eval_every=cfg["eval_every"], seed=seed)
         kw["recipe"] = recipe
         fits[key] = fit
-        _record_fit(res, d, key, label, fit, ("psnr",),
+        record_fit(res, d, key, label, fit, ("psnr",),
                     final={"seconds": fit.seconds, "psnr": fit.psnr, "n_params": fit.n_params},
                     config={k: repr(v) for k, v in kw.items()})
         np.savez_compressed(d / f"{key}_weights.npz", **fit.field.params)
         res.files[f"{key} weights"] = d / f"{key}_weights.npz"
-        cut = _recipe_cut(fit.n_iterations, _nerf_settings("full")["tutorial"]["n_iter"]) \
+        cut = recipe_cut(fit.n_iterations, _nerf_settings("full")["tutorial"]["n_iter"]) \
             if key == "tutorial" else ""
         res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
@@ -93,10 +102,10 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         renders[key] = fit.images if fit.images is not None else render_nerf(
             fit.field, test.cameras, cfg["heldout_size"], n_pts_per_ray=fit.config.n_pts_per_ray,
             occupancy=fit.occupancy)
-    _heldout_comparison(res, d, test.images[:3], renders, fits,
+    heldout_comparison(res, d, test.images[:3], renders, fits,
                         f"Held-out views of the {name} and the fitted fields rendered from them.")
-    cut = _recipe_cut(fits["tutorial"].n_iterations, _nerf_settings("full")["tutorial"]["n_iter"])
-    return _close_comparison(
+    cut = recipe_cut(fits["tutorial"].n_iterations, _nerf_settings("full")["tutorial"]["n_iter"])
+    return close_comparison(
         res, d, t0, chart="held-out PSNR",
         panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"}],
         title=f"fit_nerf on the {name} ({size} size)", stability=_nerf_stability(train, size, seed),
@@ -112,7 +121,7 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
     imgs, sils, cams = train.images, train.silhouettes, train.cameras
     nan_i = imgs.copy()
     nan_i[0, 0, 0, 0] = np.nan
-    n_iter = _pick(size, 2, 4, 50)
+    n_iter = pick_size(size, 2, 4, 50)
     cases = {
         "one view only": (imgs[:1], sils[:1], cams[[0]], {}),
         "black images, empty silhouettes": (np.zeros_like(imgs), np.zeros_like(sils), cams, {}),
@@ -128,9 +137,9 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
             recipe = kw.pop("recipe")
-            fit, err = _try(lambda: fit_nerf(_views(i_, s_, c_), recipe=recipe, seed=seed,
+            fit, err = try_call(lambda: fit_nerf(_views(i_, s_, c_), recipe=recipe, seed=seed,
                                              options=replace(RECIPES[recipe], **kw)))
-            rows.append(_fit_row(method, case, fit, err, lambda f: {
+            rows.append(fit_row(method, case, fit, err, lambda f: {
                 "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
                 "seconds": round(f.seconds, 2)}))
     return rows
@@ -138,6 +147,5 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
 
 def _views(images, silhouettes, cameras):
     """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-    from ..structures import MultiViewDataset
 
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

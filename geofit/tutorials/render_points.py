@@ -6,10 +6,25 @@ import time
 
 import numpy as np
 
+from ..data import find
+from ..io import load_pointcloud
+from ..ops import sample_points_from_meshes
+from ..render import AlphaCompositor
+from ..render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
+from ..structures import PointCloud
 from ..viz import image_panel, plot_accuracy_vs_time, save_png
-from ._common import (
-    _GF, _P3D, StepResult, _bar, _begin_textured, _cameras, _iou, _method, _pick, _run_cases,
-    _series,
+from .shared import (
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    StepResult,
+    begin_textured_step,
+    look_at_cameras,
+    mask_iou,
+    method_record,
+    method_series,
+    pick_size,
+    progress_bar,
+    run_cases,
 )
 
 __all__ = ["step_render_points"]
@@ -21,15 +36,11 @@ __all__ = ["step_render_points"]
 
 
 #: The point-cloud tutorial's own cloud, relative to the data folder (:func:`geofit.data.find`).
-_BRIDGE = "PittsburghBridge/pointcloud.npz"
+BRIDGE_FILE = "PittsburghBridge/pointcloud.npz"
 
 
 def _points_stability(cloud, cameras, size: str) -> list[dict]:
-    from ..render import AlphaCompositor
-    from ..render.points import PointsRasterizationSettings, PointsRasterizer, PointsRenderer
-    from ..structures import PointCloud
-
-    s = _pick(size, 32, 128, 256)
+    s = pick_size(size, 32, 128, 256)
 
     def render(c, cams=cameras, radius=0.003, K=10):
         out = PointsRenderer(PointsRasterizer(cams, PointsRasterizationSettings(
@@ -44,13 +55,13 @@ def _points_stability(cloud, cameras, size: str) -> list[dict]:
         "NaN point": lambda: render(PointCloud(nan_p, C)),
         "empty cloud": lambda: render(PointCloud(np.zeros((0, 3)), np.zeros((0, 3)))),
         "all points behind the camera": lambda: render(
-            PointCloud(P + np.array([0.0, 0.0, 50.0]), C), _cameras(2.7, 0.0, 0.0)),
+            PointCloud(P + np.array([0.0, 0.0, 50.0]), C), look_at_cameras(2.7, 0.0, 0.0)),
         "all points at one place": lambda: render(PointCloud(np.zeros_like(P), C)),
         "radius 0": lambda: render(cloud, radius=0.0),
         "radius 0.5 (huge splats)": lambda: render(cloud, radius=0.5, K=2),
         "points_per_pixel 0": lambda: render(cloud, K=0),
     }
-    return _run_cases(cases)
+    return run_cases(cases)
 
 
 def step_render_points(out, size: str = "default", *, progress: bool = True, seed: int = 0
@@ -64,19 +75,14 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     a progress bar over the renders; seed: sampling seed. Writes into ``out/render_points``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    from ..data import find
-    from ..io import load_pointcloud
-    from ..ops import sample_points_from_meshes
     from ..render import (
         AlphaCompositor, AmbientLights, BlendParams, HardPhongShader, MeshRasterizer,
         MeshRenderer, NormWeightedCompositor, PointsRasterizationSettings, PointsRasterizer,
         PointsRenderer, RasterizationSettings,
     )
-    from ..structures import PointCloud
-
-    res, d, t0, data, mesh = _begin_textured(out, "render_points", size)
-    N = _pick(size, 5_000, 100_000, 500_000)
-    S = _pick(size, 64, 256, 512)
+    res, d, t0, data, mesh = begin_textured_step(out, "render_points", size)
+    N = pick_size(size, 5_000, 100_000, 500_000)
+    S = pick_size(size, 64, 256, 512)
     res.config = {"cloud": f"{N} samples of the {data.name} with texture colours",
                   "image size": S, "radius (NDC)": 0.003, "points per pixel": 10,
                   "camera": "FoVOrthographicCameras(znear=0.01), look_at(20, 10, 180)"}
@@ -86,8 +92,8 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
         "cloud samples the textured mesh, so the mesh's unlit render from the same camera is "
         "the target: the chart measures how the point count and radius trade render time "
         "against coverage (silhouette IoU) and colour error.")
-    cams = _cameras(20.0, 10.0, 180.0, ortho=True, znear=0.01)
-    bar = _bar(progress, 4, "render_points")
+    cams = look_at_cameras(20.0, 10.0, 180.0, ortho=True, znear=0.01)
+    bar = progress_bar(progress, 4, "render_points")
     sample = sample_points_from_meshes(mesh, N, seed=seed, return_textures=True)
     cloud = PointCloud(sample.points, sample.textures[:, :3])
     settings = PointsRasterizationSettings(image_size=S, radius=0.003, points_per_pixel=10)
@@ -114,10 +120,10 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     res.targets["mesh, unlit (target)"] = save_png(target_rgb, d / "target_mesh.png")
     rows = [[target_rgb] + list(imgs.values())]
     row_labels = [f"{data.name}\n{N:,} points"]
-    bridge_path = find(_BRIDGE)
+    bridge_path = find(BRIDGE_FILE)
     if bridge_path is not None:  # the tutorial's own cloud and camera, when it is available
         bridge = load_pointcloud(bridge_path)
-        bcams = _cameras(20.0, 10.0, 0.0, ortho=True, znear=0.01)
+        bcams = look_at_cameras(20.0, 10.0, 0.0, ortho=True, znear=0.01)
         brast = PointsRasterizer(bcams, settings)
         row = [None]
         for i, comp in enumerate((AlphaCompositor(), AlphaCompositor(background_color=(0, 0, 1)),
@@ -141,7 +147,7 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     res.comparison_caption = (f"The mesh the cloud was sampled from, and the tutorial's three "
                               f"point renders (radius 0.003, {S} px).")
 
-    counts = _pick(size, (1_000, 5_000), (12_500, 25_000, 50_000, 100_000, 200_000),
+    counts = pick_size(size, (1_000, 5_000), (12_500, 25_000, 50_000, 100_000, 200_000),
                    (50_000, 100_000, 200_000, 500_000, 1_000_000))
     radii = (0.003, 0.006) if size != "tiny" else (0.01, 0.02)
     big = sample_points_from_meshes(mesh, counts[-1], seed=seed + 1, return_textures=True)
@@ -155,11 +161,12 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
             t = time.perf_counter()
             o = r.render(c)
             secs.append(time.perf_counter() - t)
-            iou.append(_iou(o.fragments.mask[0], target_mask))
+            iou.append(mask_iou(o.fragments.mask[0], target_mask))
             err.append(float(np.abs(o.images[0, ..., :3] - target_rgb).mean()))
-        methods.append(_method(f"r{radius:g}", f"radius {radius:g}, {counts[0]:,}..{counts[-1]:,}"
-                               " points", seconds=secs, curve={"iou": iou, "mean_abs_error": err},
-                               final={"points": list(counts)}, status="ok"))
+        methods.append(method_record(
+            f"r{radius:g}", f"radius {radius:g}, {counts[0]:,}..{counts[-1]:,} points",
+            seconds=secs, curve={"iou": iou, "mean_abs_error": err},
+            final={"points": list(counts)}, status="ok"))
         res.metrics += [{"points": n, "radius": radius, "seconds": round(secs[i], 4),
                          "silhouette IoU vs mesh": iou[i], "mean |RGB - mesh|": err[i]}
                         for i, n in enumerate(counts)]
@@ -169,7 +176,7 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
                     for k, v in timings.items()]
     res.charts["Speed and accuracy: point count and radius against coverage and colour "
                "error"] = plot_accuracy_vs_time(
-        _series(methods),
+        method_series(methods),
         [{"metric": "iou", "label": "silhouette IoU against the mesh"},
          {"metric": "mean_abs_error", "label": "mean |RGB - mesh render| (log)", "logy": True}],
         d / "speed_accuracy.png", xlabel="render wall time (s, log)",
@@ -179,14 +186,14 @@ def step_render_points(out, size: str = "default", *, progress: bool = True, see
     res.stability = _points_stability(cloud, cams, size)
     bar.update(1)
     bar.close()
-    res.headline = {_P3D: f"{N:,} points at {S} px, K=10: {timings['alpha']:.3f} s",
-                    _GF: f"{counts[-1]:,} points, radius {radii[-1]:g}: IoU "
+    res.headline = {P3D_COLUMN: f"{N:,} points at {S} px, K=10: {timings['alpha']:.3f} s",
+                    GEOFIT_COLUMN: f"{counts[-1]:,} points, radius {radii[-1]:g}: IoU "
                          f"{methods[-1]['curve']['iou'][-1]:.3f} vs the mesh in "
                          f"{methods[-1]['curve']['seconds'][-1]:.3f} s"}
     res.notes.append(f"The measured cloud is sampled from the {data.name} with its texture "
                      "colours, so the mesh's own render is a target to compare with"
                      + ("." if bridge_path is not None else
-                        f"; the tutorial's {_BRIDGE} was not found in the data folder "
+                        f"; the tutorial's {BRIDGE_FILE} was not found in the data folder "
                         "(GEOFIT_DATA)."))
     res.seconds = time.perf_counter() - t0
     return res

@@ -8,14 +8,24 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from .._validate import check_choice
+from ..data import data_dir, find
+from ..report import write_gallery, write_report
 from ..viz import plot_model_sizes
-from ._common import SIZES, _GF, _P3D, StepResult, TutorialsRun, _failure
 from .fit_mesh import step_fit_mesh
 from .fit_views import step_fit_views
 from .fit_volume import step_fit_volume
 from .nerf import step_nerf
 from .render_mesh import step_render_mesh
-from .render_points import _BRIDGE, step_render_points
+from .render_points import BRIDGE_FILE, step_render_points
+from .shared import (
+    GEOFIT_COLUMN,
+    P3D_COLUMN,
+    SIZES,
+    STEP_TITLES,
+    StepResult,
+    TutorialsRun,
+    failure_text,
+)
 
 __all__ = ["STEPS", "run_step", "run_tutorials"]
 
@@ -26,14 +36,10 @@ __all__ = ["STEPS", "run_step", "run_tutorials"]
 
 #: The steps in order: name -> (function, title, PyTorch3D tutorial).
 STEPS: dict[str, tuple[Callable[..., StepResult], str, str]] = {
-    "fit_mesh": (step_fit_mesh, "1. Fit a mesh to a mesh", "deform_source_mesh_to_target_mesh"),
-    "render_mesh": (step_render_mesh, "2. Render textured meshes", "render_textured_meshes"),
-    "render_points": (step_render_points, "3. Render coloured point clouds",
-                      "render_colored_points"),
-    "fit_views": (step_fit_views, "4. Fit a mesh to multi-view images", "fit_textured_mesh"),
-    "fit_volume": (step_fit_volume, "5. Fit a voxel volume", "fit_textured_volume"),
-    "nerf": (step_nerf, "6. Fit a neural radiance field", "fit_simple_neural_radiance_field"),
-}
+    name: (fn, *STEP_TITLES[name]) for name, fn in (
+        ("fit_mesh", step_fit_mesh), ("render_mesh", step_render_mesh),
+        ("render_points", step_render_points), ("fit_views", step_fit_views),
+        ("fit_volume", step_fit_volume), ("nerf", step_nerf))}
 
 
 def run_step(name: str, out, size: str = "default", *, progress: bool = True,
@@ -73,10 +79,10 @@ def run_step(name: str, out, size: str = "default", *, progress: bool = True,
         d = Path(out) / name
         d.mkdir(parents=True, exist_ok=True)
         (d / "error.txt").write_text(traceback.format_exc(), encoding="utf-8")
-        res = StepResult(name, title, tutorial, status=_failure(exc), size=size,
+        res = StepResult(name, title, tutorial, status=failure_text(exc), size=size,
                          seconds=time.perf_counter() - t0)
         res.files["traceback"] = d / "error.txt"
-        res.headline = {_P3D: "", _GF: ""}
+        res.headline = {P3D_COLUMN: "", GEOFIT_COLUMN: ""}
         return res
 
 
@@ -101,11 +107,9 @@ def _size_chart(steps: Sequence[StepResult], path: Path) -> Path | None:
 
 def _data_note() -> str:
     """Which tutorial files were found, and where (the data the run used)."""
-    from ..data import data_dir, find
-
     instead = {"dolphin/dolphin.obj": "the procedural target used instead",
                "cow_mesh/cow.obj": "the procedural textured mesh used instead",
-               _BRIDGE: "the tutorial's cloud not rendered"}
+               BRIDGE_FILE: "the tutorial's cloud not rendered"}
     found = {n: find(n) for n in instead}
     parts = [f"{n} from {p.parent.parent}" if p is not None else f"{n} not found ({instead[n]})"
              for n, p in found.items()]
@@ -145,8 +149,6 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     ValueError
         For an unknown size or step name.
     """
-    from ..report import write_report
-
     check_choice(size, "size", SIZES)
     names = list(STEPS) if only is None else list(only)
     if not names:
@@ -159,7 +161,7 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     steps = []
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # kept local: tqdm, loaded only when used (start-up)
 
         bar = tqdm(total=len(names), desc="geofit tutorials", unit="step", dynamic_ncols=True)
     for n in names:  # workflows
@@ -182,8 +184,6 @@ def run_tutorials(out, *, size: str = "default", only: Sequence[str] | None = No
     report = dict(write_report(steps, out, command=command, size=size, seconds=seconds,
                                charts=charts, notes=notes))
     if gallery is not None:
-        from ..report import write_gallery
-
         report["gallery"] = write_gallery(steps, gallery, command=command, charts=charts,
                                           size=size, seconds=seconds, notes=notes[1:])
     return TutorialsRun(steps, seconds, out, report, charts)

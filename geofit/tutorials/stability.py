@@ -18,7 +18,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..structures import Mesh
+from ..data import find
+from ..datasets import tutorial_views
+from ..fit import FINE_WEIGHTS, TUTORIAL_WEIGHTS, CoarseToFine
+from ..io import load_mesh
+from ..shapes import TEST_SHAPES, ico_sphere, torus
+from ..structures import Mesh, TexturesVertex
 
 __all__ = ["MESH_MODES", "STABILITY_SHAPES", "MeshScenario", "collapse_edges",
            "fit_mesh_scenario", "mesh_fit_arguments", "shape_views", "stability_shape"]
@@ -107,9 +112,6 @@ def fit_mesh_scenario(mode: str, target: Mesh, kwargs: dict, *, source_level: in
     ValueError
         If ``mode`` is not a key of :data:`MESH_MODES`.
     """
-    from ..fit import FINE_WEIGHTS, TUTORIAL_WEIGHTS, CoarseToFine
-    from ..shapes import ico_sphere, torus
-
     if mode not in MESH_MODES:
         raise ValueError(f"mode: expected one of {sorted(MESH_MODES)}, got {mode!r}")
     kw = dict(kwargs)
@@ -183,11 +185,6 @@ def stability_shape(name: str) -> Mesh:
     ValueError
         If ``name`` is neither a procedural shape nor a file in the data folder's ``shapes/``.
     """
-    from ..data import find
-    from ..io import load_mesh
-    from ..shapes import TEST_SHAPES
-    from ..structures import TexturesVertex
-
     if not isinstance(name, str):
         raise ValueError(f"name: expected a shape name (str), got {name!r}")
     if name in TEST_SHAPES:
@@ -234,7 +231,5 @@ def shape_views(name: str, *, num_views: int = 20, image_size: int = 64,
     >>> data.images.shape, data.name, len(data.held_out)
     ((4, 16, 16, 3), 'torus', 2)
     """
-    from ..datasets import tutorial_views
-
     return tutorial_views(5, mesh=stability_shape(name), num_views=num_views,
                           image_size=image_size, num_held_out=num_held_out, name=name)

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._threads import get_num_threads, parallel_map
-from ...raycast.embree import EmbreeScene, _moller_trumbore
+from ...raycast.embree import EmbreeScene, moller_trumbore
 
 # Rays per task handed to a worker thread (a few tasks per thread balance the load).
 _TASK_RAYS = 65_536
@@ -226,7 +226,7 @@ def refine(o: np.ndarray, d: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.nda
 
     Returns ``bary (r, 3)``, ``t (r,)``.
     """
-    tt, u, v, det = _moller_trumbore(o, d, A, B, C)
+    tt, u, v, det = moller_trumbore(o, d, A, B, C)
     ok = det != 0
     w = np.stack([1.0 - u - v, u, v], axis=1)
     w = np.where(ok[:, None], w, bary)

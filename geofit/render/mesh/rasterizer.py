@@ -18,14 +18,15 @@ from typing import Any
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._threads import parallel_map
 from ..._validate import check_positive
 from ...cameras import CamerasBase, ndc_grid
 from ...raycast.embree import EmbreeScene
 from ...structures import Mesh, Meshes, as_meshes
-from . import _raycast
 from .._fragments import DenseFragmentImages
 from .._settings import image_hw
+from . import _raycast
 
 __all__ = ["Fragments", "MeshRasterizer", "RasterizationSettings"]
 
@@ -469,7 +470,6 @@ class MeshRasterizer:
             meshes = meshes.extend(N)
         if nc == 1 and N > 1:
             cameras = cameras.extend(N)
-        from geofit._memory import check_allocation  # memory guard (issue 18): ~128 B per ray
         check_allocation(128 * N * settings.raster_size[0] * settings.raster_size[1],
                          "image_size", f"rasterizing {N} view(s) at {settings.raster_size}")
         return self._rasterize(meshes, cameras, settings)

@@ -23,10 +23,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..._threads import parallel_map
-from ...structures import TexturesUV
+from ...structures import Mesh, TexturesUV, TexturesVertex
 from ..blending import BlendParams, check_blend, new_images, scatter, soft_rgba_t
 from ..lighting import AmbientLights, DirectionalLights, PointLights, per_point_t
 from ..materials import Materials
+from ..soft.fragments import SoftFragments
+from ..soft.renderer import shade_soft_phong
 from .rasterizer import Fragments
 from .textures import UVTables, sample_texels_t
 
@@ -306,8 +308,6 @@ def _flat_chunk(fragments, sl, lights, centers, materials, idx, visibility, texe
 
 
 def _gouraud_table(fragments, lights, centers, materials):
-    from ...structures import TexturesVertex
-
     meshes = fragments.meshes
     for i, m in enumerate(meshes):  # loop over views
         if not isinstance(m.textures, TexturesVertex):  # PyTorch3D raises ValueError too
@@ -518,13 +518,8 @@ class SoftPhongShader(HardPhongShader):
     _soft = True
 
     def __call__(self, fragments, meshes=None, **kwargs) -> np.ndarray:
-        from ..soft.fragments import SoftFragments
-
         if not isinstance(fragments, SoftFragments):
             return super().__call__(fragments, meshes, **kwargs)
-        from ...structures import Mesh, TexturesVertex
-        from ..soft.renderer import shade_soft_phong
-
         if self.shadows:
             raise ValueError("shadows: shadow rays need the hard rasterizer's fragments")
         if not isinstance(meshes, Mesh) or not isinstance(meshes.textures, TexturesVertex):

@@ -31,6 +31,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._threads import get_num_threads, parallel_map
 from ..._validate import as_array, check_choice, check_int
 from ...cameras import CamerasBase
@@ -290,7 +291,6 @@ def rasterize_points(xy, z, radius, image_index, n_images: int, image_size, K: i
 def _rasterize(xy, z, radius, image_index, n_images, image_size, K, dtype=np.float64):
     """``rasterize_points`` on validated inputs; ``zbuf`` and ``dists`` of type ``dtype``."""
     H, W = image_size
-    from geofit._memory import check_allocation  # memory guard (issue 18): ~64 B per slot
     check_allocation(64 * n_images * H * W * K, "points_per_pixel and image_size",
                      f"the ({n_images}, {H}, {W}, K={K}) point fragments")
     n_pix = n_images * H * W

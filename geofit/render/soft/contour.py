@@ -49,6 +49,7 @@ import numpy as np
 from ..._validate import as_array, check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh, Topology, as_mesh
+from ..mesh.rasterizer import MeshRasterizer, RasterizationSettings
 
 __all__ = ["ContourSamples", "ContourSilhouetteLoss", "contour_edges"]
 
@@ -192,8 +193,6 @@ class ContourSilhouetteLoss:
         self.image_size = (H, W)
 
     def _masks(self, mesh: Mesh) -> np.ndarray:
-        from ..mesh.rasterizer import MeshRasterizer, RasterizationSettings
-
         ras = MeshRasterizer(self.cameras, RasterizationSettings(image_size=self.image_size))
         return ras(mesh).mask
 

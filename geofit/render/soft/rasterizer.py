@@ -15,11 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from ..._memory import check_allocation
 from ..._validate import check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh, as_mesh
 from .._settings import float_dtype, image_hw
-from .fragments import SoftFragments, _EPS, _map_views, _n_threads
+from .fragments import _EPS, SoftFragments, _map_views, _n_threads
 
 __all__ = [
     "TUTORIAL_BLUR_RADIUS",
@@ -404,7 +405,6 @@ def rasterize_soft(mesh: Mesh, cameras: CamerasBase,
     verts = mesh.verts
     faces = mesh.faces
     N = len(cameras)
-    from geofit._memory import check_allocation  # memory guard (issue 18): measured 20-30 B
     check_allocation(N * H * W * (24 * K + 1024), "image_size and faces_per_pixel",  # /slot
                      f"soft fragments of {N} view(s) at {(H, W)} with K={K}")  # + ~1 KB/px
     with np.errstate(invalid="ignore", divide="ignore"):

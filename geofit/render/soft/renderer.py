@@ -14,11 +14,17 @@ import scipy.sparse as sp
 from ..._validate import as_array
 from ...structures import Mesh
 from ..blending import BlendParams
+from ..lighting import PointLights
+from ..materials import Materials
 from .blending import (
-    SoftBlend, _check_blend, _softmax_weights, sigmoid_alpha_blend, sigmoid_alpha_blend_vjp,
+    SoftBlend,
+    _check_blend,
+    _softmax_weights,
+    sigmoid_alpha_blend,
+    sigmoid_alpha_blend_vjp,
     softmax_rgb_blend_soft,
 )
-from .fragments import SoftFragments, _NEGLIGIBLE
+from .fragments import _NEGLIGIBLE, SoftFragments
 from .rasterizer import SoftRasterizationSettings, _check_cameras, _check_settings, rasterize_soft
 from .shading import PhongColors, phong_vertex_colors
 
@@ -227,9 +233,6 @@ class SoftPhongRenderer:
     def __init__(self, cameras=None, lights=None, materials=None,
                  raster_settings: SoftRasterizationSettings | None = None,
                  blend_params: BlendParams | None = None):
-        from ..lighting import PointLights
-        from ..materials import Materials
-
         self.cameras = cameras
         self.lights = lights if lights is not None else PointLights()
         self.materials = materials if materials is not None else Materials()

@@ -11,7 +11,8 @@ import scipy.sparse as sp
 
 from ..._validate import as_array
 from ...structures import Mesh
-from .fragments import SoftFragments, _NORM_EPS, _check_fragments, _map_views
+from ..lighting import AmbientLights, DirectionalLights, PointLights
+from .fragments import _NORM_EPS, SoftFragments, _check_fragments, _map_views
 from .rasterizer import _check_cameras, _check_mesh
 
 __all__ = [
@@ -268,8 +269,6 @@ def _phong_chunk_vjp(cs, g, shade, s):
 
 
 def _light_params(lights, n_views):
-    from ..lighting import AmbientLights, DirectionalLights, PointLights
-
     if not isinstance(lights, (PointLights, DirectionalLights, AmbientLights)):
         raise TypeError(f"lights: expected PointLights, DirectionalLights or AmbientLights, got "
                         f"{type(lights)!r}")

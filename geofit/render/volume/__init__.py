@@ -4,7 +4,9 @@
   :class:`RayBundle`, :func:`ray_bundle_to_ray_points`.
 - :mod:`.raymarching`: :class:`EmissionAbsorptionRaymarcher`,
   :class:`AbsorptionOnlyRaymarcher` (each with its vector-Jacobian product).
-- :mod:`.renderer`: :class:`VolumeRenderer` (a voxel grid, trilinear sampling).
+- :mod:`.renderer`: :class:`VolumeRenderer` (a voxel grid, trilinear sampling);
+  :mod:`.skipping`: its empty-space skipping (sample ranges and their sparse operator), shared
+  with geofit's volume fit.
 - :mod:`.implicit`: :class:`ImplicitRenderer`, :class:`OccupancyGrid`;
   :mod:`.radiance_field`: :class:`NeuralRadianceField` (the NeRF tutorial's network).
 - :mod:`.harmonic`: :class:`HarmonicEmbedding` (and the tutorial's variant).

@@ -130,7 +130,7 @@ class OccupancyGrid:
 
     def dilate(self, iterations: int = 1) -> OccupancyGrid:
         """A grid grown by ``iterations`` voxels (26-connected)."""
-        from scipy.ndimage import binary_dilation
+        from scipy.ndimage import binary_dilation  # kept local: start-up
 
         if iterations < 1:
             return OccupancyGrid(self.occupied.copy(), self.bounds, self.opacity)
@@ -165,7 +165,7 @@ class OccupancyGrid:
         OccupancyGrid
             Points projecting outside the image of any camera are carved too.
         """
-        from scipy.ndimage import binary_dilation
+        from scipy.ndimage import binary_dilation  # kept local: start-up
 
         sil = as_array(silhouettes, "silhouettes", (None, None, None))
         n = sil.shape[0]

@@ -24,6 +24,10 @@ gradient ``g`` and ``S_k = sum_{i >= k + s} w_i h_i`` (a reversed cumulative sum
 
 Only where ``1 + eps - d_k`` is exactly 0 does the division fail; those (ray, sample) pairs are
 recomputed with the factor left out of the product.
+
+The transmittance algebra on ``(rays, samples)`` arrays, :func:`shifted_cumprod`,
+:func:`suffix_from`, :func:`exclusive_product` and :func:`through_transmittance`, is public within
+geofit (geofit's volume fit composes its own objective from it) but not in ``__all__``.
 """
 from __future__ import annotations
 
@@ -96,7 +100,7 @@ def sample_deltas(lengths, directions=None) -> np.ndarray:
     return deltas
 
 
-def _shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
+def shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
     """``T[:, i] = prod_{j <= i - shift} c[:, j]`` (1 for ``i < shift``); ``c`` is (r, n)."""
     n = c.shape[1]
     T = np.ones_like(c)
@@ -105,7 +109,7 @@ def _shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
     return T
 
 
-def _suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
+def suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
     """``S[:, k] = sum_{i >= k + shift} q[:, i]`` for (r, n) ``q`` (reversed cumulative sum)."""
     n = q.shape[1]
     S = np.zeros_like(q)
@@ -115,7 +119,7 @@ def _suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
     return S
 
 
-def _exclusive_product(c: np.ndarray) -> np.ndarray:
+def exclusive_product(c: np.ndarray) -> np.ndarray:
     """``E[:, k] = prod_{j != k} c[:, j]`` from prefix and suffix products (no division)."""
     n = c.shape[1]
     pre = np.ones_like(c)
@@ -136,14 +140,14 @@ def _suffix_excluding(c: np.ndarray, alpha: np.ndarray, h: np.ndarray, where, sh
     rows, ks = where
     cc = c[rows].copy()
     cc[np.arange(len(rows)), ks] = 1.0
-    T = _shifted_cumprod(cc, shift)
+    T = shifted_cumprod(cc, shift)
     q = alpha[rows] * h[rows] * T
     n = c.shape[1]
     mask = np.arange(n)[None, :] >= (ks[:, None] + shift)
     return np.sum(np.where(mask, q, 0.0), axis=1)
 
 
-def _through_transmittance(S: np.ndarray, c: np.ndarray, alpha: np.ndarray, h: np.ndarray,
+def through_transmittance(S: np.ndarray, c: np.ndarray, alpha: np.ndarray, h: np.ndarray,
                            shift: int) -> np.ndarray:
     """``S / c`` (the gradient through the transmittances), exact where ``c`` is 0."""
     zero = c == 0.0
@@ -258,12 +262,12 @@ class EmissionAbsorptionRaymarcher:
             tau = dflat * dl
             c = np.exp(-tau)
             alpha = -np.expm1(-tau)
-            T = _shifted_cumprod(c, s)
+            T = shifted_cumprod(c, s)
             opacity = -np.expm1(-tau.sum(axis=1))
         else:
             alpha = dflat
             c = (1.0 + self.eps) - dflat
-            T = _shifted_cumprod(c, s)
+            T = shifted_cumprod(c, s)
             opacity = 1.0 - np.prod(1.0 - dflat, axis=1)
         w = alpha * T
         feats = np.einsum("rn,rnc->rc", w, fflat)
@@ -273,12 +277,12 @@ class EmissionAbsorptionRaymarcher:
         """Flat gradients (r, n) and (r, n, C) from the upstream (r, C) and (r,) gradients."""
         s = self.surface_thickness
         h = np.einsum("rnc,rc->rn", fflat, g_feat)
-        S = _suffix_from(m.w * h, s)
+        S = suffix_from(m.w * h, s)
         if self.physical:
             gd = dl * (m.c * m.T * h - S) + (dl * (1.0 - m.opacity)[:, None]) * g_opac[:, None]
         else:
-            through_T = _through_transmittance(S, m.c, m.alpha, h, s)
-            gd = m.T * h - through_T + _exclusive_product(1.0 - dflat) * g_opac[:, None]
+            through_T = through_transmittance(S, m.c, m.alpha, h, s)
+            gd = m.T * h - through_T + exclusive_product(1.0 - dflat) * g_opac[:, None]
         gf = m.w[:, :, None] * g_feat[:, None, :]
         return gd, gf
 
@@ -417,5 +421,5 @@ class AbsorptionOnlyRaymarcher:
             trans = np.exp(-(dflat * dl).sum(axis=1))
             gd = dl * (trans * g)[:, None]
         else:
-            gd = _exclusive_product(1.0 - dflat) * g[:, None]
+            gd = exclusive_product(1.0 - dflat) * g[:, None]
         return RaymarchGradients(gd.reshape(d.shape), None)

@@ -20,9 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._validate import as_array, as_rng
-from ..._validate import check_finite as _finite_float
-from ..._validate import check_int as _positive_int
+from ..._memory import check_allocation
+from ..._validate import as_array, as_rng, check_finite as _finite_float, check_int as _positive_int
 from ...cameras import CamerasBase, ndc_grid
 
 __all__ = [
@@ -120,7 +119,6 @@ def _xy_to_ray_bundle(cameras: CamerasBase, xy: np.ndarray, min_depth: float, ma
     B = xy.shape[0]
     spatial = xy.shape[1:-1]
     k = int(np.prod(spatial, dtype=np.int64))
-    from geofit._memory import check_allocation  # memory guard (issue 18): lengths + rays
     check_allocation(8 * B * k * (2 * n_pts_per_ray + 12), "n_pts_per_ray and image size",
                      f"a bundle of {B} x {k} rays with {n_pts_per_ray} samples each")
     flat = xy.reshape(B, k, 2)

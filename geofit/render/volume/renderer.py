@@ -14,13 +14,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import scipy.sparse as sp
 
+from ..._memory import check_allocation
 from ..._validate import as_array, check_choice
 from ...cameras import CamerasBase
 from ...structures.volume import Volume, trilinear_matrix
 from .raymarching import AbsorptionOnlyRaymarcher, EmissionAbsorptionRaymarcher, sample_deltas
 from .raysampling import RayBundle
+from .skipping import cell_table, range_layout, range_operator, sample_ranges
 
 __all__ = ["VolumeGradients", "VolumeRenderer"]
 
@@ -51,285 +52,6 @@ def _check_bundle(ray_bundle) -> RayBundle:
     if L.shape[-1] == 0:
         raise ValueError("ray_bundle.lengths: expected at least one sample per ray")
     return RayBundle(o, d, L, ray_bundle.xys)
-
-
-# --------------------------------------------------------------------------------------------
-# Empty-space skipping: contiguous sample ranges and their sparse operator (shared with the fit)
-# --------------------------------------------------------------------------------------------
-
-_PAD = 2  # cell tables are padded by two cells on each side (see _cell_table)
-
-
-def _cell_table(voxels: np.ndarray, reduce: str) -> np.ndarray:
-    """Per trilinear cell, a reduction over its 8 corner voxels (zero padding outside).
-
-    The cell with lowest corner ``(z, y, x)`` (each from -2 to size + 1) sits at index
-    ``(z + 2, y + 2, x + 2)`` of the ``(D + 4, H + 4, W + 4)`` result. ``reduce`` is "any" (bool
-    input: does the cell read a marked voxel) or "min" (float input: the smallest corner value,
-    a lower bound of every trilinear sample in the cell).
-    """
-    D, H, W = voxels.shape
-    pad = np.zeros((D + 4, H + 4, W + 4), dtype=voxels.dtype)
-    pad[2:D + 2, 2:H + 2, 2:W + 2] = voxels
-    out = pad.copy()
-    # the cell at index i has corners at voxel-pad indices i and i + 1 along each axis
-    for ax in range(3):
-        sh = np.zeros_like(out)
-        sl_dst = [slice(None)] * 3
-        sl_src = [slice(None)] * 3
-        sl_dst[ax] = slice(0, out.shape[ax] - 1)
-        sl_src[ax] = slice(1, out.shape[ax])
-        if reduce == "any":
-            sh[tuple(sl_dst)] = out[tuple(sl_src)]
-            out = out | sh
-        else:
-            sh[tuple(sl_dst)] = out[tuple(sl_src)]
-            out = np.minimum(out, sh)
-    return out
-
-
-def _ray_pixel_affine(origins, directions, l0: float, dl: float, grid_size, scale, translation):
-    """Continuous voxel coordinates of sample k of each ray: ``A + k B`` (x, y, z order)."""
-    half = 0.5 * (np.array(grid_size[::-1], dtype=np.float64) - 1.0)
-    A = ((origins + l0 * directions + translation) / scale + 1.0) * half
-    B = (dl * directions / scale) * half
-    return A, B
-
-
-def _cells_of(pix: np.ndarray, grid_size) -> np.ndarray:
-    """Flat index into a :func:`_cell_table` of the cell of continuous voxel coordinates."""
-    D, H, W = grid_size
-    hi = np.array([W + 1, H + 1, D + 1], dtype=np.float64)
-    c = (np.floor(np.clip(pix, -2.0, hi)) + 2.0).astype(np.int64)
-    return (c[..., 2] * (H + 4) + c[..., 1]) * (W + 4) + c[..., 0]
-
-
-def _pix_corners(pix: np.ndarray, grid_size):
-    """Trilinear corners of continuous voxel coordinates (k, 3): flat (k, 8), weights, valid."""
-    D, H, W = grid_size
-    size = np.array([W, H, D])
-    pix = np.clip(pix, -1.0, size.astype(np.float64))
-    b = np.floor(pix)
-    frac = pix - b
-    b = b.astype(np.int64)
-    g = 1.0 - frac
-    wx = np.stack([g[:, 0], frac[:, 0]], axis=1)
-    wyx = (np.stack([g[:, 1], frac[:, 1]], axis=1)[:, :, None] * wx[:, None, :]).reshape(-1, 4)
-    w = (np.stack([g[:, 2], frac[:, 2]], axis=1)[:, :, None] * wyx[:, None, :]).reshape(-1, 8)
-    offs = np.array([0, 1, W, W + 1, H * W, H * W + 1, H * W + W, H * W + W + 1])
-    flat = ((b[:, 2] * H + b[:, 1]) * W + b[:, 0])[:, None] + offs[None, :]
-    valid = w != 0.0
-    edge = np.flatnonzero(np.any((b < 0) | (b > size - 2), axis=1))
-    if edge.size:  # corners outside the grid: zero padding
-        be = b[edge]
-        ix = be[:, 0, None] + np.array([0, 1])
-        iy = be[:, 1, None] + np.array([0, 1])
-        iz = be[:, 2, None] + np.array([0, 1])
-        vx = (ix >= 0) & (ix < W)
-        vy = (iy >= 0) & (iy < H)
-        vz = (iz >= 0) & (iz < D)
-        ve = (vz[:, :, None, None] & vy[:, None, :, None] & vx[:, None, None, :]).reshape(-1, 8)
-        valid[edge] &= ve
-        ixc, iyc, izc = np.clip(ix, 0, W - 1), np.clip(iy, 0, H - 1), np.clip(iz, 0, D - 1)
-        flat[edge] = ((izc[:, :, None, None] * H + iyc[:, None, :, None]) * W
-                      + ixc[:, None, None, :]).reshape(-1, 8)
-    return flat, w, valid
-
-
-def _chunk_bounds(sorted_counts: np.ndarray, chunk_samples: int) -> list:
-    """Split rays sorted by increasing count into runs of at most ~chunk_samples padded samples."""
-    bounds = []
-    a, n = 0, len(sorted_counts)
-    while a < n:  # chunks
-        r = max(1, chunk_samples // max(int(sorted_counts[a]), 1))
-        b = min(n, a + r)
-        while b > a + 1 and (b - a) * int(sorted_counts[b - 1]) > chunk_samples:
-            b = a + max(1, (b - a) // 2)
-        bounds.append((a, b))
-        a = b
-    return bounds
-
-
-def _sample_ranges(A, B, n_pts: int, grid_size, cell_any: np.ndarray, *,
-                   cell_min: np.ndarray | None = None, termination: float | None = None,
-                   k_range=None, lengths: np.ndarray | None = None,
-                   chunk_samples: int = 1 << 20):
-    """First and last sample of each ray whose cell reads a marked voxel (-1: none).
-
-    Sample ``k`` of ray ``i`` sits at continuous voxel coordinates ``A[i] + t B[i]`` with
-    ``t = k``, or ``t = lengths[i, k]`` when ``lengths (r, n_pts)`` is given.
-
-    With ``cell_min`` and ``termination``, the last sample is also capped where the
-    transmittance computed from the cell lower bounds (an upper bound of the true
-    transmittance) falls below ``termination``. ``k_range`` = (k_lo, k_hi) restricts the samples
-    examined (e.g. to a box).
-    """
-    n_rays = len(A)
-    first = np.full(n_rays, -1, np.int64)
-    last = np.full(n_rays, -1, np.int64)
-    if k_range is None:
-        k_lo = np.zeros(n_rays, np.int64)
-        k_hi = np.full(n_rays, n_pts - 1, np.int64)
-    else:
-        k_lo, k_hi = k_range
-    cand = np.flatnonzero(k_hi >= k_lo)
-    if cand.size == 0:
-        return first, last
-    span = k_hi[cand] - k_lo[cand] + 1
-    srt = np.argsort(span, kind="stable")
-    order, span = cand[srt], span[srt]
-    any_flat = cell_any.reshape(-1)
-    min_flat = None if cell_min is None else cell_min.reshape(-1)
-    for a, b in _chunk_bounds(span, chunk_samples):  # chunks of rays
-        ids = order[a:b]
-        K = int(span[b - 1])
-        kk = k_lo[ids, None] + np.arange(K)[None, :]
-        inr = kk <= k_hi[ids, None]
-        if lengths is None:
-            t = kk.astype(np.float64)
-        else:
-            t = lengths[ids[:, None], np.minimum(kk, n_pts - 1)]
-        pix = A[ids, None, :] + t[..., None] * B[ids, None, :]
-        cells = _cells_of(pix, grid_size)
-        act = any_flat[cells] & inr
-        has = act.any(axis=1)
-        if not has.any():
-            continue
-        f = np.argmax(act, axis=1)
-        lst = K - 1 - np.argmax(act[:, ::-1], axis=1)
-        if min_flat is not None and termination is not None:
-            dens = np.where(act, np.clip(min_flat[cells], 0.0, 1.0), 0.0)
-            T = np.cumprod(1.0 - dens, axis=1)
-            below = T < termination
-            stop = np.where(below.any(axis=1), np.argmax(below, axis=1), K - 1)
-            lst = np.minimum(lst, np.maximum(stop, f))
-        first[ids[has]] = k_lo[ids[has]] + f[has]
-        last[ids[has]] = k_lo[ids[has]] + lst[has]
-    return first, last
-
-
-class _RangeLayout(NamedTuple):
-    """Rays sorted by sample count, in chunks padded to their longest ray."""
-
-    ray_ids: np.ndarray   # (r,) rays with at least one sample, by increasing count
-    first: np.ndarray     # (r,) first sample index
-    count: np.ndarray     # (r,) samples marched
-    chunks: list          # [(row, a, b, K)]: rays ray_ids[a:b], rows row .. row + (b-a) K
-    n_rows: int
-
-
-def _range_layout(first: np.ndarray, last: np.ndarray, chunk_samples: int) -> _RangeLayout:
-    kept = np.flatnonzero(first >= 0)
-    count = last[kept] - first[kept] + 1
-    order = np.argsort(count, kind="stable")
-    ray_ids, count = kept[order], count[order]
-    chunks = []
-    row = 0
-    for a, b in _chunk_bounds(count, chunk_samples):  # chunks of rays
-        K = int(count[b - 1])
-        chunks.append((row, a, b, K))
-        row += (b - a) * K
-    return _RangeLayout(ray_ids, first[ray_ids], count, chunks, row)
-
-
-def _range_samples(A, B, layout: _RangeLayout, a: int, b: int, lengths=None):
-    """Continuous voxel coordinates (s, 3), local ray (s,) and offset (s,) of rays a:b."""
-    cnt = layout.count[a:b]
-    start = np.cumsum(cnt) - cnt
-    local = np.repeat(np.arange(b - a), cnt)
-    j = np.arange(int(cnt.sum())) - np.repeat(start, cnt)
-    ids = layout.ray_ids[a:b][local]
-    k = layout.first[a:b][local] + j
-    t = k.astype(np.float64) if lengths is None else lengths[ids, k]
-    return A[ids] + t[:, None] * B[ids], local, j
-
-
-def _range_operator(A, B, layout: _RangeLayout, grid_size, *, lengths=None,
-                    chunk_samples: int = 1 << 18, all_columns: bool = False,
-                    dtype=np.float64):
-    """The trilinear operator of a range layout over the voxels its samples read.
-
-    With ``all_columns`` the columns are all the voxels of the grid and every sample row holds
-    8 entries (explicit zeros for corners outside the grid), which skips the bookkeeping of
-    the sparse case (for dense grids).
-
-    Returns
-    -------
-    W : (layout.n_rows, m) csr_matrix
-        Row ``row + i K + j`` holds the weights of sample ``j`` of ray ``i`` of the chunk at
-        ``row`` (padding rows are empty).
-    columns : (m,) int64
-        Flat indices of the voxels read by at least one sample (sorted).
-    """
-    D, H, W = grid_size
-    n_vox = D * H * W
-    if all_columns:
-        return _dense_range_operator(A, B, layout, grid_size, lengths, chunk_samples, dtype)
-    # pass 1: which cells are read -> which voxels are read (the 8 corners of every cell)
-    cells = np.zeros((D + 4) * (H + 4) * (W + 4), bool)
-    for row, a, b, K in layout.chunks:  # chunks of rays
-        pix, _, _ = _range_samples(A, B, layout, a, b, lengths)
-        cells[_cells_of(pix, grid_size)] = True
-    cells = cells.reshape(D + 4, H + 4, W + 4)
-    read = np.zeros((D, H, W), bool)
-    for dz in (0, 1):  # voxel v is corner (dz, dy, dx) of the cell with lowest corner v - d
-        for dy in (0, 1):
-            for dx in (0, 1):
-                read |= cells[2 - dz:D + 2 - dz, 2 - dy:H + 2 - dy, 2 - dx:W + 2 - dx]
-    columns = np.flatnonzero(read)
-    idx = np.int32 if max(layout.n_rows, n_vox) < 2 ** 31 - 1 else np.int64
-    lookup = np.full(n_vox, -1, idx)
-    lookup[columns] = np.arange(columns.size, dtype=idx)
-    # pass 2: the entries, chunk by chunk
-    counts = np.zeros(layout.n_rows, np.int64)
-    data_l, ind_l = [], []
-    for row, a, b, K in layout.chunks:  # chunks of rays
-        pix, local, j = _range_samples(A, B, layout, a, b, lengths)
-        rows = row + local * K + j
-        for s0 in range(0, len(rows), chunk_samples):  # sub-chunks of samples
-            sl = slice(s0, s0 + chunk_samples)
-            flat, w, valid = _pix_corners(pix[sl], grid_size)
-            col = lookup[flat]
-            valid &= col >= 0
-            counts[rows[sl]] = valid.sum(axis=1)
-            data_l.append(w[valid])
-            ind_l.append(col[valid])
-    indptr = np.zeros(layout.n_rows + 1, np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    data = np.concatenate(data_l) if data_l else np.zeros(0)
-    ind = np.concatenate(ind_l) if ind_l else np.zeros(0, idx)
-    if indptr[-1] >= 2 ** 31 - 1:
-        idx = np.int64
-    Wm = sp.csr_matrix((data.astype(dtype, copy=False), ind.astype(idx, copy=False),
-                        indptr.astype(idx)), shape=(layout.n_rows, columns.size))
-    return Wm, columns
-
-
-def _dense_range_operator(A, B, layout: _RangeLayout, grid_size, lengths, chunk_samples, dtype):
-    """:func:`_range_operator` over all voxels: 8 entries per sample row, no compression."""
-    D, H, W = grid_size
-    n_vox = D * H * W
-    idx = np.int32 if max(8 * layout.n_rows, n_vox) < 2 ** 31 - 1 else np.int64
-    n_s = int(layout.count.sum())
-    indices = np.empty(8 * n_s, idx)
-    data = np.empty(8 * n_s, dtype)
-    counts = np.zeros(layout.n_rows, np.int64)
-    pos = 0
-    for row, a, b, K in layout.chunks:  # chunks of rays
-        pix, local, j = _range_samples(A, B, layout, a, b, lengths)
-        rows = row + local * K + j
-        counts[rows] = 8
-        for s0 in range(0, len(rows), chunk_samples):  # sub-chunks of samples
-            sl = slice(s0, s0 + chunk_samples)
-            flat, w, valid = _pix_corners(pix[sl], grid_size)
-            m = flat.shape[0] * 8
-            indices[pos:pos + m] = flat.ravel()
-            data[pos:pos + m] = np.where(valid, w, 0.0).ravel()
-            pos += m
-    indptr = np.zeros(layout.n_rows + 1, np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    Wm = sp.csr_matrix((data, indices, indptr.astype(idx)), shape=(layout.n_rows, n_vox))
-    return Wm, np.arange(n_vox)
 
 
 class VolumeRenderer:
@@ -383,7 +105,6 @@ class VolumeRenderer:
         self.raymarcher = raymarcher
         self.sample_mode = sample_mode
         self.chunk_size = int(chunk_size)
-        from geofit._memory import check_allocation  # memory guard (issue 18)
         check_allocation(256 * self.chunk_size, "chunk_size", "one chunk of samples")
         if not isinstance(skip_empty, (bool, np.bool_)):
             raise TypeError(f"skip_empty: expected True or False, got {skip_empty!r}")
@@ -454,13 +175,13 @@ class VolumeRenderer:
         scale = volume._scale
         A = ((o + volume.volume_translation) / scale + 1.0) * half
         B = d / scale * half
-        first, last = _sample_ranges(A, B, n, grid, _cell_table(marked, "any"), lengths=L,
+        first, last = sample_ranges(A, B, n, grid, cell_table(marked, "any"), lengths=L,
                                      chunk_samples=self.chunk_size)
-        lay = _range_layout(first, last, self.chunk_size)
+        lay = range_layout(first, last, self.chunk_size)
         out = np.zeros((r, C + 1))
         if not len(lay.ray_ids):
             return out, None
-        Wm, cols = _range_operator(A, B, lay, grid, lengths=L)
+        Wm, cols = range_operator(A, B, lay, grid, lengths=L)
         X = np.empty((cols.size, C + 1))
         X[:, 0] = volume.densities.reshape(-1)[cols]
         if C:

@@ -1,4 +1,5 @@
-"""What the tutorial steps share: the result types, the report helpers, the cow renders."""
+"""What the tutorial steps share: the result types, the step titles, the report helpers, the cow
+renders. Public within :mod:`geofit.tutorials` (the package API is its ``__all__``)."""
 from __future__ import annotations
 
 import time
@@ -9,9 +10,26 @@ from typing import Any
 
 import numpy as np
 
+from .._json import json_safe
 from .._validate import check_choice
-from ..fit.history import FitHistory, _json_safe
-from ..viz import Series, image_panel, save_png
+from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
+from ..data import load_textured_mesh
+from ..datasets import held_out_views, tutorial_views
+from ..fit.history import FitHistory
+from ..render import (
+    BlendParams,
+    EmissionAbsorptionRaymarcher,
+    HardPhongShader,
+    MeshRasterizer,
+    MeshRenderer,
+    NDCMultinomialRaysampler,
+    PointLights,
+    RasterizationSettings,
+    TexturesFlat,
+)
+from ..render.volume import VolumeRenderer
+from ..structures import Mesh
+from ..viz import Series, image_panel, plot_accuracy_vs_time, save_png
 
 __all__ = ["SIZES", "StepResult", "TutorialsRun"]
 
@@ -19,9 +37,20 @@ __all__ = ["SIZES", "StepResult", "TutorialsRun"]
 #: Run sizes: test-sized, the reduced default, the tutorials' own.
 SIZES = ("tiny", "default", "full")
 
+#: The steps in order: name -> (title, PyTorch3D tutorial); :data:`geofit.tutorials.STEPS` adds
+#: each step's function.
+STEP_TITLES: dict[str, tuple[str, str]] = {
+    "fit_mesh": ("1. Fit a mesh to a mesh", "deform_source_mesh_to_target_mesh"),
+    "render_mesh": ("2. Render textured meshes", "render_textured_meshes"),
+    "render_points": ("3. Render coloured point clouds", "render_colored_points"),
+    "fit_views": ("4. Fit a mesh to multi-view images", "fit_textured_mesh"),
+    "fit_volume": ("5. Fit a voxel volume", "fit_textured_volume"),
+    "nerf": ("6. Fit a neural radiance field", "fit_simple_neural_radiance_field"),
+}
+
 # the two columns of the report's summary table
-_P3D = "PyTorch3D's recipe (run by geofit)"
-_GF = "geofit's method"
+P3D_COLUMN = "PyTorch3D's recipe (run by geofit)"
+GEOFIT_COLUMN = "geofit's method"
 
 
 # --------------------------------------------------------------------------------------------
@@ -123,7 +152,7 @@ class StepResult:
                     pass
             return str(p)
 
-        return _json_safe({
+        return json_safe({
             "name": self.name, "title": self.title, "tutorial": self.tutorial,
             "status": self.status, "seconds": self.seconds, "size": self.size,
             "config": self.config, "metrics": self.metrics, "param_counts": self.param_counts,
@@ -171,11 +200,11 @@ class TutorialsRun:
 # --------------------------------------------------------------------------------------------
 
 
-def _pick(size: str, tiny, default, full):
+def pick_size(size: str, tiny, default, full):
     return {"tiny": tiny, "default": default, "full": full}[size]
 
 
-def _recipe_cut(done, full, unit: str = "steps") -> str:
+def recipe_cut(done, full, unit: str = "steps") -> str:
     """``" (recipe cut to 300 of 2000 steps)"`` when fewer than the recipe's ``full`` ran (a
     smaller size or a time budget), else ``""``: appended to a baseline's row in the table and
     the summary, so a shortened baseline is marked where its numbers are."""
@@ -184,7 +213,7 @@ def _recipe_cut(done, full, unit: str = "steps") -> str:
     return f" (recipe cut to {int(done)} of {int(full)} {unit})"
 
 
-def _method(name: str, label: str, *, seconds=(), curve=None, final=None, status="",
+def method_record(name: str, label: str, *, seconds=(), curve=None, final=None, status="",
             message="", config=None) -> dict:
     """A benchmark-style method record (the layout of benchmarks/_harness.py's MethodRun)."""
     return {"name": name, "label": label, "status": status, "message": message,
@@ -193,49 +222,41 @@ def _method(name: str, label: str, *, seconds=(), curve=None, final=None, status
                       **{k: [float(x) for x in v] for k, v in (curve or {}).items()}}}
 
 
-def _series(methods: Sequence[dict]) -> list[Series]:
+def method_series(methods: Sequence[dict]) -> list[Series]:
     return [Series(m["label"], m["curve"]["seconds"],
                    {k: v for k, v in m["curve"].items() if k != "seconds"}) for m in methods]
 
 
-def _failure(exc: BaseException) -> str:
+def failure_text(exc: BaseException) -> str:
     msg = str(exc).strip().splitlines()[0] if str(exc).strip() else "(no message)"
     return f"failed: {type(exc).__name__}: {msg}"
 
 
-def _try(fn: Callable[..., Any], *args, **kwargs) -> tuple[Any, str | None]:
+def try_call(fn: Callable[..., Any], *args, **kwargs) -> tuple[Any, str | None]:
     """``(fn(*args, **kwargs), None)`` or ``(None, "failed: <exception>: <message>")``."""
     try:
         return fn(*args, **kwargs), None
     except Exception as exc:  # noqa: BLE001 - stability rows report every failure
-        return None, _failure(exc)
+        return None, failure_text(exc)
 
 
-def _bar(progress: bool, total: int, desc: str):
+def progress_bar(progress: bool, total: int, desc: str):
     """A tqdm progress bar over ``total`` steps; a disabled one (no output) without ``progress``."""
-    from tqdm import tqdm
+    from tqdm import tqdm  # kept local: tqdm, loaded only when used (start-up)
 
     return tqdm(total=total, desc=desc, leave=False, dynamic_ncols=True, disable=not progress)
 
 
-def _cameras(dist, elev, azim, *, ortho: bool = False, **kw):
-    from ..cameras import FoVOrthographicCameras, FoVPerspectiveCameras, look_at_view_transform
-
+def look_at_cameras(dist, elev, azim, *, ortho: bool = False, **kw):
     R, T = look_at_view_transform(dist, elev, azim)
     if ortho:
         return FoVOrthographicCameras(R=R, T=T, **kw)
     return FoVPerspectiveCameras(R=R, T=T, **kw)
 
 
-def _shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), light=(2.0, 2.0, 2.0),
+def shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), light=(2.0, 2.0, 2.0),
                 background=(1.0, 1.0, 1.0)) -> np.ndarray:
     """(N, H, W, 3) Phong render of an untextured mesh in a flat colour (one per camera)."""
-    from ..render import (
-        BlendParams, HardPhongShader, MeshRasterizer, MeshRenderer, PointLights,
-        RasterizationSettings, TexturesFlat,
-    )
-    from ..structures import Mesh
-
     m = Mesh(mesh.verts, mesh.faces, TexturesFlat(list(color)))
     n = len(cameras)
     renderer = MeshRenderer(MeshRasterizer(cameras, RasterizationSettings(image_size=image_size)),
@@ -244,19 +265,19 @@ def _shade_mesh(mesh, cameras, image_size: int, *, color=(0.72, 0.75, 0.8), ligh
     return np.asarray(renderer(m.extend(n) if n > 1 else m)[..., :3], dtype=np.float64)
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     a, b = np.asarray(a) > 0.5, np.asarray(b) > 0.5
     union = int((a | b).sum())
     return 1.0 if union == 0 else float((a & b).sum() / union)
 
 
-def _write_history(history: FitHistory, path: Path) -> Path:
+def write_history(history: FitHistory, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     history.to_json(path)
     return path
 
 
-def _accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list, dict]:
+def accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list, dict]:
     """Checkpoint seconds and the metric columns ``{new_name: values}`` of a history."""
     a = history.as_arrays()
     curve = {new: a["metrics"][old].tolist() for old, new in names.items()
@@ -264,53 +285,49 @@ def _accuracy_curve(history: FitHistory, names: Mapping[str, str]) -> tuple[list
     return a["checkpoint_seconds"].tolist(), curve
 
 
-def _begin_textured(out, name: str, size: str):
-    """:func:`_begin` for the rendering steps, plus the textured default mesh (the cow when
+def begin_textured_step(out, name: str, size: str):
+    """:func:`begin_step` for the rendering steps, plus the textured default mesh (the cow when
     found): ``(res, folder, t0, data, mesh)``, ``mesh`` normalised as the tutorials do."""
-    from ..data import load_textured_mesh
-
-    res, d, t0 = _begin(out, name, size)
+    res, d, t0 = begin_step(out, name, size)
     data = load_textured_mesh()
     return res, d, t0, data, data.mesh.normalize().mesh
 
 
-def _begin(out, name: str, size: str) -> tuple[StepResult, Path, float]:
+def begin_step(out, name: str, size: str) -> tuple[StepResult, Path, float]:
     """Check ``size``, start the clock, create ``out/<name>``: the empty result, folder, start."""
     check_choice(size, "size", SIZES)
     t0 = time.perf_counter()
     d = Path(out) / name
     d.mkdir(parents=True, exist_ok=True)
-    from .runner import STEPS  # the step table names every step module: imported when used
-
-    _, title, tutorial = STEPS[name]
+    title, tutorial = STEP_TITLES[name]
     return StepResult(name, title, tutorial, size=size), d, t0
 
 
-def _settings_text(settings: Mapping) -> str:
+def settings_text(settings: Mapping) -> str:
     """``"k=v, k=v"`` of a settings dict (the report's config cells)."""
     return ", ".join(f"{k}={v}" for k, v in settings.items())
 
 
-def _views_config(name: str, n_train: int, n_heldout: int, image_size, tutorial: Mapping,
+def views_config(name: str, n_train: int, n_heldout: int, image_size, tutorial: Mapping,
                   geofit: Mapping, **extra) -> dict:
     """The configuration table of a multi-view step: the object, the views, the image size,
     both recipes' settings and ``extra`` rows (label -> value), in that order."""
     return {"object": name, "training views": n_train, "held-out views": n_heldout,
-            "image size": image_size, **extra, "PyTorch3D recipe": _settings_text(tutorial),
-            "geofit": _settings_text(geofit)}
+            "image size": image_size, **extra, "PyTorch3D recipe": settings_text(tutorial),
+            "geofit": settings_text(geofit)}
 
 
-def _record_fit(res: StepResult, d: Path, key: str, label: str, fit, metrics: Sequence[str], *,
+def record_fit(res: StepResult, d: Path, key: str, label: str, fit, metrics: Sequence[str], *,
                 final: dict, config: Mapping) -> None:
     """Add one fit's method record (curves of ``metrics`` from its history) and its history."""
-    seconds, curve = _accuracy_curve(fit.history, {k: k for k in metrics})
-    res.methods.append(_method(key, label, seconds=seconds, curve=curve, final=final,
+    seconds, curve = accuracy_curve(fit.history, {k: k for k in metrics})
+    res.methods.append(method_record(key, label, seconds=seconds, curve=curve, final=final,
                                status=fit.status, message=fit.message, config=config))
     res.histories[key] = fit.history
-    res.files[f"{key} history"] = _write_history(fit.history, d / f"{key}_history.json")
+    res.files[f"{key} history"] = write_history(fit.history, d / f"{key}_history.json")
 
 
-def _heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: Mapping,
+def heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: Mapping,
                         fits: Mapping, caption: str) -> None:
     """Save the held-out targets and each method's renders of them, and the comparison panel.
 
@@ -330,32 +347,31 @@ def _heldout_comparison(res: StepResult, d: Path, targets: np.ndarray, renders: 
     res.comparison_caption = caption
 
 
-def _close_comparison(res: StepResult, d: Path, t0: float, *, chart: str, panels: list,
+def close_comparison(res: StepResult, d: Path, t0: float, *, chart: str, panels: list,
                       title: str, stability: list, headline: Callable[[dict, int], str]
                       ) -> StepResult:
     """Finish a recipe-against-method step: the speed/accuracy chart of ``res.methods``
     (``chart`` its heading, ``panels`` as :func:`geofit.viz.plot_accuracy_vs_time`), the
     stability rows, one headline per recipe (``headline(metrics, index)``) and the seconds."""
-    from ..viz import plot_accuracy_vs_time
-
     res.charts[f"Speed and accuracy: {chart} against solver time"] = plot_accuracy_vs_time(
-        _series(res.methods), panels, d / "speed_accuracy.png", title=title)
+        method_series(res.methods), panels, d / "speed_accuracy.png", title=title)
     res.stability = stability
-    res.headline = {_P3D: headline(res.metrics[0], 0), _GF: headline(res.metrics[1], 1)}
+    res.headline = {P3D_COLUMN: headline(res.metrics[0], 0),
+                    GEOFIT_COLUMN: headline(res.metrics[1], 1)}
     res.seconds = time.perf_counter() - t0
     return res
 
 
-def _run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
+def run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
     """One stability row per case: ``str`` of what it returned, or how it failed."""
     rows = []
     for case, fn in cases.items():  # failure cases
-        r, err = _try(fn)
+        r, err = try_call(fn)
         rows.append({"case": case, "outcome": err if err is not None else str(r)})
     return rows
 
 
-def _fit_row(method: str, case: str, fit, err: str | None,
+def fit_row(method: str, case: str, fit, err: str | None,
              measure: Callable[[Any], dict]) -> dict:
     """A fit's stability row: how it failed, or how it stopped and ``measure(fit)``."""
     row = {"method": method, "case": case}
@@ -372,15 +388,13 @@ def _fit_row(method: str, case: str, fit, err: str | None,
 # --------------------------------------------------------------------------------------------
 
 
-def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
+def cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
     """Training and held-out renders of the volume and NeRF tutorials (:mod:`geofit.datasets`).
 
     Training: ``tutorial_views(5)`` (elevation 0, azimuths around the cow, black background,
     0/1 silhouettes). Held out: views half-way between the training azimuths, at elevations 0
     and 20 degrees (20 only when a single view is asked for).
     """
-    from ..datasets import held_out_views, tutorial_views
-
     train = tutorial_views(5, num_views=n_views, image_size=image_size, num_held_out=0)
     elevations = (0.0, 20.0) if n_heldout >= 2 else (20.0,)
     test = held_out_views(num_views=n_views, elevations=elevations,
@@ -389,10 +403,7 @@ def _cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int)
     return train, test, train.name
 
 
-def _render_volume(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
-    from ..render import EmissionAbsorptionRaymarcher, NDCMultinomialRaysampler
-    from ..render.volume import VolumeRenderer
-
+def render_volume_views(volume, cameras, image_size: int, n_pts: int) -> np.ndarray:
     r = VolumeRenderer(NDCMultinomialRaysampler(image_width=image_size, image_height=image_size,
                                                 n_pts_per_ray=n_pts, min_depth=0.1,
                                                 max_depth=3.0),
