@@ -58,12 +58,13 @@ def test_a_capture_without_lights_fits_unlit_colours_and_the_printed_psnr_is_rig
     """Lights baked into the pixels, geometry known: the colour solve fits what the camera saw
     (colours within [0, 1]) and the held-out PSNR the fit reports equals PSNR computed with numpy
     from the hard render's faces and barycentrics on the capture's (black) background."""
-    from geofit.fit.views import ViewsEvaluator, fit_mesh_to_views
+    from geofit.fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
 
     train = load_views(_lit_capture(tmp_path)).split(4)
     assert train.lights is None and train.held_out is not None
-    fit = fit_mesh_to_views(train, init=_coloured_sphere(), silhouette_method="none",
-                            textured_method="lstsq", progress=False)
+    fit = fit_mesh_to_views(train, options=ViewsFitOptions(
+        init=_coloured_sphere(), silhouette_method="none", textured_method="lstsq"),
+        progress=False)
     assert fit.colors.min() >= 0.0 and fit.colors.max() <= 1.0
     printed = ViewsEvaluator(train.held_out)(fit.mesh, fit.colors)["psnr"]
 
@@ -105,11 +106,12 @@ def test_a_capture_without_masks_says_silhouettes_are_unknown(tmp_path):
 
 def test_volume_fit_runs_without_silhouettes(tmp_path):
     """fit_volume takes a dataset with unknown silhouettes (every pixel is scene)."""
-    from geofit.fit import fit_volume
+    from geofit.fit import VolumeFitOptions, fit_volume
 
     data = render_views(_coloured_sphere(), np.arange(4) * 90.0, 0.0, image_size=16)
     data = MultiViewDataset(images=data.images, silhouettes=None, cameras=data.cameras)
-    out = fit_volume(data, volume_size=16, n_iter=2, progress=False)
+    out = fit_volume(data, options=VolumeFitOptions(volume_size=16, levels=(8, 16),
+                                                    iterations=(2, 2)), progress=False)
     assert np.all(np.isfinite(out.volume.densities))
 
 
@@ -301,7 +303,7 @@ def test_nerf_fit_runs_without_silhouettes():
                            n_harmonic_functions_dir=1, n_pts_per_ray=16, n_rays_per_image=32,
                            batch_size=2, hull_resolution=16, n_iter=4, density_grid_warmup=2,
                            density_grid_every=2, n_threads=1)
-    res = fit_nerf(data.split(2), config=cfg, progress=False)
+    res = fit_nerf(data.split(2), options=cfg, progress=False)
     assert len(res.history.loss) > 0 and np.all(np.isfinite(res.history.loss))
 
 
