@@ -78,34 +78,19 @@ def _make_dataset(images: np.ndarray, silhouettes: np.ndarray, cameras, name: st
 # --------------------------------------------------------------------------------------------
 
 
-def _resolve(root: Path, ref: str, where: str, allow_outside: bool) -> Path:
-    """``ref`` relative to ``root``; refused if absolute or outside ``root`` (path policy)."""
-    if not isinstance(ref, str) or not ref.strip():
-        raise ValueError(f"{where}: expected a non-empty relative path, got {ref!r}")
-    p = Path(ref)
-    target = p if p.is_absolute() else root / p
-    if not allow_outside:
-        if p.is_absolute():
-            raise ValueError(f"{where}: absolute path {ref!r} refused (files must lie in the "
-                             f"capture folder {root}; pass allow_outside=True to allow it)")
-        real_root = os.path.realpath(root)
-        real = os.path.realpath(target)
-        if os.path.commonpath([real_root, real]) != real_root:
-            raise ValueError(f"{where}: path {ref!r} leaves the capture folder {root} (pass "
-                             "allow_outside=True to allow it)")
-    return target
+def _find_image(root: Path, ref, where: str, allow_outside: bool, *,
+                extensions=_IMAGE_EXTS, required: bool = True) -> Path | None:
+    """The checked path of image ``ref`` under ``root`` (or ``ref`` plus an image extension,
+    for a ``file_path`` without one): every candidate goes through the one path policy
+    (:class:`geofit.io._paths.PathPolicy`: a regular file inside ``root`` after symlinks)."""
+    from ._paths import PathPolicy
 
-
-def _find_image(path: Path, where: str) -> Path:
-    """``path`` itself, or ``path`` plus an image extension (``file_path`` without one)."""
-    if path.is_file():
-        return path
-    for ext in _IMAGE_EXTS:
-        q = path.with_name(path.name + ext)
-        if q.is_file():
-            return q
-    raise ValueError(f"{where}: image {str(path)!r} not found (also tried the extensions "
-                     f"{', '.join(_IMAGE_EXTS[:3])}, ...)")
+    try:
+        return PathPolicy(root, allow_outside=allow_outside, folder_name="capture folder").resolve(
+            ref, where, extensions=extensions, required=required)
+    except FileNotFoundError:
+        raise ValueError(f"{where}: image {str(Path(root) / ref)!r} not found (also tried the "
+                         f"extensions {', '.join(_IMAGE_EXTS[:3])}, ...)") from None
 
 
 def _is_png16_colour(path: Path) -> bool:
@@ -115,10 +100,13 @@ def _is_png16_colour(path: Path) -> bool:
             and head[25] in (2, 4, 6))
 
 
-def _read_image(path: Path, where: str) -> np.ndarray:
+def _read_image(path: Path, where: str, max_pixels=None) -> np.ndarray:
     """An image file as ``(H, W, C)`` float64 in [0, 1], ``C`` in 1..4 (grey, grey+alpha, RGB,
-    RGBA); errors become ValueError naming the file."""
+    RGBA); errors become ValueError naming the file. The pixel count is checked against
+    ``max_pixels`` from the header, before decoding (:mod:`geofit.io._images`)."""
     from PIL import Image
+
+    from ._images import check_pixels, open_image
 
     try:
         if _is_png16_colour(path):
@@ -127,14 +115,13 @@ def _read_image(path: Path, where: str) -> np.ndarray:
             with open(path, "rb") as f:
                 reader = png.Reader(file=f)
                 reader.preamble()
-                if reader.width * reader.height > (Image.MAX_IMAGE_PIXELS or np.inf):
-                    raise ValueError(f"{reader.width}x{reader.height} pixels is more than "
-                                     "pillow's limit")
+                check_pixels(reader.width, reader.height,
+                             f"{where}: cannot read image {str(path)!r}", max_pixels)
                 w, h, flat, info = reader.read_flat()
             a = np.asarray(flat, dtype=np.uint16).reshape(h, w, info["planes"])
             a = a.astype(np.float64) / 65535.0
         else:
-            with Image.open(path) as im:
+            with open_image(path, f"{where}: cannot read image {str(path)!r}", max_pixels) as im:
                 mode = im.mode
                 if mode in ("I;16", "I;16B", "I;16L", "I"):
                     a = np.asarray(im, dtype=np.float64) / 65535.0
@@ -147,6 +134,8 @@ def _read_image(path: Path, where: str) -> np.ndarray:
                     a = np.asarray(im, dtype=np.float64) / 255.0
     except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError,
             _png_error()) as exc:
+        if isinstance(exc, ValueError) and str(exc).startswith(where):  # already names it
+            raise
         raise ValueError(f"{where}: cannot read image {str(path)!r}: {exc}") from None
     if a.ndim == 2:
         a = a[..., None]
@@ -176,7 +165,7 @@ def _mask_values(a: np.ndarray) -> np.ndarray:
     return a[..., 0] if a.shape[2] in (1, 2) else a[..., :3].mean(axis=2)
 
 
-def _gather(views: list, where_file: str, background):
+def _gather(views: list, where_file: str, background, max_pixels=None):
     """Read every view's image (and mask); check one common size.
 
     ``views`` holds dicts with ``image`` (Path), ``where`` and optional ``mask`` (Path) and
@@ -185,10 +174,10 @@ def _gather(views: list, where_file: str, background):
     """
     images, sils, size0 = [], [], None
     for v in views:  # one file per view
-        a = _read_image(v["image"], v["where"])
+        a = _read_image(v["image"], v["where"], max_pixels)
         rgb, alpha = _split_rgba(a)
         if v.get("mask") is not None:
-            sil = _mask_values(_read_image(v["mask"], v["where"]))
+            sil = _mask_values(_read_image(v["mask"], v["where"], max_pixels))
             if sil.shape != rgb.shape[:2]:
                 raise ValueError(f"{v['where']}: mask {str(v['mask'])!r} is {sil.shape[0]}x"
                                  f"{sil.shape[1]}, its image {rgb.shape[0]}x{rgb.shape[1]}")
@@ -303,7 +292,7 @@ def _detect(path: Path) -> tuple[str, Path]:
 
 
 def load_views(path, *, allow_outside: bool = False, background=None, znear: float = 1.0,
-               zfar: float = 100.0, name: str | None = None):
+               zfar: float = 100.0, name: str | None = None, max_pixels: int | None = None):
     """Load a multi-view capture: images, silhouettes and cameras.
 
     Parameters
@@ -321,6 +310,9 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
         Clipping planes of the cameras (captures do not store them).
     name : str, optional
         The dataset's name (default: the capture folder's name).
+    max_pixels : int, optional
+        Most pixels (width x height) one image or mask may have, checked from its header before
+        decoding; default 2**24 (see :mod:`geofit.io._images`).
 
     Returns
     -------
@@ -361,7 +353,7 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
         raise TypeError(f"allow_outside: expected True or False, got {allow_outside!r}")
     reader = {"transforms": _load_transforms, "colmap": _load_colmap, "opencv": _load_opencv}
     views, K, pose, root = reader[fmt](file, allow_outside)
-    images, sils = _gather(views, str(file), background)
+    images, sils = _gather(views, str(file), background, max_pixels)
     H, W = images.shape[1:3]
     from ..cameras import conversions
 
@@ -418,12 +410,10 @@ def _load_transforms(file: Path, allow_outside: bool):
         for key in ("file_path", "transform_matrix"):
             if key not in fr:
                 raise ValueError(f"{where}.{key}: missing")
-        image = _find_image(_resolve(root, fr["file_path"], f"{where}.file_path",
-                                     allow_outside), f"{where}.file_path")
+        image = _find_image(root, fr["file_path"], f"{where}.file_path", allow_outside)
         mask = None
         if "mask_path" in fr:
-            mask = _find_image(_resolve(root, fr["mask_path"], f"{where}.mask_path",
-                                        allow_outside), f"{where}.mask_path")
+            mask = _find_image(root, fr["mask_path"], f"{where}.mask_path", allow_outside)
         M = _matrix(fr["transform_matrix"], (4, 4), f"{where}.transform_matrix")
         if np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max() > _ROTATION_TOL:
             raise ValueError(f"{where}.transform_matrix: expected a bottom row (0, 0, 0, 1), "
@@ -528,14 +518,13 @@ def _load_colmap(cameras_txt: Path, allow_outside: bool):
         if cid not in cams:
             raise ValueError(f"{where}: CAMERA_ID: camera {cid} is not in {cameras_txt.name}")
         name = " ".join(f[9:])
-        image = _find_image(_resolve(images_dir, name, f"{where}: NAME", allow_outside),
-                            f"{where}: NAME")
+        image = _find_image(images_dir, name, f"{where}: NAME", allow_outside)
         mask = None
         if masks_dir.is_dir():
             for cand in (name, name + ".png", str(Path(name).with_suffix(".png"))):
-                p = _resolve(masks_dir, cand, f"{where}: NAME", allow_outside)
-                if p.is_file():
-                    mask = p
+                mask = _find_image(masks_dir, cand, f"{where}: NAME", allow_outside,
+                                   extensions=(), required=False)
+                if mask is not None:
                     break
             if mask is None:
                 raise ValueError(f"{where}: NAME: no mask for {name!r} in {masks_dir} (tried "
@@ -557,12 +546,10 @@ def _load_opencv(file: Path, allow_outside: bool):
         for key in ("image", "K", "R", "t"):
             if key not in e:
                 raise ValueError(f"{where}.{key}: missing")
-        image = _find_image(_resolve(root, e["image"], f"{where}.image", allow_outside),
-                            f"{where}.image")
+        image = _find_image(root, e["image"], f"{where}.image", allow_outside)
         mask = None
         if e.get("mask") is not None:
-            mask = _find_image(_resolve(root, e["mask"], f"{where}.mask", allow_outside),
-                               f"{where}.mask")
+            mask = _find_image(root, e["mask"], f"{where}.mask", allow_outside)
         k = _matrix(e["K"], (3, 3), f"{where}.K")
         if k[0, 0] <= 0 or k[1, 1] <= 0 or k[0, 1] != 0 or k[1, 0] != 0 \
                 or np.any(k[2] != [0.0, 0.0, 1.0]):
