@@ -89,3 +89,119 @@ def test_trimesh_resolver_refuses_what_the_policy_refuses(tmp_path):
                      (str(tmp_path / "out.bin"), "absolute"), ("x" * 5000, "too long")):
         with pytest.raises(ValueError, match=why):
             r.get(bad)
+
+
+# --------------------------------------------------------------------------- 2. pixel and array caps
+def _peak(fn, *args, **kwargs):
+    """(exception or None, peak traced bytes) of a call."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        fn(*args, **kwargs)
+        err = None
+    except Exception as exc:  # noqa: BLE001 - returned for the test to inspect
+        err = exc
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return err, peak
+
+
+@pytest.fixture(scope="module")
+def bomb_png(tmp_path_factory):
+    """A ~140 KB PNG declaring 12000 x 12000 pixels."""
+    p = tmp_path_factory.mktemp("bomb") / "bomb.png"
+    Image.new("L", (12000, 12000)).save(p, optimize=True)
+    assert p.stat().st_size < 300_000
+    return p
+
+
+def _glb(json_doc: dict, binary: bytes = b"") -> bytes:
+    import struct
+
+    js = json.dumps(json_doc).encode()
+    js += b" " * (-len(js) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = struct.pack("<II", len(js), 0x4E4F534A) + js
+    if binary:
+        body += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def _glb_with_image(image: bytes) -> bytes:
+    doc = {"asset": {"version": "2.0"}, "buffers": [{"byteLength": len(image)}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(image)}],
+           "images": [{"bufferView": 0, "mimeType": "image/png"}]}
+    return _glb(doc, image)
+
+
+def test_capture_image_pixel_bomb_refused_from_header(tmp_path, bomb_png):
+    """A capture image declaring 144 M pixels is refused from its header (small peak memory);
+    ``max_pixels=`` lowers or raises the cap."""
+    cap = _capture(tmp_path / "cap", [{"file_path": "bomb.png"}])
+    (cap / "bomb.png").write_bytes(bomb_png.read_bytes())
+    err, peak = _peak(load_views, cap)
+    assert isinstance(err, ValueError) and "12000x12000" in str(err) and "cap" in str(err), err
+    assert peak < 50 * 2**20
+    _png(tmp_path / "small" / "a.png", (40, 50, 3))
+    small = _capture(tmp_path / "small", [{"file_path": "a.png"}])
+    with pytest.raises(ValueError, match=r"a\.png.*50x40 = 2,000 pixels, over the decoded-"
+                                         r"pixel cap of 1,999"):
+        load_views(small, max_pixels=1999)
+    assert load_views(small, max_pixels=2000).images.shape == (1, 40, 50, 3)
+
+
+def test_glb_image_pixel_bomb_refused_before_trimesh(tmp_path, bomb_png):
+    """An image inside a GLB is checked from its header before trimesh decodes it."""
+    p = tmp_path / "bomb.glb"
+    p.write_bytes(_glb_with_image(bomb_png.read_bytes()))
+    err, peak = _peak(load_mesh, p)
+    assert isinstance(err, ValueError), err
+    assert "bomb.glb: images[0]" in str(err) and "12000x12000" in str(err)
+    assert peak < 50 * 2**20
+
+
+def test_obj_texture_pixel_cap_and_argument_checked(tmp_path):
+    """``max_pixels`` is validated and applies to OBJ textures."""
+    _png(tmp_path / "t.png", (30, 30, 3))
+    (tmp_path / "m.mtl").write_text("newmtl a\nmap_Kd t.png\n")
+    obj = tmp_path / "m.obj"
+    obj.write_text("mtllib m.mtl\nusemtl a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                   "f 1/1 2/2 3/3\n")
+    with pytest.raises(ValueError, match=r"t\.png: the image is 30x30 = 900 pixels, over"):
+        load_obj(obj, max_pixels=899)
+    assert load_obj(obj, max_pixels=900).texture_images["a"].shape == (30, 30, 3)
+    with pytest.raises(TypeError, match="max_pixels: expected None or a positive integer"):
+        load_obj(obj, max_pixels="16")
+    with pytest.raises(ValueError, match="max_pixels: expected None or a positive integer"):
+        load_obj(obj, max_pixels=0)
+
+
+def test_npz_compression_bomb_refused_from_header(tmp_path):
+    """A small .npz whose array decodes to 240 MB (ratio ~1000) is refused from the .npy header,
+    before inflating; the absolute cap ``max_bytes`` applies to any array."""
+    import zipfile
+
+    from geofit.io import load_pointcloud
+
+    p = tmp_path / "bomb.npz"
+    n = 10_000_000
+    header = {"descr": "<f8", "fortran_order": False, "shape": (n, 3)}
+    with zipfile.ZipFile(p, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        with z.open("verts.npy", "w", force_zip64=True) as fh:
+            np.lib.format.write_array_header_1_0(fh, header)
+            zeros = bytes(8 << 20)
+            for _ in range(n * 24 // len(zeros)):
+                fh.write(zeros)
+            fh.write(bytes(n * 24 % len(zeros)))
+    assert p.stat().st_size < 1_000_000
+    err, peak = _peak(load_pointcloud, p)
+    assert isinstance(err, ValueError) and "bomb.npz: array 'verts'" in str(err), err
+    assert "240,000,000 bytes" in str(err) and "ratio" in str(err)
+    assert peak < 50 * 2**20
+    q = tmp_path / "small.npz"
+    np.savez_compressed(q, verts=np.zeros((1000, 3)))
+    assert len(load_pointcloud(q).points) == 1000
+    with pytest.raises(ValueError, match=r"small\.npz: array 'verts'.*24,000 bytes, over the "
+                                         r"cap of 23,999"):
+        load_pointcloud(q, max_bytes=23_999)

@@ -28,6 +28,9 @@ from .._foreign import scene_to_mesh
 from ..structures.mesh import Mesh, _corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
+from ._gltf import check_gltf
+from ._images import as_max_pixels
+from ._paths import PathPolicy, check_input_file, trimesh_resolver
 from .obj import MAX_COORD, _obj_to_mesh, save_obj
 
 __all__ = ["load_mesh", "save_mesh", "READ_FORMATS", "WRITE_FORMATS"]
@@ -40,7 +43,8 @@ READ_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 WRITE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
 
 
-def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False) -> Mesh:
+def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False,
+              max_pixels: int | None = None) -> Mesh:
     """Load one triangle mesh from an OBJ, PLY, STL, OFF, GLB or glTF file.
 
     Parameters
@@ -56,8 +60,12 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool
         Attach the file's texture or colours: a TexturesUV (OBJ, GLB/glTF with an image), or a
         TexturesVertex from vertex colours (PLY, GLB/glTF), in [0, 1].
     allow_outside : bool
-        For OBJ files, follow MTL and texture paths outside the file's folder (see
-        :func:`geofit.io.load_obj`).
+        Follow the paths a file names (OBJ: MTL and textures; glTF/GLB: buffers and images)
+        outside the file's folder (see :func:`geofit.io.load_obj`). Every such path goes
+        through the one path policy (:mod:`geofit.io._paths`), on the trimesh route too.
+    max_pixels : int, optional
+        Most pixels (width x height) a texture image may have (OBJ textures, GLB/glTF images),
+        checked from the image header before decoding; default 2**24.
 
     Returns
     -------
@@ -91,16 +99,41 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool
         raise ValueError(f"path: expected one of {', '.join(READ_FORMATS)}, got {path.name!r}"
                          + ("; a .npz holds a point cloud: use geofit.io.load_pointcloud"
                             if suffix == ".npz" else ""))
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
+    path = check_input_file(path, "mesh file")
+    max_pixels = as_max_pixels(max_pixels)
     if suffix == ".obj" and sniff(path) == "OBJ":
-        return _obj_to_mesh(path, load_textures, allow_outside)
-    import trimesh
-
+        return _obj_to_mesh(path, load_textures, allow_outside, max_pixels)
     fmt = sniff(path) or EXTENSIONS[suffix]
     try:
-        loaded = trimesh.load(str(path), file_type=_TRIMESH_TYPES[fmt], process=False)
-    except Exception as exc:  # trimesh raises many types for malformed files
+        mesh = _load_trimesh_route(path, fmt, allow_outside, max_pixels)
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - numpy/trimesh raise IndexError, KeyError, ...
+        # on malformed data: every one becomes a ValueError naming the file
+        raise ValueError(f"{path}: not a readable {fmt} mesh ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
+    return mesh if load_textures else Mesh(mesh.verts, mesh.faces)
+
+
+def _load_trimesh_route(path: Path, fmt: str, allow_outside: bool, max_pixels: int) -> Mesh:
+    """PLY, STL, OFF, GLB and glTF through trimesh, from bytes geofit read itself: the files the
+    input names go through the path policy (a trimesh Resolver), images are checked against the
+    pixel cap before trimesh decodes them."""
+    import io
+
+    import trimesh
+
+    with open(path, "rb") as fh:
+        data = fh.read()
+    policy = PathPolicy(path.parent, allow_outside=allow_outside)
+    if fmt in ("GLB", "glTF"):
+        check_gltf(data, path, fmt, policy, max_pixels)
+    try:
+        loaded = trimesh.load(io.BytesIO(data), file_type=_TRIMESH_TYPES[fmt], process=False,
+                              resolver=trimesh_resolver(policy, str(path)))
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types for malformed files
         raise ValueError(f"{path}: trimesh could not read it as {fmt} "
                          f"({type(exc).__name__}: {str(exc)[:200]})") from None
     if isinstance(loaded, trimesh.Scene):
@@ -118,13 +151,9 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, allow_outside: bool
         raise ValueError(f"{path}: the vertex coordinates are not all finite")
     if np.abs(np.asarray(loaded.vertices)).max(initial=0.0) > MAX_COORD:
         raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
-    try:
-        if fmt == "STL":
-            return _merge_corners(loaded)
-        mesh = Mesh.from_trimesh(loaded)
-    except ValueError as exc:  # e.g. face indices out of range, colours of the wrong size
-        raise ValueError(f"{path}: {exc}") from None
-    return mesh if load_textures else Mesh(mesh.verts, mesh.faces)
+    if fmt == "STL":
+        return _merge_corners(loaded)
+    return Mesh.from_trimesh(loaded)  # its ValueErrors get the file's name from load_mesh
 
 
 #: Format name -> trimesh file_type.

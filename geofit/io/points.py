@@ -10,7 +10,9 @@ import numpy as np
 
 from .._memory import check_allocation
 from .._validate import as_array
+from ._paths import check_input_file
 from ..structures.pointcloud import PointCloud, as_pointcloud
+from ._arrays import check_array_size, read_npy_header
 from .obj import _tokens_per_line
 
 __all__ = ["load_pointcloud", "save_pointcloud"]
@@ -208,13 +210,13 @@ _ASCII_OK[np.frombuffer(b"0123456789+-.eEnaifNAIFty", dtype=np.uint8)] = True
 
 
 # --------------------------------------------------------------------------- NPZ
-def _read_npz(path: Path, limit):
+def _read_npz(path: Path, limit, max_bytes=None):
     """The arrays of a PittsburghBridge-style npz, sizes checked from the headers first."""
     with open(path, "rb") as fh:  # our handle: closed even when numpy fails half-way
-        return _read_npz_from(path, fh, limit)
+        return _read_npz_from(path, fh, limit, max_bytes)
 
 
-def _read_npz_from(path: Path, fh, limit):
+def _read_npz_from(path: Path, fh, limit, max_bytes=None):
     try:
         z = np.load(fh, allow_pickle=False)
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
@@ -233,17 +235,16 @@ def _read_npz_from(path: Path, fh, limit):
         total = 0
         for key in wanted:  # shapes and dtypes from the .npy headers, nothing decoded yet
             try:
+                stored = z.zip.getinfo(key + ".npy").compress_size
                 with z.zip.open(key + ".npy") as fh:
-                    version = np.lib.format.read_magic(fh)
-                    shape, _, dtype = (np.lib.format.read_array_header_1_0(fh)
-                                       if version == (1, 0) else
-                                       np.lib.format.read_array_header_2_0(fh))
+                    shape, _, dtype = read_npy_header(fh)
             except (ValueError, OSError, EOFError, KeyError, SyntaxError, TypeError,
                     zipfile.BadZipFile, zlib.error) as exc:
                 raise ValueError(f"{path}: array {key!r} has an unreadable header "
                                  f"({type(exc).__name__})") from None
             if dtype.hasobject:
                 raise ValueError(f"{path}: array {key!r} holds Python objects")
+            check_array_size(shape, dtype, stored, f"{path}: array {key!r}", max_bytes)
             total += 2 * int(np.prod(shape, dtype=object)) * max(dtype.itemsize, 8)
         check_allocation(total, setting=str(path), what=f"the arrays {wanted}", limit=limit)
         try:
@@ -256,7 +257,8 @@ def _read_npz_from(path: Path, fh, limit):
     return pk, ck, pts, col, nrm
 
 
-def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud:
+def load_pointcloud(path: str | os.PathLike, *, memory_limit=None,
+                    max_bytes: int | None = None) -> PointCloud:
     """Read a point cloud with optional colours and normals.
 
     Parameters
@@ -270,6 +272,9 @@ def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud
     memory_limit : int or str, optional
         Bytes the decoded arrays may take (see :func:`geofit._memory.check_allocation`);
         default ``GEOFIT_MEMORY_LIMIT`` or half of the available memory.
+    max_bytes : int, optional
+        Most bytes one ``.npz`` array may decode to (default 1 GiB); arrays over 64 MiB must
+        also decode to at most 100 times their compressed size (see :mod:`geofit.io._arrays`).
 
     Returns
     -------
@@ -301,11 +306,10 @@ def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud
     suffix = path.suffix.lower()
     if suffix not in (".npz", ".ply"):
         raise ValueError(f"path: expected a .npz or .ply file, got {path.name!r}")
-    if not path.is_file():
-        raise FileNotFoundError(f"point cloud file not found: {path}")
+    path = check_input_file(path, "point cloud file")
     try:
         if suffix == ".npz":
-            pk, ck, pts, col, nrm = _read_npz(path, memory_limit)
+            pk, ck, pts, col, nrm = _read_npz(path, memory_limit, max_bytes)
         else:
             pts, col, nrm = _read_ply(path, memory_limit)
             pk, ck = "points", "colors"

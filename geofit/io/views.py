@@ -240,11 +240,14 @@ def _number(d: dict, key: str, where: str, positive: bool = True) -> float:
 
 
 def _read_json(path: Path) -> dict:
+    from ._jsonread import parse_json
+
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        with open(path, "rb") as f:
+            text = f.read()
+    except OSError as exc:
         raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+    data = parse_json(text, str(path))  # nesting, huge integers: ValueError naming the file
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object at the top level, got "
                          f"{type(data).__name__}")
