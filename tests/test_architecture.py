@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "geofit"
 # may import its own layer and the ones below, never one above.
 LAYERS = {
     # 0: foundations
-    "_validate": 0, "_threads": 0, "_memory": 0, "_foreign": 0,
+    "_validate": 0, "_threads": 0, "_memory": 0, "_foreign": 0, "_atomic": 0,
     # 1: data types and leaf utilities
     "structures": 1, "cameras": 1, "nn": 1, "viz": 1,
     # 2: geometry over the data types

@@ -205,3 +205,64 @@ def test_npz_compression_bomb_refused_from_header(tmp_path):
     with pytest.raises(ValueError, match=r"small\.npz: array 'verts'.*24,000 bytes, over the "
                                          r"cap of 23,999"):
         load_pointcloud(q, max_bytes=23_999)
+
+
+# --------------------------------------------------------------------------- 3. atomic saves
+def test_kill_during_save_and_disk_full_every_format():
+    """For OBJ, PLY, STL, OFF, GLB, .npz/.ply clouds, JSON and a capture: a child killed at
+    each of the 8 steps of a save leaves the old file or the complete new one; a save over a
+    file-size limit (RLIMIT_FSIZE, a full disk) raises OSError and leaves the old file."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(root / "benchmarks" / "save_crash.py")],
+                          capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "PYTHONPATH": str(root)})
+    out = json.loads(proc.stdout)
+    assert set(out["formats"]) >= {"obj", "ply", "stl", "off", "glb", "cloud_npz",
+                                   "cloud_ply", "json"}
+    assert len(out["kill_points"]) == 8
+    for name, row in out["formats"].items():
+        for point in out["kill_points"]:
+            assert row[point] in ("old", "new"), (name, point, row[point])
+        assert row["disk_full"] == "raised OSError; old file intact", (name, row)
+    assert out["failures"] == 0 and proc.returncode == 0
+
+
+def test_failed_write_removes_the_temporary_file_and_keeps_the_old(tmp_path, monkeypatch):
+    """A writer that fails (or Open3D returning False) raises; no temporary file is left and
+    the old content stays."""
+    import open3d as o3d
+
+    from geofit import PointCloud, ico_sphere
+    from geofit._atomic import atomic_write
+    from geofit.io import save_mesh, save_pointcloud
+
+    target = tmp_path / "a.txt"
+    target.write_text("old")
+
+    def boom(tmp):
+        tmp.write_text("half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match=r"a\.txt: could not write the file \(No space left"):
+        atomic_write(target, boom)
+    assert target.read_text() == "old" and os.listdir(tmp_path) == ["a.txt"]
+    save_mesh(tmp_path / "m.ply", ico_sphere(0))
+    before = (tmp_path / "m.ply").read_bytes()
+    monkeypatch.setattr(o3d.io, "write_triangle_mesh", lambda *a, **k: False)
+    with pytest.raises(OSError, match=r"m\.ply: Open3D could not write the file"):
+        save_mesh(tmp_path / "m.ply", ico_sphere(1))
+    assert (tmp_path / "m.ply").read_bytes() == before
+    def short(path, *args, **kwargs):  # Open3D after a full disk: a header, no data, True
+        with open(path, "wb") as fh:
+            fh.write(b"ply\nformat binary_little_endian 1.0\nelement vertex 9\n"
+                     b"property double x\nend_header\n")
+        return True
+
+    monkeypatch.setattr(o3d.io, "write_point_cloud", short)
+    with pytest.raises(OSError, match=r"short write"):  # True after a short write: caught
+        save_pointcloud(tmp_path / "c.ply", PointCloud(np.zeros((9, 3))))
+    assert not (tmp_path / "c.ply").exists()
+    assert sorted(os.listdir(tmp_path)) == ["a.txt", "m.ply"]

@@ -167,7 +167,9 @@ def test_npz_huge_arrays_refused_before_decoding(tmp_path, monkeypatch):
     p = _npz_with_header(tmp_path / "big.npz", "verts", (10**9, 3))
     err, peak = peak_bytes(load_pointcloud, p)
     assert isinstance(err, ValueError), err
-    assert "big.npz" in str(err) and "memory limit of 1 GiB" in str(err)
+    assert "big.npz" in str(err) and "24,000,000,000 bytes, over the cap" in str(err)
+    err, peak = peak_bytes(load_pointcloud, p, max_bytes=10**12)  # then the ratio cap
+    assert isinstance(err, ValueError) and "from 73 bytes in the file" in str(err), err
     assert peak < 10 * 2**20
     # a real (compressible) array over an explicit limit is refused the same way
     np.savez_compressed(tmp_path / "z.npz", verts=np.zeros((200_000, 3)))

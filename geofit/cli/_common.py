@@ -141,7 +141,9 @@ def write_json(path: Path, obj) -> None:
     """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain)."""
     from ..fit.history import _json_safe
 
-    path.write_text(json.dumps(_json_safe(obj), indent=1) + "\n", encoding="utf-8")
+    from .._atomic import write_text
+
+    write_text(path, json.dumps(_json_safe(obj), indent=1) + "\n")  # atomic, as batch's
 
 
 def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float = 180.0) -> None:

@@ -28,10 +28,12 @@ from .._foreign import scene_to_mesh
 from ..structures.mesh import Mesh, _corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
+from .._atomic import atomic_write, write_bytes
 from ._gltf import check_gltf
 from ._images import as_max_pixels
 from ._paths import PathPolicy, check_input_file, trimesh_resolver
 from .obj import MAX_COORD, _obj_to_mesh, save_obj
+from .points import _open3d_ok, verify_binary_ply
 
 __all__ = ["load_mesh", "save_mesh", "READ_FORMATS", "WRITE_FORMATS"]
 
@@ -231,11 +233,10 @@ def save_mesh(path: PathLike, mesh) -> None:
         plain = Mesh(mesh.verts, mesh.faces,
                      tex if isinstance(tex, TexturesVertex) and tex.n_channels in (1, 3, 4)
                      else None)
-        ok = o3d.io.write_triangle_mesh(str(path), plain.to_open3d(), write_ascii=False,
-                                        write_vertex_normals=False,
-                                        write_vertex_colors=plain.textures is not None)
-        if not ok:
-            raise OSError(f"{path}: Open3D could not write the file")
+        o3d_mesh = plain.to_open3d()
+        atomic_write(path, lambda tmp: _open3d_ok(o3d.io.write_triangle_mesh(
+            str(tmp), o3d_mesh, write_ascii=False, write_vertex_normals=False,
+            write_vertex_colors=plain.textures is not None), path), verify=verify_binary_ply)
         return
     if suffix in (".stl", ".off"):
         mesh = Mesh(mesh.verts, mesh.faces)  # geometry only
@@ -243,4 +244,5 @@ def save_mesh(path: PathLike, mesh) -> None:
         mesh = Mesh(mesh.verts, mesh.faces)
     tm = mesh.to_trimesh()
     tm.metadata.clear()  # the exact-round-trip record is for in-memory conversions only
-    tm.export(str(path), file_type=suffix[1:])
+    data = tm.export(file_type=suffix[1:])  # bytes (STL, GLB) or str (OFF)
+    write_bytes(path, data.encode("ascii") if isinstance(data, str) else data)

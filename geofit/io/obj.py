@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._atomic import write_bytes, write_text
 from .._memory import check_allocation
 from .._validate import as_array, as_faces, as_points
 from ._formats import EXTENSIONS, not_obj_error, sniff
@@ -776,15 +777,17 @@ def save_obj(path: PathLike, mesh_or_verts, faces=None, *, verts_uvs=None, faces
         parts.append(("f %d/%d %d/%d %d/%d\n" * len(faces)) % tuple(fv.ravel().tolist()))
     else:
         parts.append(("f %d %d %d\n" * len(faces)) % tuple((faces + 1).ravel().tolist()))
-    path.write_text("".join(parts))
+    if texture_map is not None:  # the texture and MTL first: the OBJ never names a missing file
+        import io
 
-    if texture_map is not None:
         from PIL import Image
 
         img = np.round(texture_map * 255.0).astype(np.uint8)
-        Image.fromarray(img[:, :, 0] if img.shape[2] == 1 else img).save(
-            path.with_suffix(".png"))
-        path.with_suffix(".mtl").write_text(
-            "# written by geofit\nnewmtl mesh\n"
-            f"map_Kd {path.stem}.png\n"
-            "Ka 1.0 1.0 1.0\nKd 1.0 1.0 1.0\nKs 0.0 0.0 0.0\nNs 0.0\n")
+        buf = io.BytesIO()
+        Image.fromarray(img[:, :, 0] if img.shape[2] == 1 else img).save(buf, format="PNG")
+        write_bytes(path.with_suffix(".png"), buf.getbuffer())
+        write_text(path.with_suffix(".mtl"),
+                   "# written by geofit\nnewmtl mesh\n"
+                   f"map_Kd {path.stem}.png\n"
+                   "Ka 1.0 1.0 1.0\nKd 1.0 1.0 1.0\nKs 0.0 0.0 0.0\nNs 0.0\n")
+    write_text(path, "".join(parts))

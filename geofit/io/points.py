@@ -1,6 +1,8 @@
 """Point clouds on disk: ``.npz`` (PyTorch3D's PittsburghBridge layout) and ``.ply`` (Open3D)."""
 from __future__ import annotations
 
+import errno
+import io
 import os
 import zipfile
 import zlib
@@ -8,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_write, write_bytes
 from .._memory import check_allocation
 from .._validate import as_array
 from ._paths import check_input_file
@@ -90,6 +93,31 @@ def _ply_header(path: Path, head: bytes):
     if fmt is None:
         raise ValueError(f"{path}: PLY header has no format line")
     return fmt, elements, nl + 1
+
+
+def verify_binary_ply(path: Path, list_len: int = 3) -> None:
+    """Raise OSError when a binary PLY just written is shorter or longer than its header says
+    (every list property holding ``list_len`` items, as Open3D writes triangles). Open3D
+    reports success after a short write (a full disk): this is the check."""
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    try:
+        fmt, elements, body_start = _ply_header(path, head)
+    except ValueError as exc:
+        raise OSError(errno.EIO, f"{path}: the written PLY header is incomplete ({exc})") from None
+    need = body_start
+    for _, cnt, props in elements:  # a loop over the (two) elements
+        row = 0
+        for p in props:
+            if isinstance(p[1], str):
+                row += np.dtype(p[1]).itemsize
+            else:
+                row += np.dtype(p[1][0]).itemsize + list_len * np.dtype(p[1][1]).itemsize
+        need += cnt * row
+    if fmt != "ascii" and size != need:
+        raise OSError(errno.EIO, f"{path}: short write: {size} bytes written, the PLY header "
+                                 f"declares {need}")
 
 
 def _read_ply(path: Path, limit):
@@ -381,8 +409,9 @@ def save_pointcloud(path: str | os.PathLike, cloud: PointCloud) -> None:
             arrays["rgb"] = cloud.features
         if cloud.normals is not None:
             arrays["normals"] = cloud.normals
-        with open(path, "wb") as fh:  # an open handle keeps numpy from appending ".npz"
-            np.savez_compressed(fh, **arrays)
+        buf = io.BytesIO()  # a file object keeps numpy from appending ".npz"
+        np.savez_compressed(buf, **arrays)
+        write_bytes(path, buf.getbuffer())
         return
     import open3d as o3d
 
@@ -398,5 +427,12 @@ def save_pointcloud(path: str | os.PathLike, cloud: PointCloud) -> None:
         pc.colors = o3d.utility.Vector3dVector(np.array(f[:, :3]))
     if cloud.normals is not None:
         pc.normals = o3d.utility.Vector3dVector(np.array(cloud.normals))
-    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):
-        raise OSError(f"Open3D could not write {path}")
+    atomic_write(path, lambda tmp: _open3d_ok(
+        o3d.io.write_point_cloud(str(tmp), pc, write_ascii=False), path),
+        verify=verify_binary_ply)
+
+
+def _open3d_ok(ok: bool, path: Path) -> None:
+    """Open3D's writers return False on failure instead of raising."""
+    if not ok:
+        raise OSError(errno.EIO, f"{path}: Open3D could not write the file")

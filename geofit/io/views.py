@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_text
+
 __all__ = ["VIEW_FORMATS", "load_views", "save_views"]
 
 #: The layouts :func:`load_views` reads and :func:`save_views` writes.
@@ -596,19 +598,27 @@ def _check_dataset(dataset):
 
 def _write_image(path: Path, a: np.ndarray, bit_depth: int) -> None:
     """Write ``(H, W)`` grey, ``(H, W, 3)`` RGB or ``(H, W, 4)`` RGBA in [0, 1] as a PNG."""
+    import io
+
     from PIL import Image
 
+    from .._atomic import write_bytes
+
+    buf = io.BytesIO()  # encoded in memory, then written atomically
     if bit_depth == 8:
-        Image.fromarray(np.round(a * 255.0).astype(np.uint8)).save(path)
+        Image.fromarray(np.round(a * 255.0).astype(np.uint8)).save(buf, format="PNG")
+        write_bytes(path, buf.getbuffer())
         return
     b = np.round(a * 65535.0).astype(np.uint16)
     if b.ndim == 2:
-        Image.fromarray(b).save(path)  # pillow writes 16-bit greyscale (mode I;16)
+        Image.fromarray(b).save(buf, format="PNG")  # pillow writes 16-bit greyscale (I;16)
+        write_bytes(path, buf.getbuffer())
         return
     import png  # pypng: pillow cannot write 16-bit colour
 
     mode = "RGBA;16" if b.shape[2] == 4 else "RGB;16"
-    png.from_array(b.reshape(b.shape[0], -1), mode).save(str(path))
+    png.from_array(b.reshape(b.shape[0], -1), mode).write(buf)
+    write_bytes(path, buf.getbuffer())
 
 
 def save_views(path, dataset, format: str = "transforms", *, bit_depth: int = 8,
@@ -680,7 +690,7 @@ def save_views(path, dataset, format: str = "transforms", *, bit_depth: int = 8,
             frames.append(fr)
         data = _nerf_intrinsics(K[0], H, W) if shared else {"w": W, "h": H}
         data["frames"] = frames
-        target.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+        write_text(target, json.dumps(data, indent=1) + "\n")
         return target
     (root / "masks").mkdir(exist_ok=True)
     for i in range(N):  # one file per view
@@ -692,7 +702,7 @@ def save_views(path, dataset, format: str = "transforms", *, bit_depth: int = 8,
                   "K": K[i].tolist(), "R": R[i].tolist(), "t": t[i].tolist()} for i in range(N)]
         data = {"convention": "opencv", "pixel_origin": "top-left corner of the top-left pixel",
                 "width": W, "height": H, "views": views}
-        target.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+        write_text(target, json.dumps(data, indent=1) + "\n")
         return target
     q, t, K = colmap_from_cameras(cameras, (H, W))
     cam_lines = ["# Camera list with one line of data per camera:",
@@ -707,10 +717,10 @@ def save_views(path, dataset, format: str = "transforms", *, bit_depth: int = 8,
         img_lines.append(" ".join([str(i + 1)] + [repr(float(v)) for v in q[i]]
                                   + [repr(float(v)) for v in t[i]] + [str(i + 1), names[i]]))
         img_lines.append("")
-    target.write_text("\n".join(cam_lines) + "\n", encoding="utf-8")
-    (target.parent / "images.txt").write_text("\n".join(img_lines) + "\n", encoding="utf-8")
-    (target.parent / "points3D.txt").write_text(
-        "# 3D point list (empty: geofit writes cameras only)\n", encoding="utf-8")
+    write_text(target.parent / "images.txt", "\n".join(img_lines) + "\n")
+    write_text(target.parent / "points3D.txt",
+               "# 3D point list (empty: geofit writes cameras only)\n")
+    write_text(target, "\n".join(cam_lines) + "\n")  # last: its presence marks a capture
     return target
 
 
