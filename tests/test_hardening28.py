@@ -266,3 +266,82 @@ def test_failed_write_removes_the_temporary_file_and_keeps_the_old(tmp_path, mon
         save_pointcloud(tmp_path / "c.ply", PointCloud(np.zeros((9, 3))))
     assert not (tmp_path / "c.ply").exists()
     assert sorted(os.listdir(tmp_path)) == ["a.txt", "m.ply"]
+
+
+# --------------------------------------------------------------------------- 4. one PLY reader
+_PLY_HEAD = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+             "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+             "element face {nf}\nproperty list uchar int vertex_indices\nend_header\n")
+
+
+@pytest.mark.parametrize("body, match", [
+    ("0 0 0 300 0 0\n1 0 0 0 0 0\n0 1 0 0 0 0\n3 0 1 2\n",
+     r"PLY property 'red' is declared u1 but holds values that are not integers in \[0, 255\]"),
+    ("0 0 0 -5 0 0\n1 0 0 0 0 0\n0 1 0 0 0 0\n3 0 1 2\n", r"PLY property 'red' is declared"),
+    ("0 0 0 1 2\n1 0 0 0 0 0\n0 1 0 0 0 0\n3 0 1 2\n", r"PLY vertex 0: expected 6 values per "
+                                                       r"vertex line, got 5"),
+])
+def test_ascii_ply_out_of_range_or_short_lines_refused(tmp_path, body, match):
+    """An ASCII PLY colour of 300 or -5 (uchar) and a vertex line with too few fields are
+    refused by the one PLY reader, for meshes and clouds alike (trimesh wrapped them)."""
+    from geofit.io import load_pointcloud
+
+    p = tmp_path / "c.ply"
+    p.write_text(_PLY_HEAD.format(nf=1) + body)
+    with pytest.raises(ValueError, match=r"c\.ply: " + match):
+        load_mesh(p)
+    with pytest.raises(ValueError, match=r"c\.ply: " + match):
+        load_pointcloud(p)
+
+
+def test_ply_face_count_and_face_lines_checked(tmp_path):
+    """``element face 999999999999`` with 2 face lines, a face line whose count disagrees with
+    its indices, and an index out of range are refused; polygons are fan-triangulated."""
+    verts = "0 0 0 0 0 0\n1 0 0 0 0 0\n0 1 0 0 0 0\n"
+    p = tmp_path / "f.ply"
+    p.write_text(_PLY_HEAD.format(nf=999999999999) + verts + "3 0 1 2\n3 0 2 1\n")
+    with pytest.raises(ValueError, match=r"f\.ply: the PLY header declares 999999999999 faces "
+                                         r"but the file has fewer lines"):
+        load_mesh(p)
+    p.write_text(_PLY_HEAD.format(nf=1) + verts + "1000000000 0 1 2\n")
+    with pytest.raises(ValueError, match=r"f\.ply: PLY face 0: expected a vertex count"):
+        load_mesh(p)
+    p.write_text(_PLY_HEAD.format(nf=1) + verts + "3 0 1 3\n")
+    with pytest.raises(ValueError, match=r"f\.ply: PLY face index 3 is out of range"):
+        load_mesh(p)
+    p.write_text(_PLY_HEAD.replace("vertex 3", "vertex 4").format(nf=1) + verts
+                 + "1 1 0 255 255 255\n4 0 1 3 2\n")
+    m = load_mesh(p)
+    np.testing.assert_array_equal(m.faces, [[0, 1, 3], [0, 3, 2]])
+    np.testing.assert_allclose(m.textures.verts_features[3], [1.0, 1.0, 1.0])
+
+
+def test_binary_ply_declared_faces_beyond_the_file_refused(tmp_path):
+    """A binary PLY declaring more faces than its bytes hold is refused (not loaded short)."""
+    from geofit import ico_sphere
+    from geofit.io import save_mesh
+
+    p = tmp_path / "b.ply"
+    save_mesh(p, ico_sphere(1))
+    data = p.read_bytes().replace(b"element face 80", b"element face 99")
+    p.write_bytes(data)
+    with pytest.raises(ValueError, match=r"b\.ply: the PLY header declares 99 faces"):
+        load_mesh(p)
+
+
+@pytest.mark.parametrize("body, match", [
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n1000000000 0 1 2\n", r"OFF face 0 declares 1000000000 "
+                                                            r"corners but its line holds 3"),
+    ("OFF\n3 999999999999 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+     r"the OFF header declares 3 vertices and 999999999999 faces"),
+    ("OFF\n3 1 0\n0 0 0\n1 0\n0 1 0\n3 0 1 2\n", r"OFF vertex 1 has 2 values"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", r"OFF face index 7 is out of range"),
+])
+def test_off_counts_checked(tmp_path, body, match):
+    """OFF header counts and face-vertex counts are checked against the lines."""
+    p = tmp_path / "o.off"
+    p.write_text(body)
+    with pytest.raises(ValueError, match=r"o\.off: " + match):
+        load_mesh(p)
+    p.write_text("OFF\n# a comment\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3 255 0 0\n")
+    assert load_mesh(p).n_faces == 2

@@ -33,7 +33,9 @@ from ._gltf import check_gltf
 from ._images import as_max_pixels
 from ._paths import PathPolicy, check_input_file, trimesh_resolver
 from .obj import MAX_COORD, _obj_to_mesh, save_obj
-from .points import _open3d_ok, verify_binary_ply
+from ._off import check_off_counts
+from .points import (PlyLayoutNotRead, _open3d_ok, ply_declared_counts, read_ply_mesh,
+                     verify_binary_ply)
 
 __all__ = ["load_mesh", "save_mesh", "READ_FORMATS", "WRITE_FORMATS"]
 
@@ -129,6 +131,13 @@ def _load_trimesh_route(path: Path, fmt: str, allow_outside: bool, max_pixels: i
 
     with open(path, "rb") as fh:
         data = fh.read()
+    if fmt == "PLY":  # the one PLY reader (geofit's own, shared with point clouds)
+        try:
+            return _ply_to_mesh(path)
+        except PlyLayoutNotRead:  # binary polygons of mixed sizes: trimesh, counts checked
+            pass
+    elif fmt == "OFF":
+        check_off_counts(data, path)
     policy = PathPolicy(path.parent, allow_outside=allow_outside)
     if fmt in ("GLB", "glTF"):
         check_gltf(data, path, fmt, policy, max_pixels)
@@ -155,7 +164,31 @@ def _load_trimesh_route(path: Path, fmt: str, allow_outside: bool, max_pixels: i
         raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
     if fmt == "STL":
         return _merge_corners(loaded)
+    if fmt in ("PLY", "OFF"):  # trimesh's result against the counts the header declares
+        declared = (ply_declared_counts(path).get("vertex") if fmt == "PLY"
+                    else check_off_counts(data, path))
+        if len(loaded.vertices) != declared:
+            raise ValueError(f"{path}: the header declares {declared} vertices, trimesh read "
+                             f"{len(loaded.vertices)}")
     return Mesh.from_trimesh(loaded)  # its ValueErrors get the file's name from load_mesh
+
+
+def _ply_to_mesh(path: Path) -> Mesh:
+    verts, faces, colours = read_ply_mesh(path)
+    if faces is None or len(faces) == 0:
+        raise ValueError(f"{path}: the file has no faces ({len(verts)} vertices): "
+                         "read a point cloud with geofit.io.load_pointcloud")
+    if not np.isfinite(verts).all():
+        raise ValueError(f"{path}: the vertex coordinates are not all finite")
+    if np.abs(verts).max(initial=0.0) > MAX_COORD:
+        raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
+    tex = None
+    if colours is not None:
+        if not np.isfinite(colours).all() or colours.min() < 0 or colours.max() > 1:
+            raise ValueError(f"{path}: PLY colours must lie in [0, 1] (floats) or [0, 255] "
+                             f"(8-bit integers)")
+        tex = TexturesVertex(colours)
+    return Mesh(verts, faces, tex)
 
 
 #: Format name -> trimesh file_type.

@@ -436,3 +436,142 @@ def _open3d_ok(ok: bool, path: Path) -> None:
     """Open3D's writers return False on failure instead of raising."""
     if not ok:
         raise OSError(errno.EIO, f"{path}: Open3D could not write the file")
+
+
+# --------------------------------------------------------------------------- PLY faces
+class PlyLayoutNotRead(Exception):
+    """A valid binary PLY layout this reader does not parse (polygons of mixed sizes, list
+    properties before the faces): the caller reads it with trimesh and checks the counts."""
+
+
+_FACE_LISTS = ("vertex_indices", "vertex_index")
+
+
+def read_ply_mesh(path: Path, limit=None):
+    """A PLY mesh -> (verts (V, 3), faces (F, 3) int64 or None, colours (V, C) or None).
+
+    The one PLY reader (meshes and clouds): counts, sizes and integer ranges are checked
+    against the header; polygons are fan-triangulated ``(v0, vi, vi+1)``. Raises
+    :class:`PlyLayoutNotRead` for binary layouts it does not parse.
+    """
+    pts, col, _ = _read_ply(path, limit)
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    fmt, elements, body_start = _ply_header(path, head)
+    names = [e[0] for e in elements]
+    if "face" not in names or elements[names.index("face")][1] == 0:
+        return pts, None, col
+    j = names.index("face")
+    _, m, props = elements[j]
+    lists = [i for i, p in enumerate(props) if not isinstance(p[1], str)]
+    if len(lists) != 1 or props[lists[0]][0] not in _FACE_LISTS:
+        raise ValueError(f"{path}: PLY 'face' element: expected one list property "
+                         f"'vertex_indices', got {[p[0] for p in props]}")
+    li = lists[0]
+    if fmt == "ascii":
+        counts, flat = _ply_ascii_faces(path, elements, j, body_start, li)
+    else:
+        counts, flat = _ply_binary_faces(path, fmt, elements, j, body_start, li)
+    if len(counts) != m:
+        raise ValueError(f"{path}: the PLY header declares {m} faces, the file holds "
+                         f"{len(counts)}")
+    if counts.size and counts.min() < 3:
+        i = int(np.flatnonzero(counts < 3)[0])
+        raise ValueError(f"{path}: PLY face {i} has {int(counts[i])} vertices (at least 3)")
+    n = len(pts)
+    if flat.size and (flat.min() < 0 or flat.max() >= n):
+        bad = int(flat[(flat < 0) | (flat >= n)][0])
+        raise ValueError(f"{path}: PLY face index {bad} is out of range for {n} vertices")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    n_tri = counts - 2
+    tri_face = np.repeat(np.arange(m), n_tri)
+    local = np.arange(len(tri_face)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    base = starts[tri_face]
+    faces = flat[np.stack([base, base + local, base + local + 1], axis=1)]
+    return pts, faces.astype(np.int64), col
+
+
+def _ply_ascii_faces(path: Path, elements: list, j: int, body_start: int, li: int):
+    """(corner counts (m,), flat indices) of the ASCII face element ``j``: every line holds
+    its declared count of indices plus the element's other properties, all integers."""
+    with open(path, "rb") as fh:
+        fh.seek(body_start)
+        blob = fh.read()
+    skip = sum(cnt for _, cnt, _ in elements[:j])
+    _, m, props = elements[j]
+    lines = blob.split(b"\n", skip + m)
+    rows = lines[skip:skip + m]
+    if len(rows) < m or (len(lines) == skip + m and not rows[-1].strip()):
+        raise ValueError(f"{path}: the PLY header declares {m} faces but the file has fewer "
+                         f"lines (truncated file or wrong count)")
+    text = b"\n".join(rows)
+    arr = np.frombuffer(text, dtype=np.uint8)
+    ok = _ASCII_OK[arr]
+    if not ok.all():
+        i = int(np.count_nonzero(arr[:int(np.flatnonzero(~ok)[0])] == 10))
+        raise ValueError(f"{path}: PLY face {i}: unexpected character")
+    ntok = _tokens_per_line(np.frombuffer(text + b"\n", dtype=np.uint8))[2]
+    try:
+        vals = np.array(text.split(), dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"{path}: PLY face data has a value that is not a number") from None
+    line_start = np.concatenate([[0], np.cumsum(ntok)[:-1]])
+    before = li  # scalar properties before the list (rare): their values come first
+    has = ntok > before
+    counts = np.where(has, vals[np.minimum(line_start + before, len(vals) - 1)], -1)
+    n_scalar = len(props) - 1
+    bad = ~has | (counts != np.round(counts)) | (counts < 0) | (ntok != 1 + counts + n_scalar)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{path}: PLY face {i}: expected a vertex count followed by that many "
+                         f"indices ({n_scalar} other value(s)), got {int(ntok[i])} values")
+    counts = counts.astype(np.int64)
+    first = np.repeat(line_start + before + 1, counts)
+    pos = first + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    flat = vals[pos]
+    if flat.size and (np.any(flat != np.round(flat)) or np.abs(flat).max() > 2**62):
+        raise ValueError(f"{path}: PLY face indices must be integers")
+    return counts, flat.astype(np.int64)
+
+
+def _ply_binary_faces(path: Path, fmt: str, elements: list, j: int, body_start: int, li: int):
+    """(corner counts, flat indices) of the binary face element ``j`` when every face has the
+    same corner count (triangles, quads); else :class:`PlyLayoutNotRead`."""
+    order = "<" if fmt == "binary_little_endian" else ">"
+    for _, _, pr in elements[:j]:
+        if any(not isinstance(p[1], str) for p in pr):
+            raise PlyLayoutNotRead("list properties before the faces")
+    offset = body_start + sum(cnt * sum(np.dtype(p[1]).itemsize for p in pr)
+                              for _, cnt, pr in elements[:j])
+    _, m, props = elements[j]
+    size = path.stat().st_size
+    ctype, itype = props[li][1]
+    pre = sum(np.dtype(p[1]).itemsize for p in props[:li])
+    with open(path, "rb") as fh:
+        fh.seek(offset + pre)
+        first = fh.read(np.dtype(ctype).itemsize)
+    if len(first) < np.dtype(ctype).itemsize:
+        raise ValueError(f"{path}: the PLY header declares {m} faces but the file ends before "
+                         f"them (truncated file or wrong count)")
+    c = int(np.frombuffer(first, dtype=order + ctype)[0])
+    fields = [(f"p{i}", order + p[1]) for i, p in enumerate(props[:li])]
+    fields += [("n", order + ctype), ("idx", order + itype, (max(c, 0),))]
+    fields += [(f"q{i}", order + p[1]) for i, p in enumerate(props[li + 1:])]
+    dt = np.dtype(fields)
+    if offset + m * dt.itemsize > size:
+        raise ValueError(f"{path}: the PLY header declares {m} faces ({m * dt.itemsize} bytes) "
+                         f"but the file holds only {size - offset} bytes for them (truncated "
+                         f"file or wrong count)")
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        raw = np.frombuffer(fh.read(m * dt.itemsize), dtype=dt, count=m)
+    if np.any(raw["n"] != c):
+        raise PlyLayoutNotRead("faces of mixed sizes")
+    return np.full(m, c, dtype=np.int64), raw["idx"].astype(np.int64).ravel()
+
+
+def ply_declared_counts(path: Path) -> dict:
+    """``{element: count}`` from a PLY header (for checking another reader's result)."""
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    return {e[0]: e[1] for e in _ply_header(path, head)[1]}
