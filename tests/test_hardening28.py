@@ -345,3 +345,91 @@ def test_off_counts_checked(tmp_path, body, match):
         load_mesh(p)
     p.write_text("OFF\n# a comment\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3 255 0 0\n")
     assert load_mesh(p).n_faces == 2
+
+
+# --------------------------------------------------------------------------- 5. wrapped errors
+def _glb_triangle(indices_accessor_count=3, index=0):
+    """A GLB with one triangle; the index buffer holds ``index`` as its first index."""
+    import struct
+
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    idx = struct.pack("<III", index, 1, 2)
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+           "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+           "buffers": [{"byteLength": len(pos) + len(idx)}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(pos)},
+                           {"buffer": 0, "byteOffset": len(pos), "byteLength": len(idx)}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 0]},
+                         {"bufferView": 1, "componentType": 5125,
+                          "count": indices_accessor_count, "type": "SCALAR"}]}
+    return _glb(doc, pos + idx)
+
+
+def test_glb_index_out_of_range_is_a_value_error(tmp_path):
+    """A GLB index 0xFFFFFFFF (face index, accessor, mesh, node, scene, texture coordinate):
+    ValueError naming the file, the field and the valid range (trimesh's IndexError before)."""
+    p = tmp_path / "i.glb"
+    p.write_bytes(_glb_triangle(index=0xFFFFFFFF))
+    with pytest.raises(ValueError, match=r"i\.glb: "):
+        load_mesh(p)
+    p.write_bytes(_glb_triangle())
+    assert load_mesh(p).n_faces == 1
+    import struct
+
+    data = bytearray(_glb_triangle())
+    n = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(bytes(data[20:20 + n]))
+    for field, set_bad in (
+            ("scene", lambda d: d.__setitem__("scene", 0xFFFFFFFF)),
+            (r"meshes\[0\]\.primitives\[0\]\.indices",
+             lambda d: d["meshes"][0]["primitives"][0].__setitem__("indices", 0xFFFFFFFF)),
+            (r"meshes\[0\]\.primitives\[0\]\.attributes\.TEXCOORD_0",
+             lambda d: d["meshes"][0]["primitives"][0]["attributes"].__setitem__(
+                 "TEXCOORD_0", 0xFFFFFFFF)),
+            (r"nodes\[0\]", lambda d: d["nodes"][0].__setitem__("children", [0xFFFFFFFF]))):
+        bad = json.loads(json.dumps(doc))
+        set_bad(bad)
+        binary = bytes(data[20 + n + 8:])
+        p.write_bytes(_glb(bad, binary))
+        with pytest.raises(ValueError, match=rf"i\.glb: {field}.* 4294967295 is not an index"):
+            load_mesh(p)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[" * 100_000 + "]" * 100_000, r"transforms\.json: cannot read JSON"),
+    ('{"frames": [{"file_path": "a.png", "fl_x": ' + "7" * 4400 + "}]}",
+     r"transforms\.json: cannot read JSON"),
+])
+def test_deep_or_huge_json_is_a_value_error_naming_the_file(tmp_path, text, match):
+    """transforms.json nested 100,000 deep (RecursionError before) or holding a 4,400-digit
+    integer (json's ValueError without the file's name before)."""
+    (tmp_path / "transforms.json").write_text(text)
+    with pytest.raises(ValueError, match=match):
+        load_views(tmp_path)
+
+
+def test_very_long_file_path_is_a_value_error(tmp_path):
+    """A 5,000-character ``file_path``: ValueError naming the field (OSError before)."""
+    cap = _capture(tmp_path, [{"file_path": "a" * 5000}])
+    with pytest.raises(ValueError, match=r"frames\[0\]\.file_path: the path .* is too long"):
+        load_views(cap)
+
+
+def test_glb_image_uri_naming_a_fifo_is_refused_without_blocking(tmp_path):
+    """A GLB whose image URI names a FIFO is refused before anything opens it (trimesh blocked
+    forever before); an alarm turns a regression into a failure instead of a hang."""
+    os.mkfifo(tmp_path / "pipe.png")
+    doc = {"asset": {"version": "2.0"}, "images": [{"uri": "pipe.png"}]}
+    p = tmp_path / "f.glb"
+    p.write_bytes(_glb(doc))
+    old = signal.signal(signal.SIGALRM, lambda *a: (_ for _ in ()).throw(TimeoutError("hang")))
+    signal.alarm(20)
+    try:
+        with pytest.raises(ValueError, match=r"f\.glb: images\[0\]\.uri: .*pipe\.png' is a "
+                                             r"FIFO"):
+            load_mesh(p)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -91,7 +91,8 @@ def check_gltf(data: bytes, path: Path, fmt: str, policy: PathPolicy, max_pixels
     if not _depth_ok(doc, _MAX_DEPTH):
         raise ValueError(f"{where}: the glTF JSON is nested deeper than {_MAX_DEPTH} levels")
     lists = {}
-    for key in ("buffers", "bufferViews", "images", "accessors", "meshes", "nodes"):
+    for key in ("buffers", "bufferViews", "images", "accessors", "meshes", "nodes", "scenes",
+                "materials", "textures", "samplers"):
         v = doc.get(key, [])
         if not isinstance(v, list) or not all(isinstance(e, dict) for e in v):
             raise ValueError(f"{where}: {key}: expected a list of objects")
@@ -121,6 +122,7 @@ def check_gltf(data: bytes, path: Path, fmt: str, policy: PathPolicy, max_pixels
     for i, a in enumerate(lists["accessors"]):
         if "bufferView" in a:
             _index(a["bufferView"], len(views), "bufferView", f"{where}: accessors[{i}]")
+    _check_references(doc, lists, where)
     for i, im in enumerate(lists["images"]):  # a loop over the (few) images
         w = f"{where}: images[{i}]"
         if "bufferView" in im:
@@ -131,6 +133,62 @@ def check_gltf(data: bytes, path: Path, fmt: str, policy: PathPolicy, max_pixels
         else:
             raise ValueError(f"{w}: neither a bufferView nor a uri")
         check_image_bytes(blob, w, max_pixels)
+
+
+def _check_references(doc: dict, lists: dict, where: str) -> None:
+    """Every index a glTF object holds (scene, nodes, meshes, accessors, materials, textures)
+    names an existing entry: a clear ValueError instead of trimesh's IndexError."""
+    n = {k: len(v) for k, v in lists.items()}
+    if "scene" in doc:
+        _index(doc["scene"], n["scenes"], "scene", where)
+    for i, sc in enumerate(lists["scenes"]):  # loops over the (few) JSON objects
+        for c in _int_list(sc.get("nodes", []), f"{where}: scenes[{i}].nodes"):
+            _index(c, n["nodes"], "node", f"{where}: scenes[{i}].nodes")
+    for i, nd in enumerate(lists["nodes"]):
+        w = f"{where}: nodes[{i}]"
+        if "mesh" in nd:
+            _index(nd["mesh"], n["meshes"], "mesh", w)
+        for c in _int_list(nd.get("children", []), f"{w}.children"):
+            _index(c, n["nodes"], "node", f"{w}.children")
+    for i, me in enumerate(lists["meshes"]):
+        prims = me.get("primitives", [])
+        if not isinstance(prims, list) or not all(isinstance(p, dict) for p in prims):
+            raise ValueError(f"{where}: meshes[{i}].primitives: expected a list of objects")
+        for j, pr in enumerate(prims):
+            w = f"{where}: meshes[{i}].primitives[{j}]"
+            attrs = pr.get("attributes", {})
+            if not isinstance(attrs, dict):
+                raise ValueError(f"{w}.attributes: expected an object")
+            for name, a in attrs.items():
+                _index(a, n["accessors"], "accessor", f"{w}.attributes.{name}")
+            if "indices" in pr:
+                _index(pr["indices"], n["accessors"], "accessor", f"{w}.indices")
+            if "material" in pr:
+                _index(pr["material"], n["materials"], "material", f"{w}.material")
+    for i, t in enumerate(lists["textures"]):
+        if "source" in t:
+            _index(t["source"], n["images"], "image", f"{where}: textures[{i}].source")
+        if "sampler" in t:
+            _index(t["sampler"], n["samplers"], "sampler", f"{where}: textures[{i}].sampler")
+    for i, m in enumerate(lists["materials"]):
+        for key, tex in _texture_refs(m):
+            _index(tex, n["textures"], "texture", f"{where}: materials[{i}].{key}.index")
+
+
+def _int_list(v, where: str) -> list:
+    if not isinstance(v, list):
+        raise ValueError(f"{where}: expected a list of indices")
+    return v
+
+
+def _texture_refs(material: dict):
+    """(key, texture index) of the texture slots of a glTF material."""
+    slots = [(k, material.get(k)) for k in ("normalTexture", "occlusionTexture",
+                                            "emissiveTexture")]
+    pbr = material.get("pbrMetallicRoughness")
+    if isinstance(pbr, dict):
+        slots += [(k, pbr.get(k)) for k in ("baseColorTexture", "metallicRoughnessTexture")]
+    return [(k, t.get("index")) for k, t in slots if isinstance(t, dict)]
 
 
 def _uri_bytes(uri, where: str, policy: PathPolicy) -> bytes:
