@@ -433,3 +433,64 @@ def test_glb_image_uri_naming_a_fifo_is_refused_without_blocking(tmp_path):
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
+
+
+# --------------------------------------------------------------------------- 6. size estimates
+def _refused_at_once(fn, match):
+    """``fn()`` raises ValueError (with the estimate) without allocating: small peak memory."""
+    err, peak = _peak(fn)
+    assert isinstance(err, ValueError), err
+    assert __import__("re").search(match, str(err)), str(err)
+    assert "would need about" in str(err) and peak < 50 * 2**20
+
+
+def test_counts_are_estimated_before_allocating(monkeypatch):
+    """Samples, torus resolution, network width, faces per pixel and rays: refused at once with
+    the estimate in the message (MemoryError after minutes before)."""
+    from geofit import fit_mesh, ico_sphere
+    from geofit.fit.nerf import NerfConfig
+    from geofit.ops import sample_points_from_meshes
+    from geofit.pytorch3d.renderer import RasterizationSettings as P3DSettings
+    from geofit.render.soft import SoftRasterizationSettings
+    from geofit.render.volume.raysampling import NDCMultinomialRaysampler
+    from geofit.shapes import torus
+
+    monkeypatch.setenv("GEOFIT_MEMORY_LIMIT", "2G")
+    m = ico_sphere(1)
+    _refused_at_once(lambda: sample_points_from_meshes(m, 10**12), r"^num_samples: .* 182 TiB")
+    _refused_at_once(lambda: torus(n_major=10**6, n_minor=10**6), r"^n_major and n_minor: ")
+    _refused_at_once(lambda: NerfConfig(n_hidden_neurons=10**6).validate(),
+                     r"^n_hidden_neurons: an MLP 1000000 wide")
+    _refused_at_once(lambda: SoftRasterizationSettings(image_size=16, faces_per_pixel=10**9),
+                     r"^faces_per_pixel: ")
+    _refused_at_once(lambda: P3DSettings(image_size=16, blur_radius=1e-4,
+                                         faces_per_pixel=10**9), r"^faces_per_pixel: ")
+    _refused_at_once(lambda: NDCMultinomialRaysampler(
+        image_width=16, image_height=16, n_pts_per_ray=8, min_depth=0.1, max_depth=3.0,
+        n_rays_per_image=10**12), r"^n_rays_per_image")
+    _refused_at_once(lambda: fit_mesh(m, n_samples=10**9), r"^n_samples: ")
+
+
+def test_count_and_size_types_checked():
+    """``image_size="16"`` and a float count are refused with TypeError naming the argument."""
+    from geofit.ops import sample_points_from_meshes
+    from geofit.pytorch3d.renderer import RasterizationSettings as P3DSettings
+    from geofit.render import RasterizationSettings
+    from geofit import ico_sphere
+
+    with pytest.raises(TypeError, match=r"image_size: expected an int or \(H, W\), got str"):
+        RasterizationSettings(image_size="16")
+    with pytest.raises(TypeError, match=r"image_size: expected an int or \(H, W\), got str"):
+        P3DSettings(image_size="16")
+    with pytest.raises(TypeError, match=r"num_samples: expected an integer >= 1, got float"):
+        sample_points_from_meshes(ico_sphere(0), 10.0)
+
+
+def test_overflowing_target_says_so_not_zero_area():
+    """``fit_mesh((verts * 1e300, faces))``: the message says the coordinates overflow."""
+    from geofit import fit_mesh, ico_sphere
+
+    m = ico_sphere(1)
+    with pytest.raises(ValueError, match=r"target: coordinates up to 1e\+300 in absolute value "
+                                         r"overflow areas and normals"):
+        fit_mesh((m.verts * 1e300, m.faces))

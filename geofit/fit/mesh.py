@@ -44,7 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import as_array, as_faces, as_rng, check_choice, check_positive
+from .._memory import check_count
+from .._validate import as_array, as_faces, as_rng, check_choice, check_coordinates, check_positive
 from ..structures import Mesh, as_mesh
 from ._mesh_objective import TERMS, MeshObjective, mesh_weights
 from ._options import Recipes, check_int, method_name, recipe_name, warn_deprecated
@@ -108,6 +109,7 @@ def _as_mesh(m, name: str) -> Mesh:
         mesh = as_mesh(m, name)  # a geofit, trimesh or Open3D mesh
     if mesh.n_faces == 0:
         raise ValueError(f"{name}: expected a mesh with at least one face, got 0 faces")
+    check_coordinates(mesh.verts, name)  # beyond 1e38: areas overflow (not "zero area")
     if not float(mesh.face_areas.sum()) > 0:
         raise ValueError(f"{name}: the surface has zero area (every triangle is collapsed)")
     return mesh
@@ -487,7 +489,7 @@ class _MeshPlan:
         distance = distance or ("points" if stochastic else "surface")
         check_choice(distance, "distance", ("surface", "points"))
         if n_samples is not None:
-            n_samples = check_int(n_samples, "n_samples")
+            n_samples = check_count(n_samples, "n_samples", 400)  # ~2 x sampling's 200 B
         n_iter = check_int(n_iter if n_iter is not None else (2000 if stochastic else 100),
                            "n_iter")
         default_stages = 1 if stochastic or c2f is not None else 3

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._atomic import write_bytes, write_text
 from .._memory import check_allocation
-from .._validate import as_array, as_faces, as_points
+from .._validate import MAX_COORD, as_array, as_faces, as_points
 from ._formats import EXTENSIONS, not_obj_error, sniff
 from ._images import as_max_pixels, open_image
 from ._paths import PathPolicy, check_input_file
@@ -141,7 +141,6 @@ _WS = np.zeros(256, dtype=bool)
 _WS[[9, 10, 11, 12, 13, 32]] = True  # \t \n \v \f \r and space
 _NUMERIC_OK = _WS.copy()  # bytes allowed in v/vt/vn lines: printable ASCII and whitespace
 _NUMERIC_OK[32:127] = True
-MAX_COORD = 1e38  # |coordinate| bound: beyond it areas, normals and float32 rendering overflow
 _POW10 = 10 ** np.arange(19, dtype=np.int64)
 _SLOT_NAMES = ("vertex", "texture coordinate", "normal")
 

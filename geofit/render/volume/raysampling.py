@@ -25,6 +25,15 @@ from ..._validate import check_finite as _finite_float
 from ..._validate import check_int as _positive_int
 from ...cameras import CamerasBase, ndc_grid
 
+
+def _check_rays(n_cameras: int, n_rays: int, n_pts: int) -> None:
+    """Refuse a ray bundle whose lengths, points and pixel draws exceed the memory limit."""
+    from ..._memory import check_allocation
+
+    check_allocation(8 * n_cameras * n_rays * (2 * n_pts + 12),
+                     "n_rays_per_image (or the image size) and n_pts_per_ray",
+                     f"{n_cameras} x {n_rays:,} rays of {n_pts} points")
+
 __all__ = [
     "MonteCarloRaysampler",
     "NDCMultinomialRaysampler",
@@ -185,6 +194,8 @@ class NDCMultinomialRaysampler:
         self.min_depth, self.max_depth = _depth_range(min_depth, max_depth)
         self.n_rays_per_image = _positive_int(n_rays_per_image, "n_rays_per_image",
                                               allow_none=True)
+        _check_rays(1, self.n_rays_per_image or self.image_width * self.image_height,
+                    self.n_pts_per_ray)
         self.unit_directions = bool(unit_directions)
         self.stratified_sampling = bool(stratified_sampling)
 
@@ -228,6 +239,7 @@ class NDCMultinomialRaysampler:
         n_rays = self.n_rays_per_image if n_rays is None else n_rays
         n_pts = self.n_pts_per_ray if n_pts_per_ray is None else _positive_int(
             n_pts_per_ray, "n_pts_per_ray")
+        _check_rays(B, n_rays or H * W, n_pts)  # before drawing or building any ray
         lo = self.min_depth if min_depth is None else min_depth
         hi = self.max_depth if max_depth is None else max_depth
         lo, hi = _depth_range(lo, hi)
