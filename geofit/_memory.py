@@ -157,11 +157,11 @@ def check_allocation(nbytes, setting: str = "settings", what: str = "buffers",
 
 
 def check_count(value, name: str, bytes_each, *, low: int = 1, what: str | None = None,
-                limit=None) -> int:
+                limit=None, error: type[Exception] = ValueError) -> int:
     """A count the user passes (samples, rays, resolution, width), checked before allocating.
 
-    The count must be an integer (TypeError otherwise, a bool included) ``>= low``
-    (ValueError), and ``value * bytes_each`` (the estimated bytes of what the count sizes) must
+    The count must be an integer (``error``, ValueError by default as
+    :func:`geofit._validate.check_int`, otherwise; a bool included) ``>= low`` (ValueError), and ``value * bytes_each`` (the estimated bytes of what the count sizes) must
     fit the memory limit (:func:`check_allocation`: ValueError with the estimate).
 
     Parameters
@@ -178,6 +178,8 @@ def check_count(value, name: str, bytes_each, *, low: int = 1, what: str | None 
         What the buffers are, for the message (default: ``"{value} {name}"``).
     limit : int, float, str or None
         Explicit memory limit, see :func:`memory_limit`.
+    error : {ValueError, TypeError}
+        Raised for a value that is not an integer.
 
     Returns
     -------
@@ -196,8 +198,7 @@ def check_count(value, name: str, bytes_each, *, low: int = 1, what: str | None 
     import numbers
 
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name}: expected an integer >= {low}, got {type(value).__name__} "
-                        f"{value!r:.40}")
+        raise error(f"{name}: expected an integer >= {low}, got {value!r:.40}")
     n = int(value)
     if n < low:
         raise ValueError(f"{name}: expected an integer >= {low}, got {n}")

@@ -454,6 +454,7 @@ def test_counts_are_estimated_before_allocating(monkeypatch):
     from geofit.render.soft import SoftRasterizationSettings
     from geofit.render.volume.raysampling import NDCMultinomialRaysampler
     from geofit.shapes import torus
+    from geofit.cameras import FoVPerspectiveCameras
 
     monkeypatch.setenv("GEOFIT_MEMORY_LIMIT", "2G")
     m = ico_sphere(1)
@@ -462,27 +463,29 @@ def test_counts_are_estimated_before_allocating(monkeypatch):
     _refused_at_once(lambda: NerfConfig(n_hidden_neurons=10**6).validate(),
                      r"^n_hidden_neurons: an MLP 1000000 wide")
     _refused_at_once(lambda: SoftRasterizationSettings(image_size=16, faces_per_pixel=10**9),
-                     r"^faces_per_pixel: ")
+                     r"^image_size and faces_per_pixel: ")
     _refused_at_once(lambda: P3DSettings(image_size=16, blur_radius=1e-4,
-                                         faces_per_pixel=10**9), r"^faces_per_pixel: ")
-    _refused_at_once(lambda: NDCMultinomialRaysampler(
-        image_width=16, image_height=16, n_pts_per_ray=8, min_depth=0.1, max_depth=3.0,
-        n_rays_per_image=10**12), r"^n_rays_per_image")
+                                         faces_per_pixel=10**9),
+                     r"^image_size and faces_per_pixel: ")
+    sampler = NDCMultinomialRaysampler(image_width=16, image_height=16, n_pts_per_ray=8,
+                                       min_depth=0.1, max_depth=3.0, n_rays_per_image=10**12)
+    _refused_at_once(lambda: sampler(FoVPerspectiveCameras()), r"^n_rays_per_image")
     _refused_at_once(lambda: fit_mesh(m, n_samples=10**9), r"^n_samples: ")
 
 
 def test_count_and_size_types_checked():
-    """``image_size="16"`` and a float count are refused with TypeError naming the argument."""
+    """``image_size="16"`` (read as (1, 6) before) and a float count are refused naming the
+    argument."""
     from geofit.ops import sample_points_from_meshes
     from geofit.pytorch3d.renderer import RasterizationSettings as P3DSettings
     from geofit.render import RasterizationSettings
     from geofit import ico_sphere
 
-    with pytest.raises(TypeError, match=r"image_size: expected an int or \(H, W\), got str"):
+    with pytest.raises(ValueError, match=r"image_size: expected an int or \(H, W\), got str"):
         RasterizationSettings(image_size="16")
-    with pytest.raises(TypeError, match=r"image_size: expected an int or \(H, W\), got str"):
+    with pytest.raises(ValueError, match=r"image_size: expected an int or \(H, W\), got str"):
         P3DSettings(image_size="16")
-    with pytest.raises(TypeError, match=r"num_samples: expected an integer >= 1, got float"):
+    with pytest.raises(ValueError, match=r"num_samples: expected an integer >= 1, got 10\.0"):
         sample_points_from_meshes(ico_sphere(0), 10.0)
 
 

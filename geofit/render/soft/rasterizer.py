@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._memory import check_count
+from ..._memory import check_allocation
 from ..._validate import check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh, as_mesh
@@ -100,8 +100,9 @@ class SoftRasterizationSettings:
         k = self.faces_per_pixel
         if not isinstance(k, (int, np.integer)) or isinstance(k, (bool, np.bool_)) or k < 1:
             raise ValueError(f"faces_per_pixel: expected an integer >= 1, got {k!r}")
-        check_count(k, "faces_per_pixel", 24 * self.image_size[0] * self.image_size[1],
-                    what=f"the soft fragments of one {self.image_size} view with K={k}")
+        H, W = self.image_size  # the rasterizer's own estimate, per view, at construction
+        check_allocation(H * W * (24 * k + 1024), "image_size and faces_per_pixel",
+                         f"soft fragments of 1 view(s) at {(H, W)} with K={k}")
         for name in ("perspective_correct", "clip_barycentric_coords"):
             v = getattr(self, name)
             if v is not None and not isinstance(v, (bool, np.bool_)):

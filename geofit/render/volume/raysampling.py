@@ -31,7 +31,7 @@ def _check_rays(n_cameras: int, n_rays: int, n_pts: int) -> None:
     from ..._memory import check_allocation
 
     check_allocation(8 * n_cameras * n_rays * (2 * n_pts + 12),
-                     "n_rays_per_image (or the image size) and n_pts_per_ray",
+                     "n_rays_per_image and n_pts_per_ray",
                      f"{n_cameras} x {n_rays:,} rays of {n_pts} points")
 
 __all__ = [
@@ -194,8 +194,6 @@ class NDCMultinomialRaysampler:
         self.min_depth, self.max_depth = _depth_range(min_depth, max_depth)
         self.n_rays_per_image = _positive_int(n_rays_per_image, "n_rays_per_image",
                                               allow_none=True)
-        _check_rays(1, self.n_rays_per_image or self.image_width * self.image_height,
-                    self.n_pts_per_ray)
         self.unit_directions = bool(unit_directions)
         self.stratified_sampling = bool(stratified_sampling)
 
@@ -239,7 +237,8 @@ class NDCMultinomialRaysampler:
         n_rays = self.n_rays_per_image if n_rays is None else n_rays
         n_pts = self.n_pts_per_ray if n_pts_per_ray is None else _positive_int(
             n_pts_per_ray, "n_pts_per_ray")
-        _check_rays(B, n_rays or H * W, n_pts)  # before drawing or building any ray
+        if n_rays is not None:  # a random subset: checked before the draw (the full grid is
+            _check_rays(B, n_rays, n_pts)  # checked where its bundle is built)
         lo = self.min_depth if min_depth is None else min_depth
         hi = self.max_depth if max_depth is None else max_depth
         lo, hi = _depth_range(lo, hi)
