@@ -497,3 +497,30 @@ def test_overflowing_target_says_so_not_zero_area():
     with pytest.raises(ValueError, match=r"target: coordinates up to 1e\+300 in absolute value "
                                          r"overflow areas and normals"):
         fit_mesh((m.verts * 1e300, m.faces))
+
+
+# --------------------------------------------------------------------------- 8. the loader fuzz
+def test_seeded_short_fuzz_run_has_no_escape_hang_blowup_or_unclear_error(tmp_path):
+    """A seeded short run of benchmarks/fuzz_loaders.py over issue 28's targeted cases
+    (symlinked extension-less paths, pixel and npz bombs, FIFOs, ASCII PLY ranges, OFF counts,
+    deep JSON, long paths, glTF indices) and mutated PLY files: every input in a forked child
+    with an audit hook on ``open``, peak memory and a timeout; all counts must be 0."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    data = os.environ.get("GEOFIT_DATA", "")
+    if not (Path(data) / "cow_mesh" / "cow.obj").is_file():
+        pytest.skip("GEOFIT_DATA with the tutorial files is needed for the fuzz inputs")
+    out = tmp_path / "fuzz.json"
+    proc = subprocess.run(
+        [sys.executable, str(root / "benchmarks" / "fuzz_loaders.py"), "--n", "36",
+         "--families", "targeted,ply", "--seed", "28", "--no-saves", "--timeout", "60",
+         "--out", str(out)], capture_output=True, text=True, timeout=900,
+        env={**os.environ, "PYTHONPATH": str(root)})
+    assert out.is_file(), proc.stderr[-2000:]
+    res = json.loads(out.read_text())
+    assert res["config"]["n_inputs"] >= 30
+    assert res["counts"]["targeted"].get("ValueError", 0) >= 10
+    assert {k: v for k, v in res["issue28"].items() if v} == {}, res["examples_outside_allowed"]
+    assert res["outside_allowed"] == 0 and proc.returncode == 0
