@@ -91,7 +91,7 @@ def test_trimesh_resolver_refuses_what_the_policy_refuses(tmp_path):
             r.get(bad)
 
 
-# --------------------------------------------------------------------------- 2. pixel and array caps
+# ------------------------------------------------------------------------- 2. pixel and array caps
 def _peak(fn, *args, **kwargs):
     """(exception or None, peak traced bytes) of a call."""
     import tracemalloc

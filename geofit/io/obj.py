@@ -442,8 +442,8 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
         exist. The message names the missing file. (A missing MTL file is only a warning.)
     ValueError
         Naming the file: a file that cannot be read, a texture that is not a readable image or
-        would exceed the memory limit or the pixel cap, an MTL or texture path outside the folder (see
-        ``allow_outside``), an MTL colour that is not finite and non-negative. Naming the file
+        would exceed the memory limit or the pixel cap, an MTL or texture path outside the folder
+        (see ``allow_outside``), an MTL colour that is not finite and non-negative. Naming the file
         and line: a control or non-ASCII character in a ``v``/``vt``/``vn`` line, a coordinate
         beyond 1e38 in absolute value, a non-numeric or non-finite coordinate, a ``v``/``vn`` line
         with fewer than 3 values or a ``vt`` line with fewer than 2, a face with fewer than 3

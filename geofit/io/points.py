@@ -189,25 +189,36 @@ def _read_ply(path: Path, limit):
     return pts, col, nrm
 
 
-def _ply_ascii(path: Path, elements: list, k: int, body_start: int) -> dict:
-    """The vertex element of an ASCII PLY (one element per line, as the format's writers do)."""
+_PLURAL = {"vertex": "vertices", "face": "faces"}
+
+
+def _ascii_rows(path: Path, elements: list, k: int, body_start: int, what: str) -> bytes:
+    """The lines of ASCII PLY element ``k`` (one element per line, as the format's writers
+    do), checked: as many lines as declared, only number characters."""
     with open(path, "rb") as fh:
         fh.seek(body_start)
         blob = fh.read()
     skip = sum(cnt for _, cnt, _ in elements[:k])
-    _, n, props = elements[k]
+    n = elements[k][1]
     lines = blob.split(b"\n", skip + n)
     rows = lines[skip:skip + n]
     if len(rows) < n or (len(lines) == skip + n and not rows[-1].strip()):
-        raise ValueError(f"{path}: the PLY header declares {n} vertices but the file has fewer "
+        raise ValueError(f"{path}: the PLY header declares {n} {_PLURAL[what]} but the file has fewer "
                          f"lines (truncated file or wrong count)")
     text = b"\n".join(rows)
     arr = np.frombuffer(text, dtype=np.uint8)
     ok = _ASCII_OK[arr]
     if not ok.all():
         i = int(np.count_nonzero(arr[:int(np.flatnonzero(~ok)[0])] == 10))
-        raise ValueError(f"{path}: PLY vertex {i}: unexpected character (only numbers and "
+        raise ValueError(f"{path}: PLY {what} {i}: unexpected character (only numbers and "
                          f"spaces are allowed in ASCII PLY data)")
+    return text
+
+
+def _ply_ascii(path: Path, elements: list, k: int, body_start: int) -> dict:
+    """The vertex element of an ASCII PLY."""
+    _, n, props = elements[k]
+    text = _ascii_rows(path, elements, k, body_start, "vertex")
     counts = _tokens_per_line(np.frombuffer(text + b"\n", dtype=np.uint8))[2]
     if np.any(counts != len(props)):
         i = int(np.flatnonzero(counts != len(props))[0])
@@ -494,22 +505,8 @@ def read_ply_mesh(path: Path, limit=None):
 def _ply_ascii_faces(path: Path, elements: list, j: int, body_start: int, li: int):
     """(corner counts (m,), flat indices) of the ASCII face element ``j``: every line holds
     its declared count of indices plus the element's other properties, all integers."""
-    with open(path, "rb") as fh:
-        fh.seek(body_start)
-        blob = fh.read()
-    skip = sum(cnt for _, cnt, _ in elements[:j])
-    _, m, props = elements[j]
-    lines = blob.split(b"\n", skip + m)
-    rows = lines[skip:skip + m]
-    if len(rows) < m or (len(lines) == skip + m and not rows[-1].strip()):
-        raise ValueError(f"{path}: the PLY header declares {m} faces but the file has fewer "
-                         f"lines (truncated file or wrong count)")
-    text = b"\n".join(rows)
-    arr = np.frombuffer(text, dtype=np.uint8)
-    ok = _ASCII_OK[arr]
-    if not ok.all():
-        i = int(np.count_nonzero(arr[:int(np.flatnonzero(~ok)[0])] == 10))
-        raise ValueError(f"{path}: PLY face {i}: unexpected character")
+    props = elements[j][2]
+    text = _ascii_rows(path, elements, j, body_start, "face")
     ntok = _tokens_per_line(np.frombuffer(text + b"\n", dtype=np.uint8))[2]
     try:
         vals = np.array(text.split(), dtype=np.float64)
