@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ._atomic import write_text
 from ._threads import cpu_count, get_num_threads
 from .fit.history import _json_safe
 
@@ -321,7 +322,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
                 for p in files.values()) + "</p>")
     h.append(f"<script>{_SCRIPT}</script></body></html>")
     html_path = out / "report.html"
-    html_path.write_text("\n".join(h) + "\n", encoding="utf-8")
+    write_text(html_path, "\n".join(h) + "\n")
 
     # ---- Markdown
     m: list[str] = [f"# {title}", ""]
@@ -357,7 +358,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
             m += ["Files: " + ", ".join(f"[{_rel(p, out)}]({_rel(p, out)})"
                                         for p in files.values()), ""]
     md_path = out / "report.md"
-    md_path.write_text("\n".join(m) + "\n", encoding="utf-8")
+    write_text(md_path, "\n".join(m) + "\n")
 
     # ---- JSON (the benchmark layout)
     data = {
@@ -368,7 +369,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
         "tables": {"steps": [s.to_dict(out) for s in steps]},
     }
     json_path = out / "report.json"
-    json_path.write_text(json.dumps(_json_safe(data), indent=1) + "\n", encoding="utf-8")
+    write_text(json_path, json.dumps(_json_safe(data), indent=1) + "\n")
     return ReportFiles(html=html_path, md=md_path, json=json_path)
 
 
@@ -432,5 +433,5 @@ def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str
     lines += [f"{n}\n" for n in notes]
     for label, p in written:
         lines += [f"![{label}]({p.name})", "", f"*{label}*", ""]
-    (dest / "README.md").write_text("\n".join(lines), encoding="utf-8")
+    write_text(dest / "README.md", "\n".join(lines))
     return [p for _, p in written]
