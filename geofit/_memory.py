@@ -154,3 +154,62 @@ def check_allocation(nbytes, setting: str = "settings", what: str = "buffers",
             f"{_fmt(lim)} (reduce {setting}, or raise the limit with GEOFIT_MEMORY_LIMIT, e.g. "
             f"GEOFIT_MEMORY_LIMIT=32G)")
     return lim
+
+
+def check_count(value, name: str, bytes_each, *, low: int = 1, what: str | None = None,
+                limit=None, error: type[Exception] = ValueError) -> int:
+    """A count the user passes (samples, rays, resolution, width), checked before allocating.
+
+    The count must be an integer (``error``, ValueError by default as
+    :func:`geofit._validate.check_int`, otherwise; a bool included) ``>= low`` (ValueError), and ``value * bytes_each`` (the estimated bytes of what the count sizes) must
+    fit the memory limit (:func:`check_allocation`: ValueError with the estimate).
+
+    Parameters
+    ----------
+    value : int
+        The count as given.
+    name : str
+        The argument's name, used in error messages.
+    bytes_each : int or float
+        Estimated bytes per unit of the count.
+    low : int
+        Smallest allowed value.
+    what : str, optional
+        What the buffers are, for the message (default: ``"{value} {name}"``).
+    limit : int, float, str or None
+        Explicit memory limit, see :func:`memory_limit`.
+    error : {ValueError, TypeError}
+        Raised for a value that is not an integer.
+
+    Returns
+    -------
+    int
+        The count.
+
+    Examples
+    --------
+    >>> check_count(1000, "num_samples", 200)
+    1000
+    >>> check_count(10**12, "num_samples", 200, limit="1G")
+    Traceback (most recent call last):
+    ...
+    ValueError: num_samples: 1,000,000,000,000 num_samples would need about 182 TiB, over the memory limit of 1 GiB (reduce num_samples, or raise the limit with GEOFIT_MEMORY_LIMIT, e.g. GEOFIT_MEMORY_LIMIT=32G)
+    """
+    import numbers
+
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise error(f"{name}: expected an integer >= {low}, got {value!r:.40}")
+    n = int(value)
+    if n < low:
+        raise ValueError(f"{name}: expected an integer >= {low}, got {n}")
+    check_allocation(n * bytes_each, setting=name, what=what or f"{n:,} {name}", limit=limit)
+    return n
+
+
+def check_mlp_size(width: int, layers: int, name: str = "n_hidden_neurons", *,
+                   limit=None) -> None:
+    """Refuse an MLP whose weights, gradients and two Adam moments (4 float64 copies of about
+    ``width**2 * (layers + 1)`` numbers) exceed the memory limit, before it is built."""
+    check_allocation(32 * int(width) ** 2 * (int(layers) + 1), setting=name,
+                     what=f"an MLP {int(width)} wide and {int(layers)} deep (weights, gradients "
+                          f"and Adam moments)", limit=limit)

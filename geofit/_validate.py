@@ -20,6 +20,7 @@ __all__ = [
     "as_rng",
     "as_unit_images",
     "check_choice",
+    "check_coordinates",
     "check_finite",
     "check_int",
     "check_positive",
@@ -210,3 +211,18 @@ def check_int(value, name: str, low: int = 1, *, allow_none: bool = False,
     if value < low:
         raise ValueError(message)
     return int(value)
+
+
+#: Largest coordinate magnitude geofit accepts: beyond it areas, normals and float32 rendering
+#: overflow.
+MAX_COORD = 1e38
+
+
+def check_coordinates(V, name: str, max_abs: float = MAX_COORD) -> None:
+    """Refuse coordinates whose magnitude would overflow areas and normals (ValueError naming
+    ``name``, the largest magnitude and the bound)."""
+    m = float(np.abs(np.asarray(V)).max(initial=0.0))
+    if not m <= max_abs:
+        raise ValueError(f"{name}: coordinates up to {m:.3g} in absolute value overflow areas "
+                         f"and normals (not finite in float64); expected at most {max_abs:g}: "
+                         f"rescale the mesh")

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from ._atomic import write_text
 from ._json import json_text
 from ._threads import cpu_count, get_num_threads
 
@@ -320,7 +321,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
                 for p in files.values()) + "</p>")
     h.append(f"<script>{_SCRIPT}</script></body></html>")
     html_path = out / "report.html"
-    html_path.write_text("\n".join(h) + "\n", encoding="utf-8")
+    write_text(html_path, "\n".join(h) + "\n")
 
     # ---- Markdown
     m: list[str] = [f"# {title}", ""]
@@ -356,7 +357,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
             m += ["Files: " + ", ".join(f"[{_rel(p, out)}]({_rel(p, out)})"
                                         for p in files.values()), ""]
     md_path = out / "report.md"
-    md_path.write_text("\n".join(m) + "\n", encoding="utf-8")
+    write_text(md_path, "\n".join(m) + "\n")
 
     # ---- JSON (the benchmark layout)
     data = {
@@ -367,7 +368,7 @@ def write_report(steps: Sequence[Any], out: str | os.PathLike, *, title: str = "
         "tables": {"steps": [s.to_dict(out) for s in steps]},
     }
     json_path = out / "report.json"
-    json_path.write_text(json_text(data), encoding="utf-8")
+    write_text(json_path, json_text(data))
     return ReportFiles(html=html_path, md=md_path, json=json_path)
 
 
@@ -429,5 +430,5 @@ def write_gallery(steps: Sequence[Any], dest: str | os.PathLike, *, command: str
     lines += [f"{n}\n" for n in notes]
     for label, p in written:
         lines += [f"![{label}]({p.name})", "", f"*{label}*", ""]
-    (dest / "README.md").write_text("\n".join(lines), encoding="utf-8")
+    write_text(dest / "README.md", "\n".join(lines))
     return [p for _, p in written]

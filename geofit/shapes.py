@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._memory import check_allocation
+
 from .structures.mesh import Mesh, as_meshes
 
 __all__ = ["ico_sphere", "subdivide", "torus", "box", "plane", "tetrahedron", "double_torus",
@@ -131,6 +133,8 @@ def torus(major_radius: float = 1.0, minor_radius: float = 0.35, n_major: int = 
     for name, n in (("n_major", n_major), ("n_minor", n_minor)):
         if not isinstance(n, (int, np.integer)) or n < 3:
             raise ValueError(f"{name}: expected an integer >= 3, got {n!r}")
+    check_allocation(200 * int(n_major) * int(n_minor), "n_major and n_minor",  # ~25 values
+                     f"a torus of {int(n_major) * int(n_minor):,} vertices")  # per vertex
     u = 2 * np.pi * np.arange(n_major) / n_major
     v = 2 * np.pi * np.arange(n_minor) / n_minor
     U, W = np.meshgrid(u, v, indexing="ij")

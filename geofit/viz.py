@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._atomic import atomic_write
 from ._validate import as_array
 
 __all__ = [
@@ -286,7 +287,7 @@ def save_png(image, path: str | Path) -> Path:
     u8 = a if a.dtype == np.uint8 else to_uint8(a)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(u8).save(path, optimize=True)
+    atomic_write(path, lambda tmp: Image.fromarray(u8).save(tmp, optimize=True))
     return path
 
 
@@ -412,7 +413,7 @@ def image_panel(rows: Sequence[Sequence[Any]], path: str | Path, *,
             canvas.paste(pil, (x0 + (tile - size[0]) // 2, y0 + (tile - size[1]) // 2))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    canvas.save(path, optimize=True)
+    atomic_write(path, lambda tmp: canvas.save(tmp, optimize=True))
     return path
 
 

@@ -24,7 +24,7 @@ PACKAGE = ROOT / "geofit"
 # other (loss, metrics and render; structures, cameras, nn and viz; ...).
 LAYERS = {
     # 0: foundations (_validate recognises trimesh/Open3D objects through _foreign)
-    "_foreign": (0, 0), "_json": (0, 0), "_memory": (0, 0), "_threads": (0, 0),
+    "_atomic": (0, 0), "_foreign": (0, 0), "_json": (0, 0), "_memory": (0, 0), "_threads": (0, 0),
     "_validate": (0, 1),
     # 1: data types and leaf utilities
     "structures": (1, 0), "cameras": (1, 0), "nn": (1, 0), "viz": (1, 0),

@@ -601,7 +601,7 @@ def test_pointcloud_errors(tmp_path):
         save_pointcloud(tmp_path / "a.ply", cloud)
     with pytest.raises(ValueError, match=r"PLY colours must lie in \[0, 1\]"):
         save_pointcloud(tmp_path / "a.ply", PointCloud(pts, np.full((3, 3), 2.0)))
-    with pytest.raises(OSError, match=r"Open3D could not write .*nodir"):
+    with pytest.raises(OSError, match=r"nodir/a\.ply: could not write the file"):
         save_pointcloud(tmp_path / "nodir" / "a.ply", PointCloud(pts))
     assert not (tmp_path / "a.ply").exists()
 
@@ -750,7 +750,8 @@ def test_wrong_format_errors(tmp_path):
     with pytest.raises(ValueError, match=r"\.npz holds a point cloud.*load_pointcloud"):
         load_mesh(tmp_path / "c.npz")
     write(tmp_path / "bad.glb", "not a glb")
-    with pytest.raises(ValueError, match=r"bad\.glb: trimesh could not read it as GLB"):
+    with pytest.raises(ValueError, match=r"bad\.glb: GLB file of 9 bytes is shorter than its "
+                                         r"header"):
         load_mesh(tmp_path / "bad.glb")
 
 

@@ -167,7 +167,9 @@ def test_npz_huge_arrays_refused_before_decoding(tmp_path, monkeypatch):
     p = _npz_with_header(tmp_path / "big.npz", "verts", (10**9, 3))
     err, peak = peak_bytes(load_pointcloud, p)
     assert isinstance(err, ValueError), err
-    assert "big.npz" in str(err) and "memory limit of 1 GiB" in str(err)
+    assert "big.npz" in str(err) and "24,000,000,000 bytes, over the cap" in str(err)
+    err, peak = peak_bytes(load_pointcloud, p, max_bytes=10**12)  # then the ratio cap
+    assert isinstance(err, ValueError) and "from 73 bytes in the file" in str(err), err
     assert peak < 10 * 2**20
     # a real (compressible) array over an explicit limit is refused the same way
     np.savez_compressed(tmp_path / "z.npz", verts=np.zeros((200_000, 3)))
@@ -268,9 +270,9 @@ def test_mtl_non_finite_or_negative_refused(tmp_path, key, value):
 
 
 def test_unreadable_obj_is_value_error(tmp_path):
-    """A directory named like an OBJ is 'not found'; an OBJ inside the mesh loader too."""
+    """A directory named like an OBJ is refused as not a regular file; a bad PLY too."""
     (tmp_path / "d.obj").mkdir()
-    with pytest.raises(FileNotFoundError, match=r"d\.obj"):
+    with pytest.raises(ValueError, match=r"d\.obj: expected a regular OBJ file, got a folder"):
         load_obj(tmp_path / "d.obj")
     write(tmp_path / "bad.ply", b"ply\nformat ascii 1.0\nelement vertex 2\nend_header\n")
     with pytest.raises(ValueError, match=r"bad\.ply: "):
@@ -348,6 +350,11 @@ def test_png_bomb_refused_by_estimate_before_decoding(tmp_path, monkeypatch):
     obj = _textured(tmp_path, "bomb.png")
     err, peak = peak_bytes(load_obj, obj)
     assert isinstance(err, ValueError), err
+    assert "bomb.png" in str(err) and "12000x12000" in str(err) and "pixel cap" in str(err)
+    assert peak < 50 * 2**20
+    # with the pixel cap raised, the memory estimate still refuses it before decoding
+    err, peak = peak_bytes(load_obj, obj, max_pixels=10**9)
+    assert isinstance(err, ValueError), err
     assert "bomb.png" in str(err) and "12000x12000" in str(err) and "memory limit" in str(err)
     assert peak < 50 * 2**20
 
@@ -380,8 +387,9 @@ def test_texture_path_outside_folder_refused(outside, how):
         (mesh / "link.png").symlink_to(outside / "out.png")
     write(mesh / "m.mtl", f"newmtl a\nmap_Kd {ref}\n")
     p = _obj(mesh, "m.mtl")
-    why = "is an absolute path" if how == "absolute" else "resolves outside that folder"
-    with pytest.raises(ValueError, match=rf"m\.mtl: line 2: the map_Kd texture path .* {why}.*"
+    why = {"absolute": "absolute path .* refused", "dotdot": "path '../out.png' leaves the folder",
+           "symlink": "path 'link.png' resolves outside the folder"}[how]
+    with pytest.raises(ValueError, match=rf"m\.mtl: line 2: map_Kd texture: {why}.*"
                                          r"allow_outside=True"):
         load_obj(p)
     for loader in (load_objs_as_meshes, load_mesh):
@@ -404,7 +412,7 @@ def test_mtllib_outside_folder_refused_without_echo(outside, how):
     if how == "symlink":
         (mesh / "link.mtl").symlink_to(outside / "secret.txt")
     p = _obj(mesh, ref)
-    with pytest.raises(ValueError, match=r"m\.obj: line 1: the mtllib path") as info:
+    with pytest.raises(ValueError, match=r"m\.obj: line 1: mtllib: (absolute )?path") as info:
         load_obj(p)
     assert "secret line" not in str(info.value)
     with pytest.raises(ValueError, match=r"line 2: Kd has a non-numeric value$") as info:
@@ -428,7 +436,7 @@ def test_paths_inside_folder_and_subfolders_allowed(outside):
     # a texture path resolving from the MTL's subfolder up into the OBJ's folder: outside the
     # MTL's own folder, so refused (the rule is the folder of the file that names it)
     write(mesh / "sub" / "up.mtl", "newmtl a\nmap_Kd ../in.png\n")
-    with pytest.raises(ValueError, match=r"up\.mtl: line 2: .*resolves outside"):
+    with pytest.raises(ValueError, match=r"up\.mtl: line 2: .*leaves the folder"):
         load_obj(_obj(mesh, "sub/up.mtl"))
 
 
@@ -438,11 +446,11 @@ def test_referenced_path_with_control_character(tmp_path, allow_outside):
     'embedded null byte' named no file): ValueError naming the file and line."""
     write(tmp_path / "m.mtl", "newmtl a\nmap_Kd t\x00.png\n")
     p = _obj(tmp_path, "m.mtl")
-    with pytest.raises(ValueError, match=r"m\.mtl: line 2: the map_Kd texture path has a "
+    with pytest.raises(ValueError, match=r"m\.mtl: line 2: map_Kd texture: the path has a "
                                          r"control character"):
         load_obj(p, allow_outside=allow_outside)
     p = write(tmp_path / "n.obj", "mtllib m\x01.mtl\n" + TRI + "f 1 2 3\n")
-    with pytest.raises(ValueError, match=r"n\.obj: line 1: the mtllib path has a control"):
+    with pytest.raises(ValueError, match=r"n\.obj: line 1: mtllib: the path has a control"):
         load_obj(p, allow_outside=allow_outside)
 
 

@@ -102,13 +102,14 @@ def test_soft_renderer_huge_image_size_refused():
     """The soft rasterizer at image_size=100000 (1e10 pixels x K=50): refused naming
     image_size before any per-view buffer; a 16 px silhouette still renders."""
     mesh = ico_sphere(1)
-    settings = SoftRasterizationSettings.tutorial(100000)
-    err, peak = refused(SoftSilhouetteRenderer(cameras(), settings), mesh)
+    err, peak = refused(SoftRasterizationSettings.tutorial, 100000)  # at construction (28.6)
     assert str(err).startswith("image_size and faces_per_pixel: soft fragments of 1 view(s) at "
                                "(100000, 100000) with K=50") and peak < GB
-    err, peak = refused(SoftPhongRenderer(cameras(), raster_settings=settings), mesh,
+    settings = SoftRasterizationSettings.tutorial(1000)  # fits one view, not 40 views
+    err, peak = refused(SoftPhongRenderer(cameras(40), raster_settings=settings), mesh,
                         np.ones((mesh.n_verts, 3)))
-    assert str(err).startswith("image_size and faces_per_pixel") and peak < GB
+    assert str(err).startswith("image_size and faces_per_pixel: soft fragments of 40 view(s)")
+    assert peak < GB
     small = SoftSilhouetteRenderer(cameras(), SoftRasterizationSettings.tutorial(16))(mesh)
     assert small.images.shape[:3] == (1, 16, 16)
 

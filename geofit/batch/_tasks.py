@@ -14,7 +14,6 @@ import os
 import socket
 import time
 import traceback
-import uuid
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .._atomic import atomic_write as _atomic_write
 from .._json import json_text
 from .._threads import blas_threads, get_num_threads, set_num_threads
 from ..cameras import FoVPerspectiveCameras, look_at_view_transform
@@ -67,15 +67,7 @@ def atomic_write(path: Path, write: Callable[[Path], Any]) -> Path:
     The temporary name keeps the suffix (writers choose the format by it); a reader never sees
     a half-written file, and a crash leaves at most a hidden ``.*.tmp-*`` file.
     """
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return _atomic_write(path, write)  # the one atomic, durable write (fsync too)
 
 
 def write_json(path: Path, data: dict) -> Path:

@@ -263,10 +263,10 @@ def finish(command: str, res, metrics: dict, out: Path) -> int:
 
 def write_json(path: Path, obj) -> None:
     """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain),
-    atomically (a temporary file beside it, then ``os.replace``)."""
-    from ..batch._tasks import write_json as write
+    atomically (a temporary file beside it, fsync, then ``os.replace``)."""
+    from .._atomic import write_text
 
-    write(Path(path), obj)
+    write_text(Path(path), json_text(obj))
 
 
 def save_rotation(path: Path, render, n_frames: int, elev: float, azim0: float = 180.0) -> None:

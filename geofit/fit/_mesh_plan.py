@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import as_array, as_faces, check_choice, check_positive
+from .._memory import check_count
+from .._validate import as_array, as_faces, check_choice, check_coordinates, check_positive
 from ..io import save_obj
 from ..loss import PointToSurface
 from ..metrics import MeshEvaluator
@@ -249,6 +250,7 @@ def as_mesh_argument(m, name: str) -> Mesh:
         mesh = as_mesh(m, name)  # a geofit, trimesh or Open3D mesh
     if mesh.n_faces == 0:
         raise ValueError(f"{name}: expected a mesh with at least one face, got 0 faces")
+    check_coordinates(mesh.verts, name)  # beyond 1e38: areas overflow (not "zero area")
     if not float(mesh.face_areas.sum()) > 0:
         raise ValueError(f"{name}: the surface has zero area (every triangle is collapsed)")
     return mesh
@@ -416,7 +418,8 @@ def plan(target: MeshTarget, recipe: str, options: MeshFitOptions | None, *, tim
                          f"or lbfgs-nlopt), got method={method!r}")
     distance = o.distance or ("points" if stochastic else "surface")
     check_choice(distance, "options.distance", ("surface", "points"))
-    n_samples = None if o.n_samples is None else check_int(o.n_samples, "options.n_samples")
+    n_samples = None if o.n_samples is None else check_count(o.n_samples, "options.n_samples",
+                                                             400)  # ~2 x sampling's 200 B
     n_iter = o.n_iter if o.n_iter is not None else (
         40 if remeshing else (2000 if stochastic else 100))
     n_iter = check_int(n_iter, "options.n_iter")

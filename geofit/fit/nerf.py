@@ -57,11 +57,10 @@ from typing import Any
 
 import numpy as np
 
-from .._memory import check_allocation
+from .._memory import check_allocation, check_mlp_size
 from .._threads import get_num_threads
 from .._validate import as_array, as_rng, as_unit_images, check_choice, check_positive
 from ..cameras import CamerasBase
-from ..structures import MultiViewDataset
 from ..loss.robust import huber
 from ..render.volume import NeuralRadianceField, OccupancyGrid
 from ._nerf_render import render_nerf, sample_images_at_xys
@@ -211,6 +210,7 @@ class NerfConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        check_mlp_size(self.n_hidden_neurons, self.n_hidden_layers)  # before building it
         for name in ("hull_dilate_pixels", "density_grid_warmup", "occlusion_margin",
                      "silhouette_margin"):
             v = getattr(self, name)

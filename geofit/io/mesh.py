@@ -28,7 +28,14 @@ from .._foreign import scene_to_mesh
 from ..structures.mesh import Mesh, _corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
+from .._atomic import atomic_write, write_bytes
+from ._gltf import check_gltf
+from ._images import as_max_pixels
+from ._paths import PathPolicy, check_input_file, trimesh_resolver
 from .obj import MAX_COORD, _obj_to_mesh, save_obj
+from ._off import check_off_counts
+from .points import (PlyLayoutNotRead, _open3d_ok, ply_declared_counts, read_ply_mesh,
+                     verify_binary_ply)
 
 __all__ = ["load_mesh", "save_mesh", "READ_FORMATS", "WRITE_FORMATS"]
 
@@ -41,7 +48,8 @@ WRITE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
 
 
 def load_mesh(path: PathLike, load_textures: bool = True, *, merge: bool = True,
-              allow_outside: bool = False) -> Mesh | dict[str, Mesh]:
+              allow_outside: bool = False,
+              max_pixels: int | None = None) -> Mesh | dict[str, Mesh]:
     """Load one triangle mesh from an OBJ, PLY, STL, OFF, GLB or glTF file.
 
     Parameters
@@ -62,8 +70,12 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, merge: bool = True,
         each with its node transform applied (``{file stem: Mesh}`` for the
         single-mesh formats).
     allow_outside : bool
-        For OBJ files, follow MTL and texture paths outside the file's folder (see
-        :func:`geofit.io.load_obj`).
+        Follow the paths a file names (OBJ: MTL and textures; glTF/GLB: buffers and images)
+        outside the file's folder (see :func:`geofit.io.load_obj`). Every such path goes
+        through the one path policy (:mod:`geofit.io._paths`), on the trimesh route too.
+    max_pixels : int, optional
+        Most pixels (width x height) a texture image may have (OBJ textures, GLB/glTF images),
+        checked from the image header before decoding; default 2**24.
 
     Returns
     -------
@@ -98,17 +110,53 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, merge: bool = True,
                             if suffix == ".npz" else ""))
     if not isinstance(merge, bool):
         raise TypeError(f"merge: expected True or False, got {merge!r}")
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
+    path = check_input_file(path, "mesh file")
+    max_pixels = as_max_pixels(max_pixels)
     if suffix == ".obj" and sniff(path) == "OBJ":
-        mesh = _obj_to_mesh(path, load_textures, allow_outside)
+        mesh = _obj_to_mesh(path, load_textures, allow_outside, max_pixels)
         return mesh if merge else {path.stem: mesh}
-    import trimesh
-
     fmt = sniff(path) or EXTENSIONS[suffix]
     try:
-        loaded = trimesh.load(str(path), file_type=_TRIMESH_TYPES[fmt], process=False)
-    except Exception as exc:  # trimesh raises many types for malformed files
+        mesh = _load_trimesh_route(path, fmt, allow_outside, max_pixels, merge)
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - numpy/trimesh raise IndexError, KeyError, ...
+        # on malformed data: every one becomes a ValueError naming the file
+        raise ValueError(f"{path}: not a readable {fmt} mesh ({type(exc).__name__}: "
+                         f"{str(exc)[:200]})") from None
+    if isinstance(mesh, dict):  # merge=False on a scene: its parts by node name
+        return {k: m if load_textures else Mesh(m.verts, m.faces) for k, m in mesh.items()}
+    mesh = mesh if load_textures else Mesh(mesh.verts, mesh.faces)
+    return mesh if merge else {path.stem: mesh}
+
+
+def _load_trimesh_route(path: Path, fmt: str, allow_outside: bool, max_pixels: int,
+                        merge: bool = True) -> Mesh | dict[str, Mesh]:
+    """PLY, STL, OFF, GLB and glTF through trimesh, from bytes geofit read itself: the files the
+    input names go through the path policy (a trimesh Resolver), images are checked against the
+    pixel cap before trimesh decodes them."""
+    import io
+
+    import trimesh
+
+    with open(path, "rb") as fh:
+        data = fh.read()
+    if fmt == "PLY":  # the one PLY reader (geofit's own, shared with point clouds)
+        try:
+            return _ply_to_mesh(path)
+        except PlyLayoutNotRead:  # binary polygons of mixed sizes: trimesh, counts checked
+            pass
+    elif fmt == "OFF":
+        check_off_counts(data, path)
+    policy = PathPolicy(path.parent, allow_outside=allow_outside)
+    if fmt in ("GLB", "glTF"):
+        check_gltf(data, path, fmt, policy, max_pixels)
+    try:
+        loaded = trimesh.load(io.BytesIO(data), file_type=_TRIMESH_TYPES[fmt], process=False,
+                              resolver=trimesh_resolver(policy, str(path)))
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types for malformed files
         raise ValueError(f"{path}: trimesh could not read it as {fmt} "
                          f"({type(exc).__name__}: {str(exc)[:200]})") from None
     if isinstance(loaded, trimesh.Scene):
@@ -125,30 +173,49 @@ def load_mesh(path: PathLike, load_textures: bool = True, *, merge: bool = True,
                 if isinstance(g, trimesh.Trimesh) and len(g.faces):
                     g = g.copy()
                     g.apply_transform(T)
-                    parts[node] = _from_trimesh(path, g, fmt, load_textures)
+                    parts[node] = _from_trimesh(path, g, fmt, data)
             return parts
         loaded = scene_to_mesh(loaded)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         n = len(getattr(loaded, "vertices", ()))
         raise ValueError(f"{path}: the file has no faces ({n} vertices): "
                          "read a point cloud with geofit.io.load_pointcloud")
-    mesh = _from_trimesh(path, loaded, fmt, load_textures)
-    return mesh if merge else {path.stem: mesh}
+    return _from_trimesh(path, loaded, fmt, data)
 
 
-def _from_trimesh(path: Path, loaded, fmt: str, load_textures: bool) -> Mesh:
+def _from_trimesh(path: Path, loaded, fmt: str, data: bytes) -> Mesh:
     """A loaded ``trimesh.Trimesh`` with faces, checked, as a Mesh."""
     if not np.isfinite(np.asarray(loaded.vertices)).all():
         raise ValueError(f"{path}: the vertex coordinates are not all finite")
     if np.abs(np.asarray(loaded.vertices)).max(initial=0.0) > MAX_COORD:
         raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
-    try:
-        if fmt == "STL":
-            return _merge_corners(loaded)
-        mesh = Mesh.from_trimesh(loaded)
-    except ValueError as exc:  # e.g. face indices out of range, colours of the wrong size
-        raise ValueError(f"{path}: {exc}") from None
-    return mesh if load_textures else Mesh(mesh.verts, mesh.faces)
+    if fmt == "STL":
+        return _merge_corners(loaded)
+    if fmt in ("PLY", "OFF"):  # trimesh's result against the counts the header declares
+        declared = (ply_declared_counts(path).get("vertex") if fmt == "PLY"
+                    else check_off_counts(data, path))
+        if len(loaded.vertices) != declared:
+            raise ValueError(f"{path}: the header declares {declared} vertices, trimesh read "
+                             f"{len(loaded.vertices)}")
+    return Mesh.from_trimesh(loaded)  # its ValueErrors get the file's name from load_mesh
+
+
+def _ply_to_mesh(path: Path) -> Mesh:
+    verts, faces, colours = read_ply_mesh(path)
+    if faces is None or len(faces) == 0:
+        raise ValueError(f"{path}: the file has no faces ({len(verts)} vertices): "
+                         "read a point cloud with geofit.io.load_pointcloud")
+    if not np.isfinite(verts).all():
+        raise ValueError(f"{path}: the vertex coordinates are not all finite")
+    if np.abs(verts).max(initial=0.0) > MAX_COORD:
+        raise ValueError(f"{path}: vertex coordinates beyond {MAX_COORD:g} in absolute value")
+    tex = None
+    if colours is not None:
+        if not np.isfinite(colours).all() or colours.min() < 0 or colours.max() > 1:
+            raise ValueError(f"{path}: PLY colours must lie in [0, 1] (floats) or [0, 255] "
+                             f"(8-bit integers)")
+        tex = TexturesVertex(colours)
+    return Mesh(verts, faces, tex)
 
 
 #: Format name -> trimesh file_type.
@@ -226,11 +293,10 @@ def save_mesh(path: PathLike, mesh) -> None:
         plain = Mesh(mesh.verts, mesh.faces,
                      tex if isinstance(tex, TexturesVertex) and tex.n_channels in (1, 3, 4)
                      else None)
-        ok = o3d.io.write_triangle_mesh(str(path), plain.to_open3d(), write_ascii=False,
-                                        write_vertex_normals=False,
-                                        write_vertex_colors=plain.textures is not None)
-        if not ok:
-            raise OSError(f"{path}: Open3D could not write the file")
+        o3d_mesh = plain.to_open3d()
+        atomic_write(path, lambda tmp: _open3d_ok(o3d.io.write_triangle_mesh(
+            str(tmp), o3d_mesh, write_ascii=False, write_vertex_normals=False,
+            write_vertex_colors=plain.textures is not None), path), verify=verify_binary_ply)
         return
     if suffix in (".stl", ".off"):
         mesh = Mesh(mesh.verts, mesh.faces)  # geometry only
@@ -238,4 +304,5 @@ def save_mesh(path: PathLike, mesh) -> None:
         mesh = Mesh(mesh.verts, mesh.faces)
     tm = mesh.to_trimesh()
     tm.metadata.clear()  # the exact-round-trip record is for in-memory conversions only
-    tm.export(str(path), file_type=suffix[1:])
+    data = tm.export(file_type=suffix[1:])  # bytes (STL, GLB) or str (OFF)
+    write_bytes(path, data.encode("ascii") if isinstance(data, str) else data)

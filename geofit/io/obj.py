@@ -20,9 +20,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._atomic import write_bytes, write_text
 from .._memory import check_allocation
-from .._validate import as_array, as_faces, as_points
+from .._validate import MAX_COORD, as_array, as_faces, as_points
 from ._formats import EXTENSIONS, not_obj_error, sniff
+from ._images import as_max_pixels, open_image
+from ._paths import PathPolicy, check_input_file
 from .._foreign import foreign_kind
 from ..structures.mesh import Mesh, Meshes, as_mesh
 from ..structures.textures import TexturesUV
@@ -138,7 +141,6 @@ _WS = np.zeros(256, dtype=bool)
 _WS[[9, 10, 11, 12, 13, 32]] = True  # \t \n \v \f \r and space
 _NUMERIC_OK = _WS.copy()  # bytes allowed in v/vt/vn lines: printable ASCII and whitespace
 _NUMERIC_OK[32:127] = True
-MAX_COORD = 1e38  # |coordinate| bound: beyond it areas, normals and float32 rendering overflow
 _POW10 = 10 ** np.arange(19, dtype=np.int64)
 _SLOT_NAMES = ("vertex", "texture coordinate", "normal")
 
@@ -348,33 +350,6 @@ def _parse_mtl(path: Path) -> dict:
     return mats
 
 
-def _check_inside(ref: str, target: Path, source: Path, ln: int, what: str,
-                  allow_outside: bool) -> None:
-    """The path policy: ``target`` (named as ``ref`` on line ``ln`` of ``source``) must lie in
-    the folder of ``source`` after resolving ``..`` and symlinks, unless ``allow_outside``."""
-    if any(ord(c) < 32 or c == "\x7f" for c in ref):  # NUL makes the OS calls raise
-        raise ValueError(f"{source}: line {ln}: the {what} path has a control character")
-    if allow_outside:
-        return
-    folder = source.parent.resolve()
-    why = None
-    if Path(ref.replace("\\", "/")).is_absolute():
-        why = "is an absolute path"
-    else:
-        try:
-            real = target.resolve()
-        except (OSError, RuntimeError):  # symlink loops
-            why = "cannot be resolved"
-        else:  # both the written path ('..' in it) and the real one (symlinks) must stay in
-            written = os.path.normpath(ref.replace("\\", "/"))
-            if written == ".." or written.startswith("../") or not real.is_relative_to(folder):
-                why = "resolves outside that folder ('..' or a symlink)"
-    if why is not None:
-        raise ValueError(f"{source}: line {ln}: the {what} path {ref!r} {why}; referenced files "
-                         f"must lie in the folder of the file that names them ({folder}); pass "
-                         f"allow_outside=True to follow such paths")
-
-
 def _image_to_float(im, path) -> np.ndarray:
     """A PIL image -> (H, W, 3) float64, scaled by the pixel type's range (not clipped to 8 bit)."""
     mode = im.mode
@@ -397,18 +372,14 @@ def _image_to_float(im, path) -> np.ndarray:
     return np.repeat(a[:, :, None], 3, axis=2)
 
 
-def _read_image(path: str, memory_limit=None) -> np.ndarray:
-    """A texture image as (H, W, 3) float64; its decoded size is checked from the header first."""
-
-    from PIL import Image
-
+def _read_image(path: str, memory_limit=None, max_pixels=None) -> np.ndarray:
+    """A texture image as (H, W, 3) float64; its pixel count and decoded size are checked from
+    the header first (:func:`geofit.io._images.open_image`)."""
     try:
         with warnings.catch_warnings():
-            # PIL's warnings (corrupt EXIF, truncated data) refuse the image; geofit's own
-            # memory estimate replaces PIL's pixel-count warning
+            # PIL's warnings (corrupt EXIF, truncated data) refuse the image
             warnings.simplefilter("error")
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path) as im:
+            with open_image(path, str(path), max_pixels) as im:
                 w, h = im.size
                 bands = len(im.getbands())
                 check_allocation(w * h * (bands * 4 + 3 * 8 * 2), setting=str(path),
@@ -431,7 +402,7 @@ def _read_image(path: str, memory_limit=None) -> np.ndarray:
 
 # --------------------------------------------------------------------------- public API
 def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool = False,
-             memory_limit=None) -> ObjData:
+             memory_limit=None, max_pixels: int | None = None) -> ObjData:
     """Read a Wavefront OBJ file, its MTL materials and its texture images.
 
     Follows ``pytorch3d.io.load_obj``: vertices, texture coordinates and normals are kept in
@@ -452,6 +423,9 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
     memory_limit : int or str, optional
         Bytes a texture image may take once decoded (checked from its header before decoding);
         default ``GEOFIT_MEMORY_LIMIT`` or half of the available memory.
+    max_pixels : int, optional
+        Most pixels (width x height) a texture image may have, checked from its header before
+        decoding; default :data:`geofit.io.DEFAULT_MAX_PIXELS` (2**24, a 4096 x 4096 image).
 
     Returns
     -------
@@ -468,8 +442,8 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
         exist. The message names the missing file. (A missing MTL file is only a warning.)
     ValueError
         Naming the file: a file that cannot be read, a texture that is not a readable image or
-        would exceed the memory limit, an MTL or texture path outside the folder (see
-        ``allow_outside``), an MTL colour that is not finite and non-negative. Naming the file
+        would exceed the memory limit or the pixel cap, an MTL or texture path outside the folder
+        (see ``allow_outside``), an MTL colour that is not finite and non-negative. Naming the file
         and line: a control or non-ASCII character in a ``v``/``vt``/``vn`` line, a coordinate
         beyond 1e38 in absolute value, a non-numeric or non-finite coordinate, a ``v``/``vn`` line
         with fewer than 3 values or a ``vt`` line with fewer than 2, a face with fewer than 3
@@ -502,9 +476,8 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
     array([[0, 1, 2],
            [0, 2, 3]])
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"OBJ file not found: {path}")
+    path = check_input_file(path, "OBJ file")
+    max_pixels = as_max_pixels(max_pixels)
     if sniff(path) not in (None, "OBJ"):
         raise not_obj_error(path, sniff(path), reader=True)
     lines = _lines(_read_text(path))
@@ -612,13 +585,13 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
     texture_images: dict = {}
     if load_textures and mtllibs:
         defined: dict = {}
+        obj_policy = PathPolicy(path.parent, allow_outside=allow_outside)
         for name, ln in mtllibs:  # one per mtllib statement
-            mp = Path(name.replace("\\", "/"))
-            mp = mp if mp.is_absolute() else path.parent / mp
-            _check_inside(name, mp, path, ln, "mtllib", allow_outside)
-            if not mp.is_file():
-                warnings.warn(f"{path}: line {ln}: material library not found: {mp}; loading "
-                              f"the geometry without its materials", UserWarning, stacklevel=2)
+            mp = obj_policy.resolve(name, f"{path}: line {ln}: mtllib", required=False)
+            if mp is None:
+                warnings.warn(f"{path}: line {ln}: material library not found: "
+                              f"{path.parent / name.replace(chr(92), '/')}; loading the geometry "
+                              f"without its materials", UserWarning, stacklevel=2)
                 continue
             defined.update(_parse_mtl(mp))
         cache: dict = {}
@@ -628,22 +601,25 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
             m = defined[name]
             materials[name] = m
             if m.map_Kd is not None:
-                src, src_line, ref = m.extra.get("map_Kd_source", (str(path), 0, m.map_Kd))
-                _check_inside(ref, Path(m.map_Kd), Path(src), src_line, "map_Kd texture",
-                              allow_outside)
-                if not Path(m.map_Kd).is_file():
+                src, src_line, ref = m.extra["map_Kd_source"]
+                tex = PathPolicy(Path(src).parent, allow_outside=allow_outside).resolve(
+                    ref, f"{src}: line {src_line}: map_Kd texture", required=False)
+                if tex is None:
                     raise FileNotFoundError(
                         f"{path}: texture image of material {name!r} not found: {m.map_Kd}")
+                m.map_Kd = str(tex)
                 if m.map_Kd not in cache:
-                    cache[m.map_Kd] = _read_image(m.map_Kd, memory_limit)
+                    cache[m.map_Kd] = _read_image(m.map_Kd, memory_limit, max_pixels)
                 texture_images[name] = cache[m.map_Kd]
 
     return ObjData(verts, faces, faces_uvs, verts_uvs, faces_normals_idx, normals, materials,
                    face_materials, texture_images, material_names)
 
 
-def _obj_to_mesh(path: Path, load_textures: bool, allow_outside: bool = False) -> Mesh:
-    d = load_obj(path, load_textures=load_textures, allow_outside=allow_outside)
+def _obj_to_mesh(path: Path, load_textures: bool, allow_outside: bool = False,
+                 max_pixels=None) -> Mesh:
+    d = load_obj(path, load_textures=load_textures, allow_outside=allow_outside,
+                 max_pixels=max_pixels)
     tex = None
     if d.texture_images:
         if len(d.verts_uvs) == 0:
@@ -656,7 +632,7 @@ def _obj_to_mesh(path: Path, load_textures: bool, allow_outside: bool = False) -
 
 
 def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: bool = True, *,
-                        allow_outside: bool = False) -> Meshes:
+                        allow_outside: bool = False, max_pixels: int | None = None) -> Meshes:
     """Load OBJ files into a :class:`~geofit.structures.Meshes` batch (PyTorch3D semantics).
 
     Parameters
@@ -668,6 +644,8 @@ def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: boo
         texture image.
     allow_outside : bool
         Follow MTL and texture paths outside each OBJ's folder (see :func:`load_obj`).
+    max_pixels : int, optional
+        Pixel cap of the texture images (see :func:`load_obj`).
 
     Returns
     -------
@@ -690,7 +668,8 @@ def load_objs_as_meshes(files: PathLike | Sequence[PathLike], load_textures: boo
     """
     if isinstance(files, (str, os.PathLike)):
         files = [files]
-    return Meshes([_obj_to_mesh(Path(f), load_textures, allow_outside) for f in files])
+    return Meshes([_obj_to_mesh(Path(f), load_textures, allow_outside, max_pixels)
+                   for f in files])
 
 
 def _fmt_floats(arr: np.ndarray, decimal_places: int | None) -> tuple:
@@ -797,15 +776,17 @@ def save_obj(path: PathLike, mesh_or_verts, faces=None, *, verts_uvs=None, faces
         parts.append(("f %d/%d %d/%d %d/%d\n" * len(faces)) % tuple(fv.ravel().tolist()))
     else:
         parts.append(("f %d %d %d\n" * len(faces)) % tuple((faces + 1).ravel().tolist()))
-    path.write_text("".join(parts))
+    if texture_map is not None:  # the texture and MTL first: the OBJ never names a missing file
+        import io
 
-    if texture_map is not None:
         from PIL import Image
 
         img = np.round(texture_map * 255.0).astype(np.uint8)
-        Image.fromarray(img[:, :, 0] if img.shape[2] == 1 else img).save(
-            path.with_suffix(".png"))
-        path.with_suffix(".mtl").write_text(
-            "# written by geofit\nnewmtl mesh\n"
-            f"map_Kd {path.stem}.png\n"
-            "Ka 1.0 1.0 1.0\nKd 1.0 1.0 1.0\nKs 0.0 0.0 0.0\nNs 0.0\n")
+        buf = io.BytesIO()
+        Image.fromarray(img[:, :, 0] if img.shape[2] == 1 else img).save(buf, format="PNG")
+        write_bytes(path.with_suffix(".png"), buf.getbuffer())
+        write_text(path.with_suffix(".mtl"),
+                   "# written by geofit\nnewmtl mesh\n"
+                   f"map_Kd {path.stem}.png\n"
+                   "Ka 1.0 1.0 1.0\nKd 1.0 1.0 1.0\nKs 0.0 0.0 0.0\nNs 0.0\n")
+    write_text(path, "".join(parts))

@@ -1,6 +1,8 @@
 """Point clouds on disk: ``.npz`` (PyTorch3D's PittsburghBridge layout) and ``.ply`` (Open3D)."""
 from __future__ import annotations
 
+import errno
+import io
 import os
 import zipfile
 import zlib
@@ -8,9 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_write, write_bytes
 from .._memory import check_allocation
 from .._validate import as_array
+from ._paths import check_input_file
 from ..structures.pointcloud import PointCloud, as_pointcloud
+from ._arrays import check_array_size, read_npy_header
 from .obj import _tokens_per_line
 
 __all__ = ["load_pointcloud", "save_pointcloud"]
@@ -90,6 +95,31 @@ def _ply_header(path: Path, head: bytes):
     return fmt, elements, nl + 1
 
 
+def verify_binary_ply(path: Path, list_len: int = 3) -> None:
+    """Raise OSError when a binary PLY just written is shorter or longer than its header says
+    (every list property holding ``list_len`` items, as Open3D writes triangles). Open3D
+    reports success after a short write (a full disk): this is the check."""
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    try:
+        fmt, elements, body_start = _ply_header(path, head)
+    except ValueError as exc:
+        raise OSError(errno.EIO, f"{path}: the written PLY header is incomplete ({exc})") from None
+    need = body_start
+    for _, cnt, props in elements:  # a loop over the (two) elements
+        row = 0
+        for p in props:
+            if isinstance(p[1], str):
+                row += np.dtype(p[1]).itemsize
+            else:
+                row += np.dtype(p[1][0]).itemsize + list_len * np.dtype(p[1][1]).itemsize
+        need += cnt * row
+    if fmt != "ascii" and size != need:
+        raise OSError(errno.EIO, f"{path}: short write: {size} bytes written, the PLY header "
+                                 f"declares {need}")
+
+
 def _read_ply(path: Path, limit):
     """Read the vertex element of a PLY file -> (points, colours or None, normals or None).
 
@@ -159,25 +189,36 @@ def _read_ply(path: Path, limit):
     return pts, col, nrm
 
 
-def _ply_ascii(path: Path, elements: list, k: int, body_start: int) -> dict:
-    """The vertex element of an ASCII PLY (one element per line, as the format's writers do)."""
+_PLURAL = {"vertex": "vertices", "face": "faces"}
+
+
+def _ascii_rows(path: Path, elements: list, k: int, body_start: int, what: str) -> bytes:
+    """The lines of ASCII PLY element ``k`` (one element per line, as the format's writers
+    do), checked: as many lines as declared, only number characters."""
     with open(path, "rb") as fh:
         fh.seek(body_start)
         blob = fh.read()
     skip = sum(cnt for _, cnt, _ in elements[:k])
-    _, n, props = elements[k]
+    n = elements[k][1]
     lines = blob.split(b"\n", skip + n)
     rows = lines[skip:skip + n]
     if len(rows) < n or (len(lines) == skip + n and not rows[-1].strip()):
-        raise ValueError(f"{path}: the PLY header declares {n} vertices but the file has fewer "
+        raise ValueError(f"{path}: the PLY header declares {n} {_PLURAL[what]} but the file has fewer "
                          f"lines (truncated file or wrong count)")
     text = b"\n".join(rows)
     arr = np.frombuffer(text, dtype=np.uint8)
     ok = _ASCII_OK[arr]
     if not ok.all():
         i = int(np.count_nonzero(arr[:int(np.flatnonzero(~ok)[0])] == 10))
-        raise ValueError(f"{path}: PLY vertex {i}: unexpected character (only numbers and "
+        raise ValueError(f"{path}: PLY {what} {i}: unexpected character (only numbers and "
                          f"spaces are allowed in ASCII PLY data)")
+    return text
+
+
+def _ply_ascii(path: Path, elements: list, k: int, body_start: int) -> dict:
+    """The vertex element of an ASCII PLY."""
+    _, n, props = elements[k]
+    text = _ascii_rows(path, elements, k, body_start, "vertex")
     counts = _tokens_per_line(np.frombuffer(text + b"\n", dtype=np.uint8))[2]
     if np.any(counts != len(props)):
         i = int(np.flatnonzero(counts != len(props))[0])
@@ -208,13 +249,13 @@ _ASCII_OK[np.frombuffer(b"0123456789+-.eEnaifNAIFty", dtype=np.uint8)] = True
 
 
 # --------------------------------------------------------------------------- NPZ
-def _read_npz(path: Path, limit):
+def _read_npz(path: Path, limit, max_bytes=None):
     """The arrays of a PittsburghBridge-style npz, sizes checked from the headers first."""
     with open(path, "rb") as fh:  # our handle: closed even when numpy fails half-way
-        return _read_npz_from(path, fh, limit)
+        return _read_npz_from(path, fh, limit, max_bytes)
 
 
-def _read_npz_from(path: Path, fh, limit):
+def _read_npz_from(path: Path, fh, limit, max_bytes=None):
     try:
         z = np.load(fh, allow_pickle=False)
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
@@ -233,17 +274,16 @@ def _read_npz_from(path: Path, fh, limit):
         total = 0
         for key in wanted:  # shapes and dtypes from the .npy headers, nothing decoded yet
             try:
+                stored = z.zip.getinfo(key + ".npy").compress_size
                 with z.zip.open(key + ".npy") as fh:
-                    version = np.lib.format.read_magic(fh)
-                    shape, _, dtype = (np.lib.format.read_array_header_1_0(fh)
-                                       if version == (1, 0) else
-                                       np.lib.format.read_array_header_2_0(fh))
+                    shape, _, dtype = read_npy_header(fh)
             except (ValueError, OSError, EOFError, KeyError, SyntaxError, TypeError,
                     zipfile.BadZipFile, zlib.error) as exc:
                 raise ValueError(f"{path}: array {key!r} has an unreadable header "
                                  f"({type(exc).__name__})") from None
             if dtype.hasobject:
                 raise ValueError(f"{path}: array {key!r} holds Python objects")
+            check_array_size(shape, dtype, stored, f"{path}: array {key!r}", max_bytes)
             total += 2 * int(np.prod(shape, dtype=object)) * max(dtype.itemsize, 8)
         check_allocation(total, setting=str(path), what=f"the arrays {wanted}", limit=limit)
         try:
@@ -256,7 +296,8 @@ def _read_npz_from(path: Path, fh, limit):
     return pk, ck, pts, col, nrm
 
 
-def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud:
+def load_pointcloud(path: str | os.PathLike, *, memory_limit=None,
+                    max_bytes: int | None = None) -> PointCloud:
     """Read a point cloud with optional colours and normals.
 
     Parameters
@@ -270,6 +311,9 @@ def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud
     memory_limit : int or str, optional
         Bytes the decoded arrays may take (see :func:`geofit._memory.check_allocation`);
         default ``GEOFIT_MEMORY_LIMIT`` or half of the available memory.
+    max_bytes : int, optional
+        Most bytes one ``.npz`` array may decode to (default 1 GiB); arrays over 64 MiB must
+        also decode to at most 100 times their compressed size (see :mod:`geofit.io._arrays`).
 
     Returns
     -------
@@ -301,11 +345,10 @@ def load_pointcloud(path: str | os.PathLike, *, memory_limit=None) -> PointCloud
     suffix = path.suffix.lower()
     if suffix not in (".npz", ".ply"):
         raise ValueError(f"path: expected a .npz or .ply file, got {path.name!r}")
-    if not path.is_file():
-        raise FileNotFoundError(f"point cloud file not found: {path}")
+    path = check_input_file(path, "point cloud file")
     try:
         if suffix == ".npz":
-            pk, ck, pts, col, nrm = _read_npz(path, memory_limit)
+            pk, ck, pts, col, nrm = _read_npz(path, memory_limit, max_bytes)
         else:
             pts, col, nrm = _read_ply(path, memory_limit)
             pk, ck = "points", "colors"
@@ -377,8 +420,9 @@ def save_pointcloud(path: str | os.PathLike, cloud: PointCloud) -> None:
             arrays["rgb"] = cloud.features
         if cloud.normals is not None:
             arrays["normals"] = cloud.normals
-        with open(path, "wb") as fh:  # an open handle keeps numpy from appending ".npz"
-            np.savez_compressed(fh, **arrays)
+        buf = io.BytesIO()  # a file object keeps numpy from appending ".npz"
+        np.savez_compressed(buf, **arrays)
+        write_bytes(path, buf.getbuffer())
         return
     import open3d as o3d
 
@@ -394,5 +438,137 @@ def save_pointcloud(path: str | os.PathLike, cloud: PointCloud) -> None:
         pc.colors = o3d.utility.Vector3dVector(np.array(f[:, :3]))
     if cloud.normals is not None:
         pc.normals = o3d.utility.Vector3dVector(np.array(cloud.normals))
-    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=False):
-        raise OSError(f"Open3D could not write {path}")
+    atomic_write(path, lambda tmp: _open3d_ok(
+        o3d.io.write_point_cloud(str(tmp), pc, write_ascii=False), path),
+        verify=verify_binary_ply)
+
+
+def _open3d_ok(ok: bool, path: Path) -> None:
+    """Open3D's writers return False on failure instead of raising."""
+    if not ok:
+        raise OSError(errno.EIO, f"{path}: Open3D could not write the file")
+
+
+# --------------------------------------------------------------------------- PLY faces
+class PlyLayoutNotRead(Exception):
+    """A valid binary PLY layout this reader does not parse (polygons of mixed sizes, list
+    properties before the faces): the caller reads it with trimesh and checks the counts."""
+
+
+_FACE_LISTS = ("vertex_indices", "vertex_index")
+
+
+def read_ply_mesh(path: Path, limit=None):
+    """A PLY mesh -> (verts (V, 3), faces (F, 3) int64 or None, colours (V, C) or None).
+
+    The one PLY reader (meshes and clouds): counts, sizes and integer ranges are checked
+    against the header; polygons are fan-triangulated ``(v0, vi, vi+1)``. Raises
+    :class:`PlyLayoutNotRead` for binary layouts it does not parse.
+    """
+    pts, col, _ = _read_ply(path, limit)
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    fmt, elements, body_start = _ply_header(path, head)
+    names = [e[0] for e in elements]
+    if "face" not in names or elements[names.index("face")][1] == 0:
+        return pts, None, col
+    j = names.index("face")
+    _, m, props = elements[j]
+    lists = [i for i, p in enumerate(props) if not isinstance(p[1], str)]
+    if len(lists) != 1 or props[lists[0]][0] not in _FACE_LISTS:
+        raise ValueError(f"{path}: PLY 'face' element: expected one list property "
+                         f"'vertex_indices', got {[p[0] for p in props]}")
+    li = lists[0]
+    if fmt == "ascii":
+        counts, flat = _ply_ascii_faces(path, elements, j, body_start, li)
+    else:
+        counts, flat = _ply_binary_faces(path, fmt, elements, j, body_start, li)
+    if len(counts) != m:
+        raise ValueError(f"{path}: the PLY header declares {m} faces, the file holds "
+                         f"{len(counts)}")
+    if counts.size and counts.min() < 3:
+        i = int(np.flatnonzero(counts < 3)[0])
+        raise ValueError(f"{path}: PLY face {i} has {int(counts[i])} vertices (at least 3)")
+    n = len(pts)
+    if flat.size and (flat.min() < 0 or flat.max() >= n):
+        bad = int(flat[(flat < 0) | (flat >= n)][0])
+        raise ValueError(f"{path}: PLY face index {bad} is out of range for {n} vertices")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    n_tri = counts - 2
+    tri_face = np.repeat(np.arange(m), n_tri)
+    local = np.arange(len(tri_face)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    base = starts[tri_face]
+    faces = flat[np.stack([base, base + local, base + local + 1], axis=1)]
+    return pts, faces.astype(np.int64), col
+
+
+def _ply_ascii_faces(path: Path, elements: list, j: int, body_start: int, li: int):
+    """(corner counts (m,), flat indices) of the ASCII face element ``j``: every line holds
+    its declared count of indices plus the element's other properties, all integers."""
+    props = elements[j][2]
+    text = _ascii_rows(path, elements, j, body_start, "face")
+    ntok = _tokens_per_line(np.frombuffer(text + b"\n", dtype=np.uint8))[2]
+    try:
+        vals = np.array(text.split(), dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"{path}: PLY face data has a value that is not a number") from None
+    line_start = np.concatenate([[0], np.cumsum(ntok)[:-1]])
+    before = li  # scalar properties before the list (rare): their values come first
+    has = ntok > before
+    counts = np.where(has, vals[np.minimum(line_start + before, len(vals) - 1)], -1)
+    n_scalar = len(props) - 1
+    bad = ~has | (counts != np.round(counts)) | (counts < 0) | (ntok != 1 + counts + n_scalar)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{path}: PLY face {i}: expected a vertex count followed by that many "
+                         f"indices ({n_scalar} other value(s)), got {int(ntok[i])} values")
+    counts = counts.astype(np.int64)
+    first = np.repeat(line_start + before + 1, counts)
+    pos = first + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    flat = vals[pos]
+    if flat.size and (np.any(flat != np.round(flat)) or np.abs(flat).max() > 2**62):
+        raise ValueError(f"{path}: PLY face indices must be integers")
+    return counts, flat.astype(np.int64)
+
+
+def _ply_binary_faces(path: Path, fmt: str, elements: list, j: int, body_start: int, li: int):
+    """(corner counts, flat indices) of the binary face element ``j`` when every face has the
+    same corner count (triangles, quads); else :class:`PlyLayoutNotRead`."""
+    order = "<" if fmt == "binary_little_endian" else ">"
+    for _, _, pr in elements[:j]:
+        if any(not isinstance(p[1], str) for p in pr):
+            raise PlyLayoutNotRead("list properties before the faces")
+    offset = body_start + sum(cnt * sum(np.dtype(p[1]).itemsize for p in pr)
+                              for _, cnt, pr in elements[:j])
+    _, m, props = elements[j]
+    size = path.stat().st_size
+    ctype, itype = props[li][1]
+    pre = sum(np.dtype(p[1]).itemsize for p in props[:li])
+    with open(path, "rb") as fh:
+        fh.seek(offset + pre)
+        first = fh.read(np.dtype(ctype).itemsize)
+    if len(first) < np.dtype(ctype).itemsize:
+        raise ValueError(f"{path}: the PLY header declares {m} faces but the file ends before "
+                         f"them (truncated file or wrong count)")
+    c = int(np.frombuffer(first, dtype=order + ctype)[0])
+    fields = [(f"p{i}", order + p[1]) for i, p in enumerate(props[:li])]
+    fields += [("n", order + ctype), ("idx", order + itype, (max(c, 0),))]
+    fields += [(f"q{i}", order + p[1]) for i, p in enumerate(props[li + 1:])]
+    dt = np.dtype(fields)
+    if offset + m * dt.itemsize > size:
+        raise ValueError(f"{path}: the PLY header declares {m} faces ({m * dt.itemsize} bytes) "
+                         f"but the file holds only {size - offset} bytes for them (truncated "
+                         f"file or wrong count)")
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        raw = np.frombuffer(fh.read(m * dt.itemsize), dtype=dt, count=m)
+    if np.any(raw["n"] != c):
+        raise PlyLayoutNotRead("faces of mixed sizes")
+    return np.full(m, c, dtype=np.int64), raw["idx"].astype(np.int64).ravel()
+
+
+def ply_declared_counts(path: Path) -> dict:
+    """``{element: count}`` from a PLY header (for checking another reader's result)."""
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_MAX)
+    return {e[0]: e[1] for e in _ply_header(path, head)[1]}

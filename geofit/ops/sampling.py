@@ -23,8 +23,13 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_rng, check_int
+from .._memory import check_count
+from .._validate import as_rng
 from ..structures.mesh import Mesh, Meshes, as_mesh
+
+#: Bytes per sample of a sampling call: points, normals, barycentrics, face ids, the sparse
+#: Jacobian (3 entries) and the random draws, about 25 float64 / int64 values.
+_BYTES_PER_SAMPLE = 200
 
 __all__ = [
     "PointsNormals",
@@ -211,7 +216,7 @@ def sample_points_with_jacobian(mesh, num_samples: int = 10000, *, seed=None,
     >>> bool(abs(s.points - s.B @ ico_sphere(2).verts).max() < 1e-15)
     True
     """
-    n = check_int(num_samples, "num_samples")
+    n = check_count(num_samples, "num_samples", _BYTES_PER_SAMPLE)  # estimate before allocating
     rng = as_rng(seed)
     if not isinstance(mesh, (Mesh, Meshes)):
         mesh = as_mesh(mesh, "mesh")  # a trimesh or Open3D mesh

@@ -39,9 +39,14 @@ def image_hw(image_size) -> tuple[int, int]:
     Raises
     ------
     ValueError
-        Naming ``image_size``, for anything but an int or a pair of positive whole numbers.
+        Naming ``image_size``, for anything but an int or a pair of positive whole numbers (a
+        string such as ``"16"`` included).
     """
     size = image_size
+    if isinstance(size, (str, bytes)) or (not isinstance(size, (int, np.integer))
+                                          and not hasattr(size, "__len__")):
+        raise ValueError(f"image_size: expected an int or (H, W), got {type(size).__name__} "
+                         f"{size!r:.40}")
     if isinstance(size, (int, np.integer)) and not isinstance(size, (bool, np.bool_)):
         size = (int(size), int(size))
     try:

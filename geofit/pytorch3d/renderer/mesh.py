@@ -67,7 +67,16 @@ class RasterizationSettings:
     z_clip_value: float | None = None
     cull_to_frustum: bool = False
 
+    def __post_init__(self):  # checked at construction (types, sizes, memory estimate)
+        if self._is_soft():
+            self._soft()
+        else:
+            self._hard()
+
     def _is_soft(self) -> bool:
+        from ..._validate import check_int
+
+        check_int(self.faces_per_pixel, "faces_per_pixel", error=TypeError)
         return float(self.blur_radius) > 0.0 or int(self.faces_per_pixel) > 1
 
     def _hard(self) -> _gr.RasterizationSettings:

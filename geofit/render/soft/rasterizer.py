@@ -100,6 +100,9 @@ class SoftRasterizationSettings:
         k = self.faces_per_pixel
         if not isinstance(k, (int, np.integer)) or isinstance(k, (bool, np.bool_)) or k < 1:
             raise ValueError(f"faces_per_pixel: expected an integer >= 1, got {k!r}")
+        H, W = self.image_size  # the rasterizer's own estimate, per view, at construction
+        check_allocation(H * W * (24 * k + 1024), "image_size and faces_per_pixel",
+                         f"soft fragments of 1 view(s) at {(H, W)} with K={k}")
         for name in ("perspective_correct", "clip_barycentric_coords"):
             v = getattr(self, name)
             if v is not None and not isinstance(v, (bool, np.bool_)):

@@ -24,6 +24,15 @@ from ..._memory import check_allocation
 from ..._validate import as_array, as_rng, check_finite as _finite_float, check_int as _positive_int
 from ...cameras import CamerasBase, ndc_grid
 
+
+def _check_rays(n_cameras: int, n_rays: int, n_pts: int) -> None:
+    """Refuse a ray bundle whose lengths, points and pixel draws exceed the memory limit."""
+    from ..._memory import check_allocation
+
+    check_allocation(8 * n_cameras * n_rays * (2 * n_pts + 12),
+                     "n_rays_per_image and n_pts_per_ray",
+                     f"{n_cameras} x {n_rays:,} rays of {n_pts} points")
+
 __all__ = [
     "MonteCarloRaysampler",
     "NDCMultinomialRaysampler",
@@ -226,6 +235,8 @@ class NDCMultinomialRaysampler:
         n_rays = self.n_rays_per_image if n_rays is None else n_rays
         n_pts = self.n_pts_per_ray if n_pts_per_ray is None else _positive_int(
             n_pts_per_ray, "n_pts_per_ray")
+        if n_rays is not None:  # a random subset: checked before the draw (the full grid is
+            _check_rays(B, n_rays, n_pts)  # checked where its bundle is built)
         lo = self.min_depth if min_depth is None else min_depth
         hi = self.max_depth if max_depth is None else max_depth
         lo, hi = _depth_range(lo, hi)
