@@ -5,7 +5,8 @@ import html
 from pathlib import Path
 
 from ..viz import chart_style
-from ._tasks import ACCURACY, atomic_write, write_json
+from ._options import ACCURACY
+from ._tasks import atomic_write, write_json
 
 SUMMARY_FILES = ("summary.json", "summary.csv", "summary.png", "index.html")
 
