@@ -60,6 +60,7 @@ from ._options import (
     TASK_OPTIONS,
     TASKS,
     Option,
+    check_input,
     check_output_folder,
     is_capture,
 )
@@ -75,6 +76,8 @@ __all__ = [
     "BatchResult",
     "Option",
     "TargetResult",
+    "check_input",
+    "check_output_folder",
     "expand_targets",
     "fit_many",
     "input_bytes",

@@ -208,15 +208,15 @@ def fit_kwargs(args: argparse.Namespace, table: dict[str, str]) -> dict:
 
 
 def check_input(path, name: str, *, folder: bool = False) -> Path:
-    """A readable input file (or folder); see :func:`geofit.batch._options.check_input`."""
-    from ..batch._options import check_input as check
+    """A readable input file (or folder); see :func:`geofit.batch.check_input`."""
+    from ..batch import check_input as check
 
     return check(path, name, folder=folder)
 
 
 def check_out(args: argparse.Namespace) -> Path:
     """The ``--out`` folder, created if missing and proved writable, before any work."""
-    from ..batch._options import check_output_folder
+    from ..batch import check_output_folder
 
     return check_output_folder(args.out, "--out")
 

@@ -36,7 +36,7 @@ EPILOG = """exit status:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command; returns the exit code (0: all succeeded, 1: some failed)."""
-    from ..batch._options import ACCURACY, TASK_OPTIONS, check_input, check_output_folder
+    from ..batch import ACCURACY, TASK_OPTIONS, check_input, check_output_folder
 
     for t in args.targets:  # before Dask, numpy or Open3D load
         check_input(t, "TARGETS", folder=True)
@@ -70,7 +70,7 @@ def _flag(name: str) -> str:
 
 def register(subparsers) -> None:
     """Add the ``batch`` sub-command with one sub-command per task."""
-    from ..batch._options import TASK_OPTIONS
+    from ..batch import TASK_OPTIONS
 
     desc = __doc__.split("\n\n", 1)[1] if __doc__ else None
     p = subparsers.add_parser(

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .._foreign import scene_to_mesh
-from ..structures.mesh import Mesh, _corner_mean, as_mesh
+from ..structures.mesh import Mesh, corner_mean, as_mesh
 from ..structures.textures import TexturesUV, TexturesVertex
 from ._formats import EXTENSIONS, sniff
 from .._atomic import atomic_write, write_bytes
@@ -238,7 +238,7 @@ def _bake_uv_colours(mesh: Mesh) -> np.ndarray:
     """(V, C) vertex colours from a UV texture: the mean of the texture at a vertex's corners."""
     tex = mesh.textures
     corner = tex.sample_uv(tex.verts_uvs[tex.faces_uvs.ravel()])  # (3F, C)
-    return np.clip(_corner_mean(corner, mesh.faces, mesh.n_verts), 0.0, 1.0)
+    return np.clip(corner_mean(corner, mesh.faces, mesh.n_verts), 0.0, 1.0)
 
 
 def save_mesh(path: PathLike, mesh) -> None:

@@ -376,7 +376,7 @@ class Mesh:
                 textures = TexturesVertex(_foreign.from_uint8(rgba))
         elif kind == "face" and len(faces):
             face_colours = _foreign.from_uint8(np.asarray(visual.face_colors))
-            textures = TexturesVertex(_corner_mean(np.repeat(face_colours, 3, axis=0), faces,
+            textures = TexturesVertex(corner_mean(np.repeat(face_colours, 3, axis=0), faces,
                                                    len(verts)))
         elif kind == "texture" and visual.uv is not None and len(visual.uv) == len(verts):
             image = _trimesh_image(visual.material)
@@ -508,7 +508,7 @@ class Mesh:
         return m
 
 
-def _corner_mean(values: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+def corner_mean(values: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     """(3F, C) values at face corners (face-major) -> (n, C): the mean at each vertex (0 if none)."""
     idx = faces.ravel()
     count = np.maximum(np.bincount(idx, minlength=n), 1)
