@@ -1,7 +1,8 @@
 """Capture files: paths inside the capture folder, images, masks (private to geofit.io).
 
 The helpers every capture layout shares to find and read its image and mask files (moved here
-verbatim from ``geofit/io/views.py``).
+from ``geofit/io/views.py``): every path through :class:`geofit.io._paths.PathPolicy`, every
+image's pixel count checked from its header (:mod:`geofit.io._images`, ``max_pixels``).
 """
 from __future__ import annotations
 
