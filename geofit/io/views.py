@@ -46,7 +46,7 @@ VIEW_FORMATS = tuple(SAVERS)
 
 
 def load_views(path, *, allow_outside: bool = False, background=None, znear: float = 1.0,
-               zfar: float = 100.0, name: str | None = None):
+               zfar: float = 100.0, name: str | None = None, max_pixels: int | None = None):
     """Load a multi-view capture: images, silhouettes and cameras.
 
     Parameters
@@ -66,6 +66,9 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
         Clipping planes of the cameras (captures do not store them).
     name : str, optional
         The dataset's name (default: the capture folder's name).
+    max_pixels : int, optional
+        Most pixels (width x height) one image or mask may have, checked from its header before
+        decoding; default 2**24 (see :mod:`geofit.io._images`).
 
     Returns
     -------
@@ -106,8 +109,10 @@ def load_views(path, *, allow_outside: bool = False, background=None, znear: flo
             raise ValueError(f"background: expected RGB in [0, 1], got {background.tolist()}")
     if not isinstance(allow_outside, bool):
         raise TypeError(f"allow_outside: expected True or False, got {allow_outside!r}")
+    from ._images import as_max_pixels
+
     options = ReadOptions(allow_outside=allow_outside, background=background, znear=znear,
-                          zfar=zfar, name=name)
+                          zfar=zfar, name=name, max_pixels=as_max_pixels(max_pixels))
     return LOADERS[layout](file, options)
 
 

@@ -2,7 +2,7 @@
 layout's views become a :class:`geofit.structures.MultiViewDataset` (private to geofit.io)."""
 from __future__ import annotations
 
-import json
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,7 +12,9 @@ import numpy as np
 import png  # pypng: pillow cannot write 16-bit colour PNGs
 from PIL import Image
 
+from ..._atomic import write_bytes
 from ...structures import MultiViewDataset
+from .._jsonread import parse_json
 from ._files import _gather
 from ._undistort import undistort
 
@@ -28,6 +30,7 @@ class ReadOptions:
     znear: float = 1.0
     zfar: float = 100.0
     name: str | None = None
+    max_pixels: int | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -82,10 +85,11 @@ def _colour(value, where: str) -> np.ndarray:
 
 def _read_json(path: Path) -> dict:
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        with open(path, "rb") as f:
+            text = f.read()
+    except OSError as exc:
         raise ValueError(f"{path}: cannot read JSON: {exc}") from None
+    data = parse_json(text, str(path))  # nesting, huge integers: ValueError naming the file
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object at the top level, got "
                          f"{type(data).__name__}")
@@ -149,7 +153,7 @@ def build_dataset(views: list, file: Path, K, pose: tuple, convert: Callable,
     Silhouettes are None (unknown) when no view has a mask or an alpha channel. ``lights``
     stay None: a capture's lighting is in its pixels.
     """
-    images, sils = _gather(views, str(file), options.background)
+    images, sils = _gather(views, str(file), options.background, options.max_pixels)
     bg = options.background if options.background is not None else background
     H, W = images.shape[1:3]
     K = K(H, W) if callable(K) else K
@@ -191,16 +195,19 @@ def metadata_background(data: dict, where: str) -> np.ndarray | None:
 
 
 def _write_image(path: Path, a: np.ndarray, bit_depth: int) -> None:
-    """Write ``(H, W)`` grey, ``(H, W, 3)`` RGB or ``(H, W, 4)`` RGBA in [0, 1] as a PNG."""
+    """Write ``(H, W)`` grey, ``(H, W, 3)`` RGB or ``(H, W, 4)`` RGBA in [0, 1] as a PNG
+    (encoded in memory, then written atomically by :func:`geofit._atomic.write_bytes`)."""
+    buf = io.BytesIO()
     if bit_depth == 8:
-        Image.fromarray(np.round(a * 255.0).astype(np.uint8)).save(path)
-        return
-    b = np.round(a * 65535.0).astype(np.uint16)
-    if b.ndim == 2:
-        Image.fromarray(b).save(path)  # pillow writes 16-bit greyscale (mode I;16)
-        return
-    mode = "RGBA;16" if b.shape[2] == 4 else "RGB;16"
-    png.from_array(b.reshape(b.shape[0], -1), mode).save(str(path))
+        Image.fromarray(np.round(a * 255.0).astype(np.uint8)).save(buf, format="PNG")
+    else:
+        b = np.round(a * 65535.0).astype(np.uint16)
+        if b.ndim == 2:
+            Image.fromarray(b).save(buf, format="PNG")  # pillow writes 16-bit greyscale (I;16)
+        else:
+            mode = "RGBA;16" if b.shape[2] == 4 else "RGB;16"
+            png.from_array(b.reshape(b.shape[0], -1), mode).write(buf)
+    write_bytes(path, buf.getbuffer())
 
 
 def _target(file: Path, overwrite: bool) -> Path:

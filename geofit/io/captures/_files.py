@@ -1,11 +1,11 @@
 """Capture files: paths inside the capture folder, images, masks (private to geofit.io).
 
 The helpers every capture layout shares to find and read its image and mask files (moved here
-verbatim from ``geofit/io/views.py``).
+from ``geofit/io/views.py``): every path through :class:`geofit.io._paths.PathPolicy`, every
+image's pixel count checked from its header (:mod:`geofit.io._images`, ``max_pixels``).
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -19,34 +19,19 @@ _IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".tif", ".tiff"
 # --------------------------------------------------------------------------------------------
 
 
-def _resolve(root: Path, ref: str, where: str, allow_outside: bool) -> Path:
-    """``ref`` relative to ``root``; refused if absolute or outside ``root`` (path policy)."""
-    if not isinstance(ref, str) or not ref.strip():
-        raise ValueError(f"{where}: expected a non-empty relative path, got {ref!r}")
-    p = Path(ref)
-    target = p if p.is_absolute() else root / p
-    if not allow_outside:
-        if p.is_absolute():
-            raise ValueError(f"{where}: absolute path {ref!r} refused (files must lie in the "
-                             f"capture folder {root}; pass allow_outside=True to allow it)")
-        real_root = os.path.realpath(root)
-        real = os.path.realpath(target)
-        if os.path.commonpath([real_root, real]) != real_root:
-            raise ValueError(f"{where}: path {ref!r} leaves the capture folder {root} (pass "
-                             "allow_outside=True to allow it)")
-    return target
+def _find_image(root: Path, ref, where: str, allow_outside: bool, *,
+                extensions=_IMAGE_EXTS, required: bool = True) -> Path | None:
+    """The checked path of image ``ref`` under ``root`` (or ``ref`` plus an image extension,
+    for a ``file_path`` without one): every candidate goes through the one path policy
+    (:class:`geofit.io._paths.PathPolicy`: a regular file inside ``root`` after symlinks)."""
+    from .._paths import PathPolicy
 
-
-def _find_image(path: Path, where: str) -> Path:
-    """``path`` itself, or ``path`` plus an image extension (``file_path`` without one)."""
-    if path.is_file():
-        return path
-    for ext in _IMAGE_EXTS:
-        q = path.with_name(path.name + ext)
-        if q.is_file():
-            return q
-    raise ValueError(f"{where}: image {str(path)!r} not found (also tried the extensions "
-                     f"{', '.join(_IMAGE_EXTS[:3])}, ...)")
+    try:
+        return PathPolicy(root, allow_outside=allow_outside, folder_name="capture folder").resolve(
+            ref, where, extensions=extensions, required=required)
+    except FileNotFoundError:
+        raise ValueError(f"{where}: image {str(Path(root) / ref)!r} not found (also tried the "
+                         f"extensions {', '.join(_IMAGE_EXTS[:3])}, ...)") from None
 
 
 def _is_png16_colour(path: Path) -> bool:
@@ -56,10 +41,13 @@ def _is_png16_colour(path: Path) -> bool:
             and head[25] in (2, 4, 6))
 
 
-def _read_image(path: Path, where: str) -> np.ndarray:
+def _read_image(path: Path, where: str, max_pixels=None) -> np.ndarray:
     """An image file as ``(H, W, C)`` float64 in [0, 1], ``C`` in 1..4 (grey, grey+alpha, RGB,
-    RGBA); errors become ValueError naming the file."""
+    RGBA); errors become ValueError naming the file. The pixel count is checked against
+    ``max_pixels`` from the header, before decoding (:mod:`geofit.io._images`)."""
     from PIL import Image
+
+    from .._images import check_pixels, open_image
 
     try:
         if _is_png16_colour(path):
@@ -68,14 +56,13 @@ def _read_image(path: Path, where: str) -> np.ndarray:
             with open(path, "rb") as f:
                 reader = png.Reader(file=f)
                 reader.preamble()
-                if reader.width * reader.height > (Image.MAX_IMAGE_PIXELS or np.inf):
-                    raise ValueError(f"{reader.width}x{reader.height} pixels is more than "
-                                     "pillow's limit")
+                check_pixels(reader.width, reader.height,
+                             f"{where}: cannot read image {str(path)!r}", max_pixels)
                 w, h, flat, info = reader.read_flat()
             a = np.asarray(flat, dtype=np.uint16).reshape(h, w, info["planes"])
             a = a.astype(np.float64) / 65535.0
         else:
-            with Image.open(path) as im:
+            with open_image(path, f"{where}: cannot read image {str(path)!r}", max_pixels) as im:
                 mode = im.mode
                 if mode in ("I;16", "I;16B", "I;16L", "I"):
                     a = np.asarray(im, dtype=np.float64) / 65535.0
@@ -88,6 +75,8 @@ def _read_image(path: Path, where: str) -> np.ndarray:
                     a = np.asarray(im, dtype=np.float64) / 255.0
     except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError,
             _png_error()) as exc:
+        if isinstance(exc, ValueError) and str(exc).startswith(where):  # already names it
+            raise
         raise ValueError(f"{where}: cannot read image {str(path)!r}: {exc}") from None
     if a.ndim == 2:
         a = a[..., None]
@@ -117,7 +106,7 @@ def _mask_values(a: np.ndarray) -> np.ndarray:
     return a[..., 0] if a.shape[2] in (1, 2) else a[..., :3].mean(axis=2)
 
 
-def _gather(views: list, where_file: str, background):
+def _gather(views: list, where_file: str, background, max_pixels=None):
     """Read every view's image (and mask); check one common size.
 
     ``views`` holds dicts with ``image`` (Path), ``where`` and optional ``mask`` (Path) and
@@ -126,10 +115,10 @@ def _gather(views: list, where_file: str, background):
     """
     images, sils, size0 = [], [], None
     for v in views:  # one file per view
-        a = _read_image(v["image"], v["where"])
+        a = _read_image(v["image"], v["where"], max_pixels)
         rgb, alpha = _split_rgba(a)
         if v.get("mask") is not None:
-            sil = _mask_values(_read_image(v["mask"], v["where"]))
+            sil = _mask_values(_read_image(v["mask"], v["where"], max_pixels))
             if sil.shape != rgb.shape[:2]:
                 raise ValueError(f"{v['where']}: mask {str(v['mask'])!r} is {sil.shape[0]}x"
                                  f"{sil.shape[1]}, its image {rgb.shape[0]}x{rgb.shape[1]}")

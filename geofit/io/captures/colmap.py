@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..._atomic import write_text
 from ...cameras.conversions import cameras_from_colmap, colmap_from_cameras
 from ._common import ReadOptions, _target, _write_image, build_dataset
-from ._files import _find_image, _resolve
+from ._files import _find_image
 
 #: name -> (COLMAP model id, parameter names, fisheye).
 _MODELS = {
@@ -213,14 +214,13 @@ def load_colmap(cameras_file: Path, options: ReadOptions):
                              f"{np.linalg.norm(qv):.6g}")
         if cid not in cams:
             raise ValueError(f"{where}: CAMERA_ID: camera {cid} is not in {cameras_file.name}")
-        image = _find_image(_resolve(images_dir, name, f"{where}: NAME", options.allow_outside),
-                            f"{where}: NAME")
+        image = _find_image(images_dir, name, f"{where}: NAME", options.allow_outside)
         mask = None
         if masks_dir.is_dir():
             for cand in (name, name + ".png", str(Path(name).with_suffix(".png"))):
-                p = _resolve(masks_dir, cand, f"{where}: NAME", options.allow_outside)
-                if p.is_file():
-                    mask = p
+                mask = _find_image(masks_dir, cand, f"{where}: NAME", options.allow_outside,
+                                   extensions=(), required=False)
+                if mask is not None:
                     break
             if mask is None:
                 raise ValueError(f"{where}: NAME: no mask for {name!r} in {masks_dir} (tried "
@@ -278,10 +278,10 @@ def save_colmap(root: Path, images: np.ndarray, sils: np.ndarray | None, cameras
         img_lines.append(" ".join([str(i + 1)] + [repr(float(v)) for v in q[i]]
                                   + [repr(float(v)) for v in t[i]] + [str(i + 1), names[i]]))
         img_lines.append("")
-    target.write_text("\n".join(cam_lines) + "\n", encoding="utf-8")
-    (target.parent / "images.txt").write_text("\n".join(img_lines) + "\n", encoding="utf-8")
-    (target.parent / "points3D.txt").write_text(
-        "# 3D point list (empty: geofit writes cameras only)\n", encoding="utf-8")
+    write_text(target.parent / "images.txt", "\n".join(img_lines) + "\n")
+    write_text(target.parent / "points3D.txt",
+               "# 3D point list (empty: geofit writes cameras only)\n")
+    write_text(target, "\n".join(cam_lines) + "\n")  # last: its presence marks a capture
     return target
 
 

@@ -13,10 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..._atomic import write_text
 from ...cameras.conversions import cameras_from_opencv_projection, opencv_from_cameras_projection
 from ._common import ReadOptions, _json_entries, _matrix, _read_json, _rotation, _target
 from ._common import _write_image, build_dataset, metadata_background
-from ._files import _find_image, _resolve
+from ._files import _find_image
 
 
 def _dist(value, where: str) -> np.ndarray:
@@ -37,12 +38,10 @@ def load_opencv(file: Path, options: ReadOptions):
         for key in ("image", "K", "R", "t"):
             if key not in e:
                 raise ValueError(f"{where}.{key}: missing")
-        image = _find_image(_resolve(root, e["image"], f"{where}.image", options.allow_outside),
-                            f"{where}.image")
+        image = _find_image(root, e["image"], f"{where}.image", options.allow_outside)
         mask = None
         if e.get("mask") is not None:
-            mask = _find_image(_resolve(root, e["mask"], f"{where}.mask", options.allow_outside),
-                               f"{where}.mask")
+            mask = _find_image(root, e["mask"], f"{where}.mask", options.allow_outside)
         k = _matrix(e["K"], (3, 3), f"{where}.K")
         if k[0, 0] <= 0 or k[1, 1] <= 0 or k[0, 1] != 0 or k[1, 0] != 0 \
                 or np.any(k[2] != [0.0, 0.0, 1.0]):
@@ -95,7 +94,7 @@ def save_opencv(root: Path, images: np.ndarray, sils: np.ndarray | None, cameras
             "width": W, "height": H, "views": views}
     if background is not None:
         data["background"] = np.asarray(background, dtype=np.float64).tolist()
-    target.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    write_text(target, json.dumps(data, indent=1) + "\n")
     return target
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..._atomic import write_text
 from ...cameras.conversions import cameras_from_opengl, opengl_from_cameras
 from ._common import (
     _ROTATION_TOL,
@@ -36,7 +37,7 @@ from ._common import (
     build_dataset,
     metadata_background,
 )
-from ._files import _find_image, _resolve
+from ._files import _find_image
 
 _NERF_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y",
               "k1", "k2", "k3", "k4", "p1", "p2", "is_fisheye", "camera_model")
@@ -111,12 +112,11 @@ def load_transforms(file: Path, options: ReadOptions):
         for key in ("file_path", "transform_matrix"):
             if key not in fr:
                 raise ValueError(f"{where}.{key}: missing")
-        image = _find_image(_resolve(root, fr["file_path"], f"{where}.file_path",
-                                     options.allow_outside), f"{where}.file_path")
+        image = _find_image(root, fr["file_path"], f"{where}.file_path", options.allow_outside)
         mask = None
         if "mask_path" in fr:
-            mask = _find_image(_resolve(root, fr["mask_path"], f"{where}.mask_path",
-                                        options.allow_outside), f"{where}.mask_path")
+            mask = _find_image(root, fr["mask_path"], f"{where}.mask_path",
+                               options.allow_outside)
         M = _matrix(fr["transform_matrix"], (4, 4), f"{where}.transform_matrix")
         if np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max() > _ROTATION_TOL:
             raise ValueError(f"{where}.transform_matrix: expected a bottom row (0, 0, 0, 1), "
@@ -193,7 +193,7 @@ def save_transforms(root: Path, images: np.ndarray, sils: np.ndarray | None, cam
     if background is not None:
         data["background"] = np.asarray(background, dtype=np.float64).tolist()
     data["frames"] = frames
-    target.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    write_text(target, json.dumps(data, indent=1) + "\n")
     return target
 
 
