@@ -448,6 +448,7 @@ def test_counts_are_estimated_before_allocating(monkeypatch):
     """Samples, torus resolution, network width, faces per pixel and rays: refused at once with
     the estimate in the message (MemoryError after minutes before)."""
     from geofit import fit_mesh, ico_sphere
+    from geofit.fit import MeshFitOptions
     from geofit.fit.nerf import NerfConfig
     from geofit.ops import sample_points_from_meshes
     from geofit.pytorch3d.renderer import RasterizationSettings as P3DSettings
@@ -470,7 +471,8 @@ def test_counts_are_estimated_before_allocating(monkeypatch):
     sampler = NDCMultinomialRaysampler(image_width=16, image_height=16, n_pts_per_ray=8,
                                        min_depth=0.1, max_depth=3.0, n_rays_per_image=10**12)
     _refused_at_once(lambda: sampler(FoVPerspectiveCameras()), r"^n_rays_per_image")
-    _refused_at_once(lambda: fit_mesh(m, n_samples=10**9), r"^n_samples: ")
+    _refused_at_once(lambda: fit_mesh(m, options=MeshFitOptions(n_samples=10**9)),
+                     r"^options.n_samples: ")
 
 
 def test_count_and_size_types_checked():

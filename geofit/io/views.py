@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from .._validate import as_array
 from .captures import LOADERS, SAVERS, detect
