@@ -471,7 +471,8 @@ def test_counts_are_estimated_before_allocating(monkeypatch):
     sampler = NDCMultinomialRaysampler(image_width=16, image_height=16, n_pts_per_ray=8,
                                        min_depth=0.1, max_depth=3.0, n_rays_per_image=10**12)
     _refused_at_once(lambda: sampler(FoVPerspectiveCameras()), r"^n_rays_per_image")
-    _refused_at_once(lambda: fit_mesh(m, options=MeshFitOptions(n_samples=10**9)),
+    _refused_at_once(lambda: fit_mesh(m, recipe="sphere",
+                                      options=MeshFitOptions(n_samples=10**9)),
                      r"^options.n_samples: ")
 
 
