@@ -208,7 +208,7 @@ def test_one_option_vocabulary_and_docstring_help():
 
 def test_api_doc_reads_parameters():
     """api_doc finds a parameter listed with others ("a, b : float") and refuses a missing one."""
-    assert api_doc(("fit/views.py", "fit_mesh_to_views"), "textured_time")
+    assert api_doc(("fit/views.py", "ViewsFitOptions"), "textured_iters")
     with pytest.raises(LookupError, match="no_such_parameter"):
         api_doc(("fit/mesh.py", "fit_mesh"), "no_such_parameter")
     with pytest.raises(LookupError, match="nothing_here"):
@@ -270,8 +270,8 @@ def test_unwritable_out_refused_before_the_fit(tmp_path):
 
 
 def test_plot_scene_with_plotly():
-    """plot_scene draws meshes (vertex colours), clouds and camera centres when plotly is
-    installed; a wrong object is refused naming it."""
+    """plot_scene draws geofit's meshes (vertex colours), clouds and cameras (wireframes) when
+    plotly is installed; a wrong object is refused naming it."""
     pytest.importorskip("plotly")
     from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
     from geofit.pytorch3d.vis.plotly_vis import plot_scene
@@ -284,6 +284,7 @@ def test_plot_scene_with_plotly():
                                                  "cams": FoVPerspectiveCameras(R=R, T=T)}},
                      ncols=2)
     assert [t.type for t in fig.data] == ["mesh3d", "scatter3d", "scatter3d"]
-    assert fig.data[0].vertexcolor[0] == "rgb(128,128,128)" and len(fig.data[2].x) == 2
-    with pytest.raises(TypeError, match="thing: expected Meshes"):
+    assert fig.data[0].vertexcolor[0] == "rgb(128,128,128)"
+    assert np.isnan(np.asarray(fig.data[2].x, float)).sum() == 2  # one wireframe per camera
+    with pytest.raises(TypeError, match="'thing' is a .*expected Meshes"):
         plot_scene({"a": {"thing": object()}})

@@ -20,7 +20,6 @@ from pathlib import Path
 #: The package folder: API docstrings are read from its sources (with ``ast``, no import).
 _PACKAGE = Path(__file__).resolve().parents[1]
 
-from .._json import json_text
 
 
 #: The flags that choose the tutorial's views -> ``geofit.datasets.tutorial_views``' keywords
@@ -265,6 +264,7 @@ def write_json(path: Path, obj) -> None:
     """Write ``obj`` as indented JSON (numpy values and non-finite floats made plain),
     atomically (a temporary file beside it, fsync, then ``os.replace``)."""
     from .._atomic import write_text
+    from .._json import json_text  # numpy: imported when a fit has run, not at the CLI's checks
 
     write_text(Path(path), json_text(obj))
 

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``tutorials`` sub-command."""
-    sizes = module_constant("tutorials/_common.py", "SIZES")
+    sizes = module_constant("tutorials/shared.py", "SIZES")
 
     p = subparsers.add_parser(
         "tutorials",

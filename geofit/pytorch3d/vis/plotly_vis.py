@@ -12,6 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ...structures import Mesh, PointCloud
+from ...structures import TexturesVertex as _GeofitTexturesVertex
 from ..structures import Meshes, Pointclouds
 from ..textures import TexturesVertex
 
@@ -90,7 +92,22 @@ def _camera_trace(go, cameras, name: str, scale: float):
     return go.Scatter3d(x=seg[:, 0], y=seg[:, 1], z=seg[:, 2], mode="lines", name=name)
 
 
+def _from_geofit(obj):
+    """geofit's own Mesh / PointCloud as the PyTorch3D structures drawn here (vertex colours
+    and point features kept)."""
+    if isinstance(obj, Mesh):
+        tex = obj.textures
+        colours = (TexturesVertex(verts_features=[tex.verts_features])
+                   if isinstance(tex, _GeofitTexturesVertex) else None)
+        return Meshes(verts=[obj.verts], faces=[obj.faces], textures=colours)
+    if isinstance(obj, PointCloud):
+        feats = None if obj.features is None else [obj.features]
+        return Pointclouds(points=[obj.points], features=feats)
+    return obj
+
+
 def _trace(go, obj, name: str, kw: dict):
+    obj = _from_geofit(obj)
     if isinstance(obj, Meshes):
         return _mesh_trace(go, obj, name)
     if isinstance(obj, Pointclouds):
@@ -98,8 +115,8 @@ def _trace(go, obj, name: str, kw: dict):
                             kw["pointcloud_marker_size"])
     if hasattr(obj, "R") and hasattr(obj, "T"):
         return _camera_trace(go, obj, name, kw["camera_scale"])
-    raise TypeError(f"plot_scene: {name!r} is a {type(obj)!r}; expected Meshes, Pointclouds or "
-                    f"cameras")
+    raise TypeError(f"plot_scene: {name!r} is a {type(obj)!r}; expected Meshes, Pointclouds (or "
+                    f"geofit's Mesh, PointCloud) or cameras")
 
 
 def plot_scene(plots: dict, *, viewpoint_cameras=None, ncols: int = 1,
