@@ -12,7 +12,7 @@ from geofit import PointCloud, ico_sphere
 from geofit._memory import check_allocation, memory_limit, parse_bytes
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.structures import MultiViewDataset
-from geofit.fit import fit_volume
+from geofit.fit import VolumeFitOptions, fit_volume
 from geofit.fit.nerf import NerfConfig, fit_nerf, render_nerf
 from geofit.render import (
     MeshRasterizer,
@@ -129,8 +129,9 @@ def test_fit_volume_huge_volume_size_refused():
     """volume_size=2000 (8e9 voxels): refused naming volume_size before any grid exists."""
     imgs, sils = np.zeros((2, 8, 8, 3)), np.zeros((2, 8, 8))
     data = MultiViewDataset(images=imgs, silhouettes=sils, cameras=cameras(2))
-    err, peak = refused(fit_volume, data, volume_size=2000, progress=False)
-    assert str(err).startswith("volume_size: a 2000^3 grid") and peak < GB
+    err, peak = refused(fit_volume, data, options=VolumeFitOptions(volume_size=2000),
+                        progress=False)
+    assert "volume_size: a 2000^3 grid" in str(err) and peak < GB
 
 
 def test_volume_raysampler_huge_n_pts_per_ray_refused():
@@ -149,12 +150,12 @@ def test_fit_nerf_huge_batch_refused():
     before the hull, the network's first step or any ray exists."""
     imgs, sils = np.zeros((2, 8, 8, 3)), np.zeros((2, 8, 8))
     data = MultiViewDataset(images=imgs, silhouettes=sils, cameras=cameras(2))
-    err, peak = refused(fit_nerf, data, recipe="tutorial", n_rays_per_image=10**8, n_iter=1,
-                        progress=False)
+    err, peak = refused(fit_nerf, data, recipe="tutorial", options=NerfConfig.tutorial(
+        n_rays_per_image=10**8, n_iter=1), progress=False)
     assert str(err).startswith("batch_size, n_rays_per_image and n_pts_per_ray: one training "
                                "step's samples") and peak < GB
-    err, _ = refused(fit_nerf, data, recipe="tutorial", n_pts_per_ray=10**8, n_iter=1,
-                     progress=False)
+    err, _ = refused(fit_nerf, data, recipe="tutorial", options=NerfConfig.tutorial(
+        n_pts_per_ray=10**8, n_iter=1), progress=False)
     assert "n_pts_per_ray" in str(err)
 
 
