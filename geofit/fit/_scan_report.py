@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-__all__ = ["DataReport", "scan_report"]
+__all__ = ["DataReport", "EvidenceLimits", "evidence_limits", "scan_report"]
 
 
 @dataclass(frozen=True)
@@ -149,3 +149,45 @@ def scan_report(points: np.ndarray, *, k: int = 16, radius_factor: float = 8.0,
     n_out = int(n - keep.sum())
     return DataReport(n_points=n, n_outliers=n_out, outlier_fraction=n_out / n,
                       spacing=spacing, noise=float(sigma), k=k), keep
+
+
+@dataclass(frozen=True)
+class EvidenceLimits:
+    """How far the remeshing fit of a scan may refine (normalised frame; see
+    :func:`evidence_limits`).
+
+    Attributes
+    ----------
+    chamfer_l2, fscore : float
+        Accuracy at which refinement stops (the user's, relaxed to the noise floor).
+    eps_floor : float
+        Smallest edge-midpoint error the remeshing refines for.
+    max_faces : int
+        Most faces the model may have (the scan's inlier count).
+    """
+
+    chamfer_l2: float
+    fscore: float
+    eps_floor: float
+    max_faces: int
+
+
+def evidence_limits(report: DataReport, chamfer_l2: float, fscore: float,
+                    tau: float) -> EvidenceLimits:
+    """The accuracy a fit of a scan can reach, from its noise (``report`` in the fit's frame).
+
+    A perfect surface, measured against points with Gaussian noise ``sigma`` along the
+    normal, has a point-to-plane chamfer-L2 of about ``2 sigma^2`` (``sigma^2`` each way) and an
+    F-score at ``tau`` of about ``erf(tau / (sigma sqrt 2))``: refining past that fits the
+    noise. The targets become ``max(chamfer_l2, 2.5 sigma^2)`` and
+    ``min(fscore, 0.98 erf(tau / (sigma sqrt 2)))``; edges whose midpoint error is within
+    ``sigma`` are not refined; the model has at most as many faces as the scan has inliers.
+    On clean scans (``sigma`` well under ``tau``) the targets are the user's.
+    """
+    from math import erf, sqrt
+
+    s = max(report.noise, 1e-12)
+    floor_f = erf(tau / (s * sqrt(2.0)))
+    return EvidenceLimits(chamfer_l2=max(chamfer_l2, 2.5 * s * s),
+                          fscore=min(fscore, 0.98 * floor_f), eps_floor=s,
+                          max_faces=max(report.n_inliers, 4))
