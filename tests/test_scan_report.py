@@ -71,7 +71,8 @@ def test_evidence_limits_relax_to_the_noise_floor_only_on_noisy_scans():
     noisy = DataReport(20_000, 0, 0.0, 0.01, 0.005, 16)
     lim = evidence_limits(noisy, 3e-5, 0.97, 0.01)
     assert lim.chamfer_l2 >= 2 * 0.005 ** 2 and lim.fscore < 0.955
-    assert lim.max_faces == 20_000 and lim.eps_floor == 0.005
+    assert lim.max_faces == 20_000 and lim.eps_floor(20_000) == pytest.approx(0.005)
+    assert lim.eps_floor(5_000) == pytest.approx(0.0025)  # four points a face average noise
 
 
 def test_fit_reports_the_scan_and_stays_under_the_point_count():

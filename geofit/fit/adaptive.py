@@ -225,7 +225,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         err = p2s.distances(mid) if cloud else p2s.query(mid).distances
         eps = 0.25 * math.sqrt(rem.chamfer_l2 / 2.0)
         if limits is not None:  # do not refine for residuals at the noise level
-            eps = max(eps, limits.eps_floor)
+            eps = max(eps, limits.eps_floor(mesh.n_faces))
         lv = refine_lengths(mesh, err, eps)
         r = remesh(mesh, lv, n_passes=2)
         if limits is not None and r.mesh.n_faces > limits.max_faces:
