@@ -20,7 +20,12 @@ from the data's topology and remeshes where the error is.
    (:func:`geofit.fit._cloud.mesh_from_points`, ``init="points"``), and is fitted with the
    point-to-plane distance to the cloud plus the exact distance from the points to the mesh
    (``MeshObjective(distance="cloud")``); the edge errors that drive the remeshing are
-   point-to-plane distances too.
+   point-to-plane distances too. The scan is first measured
+   (:func:`geofit.fit._scan_report.scan_report`: spacing, noise, strays, reported in
+   ``fit.data_report`` and the message); the strays are left out of the start and the fit, the
+   accuracy targets are relaxed to the noise floor, edges are not refined for residuals within
+   the noise a face's points leave, and the model never has more faces than the scan has
+   points (:func:`geofit.fit._scan_report.evidence_limits`).
 3. The result reports the initialisation, the vertex count and the
    :class:`~geofit.ops.TopologyReport` of the fitted mesh; a self-intersecting result says so
    in its message.
