@@ -1,6 +1,7 @@
 """Benchmarks of ``geofit.fit.fit_mesh`` (tutorial 1): every test shape, speed-accuracy, stability.
 
-Three parts (``--parts``, default all three):
+Three parts (``--parts``, default all three), and ``scans`` on request (noisy point clouds with
+strays against Open3D's screened Poisson, see ``benchmarks/_scans.py``):
 
 ``shapes``
     The default ``fit_mesh(target)`` against the alternatives (``init="sphere"``, the recipes
@@ -623,6 +624,8 @@ def chart(methods, tname: str, path: Path) -> Path:
 
 # ------------------------------------------------------------------------------ main
 PARTS = ("shapes", "speed", "stability")
+#: Parts run only when asked for (``--parts scans``: noisy scans with strays, benchmarks/_scans.py).
+EXTRA_PARTS = ("scans",)
 
 
 def run_speed(names, target, tname, tpath, args, out: Path) -> None:
@@ -682,7 +685,7 @@ def main(argv=None) -> int:
 
     p = parser(__doc__.split("\n\n")[0])
     p.add_argument("--parts", default=",".join(PARTS),
-                   help=f"comma-separated subset of {','.join(PARTS)}")
+                   help=f"comma-separated subset of {','.join(PARTS + EXTRA_PARTS)}")
     p.add_argument("--shapes", default="",
                    help="shapes part: comma-separated subset of the shapes (default all; "
                         "quick: torus,open_cylinder)")
@@ -711,8 +714,9 @@ def main(argv=None) -> int:
         return 0
     parts = [s.strip() for s in args.parts.split(",") if s.strip()]
     for s in parts:
-        if s not in PARTS:
-            p.error(f"--parts: unknown part {s!r}; expected some of {', '.join(PARTS)}")
+        if s not in PARTS + EXTRA_PARTS:
+            p.error(f"--parts: unknown part {s!r}; expected some of "
+                    f"{', '.join(PARTS + EXTRA_PARTS)}")
     names = [n.strip() for n in args.methods.split(",") if n.strip()]
     for n in names:
         if n not in LABELS:
@@ -728,6 +732,11 @@ def main(argv=None) -> int:
     print(f"target: {tname} ({target.n_verts} vertices) {tpath or ''}; load {os.getloadavg()}")
     if "shapes" in parts:
         run_shapes(args, out)
+    if "scans" in parts:  # geofit as imported ("after"); see benchmarks/_scans.py for "before"
+        import _scans
+
+        _scans.run("after", out, _scans.SHAPES[-1:] if args.quick else _scans.SHAPES)
+        print(_scans.table(out))
     if "speed" in parts:
         run_speed(names, target, tname, tpath, args, out)
     if "stability" in parts:

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 from ._options import METHODS as METHOD_NAMES
 from ._options import RECIPE_NAMES
+from ._scan_report import DataReport
 from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
 from .mesh import (
     ADAPTIVE_WEIGHTS,
@@ -92,6 +93,7 @@ __all__ = [
     "TUTORIAL_WEIGHTS",
     "Clock",
     "CoarseToFine",
+    "DataReport",
     "FitHistory",
     "FitResult",
     "LargeSteps",

@@ -516,6 +516,9 @@ class MeshFitResult(FitResult):
     topology : geofit.ops.TopologyReport or None
         The remeshing fit: topology of the fitted mesh (genus, boundary loops, parts,
         non-manifold edges, self-intersecting face pairs).
+    data_report : DataReport or None
+        A point-cloud target: its noise, spacing and outliers (target frame; see
+        :func:`geofit.fit._scan_report.scan_report`); None for a mesh target.
     """
 
     mesh: Mesh
@@ -525,6 +528,7 @@ class MeshFitResult(FitResult):
     metrics: Any = None
     stages: list = field(default_factory=list)
     topology: Any = None
+    data_report: Any = None
 
     @property
     def n_verts(self) -> int:
@@ -545,6 +549,8 @@ class MeshFitResult(FitResult):
             d["init"] = self.init
         if self.topology is not None:
             d["topology"] = self.topology.as_dict()
+        if self.data_report is not None:
+            d["data_report"] = self.data_report.as_dict()
         return d
 
 

@@ -20,7 +20,12 @@ from the data's topology and remeshes where the error is.
    (:func:`geofit.fit._cloud.mesh_from_points`, ``init="points"``), and is fitted with the
    point-to-plane distance to the cloud plus the exact distance from the points to the mesh
    (``MeshObjective(distance="cloud")``); the edge errors that drive the remeshing are
-   point-to-plane distances too.
+   point-to-plane distances too. The scan is first measured
+   (:func:`geofit.fit._scan_report.scan_report`: spacing, noise, strays, reported in
+   ``fit.data_report`` and the message); the strays are left out of the start and the fit, the
+   accuracy targets are relaxed to the noise floor, edges are not refined for residuals within
+   the noise a face's points leave, and the model never has more faces than the scan has
+   points (:func:`geofit.fit._scan_report.evidence_limits`).
 3. The result reports the initialisation, the vertex count and the
    :class:`~geofit.ops.TopologyReport` of the fitted mesh; a self-intersecting result says so
    in its message.
@@ -37,10 +42,11 @@ import numpy as np
 from .._validate import as_rng
 from ..ops import remesh, topology
 from ..structures import Mesh
-from ._cloud import mesh_from_points
+from ._cloud import CloudTarget, mesh_from_points
 from ._mesh_objective import MeshObjective
 from ._mesh_plan import MeshFitResult, MeshTarget, Plan, empty_row_terms, repair_degenerate
 from ._progress import progress_bar
+from ._scan_report import evidence_limits, scan_report
 from .history import Clock, FitHistory
 from .init import InitialMesh, initial_mesh
 from .large_steps import LargeSteps
@@ -88,10 +94,10 @@ def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float 
     return lv
 
 
-def _start(plan: Plan, target: MeshTarget, p2s, rng) -> InitialMesh:
+def _start(plan: Plan, target: MeshTarget, p2s, rng, n_faces: int) -> InitialMesh:
     """The initial mesh: from the data (decimated target, or the cloud's Poisson
     reconstruction), an ico-sphere, or the user's mesh."""
-    init, n_faces = plan.init, plan.refine.n_faces
+    init = plan.init
     if init is None:
         init = "auto"
     if not target.cloud:
@@ -99,7 +105,7 @@ def _start(plan: Plan, target: MeshTarget, p2s, rng) -> InitialMesh:
     if isinstance(init, str) and init in ("auto", "target"):
         m0 = mesh_from_points(p2s, n_faces=n_faces, seed=rng)
         return InitialMesh(m0, "points", f"Poisson reconstruction of the "
-                                         f"{len(target.normalized)} points, trimmed and "
+                                         f"{len(p2s.points)} points, trimmed and "
                                          f"decimated to {m0.n_faces} faces ({m0.n_verts} "
                                          "vertices, Open3D)")
     return initial_mesh(init, None, n_faces=n_faces)
@@ -120,8 +126,21 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
     history = FitHistory()
     cloud = target.cloud
     tgt = target.normalized
-    p2s = target.distance()
-    start = _start(plan, target, p2s, rng)
+    report = limits = None
+    chamfer_goal, fscore_goal, max_verts = rem.chamfer_l2, rem.fscore, rem.max_verts
+    n_faces = rem.n_faces
+    if cloud:  # what the scan supports: outliers out, targets at the noise floor
+        report, keep = scan_report(tgt)
+        if report.n_outliers:
+            tgt = tgt[keep]
+        p2s = CloudTarget(tgt)
+        limits = evidence_limits(report, rem.chamfer_l2, rem.fscore, rem.tau)
+        chamfer_goal, fscore_goal = limits.chamfer_l2, limits.fscore
+        max_verts = min(max_verts, max(limits.max_faces // 2, 4))
+        n_faces = min(n_faces, limits.max_faces)
+    else:
+        p2s = target.distance()
+    start = _start(plan, target, p2s, rng, n_faces)
     mesh, n_bad, n_moved = repair_degenerate(start.mesh)  # a given start may have them
     lam = plan.lam
     if lam is None:
@@ -196,11 +215,11 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
                      f"F@{rem.tau:g} {est['fscore']:.4f} with {mesh.n_verts} vertices", **est)
         if res.status in ("nonfinite", "diverged", "failed", "time_budget", "callback"):
             break
-        if est["chamfer_l2"] <= rem.chamfer_l2 and est["fscore"] >= rem.fscore:
+        if est["chamfer_l2"] <= chamfer_goal and est["fscore"] >= fscore_goal:
             message = (f"accuracy reached with {mesh.n_verts} vertices after {rnd + 1} rounds; "
                        f"{message}")
             break
-        if rnd == rem.max_rounds - 1 or mesh.n_verts >= rem.max_verts:
+        if rnd == rem.max_rounds - 1 or mesh.n_verts >= max_verts:
             message = (f"stopped at {mesh.n_verts} vertices after {rnd + 1} rounds "
                        f"({'max_rounds' if rnd == rem.max_rounds - 1 else 'max_verts'}); "
                        f"{message}")
@@ -210,8 +229,15 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         mid = 0.5 * (mesh.verts[E[:, 0]] + mesh.verts[E[:, 1]])
         err = p2s.distances(mid) if cloud else p2s.query(mid).distances
         eps = 0.25 * math.sqrt(rem.chamfer_l2 / 2.0)
+        if limits is not None:  # do not refine for residuals at the noise level
+            eps = max(eps, limits.eps_floor(mesh.n_faces))
         lv = refine_lengths(mesh, err, eps)
         r = remesh(mesh, lv, n_passes=2)
+        if limits is not None and r.mesh.n_faces > limits.max_faces:
+            message = (f"stopped at {mesh.n_verts} vertices after {rnd + 1} rounds (refining "
+                       f"would give {r.mesh.n_faces} faces, more than the "
+                       f"{limits.max_faces} points); {message}")
+            break
         stage["remesh"] = {"n_split": r.n_split, "n_collapse": r.n_collapse, "n_flip": r.n_flip,
                            "n_verts": r.mesh.n_verts}
         history.note(evals, clock.elapsed(),
@@ -225,6 +251,9 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         history.record(evals, clock.elapsed(), math.inf, empty_row_terms(),
                        n_params=3 * mesh.n_verts)
     message = f"{message}; init: {start.description}; result: {topo.describe()}"
+    if report is not None:
+        report = report.scaled(target.scale)
+        message += f"; {report.describe()}"
     if topo.n_self_intersecting_pairs > 0:
         message += " (the fitted surface self-intersects)"
     return MeshFitResult(
@@ -233,4 +262,4 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         n_evaluations=evals, mesh=mesh.update_verts(target.undo(mesh.verts)),
         mesh_normalized=mesh, center=np.array(target.center, dtype=np.float64),
         scale=target.scale, method=plan.method, recipe=plan.recipe, metrics=metrics,
-        stages=stages, init=start.name, topology=topo)
+        stages=stages, init=start.name, topology=topo, data_report=report)
