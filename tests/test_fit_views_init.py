@@ -11,7 +11,9 @@ import pytest
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import tutorial_views
 from geofit.fit import fit_mesh_to_views
-from geofit.fit._views_init import _hull_field, hull_start, pixel_footprint, remesh_to_length
+from geofit.fit._views_init import remesh_to_length
+from geofit.fit.init import visual_hull_mesh
+from geofit.structures.visual_hull import hull_field, pixel_footprint
 from geofit.fit.views import RECIPES, ViewsEvaluator
 from geofit.shapes import two_spheres
 from geofit.structures import Mesh, TexturesVertex
@@ -56,17 +58,18 @@ def test_hull_field_matches_transform_points_screen():
         xy = cams[i].transform_points_screen(P, (16, 20))[0]
         ref = np.minimum(ref, map_coordinates(sd[i], [xy[:, 1] - 0.5, xy[:, 0] - 0.5], order=1,
                                               cval=-36.0))
-    np.testing.assert_allclose(_hull_field(sd, cams, P), ref, atol=1e-12)
+    np.testing.assert_allclose(hull_field(sd, cams, P), ref, atol=1e-12)
 
 
-def test_hull_start_keeps_the_parts_and_covers_the_shape(spheres):
+def test_visual_hull_mesh_keeps_the_parts_and_covers_the_shape(spheres):
     """The visual hull of two separate spheres has two closed parts; carved at the 0.5 level
     without shrinking and barely decimated, it covers (nearly) all of the silhouettes'
     interior (> 0.9) and (nearly) nothing outside their 0.5 level in the training views."""
     from geofit.ops import topology
     from geofit.render import MeshRasterizer, RasterizationSettings
 
-    mesh, info = hull_start(spheres.silhouettes, spheres.cameras, edge_px=0.5, shrink_px=0.0)
+    hull = visual_hull_mesh(spheres.silhouettes, spheres.cameras, edge_px=0.5, shrink_px=0.0)
+    mesh, info = hull.mesh, {"pixel_size": hull.pixel_size, "voxel_size": hull.voxel_size}
     topo = topology(mesh, self_intersections=False)
     assert topo.n_components == 2 and topo.is_closed and topo.is_manifold
     assert info["pixel_size"] > 0 and info["voxel_size"] > 0
@@ -77,9 +80,9 @@ def test_hull_start_keeps_the_parts_and_covers_the_shape(spheres):
     assert (mask & (spheres.silhouettes <= 0.5)).sum() <= 0.01 * mask.sum()
 
 
-def test_hull_start_rejects_an_empty_hull(spheres):
+def test_visual_hull_mesh_rejects_an_empty_hull(spheres):
     with pytest.raises(ValueError, match="silhouettes"):
-        hull_start(np.zeros_like(spheres.silhouettes), spheres.cameras)
+        visual_hull_mesh(np.zeros_like(spheres.silhouettes), spheres.cameras)
 
 
 @pytest.mark.parametrize("factor", [0.5, 2.0])
@@ -89,7 +92,7 @@ def test_remesh_to_length_keeps_the_hull_manifold(spheres, factor):
     mean edge length towards the target."""
     from geofit.ops import topology
 
-    mesh, _ = hull_start(spheres.silhouettes, spheres.cameras, edge_px=1.0)
+    mesh = visual_hull_mesh(spheres.silhouettes, spheres.cameras, edge_px=1.0).mesh
     t0 = topology(mesh, self_intersections=False)
     target = factor * float(mesh.edge_lengths.mean())
     out = remesh_to_length(mesh, target)
