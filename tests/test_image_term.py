@@ -180,3 +180,20 @@ def test_validation(blob):
     loss = HardImageLoss(cams, np.zeros((2, 8, 8, 3)))
     with pytest.raises(ValueError, match="vertex_colors"):
         loss(Mesh(V, F), col[:-1])
+
+
+def test_color_operator_reproduces_the_loss(blob):
+    """1/(N H W) sum_c |A_c x_c - y_c|^2 equals the loss (supersampled and masked too), and
+    A^T (A x - y) * 2/(N H W) is its colour gradient."""
+    cams, V, F, col = blob
+    rng = np.random.default_rng(5)
+    tgt = rng.uniform(0, 1, (2, 12, 12, 3))
+    loss = HardImageLoss(cams, tgt, lights=LIGHTS, supersample=2,
+                         masks=rng.uniform(0, 1, (2, 12, 12)))
+    A, y = loss.color_operator(Mesh(V, F))
+    value, _, gc = loss(Mesh(V, F), col)
+    res = [A[c] @ col[:, c] - y[:, c] for c in range(3)]
+    n = 2 * 12 * 12
+    np.testing.assert_allclose(sum(float(r @ r) for r in res) / n, value, rtol=1e-10)
+    g = np.stack([2.0 / n * (A[c].T @ res[c]) for c in range(3)], 1)
+    np.testing.assert_allclose(g, gc, rtol=1e-8, atol=1e-14)

@@ -66,7 +66,7 @@ from ..soft.shading import (
 )
 from . import _raycast
 
-__all__ = ["HardImageLoss", "ImageLossValue"]
+__all__ = ["HardImageLoss", "ImageLossValue", "ShadedHits", "affine_color_operator"]
 
 _RAY_CHUNK = 65_536  # rays per Embree call on a worker thread
 
@@ -94,6 +94,63 @@ class _Hits(NamedTuple):
     bary: np.ndarray   # (k, 3) float64 of the hits only
     depth: np.ndarray  # (k,) view depth of the hits
     dirs: np.ndarray   # (k, 3) world ray directions of the hits (view z = 1)
+
+
+class ShadedHits(NamedTuple):
+    """The covered rays of :meth:`HardImageLoss.shaded_hits`.
+
+    Attributes
+    ----------
+    ray : (k,) int64
+        Ray index (``(view, sub-pixel row, sub-pixel column)`` flattened).
+    pixel : (k,) int64
+        Flat index into ``(N, H, W)`` of the ray's pixel.
+    face : (k,) int64
+        The face hit.
+    bary : (k, 3) float64
+        Perspective-correct barycentrics of the hit.
+    shade : (k, 3) float64
+        ``Ma La + Md Ld max(0, n.l)``: the factor of the surface colour.
+    specular : (k, 3) float64
+        The specular term added to it.
+    n_rays : int
+        ``R = N H W s^2``.
+    """
+
+    ray: np.ndarray
+    pixel: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    shade: np.ndarray
+    specular: np.ndarray
+    n_rays: int
+
+
+def affine_color_operator(loss: HardImageLoss, h: ShadedHits, hit_of: np.ndarray,
+                          cols: np.ndarray, weights: np.ndarray, n_cols: int):
+    """``(A, y)`` of :meth:`HardImageLoss.color_operator` for any linear colour lookup.
+
+    The surface colour at hit ``i`` of ``h`` is ``sum_{j: hit_of[j] = i} weights[j]
+    x[cols[j]]`` (barycentric weights of vertex colours, bilinear weights of texels, ...);
+    ``A[c]`` has the entries ``(ray of hit_of[j], cols[j]) = weights[j] shade[hit_of[j], c]``
+    scaled by the ray's ``sqrt(m) / s``, and ``y`` the scaled targets minus the specular part
+    (minus the background where nothing is hit), so that the loss is
+    ``1/(N H W) sum_c |A[c] x[:, c] - y[:, c]|^2``.
+    """
+    import scipy.sparse as sp
+
+    R = h.n_rays
+    view_pix = loss._pixel_rays()[3]
+    m = np.sqrt(loss.masks.ravel()[view_pix]) / loss.supersample  # (R,)
+    rows = h.ray[hit_of]
+    mats = []
+    for c in range(3):  # colour channels
+        data = weights * h.shade[hit_of, c] * m[rows]
+        mats.append(sp.csr_matrix((data, (rows, cols)), shape=(R, n_cols)))
+    base = np.tile(loss.background, (R, 1))
+    base[h.ray] = h.specular
+    y = (loss.targets.reshape(-1, 3)[view_pix] - base) * m[:, None]
+    return mats, y
 
 
 def _cross(a, b):
@@ -277,6 +334,64 @@ class HardImageLoss:
         for c in range(3):  # channels
             img[:, c] = np.bincount(pix, col[:, c], N * H * W)
         return img.reshape(N, H, W, 3) / self.supersample ** 2
+
+    def shaded_hits(self, mesh) -> ShadedHits:
+        """Every ray's hit and its Phong factors, for operators linear in the surface colour.
+
+        A covered ray's colour is ``shade * albedo + specular`` with ``albedo`` the surface
+        colour at the hit (interpolated vertex colours, or a texture lookup); the image the loss
+        compares is then affine in the colours (:meth:`color_operator`,
+        :func:`geofit.fit.texture.fit_texture`).
+
+        Parameters
+        ----------
+        mesh : Mesh
+
+        Returns
+        -------
+        ShadedHits
+        """
+        mesh = as_mesh(mesh, "mesh")
+        N = len(self.cameras)
+        s = shading_state(mesh, np.ones((mesh.n_verts, 3)), self.lights, self.cameras,
+                          self.materials, N, self.n_threads)
+        view, x, y, pix = self._pixel_rays()
+        if mesh.n_faces == 0:
+            z = np.zeros(0, np.int64)
+            return ShadedHits(z, z, z, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
+                              len(view))
+        hits = self._cast(EmbreeScene([(mesh.verts, mesh.faces)]), mesh, view, x, y)
+        ray = np.flatnonzero(hits.face >= 0)
+        face = hits.face[ray]
+        shade = np.empty((len(ray), 3))
+        spec = np.empty((len(ray), 3))
+
+        def one(sl):
+            b, i = self._entries(mesh, face[sl], hits.bary[sl])
+            _, shade[sl], spec[sl], _ = _phong_chunk(b, i, view[ray[sl]], s)
+
+        parallel_map(one, _chunks(len(ray)), self.n_threads)
+        return ShadedHits(ray, pix[ray], face, hits.bary, shade, spec, len(view))
+
+    def color_operator(self, mesh):
+        """The loss's residual as an affine map of the vertex colours (geometry fixed).
+
+        ``L = 1/(N H W) sum_c |A[c] @ colors[:, c] - y[:, c]|^2`` exactly (up to rounding).
+
+        Returns
+        -------
+        A : list of 3 scipy.sparse.csr_matrix, each (R, V)
+            One row per ray (``R = N H W s^2``), scaled by ``sqrt(m) / s``.
+        y : (R, 3) float64
+            The targets minus the specular part (rays that hit nothing: minus the
+            background), scaled alike.
+        """
+        mesh = as_mesh(mesh, "mesh")
+        h = self.shaded_hits(mesh)
+        tri = mesh.faces[h.face]
+        hit_of = np.repeat(np.arange(len(h.ray)), 3)
+        return affine_color_operator(self, h, hit_of, tri.ravel(), h.bary.ravel(),
+                                     mesh.n_verts)
 
     def __call__(self, mesh, vertex_colors) -> ImageLossValue:
         """The loss, its gradient to the vertex positions and to the vertex colours.
