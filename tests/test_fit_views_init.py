@@ -143,3 +143,40 @@ def test_invalid_init_and_remesh_options(spheres):
         fit_mesh_to_views(spheres, remesh_rounds=-1, progress=False)
     with pytest.raises(ValueError, match="edge_px"):
         fit_mesh_to_views(spheres, edge_px=0.0, progress=False)
+
+
+def test_close_unsupported_handles_fills_an_unseen_tunnel_and_keeps_a_seen_hole():
+    """A hull grid with a one-node tunnel through a slab whose field is just below zero (no
+    silhouette insists on it) is filled; the same tunnel with a field far below zero (a view
+    sees through it, as through a torus's hole) stays open."""
+    from geofit.structures.visual_hull import HullGrid, close_unsupported_handles
+
+    field = np.full((12, 12, 12), -5.0)
+    field[2:10, 2:10, 4:8] = 2.0     # a slab
+    field[6, 6, 4:8] = -0.3          # a thin tunnel through it, barely outside a silhouette
+    g = HullGrid(field, np.zeros(3), 1.0, 1.0)
+    out = close_unsupported_handles(g, radius_px=1.0, tolerance_px=1.0)
+    tunnel = np.zeros(field.shape, bool)
+    tunnel[6, 6, 4:8] = True
+    # the tunnel is blocked (its inner nodes filled; its mouths stay dimples) and nothing else
+    assert out.filled[6, 6, 5:7].all() and not (out.filled & ~tunnel).any()
+    assert out.n_filled == int(out.filled.sum()) and np.all(out.grid.field[out.filled] > 0)
+    assert np.array_equal(out.grid.field[~out.filled], field[~out.filled])
+    field[6, 6, 4:8] = -3.0          # seen through: far outside some silhouette
+    kept = close_unsupported_handles(HullGrid(field, np.zeros(3), 1.0, 1.0), radius_px=1.0)
+    assert kept.n_filled == 0
+
+
+def test_visual_hull_mesh_close_handles_keeps_the_torus_hole():
+    """The torus's hole is seen through by the tutorial's views: closing the hull's
+    unsupported handles keeps genus 1 and one part."""
+    from geofit.ops import topology
+    from geofit.shapes import torus
+
+    ds = tutorial_views(4, mesh=_colored(torus(1.0, 0.35, 32, 16)), num_views=12,
+                        image_size=48, num_held_out=1)
+    h = visual_hull_mesh(ds.silhouettes, ds.cameras, edge_px=2.0, close_handles=True)
+    r = topology(h.mesh, self_intersections=False)
+    assert (r.genus, r.n_components) == (1, 1)
+    with pytest.raises(ValueError, match="voxel_px"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, voxel_px=0.0)

@@ -206,16 +206,20 @@ class VisualHullMesh:
         World size of a pixel at the hull's centre.
     n_faces_marching_cubes : int
         Faces before decimation.
+    n_filled : int
+        Grid nodes filled by ``close_handles`` (0 without it).
     """
 
     mesh: Mesh
     voxel_size: float
     pixel_size: float
     n_faces_marching_cubes: int
+    n_filled: int = 0
 
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
-                     threshold: float = 0.5) -> VisualHullMesh:
+                     threshold: float = 0.5, voxel_px: float = 1.5,
+                     close_handles: bool = False) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -243,6 +247,14 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         Carve the ``threshold`` outline this many pixels inwards.
     threshold : float
         Silhouette level of the outline, in (0, 1).
+    voxel_px : float
+        Carving grid spacing in pixels (default 1.5). A part thinner than about a grid step
+        can fall between the nodes and vanish; 0.5 keeps parts down to about a pixel (27 times
+        the nodes of the default).
+    close_handles : bool
+        Fill narrow tunnels no silhouette sees through
+        (:func:`geofit.structures.visual_hull.close_unsupported_handles`); ``n_filled`` says
+        how many nodes were filled.
 
     Returns
     -------
@@ -255,16 +267,22 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         is outside (0, 1), or the hull is empty.
     """
     from .._validate import as_array, check_positive
-    from ..structures.visual_hull import carve_hull
+    from ..structures.visual_hull import carve_hull, close_unsupported_handles
 
     sil = as_array(silhouettes, "silhouettes", (len(cameras), None, None))
     edge_px = check_positive(edge_px, "edge_px")
     if not 0.0 < float(threshold) < 1.0:
         raise ValueError(f"threshold: expected a number in (0, 1), got {threshold!r}")
-    g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px))
+    voxel_px = check_positive(voxel_px, "voxel_px")
+    g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
+                   voxel_px=voxel_px)
+    n_filled = 0
+    if close_handles:
+        closed = close_unsupported_handles(g)
+        g, n_filled = closed.grid, closed.n_filled
     mc = mesh_from_occupancy(g.field, g.origin, g.voxel_size, level=0.0)
     le = min(edge_px * g.pixel_size, max_edge_length(mc))
     area = float(mc.face_areas.sum())
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
-    return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces)
+    return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled)

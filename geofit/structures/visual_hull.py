@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HullGrid", "carve_hull", "hull_field", "pixel_footprint",
-           "signed_distance_images"]
+__all__ = ["ClosedHandles", "HullGrid", "carve_hull", "close_unsupported_handles",
+           "hull_field", "pixel_footprint", "signed_distance_images"]
 
 _COARSE = 32  # nodes per side of the first, coarse carving grid
 
@@ -176,3 +176,61 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
     return HullGrid(occ, lo, h, px)
+
+
+@dataclass
+class ClosedHandles:
+    """What :func:`close_unsupported_handles` filled.
+
+    Attributes
+    ----------
+    grid : HullGrid
+        The hull field with the filled nodes raised to ``+fill_value``.
+    n_filled : int
+        Nodes filled.
+    filled : (D, H, W) bool
+        Which.
+    """
+
+    grid: HullGrid
+    n_filled: int
+    filled: np.ndarray
+
+
+def close_unsupported_handles(grid: HullGrid, *, radius_px: float = 2.0,
+                              tolerance_px: float = 1.0) -> ClosedHandles:
+    """Fill the hull's narrow tunnels and crevices that no silhouette insists on.
+
+    A handle of the hull whose tunnel is narrow (a morphological closing of the occupied nodes
+    with a ball of ``radius_px`` pixels fills it) and lies within ``tolerance_px`` pixels of
+    every silhouette (the hull field there is above ``-tolerance_px``) is an artefact of
+    carving at a finite resolution: no view sees through it. A true hole (a torus's) is seen
+    through by some view, so the field in it is far below zero and it stays open. Concave
+    crevices narrower than the ball are filled too, by at most ``tolerance_px`` pixels.
+
+    Parameters
+    ----------
+    grid : HullGrid
+        From :func:`carve_hull`.
+    radius_px : float
+        Radius of the closing ball (pixels; at least one node).
+    tolerance_px : float
+        How far outside a silhouette (pixels) a filled node may project.
+
+    Returns
+    -------
+    ClosedHandles
+    """
+    from scipy.ndimage import binary_closing
+
+    occ = grid.field > 0
+    r = max(1, int(round(radius_px * grid.pixel_size / grid.voxel_size)))
+    z, y, x = np.mgrid[-r:r + 1, -r:r + 1, -r:r + 1]
+    ball = x * x + y * y + z * z <= r * r
+    pad = np.pad(occ, r + 1)
+    closed = binary_closing(pad, structure=ball)[(slice(r + 1, -r - 1),) * 3]
+    filled = closed & ~occ & (grid.field > -float(tolerance_px))
+    field = grid.field.copy()
+    field[filled] = 0.5  # half a pixel inside: marching cubes puts the surface past the node
+    return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size),
+                         int(filled.sum()), filled)
