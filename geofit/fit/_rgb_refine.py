@@ -74,7 +74,7 @@ def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4) -> np.ndarray:
 
 def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0, 1.0),
                lam: float = 10.0, reg: float = 1e-4, maxiter: int = 30,
-               time_budget: float | None = None) -> RGBRefineResult:
+               supersample: int = 2, time_budget: float | None = None) -> RGBRefineResult:
     """Refine ``mesh`` against RGB ``images`` (variable projection of the colours, L-BFGS).
 
     Parameters
@@ -92,6 +92,9 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
         Colour smoothness weight.
     maxiter : int
         L-BFGS iterations.
+    supersample : int
+        Rays per pixel ``s x s`` of the loss: the value then follows the continuous loss the
+        edge gradient differentiates more closely, which the line search needs.
     time_budget : float, optional
         Stop (at the next evaluation) after this many seconds.
 
@@ -105,7 +108,8 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     from .large_steps import LargeSteps
 
     t0 = time.perf_counter()
-    loss = HardImageLoss(cameras, images, lights=lights, background=background)
+    loss = HardImageLoss(cameras, images, lights=lights, background=background,
+                         supersample=supersample)
     F = mesh.faces
     param = LargeSteps(mesh, lam)
     u0 = param.to_params(mesh.verts).ravel()
