@@ -180,3 +180,23 @@ def test_visual_hull_mesh_close_handles_keeps_the_torus_hole():
     assert (r.genus, r.n_components) == (1, 1)
     with pytest.raises(ValueError, match="voxel_px"):
         visual_hull_mesh(ds.silhouettes, ds.cameras, voxel_px=0.0)
+    with pytest.raises(ValueError, match="refine"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, refine=0)
+
+
+def test_band_refinement_matches_the_fine_grid(spheres):
+    """carve_hull(refine=3) on a 1.5 px grid reads the field where the 0.5 px grid does in the
+    band around the surface, and has the same inside/outside everywhere on the common nodes
+    (nothing inside is missed outside the band)."""
+    from geofit.structures.visual_hull import carve_hull
+
+    fine = carve_hull(spheres.silhouettes, spheres.cameras, voxel_px=0.5)
+    band = carve_hull(spheres.silhouettes, spheres.cameras, voxel_px=1.5, refine=3)
+    np.testing.assert_allclose(band.voxel_size, fine.voxel_size, rtol=1e-12)
+    np.testing.assert_allclose(band.origin, fine.origin)
+    n = np.minimum(band.field.shape, fine.field.shape)
+    a = band.field[:n[0], :n[1], :n[2]]
+    b = fine.field[:n[0], :n[1], :n[2]]
+    assert np.array_equal(a > 0, b > 0)
+    near = np.abs(b) < 1.0
+    np.testing.assert_allclose(a[near], b[near], atol=1e-12)

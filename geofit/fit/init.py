@@ -218,7 +218,7 @@ class VisualHullMesh:
 
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
-                     threshold: float = 0.5, voxel_px: float = 1.5,
+                     threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
                      close_handles: bool = False) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
@@ -251,6 +251,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         Carving grid spacing in pixels (default 1.5). A part thinner than about a grid step
         can fall between the nodes and vanish; 0.5 keeps parts down to about a pixel (27 times
         the nodes of the default).
+    refine : int
+        Subdivide the grid this many times per axis in the band around the surface only
+        (:func:`geofit.structures.visual_hull.carve_hull`); 3 gives 0.5 px near the surface at
+        a fraction of ``voxel_px=0.5``'s cost.
     close_handles : bool
         Fill narrow tunnels no silhouette sees through
         (:func:`geofit.structures.visual_hull.close_unsupported_handles`); ``n_filled`` says
@@ -274,8 +278,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     if not 0.0 < float(threshold) < 1.0:
         raise ValueError(f"threshold: expected a number in (0, 1), got {threshold!r}")
     voxel_px = check_positive(voxel_px, "voxel_px")
+    if not isinstance(refine, (int, np.integer)) or isinstance(refine, bool) or refine < 1:
+        raise ValueError(f"refine: expected an integer >= 1, got {refine!r}")
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
-                   voxel_px=voxel_px)
+                   voxel_px=voxel_px, refine=int(refine))
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)

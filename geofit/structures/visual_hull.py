@@ -126,7 +126,7 @@ class HullGrid:
 
 
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
-               voxel_px: float = 1.5) -> HullGrid:
+               voxel_px: float = 1.5, refine: int = 1) -> HullGrid:
     """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
 
     A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
@@ -145,6 +145,13 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
         Carve the outline this many pixels inwards.
     voxel_px : float
         Fine node spacing in pixels at the hull's centre.
+    refine : int
+        Subdivide the fine grid ``refine`` times per axis, evaluating the field only in the
+        band where the surface can be (nodes whose nearest grid node reads within
+        ``sqrt(3) voxel_px`` pixels of zero: the field moves at most about a pixel per pixel
+        of distance, and a node is at most ``sqrt(3) voxel_px / 2`` from its nearest grid
+        node); elsewhere the nearest node's value is kept. Parts thinner than the grid step
+        that fall between the nodes are found this way.
 
     Returns
     -------
@@ -172,10 +179,28 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     h = voxel_px * px
     axes, P = _grid(lo, hi, h)
     occ = hull_field(sd, cameras, P).reshape([len(a) for a in axes])
+    if refine > 1:
+        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras)
     if not (occ > 0).any():
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
     return HullGrid(occ, lo, h, px)
+
+
+def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras):
+    """The field on a grid ``k`` times finer, evaluated only in the surface's band."""
+    margin = np.sqrt(3.0) * h / px
+    n = np.array(occ.shape)
+    m = (n - 1) * k + 1
+    idx = [np.minimum((np.arange(mi) + k // 2) // k, ni - 1) for mi, ni in zip(m, n)]
+    near = occ[np.ix_(*idx)]  # the nearest coarse node's value
+    band = np.flatnonzero(np.abs(near).ravel() <= margin)
+    out = near.ravel().copy()
+    hf = h / k
+    ii = np.unravel_index(band, tuple(m))
+    P = lo + hf * np.stack(ii, axis=1)
+    out[band] = hull_field(sd, cameras, P)
+    return out.reshape(tuple(m)), hf
 
 
 @dataclass
