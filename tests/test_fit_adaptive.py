@@ -156,15 +156,19 @@ def test_visual_hull_mesh_of_a_ball():
     ball = Mesh(0.6 * s.verts, s.faces, TexturesVertex(np.full((s.n_verts, 3), 0.7)))
     ds = render_views(ball, [0, 45, 90, 135, 180, 225, 270, 315], [0, 30, 60, -30, 0, -60, 30, 0],
                       image_size=64)
-    h = visual_hull_mesh(ds.silhouettes, ds.cameras, extent=1.0, resolution=40, n_faces=500)
+    h = visual_hull_mesh(ds.silhouettes, ds.cameras, edge_px=2.0).mesh
     r = topology(h)
     assert (r.genus, r.n_components, r.n_boundary_loops) == (0, 1, 0)
     radius = np.linalg.norm(h.verts, axis=1)
     assert radius.min() > 0.58 and radius.max() < 0.8  # contains the ball, a few pixels loose
-    with pytest.raises(ValueError, match="resolution"):
-        visual_hull_mesh(ds.silhouettes, ds.cameras, resolution=4)
+    with pytest.raises(ValueError, match="edge_px"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, edge_px=0.0)
+    with pytest.raises(ValueError, match="threshold"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, threshold=1.0)
+    with pytest.raises(ValueError, match="silhouettes"):
+        visual_hull_mesh(ds.silhouettes[:3], ds.cameras)
     with pytest.raises(ValueError, match="empty"):
-        visual_hull_mesh(np.zeros_like(ds.silhouettes), ds.cameras, resolution=16)
+        visual_hull_mesh(np.zeros_like(ds.silhouettes), ds.cameras)
 
 
 def test_fit_mesh_adaptive_budget_used_up_while_building_the_objective(monkeypatch):

@@ -11,7 +11,9 @@ import pytest
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import tutorial_views
 from geofit.fit import ViewsFitOptions, fit_mesh_to_views
-from geofit.fit._views_init import _hull_field, hull_start, pixel_footprint, remesh_to_length
+from geofit.fit._views_init import remesh_to_length
+from geofit.fit.init import visual_hull_mesh
+from geofit.structures.visual_hull import hull_field, pixel_footprint
 from geofit.fit.views import RECIPES, ViewsEvaluator
 from geofit.shapes import two_spheres
 from geofit.structures import Mesh, TexturesVertex
@@ -56,17 +58,18 @@ def test_hull_field_matches_transform_points_screen():
         xy = cams[i].transform_points_screen(P, (16, 20))[0]
         ref = np.minimum(ref, map_coordinates(sd[i], [xy[:, 1] - 0.5, xy[:, 0] - 0.5], order=1,
                                               cval=-36.0))
-    np.testing.assert_allclose(_hull_field(sd, cams, P), ref, atol=1e-12)
+    np.testing.assert_allclose(hull_field(sd, cams, P), ref, atol=1e-12)
 
 
-def test_hull_start_keeps_the_parts_and_covers_the_shape(spheres):
+def test_visual_hull_mesh_keeps_the_parts_and_covers_the_shape(spheres):
     """The visual hull of two separate spheres has two closed parts; carved at the 0.5 level
     without shrinking and barely decimated, it covers (nearly) all of the silhouettes'
     interior (> 0.9) and (nearly) nothing outside their 0.5 level in the training views."""
     from geofit.ops import topology
     from geofit.render import MeshRasterizer, RasterizationSettings
 
-    mesh, info = hull_start(spheres.silhouettes, spheres.cameras, edge_px=0.5, shrink_px=0.0)
+    hull = visual_hull_mesh(spheres.silhouettes, spheres.cameras, edge_px=0.5, shrink_px=0.0)
+    mesh, info = hull.mesh, {"pixel_size": hull.pixel_size, "voxel_size": hull.voxel_size}
     topo = topology(mesh, self_intersections=False)
     assert topo.n_components == 2 and topo.is_closed and topo.is_manifold
     assert info["pixel_size"] > 0 and info["voxel_size"] > 0
@@ -77,9 +80,9 @@ def test_hull_start_keeps_the_parts_and_covers_the_shape(spheres):
     assert (mask & (spheres.silhouettes <= 0.5)).sum() <= 0.01 * mask.sum()
 
 
-def test_hull_start_rejects_an_empty_hull(spheres):
+def test_visual_hull_mesh_rejects_an_empty_hull(spheres):
     with pytest.raises(ValueError, match="silhouettes"):
-        hull_start(np.zeros_like(spheres.silhouettes), spheres.cameras)
+        visual_hull_mesh(np.zeros_like(spheres.silhouettes), spheres.cameras)
 
 
 @pytest.mark.parametrize("factor", [0.5, 2.0])
@@ -89,7 +92,7 @@ def test_remesh_to_length_keeps_the_hull_manifold(spheres, factor):
     mean edge length towards the target."""
     from geofit.ops import topology
 
-    mesh, _ = hull_start(spheres.silhouettes, spheres.cameras, edge_px=1.0)
+    mesh = visual_hull_mesh(spheres.silhouettes, spheres.cameras, edge_px=1.0).mesh
     t0 = topology(mesh, self_intersections=False)
     target = factor * float(mesh.edge_lengths.mean())
     out = remesh_to_length(mesh, target)
@@ -140,3 +143,60 @@ def test_invalid_init_and_remesh_options(spheres):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(remesh_rounds=-1), progress=False)
     with pytest.raises(ValueError, match="edge_px"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(edge_px=0.0), progress=False)
+
+
+def test_close_unsupported_handles_fills_an_unseen_tunnel_and_keeps_a_seen_hole():
+    """A hull grid with a one-node tunnel through a slab whose field is just below zero (no
+    silhouette insists on it) is filled; the same tunnel with a field far below zero (a view
+    sees through it, as through a torus's hole) stays open."""
+    from geofit.structures.visual_hull import HullGrid, close_unsupported_handles
+
+    field = np.full((12, 12, 12), -5.0)
+    field[2:10, 2:10, 4:8] = 2.0     # a slab
+    field[6, 6, 4:8] = -0.3          # a thin tunnel through it, barely outside a silhouette
+    g = HullGrid(field, np.zeros(3), 1.0, 1.0)
+    out = close_unsupported_handles(g, radius_px=1.0, tolerance_px=1.0)
+    tunnel = np.zeros(field.shape, bool)
+    tunnel[6, 6, 4:8] = True
+    # the tunnel is blocked (its inner nodes filled; its mouths stay dimples) and nothing else
+    assert out.filled[6, 6, 5:7].all() and not (out.filled & ~tunnel).any()
+    assert out.n_filled == int(out.filled.sum()) and np.all(out.grid.field[out.filled] > 0)
+    assert np.array_equal(out.grid.field[~out.filled], field[~out.filled])
+    field[6, 6, 4:8] = -3.0          # seen through: far outside some silhouette
+    kept = close_unsupported_handles(HullGrid(field, np.zeros(3), 1.0, 1.0), radius_px=1.0)
+    assert kept.n_filled == 0
+
+
+def test_visual_hull_mesh_close_handles_keeps_the_torus_hole():
+    """The torus's hole is seen through by the tutorial's views: closing the hull's
+    unsupported handles keeps genus 1 and one part."""
+    from geofit.ops import topology
+    from geofit.shapes import torus
+
+    ds = tutorial_views(4, mesh=_colored(torus(1.0, 0.35, 32, 16)), num_views=12,
+                        image_size=48, num_held_out=1)
+    h = visual_hull_mesh(ds.silhouettes, ds.cameras, edge_px=2.0, close_handles=True)
+    r = topology(h.mesh, self_intersections=False)
+    assert (r.genus, r.n_components) == (1, 1)
+    with pytest.raises(ValueError, match="voxel_px"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, voxel_px=0.0)
+    with pytest.raises(ValueError, match="refine"):
+        visual_hull_mesh(ds.silhouettes, ds.cameras, refine=0)
+
+
+def test_band_refinement_matches_the_fine_grid(spheres):
+    """carve_hull(refine=3) on a 1.5 px grid reads the field where the 0.5 px grid does in the
+    band around the surface, and has the same inside/outside everywhere on the common nodes
+    (nothing inside is missed outside the band)."""
+    from geofit.structures.visual_hull import carve_hull
+
+    fine = carve_hull(spheres.silhouettes, spheres.cameras, voxel_px=0.5)
+    band = carve_hull(spheres.silhouettes, spheres.cameras, voxel_px=1.5, refine=3)
+    np.testing.assert_allclose(band.voxel_size, fine.voxel_size, rtol=1e-12)
+    np.testing.assert_allclose(band.origin, fine.origin)
+    n = np.minimum(band.field.shape, fine.field.shape)
+    a = band.field[:n[0], :n[1], :n[2]]
+    b = fine.field[:n[0], :n[1], :n[2]]
+    assert np.array_equal(a > 0, b > 0)
+    near = np.abs(b) < 1.0
+    np.testing.assert_allclose(a[near], b[near], atol=1e-12)

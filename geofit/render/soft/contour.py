@@ -51,7 +51,7 @@ from ...cameras import CamerasBase
 from ...structures import Mesh, Topology, as_mesh
 from ..mesh.rasterizer import MeshRasterizer, RasterizationSettings
 
-__all__ = ["ContourSamples", "ContourSilhouetteLoss", "contour_edges"]
+__all__ = ["ContourSamples", "ContourSilhouetteLoss", "contour_edges", "edge_samples"]
 
 
 def _edge_faces(topology: Topology):
@@ -116,6 +116,39 @@ def contour_edges(mesh: Mesh, xy: np.ndarray):
     ln = np.linalg.norm(n, axis=1)
     n = np.divide(n, ln[:, None], out=np.zeros_like(n), where=ln[:, None] > 0)
     return edges, n
+
+
+def edge_samples(a: np.ndarray, b: np.ndarray, size: int, samples_per_pixel: float):
+    """Midpoint-rule samples along projected edges ``a -> b``.
+
+    Parameters
+    ----------
+    a, b : (c, 2) float64
+        NDC ends of the edges.
+    size : int
+        ``min(H, W)``: NDC length 2 is ``size`` pixels.
+    samples_per_pixel : float
+        Samples per pixel of projected length (at least one per edge).
+
+    Returns
+    -------
+    edge : (s,) int64
+        The edge of each sample.
+    t : (s,) float64
+        Its parameter along the edge (``p = a + t (b - a)``).
+    weight : (s,) float64
+        The NDC length it stands for.
+    points : (s, 2) float64
+        NDC positions.
+    """
+    length = np.linalg.norm(b - a, axis=1)
+    k = np.maximum(np.ceil(length * size / 2.0 * samples_per_pixel), 1).astype(np.int64)
+    e = np.repeat(np.arange(len(a)), k)
+    j = np.arange(len(e)) - np.repeat(np.cumsum(k) - k, k)
+    t = (j + 0.5) / k[e]
+    w = length[e] / k[e]
+    p = a[e] + t[:, None] * (b[e] - a[e])
+    return e, t, w, p
 
 
 class ContourSamples(NamedTuple):
@@ -216,14 +249,7 @@ class ContourSilhouetteLoss:
         H, W = self.image_size
         S = min(H, W)
         edges, nrm = contour_edges(mesh, xy)
-        a, b = xy[edges[:, 0]], xy[edges[:, 1]]
-        length = np.linalg.norm(b - a, axis=1)
-        k = np.maximum(np.ceil(length * S / 2.0 * self.samples_per_pixel), 1).astype(np.int64)
-        e = np.repeat(np.arange(len(edges)), k)
-        j = np.arange(len(e)) - np.repeat(np.cumsum(k) - k, k)
-        t = (j + 0.5) / k[e]
-        w = length[e] / k[e]
-        p = a[e] + t[:, None] * (b[e] - a[e])
+        e, t, w, p = edge_samples(xy[edges[:, 0]], xy[edges[:, 1]], S, self.samples_per_pixel)
         n = nrm[e]
         q = p + n * (2.0 * self.offset_px / S)
         col = np.rint((W - 1 - q[:, 0] * S) / 2.0).astype(np.int64)

@@ -283,6 +283,27 @@ def _light_params(lights, n_views):
     return amb, dif, spe, None, _per_view(lights.direction, n_views, "lights.direction")
 
 
+def shading_state(mesh: Mesh, vcol: np.ndarray, lights, cameras, materials, n_views: int,
+                  n_threads: int = 1) -> dict:
+    """What :func:`_phong_chunk` and its vjp read: the mesh's coordinates, PyTorch3D's vertex
+    normals (and what their vjp needs), the vertex colours and the per-view light, material and
+    camera parameters (the one place the soft and the hard image terms take them from)."""
+    N = n_views
+    V = mesh.n_verts
+    amb, dif, spe, loc, direction = _light_params(lights, N)
+    vn, vn_saved = _vertex_normals(mesh.verts, mesh.faces)
+    return {"n_verts": V, "verts": [np.ascontiguousarray(mesh.verts[:, c]) for c in range(3)],
+            "vn": vn, "vn_saved": vn_saved,
+            "vcol": [np.ascontiguousarray(vcol[:, c]) for c in range(3)],
+            "loc": loc, "direction": direction, "La": amb, "Ld": dif, "Ls": spe,
+            "Ma": _per_view(materials.ambient_color, N, "materials.ambient_color"),
+            "Md": _per_view(materials.diffuse_color, N, "materials.diffuse_color"),
+            "Ms": _per_view(materials.specular_color, N, "materials.specular_color"),
+            "shininess": _per_view(materials.shininess, N, "materials.shininess"),
+            "centres": _per_view(cameras.get_camera_center(), N, "cameras"),
+            "n_threads": n_threads}
+
+
 def phong_vertex_colors(fragments: SoftFragments, mesh: Mesh, vertex_colors, lights, cameras,
                         materials, entries=None) -> PhongColors:
     """Per-entry Phong colours of a mesh with per-vertex colours (PyTorch3D's ``phong_shading``).
@@ -333,18 +354,7 @@ def phong_vertex_colors(fragments: SoftFragments, mesh: Mesh, vertex_colors, lig
         if entries.size and (entries.min() < 0 or entries.max() >= len(fr)):
             raise ValueError(f"entries: expected indices in [0, {len(fr)}), got range "
                              f"[{entries.min()}, {entries.max()}]")
-    amb, dif, spe, loc, direction = _light_params(lights, N)
-    vn, vn_saved = _vertex_normals(mesh.verts, mesh.faces)
-    s = {"n_verts": V, "verts": [np.ascontiguousarray(mesh.verts[:, c]) for c in range(3)],
-         "vn": vn, "vn_saved": vn_saved,
-         "vcol": [np.ascontiguousarray(vcol[:, c]) for c in range(3)],
-         "loc": loc, "direction": direction, "La": amb, "Ld": dif, "Ls": spe,
-         "Ma": _per_view(materials.ambient_color, N, "materials.ambient_color"),
-         "Md": _per_view(materials.diffuse_color, N, "materials.diffuse_color"),
-         "Ms": _per_view(materials.specular_color, N, "materials.specular_color"),
-         "shininess": _per_view(materials.shininess, N, "materials.shininess"),
-         "centres": _per_view(cameras.get_camera_center(), N, "cameras"),
-         "n_threads": fr._ctx.get("n_threads", 1)}
+    s = shading_state(mesh, vcol, lights, cameras, materials, N, fr._ctx.get("n_threads", 1))
     k = len(entries)
     chunks = _chunks(k)
     dtype = fr.dist.dtype

@@ -1,0 +1,261 @@
+"""The visual hull of silhouettes as a signed-distance field (one home for its carving).
+
+Each silhouette, cut at ``threshold``, becomes a signed distance in pixels (positive inside,
+:func:`signed_distance_images`, scipy's Euclidean distance transform with the pixel-centre
+half-pixel offset). A world point is read in every view at its projection
+(``cameras.transform_points_screen``, bilinear, far outside beyond the image or behind the
+camera); the minimum over the views (:func:`hull_field`) is positive exactly inside the visual
+hull and, being continuous, locates the hull's surface to a fraction of a voxel by marching
+cubes. :func:`carve_hull` evaluates it on a grid of ``voxel_px`` pixels over the occupied box
+(found by a coarse pass over a cube every camera sits outside of).
+:func:`geofit.fit.init.visual_hull_mesh` turns that grid into a mesh.
+
+The conservative, dilated carving of voxel grids for the volume fits (a voxel may be occupied
+unless a view rules its whole footprint out) is :func:`geofit.structures.volume.visual_hull`.
+
+Cameras are duck-typed (``transform_points_screen``, ``transform_points_view``,
+``get_camera_center``, indexing): the structures layer does not import :mod:`geofit.cameras`.
+No gradient is defined here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ClosedHandles", "HullGrid", "carve_hull", "close_unsupported_handles",
+           "hull_field", "pixel_footprint", "signed_distance_images"]
+
+_COARSE = 32  # nodes per side of the first, coarse carving grid
+
+
+def pixel_footprint(cameras, image_size, point) -> float:
+    """Median over the views of the world length that one pixel spans at ``point``.
+
+    Parameters
+    ----------
+    cameras : CamerasBase
+        ``N`` cameras.
+    image_size : (2,) int
+        ``(H, W)``.
+    point : (3,) float64
+        World point (e.g. the centre of the object).
+
+    Returns
+    -------
+    float
+        World units per pixel (> 0).
+    """
+    p = np.asarray(point, dtype=np.float64).reshape(1, 3)
+    eps = 1e-3 * max(1.0, float(np.abs(p).max()))
+    P = np.concatenate([p, p + eps * np.eye(3)])
+    s = cameras.transform_points_screen(P, tuple(image_size))[..., :2]  # (N, 4, 2)
+    moved = np.linalg.norm(s[:, 1:] - s[:, :1], axis=-1).max(axis=1)  # pixels per eps
+    return float(np.median(eps / np.maximum(moved, 1e-12)))
+
+
+def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5) -> np.ndarray:
+    """(N, H, W) float64 signed pixel distance to the ``threshold`` outline (positive inside).
+
+    Parameters
+    ----------
+    silhouettes : (N, H, W) float64
+        Silhouettes in [0, 1]; pixels above ``threshold`` are inside.
+    threshold : float
+
+    Returns
+    -------
+    (N, H, W) float64
+        ``edt(inside) - 0.5`` inside, ``0.5 - edt(outside)`` outside: the outline sits half a
+        pixel from the centres of the pixels on either side of it.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    out = np.empty(silhouettes.shape)
+    for i, s in enumerate(silhouettes):  # views (each one vectorised transform)
+        inside = s > threshold
+        out[i] = np.where(inside, distance_transform_edt(inside) - 0.5,
+                          0.5 - distance_transform_edt(~inside))
+    return out
+
+
+def hull_field(sd: np.ndarray, cameras, P: np.ndarray) -> np.ndarray:
+    """(k,) float64 minimum over the views of the signed distance (pixels) at the projections
+    of ``P (k, 3)``; ``-(H + W)`` for points outside an image or behind a camera."""
+    from scipy.ndimage import map_coordinates
+
+    N, H, W = sd.shape
+    field = np.full(len(P), np.inf)
+    far = -float(H + W)
+    for i in range(N):  # views (each one vectorised call over all points)
+        cam = cameras[i]
+        xy = cam.transform_points_screen(P, (H, W))[0, :, :2] - 0.5  # pixel centres at integers
+        val = map_coordinates(sd[i], [xy[:, 1], xy[:, 0]], order=1, cval=far)
+        val[cam.transform_points_view(P)[0, :, 2] <= 0] = far  # behind the camera
+        np.minimum(field, val, out=field)
+    return field
+
+
+def _grid(lo: np.ndarray, hi: np.ndarray, h: float):
+    """Grid nodes covering [lo, hi] with spacing h: (axes, (k, 3) points)."""
+    axes = [np.arange(a, b + 0.5 * h, h) for a, b in zip(lo, hi)]
+    P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    return axes, P
+
+
+@dataclass
+class HullGrid:
+    """The hull field sampled on a grid (:func:`carve_hull`).
+
+    Attributes
+    ----------
+    field : (D, H, W) float64
+        Signed distance in pixels at the nodes, axes in x, y, z order (positive inside).
+    origin : (3,) float64
+        World position of node ``(0, 0, 0)``.
+    voxel_size : float
+        Node spacing (world units).
+    pixel_size : float
+        World size of a pixel at the grid's centre (:func:`pixel_footprint`).
+    """
+
+    field: np.ndarray
+    origin: np.ndarray
+    voxel_size: float
+    pixel_size: float
+
+
+def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
+               voxel_px: float = 1.5, refine: int = 1) -> HullGrid:
+    """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
+
+    A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
+    hull occupies; nodes within a coarse voxel of the hull are kept, so parts thinner than a
+    coarse voxel survive. The fine grid spans that box.
+
+    Parameters
+    ----------
+    silhouettes : (N, H, W) float64
+        Silhouettes in [0, 1] (soft or binary).
+    cameras : CamerasBase
+        The ``N`` cameras.
+    threshold : float
+        Silhouette level of the outline.
+    shrink_px : float
+        Carve the outline this many pixels inwards.
+    voxel_px : float
+        Fine node spacing in pixels at the hull's centre.
+    refine : int
+        Subdivide the fine grid ``refine`` times per axis, evaluating the field only in the
+        band where the surface can be (nodes whose nearest grid node reads within
+        ``sqrt(3) voxel_px`` pixels of zero: the field moves at most about a pixel per pixel
+        of distance, and a node is at most ``sqrt(3) voxel_px / 2`` from its nearest grid
+        node); elsewhere the nearest node's value is kept. Parts thinner than the grid step
+        that fall between the nodes are found this way.
+
+    Returns
+    -------
+    HullGrid
+
+    Raises
+    ------
+    ValueError
+        If the hull is empty (no point is inside every silhouette).
+    """
+    sil = np.asarray(silhouettes, dtype=np.float64)
+    N, H, W = sil.shape
+    sd = signed_distance_images(sil, threshold) - shrink_px
+    C = cameras.get_camera_center()
+    r = 0.95 * float(np.linalg.norm(C, axis=1).min())
+    h0 = 2.0 * r / (_COARSE - 1)
+    _, P0 = _grid(np.full(3, -r), np.full(3, r), h0)
+    px0 = pixel_footprint(cameras, (H, W), np.zeros(3))
+    keep = hull_field(sd, cameras, P0) > -np.sqrt(3.0) * h0 / px0
+    if not keep.any():
+        raise ValueError("silhouettes: the visual hull is empty (no point projects inside "
+                         "every silhouette); check the cameras")
+    lo, hi = P0[keep].min(0) - h0, P0[keep].max(0) + h0
+    px = pixel_footprint(cameras, (H, W), 0.5 * (lo + hi))
+    h = voxel_px * px
+    axes, P = _grid(lo, hi, h)
+    occ = hull_field(sd, cameras, P).reshape([len(a) for a in axes])
+    if refine > 1:
+        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras)
+    if not (occ > 0).any():
+        raise ValueError("silhouettes: the visual hull is empty after carving; check the "
+                         "cameras")
+    return HullGrid(occ, lo, h, px)
+
+
+def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras):
+    """The field on a grid ``k`` times finer, evaluated only in the surface's band."""
+    margin = np.sqrt(3.0) * h / px
+    n = np.array(occ.shape)
+    m = (n - 1) * k + 1
+    idx = [np.minimum((np.arange(mi) + k // 2) // k, ni - 1) for mi, ni in zip(m, n)]
+    near = occ[np.ix_(*idx)]  # the nearest coarse node's value
+    band = np.flatnonzero(np.abs(near).ravel() <= margin)
+    out = near.ravel().copy()
+    hf = h / k
+    ii = np.unravel_index(band, tuple(m))
+    P = lo + hf * np.stack(ii, axis=1)
+    out[band] = hull_field(sd, cameras, P)
+    return out.reshape(tuple(m)), hf
+
+
+@dataclass
+class ClosedHandles:
+    """What :func:`close_unsupported_handles` filled.
+
+    Attributes
+    ----------
+    grid : HullGrid
+        The hull field with the filled nodes raised to ``+fill_value``.
+    n_filled : int
+        Nodes filled.
+    filled : (D, H, W) bool
+        Which.
+    """
+
+    grid: HullGrid
+    n_filled: int
+    filled: np.ndarray
+
+
+def close_unsupported_handles(grid: HullGrid, *, radius_px: float = 2.0,
+                              tolerance_px: float = 1.0) -> ClosedHandles:
+    """Fill the hull's narrow tunnels and crevices that no silhouette insists on.
+
+    A handle of the hull whose tunnel is narrow (a morphological closing of the occupied nodes
+    with a ball of ``radius_px`` pixels fills it) and lies within ``tolerance_px`` pixels of
+    every silhouette (the hull field there is above ``-tolerance_px``) is an artefact of
+    carving at a finite resolution: no view sees through it. A true hole (a torus's) is seen
+    through by some view, so the field in it is far below zero and it stays open. Concave
+    crevices narrower than the ball are filled too, by at most ``tolerance_px`` pixels.
+
+    Parameters
+    ----------
+    grid : HullGrid
+        From :func:`carve_hull`.
+    radius_px : float
+        Radius of the closing ball (pixels; at least one node).
+    tolerance_px : float
+        How far outside a silhouette (pixels) a filled node may project.
+
+    Returns
+    -------
+    ClosedHandles
+    """
+    from scipy.ndimage import binary_closing
+
+    occ = grid.field > 0
+    r = max(1, int(round(radius_px * grid.pixel_size / grid.voxel_size)))
+    z, y, x = np.mgrid[-r:r + 1, -r:r + 1, -r:r + 1]
+    ball = x * x + y * y + z * z <= r * r
+    pad = np.pad(occ, r + 1)
+    closed = binary_closing(pad, structure=ball)[(slice(r + 1, -r - 1),) * 3]
+    filled = closed & ~occ & (grid.field > -float(tolerance_px))
+    field = grid.field.copy()
+    field[filled] = 0.5  # half a pixel inside: marching cubes puts the surface past the node
+    return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size),
+                         int(filled.sum()), filled)
