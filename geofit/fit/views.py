@@ -15,8 +15,8 @@ plain sight in :class:`_Objective`.
   then alternates L-BFGS on the soft silhouettes of all views (large steps, lambda 10; 64 then
   128 px) with **remeshing** (:func:`geofit.ops.remesh`) to edges of ``edge_px`` = 3 pixels
   of the level's images, and ends with least-squares colours. Every length is a number of
-  pixels times the pixel's world size at the object (:func:`~geofit.fit._views_init.
-  pixel_footprint`), so nothing depends on the object's scale. The hull is only a start:
+  pixels times the pixel's world size at the object
+  (:func:`~geofit.structures.visual_hull.pixel_footprint`), so nothing depends on the object's scale. The hull is only a start:
   with 50 faces blended, a soft silhouette exceeds 0.5 up to about a pixel outside the
   outline (on the cow's 20 views 5472 such pixels against 65798 inside), so the 0.5 hull is
   inflated (held-out IoU 0.889, F@0.01 0.001 on the cow, measured); the fit matches the
