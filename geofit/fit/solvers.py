@@ -176,9 +176,13 @@ class _Tracker:
             raise _Stop("time_budget", self.time_up())
         return value, grad
 
-    def time_up(self) -> str:
-        """The status message of a used-up time budget."""
-        budget = self.clock.deadline if self.clock.deadline is not None else self.time_budget
+    def time_up(self, budget: float | None = None) -> str:
+        """The status message of a used-up time budget (``budget``: the solver's own, when the
+        tracker was not given it)."""
+        for b in (self.clock.deadline, self.time_budget, budget):
+            if b is not None:
+                budget = b
+                break
         return (f"reached the time budget of {budget:g} s after {self.n_iter} steps "
                 f"({self.seconds():.1f} s)")
 
@@ -417,7 +421,7 @@ def _first_order(fun, x0, step_rule, *, n_iter, time_budget, divergence, callbac
             x = x_new
             tr.iteration(x, value)
             if time_budget is not None and tr.seconds() > time_budget:
-                raise _Stop("time_budget", f"{name}: {tr.time_up()}")
+                raise _Stop("time_budget", f"{name}: {tr.time_up(time_budget)}")
     except _Stop as stop:
         if stop.status in ("nonfinite", "diverged"):
             return tr.result(tr.best_x, tr.best_value, stop.status, stop.message)
