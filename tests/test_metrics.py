@@ -128,7 +128,9 @@ def test_validation():
     with pytest.raises(TypeError, match="target"):
         MeshEvaluator(m.verts)
     with pytest.raises(TypeError, match="pred"):
-        MeshEvaluator(m).evaluate((m.verts, m.faces))
+        MeshEvaluator(m).evaluate("not a mesh")
+    # a (verts, faces) pair is a mesh wherever a mesh is taken (issue 26)
+    assert MeshEvaluator(m, n_samples=100).evaluate((m.verts, m.faces)).chamfer_l2 < 1e-20
     with pytest.raises(ValueError, match="n_samples"):
         evaluate_mesh(m, m, n_samples=0)
     with pytest.raises(ValueError, match="taus"):
