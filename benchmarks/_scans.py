@@ -23,10 +23,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from geofit._atomic import write_json
+from geofit.report import machine_summary
 
 #: (name, points, noise, stray fraction)
 CONDITIONS = [("20k, noise 0.005, 1% strays", 20_000, 0.005, 0.01),
@@ -124,7 +128,13 @@ def run(label: str, out: Path, shapes=SHAPES, with_poisson: bool = True,
                          "cpu_seconds": pc + dc, "load": os.getloadavg()[0]})
             print(json.dumps(rows[-2]), "\n", json.dumps(rows[-1]), flush=True)
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"fit_mesh_scans_{label}.json").write_text(json.dumps(rows, indent=1))
+    name = f"fit_mesh_scans_{label}"
+    loads = [r["load"] for r in rows]
+    doc = {"benchmark": name, "command": "python " + " ".join(
+               [str(Path(__file__).relative_to(Path(__file__).parents[1]))] + sys.argv[1:]),
+           "machine": machine_summary(), "load": [min(loads), max(loads)] if loads else None,
+           "rows": rows}
+    write_json(out / f"{name}.json", doc)
     return rows
 
 
@@ -134,7 +144,7 @@ def table(out: Path) -> str:
 
     rows = []
     for p in sorted(out.glob("fit_mesh_scans_*.json")):
-        rows += json.loads(p.read_text())
+        rows += json.loads(p.read_text())["rows"]
     lines = ["| shape | condition | method | faces | chamfer-L2 | F@0.01 | wall s | CPU s "
              "| load |", "|" + "---|" * 9]
     key = sorted({(r["condition"], r["shape"]) for r in rows})
