@@ -26,7 +26,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..ops import uniform_laplacian
+from ..render.mesh.image_term import HardImageLoss
 from ..structures import Mesh
+from .large_steps import LargeSteps
 
 __all__ = ["RGBRefineResult", "refine_rgb", "solve_vertex_colors"]
 
@@ -56,7 +59,6 @@ class RGBRefineResult:
 
 def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4) -> np.ndarray:
     """``argmin_C L(mesh, C) + reg |L_u C|^2 / V`` by one sparse solve per channel."""
-    from ..ops import uniform_laplacian
 
     A, y = loss.color_operator(mesh)
     N = len(loss.cameras)
@@ -104,8 +106,6 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     """
     from scipy.optimize import minimize
 
-    from ..render.mesh.image_term import HardImageLoss
-    from .large_steps import LargeSteps
 
     t0 = time.perf_counter()
     loss = HardImageLoss(cameras, images, lights=lights, background=background,

@@ -22,7 +22,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .._validate import check_positive
+from ..render.mesh.image_term import HardImageLoss, affine_color_operator
 from ..structures import Mesh, TexturesUV, as_mesh
+from ..structures.visual_hull import pixel_footprint
 
 __all__ = ["fit_texture", "texel_operator", "uv_atlas"]
 
@@ -50,7 +52,7 @@ def uv_atlas(mesh: Mesh, texel_size: float, *, padding: int = 2,
     size : (2,) int
         ``(H, W)`` of the texture image.
     """
-    import xatlas
+    import xatlas  # imported when an atlas is built (a compiled extension)
 
     mesh = as_mesh(mesh, "mesh")
     h = check_positive(texel_size, "texel_size")
@@ -112,7 +114,6 @@ def texel_operator(loss, mesh: Mesh, faces_uvs, verts_uvs, size):
     A : list of 3 scipy.sparse.csr_matrix, each (R, H W)
     y : (R, 3) float64
     """
-    from ..render.mesh.image_term import affine_color_operator
 
     h = loss.shaded_hits(mesh)
     uv = np.einsum("kj,kjd->kd", h.bary, verts_uvs[faces_uvs[h.face]])
@@ -164,8 +165,6 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
         If the images do not match the cameras, ``texel_px`` or ``smoothness`` is not positive,
         or no view sees the mesh.
     """
-    from ..render.mesh.image_term import HardImageLoss
-    from ..structures.visual_hull import pixel_footprint
 
     mesh = as_mesh(mesh, "mesh")
     loss = HardImageLoss(cameras, images, lights=lights, materials=materials, masks=masks,
