@@ -115,8 +115,8 @@ def _trace(go, obj, name: str, kw: dict):
                             kw["pointcloud_marker_size"])
     if hasattr(obj, "R") and hasattr(obj, "T"):
         return _camera_trace(go, obj, name, kw["camera_scale"])
-    raise TypeError(f"plot_scene: {name!r} is a {type(obj)!r}; expected Meshes, Pointclouds (or "
-                    f"geofit's Mesh, PointCloud) or cameras")
+    raise TypeError(f"plot_scene: {name!r} is a {type(obj)!r}; expected Meshes, Pointclouds or "
+                    f"cameras (geofit's Mesh and PointCloud too)")
 
 
 def plot_scene(plots: dict, *, viewpoint_cameras=None, ncols: int = 1,
