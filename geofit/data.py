@@ -261,6 +261,8 @@ def _fetch(url: str, target: Path, sha: str, timeout: float, help_text: str) -> 
         if got != sha:
             raise ValueError(f"{url}: sha256 mismatch, expected {sha}, got {got}; "
                              f"the file was not saved")
+        with open(tmp, "rb") as fh:  # durable before it takes the target's name
+            os.fsync(fh.fileno())
         os.replace(tmp, target)
     finally:
         if os.path.exists(tmp):

@@ -167,7 +167,7 @@ def plot_accuracy_vs_time(methods: Sequence[Any], panels: Sequence[Mapping[str, 
         height = 3.4 + 0.2 * n_rows  # room for the legend below the panels
         fig.set_size_inches(5.2 * len(panels), height)
         fig.tight_layout(rect=(0, (0.12 + 0.2 * n_rows) / height, 1, 1))
-        fig.savefig(path)
+        atomic_write(path, fig.savefig)
         plt.close(fig)
     return path
 
@@ -245,7 +245,7 @@ def plot_model_sizes(sizes: Mapping[str, float], path: str | Path, *, title: str
         if title:
             ax.set_title(title)
         fig.tight_layout()
-        fig.savefig(path)
+        atomic_write(path, fig.savefig)
         plt.close(fig)
     return path
 

@@ -75,7 +75,10 @@ def save_png(path: Path, rows: list) -> None:
     from PIL import Image
 
     grid = np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0)
-    Image.fromarray((np.clip(grid, 0, 1) * 255).round().astype(np.uint8)).save(path)
+    from .._atomic import atomic_write
+
+    img = Image.fromarray((np.clip(grid, 0, 1) * 255).round().astype(np.uint8))
+    atomic_write(path, img.save)
 
 
 def save_gif(path: Path, frames, ms: int = 80) -> None:
@@ -84,7 +87,10 @@ def save_gif(path: Path, frames, ms: int = 80) -> None:
     from PIL import Image
 
     ims = [Image.fromarray((np.clip(f, 0, 1) * 255).round().astype(np.uint8)) for f in frames]
-    ims[0].save(path, save_all=True, append_images=ims[1:], duration=ms, loop=0)
+    from .._atomic import atomic_write
+
+    atomic_write(path, lambda p: ims[0].save(p, save_all=True, append_images=ims[1:],
+                                             duration=ms, loop=0))
 
 
 def add_view_args(p: argparse.ArgumentParser, frames: bool = True) -> None:

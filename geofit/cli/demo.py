@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+from .._atomic import atomic_write
 from ._common import check_out
 
 __all__ = ["register", "run", "render_views", "DemoImages", "DemoResult", "run_demo"]
@@ -148,7 +149,7 @@ def _picture(path: Path, targets: np.ndarray, preds: np.ndarray, lines: list[str
         for j in range(k):
             _label(canvas, name, (j * W * scale + 4, head + r * H * scale + 2), max(10, font - 4),
                    (90, 90, 90))
-    canvas.save(path)
+    atomic_write(path, canvas.save)
 
 
 def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 
+from .._atomic import atomic_write
 from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, finish,
                       fit_kwargs, out_dir, save_png, save_rotation, tutorial_data, write_json)
 
@@ -46,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
     summary = res.summary()
     summary["history"] = res.history.to_dict()
     write_json(out / "nerf_summary.json", summary)
-    np.savez_compressed(out / "nerf_field.npz", **res.field.params,
-                        config=json.dumps(asdict(res.config)))
+    config = json.dumps(asdict(res.config))
+    atomic_write(out / "nerf_field.npz",
+                 lambda p: np.savez_compressed(p, **res.field.params, config=config))
     if res.images is not None:
         save_png(out / "nerf_heldout.png", [test.images, res.images[..., :3]])
     save_rotation(out / "nerf_rotation.gif", lambda cameras: render_nerf(

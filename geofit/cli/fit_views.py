@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from .._atomic import atomic_write
 from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, fit_kwargs,
                       metric_line, out_dir, save_png, tutorial_data, write_json)
 
@@ -51,8 +52,8 @@ def run(args: argparse.Namespace) -> int:
 
     dest = out_dir(args)
     save_obj(dest / "fit_views.obj", fit.mesh)
-    np.savez_compressed(dest / "fit_views_colors.npz", verts=fit.mesh.verts,
-                        faces=fit.mesh.faces, colors=colors)
+    atomic_write(dest / "fit_views_colors.npz", lambda p: np.savez_compressed(
+        p, verts=fit.mesh.verts, faces=fit.mesh.faces, colors=colors))
     fit.history.to_json(dest / "fit_views_history.json")
     summary = {"object": ds.name, "options": kw, "views": len(ds), "heldout": len(held),
                "image_size": list(ds.image_size), **fit.summary(), "stages": fit.stages,

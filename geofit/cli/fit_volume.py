@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from .._atomic import atomic_write
 from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, finish,
                       fit_kwargs, out_dir, save_png, save_rotation, tutorial_data, write_json)
 
@@ -54,8 +55,9 @@ def run(args: argparse.Namespace) -> int:
     summary["history"] = res.history.to_dict()
     write_json(out / "volume_summary.json", summary)
     vol = res.volume
-    np.savez_compressed(out / "volume.npz", densities=vol.densities, features=vol.features,
-                        voxel_size=vol.voxel_size, volume_translation=vol.volume_translation)
+    atomic_write(out / "volume.npz", lambda p: np.savez_compressed(
+        p, densities=vol.densities, features=vol.features, voxel_size=vol.voxel_size,
+        volume_translation=vol.volume_translation))
     save_png(out / "volume_heldout.png", [test.images, m.images[..., :3]])
     save_rotation(out / "volume_rotation.gif",
                   lambda cameras: render_volume(vol, cameras, train.image_size[0]), args.frames,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from .._atomic import atomic_write
 from ._common import add_command, out_dir, wrote
 
 __all__ = ["register", "run"]
@@ -90,10 +91,12 @@ def run(args: argparse.Namespace) -> int:
 
     dest = out_dir(args)
     paths = [dest / "render.png", dest / "render_depth.png", dest / "render_normals.png"]
-    Image.fromarray(_to_uint8(make_grid(images))).save(paths[0])
+    atomic_write(paths[0], Image.fromarray(_to_uint8(make_grid(images))).save)
     depth = _depth_to_unit(fragments.depth_image(np.inf))[..., None]
-    Image.fromarray(_to_uint8(make_grid(depth, rgb=False, background=0.0)[..., 0])).save(paths[1])
-    Image.fromarray(_to_uint8(make_grid(fragments.normal_image(), background=0.0))).save(paths[2])
+    atomic_write(paths[1], Image.fromarray(
+        _to_uint8(make_grid(depth, rgb=False, background=0.0)[..., 0])).save)
+    atomic_write(paths[2], Image.fromarray(
+        _to_uint8(make_grid(fragments.normal_image(), background=0.0))).save)
     rays = fragments.n_views * fragments.image_size[0] * fragments.image_size[1]
     print(f"mesh: {source} ({mesh.n_verts} vertices, {mesh.n_faces} faces, loaded in "
           f"{t_load:.2f} s)")
@@ -109,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
         o3d = render_open3d(batch, cameras, args.image_size)
         side = np.concatenate([images[..., :3], o3d.images], axis=2)
         paths.append(dest / "render_open3d.png")
-        Image.fromarray(_to_uint8(make_grid(side, pad=4))).save(paths[-1])
+        atomic_write(paths[-1], Image.fromarray(_to_uint8(make_grid(side, pad=4))).save)
         mask = fragments.mask if args.supersample == 1 else None
         if mask is not None:
             iou = (mask & o3d.mask).sum() / max((mask | o3d.mask).sum(), 1)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from .._atomic import atomic_write
 from ._common import add_command, out_dir, wrote
 
 __all__ = ["BRIDGE", "default_cloud", "register", "run"]
@@ -115,8 +116,8 @@ def run(args: argparse.Namespace) -> int:
     dest = out_dir(args)
     img_path = dest / "render_points.png"
     depth_path = dest / "render_points_depth.png"
-    Image.fromarray(_to_uint8(out.images[0, ..., :3])).save(img_path)
-    Image.fromarray(_depth_to_uint8(out.depth[0])).save(depth_path)
+    atomic_write(img_path, Image.fromarray(_to_uint8(out.images[0, ..., :3])).save)
+    atomic_write(depth_path, Image.fromarray(_depth_to_uint8(out.depth[0])).save)
     covered = float(out.fragments.mask.mean())
     print(f"cloud: {source} ({len(cloud)} points, loaded in {t_load:.2f} s)")
     print(f"camera: {args.camera}, dist {dist:g}, elev {args.elev:g}, azim {azim:g}; "

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._json import json_safe as _json_safe
+from .._atomic import write_text
 
 __all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult", "TimeUp"]
 
@@ -286,8 +287,7 @@ class FitHistory:
         """The history as JSON text; also written to ``path`` when given."""
         text = json.dumps(self.to_dict(), **kwargs)
         if path is not None:
-            with open(path, "w", encoding="utf-8") as fh:
-                fh.write(text)
+            write_text(path, text)
         return text
 
 

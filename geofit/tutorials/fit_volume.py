@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._atomic import atomic_write
 from ..fit.volume import VolumeFitOptions, fit_volume
 from ..metrics import psnr
 from ..structures import MultiViewDataset
@@ -93,9 +94,9 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                     final={"seconds": fit.seconds, **final, "n_params": fit.n_params},
                     config={k: repr(v) for k, v in kw.items()})
         vol = fit.volume
-        np.savez_compressed(d / f"{key}_volume.npz", densities=vol.densities,
-                            features=vol.features, voxel_size=vol.voxel_size,
-                            volume_translation=vol.volume_translation)
+        atomic_write(d / f"{key}_volume.npz", lambda p: np.savez_compressed(
+            p, densities=vol.densities, features=vol.features, voxel_size=vol.voxel_size,
+            volume_translation=vol.volume_translation))
         res.files[f"{key} volume"] = d / f"{key}_volume.npz"
         cut = recipe_cut(fit.n_iterations, _volume_settings("full")["tutorial"]["n_iter"]) \
             if key == "tutorial" else ""

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._atomic import atomic_write
 from ..fit.nerf import RECIPES, fit_nerf, render_nerf
 from ..structures import MultiViewDataset
 from .shared import (
@@ -86,7 +87,8 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         record_fit(res, d, key, label, fit, ("psnr",),
                     final={"seconds": fit.seconds, "psnr": fit.psnr, "n_params": fit.n_params},
                     config={k: repr(v) for k, v in kw.items()})
-        np.savez_compressed(d / f"{key}_weights.npz", **fit.field.params)
+        atomic_write(d / f"{key}_weights.npz",
+                     lambda p: np.savez_compressed(p, **fit.field.params))
         res.files[f"{key} weights"] = d / f"{key}_weights.npz"
         cut = recipe_cut(fit.n_iterations, _nerf_settings("full")["tutorial"]["n_iter"]) \
             if key == "tutorial" else ""

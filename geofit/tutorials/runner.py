@@ -7,6 +7,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from .._atomic import write_text
 from .._validate import check_choice
 from ..data import data_dir, find
 from ..report import write_gallery, write_report
@@ -78,7 +79,7 @@ def run_step(name: str, out, size: str = "default", *, progress: bool = True,
     except Exception as exc:  # noqa: BLE001 - a failed step is reported, never dropped
         d = Path(out) / name
         d.mkdir(parents=True, exist_ok=True)
-        (d / "error.txt").write_text(traceback.format_exc(), encoding="utf-8")
+        write_text(d / "error.txt", traceback.format_exc())
         res = StepResult(name, title, tutorial, status=failure_text(exc), size=size,
                          seconds=time.perf_counter() - t0)
         res.files["traceback"] = d / "error.txt"
