@@ -112,7 +112,7 @@ class DemoResult(NamedTuple):
 def _fit(train, time_budget: float, progress: bool):
     """The one call of the fit: the plain default of tutorial 4 (geofit's best: the visual
     hull, L-BFGS with large steps at half then full resolution, remeshing; least-squares
-    colours), with the silhouette stage capped at ``time_budget`` seconds."""
+    colours), the whole fit bounded by ``time_budget`` wall-clock seconds."""
     from ..fit import fit_mesh_to_views
 
     return fit_mesh_to_views(train, time_budget=time_budget, progress=progress)
@@ -200,7 +200,7 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
                            num_held_out=heldout, name=loaded.name)
     t_data = time.perf_counter() - t0
     say(f"geofit demo: rendered {views} training and {heldout} held-out views of {size} px "
-        f"in {t_data:.1f} s; fitting (silhouettes for {time_budget:g} s, then colours) ...")
+        f"in {t_data:.1f} s; fitting (a time budget of {time_budget:g} s) ...")
     t1 = time.perf_counter()
     fit = _fit(train, float(time_budget), verbose)
     t_fit = time.perf_counter() - t1
@@ -221,7 +221,7 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
              f"held-out views: silhouette IoU {metrics['iou']:.3f}, PSNR {metrics['psnr']:.1f} "
              f"dB; surface: chamfer-L2 {metrics['chamfer_l2']:.2g}, "
              f"F-score@0.01 {metrics['fscore@0.01']:.2f}",
-             f"fit {t_fit:.1f} s (L-BFGS on the silhouettes for {time_budget:g} s, then "
+             f"fit {t_fit:.1f} s (time budget {time_budget:g} s: silhouettes, then "
              f"colours), {total:.1f} s in all"
              + ("" if fit.status in ("time_budget", "converged", "max_iter")
                 else f"; status {fit.status}")]
