@@ -58,6 +58,7 @@ from geofit import Mesh
 from geofit.fit import CoarseToFine, MeshFitOptions, fit_mesh
 from geofit.metrics import MeshEvaluator
 from geofit.tutorials.stability import MESH_MODES, fit_mesh_scenario, mesh_fit_arguments
+from geofit.tutorials.fit_mesh import FIT_MESH_RUNS
 
 # PyTorch3D's own tutorial run, as stated in the acceptance text (PyTorch3D 0.7.9, CPU,
 # 2 cores, this machine; metrics by geofit.metrics as below). Not re-measured by this script.
@@ -71,15 +72,8 @@ ACCURACY = {"chamfer_l2": ("<=", PYTORCH3D["chamfer_l2"]),
 
 #: The runs: fit_mesh keyword arguments of each named run (recipe settings spelled out).
 #: ``recipe`` and MeshFitOptions fields (large_steps 0: the vertices directly).
-RUNS = {
-    "default": {"recipe": "default"},                                # fit_mesh(target)
-    "tutorial": {"recipe": "tutorial", "method": "sgd"},
-    "adam": {"recipe": "sphere", "method": "adam", "lr": 0.01},
-    "scipy-lbfgs": {"recipe": "sphere", "method": "lbfgs", "large_steps": 0.0},
-    "nlopt-lbfgs": {"recipe": "sphere", "method": "lbfgs-nlopt", "large_steps": 0.0},
-    "large-steps": {"recipe": "sphere", "method": "lbfgs", "large_steps": 10.0},
-    "coarse-to-fine": {"recipe": "coarse-to-fine", "method": "lbfgs", "large_steps": 10.0},
-}
+RUNS = {"default": {"recipe": "default"},  # fit_mesh(target)
+        **FIT_MESH_RUNS}                   # the tutorial step's alternatives, one table
 
 LABELS = {
     "default": "fit_mesh(target): decimated target + remeshing",

@@ -45,8 +45,9 @@ _FIT_MESH_LABELS = {
 }
 
 
-# recipe and MeshFitOptions fields of each run (large_steps 0: the vertices directly)
-_FIT_MESH_RUNS = {
+#: recipe and MeshFitOptions fields of each run of tutorial 1 beside the default (large_steps 0:
+#: the vertices directly); benchmarks/fit_mesh.py runs the same table.
+FIT_MESH_RUNS = {
     "tutorial": {"recipe": "tutorial", "method": "sgd"},
     "adam": {"recipe": "sphere", "method": "adam", "lr": 0.01},
     "scipy-lbfgs": {"recipe": "sphere", "method": "lbfgs", "large_steps": 0.0},
@@ -57,7 +58,7 @@ _FIT_MESH_RUNS = {
 
 
 def _fit_mesh_settings(name: str, size: str) -> dict:
-    kw = dict(_FIT_MESH_RUNS[name])
+    kw = dict(FIT_MESH_RUNS[name])
     stochastic = kw["method"] in ("sgd", "adam")
     if size == "full":
         kw["eval_every"] = 100 if stochastic else 10
