@@ -15,6 +15,7 @@ import scipy.sparse as sp
 from .. import _foreign
 from .._foreign import foreign_kind, to_uint8
 from .._validate import as_array, as_faces, as_points
+from ._batch import Batch, as_batch, first_index, packed_to_item, padded
 from .textures import TexturesBase, TexturesUV, TexturesVertex
 
 __all__ = ["Mesh", "Meshes", "Topology", "Normalization", "as_mesh", "as_meshes"]
@@ -581,7 +582,7 @@ def _dedupe_rows(rows: np.ndarray):
     return u[order], rank[inv.ravel()].astype(np.int64)
 
 
-class Meshes:
+class Meshes(Batch):
     """A batch of meshes of different sizes with packed views (PyTorch3D's ``Meshes``).
 
     Parameters
@@ -601,7 +602,7 @@ class Meshes:
         for i, m in enumerate(meshes):
             if not isinstance(m, Mesh):
                 raise TypeError(f"meshes[{i}]: expected a Mesh, got {type(m)!r}")
-        self._meshes = meshes
+        self._items = meshes
 
     @classmethod
     def from_lists(cls, verts: Sequence, faces: Sequence, textures: Sequence | None = None) -> "Meshes":
@@ -613,98 +614,76 @@ class Meshes:
             raise ValueError(f"textures: expected {len(verts)} entries, got {len(tex)}")
         return cls([Mesh(v, f, t) for v, f, t in zip(verts, faces, tex)])
 
-    def __len__(self) -> int:
-        return len(self._meshes)
-
-    def __getitem__(self, i):
-        if isinstance(i, (int, np.integer)):
-            return self._meshes[i]
-        if isinstance(i, slice):
-            return Meshes(self._meshes[i])
-        idx = np.asarray(i)
-        if idx.dtype == bool:
-            idx = np.flatnonzero(idx)
-        return Meshes([self._meshes[int(j)] for j in idx])
-
-    def __iter__(self):
-        return iter(self._meshes)
-
     def __repr__(self) -> str:
         return f"Meshes(n={len(self)}, verts={self.num_verts_per_mesh().tolist()})"
 
     def isempty(self) -> bool:
-        return len(self) == 0 or all(m.isempty() for m in self._meshes)
+        return len(self) == 0 or all(m.isempty() for m in self._items)
 
     def verts_list(self) -> list[np.ndarray]:
-        return [m.verts for m in self._meshes]
+        return [m.verts for m in self._items]
 
     def faces_list(self) -> list[np.ndarray]:
-        return [m.faces for m in self._meshes]
+        return [m.faces for m in self._items]
 
     @property
     def textures(self) -> list:
-        return [m.textures for m in self._meshes]
+        return [m.textures for m in self._items]
 
     def num_verts_per_mesh(self) -> np.ndarray:
         """(N,) int64."""
-        return np.array([m.n_verts for m in self._meshes], dtype=np.int64)
+        return np.array([m.n_verts for m in self._items], dtype=np.int64)
 
     def num_faces_per_mesh(self) -> np.ndarray:
         """(N,) int64."""
-        return np.array([m.n_faces for m in self._meshes], dtype=np.int64)
+        return np.array([m.n_faces for m in self._items], dtype=np.int64)
 
     def mesh_to_verts_packed_first_idx(self) -> np.ndarray:
         """(N,) int64 index of each mesh's first vertex in the packed array."""
-        n = self.num_verts_per_mesh()
-        return np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64) if len(n) else n
+        return first_index(self.num_verts_per_mesh())
 
     def mesh_to_faces_packed_first_idx(self) -> np.ndarray:
         """(N,) int64 index of each mesh's first face in the packed array."""
-        n = self.num_faces_per_mesh()
-        return np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64) if len(n) else n
+        return first_index(self.num_faces_per_mesh())
 
     def verts_packed(self) -> np.ndarray:
         """(sum V_i, 3) float64."""
-        if not self._meshes:
+        if not self._items:
             return np.zeros((0, 3))
         return np.concatenate(self.verts_list(), axis=0)
 
     def faces_packed(self) -> np.ndarray:
         """(sum F_i, 3) int64 with each mesh's indices offset into ``verts_packed``."""
-        if not self._meshes:
+        if not self._items:
             return np.zeros((0, 3), np.int64)
         off = self.mesh_to_verts_packed_first_idx()
-        return np.concatenate([m.faces + o for m, o in zip(self._meshes, off)], axis=0)
+        return np.concatenate([m.faces + o for m, o in zip(self._items, off)], axis=0)
 
     def verts_packed_to_mesh_idx(self) -> np.ndarray:
         """(sum V_i,) int64 mesh index of every packed vertex."""
-        return np.repeat(np.arange(len(self)), self.num_verts_per_mesh())
+        return packed_to_item(self.num_verts_per_mesh())
 
     def faces_packed_to_mesh_idx(self) -> np.ndarray:
         """(sum F_i,) int64 mesh index of every packed face."""
-        return np.repeat(np.arange(len(self)), self.num_faces_per_mesh())
+        return packed_to_item(self.num_faces_per_mesh())
 
     def verts_padded(self, pad_value: float = 0.0) -> np.ndarray:
         """(N, max V_i, 3) float64, padded with ``pad_value``."""
-        n = self.num_verts_per_mesh()
-        out = np.full((len(self), int(n.max()) if len(n) else 0, 3), pad_value, dtype=np.float64)
-        for i, m in enumerate(self._meshes):  # loop over meshes in the batch, not vertices
-            out[i, : m.n_verts] = m.verts
-        return out
+        return padded(self.verts_list(), self.num_verts_per_mesh(), pad_value)
 
     def faces_normals_packed(self) -> np.ndarray:
         """(sum F_i, 3) float64 unit face normals."""
-        return np.concatenate([m.face_normals for m in self._meshes], axis=0)
+        return np.concatenate([m.face_normals for m in self._items], axis=0)
 
     def verts_normals_packed(self) -> np.ndarray:
         """(sum V_i, 3) float64 area-weighted unit vertex normals."""
-        return np.concatenate([m.verts_normals for m in self._meshes], axis=0)
+        return np.concatenate([m.verts_normals for m in self._items], axis=0)
 
     def update_packed(self, verts_packed) -> "Meshes":
         """A batch with the same topology and new packed vertex positions (sum V_i, 3)."""
         vp = as_array(verts_packed, "verts_packed", (int(self.num_verts_per_mesh().sum()), 3))
         parts = np.split(vp, np.cumsum(self.num_verts_per_mesh())[:-1])
-        return Meshes([m.update_verts(p) for m, p in zip(self._meshes, parts)])
+        return Meshes([m.update_verts(p) for m, p in zip(self._items, parts)])
 
     def offset_verts(self, offsets) -> "Meshes":
         """A batch with packed vertices moved by (sum V_i, 3) offsets or one (3,) offset."""
@@ -714,12 +693,6 @@ class Meshes:
             off = np.broadcast_to(off, vp.shape)
         off = as_array(off, "offsets", vp.shape)
         return self.update_packed(vp + off)
-
-    def extend(self, n: int) -> "Meshes":
-        """Repeat each mesh ``n`` times consecutively (m0, m0, ..., m1, m1, ...)."""
-        if not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n: expected an integer >= 1, got {n!r}")
-        return Meshes([m for m in self._meshes for _ in range(int(n))])
 
 
 def as_mesh(mesh, name: str = "mesh") -> Mesh:
@@ -769,12 +742,5 @@ def as_mesh(mesh, name: str = "mesh") -> Mesh:
 
 def as_meshes(meshes, name: str = "meshes") -> Meshes:
     """Accept a Meshes batch, one mesh or a list of meshes (any type :func:`as_mesh` takes)."""
-    if isinstance(meshes, Meshes):
-        return meshes
-    if isinstance(meshes, (list, tuple)):
-        return Meshes([as_mesh(m, f"{name}[{i}]") for i, m in enumerate(meshes)])
-    try:
-        return Meshes([as_mesh(meshes, name)])
-    except TypeError:
-        raise TypeError(f"{name}: expected a Mesh or Meshes (or a trimesh.Trimesh or "
-                        f"open3d.geometry.TriangleMesh), got {type(meshes)!r}") from None
+    return as_batch(meshes, Meshes, as_mesh, name, "a Mesh or Meshes (or a trimesh.Trimesh or "
+                    "open3d.geometry.TriangleMesh)")

@@ -7,6 +7,7 @@ import numpy as np
 
 from .._foreign import foreign_kind, from_uint8, geofit_record, stash_matches, to_uint8
 from .._validate import as_array, as_points, as_rng
+from ._batch import Batch, as_batch, first_index, packed_to_item, padded
 
 __all__ = ["PointCloud", "Pointclouds", "as_pointcloud", "as_pointclouds"]
 
@@ -166,7 +167,7 @@ class PointCloud:
         return pc
 
 
-class Pointclouds:
+class Pointclouds(Batch):
     """A batch of point clouds of different sizes with packed and padded views.
 
     Parameters
@@ -187,7 +188,7 @@ class Pointclouds:
             chans = {c.features.shape[1] for c in clouds}
             if len(chans) > 1:
                 raise ValueError(f"clouds: feature channel counts differ: {sorted(chans)}")
-        self._clouds = clouds
+        self._items = clouds
 
     @classmethod
     def from_lists(cls, points: Sequence, features: Sequence | None = None) -> "Pointclouds":
@@ -197,66 +198,42 @@ class Pointclouds:
             raise ValueError(f"features: expected {len(points)} arrays, got {len(feats)}")
         return cls([PointCloud(p, f) for p, f in zip(points, feats)])
 
-    def __len__(self) -> int:
-        return len(self._clouds)
-
-    def __getitem__(self, i):
-        if isinstance(i, (int, np.integer)):
-            return self._clouds[i]
-        if isinstance(i, slice):
-            return Pointclouds(self._clouds[i])
-        return Pointclouds([self._clouds[int(j)] for j in np.atleast_1d(i)])
-
-    def __iter__(self):
-        return iter(self._clouds)
-
     def __repr__(self) -> str:
         return f"Pointclouds(n={len(self)}, points={self.num_points_per_cloud().tolist()})"
 
     def num_points_per_cloud(self) -> np.ndarray:
         """(N,) int64."""
-        return np.array([len(c) for c in self._clouds], dtype=np.int64)
+        return np.array([len(c) for c in self._items], dtype=np.int64)
 
     def cloud_to_packed_first_idx(self) -> np.ndarray:
         """(N,) int64 index of each cloud's first point in the packed array."""
-        n = self.num_points_per_cloud()
-        return np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64) if len(n) else n
+        return first_index(self.num_points_per_cloud())
 
     def packed_to_cloud_idx(self) -> np.ndarray:
         """(sum k_i,) int64 cloud index of every packed point."""
-        return np.repeat(np.arange(len(self)), self.num_points_per_cloud())
+        return packed_to_item(self.num_points_per_cloud())
 
     def points_list(self) -> list[np.ndarray]:
-        return [c.points for c in self._clouds]
+        return [c.points for c in self._items]
 
     def features_list(self) -> list:
-        return [c.features for c in self._clouds]
+        return [c.features for c in self._items]
 
     def points_packed(self) -> np.ndarray:
         """(sum k_i, 3) float64."""
-        if not self._clouds:
+        if not self._items:
             return np.zeros((0, 3))
         return np.concatenate(self.points_list(), axis=0)
 
     def features_packed(self) -> np.ndarray | None:
         """(sum k_i, C) float64, or None when the clouds have no features."""
-        if not self._clouds or self._clouds[0].features is None:
+        if not self._items or self._items[0].features is None:
             return None
         return np.concatenate(self.features_list(), axis=0)
 
     def points_padded(self, pad_value: float = 0.0) -> np.ndarray:
         """(N, max k_i, 3) float64 padded with ``pad_value``."""
-        n = self.num_points_per_cloud()
-        out = np.full((len(self), int(n.max()) if len(n) else 0, 3), pad_value)
-        for i, c in enumerate(self._clouds):  # loop over clouds in the batch, not points
-            out[i, : len(c)] = c.points
-        return out
-
-    def extend(self, n: int) -> "Pointclouds":
-        """Repeat each cloud ``n`` times consecutively."""
-        if not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n: expected an integer >= 1, got {n!r}")
-        return Pointclouds([c for c in self._clouds for _ in range(int(n))])
+        return padded(self.points_list(), self.num_points_per_cloud(), pad_value)
 
 
 def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
@@ -292,12 +269,5 @@ def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
 def as_pointclouds(clouds, name: str = "point_clouds") -> Pointclouds:
     """A Pointclouds batch from a batch, one cloud or a list of clouds (of the types
     :func:`as_pointcloud` takes)."""
-    if isinstance(clouds, Pointclouds):
-        return clouds
-    if isinstance(clouds, (list, tuple)):
-        return Pointclouds([as_pointcloud(c, f"{name}[{i}]") for i, c in enumerate(clouds)])
-    try:
-        return Pointclouds([as_pointcloud(clouds, name)])
-    except TypeError:
-        raise TypeError(f"{name}: expected a PointCloud or Pointclouds (or a trimesh.PointCloud "
-                        f"or open3d.geometry.PointCloud), got {type(clouds)!r}") from None
+    return as_batch(clouds, Pointclouds, as_pointcloud, name, "a PointCloud or Pointclouds (or a "
+                    "trimesh.PointCloud or open3d.geometry.PointCloud)")
