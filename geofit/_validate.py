@@ -149,6 +149,19 @@ def as_rng(seed) -> np.random.Generator:
     raise TypeError(f"seed: expected an int, None or numpy.random.Generator, got {type(seed)!r}")
 
 
+def as_instance(value, cls: type, name: str, expected: str | None = None):
+    """Return ``value`` when it is a ``cls``, a default ``cls()`` when it is None.
+
+    Raises TypeError naming ``name``, ``expected`` (default: the class name) and the type found
+    for anything else (the settings objects of the rasterizers and renderers).
+    """
+    if value is None:
+        return cls()
+    if not isinstance(value, cls):
+        raise TypeError(f"{name}: expected {expected or cls.__name__}, got {type(value)!r}")
+    return value
+
+
 def check_choice(value, name: str, choices: Iterable) -> None:
     """Raise ValueError unless ``value`` is one of ``choices``."""
     choices = tuple(choices)

@@ -51,3 +51,18 @@ def test_check_finite_users():
         mesh_edge_loss(ico_sphere(0), target_length=np.inf)
     with pytest.raises(ValueError, match="threshold: expected a number"):
         Softplus(threshold="high")
+
+
+def test_as_instance_defaults_passes_and_rejects():
+    """None gives the class's default instance, an instance comes back as it is, anything else
+    is a TypeError naming the argument, the expected type and the type found."""
+    from geofit._validate import as_instance
+    from geofit.render.soft import SoftRasterizationSettings
+
+    assert as_instance(None, SoftRasterizationSettings, "s") == SoftRasterizationSettings()
+    s = SoftRasterizationSettings(image_size=8)
+    assert as_instance(s, SoftRasterizationSettings, "s") is s
+    with pytest.raises(TypeError, match=r"^s: expected SoftRasterizationSettings, got <class "):
+        as_instance({}, SoftRasterizationSettings, "s")
+    with pytest.raises(TypeError, match=r"^s: expected a settings object, got <class 'int'>"):
+        as_instance(3, SoftRasterizationSettings, "s", "a settings object")

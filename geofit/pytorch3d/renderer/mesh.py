@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from ... import render as _gr
+from ..._validate import as_instance, check_int
 from ...render import soft as _soft
+from ...render.mesh.rasterizer import RasterizationFields
 from .._common import drop_device
 from ..structures import Meshes
 from ..tensor import Tensor, _tracks
@@ -48,24 +49,13 @@ class SoftSilhouetteShader(_soft.SoftSilhouetteShader):
 
 
 @dataclass(frozen=True)
-class RasterizationSettings:
+class RasterizationSettings(RasterizationFields):
     """PyTorch3D's ``RasterizationSettings`` (every field; see :mod:`geofit.render.soft` for the
     meaning of ``blur_radius``, squared NDC units).
 
     ``bin_size``, ``max_faces_per_bin`` and ``cull_to_frustum`` are accepted and ignored (no
     bins; off-screen faces never cover a pixel).
     """
-
-    image_size: Any = 256
-    blur_radius: float = 0.0
-    faces_per_pixel: int = 1
-    bin_size: Any = None
-    max_faces_per_bin: Any = None
-    perspective_correct: bool | None = None
-    clip_barycentric_coords: bool | None = None
-    cull_backfaces: bool = False
-    z_clip_value: float | None = None
-    cull_to_frustum: bool = False
 
     def __post_init__(self):  # checked at construction (types, sizes, memory estimate)
         if self._is_soft():
@@ -74,8 +64,6 @@ class RasterizationSettings:
             self._hard()
 
     def _is_soft(self) -> bool:
-        from ..._validate import check_int
-
         check_int(self.faces_per_pixel, "faces_per_pixel", error=TypeError)
         return float(self.blur_radius) > 0.0 or int(self.faces_per_pixel) > 1
 
@@ -95,12 +83,8 @@ class RasterizationSettings:
 
 
 def _settings(s) -> RasterizationSettings:
-    if s is None:
-        return RasterizationSettings()
-    if not isinstance(s, RasterizationSettings):
-        raise TypeError(f"raster_settings: expected geofit.pytorch3d.renderer."
-                        f"RasterizationSettings, got {type(s)!r}")
-    return s
+    return as_instance(s, RasterizationSettings, "raster_settings",
+                       "geofit.pytorch3d.renderer.RasterizationSettings")
 
 
 def _meshes(meshes) -> Meshes:

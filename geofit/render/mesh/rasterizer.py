@@ -37,7 +37,24 @@ __all__ = ["Fragments", "MeshRasterizer", "RasterizationSettings"]
 
 
 @dataclass(frozen=True)
-class RasterizationSettings:
+class RasterizationFields:
+    """PyTorch3D's ``RasterizationSettings`` fields with its defaults, in its order: the one
+    list that :class:`RasterizationSettings` and ``geofit.pytorch3d``'s settings extend."""
+
+    image_size: Any = 256
+    blur_radius: float = 0.0
+    faces_per_pixel: int = 1
+    bin_size: Any = None
+    max_faces_per_bin: Any = None
+    perspective_correct: bool | None = None
+    clip_barycentric_coords: bool | None = None
+    cull_backfaces: bool = False
+    z_clip_value: float | None = None
+    cull_to_frustum: bool = False
+
+
+@dataclass(frozen=True)
+class RasterizationSettings(RasterizationFields):
     """How to turn meshes into per-pixel fragments (PyTorch3D's ``RasterizationSettings``).
 
     Parameters
@@ -77,16 +94,6 @@ class RasterizationSettings:
         For ``blur_radius != 0``, ``faces_per_pixel != 1``, a non-positive size or factor.
     """
 
-    image_size: Any = 256
-    blur_radius: float = 0.0
-    faces_per_pixel: int = 1
-    bin_size: Any = None
-    max_faces_per_bin: Any = None
-    perspective_correct: bool | None = None
-    clip_barycentric_coords: bool | None = None
-    cull_backfaces: bool = False
-    z_clip_value: float | None = None
-    cull_to_frustum: bool = False
     supersample: int = 1
     n_threads: int | None = None
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..._memory import check_allocation
 from ..._threads import get_num_threads, parallel_map
-from ..._validate import as_array, check_choice, check_int
+from ..._validate import as_array, as_instance, check_choice, check_int
 from ...cameras import CamerasBase
 from ...structures.pointcloud import Pointclouds, as_pointclouds
 from .._settings import float_dtype
@@ -415,11 +415,8 @@ class PointsRasterizer:
 
     def __init__(self, cameras: CamerasBase | None = None,
                  raster_settings: PointsRasterizationSettings | None = None):
-        if raster_settings is None:
-            raster_settings = PointsRasterizationSettings()
-        if not isinstance(raster_settings, PointsRasterizationSettings):
-            raise TypeError("raster_settings: expected PointsRasterizationSettings, got "
-                            f"{type(raster_settings)!r}")
+        raster_settings = as_instance(raster_settings, PointsRasterizationSettings,
+                                      "raster_settings")
         if cameras is not None and not isinstance(cameras, CamerasBase):
             raise TypeError(f"cameras: expected a geofit camera batch, got {type(cameras)!r}")
         self.cameras = cameras
@@ -427,10 +424,7 @@ class PointsRasterizer:
 
     def _settings(self, raster_settings):
         s = self.raster_settings if raster_settings is None else raster_settings
-        if not isinstance(s, PointsRasterizationSettings):
-            raise TypeError(f"raster_settings: expected PointsRasterizationSettings, got "
-                            f"{type(s)!r}")
-        return s
+        return as_instance(s, PointsRasterizationSettings, "raster_settings")
 
     def transform(self, point_clouds, cameras: CamerasBase | None = None, *,
                   raster_settings: PointsRasterizationSettings | None = None):

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..._memory import check_allocation
-from ..._validate import check_positive
+from ..._validate import as_instance, check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh, as_mesh
 from .._settings import float_dtype, image_hw
@@ -146,12 +146,7 @@ def _check_cameras(cameras) -> CamerasBase:
 
 
 def _check_settings(settings) -> SoftRasterizationSettings:
-    if settings is None:
-        return SoftRasterizationSettings()
-    if not isinstance(settings, SoftRasterizationSettings):
-        raise TypeError(f"raster_settings: expected SoftRasterizationSettings, got "
-                        f"{type(settings)!r}")
-    return settings
+    return as_instance(settings, SoftRasterizationSettings, "raster_settings")
 
 
 def _pixel_centres(H: int, W: int):
