@@ -483,14 +483,8 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
     lines = _lines(_read_text(path))
 
     # One pass over the lines sorts them by keyword; the numbers are parsed afterwards in bulk.
-    vb: list = []
-    vl: list = []
-    tb: list = []
-    tl: list = []
-    nb: list = []
-    nl: list = []
-    fb: list = []
-    fl: list = []
+    # keyword -> (the text after it, its line number) of every v / vt / vn / f line
+    records: dict = {key: ([], []) for key in ("v", "vt", "vn", "f")}
     mat_lines: list = []  # (line, material index) of every usemtl
     mtllibs: list = []
     material_names: list = []
@@ -503,18 +497,10 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
             continue
         key = parts[0]
         rest = parts[1] if len(parts) > 1 else ""
-        if key == "v":
-            vb.append(rest)
-            vl.append(ln)
-        elif key == "f":
-            fb.append(rest)
-            fl.append(ln)
-        elif key == "vt":
-            tb.append(rest)
-            tl.append(ln)
-        elif key == "vn":
-            nb.append(rest)
-            nl.append(ln)
+        record = records.get(key)
+        if record is not None:
+            record[0].append(rest)
+            record[1].append(ln)
         elif key == "usemtl":
             name = rest.strip()
             if not name:
@@ -527,6 +513,7 @@ def load_obj(path: PathLike, load_textures: bool = True, *, allow_outside: bool 
             if not rest.strip():
                 raise ValueError(f"{path}: line {ln}: mtllib without a file name")
             mtllibs.append((rest.strip(), ln))
+    (vb, vl), (tb, tl), (nb, nl), (fb, fl) = (records[k] for k in ("v", "vt", "vn", "f"))
 
     verts = _parse_float_lines(vb, vl, 3, "vertex", path)
     verts_uvs = _parse_float_lines(tb, tl, 2, "texture coordinate", path)
