@@ -48,6 +48,18 @@ ALLOWED = ("ok", "ok_warned", "ValueError", "FileNotFoundError")
 _MISSING_MTL = "material library not found"
 
 
+def glb_container(doc: dict, binary: bytes = b"") -> bytes:
+    """A GLB file: the glTF JSON ``doc`` and the ``binary`` chunk, each padded to 4 bytes, behind
+    the 12-byte header (also used by tests/test_hardening28.py to build its malformed files)."""
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = struct.pack("<II", len(js), 0x4E4F534A) + js
+    if binary:
+        body += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
 # ============================================================================ worker side
 def _check_obj(d) -> str | None:
     if not (np.isfinite(d.verts).all() and np.isfinite(d.normals).all()
@@ -730,15 +742,6 @@ class Inputs:
                 "loader": "load_pointcloud"}
 
     # ---------------------------------------------------------------------- issue 28 families
-    def _glb(self, doc: dict, binary: bytes = b"") -> bytes:
-        js = json.dumps(doc).encode()
-        js += b" " * (-len(js) % 4)
-        binary += b"\0" * (-len(binary) % 4)
-        body = struct.pack("<II", len(js), 0x4E4F534A) + js
-        if binary:
-            body += struct.pack("<II", len(binary), 0x004E4942) + binary
-        return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
-
     def _transforms(self, frames: list) -> bytes:
         return json.dumps({"camera_angle_x": 0.7, "frames": [
             {"transform_matrix": np.eye(4).tolist(), **f} for f in frames]}).encode()
@@ -772,7 +775,7 @@ class Inputs:
                 files={"mesh/m.obj": tri_obj, "mesh/m.mtl": b"newmtl a\nmap_Kd t\n"},
                 symlinks={"mesh/t": "../secret/s.png"}, entry="mesh/m.obj", loader="load_obj"),
             "glb_uri_outside": dict(
-                files={"m.glb": self._glb({"asset": {"version": "2.0"},
+                files={"m.glb": glb_container({"asset": {"version": "2.0"},
                                            "images": [{"uri": "../secret/s.png"}]})},
                 entry="m.glb", loader="load_mesh"),
             "gltf_buffer_symlink": dict(
@@ -787,7 +790,7 @@ class Inputs:
                                      loader="load_obj"),
             "obj_mtllib_fifo": dict(files={"mesh/m.obj": tri_obj}, fifos=["mesh/m.mtl"],
                                     entry="mesh/m.obj", loader="load_obj"),
-            "glb_uri_fifo": dict(files={"m.glb": self._glb({"asset": {"version": "2.0"},
+            "glb_uri_fifo": dict(files={"m.glb": glb_container({"asset": {"version": "2.0"},
                                                             "images": [{"uri": "p.png"}]})},
                                  fifos=["p.png"], entry="m.glb", loader="load_mesh"),
             "views_pixel_bomb": dict(files={"cap/transforms.json": self._transforms(
@@ -796,7 +799,7 @@ class Inputs:
             "obj_pixel_bomb": dict(files={"mesh/m.obj": tri_obj, "mesh/b.png": bomb,
                                           "mesh/m.mtl": b"newmtl a\nmap_Kd b.png\n"},
                                    entry="mesh/m.obj", loader="load_obj"),
-            "glb_pixel_bomb": dict(files={"m.glb": self._glb(
+            "glb_pixel_bomb": dict(files={"m.glb": glb_container(
                 {"asset": {"version": "2.0"}, "buffers": [{"byteLength": len(bomb)}],
                  "bufferViews": [{"buffer": 0, "byteLength": len(bomb)}],
                  "images": [{"bufferView": 0, "mimeType": "image/png"}]}, bomb)},
@@ -831,7 +834,7 @@ class Inputs:
                                   entry="cap", loader="load_views"),
             "views_long_path": dict(files={"cap/transforms.json": self._transforms(
                 [{"file_path": "a" * 5000}])}, entry="cap", loader="load_views"),
-            "glb_index_ffffffff": dict(files={"m.glb": self._glb(
+            "glb_index_ffffffff": dict(files={"m.glb": glb_container(
                 {"asset": {"version": "2.0"}, "scene": 0xFFFFFFFF, "scenes": []})},
                 entry="m.glb", loader="load_mesh"),
         }

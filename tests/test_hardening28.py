@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+from _helpers import benchmark_module, peak_bytes
 from PIL import Image
 
 from geofit.io import load_mesh, load_obj, load_views
@@ -92,21 +93,6 @@ def test_trimesh_resolver_refuses_what_the_policy_refuses(tmp_path):
 
 
 # ------------------------------------------------------------------------- 2. pixel and array caps
-def _peak(fn, *args, **kwargs):
-    """(exception or None, peak traced bytes) of a call."""
-    import tracemalloc
-
-    tracemalloc.start()
-    try:
-        fn(*args, **kwargs)
-        err = None
-    except Exception as exc:  # noqa: BLE001 - returned for the test to inspect
-        err = exc
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    return err, peak
-
-
 @pytest.fixture(scope="module")
 def bomb_png(tmp_path_factory):
     """A ~140 KB PNG declaring 12000 x 12000 pixels."""
@@ -117,15 +103,8 @@ def bomb_png(tmp_path_factory):
 
 
 def _glb(json_doc: dict, binary: bytes = b"") -> bytes:
-    import struct
-
-    js = json.dumps(json_doc).encode()
-    js += b" " * (-len(js) % 4)
-    binary += b"\0" * (-len(binary) % 4)
-    body = struct.pack("<II", len(js), 0x4E4F534A) + js
-    if binary:
-        body += struct.pack("<II", len(binary), 0x004E4942) + binary
-    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+    """A GLB container of a glTF document and its binary chunk (the loader fuzz's builder)."""
+    return benchmark_module("fuzz_loaders").glb_container(json_doc, binary)
 
 
 def _glb_with_image(image: bytes) -> bytes:
@@ -140,7 +119,7 @@ def test_capture_image_pixel_bomb_refused_from_header(tmp_path, bomb_png):
     ``max_pixels=`` lowers or raises the cap."""
     cap = _capture(tmp_path / "cap", [{"file_path": "bomb.png"}])
     (cap / "bomb.png").write_bytes(bomb_png.read_bytes())
-    err, peak = _peak(load_views, cap)
+    err, peak = peak_bytes(load_views, cap)
     assert isinstance(err, ValueError) and "12000x12000" in str(err) and "cap" in str(err), err
     assert peak < 50 * 2**20
     _png(tmp_path / "small" / "a.png", (40, 50, 3))
@@ -155,7 +134,7 @@ def test_glb_image_pixel_bomb_refused_before_trimesh(tmp_path, bomb_png):
     """An image inside a GLB is checked from its header before trimesh decodes it."""
     p = tmp_path / "bomb.glb"
     p.write_bytes(_glb_with_image(bomb_png.read_bytes()))
-    err, peak = _peak(load_mesh, p)
+    err, peak = peak_bytes(load_mesh, p)
     assert isinstance(err, ValueError), err
     assert "bomb.glb: images[0]" in str(err) and "12000x12000" in str(err)
     assert peak < 50 * 2**20
@@ -195,7 +174,7 @@ def test_npz_compression_bomb_refused_from_header(tmp_path):
                 fh.write(zeros)
             fh.write(bytes(n * 24 % len(zeros)))
     assert p.stat().st_size < 1_000_000
-    err, peak = _peak(load_pointcloud, p)
+    err, peak = peak_bytes(load_pointcloud, p)
     assert isinstance(err, ValueError) and "bomb.npz: array 'verts'" in str(err), err
     assert "240,000,000 bytes" in str(err) and "ratio" in str(err)
     assert peak < 50 * 2**20
@@ -438,7 +417,7 @@ def test_glb_image_uri_naming_a_fifo_is_refused_without_blocking(tmp_path):
 # --------------------------------------------------------------------------- 6. size estimates
 def _refused_at_once(fn, match):
     """``fn()`` raises ValueError (with the estimate) without allocating: small peak memory."""
-    err, peak = _peak(fn)
+    err, peak = peak_bytes(fn)
     assert isinstance(err, ValueError), err
     assert __import__("re").search(match, str(err)), str(err)
     assert "would need about" in str(err) and peak < 50 * 2**20

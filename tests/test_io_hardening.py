@@ -6,13 +6,14 @@ ValueError / FileNotFoundError naming the file, and checks sizes before it alloc
 from __future__ import annotations
 
 import io
-import tracemalloc
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
+
+from _helpers import peak_bytes
 
 from geofit import PointCloud
 from geofit.io import load_mesh, load_obj, load_objs_as_meshes, load_pointcloud, save_pointcloud
@@ -27,19 +28,6 @@ def write(path: Path, data) -> Path:
     else:
         path.write_text(data)
     return path
-
-
-def peak_bytes(fn, *args, **kwargs):
-    """Run ``fn`` under tracemalloc; return (exception or None, peak traced bytes)."""
-    tracemalloc.start()
-    try:
-        fn(*args, **kwargs)
-        err = None
-    except Exception as exc:  # noqa: BLE001 - returned to the test to inspect
-        err = exc
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    return err, peak
 
 
 PLY_HEAD = ("ply\nformat {fmt} 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
