@@ -24,6 +24,7 @@ import datetime as _dt
 import json
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from geofit._json import json_safe  # layer 0, allowed to benchmarks (docs/architecture.md)
-from geofit.report import machine_summary, package_version
+from geofit.report import load_average, machine_summary, package_version
 from geofit.viz import STYLE, chart_style
 from geofit.viz import plot_accuracy_vs_time as _plot_accuracy_vs_time
 
@@ -52,6 +53,8 @@ __all__ = [
     "load_runs",
     "machine_info",
     "markdown_table",
+    "names_option",
+    "output_dir",
     "parser",
     "plot_accuracy_vs_time",
     "print_machine",
@@ -78,14 +81,6 @@ def machine_info() -> dict[str, Any]:
     info["memory_gib"] = round(mem, 1) if mem else None
     info["versions"]["trimesh"] = package_version("trimesh")
     return info
-
-
-def _loadavg() -> list[float] | None:
-    """The 1, 5 and 15-minute load averages (None where the OS has none)."""
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except OSError:
-        return None
 
 
 def record_load(report: BenchmarkReport, load_before: Sequence[float]) -> tuple[float, ...]:
@@ -192,7 +187,7 @@ class BenchmarkReport:
     tables: dict = field(default_factory=dict)
     command: str = field(default_factory=lambda: " ".join([Path(sys.executable).name]
                                                           + sys.argv))
-    load_at_start: list = field(default_factory=lambda: _loadavg())
+    load_at_start: list = field(default_factory=lambda: load_average())
 
     def add(self, run: MethodRun) -> MethodRun:
         self.methods.append(run)
@@ -205,7 +200,7 @@ class BenchmarkReport:
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "command": self.command,
             "machine": machine_info(),
-            "load": {"at_start": self.load_at_start, "at_write": _loadavg()},
+            "load": {"at_start": self.load_at_start, "at_write": load_average()},
             "config": self.config,
             "notes": self.notes,
             "reference": self.reference,
@@ -317,6 +312,26 @@ def parser(description: str, *, reference: Path | None = None) -> argparse.Argum
         p.add_argument("--repeat", type=int, default=5)
         p.add_argument("--reference", type=Path, default=reference)
     return p
+
+
+def names_option(p: argparse.ArgumentParser, option: str, value: str, allowed: Sequence[str],
+                 what: str) -> list[str]:
+    """The comma-separated names given to ``--option`` (``value``), each one of ``allowed``;
+    ``p.error`` names the first unknown ``what`` otherwise."""
+    names = [n.strip() for n in value.split(",") if n.strip()]
+    for n in names:
+        if n not in allowed:
+            p.error(f"--{option}: unknown {what} {n!r}; expected some of {', '.join(allowed)}")
+    return names
+
+
+def output_dir(p: argparse.ArgumentParser, args: argparse.Namespace) -> Path:
+    """``--out``; under ``--quick`` without an ``--out`` of its own, a fresh temporary folder
+    (a CI-sized run writes nothing into ``results/``)."""
+    out = Path(args.out)
+    if args.quick and out == p.get_default("out"):
+        out = Path(tempfile.mkdtemp(prefix="geofit-bench-"))
+    return out
 
 
 def add_shape_options(p: argparse.ArgumentParser) -> argparse.ArgumentParser:

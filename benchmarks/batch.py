@@ -60,7 +60,8 @@ from pathlib import Path
 
 import numpy as np
 from _harness import (
-    BenchmarkReport, MethodRun, chart_style, markdown_table, parser, record_load, result_paths,
+    BenchmarkReport, MethodRun, chart_style, markdown_table, output_dir, parser, record_load,
+    result_paths,
 )
 
 from geofit import box, ico_sphere, load_mesh, save_obj, torus
@@ -305,9 +306,7 @@ def main(argv=None) -> int:
     configs = [c for c in CONFIGS if c[0] in args.configs.split(",")]
     if "w2t1" not in [c[0] for c in configs] or len(configs) < 2:
         p.error("--configs: w2t1 and at least one one-worker configuration")
-    out = args.out
-    if args.quick and out == p.get_default("out"):
-        out = Path(tempfile.mkdtemp(prefix="geofit-bench-"))
+    out = output_dir(p, args)
     work = Path(tempfile.mkdtemp(prefix="geofit-batch-bench-"))
     try:
         repeat = 2 if args.quick else args.repeat

@@ -39,7 +39,6 @@ paused, so the times are the solver's own. Output goes to ``--out`` (default
 """
 from __future__ import annotations
 
-import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -50,6 +49,8 @@ from _harness import (
     MethodRun,
     load_runs,
     markdown_table,
+    names_option,
+    output_dir,
     parser,
     plot_accuracy_vs_time,
 )
@@ -706,18 +707,9 @@ def main(argv=None) -> int:
     if args.retable:
         retable_shapes(Path(args.out))
         return 0
-    parts = [s.strip() for s in args.parts.split(",") if s.strip()]
-    for s in parts:
-        if s not in PARTS + EXTRA_PARTS:
-            p.error(f"--parts: unknown part {s!r}; expected some of "
-                    f"{', '.join(PARTS + EXTRA_PARTS)}")
-    names = [n.strip() for n in args.methods.split(",") if n.strip()]
-    for n in names:
-        if n not in LABELS:
-            p.error(f"--methods: unknown method {n!r}; expected some of {', '.join(LABELS)}")
-    out = Path(args.out)
-    if args.quick and out == p.get_default("out"):
-        out = Path(tempfile.mkdtemp(prefix="geofit-bench-"))
+    parts = names_option(p, "parts", args.parts, PARTS + EXTRA_PARTS, "part")
+    names = names_option(p, "methods", args.methods, list(LABELS), "method")
+    out = output_dir(p, args)
     if args.quick and not args.shapes:
         args.shapes = "torus,open_cylinder"
         args.stability_shapes = "open_cylinder"

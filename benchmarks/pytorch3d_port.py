@@ -30,6 +30,8 @@ from _harness import (  # noqa: E402
     BenchmarkReport,
     MethodRun,
     json_safe,
+    names_option,
+    output_dir,
     parser,
     plot_accuracy_vs_time,
 )
@@ -296,13 +298,8 @@ def main(argv=None) -> int:
     p.add_argument("--parts", default=",".join(PARTS),
                    help=f"comma-separated subset of {','.join(PARTS)}")
     args = p.parse_args(argv)
-    parts = [x.strip() for x in args.parts.split(",") if x.strip()]
-    for x in parts:
-        if x not in PARTS:
-            p.error(f"--parts: unknown part {x!r}; expected some of {', '.join(PARTS)}")
-    out = Path(args.out)
-    if args.quick and out == p.get_default("out"):
-        out = Path(tempfile.mkdtemp(prefix="geofit-bench-"))
+    parts = names_option(p, "parts", args.parts, PARTS, "part")
+    out = output_dir(p, args)
     n1 = 60 if args.quick else 2000
     n4 = 10 if args.quick else 2000
     size = 32 if args.quick else 128

@@ -35,8 +35,8 @@ from ._atomic import write_text
 from ._json import json_text
 from ._threads import cpu_count, get_num_threads
 
-__all__ = ["SCHEMA", "ReportFiles", "format_value", "machine_summary", "markdown_table",
-           "package_version", "write_gallery", "write_report"]
+__all__ = ["SCHEMA", "ReportFiles", "format_value", "load_average", "machine_summary",
+           "markdown_table", "package_version", "write_gallery", "write_report"]
 
 #: The JSON layout shared with ``benchmarks/_harness.py``.
 SCHEMA = "geofit-benchmark/1"
@@ -181,7 +181,7 @@ def package_version(*dists: str) -> str | None:
     return None
 
 
-def _load_average() -> list[float] | None:
+def load_average() -> list[float] | None:
     """The 1, 5 and 15 minute load averages (2 decimals), None where the OS has none."""
     try:
         return [round(x, 2) for x in os.getloadavg()]
@@ -196,7 +196,7 @@ def machine_summary() -> dict[str, Any]:
         "cpu_count": os.cpu_count(),
         "cpu_affinity": cpu_count(),
         "geofit_threads": get_num_threads(),
-        "load_average_1_5_15min": _load_average(),
+        "load_average_1_5_15min": load_average(),
         "os": platform.platform(),
         "python": platform.python_version(),
         "versions": {k: package_version(*v) for k, v in {
