@@ -61,20 +61,7 @@ from ._options import METHODS as METHOD_NAMES
 from ._options import RECIPE_NAMES
 from ._scan_report import DataReport
 from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
-from .mesh import (
-    ADAPTIVE_WEIGHTS,
-    FINE_WEIGHTS,
-    METHODS,
-    RECIPES,
-    TUTORIAL_WEIGHTS,
-    CoarseToFine,
-    LargeSteps,
-    MeshFitOptions,
-    MeshFitResult,
-    MeshObjective,
-    Remeshing,
-    fit_mesh,
-)
+from .mesh import *  # noqa: F403 - fit_mesh, its options, recipes and results: its __all__
 from .nerf import NerfConfig, NerfFitResult, fit_nerf
 from .solvers import SOLVERS, SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, minimize, sgd
 from .views import ViewsFitOptions, ViewsFitResult, fit_mesh_to_views, render_mesh_at_views

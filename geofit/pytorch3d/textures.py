@@ -31,7 +31,37 @@ def _feature_list(x, name: str) -> list:
     return out
 
 
-class TexturesVertex:
+class _BatchedTextures:
+    """What both batched textures share: one entry per mesh in ``self._parts`` (a tensor of
+    features for TexturesVertex, a geofit TexturesUV for TexturesUV), batch length, repetition,
+    selection and joining (``_of`` builds one from its parts)."""
+
+    _parts: list
+
+    @classmethod
+    def _of(cls, parts: list):
+        obj = cls.__new__(cls)
+        obj._parts = parts
+        return obj
+
+    def __len__(self) -> int:
+        return len(self._parts)
+
+    def extend(self, N: int):
+        return self._of([p for p in self._parts for _ in range(N)])
+
+    def _take(self, idx):
+        return self._of([self._parts[int(i)] for i in idx])
+
+    @classmethod
+    def _join(cls, textures):
+        return cls._of([p for t in textures for p in t._parts])
+
+    def to(self, *args, **kwargs):
+        return self
+
+
+class TexturesVertex(_BatchedTextures):
     """Per-vertex features interpolated over the faces (PyTorch3D's ``TexturesVertex``).
 
     Parameters
@@ -40,64 +70,43 @@ class TexturesVertex:
         E.g. ``full([1, V, 3], 0.5, requires_grad=True)`` (the tutorial's learnt colours).
     """
 
+    _source = None  # the tensor given to the constructor, if any
+
     def __init__(self, verts_features):
         self._source = verts_features if isinstance(verts_features, Tensor) else None
-        self._list = _feature_list(verts_features, "verts_features")
-
-    @classmethod
-    def _of(cls, parts: list) -> TexturesVertex:
-        obj = cls.__new__(cls)
-        obj._source = None
-        obj._list = parts
-        return obj
-
-    def __len__(self) -> int:
-        return len(self._list)
+        self._parts = _feature_list(verts_features, "verts_features")
 
     def _check(self, counts, fcounts) -> None:
-        got = [len(v) for v in self._list]
+        got = [len(v) for v in self._parts]
         if got != list(counts):
             raise ValueError(f"textures: expected per-vertex features for {list(counts)} "
                              f"vertices, got {got}")
 
     def verts_features_list(self) -> list:
-        return list(self._list)
+        return list(self._parts)
 
     def verts_features_packed(self) -> Tensor:
         """(sum V, C)."""
-        return cat(self._list)
+        return cat(self._parts)
 
     def verts_features_padded(self) -> Tensor:
         """(N, max V, C), zeros as padding."""
-        return to_padded(self.verts_features_packed(), np.array([len(v) for v in self._list]))
+        return to_padded(self.verts_features_packed(), np.array([len(v) for v in self._parts]))
 
     def _geofit(self, i: int) -> _gs.TexturesVertex:
-        return _gs.TexturesVertex(self._list[i].data)
-
-    def extend(self, N: int) -> TexturesVertex:
-        return self._of([v for v in self._list for _ in range(N)])
-
-    def _take(self, idx) -> TexturesVertex:
-        return self._of([self._list[int(i)] for i in idx])
-
-    @classmethod
-    def _join(cls, textures) -> TexturesVertex:
-        return cls._of([v for t in textures for v in t._list])
+        return _gs.TexturesVertex(self._parts[i].data)
 
     def clone(self) -> TexturesVertex:
-        return self._of([v.clone() for v in self._list])
+        return self._of([v.clone() for v in self._parts])
 
     def detach(self) -> TexturesVertex:
-        return self._of([v.detach() for v in self._list])
-
-    def to(self, *args, **kwargs) -> TexturesVertex:
-        return self
+        return self._of([v.detach() for v in self._parts])
 
     def __repr__(self) -> str:
-        return f"TexturesVertex(verts_features={[tuple(v.shape) for v in self._list]})"
+        return f"TexturesVertex(verts_features={[tuple(v.shape) for v in self._parts]})"
 
 
-class TexturesUV:
+class TexturesUV(_BatchedTextures):
     """A texture image per mesh addressed by per-corner UVs (PyTorch3D's ``TexturesUV``).
 
     Parameters
@@ -129,77 +138,55 @@ class TexturesUV:
         if not len(maps_l) == len(fl) == len(vl):
             raise ValueError(f"maps, faces_uvs, verts_uvs: expected one of each per mesh, got "
                              f"{len(maps_l)}, {len(fl)} and {len(vl)}")
-        self._tex = [_gs.TexturesUV(m, f, v, padding_mode=padding_mode,
+        self._parts = [_gs.TexturesUV(m, f, v, padding_mode=padding_mode,
                                     align_corners=align_corners)
                      for m, f, v in zip(maps_l, fl, vl)]  # loop over batch members
 
-    @classmethod
-    def _of(cls, tex: list) -> TexturesUV:
-        obj = cls.__new__(cls)
-        obj._tex = tex
-        return obj
-
-    def __len__(self) -> int:
-        return len(self._tex)
-
     def _check(self, counts, fcounts) -> None:
-        got = [len(t.faces_uvs) for t in self._tex]
+        got = [len(t.faces_uvs) for t in self._parts]
         if got != list(fcounts):
             raise ValueError(f"textures: expected faces_uvs for {list(fcounts)} faces, got {got}")
 
     def maps_list(self) -> list:
-        return [Tensor(t.maps) for t in self._tex]
+        return [Tensor(t.maps) for t in self._parts]
 
     def maps_padded(self) -> Tensor:
         """(N, H, W, C) texture images (all maps must have one size, as in PyTorch3D)."""
-        shapes = {t.maps.shape for t in self._tex}
+        shapes = {t.maps.shape for t in self._parts}
         if len(shapes) > 1:
             raise ValueError(f"maps_padded: the maps have different sizes {sorted(shapes)}")
-        return Tensor(np.stack([t.maps for t in self._tex]))
+        return Tensor(np.stack([t.maps for t in self._parts]))
 
     def faces_uvs_list(self) -> list:
-        return [Tensor(t.faces_uvs) for t in self._tex]
+        return [Tensor(t.faces_uvs) for t in self._parts]
 
     def verts_uvs_list(self) -> list:
-        return [Tensor(t.verts_uvs) for t in self._tex]
+        return [Tensor(t.verts_uvs) for t in self._parts]
 
     def faces_uvs_padded(self) -> Tensor:
-        n = max(len(t.faces_uvs) for t in self._tex)
+        n = max(len(t.faces_uvs) for t in self._parts)
         out = np.full((len(self), n, 3), -1, np.int64)
-        for i, t in enumerate(self._tex):  # loop over batch members
+        for i, t in enumerate(self._parts):  # loop over batch members
             out[i, :len(t.faces_uvs)] = t.faces_uvs
         return Tensor(out)
 
     def verts_uvs_padded(self) -> Tensor:
-        n = max(len(t.verts_uvs) for t in self._tex)
+        n = max(len(t.verts_uvs) for t in self._parts)
         out = np.zeros((len(self), n, 2))
-        for i, t in enumerate(self._tex):  # loop over batch members
+        for i, t in enumerate(self._parts):  # loop over batch members
             out[i, :len(t.verts_uvs)] = t.verts_uvs
         return Tensor(out)
 
     def _geofit(self, i: int) -> _gs.TexturesUV:
-        return self._tex[i]
-
-    def extend(self, N: int) -> TexturesUV:
-        return self._of([t for t in self._tex for _ in range(N)])
-
-    def _take(self, idx) -> TexturesUV:
-        return self._of([self._tex[int(i)] for i in idx])
-
-    @classmethod
-    def _join(cls, textures) -> TexturesUV:
-        return cls._of([x for t in textures for x in t._tex])
+        return self._parts[i]
 
     def clone(self) -> TexturesUV:
-        return self._of(list(self._tex))
+        return self._of(list(self._parts))
 
     detach = clone
 
-    def to(self, *args, **kwargs) -> TexturesUV:
-        return self
-
     def __repr__(self) -> str:
-        return f"TexturesUV(maps={[t.maps.shape for t in self._tex]})"
+        return f"TexturesUV(maps={[t.maps.shape for t in self._parts]})"
 
 
 def _convert_textures(textures: list):
