@@ -2,12 +2,15 @@
 
 Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``, ``import torch``
 -> ``import geofit.pytorch3d.torch as torch``, the tutorials' helper files ->
-:mod:`geofit.pytorch3d.tutorial_utils`; sizes reduced (steps, images, samples); data: geofit's
-procedural stand-ins written as OBJ files into ``tmp_path`` (the tests run offline). Each test
-then checks something the tutorial relies on. ``tests/test_pytorch3d_notebooks.py`` runs
+:mod:`geofit.pytorch3d.tutorial_utils`; the six notebooks' imports gathered once at the top of
+this file; sizes reduced (steps, images, samples); data: geofit's procedural stand-ins written
+as OBJ files into ``tmp_path`` (the tests run offline). Each test then checks something the
+tutorial relies on. ``tests/test_pytorch3d_notebooks.py`` runs
 PyTorch3D's own notebooks the same way when they are given.
 """
 from __future__ import annotations
+
+import os
 
 import matplotlib
 
@@ -18,7 +21,54 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import geofit  # noqa: E402
-from geofit.render import image_grid  # noqa: E402
+import geofit.pytorch3d.torch as torch  # noqa: E402
+from geofit.fit.nerf import sample_images_at_xys  # noqa: E402
+from geofit.pytorch3d.io import load_obj, load_objs_as_meshes, save_obj  # noqa: E402
+from geofit.pytorch3d.loss import (  # noqa: E402
+    chamfer_distance,
+    mesh_edge_loss,
+    mesh_laplacian_smoothing,
+    mesh_normal_consistency,
+)
+from geofit.pytorch3d.ops import sample_points_from_meshes  # noqa: E402
+from geofit.pytorch3d.renderer import (  # noqa: E402
+    AlphaCompositor,
+    EmissionAbsorptionRaymarcher,
+    FoVOrthographicCameras,
+    FoVPerspectiveCameras,
+    ImplicitRenderer,
+    Materials,
+    MeshRasterizer,
+    MeshRenderer,
+    MonteCarloRaysampler,
+    NDCGridRaysampler,
+    NDCMultinomialRaysampler,
+    NormWeightedCompositor,
+    OpenGLPerspectiveCameras,
+    PointLights,
+    PointsRasterizationSettings,
+    PointsRasterizer,
+    PointsRenderer,
+    PulsarPointsRenderer,
+    RasterizationSettings,
+    RayBundle,
+    SoftPhongShader,
+    SoftSilhouetteShader,
+    TexturesVertex,
+    VolumeRenderer,
+    look_at_view_transform,
+    ray_bundle_to_ray_points,
+)
+from geofit.pytorch3d.structures import Meshes, Pointclouds, Volumes  # noqa: E402
+from geofit.pytorch3d.transforms import so3_exp_map, so3_exponential_map  # noqa: E402
+from geofit.pytorch3d.tutorial_utils import generate_cow_renders, image_grid  # noqa: E402
+from geofit.pytorch3d.utils import ico_sphere  # noqa: E402
+from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
+    AxisArgs,
+    plot_batch_individually,
+    plot_scene,
+)
+from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib  # noqa: E402
 
 
 @pytest.fixture
@@ -38,19 +88,6 @@ def cow_obj(tmp_path):
 
 def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
     """The deform tutorial's cells; 20 steps lower the chamfer loss and the mesh is saved."""
-    import os
-
-    import geofit.pytorch3d.torch as torch
-    from geofit.pytorch3d.io import load_obj, save_obj
-    from geofit.pytorch3d.loss import (
-        chamfer_distance,
-        mesh_edge_loss,
-        mesh_laplacian_smoothing,
-        mesh_normal_consistency,
-    )
-    from geofit.pytorch3d.ops import sample_points_from_meshes
-    from geofit.pytorch3d.structures import Meshes
-    from geofit.pytorch3d.utils import ico_sphere
 
     torch.manual_seed(0)
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
@@ -121,22 +158,6 @@ def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
 
 def test_tutorial2_render_textured_meshes(cow_obj):
     """The render tutorial's cells at 64 px; the light behind the cow darkens the image."""
-    import geofit.pytorch3d.torch as torch
-    from geofit.pytorch3d.io import load_obj, load_objs_as_meshes
-    from geofit.pytorch3d.renderer import (
-        FoVPerspectiveCameras,
-        Materials,
-        MeshRasterizer,
-        MeshRenderer,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-        TexturesVertex,
-        look_at_view_transform,
-    )
-    from geofit.pytorch3d.structures import Meshes
-    from geofit.pytorch3d.vis.plotly_vis import AxisArgs, plot_batch_individually, plot_scene
-    from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib
 
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     obj_filename = cow_obj
@@ -214,20 +235,7 @@ def test_tutorial2_render_textured_meshes(cow_obj):
 
 def test_tutorial3_render_colored_points(tmp_path):
     """The point-cloud tutorial's cells on a random coloured cloud at 64 px."""
-    import geofit.pytorch3d.torch as torch
     import geofit.pytorch3d.torch.nn.functional as F  # noqa: F401 - the tutorial's import
-    from geofit.pytorch3d.renderer import (
-        AlphaCompositor,
-        FoVOrthographicCameras,
-        NormWeightedCompositor,
-        PointsRasterizationSettings,
-        PointsRasterizer,
-        PointsRenderer,
-        PulsarPointsRenderer,
-        look_at_view_transform,
-    )
-    from geofit.pytorch3d.structures import Pointclouds
-    from geofit.pytorch3d.vis.plotly_vis import AxisArgs, plot_batch_individually, plot_scene
 
     rng = np.random.default_rng(0)
     obj_filename = str(tmp_path / "pointcloud.npz")
@@ -287,27 +295,6 @@ def test_tutorial3_render_colored_points(tmp_path):
 def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
     """fit_textured_mesh's cells at 32 px and 6 steps per loop: both losses go down, the
     colours get a gradient, the prediction is saved."""
-    import os
-
-    import geofit.pytorch3d.torch as torch
-    from geofit.pytorch3d.io import load_objs_as_meshes, save_obj
-    from geofit.pytorch3d.loss import (
-        mesh_edge_loss,
-        mesh_laplacian_smoothing,
-        mesh_normal_consistency,
-    )
-    from geofit.pytorch3d.renderer import (
-        MeshRasterizer,
-        MeshRenderer,
-        OpenGLPerspectiveCameras,
-        PointLights,
-        RasterizationSettings,
-        SoftPhongShader,
-        SoftSilhouetteShader,
-        TexturesVertex,
-        look_at_view_transform,
-    )
-    from geofit.pytorch3d.utils import ico_sphere
 
     np.random.seed(0)
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
@@ -455,17 +442,6 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
 def test_tutorial5_fit_textured_volume():
     """fit_textured_volume's model, huber and Adam loop (with its 10x learning-rate drop) on a
     16^3 volume and 8 views of 16 px rendered from a known volume: the loss goes down."""
-    import geofit.pytorch3d.torch as torch
-    from geofit.pytorch3d.renderer import (
-        EmissionAbsorptionRaymarcher,
-        FoVPerspectiveCameras,
-        NDCMultinomialRaysampler,
-        VolumeRenderer,
-        look_at_view_transform,
-    )
-    from geofit.pytorch3d.structures import Volumes
-    from geofit.pytorch3d.transforms import so3_exponential_map
-    from geofit.pytorch3d.tutorial_utils import image_grid
 
     torch.manual_seed(0)
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
@@ -592,9 +568,6 @@ def test_tutorial5_fit_textured_volume():
 def test_tutorial5_and_6_data_generate_cow_renders():
     """The tutorials' helper unpacks as ``cameras, images, silhouettes`` tensors, and the
     loops' camera batching (``target_cameras.R[batch_idx]``...) works on them."""
-    import geofit.pytorch3d.torch as torch
-    from geofit.pytorch3d.renderer import FoVPerspectiveCameras
-    from geofit.pytorch3d.tutorial_utils import generate_cow_renders
 
     device = torch.device("cpu")
     target_cameras, target_images, target_silhouettes = generate_cow_renders(
@@ -621,22 +594,6 @@ def test_tutorial6_fit_simple_neural_radiance_field():
     samples, 40 steps) on renders of a known volume; ``sample_images_at_mc_locs`` (grid_sample)
     is geofit's ``sample_images_at_xys``. The loop runs; the gradient it follows equals
     central differences of the loss on fixed rays."""
-    import geofit.pytorch3d.torch as torch
-    from geofit.fit.nerf import sample_images_at_xys
-    from geofit.pytorch3d.renderer import (
-        EmissionAbsorptionRaymarcher,
-        FoVPerspectiveCameras,
-        ImplicitRenderer,
-        MonteCarloRaysampler,
-        NDCGridRaysampler,
-        NDCMultinomialRaysampler,
-        RayBundle,
-        VolumeRenderer,
-        look_at_view_transform,
-        ray_bundle_to_ray_points,
-    )
-    from geofit.pytorch3d.structures import Volumes
-    from geofit.pytorch3d.transforms import so3_exp_map
 
     torch.manual_seed(1)
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
