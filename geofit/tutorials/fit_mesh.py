@@ -24,7 +24,6 @@ from .shared import (
     record_fit,
     settings_text,
     shade_mesh,
-    try_call,
 )
 from .stability import fit_mesh_scenario, mesh_fit_arguments
 
@@ -113,9 +112,9 @@ def _fit_mesh_stability(target, methods, size: str, seed: int, progress: bool) -
                 kw["n_iter"] = min(kw["n_iter"], pick_size(size, 10, 100, 500))
             sc = fit_mesh_scenario(mode, target, kw, source_level=source, seed=seed + 7)
             args = mesh_fit_arguments(sc.kwargs, sc.source if sc.source is not None else source)
-            res, err = try_call(lambda **k: fit_mesh(sc.target, **k), evaluator=None,
-                            progress=False, time_budget=budget, seed=seed, **args)
-            rows.append(fit_row(name, case, res, err, measure))
+            rows.append(fit_row(name, case, lambda: fit_mesh(
+                sc.target, evaluator=None, progress=False, time_budget=budget, seed=seed,
+                **args), measure))
             bar.update(1)
     bar.close()
     return rows

@@ -8,7 +8,6 @@ import numpy as np
 from .._atomic import atomic_write
 from ..fit.volume import VolumeFitOptions, fit_volume
 from ..metrics import psnr
-from ..structures import MultiViewDataset
 from .shared import (
     StepResult,
     begin_step,
@@ -22,7 +21,7 @@ from .shared import (
     recipe_cut,
     record_fit,
     render_volume_views,
-    try_call,
+    stability_views,
     views_config,
 )
 
@@ -145,18 +144,11 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
                                   "iterations": pick_size(size, 2, 10, 30)})):
         for case, (i_, s_, c_) in cases.items():  # failure cases
             opts = {k: v for k, v in kw.items() if k != "recipe"}
-            fit, err = try_call(lambda **k: fit_volume(_views(i_, s_, c_), **k),
-                            recipe=kw.get("recipe", "default"), seed=seed,
-                            options=VolumeFitOptions(volume_size=small,
-                                                     n_pts_per_ray=max(16, n_pts // 4), **opts))
-            rows.append(fit_row(method, case, fit, err, lambda f: {
+            rows.append(fit_row(method, case, lambda: fit_volume(
+                stability_views(i_, s_, c_), recipe=kw.get("recipe", "default"), seed=seed,
+                options=VolumeFitOptions(volume_size=small, n_pts_per_ray=max(16, n_pts // 4),
+                                         **opts)), lambda f: {
                 "NaN in volume": bool(np.isnan(f.volume.densities).any()),
                 "occupied voxels": int(f.n_occupied_voxels),
                 "seconds": round(f.seconds, 2)}))
     return rows
-
-
-def _views(images, silhouettes, cameras):
-    """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-
-    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

@@ -8,7 +8,6 @@ import numpy as np
 
 from .._atomic import atomic_write
 from ..fit.nerf import RECIPES, fit_nerf, render_nerf
-from ..structures import MultiViewDataset
 from .shared import (
     StepResult,
     begin_step,
@@ -20,7 +19,7 @@ from .shared import (
     progress_bar,
     recipe_cut,
     record_fit,
-    try_call,
+    stability_views,
     views_config,
 )
 
@@ -139,15 +138,9 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
             recipe = kw.pop("recipe")
-            fit, err = try_call(lambda: fit_nerf(_views(i_, s_, c_), recipe=recipe, seed=seed,
-                                             options=replace(RECIPES[recipe], **kw)))
-            rows.append(fit_row(method, case, fit, err, lambda f: {
+            rows.append(fit_row(method, case, lambda: fit_nerf(
+                stability_views(i_, s_, c_), recipe=recipe, seed=seed,
+                options=replace(RECIPES[recipe], **kw)), lambda f: {
                 "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
                 "seconds": round(f.seconds, 2)}))
     return rows
-
-
-def _views(images, silhouettes, cameras):
-    """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
-
-    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)

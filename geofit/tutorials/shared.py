@@ -28,7 +28,7 @@ from ..render import (
     TexturesFlat,
 )
 from ..render.volume import VolumeRenderer
-from ..structures import Mesh
+from ..structures import Mesh, MultiViewDataset
 from ..viz import Series, image_panel, plot_accuracy_vs_time, save_png
 
 __all__ = ["SIZES", "StepResult", "TutorialsRun"]
@@ -371,9 +371,11 @@ def run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
     return rows
 
 
-def fit_row(method: str, case: str, fit, err: str | None,
-             measure: Callable[[Any], dict]) -> dict:
-    """A fit's stability row: how it failed, or how it stopped and ``measure(fit)``."""
+def fit_row(method: str, case: str, run: Callable[[], Any],
+            measure: Callable[[Any], dict]) -> dict:
+    """A fit's stability row: ``fit = run()``, then how it failed, or how it stopped and
+    ``measure(fit)``."""
+    fit, err = try_call(run)
     row = {"method": method, "case": case}
     if err is not None:
         row["outcome"] = err
@@ -386,6 +388,11 @@ def fit_row(method: str, case: str, fit, err: str | None,
 # --------------------------------------------------------------------------------------------
 # Shared by 5 and 6: the tutorials' renders of the cow (black background, silhouettes)
 # --------------------------------------------------------------------------------------------
+
+
+def stability_views(images, silhouettes, cameras) -> MultiViewDataset:
+    """A MultiViewDataset of the arrays (inside a stability run: bad arrays fail there)."""
+    return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)
 
 
 def cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
