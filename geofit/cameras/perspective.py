@@ -12,8 +12,8 @@ from .base import CamerasBase
 __all__ = ["FoVOrthographicCameras", "FoVPerspectiveCameras", "PerspectiveCameras"]
 
 
-def _check_depth_range(b: dict) -> None:
-    if np.any(b["znear"] <= 0):
+def _check_depth_range(b: dict, perspective: bool = True) -> None:
+    if perspective and np.any(b["znear"] <= 0):
         raise ValueError(f"znear: expected > 0 for a perspective camera, got minimum "
                          f"{b['znear'].min():g}")
     if np.any(b["zfar"] <= b["znear"]):
@@ -73,10 +73,9 @@ class FoVPerspectiveCameras(_PinholeCameras):
         Vertical field of view, in (0, 180) degrees or (0, pi) radians.
     degrees : bool
         Whether ``fov`` is in degrees (default); shared by the batch.
-    R : (N, 3, 3) or (3, 3) float64, optional
-        World-to-view rotations (default identity); must be rotations.
-    T : (N, 3) or (3,) float64, optional
-        World-to-view translations (default zeros).
+    R, T : (N, 3, 3) or (3, 3), and (N, 3) or (3,) float64, optional
+        World-to-view rotations (default identity; must be rotations) and translations
+        (default zeros), as :class:`CamerasBase` keeps them.
 
     Notes
     -----
@@ -151,10 +150,9 @@ class PerspectiveCameras(_PinholeCameras):
         Near plane distance, > 0.
     zfar : float or (N,) float64
         Far plane distance, > znear.
-    R : (N, 3, 3) or (3, 3) float64, optional
-        World-to-view rotations (default identity); must be rotations.
-    T : (N, 3) or (3,) float64, optional
-        World-to-view translations (default zeros).
+    R, T : (N, 3, 3) or (3, 3), and (N, 3) or (3,) float64, optional
+        World-to-view rotations (default identity; must be rotations) and translations
+        (default zeros), as :class:`CamerasBase` keeps them.
 
     Notes
     -----
@@ -214,10 +212,9 @@ class FoVOrthographicCameras(CamerasBase):
         View-space x range mapped to NDC [-1, 1] (``max_x`` on the left), ``max_x > min_x``.
     scale_xyz : (N, 3) or (3,) float64
         Positive per-axis scale factors.
-    R : (N, 3, 3) or (3, 3) float64, optional
-        World-to-view rotations (default identity); must be rotations.
-    T : (N, 3) or (3,) float64, optional
-        World-to-view translations (default zeros).
+    R, T : (N, 3, 3) or (3, 3), and (N, 3) or (3,) float64, optional
+        World-to-view rotations (default identity; must be rotations) and translations
+        (default zeros), as :class:`CamerasBase` keeps them.
 
     Notes
     -----
@@ -239,9 +236,7 @@ class FoVOrthographicCameras(CamerasBase):
                           min_y=_batch_scalar(min_y, "min_y"), max_x=_batch_scalar(max_x, "max_x"),
                           min_x=_batch_scalar(min_x, "min_x"),
                           scale_xyz=_batch_items(scale_xyz, "scale_xyz", (3,)))
-        if np.any(b["zfar"] <= b["znear"]):
-            raise ValueError("zfar: expected zfar > znear for every camera, got "
-                             f"{int(np.sum(b['zfar'] <= b['znear']))} cameras with zfar <= znear")
+        _check_depth_range(b, perspective=False)
         if np.any(b["max_x"] <= b["min_x"]):
             raise ValueError("max_x: expected max_x > min_x for every camera")
         if np.any(b["max_y"] <= b["min_y"]):
