@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from _helpers import benchmark_module
 
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.structures import MultiViewDataset
@@ -404,13 +405,12 @@ def _ds(images, silhouettes, cameras) -> MultiViewDataset:
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)
 
 
+_SKELETON = benchmark_module("_skeleton_check")
+
+
 def small_config(**kw):
-    opts = {"n_harmonic_functions": 2, "n_hidden_neurons": 12, "n_hidden_color": 8,
-            "n_harmonic_functions_dir": 1, "n_pts_per_ray": 32, "n_rays_per_image": 48,
-            "batch_size": 4, "hull_resolution": 24, "n_iter": 60, "density_grid_warmup": 20,
-            "density_grid_every": 10, "n_threads": 1, "lr": 2e-2, "silhouette_margin": 0}
-    opts.update(kw)
-    return NerfConfig.scene(**opts)
+    """The skeleton check's small NeRF (benchmarks/_skeleton_check.py), 60 steps by default."""
+    return _SKELETON._small_nerf(**{"n_iter": 60, "density_grid_warmup": 20, **kw})
 
 
 def test_fit_scene_preset_learns_and_reports(toy_scene):
