@@ -58,45 +58,19 @@ def _obj(kind: str, tmp: Path) -> tuple[str, str]:
 
 # ------------------------------------------------------------------------------ tutorial 1
 def run_t1(n_iter: int, every: int, n_metric: int, tmp: Path) -> MethodRun:
-    import geofit.pytorch3d.torch as torch
+    from _p3d_tutorials import tutorial1
+
     from geofit import Mesh, load_mesh
     from geofit.metrics import MeshEvaluator
-    from geofit.pytorch3d.io import load_obj
-    from geofit.pytorch3d.loss import (
-        chamfer_distance,
-        mesh_edge_loss,
-        mesh_laplacian_smoothing,
-        mesh_normal_consistency,
-    )
-    from geofit.pytorch3d.ops import sample_points_from_meshes
-    from geofit.pytorch3d.structures import Meshes
-    from geofit.pytorch3d.utils import ico_sphere
 
     trg_obj, tname = _obj("dolphin", tmp)
     evaluator = MeshEvaluator(load_mesh(trg_obj), n_samples=n_metric, taus=(0.01,),
                               normalize=True, seed=0)
-    torch.manual_seed(0)
-    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
-    # ---- the tutorial's cells, imports changed -------------------------------------------
-    verts, faces, aux = load_obj(trg_obj)
-    faces_idx = faces.verts_idx.to(device)
-    verts = verts.to(device)
-    center = verts.mean(0)
-    verts = verts - center
-    scale = max(verts.abs().max(0)[0])
-    verts = verts / scale
-    trg_mesh = Meshes(verts=[verts], faces=[faces_idx])
-    src_mesh = ico_sphere(4, device)
-    deform_verts = torch.full(src_mesh.verts_packed().shape, 0.0, device=device,
-                              requires_grad=True)
-    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
     Niter = n_iter
-    w_chamfer = 1.0
-    w_edge = 1.0
-    w_normal = 0.01
-    w_laplacian = 0.1
-    chamfer_losses = []
-    # -----------------------------------------------------------------------------------------
+    steps = tutorial1(trg_obj, Niter)  # the tutorial's cells, imports changed
+    state = next(steps)  # the cells before the loop
+    src_mesh, deform_verts = state["src_mesh"], state["deform_verts"]
+    scale, center, chamfer_losses = state["scale"], state["center"], state["chamfer_losses"]
     run = MethodRun(name="t1", label="tutorial 1 loop on geofit.pytorch3d (SGD, 2000 steps)",
                     config={"target": tname, "n_iter": n_iter, "checkpoint_every": every,
                             "n_samples_per_step": 5000})
@@ -106,21 +80,7 @@ def run_t1(n_iter: int, every: int, n_metric: int, tmp: Path) -> MethodRun:
     eval_cpu = 0.0
     for i in range(Niter):
         t0 = time.perf_counter()
-        # ---- the tutorial's loop body ---------------------------------------------------
-        optimizer.zero_grad()
-        new_src_mesh = src_mesh.offset_verts(deform_verts)
-        sample_trg = sample_points_from_meshes(trg_mesh, 5000)
-        sample_src = sample_points_from_meshes(new_src_mesh, 5000)
-        loss_chamfer, _ = chamfer_distance(sample_trg, sample_src)
-        loss_edge = mesh_edge_loss(new_src_mesh)
-        loss_normal = mesh_normal_consistency(new_src_mesh)
-        loss_laplacian = mesh_laplacian_smoothing(new_src_mesh, method="uniform")
-        loss = (loss_chamfer * w_chamfer + loss_edge * w_edge + loss_normal * w_normal
-                + loss_laplacian * w_laplacian)
-        chamfer_losses.append(float(loss_chamfer.detach().cpu()))
-        loss.backward()
-        optimizer.step()
-        # -----------------------------------------------------------------------------------
+        next(steps)  # the tutorial's loop body
         solver += time.perf_counter() - t0
         if (i + 1) % every == 0 or i + 1 == Niter:
             c0 = time.process_time()
@@ -158,76 +118,18 @@ def _heldout(image_size: int):
 
 
 def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
-    import geofit.pytorch3d.torch as torch
+    from _p3d_tutorials import tutorial4
+
     from geofit import Mesh
-    from geofit.pytorch3d.io import load_objs_as_meshes
-    from geofit.pytorch3d.loss import (
-        mesh_edge_loss,
-        mesh_laplacian_smoothing,
-        mesh_normal_consistency,
-    )
-    from geofit.pytorch3d.renderer import (
-        MeshRasterizer,
-        MeshRenderer,
-        OpenGLPerspectiveCameras,
-        PointLights,
-        RasterizationSettings,
-        SoftSilhouetteShader,
-        look_at_view_transform,
-    )
-    from geofit.pytorch3d.utils import ico_sphere
 
     obj_filename, tname = _obj("cow", tmp)
     _, evaluator = _heldout(image_size)
     np.random.seed(0)  # the tutorial's np.random.permutation of views (unseeded there)
-    device = "cpu"
-    # ---- the tutorial's cells, imports changed, torch.linspace -> np.linspace ---------------
-    mesh = load_objs_as_meshes([obj_filename], device=device)
-    verts = mesh.verts_packed()
-    center = verts.mean(0)
-    scale = max((verts - center).abs().max(0)[0])
-    mesh.offset_verts_(-center)
-    mesh.scale_verts_((1.0 / float(scale)))
-    num_views = 20
-    elev = np.linspace(0, 360, num_views)
-    azim = np.linspace(-180, 180, num_views)
-    lights = PointLights(device=device, location=[[0.0, 0.0, -3.0]])
-    R, T = look_at_view_transform(dist=2.7, elev=elev, azim=azim)
-    cameras = OpenGLPerspectiveCameras(device=device, R=R, T=T)
-    camera = OpenGLPerspectiveCameras(device=device, R=R[None, 1, ...], T=T[None, 1, ...])
-    meshes = mesh.extend(num_views)
-    target_cameras = [OpenGLPerspectiveCameras(device=device, R=R[None, i, ...],
-                                               T=T[None, i, ...]) for i in range(num_views)]
-    sigma = 1e-4
-    raster_settings_silhouette = RasterizationSettings(
-        image_size=image_size, blur_radius=np.log(1. / 1e-4 - 1.) * sigma, faces_per_pixel=50)
-    renderer_silhouette = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_silhouette),
-        shader=SoftSilhouetteShader())
-    silhouette_images = renderer_silhouette(meshes, cameras=cameras, lights=lights)
-    target_silhouette = [silhouette_images[i, ..., 3] for i in range(num_views)]
-    src_mesh = ico_sphere(4, device)
-    raster_settings_soft = RasterizationSettings(
-        image_size=image_size, blur_radius=np.log(1. / 1e-4 - 1.) * sigma, faces_per_pixel=50)
-    renderer_silhouette = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_soft),
-        shader=SoftSilhouetteShader())
-    num_views_per_iteration = 2
     Niter = n_iter
-    losses = {"silhouette": {"weight": 1.0, "values": []},
-              "edge": {"weight": 1.0, "values": []},
-              "normal": {"weight": 0.01, "values": []},
-              "laplacian": {"weight": 1.0, "values": []}}
-
-    def update_mesh_shape_prior_losses(mesh, loss):
-        loss["edge"] = mesh_edge_loss(mesh)
-        loss["normal"] = mesh_normal_consistency(mesh)
-        loss["laplacian"] = mesh_laplacian_smoothing(mesh, method="uniform")
-
-    verts_shape = src_mesh.verts_packed().shape
-    deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
-    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
-    # -----------------------------------------------------------------------------------------
+    # the tutorial's cells, imports changed; only its silhouette loop is run
+    steps = tutorial4(obj_filename, image_size, Niter)
+    state = next(steps)  # the cells before the loop
+    src_mesh, deform_verts = state["src_mesh"], state["deform_verts"]
     run = MethodRun(name="t4", label="tutorial 4 silhouette loop on geofit.pytorch3d",
                     config={"object": tname, "n_iter": n_iter, "image_size": image_size,
                             "views_per_step": 2, "view_order": "np.random.seed(0)"})
@@ -235,24 +137,7 @@ def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
     every = max(n_iter // 8, 1)
     for i in range(Niter):
         t0 = time.perf_counter()
-        # ---- the tutorial's loop body -------------------------------------------------------
-        optimizer.zero_grad()
-        new_src_mesh = src_mesh.offset_verts(deform_verts)
-        loss = {k: torch.tensor(0.0, device=device) for k in losses}
-        update_mesh_shape_prior_losses(new_src_mesh, loss)
-        for j in np.random.permutation(num_views).tolist()[:num_views_per_iteration]:
-            images_predicted = renderer_silhouette(new_src_mesh, cameras=target_cameras[j],
-                                                   lights=lights)
-            predicted_silhouette = images_predicted[..., 3]
-            loss_silhouette = ((predicted_silhouette - target_silhouette[j]) ** 2).mean()
-            loss["silhouette"] += loss_silhouette / num_views_per_iteration
-        sum_loss = torch.tensor(0.0, device=device)
-        for k, l in loss.items():
-            sum_loss += l * losses[k]["weight"]
-            losses[k]["values"].append(float(l.detach().cpu()))
-        sum_loss.backward()
-        optimizer.step()
-        # ---------------------------------------------------------------------------------------
+        next(steps)  # the tutorial's loop body
         solver += time.perf_counter() - t0
         if (i + 1) % every == 0 or i + 1 == Niter:
             v, f = src_mesh.offset_verts(deform_verts).get_mesh_verts_faces(0)

@@ -3,7 +3,8 @@
 Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``, ``import torch``
 -> ``import geofit.pytorch3d.torch as torch``, the tutorials' helper files ->
 :mod:`geofit.pytorch3d.tutorial_utils`; the six notebooks' imports gathered once at the top of
-this file; sizes reduced (steps, images, samples); data: geofit's procedural stand-ins written
+this file (tutorials 1 and 4's cells live in benchmarks/_p3d_tutorials.py, which the benchmark
+runs at full size); sizes reduced (steps, images, samples); data: geofit's procedural stand-ins written
 as OBJ files into ``tmp_path`` (the tests run offline). Each test then checks something the
 tutorial relies on. ``tests/test_pytorch3d_notebooks.py`` runs
 PyTorch3D's own notebooks the same way when they are given.
@@ -19,18 +20,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from _helpers import benchmark_module  # noqa: E402
 
 import geofit  # noqa: E402
 import geofit.pytorch3d.torch as torch  # noqa: E402
 from geofit.fit.nerf import sample_images_at_xys  # noqa: E402
-from geofit.pytorch3d.io import load_obj, load_objs_as_meshes, save_obj  # noqa: E402
-from geofit.pytorch3d.loss import (  # noqa: E402
-    chamfer_distance,
-    mesh_edge_loss,
-    mesh_laplacian_smoothing,
-    mesh_normal_consistency,
-)
-from geofit.pytorch3d.ops import sample_points_from_meshes  # noqa: E402
+from geofit.pytorch3d.io import load_obj, load_objs_as_meshes  # noqa: E402
 from geofit.pytorch3d.renderer import (  # noqa: E402
     AlphaCompositor,
     EmissionAbsorptionRaymarcher,
@@ -44,7 +39,6 @@ from geofit.pytorch3d.renderer import (  # noqa: E402
     NDCGridRaysampler,
     NDCMultinomialRaysampler,
     NormWeightedCompositor,
-    OpenGLPerspectiveCameras,
     PointLights,
     PointsRasterizationSettings,
     PointsRasterizer,
@@ -53,7 +47,6 @@ from geofit.pytorch3d.renderer import (  # noqa: E402
     RasterizationSettings,
     RayBundle,
     SoftPhongShader,
-    SoftSilhouetteShader,
     TexturesVertex,
     VolumeRenderer,
     look_at_view_transform,
@@ -62,13 +55,15 @@ from geofit.pytorch3d.renderer import (  # noqa: E402
 from geofit.pytorch3d.structures import Meshes, Pointclouds, Volumes  # noqa: E402
 from geofit.pytorch3d.transforms import so3_exp_map, so3_exponential_map  # noqa: E402
 from geofit.pytorch3d.tutorial_utils import generate_cow_renders, image_grid  # noqa: E402
-from geofit.pytorch3d.utils import ico_sphere  # noqa: E402
 from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
     AxisArgs,
     plot_batch_individually,
     plot_scene,
 )
 from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib  # noqa: E402
+
+#: Tutorials 1 and 4's cells: one copy, which benchmarks/pytorch3d_port.py runs at full size.
+P3D = benchmark_module("_p3d_tutorials")
 
 
 @pytest.fixture
@@ -87,72 +82,16 @@ def cow_obj(tmp_path):
 
 
 def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
-    """The deform tutorial's cells; 20 steps lower the chamfer loss and the mesh is saved."""
+    """The deform tutorial's cells (benchmarks/_p3d_tutorials.py); 20 steps lower the chamfer
+    loss and the mesh is saved."""
+    *steps, final = P3D.tutorial1(os.path.join(dolphin_obj), 20, plot_period=10,
+                                  out_dir=str(tmp_path))
+    chamfer_losses = final["chamfer_losses"]
 
-    torch.manual_seed(0)
-    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
-    trg_obj = os.path.join(dolphin_obj)
-    verts, faces, aux = load_obj(trg_obj)
-    faces_idx = faces.verts_idx.to(device)
-    verts = verts.to(device)
-    center = verts.mean(0)
-    verts = verts - center
-    scale = max(verts.abs().max(0)[0])
-    verts = verts / scale
-    trg_mesh = Meshes(verts=[verts], faces=[faces_idx])
-    src_mesh = ico_sphere(4, device)
-
-    def plot_pointcloud(mesh, title=""):
-        points = sample_points_from_meshes(mesh, 5000)
-        x, y, z = points.clone().detach().cpu().squeeze().unbind(1)
-        fig = plt.figure(figsize=(5, 5))
-        ax = fig.add_subplot(projection="3d")  # the notebook's Axes3D(fig)
-        ax.scatter3D(x, z, -y)
-        ax.set_title(title)
-        ax.view_init(190, 30)
-        plt.close(fig)
-
-    plot_pointcloud(trg_mesh, "Target mesh")
-    plot_pointcloud(src_mesh, "Source mesh")
-    deform_verts = torch.full(src_mesh.verts_packed().shape, 0.0, device=device,
-                              requires_grad=True)
-    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
-    Niter = 20
-    w_chamfer = 1.0
-    w_edge = 1.0
-    w_normal = 0.01
-    w_laplacian = 0.1
-    plot_period = 10
-    chamfer_losses, laplacian_losses, edge_losses, normal_losses = [], [], [], []
-    for i in range(Niter):
-        optimizer.zero_grad()
-        new_src_mesh = src_mesh.offset_verts(deform_verts)
-        sample_trg = sample_points_from_meshes(trg_mesh, 5000)
-        sample_src = sample_points_from_meshes(new_src_mesh, 5000)
-        loss_chamfer, _ = chamfer_distance(sample_trg, sample_src)
-        loss_edge = mesh_edge_loss(new_src_mesh)
-        loss_normal = mesh_normal_consistency(new_src_mesh)
-        loss_laplacian = mesh_laplacian_smoothing(new_src_mesh, method="uniform")
-        loss = (loss_chamfer * w_chamfer + loss_edge * w_edge + loss_normal * w_normal
-                + loss_laplacian * w_laplacian)
-        description = "total_loss = %.6f" % loss
-        chamfer_losses.append(float(loss_chamfer.detach().cpu()))
-        edge_losses.append(float(loss_edge.detach().cpu()))
-        normal_losses.append(float(loss_normal.detach().cpu()))
-        laplacian_losses.append(float(loss_laplacian.detach().cpu()))
-        if i % plot_period == 0:
-            plot_pointcloud(new_src_mesh, title="iter: %d" % i)
-        loss.backward()
-        optimizer.step()
-    final_verts, final_faces = new_src_mesh.get_mesh_verts_faces(0)
-    final_verts = final_verts * scale + center
-    final_obj = os.path.join(str(tmp_path), "final_model.obj")
-    save_obj(final_obj, final_verts, final_faces)
-
-    assert description.startswith("total_loss = ")
+    assert len(steps) == 21 and steps[-1]["description"].startswith("total_loss = ")
     assert np.mean(chamfer_losses[-3:]) < 0.5 * chamfer_losses[0]
-    saved = geofit.load_mesh(final_obj)
-    np.testing.assert_allclose(saved.verts, final_verts.detach().numpy(), rtol=1e-12)
+    saved = geofit.load_mesh(final["final_obj"])
+    np.testing.assert_allclose(saved.verts, final["final_verts"].detach().numpy(), rtol=1e-12)
     assert saved.n_faces == 5120
 
 
@@ -293,150 +232,18 @@ def test_tutorial3_render_colored_points(tmp_path):
 
 
 def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
-    """fit_textured_mesh's cells at 32 px and 6 steps per loop: both losses go down, the
-    colours get a gradient, the prediction is saved."""
-
+    """fit_textured_mesh's cells (benchmarks/_p3d_tutorials.py) at 32 px and 6 steps per loop:
+    both losses go down, the colours get a gradient, the prediction is saved."""
     np.random.seed(0)
-    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
-    obj_filename = cow_obj
-    mesh = load_objs_as_meshes([obj_filename], device=device)
-    verts = mesh.verts_packed()
-    N = verts.shape[0]
-    center = verts.mean(0)
-    scale = max((verts - center).abs().max(0)[0])
-    mesh.offset_verts_(-center)
-    mesh.scale_verts_((1.0 / float(scale)))
-    num_views = 20
-    elev = torch.linspace(0, 360, num_views)
-    azim = torch.linspace(-180, 180, num_views)
-    lights = PointLights(device=device, location=[[0.0, 0.0, -3.0]])
-    R, T = look_at_view_transform(dist=2.7, elev=elev, azim=azim)
-    cameras = OpenGLPerspectiveCameras(device=device, R=R, T=T)
-    camera = OpenGLPerspectiveCameras(device=device, R=R[None, 1, ...], T=T[None, 1, ...])
-    raster_settings = RasterizationSettings(image_size=32, blur_radius=0.0, faces_per_pixel=1)
-    renderer = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings),
-        shader=SoftPhongShader(device=device, cameras=camera, lights=lights))
-    meshes = mesh.extend(num_views)
-    target_images = renderer(meshes, cameras=cameras, lights=lights)
-    target_rgb = [target_images[i, ..., :3] for i in range(num_views)]
-    target_cameras = [OpenGLPerspectiveCameras(device=device, R=R[None, i, ...],
-                                               T=T[None, i, ...]) for i in range(num_views)]
-    image_grid(target_images.cpu().numpy(), rows=4, cols=5, rgb=True)
-    sigma = 1e-4
-    raster_settings_silhouette = RasterizationSettings(
-        image_size=32, blur_radius=np.log(1. / 1e-4 - 1.) * sigma, faces_per_pixel=50)
-    renderer_silhouette = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_silhouette),
-        shader=SoftSilhouetteShader())
-    silhouette_images = renderer_silhouette(meshes, cameras=cameras, lights=lights)
-    target_silhouette = [silhouette_images[i, ..., 3] for i in range(num_views)]
-    image_grid(silhouette_images.cpu().numpy(), rows=4, cols=5, rgb=False)
+    *steps, final = P3D.tutorial4(cow_obj, 32, 6, plot_period=5, out_dir=str(tmp_path))
+    sil_values, losses = final["sil_values"], final["losses"]
 
-    def visualize_prediction(predicted_mesh, renderer=renderer_silhouette,
-                             target_image=target_rgb[1], title="", silhouette=False):
-        inds = 3 if silhouette else range(3)
-        with torch.no_grad():
-            predicted_images = renderer(predicted_mesh)
-        plt.figure(figsize=(20, 10))
-        plt.subplot(1, 2, 1)
-        plt.imshow(predicted_images[0, ..., inds].cpu().detach().numpy())
-        plt.subplot(1, 2, 2)
-        plt.imshow(target_image.cpu().detach().numpy())
-        plt.title(title)
-        plt.axis("off")
-        plt.close("all")
-
-    src_mesh = ico_sphere(4, device)
-    raster_settings_soft = RasterizationSettings(
-        image_size=32, blur_radius=np.log(1. / 1e-4 - 1.) * sigma, faces_per_pixel=50)
-    renderer_silhouette = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_soft),
-        shader=SoftSilhouetteShader())
-    num_views_per_iteration = 2
-    Niter = 6
-    plot_period = 5
-    losses = {"silhouette": {"weight": 1.0, "values": []},
-              "edge": {"weight": 1.0, "values": []},
-              "normal": {"weight": 0.01, "values": []},
-              "laplacian": {"weight": 1.0, "values": []}}
-
-    def update_mesh_shape_prior_losses(mesh, loss):
-        loss["edge"] = mesh_edge_loss(mesh)
-        loss["normal"] = mesh_normal_consistency(mesh)
-        loss["laplacian"] = mesh_laplacian_smoothing(mesh, method="uniform")
-
-    verts_shape = src_mesh.verts_packed().shape
-    deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
-    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
-    for i in range(Niter):
-        optimizer.zero_grad()
-        new_src_mesh = src_mesh.offset_verts(deform_verts)
-        loss = {k: torch.tensor(0.0, device=device) for k in losses}
-        update_mesh_shape_prior_losses(new_src_mesh, loss)
-        for j in np.random.permutation(num_views).tolist()[:num_views_per_iteration]:
-            images_predicted = renderer_silhouette(new_src_mesh, cameras=target_cameras[j],
-                                                   lights=lights)
-            predicted_silhouette = images_predicted[..., 3]
-            loss_silhouette = ((predicted_silhouette - target_silhouette[j]) ** 2).mean()
-            loss["silhouette"] += loss_silhouette / num_views_per_iteration
-        sum_loss = torch.tensor(0.0, device=device)
-        for k, l in loss.items():
-            sum_loss += l * losses[k]["weight"]
-            losses[k]["values"].append(float(l.detach().cpu()))
-        description = "total_loss = %.6f" % sum_loss
-        if i % plot_period == 0:
-            visualize_prediction(new_src_mesh, title="iter: %d" % i, silhouette=True,
-                                 target_image=target_silhouette[1])
-        sum_loss.backward()
-        optimizer.step()
-    sil_values = losses["silhouette"]["values"]
-
-    renderer_textured = MeshRenderer(
-        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_soft),
-        shader=SoftPhongShader(device=device, cameras=camera, lights=lights))
-    losses = {"rgb": {"weight": 1.0, "values": []},
-              "silhouette": {"weight": 1.0, "values": []},
-              "edge": {"weight": 1.0, "values": []},
-              "normal": {"weight": 0.01, "values": []},
-              "laplacian": {"weight": 1.0, "values": []}}
-    deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
-    sphere_verts_rgb = torch.full([1, verts_shape[0], 3], 0.5, device=device, requires_grad=True)
-    optimizer = torch.optim.SGD([deform_verts, sphere_verts_rgb], lr=1.0, momentum=0.9)
-    for i in range(Niter):
-        optimizer.zero_grad()
-        new_src_mesh = src_mesh.offset_verts(deform_verts)
-        new_src_mesh.textures = TexturesVertex(verts_features=sphere_verts_rgb)
-        loss = {k: torch.tensor(0.0, device=device) for k in losses}
-        update_mesh_shape_prior_losses(new_src_mesh, loss)
-        for j in np.random.permutation(num_views).tolist()[:num_views_per_iteration]:
-            images_predicted = renderer_textured(new_src_mesh, cameras=target_cameras[j],
-                                                 lights=lights)
-            predicted_silhouette = images_predicted[..., 3]
-            loss_silhouette = ((predicted_silhouette - target_silhouette[j]) ** 2).mean()
-            loss["silhouette"] += loss_silhouette / num_views_per_iteration
-            predicted_rgb = images_predicted[..., :3]
-            loss_rgb = ((predicted_rgb - target_rgb[j]) ** 2).mean()
-            loss["rgb"] += loss_rgb / num_views_per_iteration
-        sum_loss = torch.tensor(0.0, device=device)
-        for k, l in loss.items():
-            sum_loss += l * losses[k]["weight"]
-            losses[k]["values"].append(float(l.detach().cpu()))
-        if i % plot_period == 0:
-            visualize_prediction(new_src_mesh, renderer=renderer_textured,
-                                 title="iter: %d" % i, silhouette=False)
-        sum_loss.backward()
-        optimizer.step()
-    final_verts, final_faces = new_src_mesh.get_mesh_verts_faces(0)
-    final_verts = final_verts * scale + center
-    final_obj = os.path.join(str(tmp_path), "final_model.obj")
-    save_obj(final_obj, final_verts, final_faces)
-
-    assert N > 0 and description.startswith("total_loss")
+    assert len(steps) == 13 and final["N"] > 0
+    assert steps[-1]["description"].startswith("total_loss")
     assert np.mean(sil_values[-2:]) < sil_values[0]
     assert np.mean(losses["rgb"]["values"][-2:]) < losses["rgb"]["values"][0]
-    assert np.abs(sphere_verts_rgb.data - 0.5).max() > 1e-4  # the colours moved
-    assert geofit.load_mesh(final_obj).n_verts == 2562
+    assert np.abs(final["sphere_verts_rgb"].data - 0.5).max() > 1e-4  # the colours moved
+    assert geofit.load_mesh(final["final_obj"]).n_verts == 2562
 
 
 def test_tutorial5_fit_textured_volume():

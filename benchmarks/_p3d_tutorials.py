@@ -1,0 +1,261 @@
+"""PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh) as
+written, imports changed to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
+benchmarks/pytorch3d_port.py runs at full size and tests/test_pytorch3d_tutorials.py at reduced
+size.
+
+Each tutorial is a generator: it yields once when the cells before the loop have run and then
+after each step of a loop (a dict of the notebook's variables), so that a caller can time the
+loop body alone and evaluate between steps. Exhausting it runs the last cell (the final mesh
+back in the target's frame, saved as ``final_model.obj`` in ``out_dir`` when one is given).
+``plot_period=None`` skips the notebook's plots (a benchmark times the loop without them).
+"""
+from __future__ import annotations
+
+import os
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+import geofit.pytorch3d.torch as torch
+from geofit.pytorch3d.io import load_obj, load_objs_as_meshes, save_obj
+from geofit.pytorch3d.loss import (
+    chamfer_distance,
+    mesh_edge_loss,
+    mesh_laplacian_smoothing,
+    mesh_normal_consistency,
+)
+from geofit.pytorch3d.ops import sample_points_from_meshes
+from geofit.pytorch3d.renderer import (
+    MeshRasterizer,
+    MeshRenderer,
+    OpenGLPerspectiveCameras,
+    PointLights,
+    RasterizationSettings,
+    SoftPhongShader,
+    SoftSilhouetteShader,
+    TexturesVertex,
+    look_at_view_transform,
+)
+from geofit.pytorch3d.structures import Meshes
+from geofit.pytorch3d.tutorial_utils import image_grid
+from geofit.pytorch3d.utils import ico_sphere
+
+__all__ = ["tutorial1", "tutorial4"]
+
+
+def tutorial1(trg_obj: str, Niter: int, *, plot_period: int | None = None,
+              out_dir: str | None = None):
+    """Tutorial 1's cells on the target ``trg_obj`` for ``Niter`` SGD steps (see the module)."""
+    torch.manual_seed(0)
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
+    verts, faces, aux = load_obj(trg_obj)
+    faces_idx = faces.verts_idx.to(device)
+    verts = verts.to(device)
+    center = verts.mean(0)
+    verts = verts - center
+    scale = max(verts.abs().max(0)[0])
+    verts = verts / scale
+    trg_mesh = Meshes(verts=[verts], faces=[faces_idx])
+    src_mesh = ico_sphere(4, device)
+
+    def plot_pointcloud(mesh, title=""):
+        points = sample_points_from_meshes(mesh, 5000)
+        x, y, z = points.clone().detach().cpu().squeeze().unbind(1)
+        fig = plt.figure(figsize=(5, 5))
+        ax = fig.add_subplot(projection="3d")  # the notebook's Axes3D(fig)
+        ax.scatter3D(x, z, -y)
+        ax.set_title(title)
+        ax.view_init(190, 30)
+        plt.close(fig)
+
+    if plot_period:
+        plot_pointcloud(trg_mesh, "Target mesh")
+        plot_pointcloud(src_mesh, "Source mesh")
+    deform_verts = torch.full(src_mesh.verts_packed().shape, 0.0, device=device,
+                              requires_grad=True)
+    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
+    w_chamfer = 1.0
+    w_edge = 1.0
+    w_normal = 0.01
+    w_laplacian = 0.1
+    chamfer_losses, laplacian_losses, edge_losses, normal_losses = [], [], [], []
+    state = {"src_mesh": src_mesh, "deform_verts": deform_verts, "scale": scale,
+             "center": center, "chamfer_losses": chamfer_losses}
+    yield state
+    for i in range(Niter):
+        optimizer.zero_grad()
+        new_src_mesh = src_mesh.offset_verts(deform_verts)
+        sample_trg = sample_points_from_meshes(trg_mesh, 5000)
+        sample_src = sample_points_from_meshes(new_src_mesh, 5000)
+        loss_chamfer, _ = chamfer_distance(sample_trg, sample_src)
+        loss_edge = mesh_edge_loss(new_src_mesh)
+        loss_normal = mesh_normal_consistency(new_src_mesh)
+        loss_laplacian = mesh_laplacian_smoothing(new_src_mesh, method="uniform")
+        loss = (loss_chamfer * w_chamfer + loss_edge * w_edge + loss_normal * w_normal
+                + loss_laplacian * w_laplacian)
+        description = "total_loss = %.6f" % loss
+        chamfer_losses.append(float(loss_chamfer.detach().cpu()))
+        edge_losses.append(float(loss_edge.detach().cpu()))
+        normal_losses.append(float(loss_normal.detach().cpu()))
+        laplacian_losses.append(float(loss_laplacian.detach().cpu()))
+        if plot_period and i % plot_period == 0:
+            plot_pointcloud(new_src_mesh, title="iter: %d" % i)
+        loss.backward()
+        optimizer.step()
+        yield dict(state, i=i, description=description, new_src_mesh=new_src_mesh)
+    final_verts, final_faces = new_src_mesh.get_mesh_verts_faces(0)
+    final_verts = final_verts * scale + center
+    state.update(final_verts=final_verts, final_faces=final_faces)
+    if out_dir is not None:
+        final_obj = os.path.join(str(out_dir), "final_model.obj")
+        save_obj(final_obj, final_verts, final_faces)
+        state.update(final_obj=final_obj)
+    yield state
+
+
+def tutorial4(obj_filename: str, image_size: int, Niter: int, *,
+              plot_period: int | None = None, out_dir: str | None = None):
+    """Tutorial 4's cells on the mesh ``obj_filename`` at ``image_size`` pixels, ``Niter`` steps
+    of the silhouette loop and then of the textured loop (see the module)."""
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
+    mesh = load_objs_as_meshes([obj_filename], device=device)
+    verts = mesh.verts_packed()
+    N = verts.shape[0]
+    center = verts.mean(0)
+    scale = max((verts - center).abs().max(0)[0])
+    mesh.offset_verts_(-center)
+    mesh.scale_verts_((1.0 / float(scale)))
+    num_views = 20
+    elev = torch.linspace(0, 360, num_views)
+    azim = torch.linspace(-180, 180, num_views)
+    lights = PointLights(device=device, location=[[0.0, 0.0, -3.0]])
+    R, T = look_at_view_transform(dist=2.7, elev=elev, azim=azim)
+    cameras = OpenGLPerspectiveCameras(device=device, R=R, T=T)
+    camera = OpenGLPerspectiveCameras(device=device, R=R[None, 1, ...], T=T[None, 1, ...])
+    raster_settings = RasterizationSettings(image_size=image_size, blur_radius=0.0,
+                                            faces_per_pixel=1)
+    renderer = MeshRenderer(
+        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings),
+        shader=SoftPhongShader(device=device, cameras=camera, lights=lights))
+    meshes = mesh.extend(num_views)
+    target_images = renderer(meshes, cameras=cameras, lights=lights)
+    target_rgb = [target_images[i, ..., :3] for i in range(num_views)]
+    target_cameras = [OpenGLPerspectiveCameras(device=device, R=R[None, i, ...],
+                                               T=T[None, i, ...]) for i in range(num_views)]
+    if plot_period:
+        image_grid(target_images.cpu().numpy(), rows=4, cols=5, rgb=True)
+    sigma = 1e-4
+    raster_settings_silhouette = RasterizationSettings(
+        image_size=image_size, blur_radius=np.log(1. / 1e-4 - 1.) * sigma, faces_per_pixel=50)
+    renderer_silhouette = MeshRenderer(
+        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_silhouette),
+        shader=SoftSilhouetteShader())
+    silhouette_images = renderer_silhouette(meshes, cameras=cameras, lights=lights)
+    target_silhouette = [silhouette_images[i, ..., 3] for i in range(num_views)]
+    if plot_period:
+        image_grid(silhouette_images.cpu().numpy(), rows=4, cols=5, rgb=False)
+
+    def visualize_prediction(predicted_mesh, renderer=renderer_silhouette,
+                             target_image=target_rgb[1], title="", silhouette=False):
+        inds = 3 if silhouette else range(3)
+        with torch.no_grad():
+            predicted_images = renderer(predicted_mesh)
+        plt.figure(figsize=(20, 10))
+        plt.subplot(1, 2, 1)
+        plt.imshow(predicted_images[0, ..., inds].cpu().detach().numpy())
+        plt.subplot(1, 2, 2)
+        plt.imshow(target_image.cpu().detach().numpy())
+        plt.title(title)
+        plt.axis("off")
+        plt.close("all")
+
+    src_mesh = ico_sphere(4, device)
+    raster_settings_soft = RasterizationSettings(
+        image_size=image_size, blur_radius=np.log(1. / 1e-4 - 1.) * sigma, faces_per_pixel=50)
+    renderer_silhouette = MeshRenderer(
+        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_soft),
+        shader=SoftSilhouetteShader())
+    num_views_per_iteration = 2
+    losses = {"silhouette": {"weight": 1.0, "values": []},
+              "edge": {"weight": 1.0, "values": []},
+              "normal": {"weight": 0.01, "values": []},
+              "laplacian": {"weight": 1.0, "values": []}}
+
+    def update_mesh_shape_prior_losses(mesh, loss):
+        loss["edge"] = mesh_edge_loss(mesh)
+        loss["normal"] = mesh_normal_consistency(mesh)
+        loss["laplacian"] = mesh_laplacian_smoothing(mesh, method="uniform")
+
+    verts_shape = src_mesh.verts_packed().shape
+    deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
+    optimizer = torch.optim.SGD([deform_verts], lr=1.0, momentum=0.9)
+    state = {"N": N, "src_mesh": src_mesh, "deform_verts": deform_verts, "losses": losses}
+    yield state
+    for i in range(Niter):
+        optimizer.zero_grad()
+        new_src_mesh = src_mesh.offset_verts(deform_verts)
+        loss = {k: torch.tensor(0.0, device=device) for k in losses}
+        update_mesh_shape_prior_losses(new_src_mesh, loss)
+        for j in np.random.permutation(num_views).tolist()[:num_views_per_iteration]:
+            images_predicted = renderer_silhouette(new_src_mesh, cameras=target_cameras[j],
+                                                   lights=lights)
+            predicted_silhouette = images_predicted[..., 3]
+            loss_silhouette = ((predicted_silhouette - target_silhouette[j]) ** 2).mean()
+            loss["silhouette"] += loss_silhouette / num_views_per_iteration
+        sum_loss = torch.tensor(0.0, device=device)
+        for k, l in loss.items():
+            sum_loss += l * losses[k]["weight"]
+            losses[k]["values"].append(float(l.detach().cpu()))
+        description = "total_loss = %.6f" % sum_loss
+        if plot_period and i % plot_period == 0:
+            visualize_prediction(new_src_mesh, title="iter: %d" % i, silhouette=True,
+                                 target_image=target_silhouette[1])
+        sum_loss.backward()
+        optimizer.step()
+        yield dict(state, i=i, description=description)
+    state["sil_values"] = losses["silhouette"]["values"]
+
+    renderer_textured = MeshRenderer(
+        rasterizer=MeshRasterizer(cameras=camera, raster_settings=raster_settings_soft),
+        shader=SoftPhongShader(device=device, cameras=camera, lights=lights))
+    losses = {"rgb": {"weight": 1.0, "values": []},
+              "silhouette": {"weight": 1.0, "values": []},
+              "edge": {"weight": 1.0, "values": []},
+              "normal": {"weight": 0.01, "values": []},
+              "laplacian": {"weight": 1.0, "values": []}}
+    deform_verts = torch.full(verts_shape, 0.0, device=device, requires_grad=True)
+    sphere_verts_rgb = torch.full([1, verts_shape[0], 3], 0.5, device=device, requires_grad=True)
+    optimizer = torch.optim.SGD([deform_verts, sphere_verts_rgb], lr=1.0, momentum=0.9)
+    state.update(losses=losses, sphere_verts_rgb=sphere_verts_rgb)
+    for i in range(Niter):
+        optimizer.zero_grad()
+        new_src_mesh = src_mesh.offset_verts(deform_verts)
+        new_src_mesh.textures = TexturesVertex(verts_features=sphere_verts_rgb)
+        loss = {k: torch.tensor(0.0, device=device) for k in losses}
+        update_mesh_shape_prior_losses(new_src_mesh, loss)
+        for j in np.random.permutation(num_views).tolist()[:num_views_per_iteration]:
+            images_predicted = renderer_textured(new_src_mesh, cameras=target_cameras[j],
+                                                 lights=lights)
+            predicted_silhouette = images_predicted[..., 3]
+            loss_silhouette = ((predicted_silhouette - target_silhouette[j]) ** 2).mean()
+            loss["silhouette"] += loss_silhouette / num_views_per_iteration
+            predicted_rgb = images_predicted[..., :3]
+            loss_rgb = ((predicted_rgb - target_rgb[j]) ** 2).mean()
+            loss["rgb"] += loss_rgb / num_views_per_iteration
+        sum_loss = torch.tensor(0.0, device=device)
+        for k, l in loss.items():
+            sum_loss += l * losses[k]["weight"]
+            losses[k]["values"].append(float(l.detach().cpu()))
+        if plot_period and i % plot_period == 0:
+            visualize_prediction(new_src_mesh, renderer=renderer_textured,
+                                 title="iter: %d" % i, silhouette=False)
+        sum_loss.backward()
+        optimizer.step()
+        yield dict(state, i=Niter + i, description=description)
+    final_verts, final_faces = new_src_mesh.get_mesh_verts_faces(0)
+    final_verts = final_verts * scale + center
+    if out_dir is not None:
+        final_obj = os.path.join(str(out_dir), "final_model.obj")
+        save_obj(final_obj, final_verts, final_faces)
+        state.update(final_obj=final_obj)
+    yield state
