@@ -1,7 +1,7 @@
-"""PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh) as
-written, imports changed to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
-benchmarks/pytorch3d_port.py runs at full size and tests/test_pytorch3d_tutorials.py at reduced
-size.
+"""PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh), and
+the model cells of tutorial 6 (fit_simple_neural_radiance_field), as written, imports changed to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
+benchmarks/pytorch3d_port.py runs at full size (benchmarks/peers/pytorch3d_tutorials.py runs
+tutorial 6's model on PyTorch itself) and tests/test_pytorch3d_tutorials.py at reduced size.
 
 Each tutorial is a generator: it yields once when the cells before the loop have run and then
 after each step of a loop (a dict of the notebook's variables), so that a caller can time the
@@ -40,7 +40,7 @@ from geofit.pytorch3d.structures import Meshes
 from geofit.pytorch3d.tutorial_utils import image_grid
 from geofit.pytorch3d.utils import ico_sphere
 
-__all__ = ["tutorial1", "tutorial4"]
+__all__ = ["tutorial1", "tutorial4", "tutorial6_cells"]
 
 
 def tutorial1(trg_obj: str, Niter: int, *, plot_period: int | None = None,
@@ -259,3 +259,99 @@ def tutorial4(obj_filename: str, image_size: int, Niter: int, *,
         save_obj(final_obj, final_verts, final_faces)
         state.update(final_obj=final_obj)
     yield state
+
+
+def tutorial6_cells(torch, renderer):
+    """Tutorial 6's cells that define its model and loss: ``(HarmonicEmbedding,
+    NeuralRadianceField, huber, sample_images_at_mc_locs)`` over ``torch`` (``geofit.pytorch3d.
+    torch``, or PyTorch itself for the peers' benchmark) and ``renderer`` (the module that holds
+    ``ray_bundle_to_ray_points`` and ``RayBundle``: ``geofit.pytorch3d.renderer`` or
+    ``pytorch3d.renderer``)."""
+    ray_bundle_to_ray_points, RayBundle = renderer.ray_bundle_to_ray_points, renderer.RayBundle
+
+    class HarmonicEmbedding(torch.nn.Module):
+        def __init__(self, n_harmonic_functions=60, omega0=0.1):
+            super().__init__()
+            self.register_buffer("frequencies",
+                                 omega0 * (2.0 ** torch.arange(n_harmonic_functions)))
+
+        def forward(self, x):
+            embed = (x[..., None] * self.frequencies).view(*x.shape[:-1], -1)
+            return torch.cat((embed.sin(), embed.cos()), dim=-1)
+
+    class NeuralRadianceField(torch.nn.Module):
+        def __init__(self, n_harmonic_functions=60, n_hidden_neurons=256):
+            super().__init__()
+            self.harmonic_embedding = HarmonicEmbedding(n_harmonic_functions)
+            embedding_dim = n_harmonic_functions * 2 * 3
+            self.mlp = torch.nn.Sequential(
+                torch.nn.Linear(embedding_dim, n_hidden_neurons),
+                torch.nn.Softplus(beta=10.0),
+                torch.nn.Linear(n_hidden_neurons, n_hidden_neurons),
+                torch.nn.Softplus(beta=10.0),
+            )
+            self.color_layer = torch.nn.Sequential(
+                torch.nn.Linear(n_hidden_neurons + embedding_dim, n_hidden_neurons),
+                torch.nn.Softplus(beta=10.0),
+                torch.nn.Linear(n_hidden_neurons, 3),
+                torch.nn.Sigmoid(),
+            )
+            self.density_layer = torch.nn.Sequential(
+                torch.nn.Linear(n_hidden_neurons, 1),
+                torch.nn.Softplus(beta=10.0),
+            )
+            self.density_layer[0].bias.data[0] = -1.5
+
+        def _get_densities(self, features):
+            raw_densities = self.density_layer(features)
+            return 1 - (-raw_densities).exp()
+
+        def _get_colors(self, features, rays_directions):
+            spatial_size = features.shape[:-1]
+            rays_directions_normed = torch.nn.functional.normalize(rays_directions, dim=-1)
+            rays_embedding = self.harmonic_embedding(rays_directions_normed)
+            rays_embedding_expand = rays_embedding[..., None, :].expand(
+                *spatial_size, rays_embedding.shape[-1])
+            color_layer_input = torch.cat((features, rays_embedding_expand), dim=-1)
+            return self.color_layer(color_layer_input)
+
+        def forward(self, ray_bundle, **kwargs):
+            rays_points_world = ray_bundle_to_ray_points(ray_bundle)
+            embeds = self.harmonic_embedding(rays_points_world)
+            features = self.mlp(embeds)
+            rays_densities = self._get_densities(features)
+            rays_colors = self._get_colors(features, ray_bundle.directions)
+            return rays_densities, rays_colors
+
+        def batched_forward(self, ray_bundle, n_batches=16, **kwargs):
+            n_pts_per_ray = ray_bundle.lengths.shape[-1]
+            spatial_size = [*ray_bundle.origins.shape[:-1], n_pts_per_ray]
+            tot_samples = ray_bundle.origins.shape[:-1].numel()
+            batches = torch.chunk(torch.arange(tot_samples), n_batches)
+            batch_outputs = [
+                self.forward(RayBundle(
+                    origins=ray_bundle.origins.view(-1, 3)[batch_idx],
+                    directions=ray_bundle.directions.view(-1, 3)[batch_idx],
+                    lengths=ray_bundle.lengths.view(-1, n_pts_per_ray)[batch_idx],
+                    xys=None)) for batch_idx in batches]
+            rays_densities, rays_colors = [
+                torch.cat([batch_output[output_i] for batch_output in batch_outputs],
+                          dim=0).view(*spatial_size, -1) for output_i in (0, 1)]
+            return rays_densities, rays_colors
+
+    def huber(x, y, scaling=0.1):
+        diff_sq = (x - y) ** 2
+        loss = ((1 + diff_sq / (scaling**2)).clamp(1e-4).sqrt() - 1) * float(scaling)
+        return loss
+
+    def sample_images_at_mc_locs(target_images, sampled_rays_xy):
+        ba = target_images.shape[0]
+        dim = target_images.shape[-1]
+        spatial_size = sampled_rays_xy.shape[1:-1]
+        images_sampled = torch.nn.functional.grid_sample(
+            target_images.permute(0, 3, 1, 2),
+            -sampled_rays_xy.view(ba, -1, 1, 2),  # note the sign inversion
+            align_corners=True)
+        return images_sampled.permute(0, 2, 3, 1).view(ba, *spatial_size, dim)
+
+    return HarmonicEmbedding, NeuralRadianceField, huber, sample_images_at_mc_locs

@@ -23,6 +23,7 @@ import pytest  # noqa: E402
 from _helpers import benchmark_module  # noqa: E402
 
 import geofit  # noqa: E402
+import geofit.pytorch3d.renderer as p3d_renderer  # noqa: E402
 import geofit.pytorch3d.torch as torch  # noqa: E402
 from geofit.fit.nerf import sample_images_at_xys  # noqa: E402
 from geofit.pytorch3d.io import load_obj, load_objs_as_meshes  # noqa: E402
@@ -45,12 +46,10 @@ from geofit.pytorch3d.renderer import (  # noqa: E402
     PointsRenderer,
     PulsarPointsRenderer,
     RasterizationSettings,
-    RayBundle,
     SoftPhongShader,
     TexturesVertex,
     VolumeRenderer,
     look_at_view_transform,
-    ray_bundle_to_ray_points,
 )
 from geofit.pytorch3d.structures import Meshes, Pointclouds, Volumes  # noqa: E402
 from geofit.pytorch3d.transforms import so3_exp_map, so3_exponential_map  # noqa: E402
@@ -62,7 +61,7 @@ from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
 )
 from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib  # noqa: E402
 
-#: Tutorials 1 and 4's cells: one copy, which benchmarks/pytorch3d_port.py runs at full size.
+#: Tutorials 1 and 4's cells and tutorial 6's model: one copy, which benchmarks/pytorch3d_port.py runs at full size.
 P3D = benchmark_module("_p3d_tutorials")
 
 
@@ -417,90 +416,8 @@ def test_tutorial6_fit_simple_neural_radiance_field():
                                      (4, 3, 12, 12, 12)), voxel_size=2.0 / 12))[0]
     target_images, target_silhouettes = truth[..., :3], truth[..., 3]
 
-    class HarmonicEmbedding(torch.nn.Module):
-        def __init__(self, n_harmonic_functions=60, omega0=0.1):
-            super().__init__()
-            self.register_buffer("frequencies",
-                                 omega0 * (2.0 ** torch.arange(n_harmonic_functions)))
-
-        def forward(self, x):
-            embed = (x[..., None] * self.frequencies).view(*x.shape[:-1], -1)
-            return torch.cat((embed.sin(), embed.cos()), dim=-1)
-
-    class NeuralRadianceField(torch.nn.Module):
-        def __init__(self, n_harmonic_functions=60, n_hidden_neurons=256):
-            super().__init__()
-            self.harmonic_embedding = HarmonicEmbedding(n_harmonic_functions)
-            embedding_dim = n_harmonic_functions * 2 * 3
-            self.mlp = torch.nn.Sequential(
-                torch.nn.Linear(embedding_dim, n_hidden_neurons),
-                torch.nn.Softplus(beta=10.0),
-                torch.nn.Linear(n_hidden_neurons, n_hidden_neurons),
-                torch.nn.Softplus(beta=10.0),
-            )
-            self.color_layer = torch.nn.Sequential(
-                torch.nn.Linear(n_hidden_neurons + embedding_dim, n_hidden_neurons),
-                torch.nn.Softplus(beta=10.0),
-                torch.nn.Linear(n_hidden_neurons, 3),
-                torch.nn.Sigmoid(),
-            )
-            self.density_layer = torch.nn.Sequential(
-                torch.nn.Linear(n_hidden_neurons, 1),
-                torch.nn.Softplus(beta=10.0),
-            )
-            self.density_layer[0].bias.data[0] = -1.5
-
-        def _get_densities(self, features):
-            raw_densities = self.density_layer(features)
-            return 1 - (-raw_densities).exp()
-
-        def _get_colors(self, features, rays_directions):
-            spatial_size = features.shape[:-1]
-            rays_directions_normed = torch.nn.functional.normalize(rays_directions, dim=-1)
-            rays_embedding = self.harmonic_embedding(rays_directions_normed)
-            rays_embedding_expand = rays_embedding[..., None, :].expand(
-                *spatial_size, rays_embedding.shape[-1])
-            color_layer_input = torch.cat((features, rays_embedding_expand), dim=-1)
-            return self.color_layer(color_layer_input)
-
-        def forward(self, ray_bundle, **kwargs):
-            rays_points_world = ray_bundle_to_ray_points(ray_bundle)
-            embeds = self.harmonic_embedding(rays_points_world)
-            features = self.mlp(embeds)
-            rays_densities = self._get_densities(features)
-            rays_colors = self._get_colors(features, ray_bundle.directions)
-            return rays_densities, rays_colors
-
-        def batched_forward(self, ray_bundle, n_batches=16, **kwargs):
-            n_pts_per_ray = ray_bundle.lengths.shape[-1]
-            spatial_size = [*ray_bundle.origins.shape[:-1], n_pts_per_ray]
-            tot_samples = ray_bundle.origins.shape[:-1].numel()
-            batches = torch.chunk(torch.arange(tot_samples), n_batches)
-            batch_outputs = [
-                self.forward(RayBundle(
-                    origins=ray_bundle.origins.view(-1, 3)[batch_idx],
-                    directions=ray_bundle.directions.view(-1, 3)[batch_idx],
-                    lengths=ray_bundle.lengths.view(-1, n_pts_per_ray)[batch_idx],
-                    xys=None)) for batch_idx in batches]
-            rays_densities, rays_colors = [
-                torch.cat([batch_output[output_i] for batch_output in batch_outputs],
-                          dim=0).view(*spatial_size, -1) for output_i in (0, 1)]
-            return rays_densities, rays_colors
-
-    def huber(x, y, scaling=0.1):
-        diff_sq = (x - y) ** 2
-        loss = ((1 + diff_sq / (scaling**2)).clamp(1e-4).sqrt() - 1) * float(scaling)
-        return loss
-
-    def sample_images_at_mc_locs(target_images, sampled_rays_xy):
-        ba = target_images.shape[0]
-        dim = target_images.shape[-1]
-        spatial_size = sampled_rays_xy.shape[1:-1]
-        images_sampled = torch.nn.functional.grid_sample(
-            target_images.permute(0, 3, 1, 2),
-            -sampled_rays_xy.view(ba, -1, 1, 2),  # note the sign inversion
-            align_corners=True)
-        return images_sampled.permute(0, 2, 3, 1).view(ba, *spatial_size, dim)
+    HarmonicEmbedding, NeuralRadianceField, huber, sample_images_at_mc_locs = \
+        P3D.tutorial6_cells(torch, p3d_renderer)
 
     raysampler_mc = MonteCarloRaysampler(min_x=-1.0, max_x=1.0, min_y=-1.0, max_y=1.0,
                                          n_rays_per_image=64, n_pts_per_ray=16, min_depth=0.1,

@@ -223,50 +223,10 @@ def peer_fit_volume(steps: int | None, quick: bool) -> list[MethodRun]:
 
 
 # ----------------------------------------------------------------------------- tutorial 6
-def _tutorial_nerf():
-    """The tutorial's NeuralRadianceField (60 harmonics, omega_0 0.1, 2 x 256 Softplus(10))."""
-    import torch
-
-    class Harmonic(torch.nn.Module):
-        def __init__(self, n=60, omega0=0.1):
-            super().__init__()
-            self.register_buffer("f", omega0 * (2.0 ** torch.arange(n)), persistent=False)
-
-        def forward(self, x):
-            e = (x[..., None] * self.f).view(*x.shape[:-1], -1)
-            return torch.cat((e.sin(), e.cos()), dim=-1)
-
-    class NeRF(torch.nn.Module):
-        def __init__(self, n_harmonic=60, n_hidden=256):
-            super().__init__()
-            self.harmonic = Harmonic(n_harmonic)
-            d = n_harmonic * 2 * 3
-            self.mlp = torch.nn.Sequential(torch.nn.Linear(d, n_hidden),
-                                           torch.nn.Softplus(beta=10.0),
-                                           torch.nn.Linear(n_hidden, n_hidden),
-                                           torch.nn.Softplus(beta=10.0))
-            self.color = torch.nn.Sequential(torch.nn.Linear(n_hidden + d, n_hidden),
-                                             torch.nn.Softplus(beta=10.0),
-                                             torch.nn.Linear(n_hidden, 3), torch.nn.Sigmoid())
-            self.density = torch.nn.Sequential(torch.nn.Linear(n_hidden, 1),
-                                               torch.nn.Softplus(beta=10.0))
-            self.density[0].bias.data[0] = -1.5
-
-        def forward(self, ray_bundle, **kwargs):
-            from pytorch3d.renderer import ray_bundle_to_ray_points
-
-            pts = ray_bundle_to_ray_points(ray_bundle)
-            feats = self.mlp(self.harmonic(pts))
-            dens = 1 - (-self.density(feats)).exp()
-            dirs = torch.nn.functional.normalize(ray_bundle.directions, dim=-1)
-            de = self.harmonic(dirs)[..., None, :].expand(*feats.shape[:-1], -1)
-            return dens, self.color(torch.cat((feats, de), dim=-1))
-
-    return NeRF()
-
-
 def peer_nerf(steps: int | None, quick: bool) -> list[MethodRun]:
+    import pytorch3d.renderer as p3d_renderer
     import torch
+    from _p3d_tutorials import tutorial6_cells
     from pytorch3d.renderer import (EmissionAbsorptionRaymarcher, ImplicitRenderer,
                                     MonteCarloRaysampler)
 
@@ -281,7 +241,8 @@ def peer_nerf(steps: int | None, quick: bool) -> list[MethodRun]:
                                         n_rays_per_image=750, n_pts_per_ray=128,
                                         min_depth=0.1, max_depth=3.0),
         raymarcher=EmissionAbsorptionRaymarcher())
-    model = _tutorial_nerf()
+    # the tutorial's NeuralRadianceField (60 harmonics, omega_0 0.1, 2 x 256 Softplus(10))
+    model = tutorial6_cells(torch, p3d_renderer)[1]()
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)
     images = torch.as_tensor(data.images, dtype=torch.float32)
     sils = torch.as_tensor(data.silhouettes, dtype=torch.float32)[..., None]
