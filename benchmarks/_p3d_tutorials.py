@@ -1,5 +1,6 @@
 """PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh), and
-the model cells of tutorial 6 (fit_simple_neural_radiance_field), as written, imports changed to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
+the model cells of tutorial 6 (fit_simple_neural_radiance_field), as written, imports changed
+to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
 benchmarks/pytorch3d_port.py runs at full size (benchmarks/peers/pytorch3d_tutorials.py runs
 tutorial 6's model on PyTorch itself) and tests/test_pytorch3d_tutorials.py at reduced size.
 

@@ -3,11 +3,11 @@
 Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``, ``import torch``
 -> ``import geofit.pytorch3d.torch as torch``, the tutorials' helper files ->
 :mod:`geofit.pytorch3d.tutorial_utils`; the six notebooks' imports gathered once at the top of
-this file (tutorials 1 and 4's cells live in benchmarks/_p3d_tutorials.py, which the benchmark
-runs at full size); sizes reduced (steps, images, samples); data: geofit's procedural stand-ins written
-as OBJ files into ``tmp_path`` (the tests run offline). Each test then checks something the
-tutorial relies on. ``tests/test_pytorch3d_notebooks.py`` runs
-PyTorch3D's own notebooks the same way when they are given.
+this file; tutorials 1 and 4's cells and tutorial 6's model live in benchmarks/_p3d_tutorials.py
+(one copy, which the benchmarks also run); sizes reduced (steps, images, samples); data:
+geofit's procedural stand-ins written as OBJ files into ``tmp_path`` (the tests run offline).
+Each test then checks something the tutorial relies on. ``tests/test_pytorch3d_notebooks.py``
+runs PyTorch3D's own notebooks the same way when they are given.
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
 )
 from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib  # noqa: E402
 
-#: Tutorials 1 and 4's cells and tutorial 6's model: one copy, which benchmarks/pytorch3d_port.py runs at full size.
+#: Tutorials 1 and 4's cells and tutorial 6's model: one copy, which the benchmarks also run.
 P3D = benchmark_module("_p3d_tutorials")
 
 
