@@ -275,11 +275,11 @@ def test_chamfer_target_reuses_its_tree():
         x = rng.normal(size=(200, 3)) + 0.1 * k
         v, g = t.loss(x)
         if k == 0:
-            tree = index._scipy
+            tree = index._pykdtree  # "auto" on small clouds
         r = chamfer_distance(x, y)
         assert_allclose(v, r.loss, rtol=1e-14)
         assert_allclose(g, r.grad_x, rtol=1e-14, atol=1e-18)
-    assert t._index is index and index._scipy is tree and tree is not None and len(t) == 300
+    assert t._index is index and index._pykdtree is tree and tree is not None and len(t) == 300
     assert "300" in repr(t)
 
 
@@ -484,7 +484,7 @@ def _brute_nearest_sqdist(p, q):
     return d.min(axis=1)
 
 
-@pytest.mark.parametrize("backend", ["scipy", "open3d", "auto"])
+@pytest.mark.parametrize("backend", ["scipy", "open3d", "pykdtree", "auto"])
 @pytest.mark.parametrize("offset", [0.0, 3.0])
 def test_backends_find_the_exact_nearest_neighbours(backend, offset):
     """Each backend's neighbours have the brute-force distances, overlapping or far apart."""
@@ -523,20 +523,25 @@ def test_backends_agree_on_values_and_gradients():
     forced.nearest(x, 2)
     assert forced._open3d is not None and forced._scipy is None
     small = ch._NearestIndex(y[:100], "auto")
-    small.nearest(x[:100], 2)
-    assert small._scipy is not None and small._open3d is None
+    small.nearest(x[:100], 2)  # small clouds: pykdtree
+    assert small._pykdtree is not None and small._scipy is None and small._open3d is None
     l1 = ch._NearestIndex(y, "auto")
     l1.nearest(x, 1)  # L1: scipy only
-    assert l1._scipy is not None and l1._open3d is None
+    assert l1._scipy is not None and l1._open3d is None and l1._pykdtree is None
+    l1 = ch._NearestIndex(y[:100], "auto")
+    l1.nearest(x[:100], 1)
+    assert l1._scipy is not None and l1._pykdtree is None
 
 
 def test_backend_validation():
-    """An unknown backend, or Open3D with the L1 norm, raises naming the backend."""
+    """An unknown backend, or Open3D or pykdtree with the L1 norm, raises naming the backend."""
     x = np.zeros((2, 3))
     with pytest.raises(ValueError, match="backend"):
         chamfer_distance(x, x, backend="faiss")
     with pytest.raises(ValueError, match="backend: 'open3d' has no L1"):
         chamfer_distance(x, x, backend="open3d", norm=1)
+    with pytest.raises(ValueError, match="backend: 'pykdtree' has no L1"):
+        chamfer_distance(x, x, backend="pykdtree", norm=1)
     with pytest.raises(ValueError, match="backend"):
         ChamferTarget(x, backend="kd")
     with pytest.raises(ValueError, match="backend"):

@@ -243,6 +243,29 @@ def test_one_blas_thread_restores_after_overlapping_threads(clean_policy):
     assert _threads.blas_threads() == before
 
 
+def test_one_openmp_thread_is_per_thread_and_restores():
+    """Inside the block the calling thread's OpenMP runtimes report one thread, another thread
+    keeps its own count, and the count is back after the block."""
+    import threadpoolctl
+    import pykdtree.kdtree  # noqa: F401  (loads an OpenMP runtime, libgomp)
+
+    def omp(ctl=None):
+        ctl = ctl or threadpoolctl.ThreadpoolController()
+        return [lib.num_threads for lib in ctl.lib_controllers if lib.user_api == "openmp"]
+
+    before = omp()
+    assert before, "no OpenMP runtime loaded"
+    other = []
+    with _threads.one_openmp_thread():
+        inside = omp()
+        t = threading.Thread(target=lambda: other.append(omp()))
+        t.start()
+        t.join()
+    assert inside == [1] * len(before)
+    assert other == [before]  # OpenMP's count is per thread: the other thread is untouched
+    assert omp() == before
+
+
 # ------------------------------------------------------------------ one home per concept
 
 _THREAD_RULES = [

