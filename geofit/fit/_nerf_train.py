@@ -343,16 +343,13 @@ class _Solver:
         self.initial = None
         self.restored = False  # a checkpoint's parameters were put back
         self.last_render = None  # (step, renders, PSNR, loss) of the last checkpoint
-        reserve = 0.0  # with a time budget: the time of the final held-out render
+        self.render_seconds = 0.0  # the longest held-out render so far (budget seconds)
         if self.test is not None:
             # the untrained network's held-out loss: the reference. With a time budget the
             # held-out renders are charged to it (the budget is wall-clock), and the training
-            # stops early enough for the final render (timed on this one) to fit in
-            t0 = clock.elapsed()
+            # stops early enough for the final render (timed on the renders so far) to fit in
             with self.observer():
-                self.initial = self.evaluate()[2]
-            if self.time_budget is not None:
-                reserve = clock.elapsed() - t0
+                self.initial = self.timed_evaluate()[2]
         next_eval = self.every
         status, message = "max_iter", f"completed {cfg.n_iter} steps"
         for step in range(1, cfg.n_iter + 1):  # Adam steps
@@ -361,9 +358,13 @@ class _Solver:
                 status, message = stop
                 break
             self.tick(step, seconds, loss)
+            # the budget's clock (Clock.remaining): the training leaves the final render's time
             out_of_time = self.time_budget is not None and \
-                seconds >= self.time_budget - reserve
+                clock.remaining() <= self.render_seconds
             due = (seconds >= next_eval) if self.every_seconds else (step >= next_eval)
+            if due and not out_of_time and self.time_budget is not None and \
+                    clock.remaining() <= 2.0 * self.render_seconds:
+                out_of_time = True  # this checkpoint's render would leave none for the last
             if due or out_of_time or step == cfg.n_iter:
                 next_eval += self.every
                 if self.checkpoint(step, loss):
@@ -433,6 +434,13 @@ class _Solver:
             return last[1], last[2], last[3]
         return self.evaluate()
 
+    def timed_evaluate(self):
+        """:meth:`evaluate`, keeping the longest render time (what the budget reserves)."""
+        t0 = self.clock.budget_elapsed()
+        out = self.evaluate()
+        self.render_seconds = max(self.render_seconds, self.clock.budget_elapsed() - t0)
+        return out
+
     def evaluate(self):
         """Full renders of the held-out views, their PSNR and Huber loss (None, None when
         rendered at another size)."""
@@ -457,7 +465,7 @@ class _Solver:
             seconds = clock.elapsed()
             metrics = None
             if self.test is not None:
-                imgs, p, hl = self.evaluate()
+                imgs, p, hl = self.timed_evaluate()
                 self.last_render = (step, imgs, p, hl)  # reused by final_render
                 metrics = {"psnr": p, "held_out_loss": hl}
                 if hl < best["loss"]:
@@ -471,4 +479,5 @@ class _Solver:
                 return False
             info = StepInfo(step, step, self.field.get_flat(), float(loss), seconds,
                             metrics=metrics)
-            return bool(self.callback(info))
+            with clock.paused(caller=True):
+                return bool(self.callback(info))
