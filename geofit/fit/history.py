@@ -95,6 +95,7 @@ class Clock:
         self._caller_total = 0.0
         self._caller_at: float | None = None
         self.deadline: float | None = deadline
+        self.budget: float | None = deadline  # the fit's whole budget (deadline: a stage's)
 
     def wall(self) -> float:
         """Wall-clock seconds since construction, nothing excluded."""
@@ -120,7 +121,31 @@ class Clock:
         """Raise :class:`TimeUp` when the clock has passed its ``deadline`` (not while the
         caller's code runs: a pause with ``caller=True``)."""
         if self._caller_at is None and self.over():
-            raise TimeUp(f"reached the time budget of {self.deadline:g} s")
+            raise TimeUp(self.status_words())
+
+    def status_words(self, steps: int | None = None) -> str:
+        """``"reached the time budget of 30 s[ after N steps]"``, or, inside :meth:`until`,
+        ``"reached the end of this stage's share (27 s) of the time budget of 30 s"``."""
+        after = "" if steps is None else f" after {steps} steps"
+        if self.deadline is not None and self.budget is not None and \
+                self.deadline < self.budget:
+            return (f"reached the end of this stage's share ({self.deadline:.3g} s) of the "
+                    f"time budget of {self.budget:g} s{after}")
+        return f"reached the time budget of {self.deadline:g} s{after}"
+
+    @contextmanager
+    def until(self, seconds: float | None) -> Iterator[None]:
+        """Context manager: a stage's own deadline (budget seconds), when earlier than the
+        fit's, for the stage's solves and checks; the fit's deadline is back afterwards.
+        A stage that must leave time to the stages after it runs inside
+        ``clock.until(clock.deadline - reserve)``."""
+        saved = self.deadline
+        if seconds is not None and (saved is None or seconds < saved):
+            self.deadline = float(seconds)
+        try:
+            yield
+        finally:
+            self.deadline = saved
 
     def elapsed(self) -> float:
         """Solver seconds: wall-clock seconds since construction, minus the paused intervals."""

@@ -410,6 +410,8 @@ def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = N
     images_out = p_final = None
     if test is not None:
         images_out, p_final, _ = solver.final_render()
+    if solver.skipped:
+        message += f"; left out to keep the time budget: {', '.join(solver.skipped)}"
     return NerfFitResult(
         status=status, message=message, history=solver.history, n_params=field.n_params,
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_steps,

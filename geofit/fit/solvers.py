@@ -182,11 +182,12 @@ class _Tracker:
     def time_up(self, budget: float | None = None) -> str:
         """The status message of a used-up time budget (``budget``: the solver's own, when the
         tracker was not given it)."""
-        for b in (self.clock.deadline, self.time_budget, budget):
-            if b is not None:
-                budget = b
-                break
-        return f"{budget_status(budget, self.n_iter)} ({self.seconds():.1f} s of this solve)"
+        if self.clock.deadline is not None:
+            words = self.clock.status_words(self.n_iter)
+        else:
+            words = budget_status(self.time_budget if self.time_budget is not None else budget,
+                                  self.n_iter)
+        return f"{words} ({self.seconds():.1f} s of this solve)"
 
     def iteration(self, x: np.ndarray, value: float) -> None:
         """Count an iteration and run the callback (raises _Stop when it asks to stop)."""

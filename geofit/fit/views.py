@@ -74,7 +74,7 @@ from ._progress import NoBar, progress_bar
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import REG_TERMS, _ContourObjective, _lstsq_colors, _Objective
-from .history import Clock, FitHistory, FitResult, budget_status
+from .history import Clock, FitHistory, FitResult
 from .large_steps import vertex_parameterization
 from .solvers import StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
@@ -444,7 +444,13 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
     run = _Solver(plan, seed=seed, evaluator=evaluator, eval_every=eval_every,
                   callback=callback, progress=progress)
     initial_mesh(plan, run)
-    sil_mesh = _silhouette_stage(plan, run) if plan.silhouette_method != "none" else plan.init
+    sil_mesh = plan.init
+    if plan.silhouette_method != "none":
+        # the silhouette stage (its checks inside evaluations too) ends where the final
+        # stage's share of the budget begins
+        with run.clock.until(None if plan.time_budget is None
+                             else plan.time_budget - plan.final_reserve()):
+            sil_mesh = _silhouette_stage(plan, run)
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
                                            ("nonfinite", "failed")):
@@ -620,8 +626,8 @@ def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
     mesh = plan.init
     status, message = "max_iter", ""
     stop = False
-    if plan.time_budget is not None and run.clock.over():  # e.g. spent carving the hull
-        status, message = "time_budget", budget_status(plan.time_budget, 0)
+    if run.clock.over():  # e.g. spent carving the hull
+        status, message = "time_budget", run.clock.status_words(0)
         stop = True
     for li, (sub, fac) in enumerate(sub_levels):  # coarse-to-fine levels
         if stop:
@@ -639,12 +645,10 @@ def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
             weights["edge"] *= r * r
             weights["laplacian"] *= r
         for ri in range(rounds):  # remesh-and-solve rounds
-            if plan.time_budget is not None and \
-                    plan.remaining(run.clock) <= plan.final_reserve():
-                # the rest of the budget is the final stage's: no remeshing, no solve
-                status = "time_budget"
-                message = budget_status(plan.time_budget, run.step) + \
-                    f" (the last {plan.final_reserve():.3g} s left to the final stage)"
+            if run.clock.over():
+                # the rest of the budget is the final stage's (Clock.until): no remeshing,
+                # no solve
+                status, message = "time_budget", run.clock.status_words(run.step)
                 stop = True
                 break
             if plan.remesh_rounds:
@@ -656,8 +660,7 @@ def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
             k = li * rounds + ri
             budget = None
             if plan.time_budget is not None:
-                left = plan.remaining(run.clock) - plan.final_reserve()
-                budget = max(left / (n_solves - k), 1e-3)
+                budget = max(plan.remaining(run.clock) / (n_solves - k), 1e-3)
             obj = _silhouette_objective(plan, run, mesh, data, weights)
             iters = max(1, round(plan.silhouette_iters * fac / (rounds * total_fac)))
             mesh, res = _silhouette_solve(plan, run, obj, mesh, li, iters, budget)
