@@ -66,7 +66,7 @@ from __future__ import annotations
 from ._options import METHODS as METHOD_NAMES
 from ._options import RECIPE_NAMES
 from ._scan_report import DataReport
-from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
+from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult, TimeUp
 from .mesh import (
     ADAPTIVE_WEIGHTS,
     FINE_WEIGHTS,
@@ -111,6 +111,7 @@ __all__ = [
     "Remeshing",
     "SolveResult",
     "StepInfo",
+    "TimeUp",
     "ViewsFitOptions",
     "ViewsFitResult",
     "VolumeFitOptions",

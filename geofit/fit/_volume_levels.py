@@ -124,9 +124,15 @@ class _Solver:
         status, message = "max_iter", ""
         for li, (level, n_iter_level) in enumerate(zip(o.levels, o.iterations)):  # levels
             t_level = self.clock.elapsed()
-            if self.clock.over():
+            # a level's set-up is not interruptible: under a time budget, a level whose set-up
+            # (the last one's, scaled by the samples, ~ level^3) would not fit is not begun
+            guess = 0.0 if not self.stages else self.stages[-1].get("setup_seconds", 0.0) * \
+                (level / self.stages[-1]["level"]) ** 3
+            if self.clock.over() or (li > 0 and self.clock.remaining() < guess):
                 status = "time_budget"  # no time to set the next level up
                 message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
+                if not self.clock.over():
+                    message += f" (its set-up would take about {guess:.3g} s)"
                 break
             x0, info = self.setup_level(li, level)
             remaining = None if o.time_budget is None else self.clock.remaining()
