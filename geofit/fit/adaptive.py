@@ -202,8 +202,9 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         remaining = None  # what is left after building the objective
         if time_budget is not None:
             remaining = max(clock.remaining() - reserve, 1e-6)
-        res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=plan.n_iter,
-                          time_budget=remaining, callback=cb, clock=clock)
+        with clock.until(None if time_budget is None else time_budget - reserve):
+            res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=plan.n_iter,
+                              time_budget=remaining, callback=cb, clock=clock)
         evals += res.n_evaluations
         mesh = mesh.update_verts(obj.verts_from_params(res.x))
         if last_ckpt != evals:

@@ -283,6 +283,16 @@ class NerfFitResult(FitResult):
     psnr: float | None = None
     images: np.ndarray | None = None
 
+    def render(self, cameras: CamerasBase, image_size) -> np.ndarray:
+        """(N, H, W, 4) float64 full-image renders (RGB, opacity) of :attr:`field` from
+        ``cameras`` with the fit's sampling and occupancy (:func:`render_nerf`): e.g. the
+        held-out views when the time budget left their final render out (``images`` None)."""
+        c = self.config
+        return render_nerf(self.field, cameras, image_size, n_pts_per_ray=c.n_pts_per_ray,
+                           min_depth=c.min_depth, max_depth=c.max_depth,
+                           occupancy=self.occupancy, chunk_rays=c.chunk_rays,
+                           n_threads=c.n_threads)
+
     def summary(self) -> dict[str, Any]:
         d = super().summary()
         d.update({"samples_per_ray": self.samples_per_ray, "psnr": self.psnr, "config": {f.name: getattr(self.config, f.name)
