@@ -104,7 +104,11 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
     per = 7 * np.dtype(field.dtype).itemsize * field.config["n_hidden_neurons"]  # B/sample
     check_allocation(per * min(chunk_rays, r) * n_pts_per_ray * n_threads, "chunk_rays and "
                      "n_pts_per_ray", "the network activations of one chunk of rays per thread")
+    if check is not None:
+        check()
     bundle = sampler(cameras)
+    if check is not None:
+        check()
     flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
     r = flat.origins.shape[0]
     chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]

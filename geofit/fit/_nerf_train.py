@@ -462,6 +462,8 @@ class _Solver:
         ``limit`` (budget seconds) the render stops there and None is returned."""
         clock = self.clock
         t0 = clock.budget_elapsed()
+        if limit is not None and t0 >= limit:  # no time: not even the rays are made
+            return None
         check = None
         if limit is not None:
             def check():
