@@ -282,9 +282,10 @@ class ViewsFitResult(FitResult):
         The initialisation used: ``"hull"`` (visual hull), ``"sphere"`` or ``"user"``.
     init_mesh : Mesh
         The starting mesh.
-    topology : geofit.ops.TopologyReport
+    topology : geofit.ops.TopologyReport or None
         Genus, boundary loops, parts, non-manifold edges and self-intersecting face pairs of
-        the fitted mesh (a self-intersecting result says so in ``message``).
+        the fitted mesh (a self-intersecting result says so in ``message``); None when the
+        time budget was used up before it could be checked.
     """
 
     mesh: Mesh = None
@@ -805,11 +806,15 @@ def _views_result(plan: _Plan, run: _Solver, mesh: Mesh, colors,
 
     msg = "; ".join(f"{s['name']} ({s['method']}): {s['status']} - {s['message']}"
                     for s in run.stages)
-    with run.clock.paused():
-        topo = topology(Mesh(mesh.verts, mesh.faces))
-    msg = f"init: {plan.init_info.get('description', plan.init_name)}; {msg}; result: " \
-          f"{topo.describe()}"
-    if topo.n_self_intersecting_pairs > 0:
+    # the topology report needs Open3D (its first import takes seconds under load): not
+    # once the time budget is used up
+    topo = None
+    if not run.clock.over():
+        with run.clock.paused():
+            topo = topology(Mesh(mesh.verts, mesh.faces))
+    msg = f"init: {plan.init_info.get('description', plan.init_name)}; {msg}; result: " + \
+        (topo.describe() if topo is not None else "topology not checked (no time left)")
+    if topo is not None and topo.n_self_intersecting_pairs > 0:
         msg += " (the fitted surface self-intersects)"
     return ViewsFitResult(status=final, message=msg, history=run.history,
                           n_params=mesh.n_verts * (6 if colors is not None else 3),
