@@ -10,7 +10,8 @@ strays against Open3D's screened Poisson, see ``benchmarks/_scans.py``):
     shape: the tutorial's dolphin (``GEOFIT_DATA=/path/to/data``), ``$GEOFIT_DATA/shapes/*.obj``
     (fandisk, teapot, suzanne, woody, ogre; never committed) and
     :data:`geofit.shapes.TEST_SHAPES` (torus, double torus, open cylinder, thin plate, two
-    spheres). Every alternative gets the default's 10 s time budget. The default also runs
+    spheres). Every alternative gets a 10 s time budget; the default runs as called (no
+    budget: it stops on its own tests). The default also runs
     with a second seed on ``--noise-shapes``; an alternative that beats the default by more
     than that run-to-run noise is flagged. Writes ``fit_mesh_shapes.json``,
     ``fit_mesh_shapes.md`` and one accuracy-against-time chart ``fit_mesh_shapes_<shape>.png``
@@ -211,7 +212,8 @@ def shape_fit(fit: str, target: Mesh, evaluator, seed: int, budget: float):
     from geofit.fit import MeshFitOptions, Remeshing
     from geofit.ops import sample_points_from_meshes
 
-    tb = {} if budget == SHAPE_TIME else {"time_budget": budget}  # the default's own is 10 s
+    # the default as a user calls it (no budget: it stops on its own tests) unless --budget
+    tb = {} if budget == SHAPE_TIME else {"time_budget": budget}
     alt = {"time_budget": budget, "progress": False, "evaluator": evaluator, "seed": seed}
     if fit == "default":
         return fit_mesh(target, evaluator=evaluator, seed=seed, **tb)
@@ -492,7 +494,7 @@ STABILITY_SHAPES = ("torus", "double_torus", "open_cylinder", "two_spheres", "su
 def scenario(mode: str, name: str, target: Mesh, quick: bool):
     """(source, target input, fit_mesh kwargs, reference mesh for scoring) of one cell.
 
-    The default is ``fit_mesh(target)`` with its own settings (its 10 s budget);
+    The default is ``fit_mesh(target)`` with its own settings (no time budget);
     its ``step_x100`` multiplies all its weights by 100, its degenerate start is the collapsed
     ``ico_sphere(4)`` given as ``init``."""
     from geofit.fit import ADAPTIVE_WEIGHTS
@@ -576,7 +578,7 @@ def stability_markdown(rows, budget: float, loads) -> str:
     text = ["# fit_mesh stability", "",
             ("Each method (its benchmark recipe from the tutorial's sphere; SGD/Adam shortened "
              f"to 500 steps; {budget:g} s time budget) on each failure mode of the dolphin, and "
-             "the default `fit_mesh(target)` (its own 10 s budget) on the "
+             "the default `fit_mesh(target)` (no time budget) on the "
              "dolphin and on test shapes (genus 1 and 2, open, several parts). Outcome: "
              "`converged`, `stopped: <status>` (see `geofit.fit.STATUSES`) or "
              "`failed: <exception>`; cd = chamfer-L2 and F = F-score@0.01 in the reference's "

@@ -54,15 +54,35 @@ def test_options_are_frozen_and_recipes_are_presets(cls, recipes):
     assert all(isinstance(r, cls) for r in recipes.values())
 
 
-def test_clock_check_raises_past_the_deadline_but_not_while_paused():
+def test_clock_check_raises_past_the_deadline_but_not_in_the_callers_code():
+    """The budget counts the fit's own paused work (metrics, renders), not the caller's
+    evaluator or callback (a pause with caller=True)."""
     clock = Clock()
     clock.check()  # no deadline: never
     clock.deadline = 0.0
     time.sleep(0.01)
-    with clock.paused():
-        clock.check()  # the observer's time is not the solver's
+    with clock.paused(caller=True):
+        clock.check()  # the caller's code runs: it cannot be interrupted
+    with clock.paused(), pytest.raises(TimeUp, match="time budget of 0 s"):
+        clock.check()  # the fit's own observer work counts
     with pytest.raises(TimeUp, match="time budget of 0 s"):
         clock.check()
+
+
+def test_clock_readings_budget_between_solver_and_wall():
+    """elapsed (solver) <= budget_elapsed <= wall; a caller's pause leaves the budget, a
+    fit's own pause only the solver's time; remaining counts down the budget's seconds."""
+    clock = Clock(deadline=10.0)
+    with clock.paused():
+        time.sleep(0.05)
+    with clock.paused(caller=True):
+        time.sleep(0.05)
+    with clock.paused(caller=True), clock.paused():  # nested: still the caller's
+        time.sleep(0.05)
+    wall, budget, solver = clock.wall(), clock.budget_elapsed(), clock.elapsed()
+    assert solver < 0.04 and 0.05 <= budget < 0.09 and wall >= 0.15
+    assert 9.9 < clock.remaining() <= 10.0 - budget + 1e-3
+    assert Clock().remaining() == float("inf") and not Clock().over()
 
 
 @pytest.mark.parametrize("solver", [lbfgs_scipy, sgd])

@@ -258,10 +258,18 @@ def metric_line(metrics: dict) -> str:
     return ", ".join(items)
 
 
+def timing_line(res) -> str:
+    """``fit: 30.2 s wall, 41.0 s CPU (solver 25.1 s)`` of a fit's result (the wall and CPU
+    seconds of the whole call, what a ``--time-budget`` bounds, and the solver's share)."""
+    return (f"fit: {res.wall_seconds:.1f} s wall, {res.total_cpu_seconds:.1f} s CPU (solver "
+            f"{res.seconds:.1f} s)")
+
+
 def finish(command: str, res, metrics: dict, out: Path) -> int:
     """Print ``geofit COMMAND: status (message); wrote OUT`` and then the metrics; the exit
     code: 0 when the fit ``res`` succeeded, else 1."""
     print(f"geofit {command}: {res.status} ({res.message}); wrote {out}")
+    print(f"geofit {command}: {timing_line(res)}")
     print(f"geofit {command}: metrics: {metric_line(metrics)}")
     return 0 if res.ok else 1
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_command, add_fit_options, fit_kwargs, out_dir, write_json, wrote
+from ._common import (add_command, add_fit_options, fit_kwargs, out_dir, timing_line,
+                      write_json, wrote)
 
 __all__ = ["API", "OPTIONS", "register", "run"]
 
@@ -99,9 +100,8 @@ def run(args: argparse.Namespace) -> int:
     hist["final_metrics"] = metrics
     write_json(out / "fit_mesh_history.json", hist)
     wrote(obj_path, out / "fit_mesh_history.json")
-    print(f"geofit fit-mesh: {res.status} ({res.message}); {res.n_iterations} iterations, "
-          f"{res.seconds:.2f} s (CPU {res.cpu_seconds:.2f} s); {res.n_verts} vertices, "
-          f"{res.mesh.n_faces} faces")
+    print(f"geofit fit-mesh: {res.status} ({res.message}); {res.n_iterations} iterations; "
+          f"{timing_line(res)}; {res.n_verts} vertices, {res.mesh.n_faces} faces")
     if metrics:
         print("geofit fit-mesh: accuracy (normalised frame): "
               f"chamfer-L2 {metrics['chamfer_l2']:.3e}, chamfer-L1 {metrics['chamfer_l1']:.4f}, "

@@ -19,7 +19,8 @@ import time
 
 from .._atomic import atomic_write
 from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, fit_kwargs,
-                      metric_line, out_dir, save_png, tutorial_data, write_json)
+                      metric_line, out_dir, save_png, timing_line, tutorial_data,
+                      write_json)
 
 __all__ = ["API", "OPTIONS", "register", "run"]
 
@@ -66,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
               f"{s['message']}")
     print(f"wrote {dest / 'fit_views.obj'}, fit_views.json, fit_views.png")
     print(f"geofit fit-views: {fit.status} ({fit.message}); {fit.mesh.n_verts} vertices")
+    print(f"geofit fit-views: {timing_line(fit)}")
     print(f"geofit fit-views: held-out metrics: {metric_line(metrics)}")
     return 0 if fit.ok else 1
 

@@ -20,14 +20,20 @@ object; the fields of ``options`` that are set (not None) override the preset. E
 Monitoring, the same everywhere: ``evaluator`` (metrics at checkpoints, the clock paused),
 ``eval_every`` (steps between checkpoints), ``callback(StepInfo) -> bool | None`` (True stops the
 fit with status ``"callback"``), ``progress`` (a tqdm bar). ``time_budget`` is wall-clock
-seconds for the whole fit (checkpoints excluded); ``seed`` the randomness.
+seconds for the whole fit, everything the fit does on its own included (set-up, visual hulls,
+its default metrics and held-out renders, final stages); not counted: the time spent in the
+evaluator and callback you pass (:class:`Clock`: ``deadline``, ``until`` for a stage's share,
+``check`` inside long stages). No fit has a time budget unless you give one: the defaults stop
+on their own iteration and convergence tests, so the same call gives the same result on any
+load. ``seed`` is the randomness.
 
 Inside, every fit has the same stages: the data are checked and normalised once at the door
 (``as_target`` / ``_as_dataset``), the recipe and options become a plan (``plan`` / ``_Plan``),
 an objective (``MeshObjective``, ``_Objective``) is handed to a solver (``_Solver``, or the
 solvers of :mod:`geofit.fit.solvers`), which returns the result. Every result is a
 :class:`FitResult` with ``status``, ``message``, ``seconds``, ``cpu_seconds``, ``history``,
-``n_params``, ``n_iterations``, ``n_evaluations``, ``method``, ``recipe`` and ``init``.
+``n_params``, ``n_iterations``, ``n_evaluations``, ``method``, ``recipe`` and ``init``, and
+``wall_seconds`` / ``total_cpu_seconds`` of the whole call.
 
 =================  ========  =======================================  ==========  ============
 method             fit_mesh  fit_mesh_to_views                        fit_volume  fit_nerf
@@ -60,7 +66,7 @@ from __future__ import annotations
 from ._options import METHODS as METHOD_NAMES
 from ._options import RECIPE_NAMES
 from ._scan_report import DataReport
-from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult
+from .history import CONVERGED_STATUSES, STATUSES, Clock, FitHistory, FitResult, TimeUp
 from .mesh import *  # noqa: F403 - fit_mesh, its options, recipes and results: its __all__
 from .nerf import NerfConfig, NerfFitResult, fit_nerf
 from .solvers import SOLVERS, SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, minimize, sgd
@@ -92,6 +98,7 @@ __all__ = [
     "Remeshing",
     "SolveResult",
     "StepInfo",
+    "TimeUp",
     "ViewsFitOptions",
     "ViewsFitResult",
     "VolumeFitOptions",

@@ -357,6 +357,7 @@ class Plan:
     evaluator: Any
     eval_every: int | None
     opts: dict
+    own_evaluator: bool = False  # the "default" evaluator: its time counts in the budget
 
     @property
     def stochastic(self) -> bool:
@@ -383,10 +384,6 @@ class Plan:
         if self.n_samples:
             return self.n_samples
         return 5000 if self.stochastic else min(5000, max(1000, 8 * mesh.n_verts))
-
-
-#: Time budget of the default recipe when none is given (seconds, wall clock).
-DEFAULT_TIME_BUDGET = 10.0
 
 
 def plan(target: MeshTarget, recipe: str, options: MeshFitOptions | None, *, time_budget,
@@ -443,17 +440,17 @@ def plan(target: MeshTarget, recipe: str, options: MeshFitOptions | None, *, tim
                                 "options.weights")]
     else:
         weights = _stage_weights(o.weights, stochastic)
-    if time_budget is None:
-        time_budget = DEFAULT_TIME_BUDGET if recipe == "default" else math.inf
-    if not (isinstance(time_budget, (int, float)) and math.isinf(time_budget)
-            and time_budget > 0):
-        time_budget = check_positive(time_budget, "time_budget")
-    time_budget = None if math.isinf(time_budget) else float(time_budget)
+    if time_budget is not None:  # a cap only: every recipe stops on its own tests without it
+        if not (isinstance(time_budget, (int, float)) and math.isinf(time_budget)
+                and time_budget > 0):
+            time_budget = check_positive(time_budget, "time_budget")
+        time_budget = None if math.isinf(time_budget) else float(time_budget)
     if eval_every is not None:
         eval_every = check_int(eval_every, "eval_every")
     elif stochastic:
         eval_every = 200
-    if isinstance(evaluator, str):
+    own = isinstance(evaluator, str)
+    if own:
         check_choice(evaluator, "evaluator", ("default",))
         evaluator = None if target.cloud else MeshEvaluator(
             target.mesh, n_samples=20_000, taus=0.01, normalize=True)
@@ -462,7 +459,7 @@ def plan(target: MeshTarget, recipe: str, options: MeshFitOptions | None, *, tim
                         f"got {type(evaluator)!r}")
     return Plan(recipe, method, o.refine, o.init, distance, n_samples, n_iter, n_stages,
                 weights, lr, momentum, lam, time_budget, evaluator, eval_every,
-                dict(o.solver_options or {}))
+                dict(o.solver_options or {}), own)
 
 
 def _stage_weights(weights, stochastic: bool) -> list[dict]:

@@ -62,7 +62,7 @@ def sample_images_at_xys(images, xys) -> np.ndarray:
 def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128, *,
                 n_pts_per_ray: int = 128, min_depth: float = 0.1, max_depth: float = 3.0,
                 occupancy: OccupancyGrid | None = None, chunk_rays: int = 4096,
-                n_threads: int | None = None) -> np.ndarray:
+                n_threads: int | None = None, check=None) -> np.ndarray:
     """Full-image renders of a field (the tutorial's grid renderer).
 
     Parameters
@@ -80,6 +80,9 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
         Rays per chunk (bounds memory).
     n_threads : int, optional
         Threads over chunks (None: :func:`geofit.get_num_threads`).
+    check : callable, optional
+        Called before each chunk; what it raises (a fit's :class:`~geofit.fit.TimeUp`) stops
+        the render.
 
     Returns
     -------
@@ -101,12 +104,18 @@ def render_nerf(field: NeuralRadianceField, cameras: CamerasBase, image_size=128
     per = 7 * np.dtype(field.dtype).itemsize * field.config["n_hidden_neurons"]  # B/sample
     check_allocation(per * min(chunk_rays, r) * n_pts_per_ray * n_threads, "chunk_rays and "
                      "n_pts_per_ray", "the network activations of one chunk of rays per thread")
+    if check is not None:
+        check()
     bundle = sampler(cameras)
+    if check is not None:
+        check()
     flat = RayBundle(*(np.asarray(a).reshape(-1, a.shape[-1]) for a in bundle))
     r = flat.origins.shape[0]
     chunks = [slice(s, min(s + chunk_rays, r)) for s in range(0, r, chunk_rays)]
 
     def work(sl):
+        if check is not None:
+            check()
         return renderer._render_flat(RayBundle(*(a[sl] for a in flat)), field, cache=False)[0]
 
     out = np.concatenate(parallel_map(work, chunks, n_threads), axis=0)

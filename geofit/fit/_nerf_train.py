@@ -29,11 +29,14 @@ from ..render.volume import (
 )
 from ._nerf_render import render_nerf, sample_images_at_xys
 from ._progress import progress_bar
-from .history import Clock, FitHistory
+from .history import Clock, FitHistory, TimeUp
 from .solvers import StepInfo
 
 #: Candidate samples per chunk of a training step (bounds the memory of the caches).
 _CHUNK_SAMPLES = 1 << 17
+#: Under a time budget, the held-out renders (the reference one, then the checkpoints
+#: together) take at most this share of it.
+RENDER_SHARE = 0.2
 #: A training step is split into at least this many chunks, whatever the thread count: the
 #: chunks' gradients are summed in chunk order, so the same seed gives the same network on 1, 2
 #: or 8 cores (a partition that followed the thread count changed the float32 sums).
@@ -343,16 +346,23 @@ class _Solver:
         self.initial = None
         self.restored = False  # a checkpoint's parameters were put back
         self.last_render = None  # (step, renders, PSNR, loss) of the last checkpoint
-        reserve = 0.0  # with a time budget: the time of the final held-out render
+        self.render_seconds = 0.0  # the longest held-out render so far (budget seconds)
+        self.render_total = 0.0  # budget seconds spent in held-out renders
+        self.skipped: list[str] = []  # held-out renders the time budget left out
         if self.test is not None:
             # the untrained network's held-out loss: the reference. With a time budget the
-            # held-out renders are charged to it (the budget is wall-clock), and the training
-            # stops early enough for the final render (timed on this one) to fit in
-            t0 = clock.elapsed()
+            # held-out renders are charged to it (the budget is wall-clock): this one may take
+            # RENDER_SHARE of it, the periodic ones together as much of the time so far, and
+            # the training stops early enough for the final render (timed on the renders so
+            # far) to fit in
             with self.observer():
-                self.initial = self.evaluate()[2]
-            if self.time_budget is not None:
-                reserve = clock.elapsed() - t0
+                limit = None if self.time_budget is None else \
+                    clock.budget_elapsed() + RENDER_SHARE * self.time_budget
+                out = self.timed_evaluate(limit)
+                if out is None:
+                    self.skipped.append("the untrained network's reference render")
+                else:
+                    self.initial = out[2]
         next_eval = self.every
         status, message = "max_iter", f"completed {cfg.n_iter} steps"
         for step in range(1, cfg.n_iter + 1):  # Adam steps
@@ -361,9 +371,18 @@ class _Solver:
                 status, message = stop
                 break
             self.tick(step, seconds, loss)
+            # the budget's clock (Clock.remaining): the training leaves the final render's time
             out_of_time = self.time_budget is not None and \
-                seconds >= self.time_budget - reserve
+                clock.remaining() <= self.render_seconds
             due = (seconds >= next_eval) if self.every_seconds else (step >= next_eval)
+            if due and not out_of_time and self.time_budget is not None and \
+                    clock.remaining() <= 2.0 * self.render_seconds:
+                out_of_time = True  # this checkpoint's render would leave none for the last
+            if due and not out_of_time and self.time_budget is not None and \
+                    self.render_total + self.render_seconds > \
+                    RENDER_SHARE * clock.budget_elapsed():
+                due = False  # the held-out renders would take more than their share
+                next_eval += self.every
             if due or out_of_time or step == cfg.n_iter:
                 next_eval += self.every
                 if self.checkpoint(step, loss):
@@ -427,20 +446,46 @@ class _Solver:
     # -- held-out views
     def final_render(self):
         """The held-out renders of the returned field: the last checkpoint's when it rendered
-        this very field (no step and no restored checkpoint since), else a new render."""
+        this very field (no step and no restored checkpoint since), else a new render (within
+        what is left of a time budget: ``(None, None, None)`` when it does not fit)."""
         last = self.last_render
         if last is not None and last[0] == len(self.history.steps) and not self.restored:
             return last[1], last[2], last[3]
-        return self.evaluate()
+        out = self.timed_evaluate(self.clock.deadline)
+        if out is None:
+            self.skipped.append("the final held-out render")
+            return None, None, None
+        return out
 
-    def evaluate(self):
+    def timed_evaluate(self, limit: float | None = None):
+        """:meth:`evaluate`, keeping the longest render time (what the budget reserves); with
+        ``limit`` (budget seconds) the render stops there and None is returned."""
+        clock = self.clock
+        t0 = clock.budget_elapsed()
+        if limit is not None and t0 >= limit:  # no time: not even the rays are made
+            return None
+        check = None
+        if limit is not None:
+            def check():
+                if clock.budget_elapsed() > limit:
+                    raise TimeUp(f"reached the time budget of {self.time_budget:g} s")
+        try:
+            out = self.evaluate(check)
+        except TimeUp:
+            out = None
+        took = clock.budget_elapsed() - t0
+        self.render_seconds = max(self.render_seconds, took)
+        self.render_total += took
+        return out
+
+    def evaluate(self, check=None):
         """Full renders of the held-out views, their PSNR and Huber loss (None, None when
-        rendered at another size)."""
+        rendered at another size); ``check`` as :func:`render_nerf`'s."""
         cfg, test, size = self.cfg, self.test, self.size
         imgs = render_nerf(self.field, test.cameras, size, n_pts_per_ray=cfg.n_pts_per_ray,
                            min_depth=cfg.min_depth, max_depth=cfg.max_depth,
                            occupancy=self.hull, chunk_rays=cfg.chunk_rays,
-                           n_threads=self.n_threads)
+                           n_threads=self.n_threads, check=check)
         if size != (test.H, test.W):
             return imgs, None, None
         rgb = np.clip(imgs[..., :3], 0.0, 1.0)
@@ -457,7 +502,11 @@ class _Solver:
             seconds = clock.elapsed()
             metrics = None
             if self.test is not None:
-                imgs, p, hl = self.evaluate()
+                out = self.timed_evaluate(self.clock.deadline)
+                if out is None:  # the time budget ran out during the render
+                    self.skipped.append(f"the held-out render at step {step}")
+                    return False
+                imgs, p, hl = out
                 self.last_render = (step, imgs, p, hl)  # reused by final_render
                 metrics = {"psnr": p, "held_out_loss": hl}
                 if hl < best["loss"]:
@@ -471,4 +520,5 @@ class _Solver:
                 return False
             info = StepInfo(step, step, self.field.get_flat(), float(loss), seconds,
                             metrics=metrics)
-            return bool(self.callback(info))
+            with clock.paused(caller=True):
+                return bool(self.callback(info))

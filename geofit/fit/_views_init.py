@@ -13,8 +13,10 @@ No gradient is defined here.
 from __future__ import annotations
 
 
+from ..shapes import ico_sphere
 from ..structures import Mesh
 from ..structures.visual_hull import pixel_footprint
+from .history import TimeUp
 from .init import max_edge_length, visual_hull_mesh
 
 __all__ = ["initial_mesh", "remesh_to_length"]
@@ -22,13 +24,31 @@ __all__ = ["initial_mesh", "remesh_to_length"]
 
 def initial_mesh(plan, run) -> None:
     """The starting mesh of a :func:`~geofit.fit.fit_mesh_to_views` plan (``plan.init``; the
-    visual hull is carved with the fit's clock running), the world size of a pixel at its
-    centre and the longest remeshing edge (``plan.init_info``), and a history note."""
+    visual hull is carved with the fit's clock running and its time budget checked between
+    views), the world size of a pixel at its centre and the longest remeshing edge
+    (``plan.init_info``), and a history note.
+
+    When the time budget runs out while the hull is carved, the start is the tutorial's
+    ico-sphere and ``run.stages`` gets an ``"init"`` stage with status ``"time_budget"``
+    (the later stages then find no time left)."""
     t0 = run.clock.elapsed()
     v = plan.views
+    hull = None
     if plan.init_name == "hull":
         fac = plan.levels[0][1] if plan.silhouette_method != "sgd" else 1
-        hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac)
+        try:
+            hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac,
+                                    check=run.clock.check)
+        except TimeUp:
+            seconds = run.clock.elapsed() - t0
+            plan.init, plan.init_name = ico_sphere(4), "sphere"
+            run.stages.append({
+                "name": "init", "method": "visual hull", "status": "time_budget",
+                "seconds": seconds,
+                "message": f"reached the time budget of {plan.time_budget:g} s while carving "
+                           f"the visual hull ({seconds:.1f} s): the result is the unfitted "
+                           "ico-sphere; give a larger time_budget"})
+    if hull is not None:
         plan.init = hull.mesh
         info = {"voxel_size": hull.voxel_size, "pixel_size": hull.pixel_size,
                 "n_faces_marching_cubes": hull.n_faces_marching_cubes}

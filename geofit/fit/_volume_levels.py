@@ -103,8 +103,7 @@ class _Solver:
 
     def __init__(self, o: _Plan):
         self.o = o
-        self.clock = Clock()
-        self.clock.deadline = o.time_budget
+        self.clock = Clock(o.time_budget)
         self.history = FitHistory()
         self.step_final = (o.max_depth - o.min_depth) / (o.n_pts - 1)
         self.sigma = None      # extinction grid of the previous level (per unit view depth)
@@ -125,12 +124,18 @@ class _Solver:
         status, message = "max_iter", ""
         for li, (level, n_iter_level) in enumerate(zip(o.levels, o.iterations)):  # levels
             t_level = self.clock.elapsed()
-            if o.time_budget is not None and self.clock.elapsed() >= o.time_budget:
+            # a level's set-up is not interruptible: under a time budget, a level whose set-up
+            # (the last one's, scaled by the samples, ~ level^3) would not fit is not begun
+            guess = 0.0 if not self.stages else self.stages[-1].get("setup_seconds", 0.0) * \
+                (level / self.stages[-1]["level"]) ** 3
+            if self.clock.over() or (li > 0 and self.clock.remaining() < guess):
                 status = "time_budget"  # no time to set the next level up
                 message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
+                if not self.clock.over():
+                    message += f" (its set-up would take about {guess:.3g} s)"
                 break
             x0, info = self.setup_level(li, level)
-            remaining = None if o.time_budget is None else o.time_budget - self.clock.elapsed()
+            remaining = None if o.time_budget is None else self.clock.remaining()
             if remaining is not None and remaining <= 0:
                 status = "time_budget"
                 message = f"reached the time budget of {o.time_budget:g} s before level {level}^3"
@@ -223,7 +228,8 @@ class _Solver:
                 self.state["ld"], self.state["lc"] = state_ld, state_lc
             with self.clock.paused():
                 self.bar.update(1)
-                if o.callback is not None:
+            if o.callback is not None:
+                with self.clock.paused(caller=True):
                     return o.callback(si._replace(stage=li, terms=dict(fun.terms)))
             return None
 
@@ -257,7 +263,7 @@ class _Solver:
         res = solvers.adam(fun, x0, lr=lr, n_iter=n1, time_budget=remaining,
                            callback=callback, clock=clock)
         if res.status == "max_iter" and n_iter - n1 > 0:
-            rem2 = None if o.time_budget is None else o.time_budget - clock.elapsed()
+            rem2 = None if o.time_budget is None else clock.remaining()
             if rem2 is None or rem2 > 0:
                 res2 = solvers.adam(fun, res.x, lr=lr * 0.1, n_iter=n_iter - n1,
                                     time_budget=rem2, callback=callback, clock=clock)
@@ -321,7 +327,7 @@ class _Solver:
     def run_monitor(self, step: int) -> None:
         if self.o.evaluator is None:
             return
-        with self.clock.paused():
+        with self.clock.paused(caller=True):  # the caller's evaluator
             vol = self.current_volume()
             if vol is not None:
                 self.history.checkpoint(step, self.clock.elapsed(), self.o.evaluator(vol))
@@ -368,6 +374,7 @@ class _Solver:
             status=status, message=message, history=h,
             n_params=problem.n_params if problem is not None else 0,
             seconds=self.clock.elapsed(), cpu_seconds=self.clock.cpu_elapsed(),
+            wall_seconds=self.clock.wall(), total_cpu_seconds=self.clock.cpu_total(),
             n_iterations=self.total_iter, n_evaluations=self.total_eval, volume=result_volume,
             n_active_voxels=int(last.get("free_density_voxels", 0)),
             n_colour_voxels=int(last.get("colour_voxels", 0)),
@@ -427,8 +434,7 @@ def _fit_tutorial(o: _Plan) -> dict:
     """PyTorch3D's recipe: dense grid, Adam on random view batches, lr x 0.1 at 75%; returns
     the fields of the result."""
     N, H, W, _ = o.imgs.shape
-    clock, history = Clock(), FitHistory()
-    clock.deadline = o.time_budget
+    clock, history = Clock(o.time_budget), FitHistory()
     fun = _TutorialObjective(o)
     x0 = fun.x0()
     bar = progress_bar(o.progress, o.n_iter, "fit_volume[tutorial]")
@@ -439,13 +445,14 @@ def _fit_tutorial(o: _Plan) -> dict:
         history.record(step, si.seconds, si.value, fun.terms, n_params=x0.size)
         if o.evaluator is not None and o.eval_every is not None and \
                 step - last_monitor[0] >= o.eval_every:
-            with clock.paused():
+            with clock.paused(caller=True):  # the caller's evaluator
                 history.checkpoint(step, clock.elapsed(),
                                    o.evaluator(fun.volume(np.asarray(si.x))))
             last_monitor[0] = step
         with clock.paused():
             bar.update(1)
-            if o.callback is not None:
+        if o.callback is not None:
+            with clock.paused(caller=True):
                 return o.callback(si._replace(terms=dict(fun.terms)))
         return None
 
@@ -455,7 +462,7 @@ def _fit_tutorial(o: _Plan) -> dict:
     res.status, res.message = _tutorial_status(res, np.asarray(history.loss), o.lr, n1)
     vol = fun.volume(res.x)
     if o.evaluator is not None:
-        with clock.paused():
+        with clock.paused(caller=True):
             history.checkpoint(len(history), clock.elapsed(), o.evaluator(vol))
     nv = fun.nv
     spr = fun.samples / max(fun.rays, 1)
@@ -465,7 +472,8 @@ def _fit_tutorial(o: _Plan) -> dict:
                "evaluations": n_ev, "seconds": clock.elapsed(), "final_loss": res.value}]
     return dict(
         status=res.status, message=res.message, history=history, n_params=x0.size,
-        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_it,
+        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), wall_seconds=clock.wall(),
+        total_cpu_seconds=clock.cpu_total(), n_iterations=n_it,
         n_evaluations=n_ev, volume=vol, n_active_voxels=nv, n_colour_voxels=nv,
         n_occupied_voxels=int(np.count_nonzero(vol.densities)), samples_per_ray=spr,
         n_pts_per_ray=o.n_pts, stages=stages, method="adam", recipe="tutorial")
@@ -479,7 +487,7 @@ def _adam_then_tenth(fun, x0, o: _Plan, callback, clock):
                        callback=callback, clock=clock)
     n_it, n_ev = res.n_iterations, res.n_evaluations
     if res.status == "max_iter" and o.n_iter > n1:
-        rem = None if o.time_budget is None else o.time_budget - clock.elapsed()
+        rem = None if o.time_budget is None else clock.remaining()
         if rem is None or rem > 0:
             res = solvers.adam(fun, res.x, lr=o.lr * 0.1, n_iter=o.n_iter - n1,
                                time_budget=rem, callback=callback, clock=clock)

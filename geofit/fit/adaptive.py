@@ -47,7 +47,7 @@ from ._mesh_objective import MeshObjective
 from ._mesh_plan import MeshFitResult, MeshTarget, Plan, empty_row_terms, repair_degenerate
 from ._progress import progress_bar
 from ._scan_report import evidence_limits, scan_report
-from .history import Clock, FitHistory
+from .history import Clock, FitHistory, budget_status
 from .init import InitialMesh, initial_mesh
 from .large_steps import LargeSteps
 from .solvers import lbfgs_scipy
@@ -121,8 +121,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
     rem = plan.refine
     time_budget, evaluator, w = plan.time_budget, plan.evaluator, plan.weights[0]
     rng = as_rng(seed)
-    clock = Clock()
-    clock.deadline = time_budget
+    clock = Clock(time_budget)  # the budget counts all of it but the caller's evaluator/callback
     history = FitHistory()
     cloud = target.cloud
     tgt = target.normalized
@@ -158,20 +157,23 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         nonlocal metrics, last_ckpt
         if evaluator is None:
             return
-        with clock.paused():
+        with clock.paused(caller=not plan.own_evaluator):
             metrics = evaluator.evaluate(m.update_verts(target.undo(m.verts)))
         last_ckpt = step
         history.checkpoint(step, clock.elapsed(), dict(metrics.as_dict(), n_verts=m.n_verts))
 
     bar = progress_bar(progress, rem.max_rounds * plan.n_iter, "fit_mesh[default]")
+    t_ckpt = clock.budget_elapsed()
     checkpoint(mesh, 0)
+    # with a time budget, the solves leave the time of the final checkpoint and report (the
+    # first checkpoint's, timed here) inside it
+    reserve = clock.budget_elapsed() - t_ckpt
     stages: list[dict] = []
     evals = iters = 0
     status, message = "max_iter", ""
     for rnd in range(rem.max_rounds):  # solve-and-remesh rounds
-        remaining = None if time_budget is None else time_budget - clock.elapsed()
-        if remaining is not None and remaining <= 0:
-            status, message = "time_budget", f"reached the time budget of {time_budget:g} s"
+        if clock.remaining() <= reserve:
+            status, message = "time_budget", budget_status(time_budget, iters)
             break
         ls = LargeSteps(mesh, lam)
         ns = min(8000, max(2000, 4 * mesh.n_verts))
@@ -191,14 +193,18 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
                 with clock.paused():
                     m = _obj.source.update_verts(_obj.verts_from_params(info.x))
                 checkpoint(m, step)
-            if callback is not None and callback(info):
-                return True
+            if callback is not None:
+                with clock.paused(caller=True):
+                    if callback(info):
+                        return True
             return None
 
-        if time_budget is not None:  # what is left after building the objective
-            remaining = max(time_budget - clock.elapsed(), 1e-6)
-        res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=plan.n_iter,
-                          time_budget=remaining, callback=cb, clock=clock)
+        remaining = None  # what is left after building the objective
+        if time_budget is not None:
+            remaining = max(clock.remaining() - reserve, 1e-6)
+        with clock.until(None if time_budget is None else time_budget - reserve):
+            res = lbfgs_scipy(obj, obj.params_from_verts(mesh.verts), max_iter=plan.n_iter,
+                              time_budget=remaining, callback=cb, clock=clock)
         evals += res.n_evaluations
         mesh = mesh.update_verts(obj.verts_from_params(res.x))
         if last_ckpt != evals:
@@ -224,6 +230,9 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
                        f"({'max_rounds' if rnd == rem.max_rounds - 1 else 'max_verts'}); "
                        f"{message}")
             break
+        if clock.remaining() <= reserve:  # no time for another remesh and solve
+            status, message = "time_budget", budget_status(time_budget, iters)
+            break
         # remesh towards lengths set by the error at the edge midpoints
         E = mesh.edges
         mid = 0.5 * (mesh.verts[E[:, 0]] + mesh.verts[E[:, 1]])
@@ -245,7 +254,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
                      f"-> {r.mesh.n_verts} vertices", n_verts=r.mesh.n_verts)
         mesh = r.mesh
     bar.close()
-    with clock.paused():
+    with clock.paused():  # not solver time; counted by the budget (its reserve)
         topo = topology(mesh)
     if not len(history):
         history.record(evals, clock.elapsed(), math.inf, empty_row_terms(),
@@ -258,7 +267,8 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         message += " (the fitted surface self-intersects)"
     return MeshFitResult(
         status=status, message=message, history=history, n_params=3 * mesh.n_verts,
-        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=iters,
+        seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), wall_seconds=clock.wall(),
+        total_cpu_seconds=clock.cpu_total(), n_iterations=iters,
         n_evaluations=evals, mesh=mesh.update_verts(target.undo(mesh.verts)),
         mesh_normalized=mesh, center=np.array(target.center, dtype=np.float64),
         scale=target.scale, method=plan.method, recipe=plan.recipe, metrics=metrics,

@@ -1,7 +1,9 @@
 """What every fit in geofit records and returns: a clock, a history, a result.
 
 * :class:`Clock` measures the solver's wall time and can be paused, so that work done for the
-  observer (accuracy metrics at checkpoints, progress bars, plotting) is not charged to the solver.
+  observer (accuracy metrics at checkpoints, progress bars, plotting) is not charged to the solver;
+  it also holds the fit's time budget (``deadline``), which counts everything the fit does on its
+  own, and which every long stage checks (:meth:`Clock.check`, :meth:`Clock.remaining`).
 * :class:`FitHistory` keeps one row per recorded step (step, seconds, loss, each loss term,
   number of parameters, stage) and, at checkpoints, the accuracy metrics.
 * :class:`FitResult` is the common result of a fit: its status (from :data:`STATUSES`), the
@@ -22,7 +24,8 @@ import numpy as np
 from .._json import json_safe as _json_safe
 from .._atomic import write_text
 
-__all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult", "TimeUp"]
+__all__ = ["CONVERGED_STATUSES", "STATUSES", "Clock", "FitHistory", "FitResult", "TimeUp",
+           "budget_status"]
 
 #: Every status a solver or a fit can end with, and what it means.
 STATUSES: dict[str, str] = {
@@ -44,43 +47,108 @@ CONVERGED_STATUSES = frozenset({"converged"})
 
 
 class TimeUp(Exception):
-    """Raised by :meth:`Clock.check` inside a long evaluation once the clock has passed its
-    ``deadline`` (the fit's time budget); the solvers turn it into status ``"time_budget"``."""
+    """Raised by :meth:`Clock.check` inside a long evaluation or stage once the clock has passed
+    its ``deadline`` (the fit's time budget); the solvers turn it into status ``"time_budget"``,
+    and a fit's own stages (a visual hull, a colour solve, held-out renders) into their
+    fallbacks."""
 
 
 class Clock:
-    """A wall clock for a solver that can be paused while the observer works.
+    """The clock of one fit: the solver's time, the time budget's time and the wall time.
 
-    ``deadline`` (seconds of :meth:`elapsed`, None: none) is the fit's time budget: long
-    evaluations call :meth:`check` between their chunks so that a budget is kept within a
-    chunk's time, not only between solver steps.
+    Three readings, all in seconds since the clock was made:
+
+    * :meth:`wall` -- everything;
+    * :meth:`elapsed` -- the solver's time: every :meth:`paused` interval excluded (metric
+      checkpoints, progress bars, the caller's callback), the figure of curves and of
+      ``FitResult.seconds``;
+    * :meth:`budget_elapsed` -- what the time budget counts: the wall time minus only the
+      intervals paused with ``caller=True`` (time spent in the caller's own code, the
+      ``evaluator`` and ``callback`` a user hands in, which a fit cannot bound). The fit's own
+      work (its set-up, its default evaluation, held-out renders, final metrics) counts.
+
+    ``deadline`` (seconds of :meth:`budget_elapsed`, None: none) is the fit's time budget. Long
+    stages call :meth:`check` between their chunks (views, passes, batches), so that a budget
+    is kept within a chunk's time, not only between solver steps; :meth:`remaining` is what a
+    stage may still spend.
 
     Examples
     --------
-    >>> clock = Clock()
+    >>> clock = Clock(deadline=60.0)
     >>> with clock.paused():
-    ...     pass  # metric evaluation, not charged to the solver
-    >>> clock.elapsed() >= 0.0
+    ...     pass  # metric evaluation: not solver time, but counted by the budget
+    >>> with clock.paused(caller=True):
+    ...     pass  # the user's callback: counted by neither
+    >>> clock.elapsed() <= clock.budget_elapsed() <= clock.wall()
+    True
+    >>> 0.0 < clock.remaining() <= 60.0
     True
     """
 
-    def __init__(self) -> None:
+    def __init__(self, deadline: float | None = None) -> None:
         self._start = time.perf_counter()
         self._cpu_start = time.process_time()
         self._paused_total = 0.0
         self._cpu_paused_total = 0.0
         self._paused_at: float | None = None
         self._cpu_paused_at: float | None = None
-        self.deadline: float | None = None
+        self._caller_total = 0.0
+        self._caller_at: float | None = None
+        self.deadline: float | None = deadline
+        self.budget: float | None = deadline  # the fit's whole budget (deadline: a stage's)
+
+    def wall(self) -> float:
+        """Wall-clock seconds since construction, nothing excluded."""
+        return time.perf_counter() - self._start
+
+    def budget_elapsed(self) -> float:
+        """Seconds counted by the time budget: :meth:`wall` minus the intervals paused with
+        ``caller=True``."""
+        now = self._caller_at if self._caller_at is not None else time.perf_counter()
+        return now - self._start - self._caller_total
+
+    def remaining(self) -> float:
+        """Seconds of the budget left (``inf`` without a deadline; negative once past it)."""
+        if self.deadline is None:
+            return float("inf")
+        return self.deadline - self.budget_elapsed()
+
+    def over(self) -> bool:
+        """True once the budget's time has passed the ``deadline``."""
+        return self.deadline is not None and self.budget_elapsed() > self.deadline
 
     def check(self) -> None:
-        """Raise :class:`TimeUp` when the clock runs (not paused) past its ``deadline``."""
-        if self.deadline is not None and self._paused_at is None and \
-                self.elapsed() > self.deadline:
-            raise TimeUp(f"reached the time budget of {self.deadline:g} s")
+        """Raise :class:`TimeUp` when the clock has passed its ``deadline`` (not while the
+        caller's code runs: a pause with ``caller=True``)."""
+        if self._caller_at is None and self.over():
+            raise TimeUp(self.status_words())
+
+    def status_words(self, steps: int | None = None) -> str:
+        """``"reached the time budget of 30 s[ after N steps]"``, or, inside :meth:`until`,
+        ``"reached the end of this stage's share (27 s) of the time budget of 30 s"``."""
+        after = "" if steps is None else f" after {steps} steps"
+        if self.deadline is not None and self.budget is not None and \
+                self.deadline < self.budget:
+            return (f"reached the end of this stage's share ({self.deadline:.3g} s) of the "
+                    f"time budget of {self.budget:g} s{after}")
+        return f"reached the time budget of {self.deadline:g} s{after}"
+
+    @contextmanager
+    def until(self, seconds: float | None) -> Iterator[None]:
+        """Context manager: a stage's own deadline (budget seconds), when earlier than the
+        fit's, for the stage's solves and checks; the fit's deadline is back afterwards.
+        A stage that must leave time to the stages after it runs inside
+        ``clock.until(clock.deadline - reserve)``."""
+        saved = self.deadline
+        if seconds is not None and (saved is None or seconds < saved):
+            self.deadline = float(seconds)
+        try:
+            yield
+        finally:
+            self.deadline = saved
 
     def elapsed(self) -> float:
-        """Wall-clock seconds since construction, minus the paused intervals."""
+        """Solver seconds: wall-clock seconds since construction, minus the paused intervals."""
         now = self._paused_at if self._paused_at is not None else time.perf_counter()
         return now - self._start - self._paused_total
 
@@ -90,24 +158,43 @@ class Clock:
         now = self._cpu_paused_at if self._cpu_paused_at is not None else time.process_time()
         return now - self._cpu_start - self._cpu_paused_total
 
+    def cpu_total(self) -> float:
+        """CPU seconds of this process since construction, nothing excluded (beside
+        :meth:`wall`)."""
+        return time.process_time() - self._cpu_start
+
     @property
     def is_paused(self) -> bool:
         return self._paused_at is not None
 
     @contextmanager
-    def paused(self) -> Iterator[None]:
-        """Context manager: time spent inside is excluded from :meth:`elapsed` (re-entrant)."""
-        if self._paused_at is not None:  # already paused by an outer block
-            yield
-            return
-        self._paused_at = time.perf_counter()
-        self._cpu_paused_at = time.process_time()
+    def paused(self, caller: bool = False) -> Iterator[None]:
+        """Context manager: time spent inside is excluded from :meth:`elapsed` (re-entrant);
+        with ``caller=True`` (the caller's evaluator or callback) from :meth:`budget_elapsed`
+        too."""
+        outer = self._paused_at is None
+        if outer:
+            self._paused_at = time.perf_counter()
+            self._cpu_paused_at = time.process_time()
+        mine = caller and self._caller_at is None
+        if mine:
+            self._caller_at = time.perf_counter()
         try:
             yield
         finally:
-            self._paused_total += time.perf_counter() - self._paused_at
-            self._cpu_paused_total += time.process_time() - self._cpu_paused_at
-            self._paused_at = self._cpu_paused_at = None
+            if mine:
+                self._caller_total += time.perf_counter() - self._caller_at
+                self._caller_at = None
+            if outer:
+                self._paused_total += time.perf_counter() - self._paused_at
+                self._cpu_paused_total += time.process_time() - self._cpu_paused_at
+                self._paused_at = self._cpu_paused_at = None
+
+
+def budget_status(deadline: float, steps: int, what: str = "steps") -> str:
+    """The words of a used-up time budget: ``"reached the time budget of 30 s after 412
+    steps"``."""
+    return f"reached the time budget of {deadline:g} s after {steps} {what}"
 
 
 def _as_float(value, name: str) -> float:
@@ -309,6 +396,12 @@ class FitResult:
         Solver wall time (observer work such as metric checkpoints excluded).
     cpu_seconds : float
         Solver CPU time of the process over the same intervals (all threads).
+    wall_seconds : float
+        Wall time of the whole call, everything included (what a time budget bounds, plus the
+        time spent in the caller's evaluator and callback).
+    total_cpu_seconds : float
+        CPU time of the process over the whole call (beside ``wall_seconds``; above it when
+        both cores work, below it when other processes share them).
     n_iterations : int
         Iterations (or SGD/Adam steps) over all stages.
     n_evaluations : int
@@ -330,6 +423,8 @@ class FitResult:
     n_params: int = 0
     seconds: float = 0.0
     cpu_seconds: float = 0.0
+    wall_seconds: float = 0.0
+    total_cpu_seconds: float = 0.0
     n_iterations: int = 0
     n_evaluations: int = 0
     method: str = ""
@@ -356,6 +451,7 @@ class FitResult:
             "status": self.status, "message": self.message, "method": self.method,
             "recipe": self.recipe, "n_params": self.n_params,
             "seconds": self.seconds, "cpu_seconds": self.cpu_seconds,
+            "wall_seconds": self.wall_seconds, "total_cpu_seconds": self.total_cpu_seconds,
             "n_iterations": self.n_iterations,
             "n_evaluations": self.n_evaluations,
             "final_loss": self.history.loss[-1] if self.history.loss else None,

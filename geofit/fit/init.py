@@ -220,7 +220,7 @@ class VisualHullMesh:
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
-                     close_handles: bool = False) -> VisualHullMesh:
+                     close_handles: bool = False, check=None) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -260,6 +260,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         Fill narrow tunnels no silhouette sees through
         (:func:`geofit.structures.visual_hull.close_unsupported_handles`); ``n_filled`` says
         how many nodes were filled.
+    check : callable, optional
+        Called between the carving's views and steps (a fit passes its clock's
+        :meth:`~geofit.fit.Clock.check`, which raises :class:`~geofit.fit.TimeUp` once its
+        time budget is used up).
 
     Returns
     -------
@@ -279,11 +283,13 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     if not isinstance(refine, (int, np.integer)) or isinstance(refine, bool) or refine < 1:
         raise ValueError(f"refine: expected an integer >= 1, got {refine!r}")
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
-                   voxel_px=voxel_px, refine=int(refine))
+                   voxel_px=voxel_px, refine=int(refine), check=check)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)
         g, n_filled = closed.grid, closed.n_filled
+    if check is not None:
+        check()
     mc = mesh_from_occupancy(g.field, g.origin, g.voxel_size, level=0.0)
     le = min(edge_px * g.pixel_size, max_edge_length(mc))
     area = float(mc.face_areas.sum())

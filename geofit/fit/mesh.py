@@ -71,7 +71,7 @@ from ._mesh_plan import (
 )
 from ._progress import progress_bar
 from .adaptive import solve_remeshing
-from .history import Clock, FitHistory
+from .history import Clock, FitHistory, budget_status
 from .large_steps import LargeSteps
 from .solvers import SolveResult, StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 
@@ -119,9 +119,10 @@ def fit_mesh(target, *, recipe: str = "default", options: MeshFitOptions | None 
     options : MeshFitOptions, optional
         Settings that override the recipe's (every field left None keeps the recipe's).
     time_budget : float, optional
-        Wall-clock seconds for the whole fit (the clock paused during the evaluator's
-        checkpoints). Default: 10 s for the default recipe, none for the others; ``math.inf``:
-        none.
+        A cap in wall-clock seconds on the whole call (set-up, solves, remeshing, the default
+        evaluator's checkpoints and the final report; not the time spent in an evaluator or a
+        callback you pass). Default: none (``math.inf`` too): every recipe stops on its own
+        iteration and accuracy tests, so the result does not depend on the machine's load.
     seed : int or numpy.random.Generator
         Sampling randomness (results are reproducible for a given seed).
     evaluator : MeshEvaluator, "default" or None
@@ -213,9 +214,8 @@ def _fit_levels(plan: Plan, run: _Solver) -> tuple[Mesh, str, str]:
     while True:  # coarse-to-fine levels (a single pass without coarse-to-fine)
         ls = LargeSteps(mesh, plan.lam) if plan.lam is not None else None
         for s in range(plan.n_stages):  # stages: sample redraws
-            if plan.time_budget is not None and run.clock.elapsed() >= plan.time_budget:
-                return mesh, "time_budget", (f"reached the time budget of "
-                                             f"{plan.time_budget:g} s after {run.iters} steps")
+            if run.clock.over():
+                return mesh, "time_budget", budget_status(plan.time_budget, run.iters)
             obj, res = _solve_stage(plan, run, mesh, ls, level, s)
             mesh = mesh.update_verts(obj.verts_from_params(res.x))
             status, message = res.status, res.message
@@ -243,7 +243,7 @@ def _solve_stage(plan: Plan, run: _Solver, mesh: Mesh, ls, level: int, stage: in
     # what is left after building the objective (at least a moment: one evaluation, then the
     # solver stops with status "time_budget")
     remaining = (None if plan.time_budget is None
-                 else max(plan.time_budget - run.clock.elapsed(), 1e-6))
+                 else max(run.clock.remaining(), 1e-6))
     stall = (_Stall(c2f.stall_window, c2f.stall_rel)
              if c2f is not None and c2f.stall_window else None)
     res = _solve(plan.method, obj, obj.params_from_verts(mesh.verts), n_iter=plan.n_iter,
@@ -291,6 +291,7 @@ def _mesh_result(plan: Plan, run: _Solver, mesh: Mesh, status: str,
     return MeshFitResult(
         status=status, message=message, history=run.history, n_params=3 * mesh.n_verts,
         seconds=run.clock.elapsed(), cpu_seconds=run.clock.cpu_elapsed(),
+        wall_seconds=run.clock.wall(), total_cpu_seconds=run.clock.cpu_total(),
         n_iterations=run.iters, n_evaluations=run.evals,
         mesh=mesh.update_verts(target.undo(mesh.verts)), mesh_normalized=mesh,
         center=target.center.copy(), scale=float(target.scale), method=plan.method,
@@ -311,8 +312,8 @@ class _Solver:
         self.rng = as_rng(seed)
         self.p2s = (target.distance()
                     if plan.distance == "surface" or plan.c2f is not None else None)
-        self.clock = Clock()
-        self.clock.deadline = plan.time_budget
+        self.clock = Clock(plan.time_budget)
+        self.own_evaluator = plan.own_evaluator
         self.history = FitHistory()
         self.evaluator, self.every = plan.evaluator, plan.eval_every
         self.user_callback = callback
@@ -346,7 +347,7 @@ class _Solver:
         """Metrics of ``mesh`` (normalised frame) at the current evaluation count, clock paused."""
         if self.evaluator is None or self.last_ckpt == self.evals:
             return None
-        with self.clock.paused():
+        with self.clock.paused(caller=not self.own_evaluator):
             self.metrics = self.evaluator.evaluate(mesh.update_verts(self.target.undo(mesh.verts)))
         self.last_ckpt = self.evals
         return self.metrics.as_dict()
@@ -377,8 +378,10 @@ class _Solver:
                 self.bar.update(1)
                 if info.iteration % 10 == 0:
                     self.bar.set_postfix(loss=f"{info.value:.3g}", verts=obj.n_verts)
-            if self.user_callback is not None and self.user_callback(info):
-                return True
+            if self.user_callback is not None:
+                with self.clock.paused(caller=True):
+                    if self.user_callback(info):
+                        return True
             if stall is not None and stall.update(obj.last_terms["chamfer"]):
                 self.stalled = True
                 return True

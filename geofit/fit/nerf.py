@@ -274,8 +274,6 @@ class NerfFitResult(FitResult):
         PSNR of the final held-out renders (None without held-out views).
     images : (N, H, W, 4) float64 or None
         Full-image renders (RGB, opacity) of the held-out views with the final field.
-    wall_seconds : float
-        Wall time of the whole call, checkpoints and final renders included.
     """
 
     field: NeuralRadianceField
@@ -284,12 +282,20 @@ class NerfFitResult(FitResult):
     samples_per_ray: float = 0.0
     psnr: float | None = None
     images: np.ndarray | None = None
-    wall_seconds: float = 0.0
+
+    def render(self, cameras: CamerasBase, image_size) -> np.ndarray:
+        """(N, H, W, 4) float64 full-image renders (RGB, opacity) of :attr:`field` from
+        ``cameras`` with the fit's sampling and occupancy (:func:`render_nerf`): e.g. the
+        held-out views when the time budget left their final render out (``images`` None)."""
+        c = self.config
+        return render_nerf(self.field, cameras, image_size, n_pts_per_ray=c.n_pts_per_ray,
+                           min_depth=c.min_depth, max_depth=c.max_depth,
+                           occupancy=self.occupancy, chunk_rays=c.chunk_rays,
+                           n_threads=c.n_threads)
 
     def summary(self) -> dict[str, Any]:
         d = super().summary()
-        d.update({"samples_per_ray": self.samples_per_ray, "psnr": self.psnr,
-                  "wall_seconds": self.wall_seconds, "config": {f.name: getattr(self.config, f.name)
+        d.update({"samples_per_ray": self.samples_per_ray, "psnr": self.psnr, "config": {f.name: getattr(self.config, f.name)
                              for f in fields(self.config) if f.name != "init"}})
         return d
 
@@ -361,9 +367,10 @@ def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = N
         The settings, used instead of the recipe's (build them from a recipe with
         ``NerfConfig.scene(**changes)`` or ``NerfConfig.tutorial(**changes)``).
     time_budget : float, optional
-        Wall-clock seconds for the whole fit, held-out renders included: the training stops
-        (status ``"time_budget"``) early enough for the final held-out render, timed on the
-        first one, to end within the budget.
+        Wall-clock seconds for the whole fit, set-up and held-out renders included (not the
+        time spent in the callback you pass): the training stops (status ``"time_budget"``)
+        early enough for the final held-out render, timed on the longest render so far, to end
+        within the budget, and a checkpoint is skipped when its render would not leave that.
     seed : int or numpy.random.Generator
         Initialisation, view and ray choices.
     evaluator : "default", MultiViewDataset, (images, silhouettes, cameras) or None
@@ -401,7 +408,7 @@ def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = N
     if cfg.early_stopping is not None and test is None:
         raise ValueError("options.early_stopping: needs held-out views (evaluator)")
     rng = as_rng(seed)
-    clock = Clock()  # the set-up (hull, rays) is part of the method's time
+    clock = Clock(time_budget)  # the set-up (hull, rays) is part of the method's time
     n_threads = get_num_threads() if cfg.n_threads is None else int(cfg.n_threads)
     field, cfg = _initial_field(cfg, rng)
     _check_step_memory(cfg, data.N, n_threads)
@@ -413,9 +420,12 @@ def fit_nerf(dataset, *, recipe: str = "default", options: NerfConfig | None = N
     images_out = p_final = None
     if test is not None:
         images_out, p_final, _ = solver.final_render()
+    if solver.skipped:
+        message += f"; left out to keep the time budget: {', '.join(solver.skipped)}"
     return NerfFitResult(
         status=status, message=message, history=solver.history, n_params=field.n_params,
         seconds=clock.elapsed(), cpu_seconds=clock.cpu_elapsed(), n_iterations=n_steps,
+        total_cpu_seconds=clock.cpu_total(),
         n_evaluations=n_steps, field=field, config=cfg, occupancy=solver.hull,
         samples_per_ray=solver.spr_sum / max(n_steps, 1), psnr=p_final, images=images_out,
         wall_seconds=time.perf_counter() - t_wall, method="adam", recipe=recipe,

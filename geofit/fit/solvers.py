@@ -12,8 +12,10 @@ solver:
 
 * counts evaluations and iterations and measures its time on a :class:`~geofit.fit.history.Clock`
   (pass the fit's clock so that time spent in the callback under ``clock.paused()`` is excluded);
-* honours ``max_iter``, ``max_eval`` and ``time_budget`` (seconds) and ends with a status from
-  :data:`~geofit.fit.history.STATUSES` and a message;
+* honours ``max_iter``, ``max_eval`` and ``time_budget`` (seconds of this solve) and the clock's
+  ``deadline`` (the fit's time budget, checked after every evaluation and, through
+  :class:`~geofit.fit.history.TimeUp`, inside evaluations that call ``clock.check()``), and ends
+  with a status from :data:`~geofit.fit.history.STATUSES` and a message;
 * guards against non-finite objectives: when the value or the gradient is NaN or inf it stops with
   status ``"nonfinite"``; SGD and Adam also stop with ``"diverged"`` when the value exceeds
   ``divergence`` times the first one. In both cases the returned ``x`` is the finite point with
@@ -37,7 +39,7 @@ import numpy as np
 from .._validate import as_array, check_choice, check_positive
 from ..nn.optim import adam_step, check_betas
 from ._options import check_int
-from .history import STATUSES, Clock, TimeUp
+from .history import STATUSES, Clock, TimeUp, budget_status
 
 __all__ = [
     "SOLVERS",
@@ -172,19 +174,20 @@ class _Tracker:
         if value < self.best_value:
             self.best_value = value
             self.best_x = self.last_x
-        if self.time_budget is not None and self.seconds() > self.time_budget:
+        if (self.time_budget is not None and self.seconds() > self.time_budget) or \
+                self.clock.over():
             raise _Stop("time_budget", self.time_up())
         return value, grad
 
     def time_up(self, budget: float | None = None) -> str:
         """The status message of a used-up time budget (``budget``: the solver's own, when the
         tracker was not given it)."""
-        for b in (self.clock.deadline, self.time_budget, budget):
-            if b is not None:
-                budget = b
-                break
-        return (f"reached the time budget of {budget:g} s after {self.n_iter} steps "
-                f"({self.seconds():.1f} s)")
+        if self.clock.deadline is not None:
+            words = self.clock.status_words(self.n_iter)
+        else:
+            words = budget_status(self.time_budget if self.time_budget is not None else budget,
+                                  self.n_iter)
+        return f"{words} ({self.seconds():.1f} s of this solve)"
 
     def iteration(self, x: np.ndarray, value: float) -> None:
         """Count an iteration and run the callback (raises _Stop when it asks to stop)."""
@@ -420,7 +423,7 @@ def _first_order(fun, x0, step_rule, *, n_iter, time_budget, divergence, callbac
                                          f"{tr.n_iter + 1}; returning the best finite parameters")
             x = x_new
             tr.iteration(x, value)
-            if time_budget is not None and tr.seconds() > time_budget:
+            if (time_budget is not None and tr.seconds() > time_budget) or clock.over():
                 raise _Stop("time_budget", f"{name}: {tr.time_up(time_budget)}")
     except _Stop as stop:
         if stop.status in ("nonfinite", "diverged"):

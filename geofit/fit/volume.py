@@ -379,8 +379,8 @@ def fit_volume(dataset, *, recipe: str = "default", options: VolumeFitOptions | 
     options : VolumeFitOptions, optional
         Settings that override the recipe's (every field left None keeps the recipe's).
     time_budget : float, optional
-        Wall-clock seconds for the whole fit (set-up work included; the clock paused during
-        the evaluator's checkpoints).
+        Wall-clock seconds for the whole fit, its set-up included (not the time spent in the
+        evaluator or callback you pass); checked inside each evaluation, between view chunks.
     seed : int or numpy.random.Generator
         For the tutorial recipe's random view batches.
     evaluator : callable, optional

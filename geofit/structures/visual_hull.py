@@ -79,9 +79,10 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5) -> n
     return out
 
 
-def hull_field(sd: np.ndarray, cameras, P: np.ndarray) -> np.ndarray:
+def hull_field(sd: np.ndarray, cameras, P: np.ndarray, check=None) -> np.ndarray:
     """(k,) float64 minimum over the views of the signed distance (pixels) at the projections
-    of ``P (k, 3)``; ``-(H + W)`` for points outside an image or behind a camera."""
+    of ``P (k, 3)``; ``-(H + W)`` for points outside an image or behind a camera.
+    ``check()`` (optional) is called after each view: a fit's time budget raises there."""
     from scipy.ndimage import map_coordinates
 
     N, H, W = sd.shape
@@ -93,6 +94,8 @@ def hull_field(sd: np.ndarray, cameras, P: np.ndarray) -> np.ndarray:
         val = map_coordinates(sd[i], [xy[:, 1], xy[:, 0]], order=1, cval=far)
         val[cam.transform_points_view(P)[0, :, 2] <= 0] = far  # behind the camera
         np.minimum(field, val, out=field)
+        if check is not None:
+            check()
     return field
 
 
@@ -126,7 +129,7 @@ class HullGrid:
 
 
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
-               voxel_px: float = 1.5, refine: int = 1) -> HullGrid:
+               voxel_px: float = 1.5, refine: int = 1, check=None) -> HullGrid:
     """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
 
     A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
@@ -152,6 +155,9 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
         of distance, and a node is at most ``sqrt(3) voxel_px / 2`` from its nearest grid
         node); elsewhere the nearest node's value is kept. Parts thinner than the grid step
         that fall between the nodes are found this way.
+    check : callable, optional
+        Called between views (:func:`hull_field`); whatever it raises (a fit's
+        ``geofit.fit.TimeUp``) stops the carving.
 
     Returns
     -------
@@ -170,7 +176,7 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     h0 = 2.0 * r / (_COARSE - 1)
     _, P0 = _grid(np.full(3, -r), np.full(3, r), h0)
     px0 = pixel_footprint(cameras, (H, W), np.zeros(3))
-    keep = hull_field(sd, cameras, P0) > -np.sqrt(3.0) * h0 / px0
+    keep = hull_field(sd, cameras, P0, check) > -np.sqrt(3.0) * h0 / px0
     if not keep.any():
         raise ValueError("silhouettes: the visual hull is empty (no point projects inside "
                          "every silhouette); check the cameras")
@@ -178,16 +184,17 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     px = pixel_footprint(cameras, (H, W), 0.5 * (lo + hi))
     h = voxel_px * px
     axes, P = _grid(lo, hi, h)
-    occ = hull_field(sd, cameras, P).reshape([len(a) for a in axes])
+    occ = hull_field(sd, cameras, P, check).reshape([len(a) for a in axes])
     if refine > 1:
-        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras)
+        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras, check)
     if not (occ > 0).any():
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
     return HullGrid(occ, lo, h, px)
 
 
-def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras):
+def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras,
+                 check=None):
     """The field on a grid ``k`` times finer, evaluated only in the surface's band."""
     margin = np.sqrt(3.0) * h / px
     n = np.array(occ.shape)
@@ -199,7 +206,7 @@ def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, s
     hf = h / k
     ii = np.unravel_index(band, tuple(m))
     P = lo + hf * np.stack(ii, axis=1)
-    out[band] = hull_field(sd, cameras, P)
+    out[band] = hull_field(sd, cameras, P, check)
     return out.reshape(tuple(m)), hf
 
 
