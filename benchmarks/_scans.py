@@ -305,6 +305,7 @@ def table(out: Path, name: str = "fit_mesh_scans") -> str:
     """The markdown table, the verdict summary and one chart per condition from
     ``out/<name>.json``."""
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     from geofit._atomic import write_text
 
@@ -359,6 +360,7 @@ def table(out: Path, name: str = "fit_mesh_scans") -> str:
                     ax.annotate(r["shape"], (r[x], r["chamfer_l2"]), fontsize=7)
         for ax, x in zip(axes, ("wall seconds (under load)", "faces")):
             ax.set(xscale="log", yscale="log", xlabel=x, ylabel="chamfer-L2 (true surface)")
+            ax.xaxis.set_minor_formatter(NullFormatter())
             ax.legend(fontsize=7)
         fig.suptitle(cond)
         fig.tight_layout()

@@ -167,8 +167,8 @@ def test_watertight_is_refused_for_a_mesh_target():
 @pytest.mark.slow
 def test_clean_dense_scan_stays_as_accurate_as_before():
     """50,000 points, noise 0.002, no strays (issue 25: nothing worse than before): the torus
-    measured 3.4e-6 / F 1.000 (benchmarks/results/fit_mesh_scans.md); a generous budget so the
-    load of the machine does not decide."""
+    measured 3.4e-6 / F 1.000 before (session 5's benchmarks/results/fit_mesh_scans.md, git
+    history); a generous budget so the load of the machine does not decide."""
     from geofit.metrics import MeshEvaluator
 
     m, P = noisy_torus(50_000, 0.002, seed=0)
