@@ -720,10 +720,13 @@ def main(argv=None) -> int:
     print(f"target: {tname} ({target.n_verts} vertices) {tpath or ''}; load {os.getloadavg()}")
     if "shapes" in parts:
         run_shapes(args, out)
-    if "scans" in parts:  # geofit as imported ("after"); see benchmarks/_scans.py for "before"
+    if "scans" in parts:  # the one-factor-at-a-time grid of benchmarks/_scans.py
         import _scans
 
-        _scans.run("after", out, _scans.SHAPES[-1:] if args.quick else _scans.SHAPES)
+        if args.quick:  # the base condition on the torus
+            _scans.run(out, ["torus"], [_scans.GRID[0][0]])
+        else:
+            _scans.run(out, _scans.SHAPES)
         print(_scans.table(out))
     if "speed" in parts:
         run_speed(names, target, tname, tpath, args, out)

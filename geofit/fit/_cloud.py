@@ -29,7 +29,8 @@ from .._validate import as_points, as_rng
 from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
 from .init import decimate
 
-__all__ = ["CloudTarget", "as_cloud_points", "is_cloud", "mesh_from_points", "orient_normals"]
+__all__ = ["CloudTarget", "as_cloud_points", "is_cloud", "mesh_from_points", "orient_normals",
+           "trim_to_evidence"]
 
 #: Fewest points a target cloud may have.
 MIN_POINTS = 20
@@ -150,9 +151,15 @@ class CloudTarget:
         Median distance of a point to its nearest other point.
     rho : float
         Radius of the tangent disks (``2 * spacing``).
+    reach : float or None
+        With a value (a watertight fit of a scan with holes), a point farther than ``reach``
+        from every point of the cloud is where the scan has no evidence: its distance and
+        gradient are 0 (the smoothness of the large-steps parameterisation alone shapes the
+        surface there). None (the default): every point is pulled to the cloud's surface, so
+        surface past the cloud's boundary is pulled back.
     """
 
-    def __init__(self, points: np.ndarray):
+    def __init__(self, points: np.ndarray, *, reach: float | None = None):
         import open3d as o3d
         from scipy.spatial import cKDTree
 
@@ -166,16 +173,21 @@ class CloudTarget:
         self.normals = nrm
         self.spacing = float(np.median(self.tree.query(self.points, 2)[0][:, 1]))
         self.rho = 2.0 * self.spacing
+        self.reach = reach
 
     def _residuals(self, X: np.ndarray):
         """Normal residual ``r_n`` (n,), tangential part ``t`` (n, 3), its excess over ``rho``
         ``e = max(0, |t| - rho)`` (n,), and the nearest points' normals (n, 3)."""
-        _, idx = self.tree.query(X)
+        dist, idx = self.tree.query(X)
         d = X - self.points[idx]
         n = self.normals[idx]
         rn = np.einsum("ij,ij->i", d, n)
         t = d - rn[:, None] * n
         e = np.maximum(np.linalg.norm(t, axis=1) - self.rho, 0.0)
+        if self.reach is not None:  # no evidence there: no residual
+            out = dist > self.reach
+            rn[out] = 0.0
+            e[out] = 0.0
         return rn, t, e, n
 
     def distances(self, X: np.ndarray) -> np.ndarray:
@@ -203,7 +215,7 @@ class CloudTarget:
 
 
 def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
-                     n_max: int = 20_000, seed=0) -> Mesh:
+                     n_max: int = 20_000, seed=0, trim: bool = True) -> Mesh:
     """A first mesh of a point cloud: screened Poisson, trimmed, decimated (Open3D).
 
     Parameters
@@ -219,12 +231,14 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
         Points used at most.
     seed : int or numpy.random.Generator
         Which points when there are more than ``n_max``.
+    trim : bool
+        Remove the vertices farther than 3 point spacings (and 2 octree cells) from the cloud
+        (False: the closed reconstruction, in a cube 1.5 times the points' bounding box).
 
     Returns
     -------
     Mesh
-        The reconstruction with the vertices farther than 3 point spacings (and 2 octree
-        cells) from the cloud removed, cleaned and decimated.
+        The reconstruction (trimmed), cleaned and decimated.
 
     Raises
     ------
@@ -240,9 +254,12 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
     P, N = P[sel], orient_normals(P[sel], cloud.normals[sel])
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     pcd.normals = o3d.utility.Vector3dVector(N)
-    m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=int(depth))
+    # closed: a reconstruction cube 1.5x the points' box (Open3D's 1.1 clips the surface that
+    # closes a one-sided scan, leaving a boundary where the box cuts it)
+    m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+        pcd, depth=int(depth), scale=1.1 if trim else 1.5)
     mv = np.asarray(m.vertices)
-    if len(mv):
+    if len(mv) and trim:
         cell = 2.0 * float(np.abs(P - P.mean(0)).max()) / 2 ** depth
         far = cloud.tree.query(mv)[0] > max(3.0 * cloud.spacing, 2.0 * cell)
         m.remove_vertices_by_mask(far)
@@ -251,3 +268,34 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
     mesh = Mesh(np.asarray(m.vertices, dtype=np.float64),
                 np.asarray(m.triangles, dtype=np.int64))
     return decimate(mesh, n_faces)
+
+
+def trim_to_evidence(mesh: Mesh, cloud: CloudTarget, reach: float) -> tuple[Mesh, int]:
+    """The mesh without the faces where the scan has no point.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        A fitted mesh (the cloud's frame).
+    cloud : CloudTarget
+        The scan.
+    reach : float
+        A face whose centroid is farther than ``reach`` from every point of the cloud is
+        removed (with the vertices no face uses any more).
+
+    Returns
+    -------
+    mesh : Mesh
+        The trimmed mesh (``mesh`` itself when no face is that far, or when every face is).
+    n_removed : int
+        Faces removed.
+    """
+    far = cloud.tree.query(mesh.verts[mesh.faces].mean(1))[0] > reach
+    n_far = int(far.sum())
+    if n_far == 0 or n_far == mesh.n_faces:
+        return mesh, 0
+    F = mesh.faces[~far]
+    used = np.unique(F)
+    remap = np.full(mesh.n_verts, -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return Mesh(mesh.verts[used], remap[F]), n_far

@@ -203,6 +203,13 @@ class MeshFitOptions:
         shape, 10 from an ico-sphere or a given mesh.
     solver_options : dict
         Extra keyword options of the solver (``{"ftol": 1e-12}``, ``{"betas": ...}``).
+    watertight : bool
+        A point-cloud target only. False (the default): no surface where the scan has no
+        points: the start is trimmed to the points, surface past the scan's boundary is pulled
+        back, and at the end faces whose centroid lies farther than ``3 spacing + 3 noise``
+        from every point are removed, so the holes of a one-sided scan stay holes. True: a
+        closed surface; the start is the untrimmed Poisson reconstruction, and where there are
+        no points the surface has no data term (only the large-steps smoothness shapes it).
     """
 
     init: Any = None
@@ -217,6 +224,7 @@ class MeshFitOptions:
     momentum: float | None = None
     large_steps: float | None = None
     solver_options: Mapping[str, Any] | None = None
+    watertight: bool | None = None
 
 
 #: Recipes of :func:`~geofit.fit.fit_mesh`: named :class:`MeshFitOptions` presets.
@@ -358,6 +366,8 @@ class Plan:
     eval_every: int | None
     opts: dict
     own_evaluator: bool = False  # the "default" evaluator: its time counts in the budget
+    watertight: bool = False
+    weights_given: bool = False  # the user's weights (else the recipe's, which a scan adapts)
 
     @property
     def stochastic(self) -> bool:
@@ -413,6 +423,13 @@ def plan(target: MeshTarget, recipe: str, options: MeshFitOptions | None, *, tim
     if isinstance(o.refine, CoarseToFine) and stochastic:
         raise ValueError(f"options.refine: coarse-to-fine needs a deterministic method (lbfgs "
                          f"or lbfgs-nlopt), got method={method!r}")
+    if o.watertight is not None and not isinstance(o.watertight, (bool, np.bool_)):
+        raise TypeError(f"options.watertight: expected True, False or None, got "
+                        f"{type(o.watertight).__name__} {o.watertight!r}")
+    watertight = bool(o.watertight)
+    if watertight and not target.cloud:
+        raise ValueError("options.watertight: a setting of point-cloud targets (closing the "
+                         "holes of a scan); the target is a mesh")
     distance = o.distance or ("points" if stochastic else "surface")
     check_choice(distance, "options.distance", ("surface", "points"))
     n_samples = None if o.n_samples is None else check_count(o.n_samples, "options.n_samples",
@@ -459,7 +476,8 @@ def plan(target: MeshTarget, recipe: str, options: MeshFitOptions | None, *, tim
                         f"got {type(evaluator)!r}")
     return Plan(recipe, method, o.refine, o.init, distance, n_samples, n_iter, n_stages,
                 weights, lr, momentum, lam, time_budget, evaluator, eval_every,
-                dict(o.solver_options or {}), own)
+                dict(o.solver_options or {}), own, watertight,
+                options is not None and options.weights is not None)
 
 
 def _stage_weights(weights, stochastic: bool) -> list[dict]:

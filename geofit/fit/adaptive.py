@@ -24,8 +24,15 @@ from the data's topology and remeshes where the error is.
    (:func:`geofit.fit._scan_report.scan_report`: spacing, noise, strays, reported in
    ``fit.data_report`` and the message); the strays are left out of the start and the fit, the
    accuracy targets are relaxed to the noise floor, edges are not refined for residuals within
-   the noise a face's points leave, and the model never has more faces than the scan has
-   points (:func:`geofit.fit._scan_report.evidence_limits`).
+   the noise a face's points leave, the normal-consistency weight follows the noise
+   (``NOISE_NORMAL_WEIGHT * noise^2``, the recipe's 1e-5 on clean scans), and the model never
+   has more faces than the scan has points (:func:`geofit.fit._scan_report.evidence_limits`).
+   No surface is kept where the scan has no point: the start is trimmed to the points, the
+   distance past the cloud's boundary pulls surface back, and at the end the faces whose
+   centroid is farther than ``3 (spacing + noise)`` from every point are removed
+   (:func:`geofit.fit._cloud.trim_to_evidence`), so the holes of a one-sided scan stay holes.
+   ``MeshFitOptions(watertight=True)`` closes them instead: the untrimmed Poisson start, and no
+   data term where there is no point.
 3. The result reports the initialisation, the vertex count and the
    :class:`~geofit.ops.TopologyReport` of the fitted mesh; a self-intersecting result says so
    in its message.
@@ -42,7 +49,7 @@ import numpy as np
 from .._validate import as_rng
 from ..ops import remesh, topology
 from ..structures import Mesh
-from ._cloud import CloudTarget, mesh_from_points
+from ._cloud import CloudTarget, mesh_from_points, trim_to_evidence
 from ._mesh_objective import MeshObjective
 from ._mesh_plan import MeshFitResult, MeshTarget, Plan, empty_row_terms, repair_degenerate
 from ._progress import progress_bar
@@ -103,9 +110,10 @@ def _start(plan: Plan, target: MeshTarget, p2s, rng, n_faces: int) -> InitialMes
     if not target.cloud:
         return initial_mesh(init, target.normalized, n_faces=n_faces)
     if isinstance(init, str) and init in ("auto", "target"):
-        m0 = mesh_from_points(p2s, n_faces=n_faces, seed=rng)
+        m0 = mesh_from_points(p2s, n_faces=n_faces, seed=rng, trim=not plan.watertight)
         return InitialMesh(m0, "points", f"Poisson reconstruction of the "
-                                         f"{len(p2s.points)} points, trimmed and "
+                                         f"{len(p2s.points)} points, "
+                                         f"{'closed' if plan.watertight else 'trimmed'} and "
                                          f"decimated to {m0.n_faces} faces ({m0.n_verts} "
                                          "vertices, Open3D)")
     return initial_mesh(init, None, n_faces=n_faces)
@@ -133,10 +141,16 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         if report.n_outliers:
             tgt = tgt[keep]
         p2s = CloudTarget(tgt)
+        # how far from its points the scan is evidence of a surface
+        reach = 3.0 * (p2s.spacing + report.noise)
+        if plan.watertight:
+            p2s.reach = reach
         limits = evidence_limits(report, rem.chamfer_l2, rem.fscore, rem.tau)
         chamfer_goal, fscore_goal = limits.chamfer_l2, limits.fscore
         max_verts = min(max_verts, max(limits.max_faces // 2, 4))
         n_faces = min(n_faces, limits.max_faces)
+        if not plan.weights_given:  # smoothing where the scan is noisy, none where clean
+            w = limits.weights(w)
     else:
         p2s = target.distance()
     start = _start(plan, target, p2s, rng, n_faces)
@@ -254,6 +268,12 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
                      f"-> {r.mesh.n_verts} vertices", n_verts=r.mesh.n_verts)
         mesh = r.mesh
     bar.close()
+    if cloud and not plan.watertight:  # no surface where the scan has no point
+        mesh, n_trim = trim_to_evidence(mesh, p2s, reach)
+        if n_trim:
+            history.note(evals, clock.elapsed(), f"removed {n_trim} faces farther than "
+                         f"{reach:.3g} (3 spacings + 3 noise) from every point",
+                         n_trimmed=n_trim)
     with clock.paused():  # not solver time; counted by the budget (its reserve)
         topo = topology(mesh)
     if not len(history):
