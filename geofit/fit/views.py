@@ -444,7 +444,8 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         For the random views of the stochastic recipes.
     evaluator : callable, optional
         ``evaluator(mesh, colors) -> dict`` run at checkpoints with the clock paused (e.g. a
-        :class:`ViewsEvaluator` of held-out views).
+        :class:`ViewsEvaluator` of held-out views); after the UV texture it gets the textured
+        mesh and ``colors=None`` (the mesh's own texture is the prediction).
     eval_every : int, optional
         Steps between checkpoints (default 10); the colours of the ``lstsq`` stage are always
         evaluated.
