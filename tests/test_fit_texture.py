@@ -292,5 +292,9 @@ def test_fit_texture_validation(scene):
         fit_texture(mesh, cams, images[:2])
     with pytest.raises(ValueError, match="texel_size"):
         uv_atlas(mesh, 0.0)
+    with pytest.raises(ValueError, match="prior"):
+        fit_texture(mesh, cams, images, prior=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="prior_weight"):
+        fit_texture(mesh, cams, images, prior=np.zeros((mesh.n_verts, 3)), prior_weight=0.0)
     with pytest.raises(ValueError, match="no view sees the mesh"):
         fit_texture(mesh, cams, images, masks=np.zeros(images.shape[:3]))

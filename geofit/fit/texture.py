@@ -357,7 +357,13 @@ def texture_problem(loss, mesh: Mesh, faces_uvs, verts_uvs, size, *, smoothness:
     -------
     problem : TextureProblem
     charts : TexelCharts
+
+    Raises
+    ------
+    ValueError
+        If ``smoothness`` or ``prior_weight`` is not positive or ``prior`` is not ``(V, 3)``.
     """
+    smoothness = check_positive(smoothness, "smoothness")
     A, y = texel_operator(loss, mesh, faces_uvs, verts_uvs, size)
     charts = texel_charts(faces_uvs, verts_uvs, size)
     n = size[0] * size[1]
