@@ -167,7 +167,7 @@ def _fit_with_curves(run: MethodRun, ds, ev, kw: dict, eval_every: int):
         nonlocal grey
         c0 = time.process_time()
         cpu_at.append(cpu.now())
-        if colors is None and mesh.textures is None:  # (the last: the UV-textured mesh)
+        if colors is None:
             if grey is None or len(grey) != mesh.n_verts:
                 grey = np.full((mesh.n_verts, 3), 0.5)
             colors = grey

@@ -444,8 +444,8 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         For the random views of the stochastic recipes.
     evaluator : callable, optional
         ``evaluator(mesh, colors) -> dict`` run at checkpoints with the clock paused (e.g. a
-        :class:`ViewsEvaluator` of held-out views); after the UV texture it gets the textured
-        mesh and ``colors=None`` (the mesh's own texture is the prediction).
+        :class:`ViewsEvaluator` of held-out views; the last checkpoint is that of the vertex
+        colours: score the UV texture with ``evaluator(result.textured_mesh)``).
     eval_every : int, optional
         Steps between checkpoints (default 10); the colours of the ``lstsq`` stage are always
         evaluated.
@@ -623,16 +623,6 @@ class _Solver:
         return _Recorder(self.history, self.clock, self.evaluate, self.eval_every,
                          self.callback, stage_index, self.step, self.bar)
 
-    def checkpoint(self, mesh: Mesh, colors) -> None:
-        """The evaluator's metrics of a stage's result (no step of its own), clock paused."""
-        if self.evaluate is None:
-            return
-        with self.clock.paused():
-            metrics = self.evaluate(mesh, colors)
-        h = self.history
-        h.checkpoint(max(self.step, h.steps[-1] if h.steps else 0),
-                     max(self.clock.elapsed(), h.seconds[-1] if h.seconds else 0.0), metrics)
-
     def add(self, res, rec: _Recorder) -> None:
         """Count a finished solve's steps, iterations and evaluations."""
         self.step += rec.steps
@@ -766,7 +756,12 @@ def _textured_stage(plan: _Plan, run: _Solver, sil_mesh: Mesh):
     else:
         colors = _lstsq_colors(tex_mesh, plan.views, plan.color_reg)
         status, message = "converged", "colours by sparse least squares on the hard render"
-        run.checkpoint(tex_mesh, colors)
+        if run.evaluate is not None:
+            with run.clock.paused():
+                metrics = run.evaluate(tex_mesh, colors)
+            h = run.history
+            h.checkpoint(max(run.step, h.steps[-1] if h.steps else 0),
+                         max(run.clock.elapsed(), h.seconds[-1] if h.seconds else 0.0), metrics)
         if plan.textured_method == "lbfgs":
             tex_mesh, colors, res = _textured_solve(plan, run, tex_mesh, colors)
             status, message = res.status, res.message
@@ -798,7 +793,6 @@ def _uv_texture_stage(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors) -> Mesh
     H, W = tex.maps.shape[:2]
     run.stages.append({**stage, "status": "converged", "seconds": run.clock.elapsed() - t_stage,
                        "message": f"a {W} x {H} texel atlas by sparse least squares"})
-    run.checkpoint(mesh, None)
     return mesh
 
 
