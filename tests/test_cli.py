@@ -22,7 +22,8 @@ def test_no_command_prints_help_and_returns_2(capsys):
 
 def test_demo_fits_the_shipped_cow(tmp_path, monkeypatch, capsys):
     """`geofit demo` (reduced size) fits the cow shipped with geofit, offline and without
-    GEOFIT_DATA, and writes the picture and the fitted mesh as PLY with its colours."""
+    GEOFIT_DATA, and writes the picture, the fitted mesh as OBJ with its UV texture and as PLY
+    with its vertex colours."""
     from geofit.cli.demo import run_demo
     from geofit.io import load_mesh
 
@@ -34,13 +35,22 @@ def test_demo_fits_the_shipped_cow(tmp_path, monkeypatch, capsys):
     assert set(res.metrics) >= {"iou", "psnr", "chamfer_l2", "fscore@0.01"}
     assert 0.5 < res.metrics["iou"] <= 1.0 and np.isfinite(res.metrics["chamfer_l2"])
     img = np.asarray(Image.open(tmp_path / "out" / "demo.png"))
-    assert img.shape[0] > 2 * 160 and img.shape[1] >= 2 * 160  # caption + targets above the fit
+    assert img.shape[0] > 3 * 160 and img.shape[1] >= 2 * 160  # caption + targets, 2 fits
     assert (img < 250).any() and (img == 255).any()
     back = load_mesh(tmp_path / "out" / "fit.ply")
     np.testing.assert_array_equal(back.verts, res.mesh.verts)  # PLY keeps float64
     np.testing.assert_array_equal(back.faces, res.mesh.faces)
-    err = np.abs(back.textures.verts_features - res.mesh.textures.verts_features).max()
-    assert err <= 1 / 255
+    assert back.textures.verts_features.shape == (res.mesh.n_verts, 3)
+    obj = load_mesh(res.textured_file)  # the UV texture: fit.obj + fit.mtl + its PNG
+    assert res.textured_file.name == "fit.obj"
+    if hasattr(res.mesh.textures, "maps"):  # (a budget spent before it keeps vertex colours)
+        assert (tmp_path / "out" / "fit.mtl").is_file()
+        np.testing.assert_allclose(obj.textures.maps, res.mesh.textures.maps,
+                                   atol=0.5 / 255 + 1e-9)
+    else:
+        np.testing.assert_allclose(obj.verts[obj.faces], res.mesh.verts[res.mesh.faces],
+                                   atol=1e-6)
+    assert np.isfinite(res.metrics["psnr_vertex"])
     text = capsys.readouterr().out
     assert "cow" in text and "held-out views: silhouette IoU" in text and "fit.ply" in text
 

@@ -4,7 +4,16 @@ import pytest
 from _helpers import glb_round_trip
 
 from geofit import FoVPerspectiveCameras, ico_sphere, look_at_view_transform
-from geofit.fit.texture import _bilinear, fit_texture, texel_operator, uv_atlas
+from geofit.fit.texture import (
+    _bilinear,
+    chart_laplacian,
+    fit_texture,
+    texel_charts,
+    texel_operator,
+    texture_problem,
+    uv_atlas,
+    uv_charts,
+)
 from geofit.io import load_mesh, save_mesh
 from geofit.metrics import psnr
 from geofit.render.blending import BlendParams
@@ -91,32 +100,166 @@ def test_texel_operator_reproduces_the_textured_render(scene):
 
 def test_fit_texture_holds_the_images(scene):
     """The solved texture re-renders the training views closely (> 38 dB; the vertex-coloured
-    truth is smooth) and satisfies its normal equations where no texel was clipped."""
+    truth is smooth), and the gradient of its objective vanishes where no texel was clipped."""
     cams, mesh, images = scene
     tex = fit_texture(mesh, cams, images, lights=LIGHTS)
     assert isinstance(tex, TexturesUV) and tex.maps.min() >= 0 and tex.maps.max() <= 1
     img = _render(Mesh(mesh.verts, mesh.faces, tex), cams, 32)
     assert psnr(img, images) > 38.0
-    from geofit.fit.texture import _grid_laplacian
-
     size = tex.maps.shape[:2]
-    A, y = texel_operator(HardImageLoss(cams, images, lights=LIGHTS), mesh, tex.faces_uvs,
-                          tex.verts_uvs, size)
-    L = _grid_laplacian(*size)
-    assert np.all(L.sum(axis=1) == 0) and (L != L.T).nnz == 0
-    for c in range(3):  # channels: (A^T A + lambda L + eps) t = A^T y where t is unclipped
-        t = tex.maps[..., c].ravel()
-        d = (A[c].T @ A[c]).diagonal()
-        scale = d[d > 0].mean()
-        r = A[c].T @ (A[c] @ t - y[:, c]) + 1e-3 * scale * (L @ t) + 1e-9 * scale * t
-        free = (t > 0) & (t < 1)
-        assert free.mean() > 0.9
-        assert np.abs(r[free]).max() < 1e-8 * np.abs(A[c].T @ y[:, c]).max()
+    problem, _ = texture_problem(HardImageLoss(cams, images, lights=LIGHTS), mesh,
+                                 tex.faces_uvs, tex.verts_uvs, size)
+    t = tex.maps.reshape(-1, 3)
+    _, g = problem(t)
+    free = (t > 0) & (t < 1)
+    assert free.mean() > 0.9
+    ref = max(np.abs(problem.A[c].T @ problem.y[:, c]).max() for c in range(3))
+    assert np.abs(g[free]).max() < 1e-8 * ref
+
+
+# ------------------------------------------------------------------------------------------
+# the operator against the renderer, its transpose, the objective's gradient
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small():
+    """An ico-sphere (level 1) seen by 3 cameras at 12 px, with its atlas and random texels."""
+    R, T = look_at_view_transform(2.7, [10.0, -20.0, 40.0], [0.0, 120.0, 250.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    s = ico_sphere(1)
+    mesh = Mesh(s.verts * [1.0, 0.8, 0.9], s.faces)
+    fuv, vuv, size = uv_atlas(mesh, 0.08)
+    rng = np.random.default_rng(5)
+    targets = rng.uniform(0, 1, (3, 12, 12, 3))
+    loss = HardImageLoss(cams, targets, lights=LIGHTS)
+    t = rng.uniform(0, 1, size + (3,))
+    return cams, mesh, fuv, vuv, size, loss, t
+
+
+def test_texel_operator_equals_the_float64_render(small):
+    """A t - y + target is the hard float64 render of TexturesUV(t) to 1e-12: the renderer's
+    own Phong images of albedo 0 and 1 (render0 + (render1 - render0) * albedo) with the albedo
+    sampled by TexturesUV at the rasterizer's fragments."""
+    cams, mesh, fuv, vuv, size, loss, t = small
+    A, y = texel_operator(loss, mesh, fuv, vuv, size)
+    zero = loss.render(mesh, np.zeros((mesh.n_verts, 3)))
+    one = loss.render(mesh, np.ones((mesh.n_verts, 3)))
+    frag = MeshRasterizer(cams, RasterizationSettings(image_size=12))(mesh)
+    albedo = np.zeros((3 * 12 * 12, 3))
+    albedo[frag.pixel] = TexturesUV(t, fuv, vuv).sample(frag.face % mesh.n_faces, frag.bary)
+    ref = zero + (one - zero) * albedo.reshape(3, 12, 12, 3)
+    assert 30 < len(frag.pixel) < 3 * 12 * 12  # covered and background pixels
+    for c in range(3):  # channels
+        np.testing.assert_allclose(A[c] @ t[..., c].ravel() - y[:, c]
+                                   + loss.targets[..., c].ravel(), ref[..., c].ravel(),
+                                   rtol=0, atol=1e-12)
+
+
+def test_texel_operator_transpose_dot_product(small):
+    """<A x, z> = <x, A^T z> for random x, z (the transpose the normal equations use)."""
+    cams, mesh, fuv, vuv, size, loss, _ = small
+    A, _ = texel_operator(loss, mesh, fuv, vuv, size)
+    rng = np.random.default_rng(6)
+    for c in range(3):  # channels
+        x, z = rng.normal(size=A[c].shape[1]), rng.normal(size=A[c].shape[0])
+        assert (A[c] @ x) @ z == pytest.approx(x @ (A[c].T @ z), rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.parametrize("data_term", [True, False])
+def test_texture_objective_gradient_matches_finite_differences(small, data_term):
+    """The gradient of TextureProblem (data + within-chart Laplacian + prior; or the
+    smoothness and prior terms alone) against central differences in float64."""
+    cams, mesh, fuv, vuv, size, loss, t = small
+    prior = np.random.default_rng(7).uniform(0, 1, (mesh.n_verts, 3))
+    problem, _ = texture_problem(loss, mesh, fuv, vuv, size, smoothness=0.3, prior=prior,
+                                 prior_weight=0.05)
+    if not data_term:  # the regularisers alone (the scale s_c still from A)
+        s = [problem.scale(c) for c in range(3)]
+        problem.y = np.zeros_like(problem.y)
+        problem.A = [0.0 * a for a in problem.A]
+        problem.scale = lambda c: s[c]
+    x = t.reshape(-1, 3)
+    _, g = problem(x)
+    rng = np.random.default_rng(8)
+    idx = rng.choice(x.size, 40, replace=False)
+    h = 1e-2  # E is quadratic: a central difference is exact up to rounding at any step
+    for k in idx:  # finite differences, entry by entry
+        e = np.zeros(x.size)
+        e[k] = h
+        fd = (problem(x + e.reshape(x.shape))[0] - problem(x - e.reshape(x.shape))[0]) / (2 * h)
+        assert fd == pytest.approx(g.ravel()[k], rel=1e-9, abs=1e-9)
+
+
+def test_chart_laplacian_closed_form():
+    """t^T L t equals the sum of (t_i - t_j)^2 over the 4-neighbour pairs of one chart (a loop
+    reference); free texels and pairs across charts are not linked."""
+    rng = np.random.default_rng(9)
+    H, W = 5, 6
+    chart = rng.integers(-1, 3, H * W)
+    L = chart_laplacian(chart, (H, W))
+    t = rng.normal(size=H * W)
+    ref = 0.0
+    for r in range(H):  # the slow reference
+        for c in range(W):
+            i = r * W + c
+            for j in ([i + 1] if c + 1 < W else []) + ([i + W] if r + 1 < H else []):
+                if chart[i] == chart[j] and chart[i] >= 0:
+                    ref += (t[i] - t[j]) ** 2
+    assert t @ (L @ t) == pytest.approx(ref, rel=1e-12)
+    np.testing.assert_allclose(np.asarray(L.sum(axis=1)).ravel(), 0.0, atol=0)
+    assert (L != L.T).nnz == 0
+
+
+def test_bilinear_lookups_never_read_another_chart(scene):
+    """Seams: every texel a lookup inside a face reads (weight > 0) belongs to that face's
+    chart (texel_charts), no texel is read by two charts, and the Laplacian links none."""
+    _, mesh, _ = scene
+    fuv, vuv, size = uv_atlas(mesh, 0.05)
+    ch = texel_charts(fuv, vuv, size)
+    assert ch.n_shared == 0
+    face_chart = uv_charts(fuv)
+    assert len(np.unique(face_chart)) > 1
+    rng = np.random.default_rng(3)
+    b = rng.dirichlet(np.ones(3), size=(len(fuv), 16))
+    # and the corners and edge midpoints, where a lookup comes nearest another chart
+    b = np.concatenate([b, np.broadcast_to(np.array(
+        [[1, 0, 0], [0, 1, 0], [0, 0, 1], [.5, .5, 0], [0, .5, .5], [.5, 0, .5]], float),
+        (len(fuv), 6, 3))], axis=1)
+    uv = np.einsum("fsj,fjd->fsd", b, vuv[fuv]).reshape(-1, 2)
+    ids, w = _bilinear(uv, size)
+    owner = np.repeat(face_chart, b.shape[1])
+    read = w > 1e-12
+    assert np.array_equal(ch.chart[ids[read]], np.broadcast_to(owner[:, None], ids.shape)[read])
+    L = chart_laplacian(ch.chart, size).tocoo()
+    off = L.row != L.col
+    assert np.all(ch.chart[L.row[off]] == ch.chart[L.col[off]])
+
+
+def test_texels_no_view_sees_take_the_prior(scene):
+    """With one view, the charts no ray reaches hold the prior (constant vertex colours)
+    exactly, the texels stay in [0, 1], and the seen ones still reproduce the view."""
+    cams, mesh, images = scene
+    one = cams[np.array([0])]
+    prior = np.tile([0.2, 0.6, 0.9], (mesh.n_verts, 1))
+    tex = fit_texture(mesh, one, images[:1], lights=LIGHTS, prior=prior)
+    assert tex.maps.min() >= 0 and tex.maps.max() <= 1
+    A, _ = texel_operator(HardImageLoss(one, images[:1], lights=LIGHTS), mesh, tex.faces_uvs,
+                          tex.verts_uvs, tex.maps.shape[:2])
+    ch = texel_charts(tex.faces_uvs, tex.verts_uvs, tex.maps.shape[:2])
+    seen = np.asarray(abs(A[0]).sum(axis=0)).ravel() > 0
+    seen_charts = np.unique(ch.chart[seen])
+    unseen = (ch.chart >= 0) & ~np.isin(ch.chart, seen_charts)
+    assert unseen.sum() > 50
+    np.testing.assert_allclose(tex.maps.reshape(-1, 3)[unseen], prior[:1].repeat(
+        unseen.sum(), 0), atol=1e-9)
+    img = _render(Mesh(mesh.verts, mesh.faces, tex), one, 32)
+    assert psnr(img, images[:1]) > 38.0
 
 
 def test_fitted_texture_survives_obj_and_glb(scene, tmp_path):
     """save_mesh writes the fitted texture as .obj + .mtl + .png and as .glb. The OBJ reloads
-    to the same renders up to the PNG's 8 bits; the GLB (float32 positions, vertices split at
+    to the same per-corner positions, UVs and map (up to the PNG's 8 bits) and renders; the GLB (float32 positions, vertices split at
     the seams) to the same per-corner positions and UVs and the same map up to 8 bits (its
     renders differ where float32 moves a pixel across a seam onto the other chart)."""
     cams, mesh, images = scene
@@ -126,6 +269,10 @@ def test_fitted_texture_survives_obj_and_glb(scene, tmp_path):
     assert (tmp_path / "cow.mtl").exists() and list(tmp_path.glob("*.png"))
     back = load_mesh(tmp_path / "cow.obj")
     assert isinstance(back.textures, TexturesUV)
+    np.testing.assert_allclose(back.verts[back.faces], mesh.verts[mesh.faces], atol=1e-6)
+    np.testing.assert_allclose(back.textures.verts_uvs[back.textures.faces_uvs],
+                               tex.verts_uvs[tex.faces_uvs], atol=1e-6)
+    np.testing.assert_allclose(back.textures.maps, tex.maps, atol=0.5 / 255 + 1e-9)
     np.testing.assert_allclose(_render(back, cams, 32), _render(m, cams, 32), atol=2.5 / 255)
     back = glb_round_trip(m, tmp_path / "cow.glb")
     np.testing.assert_allclose(back.textures.maps, tex.maps, atol=0.5 / 255 + 1e-9)
@@ -141,5 +288,9 @@ def test_fit_texture_validation(scene):
         fit_texture(mesh, cams, images[:2])
     with pytest.raises(ValueError, match="texel_size"):
         uv_atlas(mesh, 0.0)
+    with pytest.raises(ValueError, match="prior"):
+        fit_texture(mesh, cams, images, prior=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="prior_weight"):
+        fit_texture(mesh, cams, images, prior=np.zeros((mesh.n_verts, 3)), prior_weight=0.0)
     with pytest.raises(ValueError, match="no view sees the mesh"):
         fit_texture(mesh, cams, images, masks=np.zeros(images.shape[:3]))

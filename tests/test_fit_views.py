@@ -386,12 +386,12 @@ def test_recipes_are_option_presets_and_options_override(data):
 
 
 def test_textured_mesh_and_render_helper_match_the_evaluator(data):
-    """ViewsFitResult.textured_mesh carries the clipped colours; render_mesh_at_views (and
-    result.render) draw it as the ViewsEvaluator scores it (the same PSNR), with the dataset's
+    """With texture="vertex", ViewsFitResult.textured_mesh carries the clipped colours;
+    render_mesh_at_views (and result.render) draw it as the ViewsEvaluator scores it (the same PSNR), with the dataset's
     lights; without colours the mesh is grey."""
     h = data.held_out
     res = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
-                                                          silhouette_iters=3),
+                                                          silhouette_iters=3, texture="vertex"),
                             progress=False)
     tm = res.textured_mesh
     np.testing.assert_array_equal(tm.textures.verts_features, np.clip(res.colors, 0.0, 1.0))
@@ -416,3 +416,65 @@ def test_one_time_budget_bounds_both_stages(data):
         time_budget=1.0, progress=False)
     assert [s["status"] for s in res.stages] == ["time_budget", "time_budget"]
     assert res.seconds < 3.0 and res.cpu_seconds > 0
+
+
+def test_default_result_carries_a_uv_texture(data):
+    """The default's mesh carries a TexturesUV solved on the final geometry (a last
+    "texture" stage); texture="vertex" keeps the vertex colours; the geometry and the vertex
+    colours are the same either way; the held-out evaluator and the render helper score the
+    texture alike."""
+    from geofit.structures import TexturesUV
+
+    kw = dict(init=ico_sphere(2), silhouette_iters=3)
+    h = data.held_out
+    # an evaluator that ignores the colours (as notebook 04's): the checkpoints keep one set of
+    # metric names (the last is the vertex colours'; the texture is scored on the result)
+    uv = fit_mesh_to_views(data, options=ViewsFitOptions(**kw), progress=False,
+                           evaluator=lambda mesh, colors: ViewsEvaluator(h)(mesh))
+    assert uv.history.checkpoints and "psnr" not in uv.history.metric_names
+    vx = fit_mesh_to_views(data, options=ViewsFitOptions(texture="vertex", **kw),
+                           progress=False)
+    assert isinstance(uv.mesh.textures, TexturesUV) and uv.textured_mesh is uv.mesh
+    assert isinstance(vx.mesh.textures, TexturesVertex)
+    assert [s["name"] for s in uv.stages] == ["silhouette", "textured", "texture"]
+    assert [s["name"] for s in vx.stages] == ["silhouette", "textured"]
+    np.testing.assert_array_equal(uv.mesh.verts, vx.mesh.verts)
+    np.testing.assert_array_equal(uv.colors, vx.colors)
+    assert uv.n_params == vx.n_params + uv.mesh.textures.maps.size
+    imgs = uv.render(h)
+    np.testing.assert_array_equal(imgs, render_mesh_at_views(uv.mesh, h))
+    assert ViewsEvaluator(h)(uv.mesh)["psnr"] == pytest.approx(psnr(imgs, h.images), rel=1e-12)
+    assert not np.array_equal(imgs, vx.render(h))
+
+
+@pytest.mark.parametrize("lit", [True, False])
+def test_uv_texture_uses_the_datasets_lights_or_unlit_colour(data, lit):
+    """On the true surface the UV texture reproduces the training views (> 33 dB) rendered as
+    the fit sees the dataset: with its lights, or unlit (AmbientLights) when it has none,
+    the texture then holding what the camera saw (shading baked in)."""
+    import dataclasses
+
+    train = data if lit else dataclasses.replace(data, lights=None)
+    truth = Mesh(data.mesh.verts, data.mesh.faces)
+    res = fit_mesh_to_views(train, options=ViewsFitOptions(init=truth, silhouette_method="none"),
+                            progress=False)
+    assert psnr(res.render(train), train.images) > 33.0
+    if not lit:  # what the camera saw (shading baked in): lit again, it no longer matches
+        assert psnr(res.render(data), data.images) < psnr(res.render(train), train.images) - 3
+
+
+def test_uv_texture_respects_the_time_budget(data):
+    """A budget spent before the texture stage keeps the vertex colours and says so."""
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2)),
+                            time_budget=1e-3, progress=False)
+    st = res.stages[-1]
+    assert st["name"] == "texture" and st["status"] == "time_budget"
+    assert "vertex colours kept" in st["message"]
+    assert isinstance(res.mesh.textures, TexturesVertex) and res.status == "time_budget"
+
+
+def test_texture_options_are_validated(data):
+    for opts, match in ((ViewsFitOptions(texture="atlas"), "options.texture"),
+                        (ViewsFitOptions(texel_px=0.0), "options.texel_px")):
+        with pytest.raises(ValueError, match=match):
+            fit_mesh_to_views(data, options=opts, progress=False)

@@ -5,14 +5,15 @@ domain; ``GEOFIT_DATA`` or the user cache take precedence), the demo
 
 1. renders the fit_textured_mesh tutorial's views: ``--views`` cameras around the cow at
    ``--size`` pixels (RGB and soft silhouettes), plus ``--heldout`` views kept for evaluation;
-2. fits a mesh and its vertex colours to the training views with
+2. fits a mesh and its colours to the training views with
    ``geofit.fit_mesh_to_views`` with its defaults (the visual hull of the silhouettes
-   deformed to them by L-BFGS with remeshing, within a ``--time-budget`` in seconds, then the
-   colours by one least-squares solve);
-3. writes ``out/demo.png`` (held-out targets above the fit seen from the same cameras, with the
-   held-out silhouette IoU and PSNR, the chamfer-L2 and F-score against the true cow, and the
-   seconds) and ``out/fit.ply`` (the fitted mesh with its vertex colours: open it in any viewer,
-   or ``geofit.io.load_mesh``, trimesh, Open3D, MeshLab, Blender).
+   deformed to them by L-BFGS with remeshing, within a ``--time-budget`` in seconds, then
+   vertex colours and a UV texture, each by one least-squares solve);
+3. writes ``out/demo.png`` (held-out targets above the fit seen from the same cameras, with
+   its vertex colours and with its texture, the held-out silhouette IoU and PSNRs, the
+   chamfer-L2 and F-score against the true cow, and the seconds), ``out/fit.obj`` (with
+   ``fit.mtl`` and the texture image ``fit.png``) and ``out/fit.ply`` (the vertex colours):
+   open them in any viewer, or ``geofit.io.load_mesh``, trimesh, Open3D, MeshLab, Blender.
 
 ``render_views`` (below) is the quick Embree render of a mesh from a ring of views.
 """
@@ -103,10 +104,11 @@ class DemoResult(NamedTuple):
     name: str  # which mesh: "cow" (or the procedural stand-in's name)
     metrics: dict  # held-out iou, psnr; chamfer_l2, fscore@0.01 against the true mesh
     seconds: dict  # "data", "fit", "total" wall seconds
-    mesh: "object"  # the fitted Mesh with TexturesVertex colours
+    mesh: "object"  # the fitted Mesh with its TexturesUV (fit.obj)
     status: str
     picture: Path
-    mesh_file: Path
+    mesh_file: Path  # fit.ply: the vertex colours
+    textured_file: Path  # fit.obj (+ fit.mtl, fit.png): the UV texture
 
 
 def _fit(train, time_budget: float, progress: bool):
@@ -128,15 +130,17 @@ def _label(img, text: str, xy, size: int, fill=(0, 0, 0)) -> None:
     ImageDraw.Draw(img).text(xy, text, fill=fill, font=font)
 
 
-def _picture(path: Path, targets: np.ndarray, preds: np.ndarray, lines: list[str]) -> None:
-    """Targets above predictions ((k, H, W, 3) in [0, 1]), scaled to >= 160 px, under a caption."""
+def _picture(path: Path, rows: dict, lines: list[str]) -> None:
+    """Rows of images (name -> (k, H, W, 3) in [0, 1]; the targets first), one above the other,
+    scaled to >= 160 px, under a caption."""
     import numpy as np
 
     from PIL import Image
 
-    k, H, W, _ = targets.shape
+    k, H, W, _ = next(iter(rows.values())).shape
     scale = max(1, -(-160 // H))
-    rows = [np.concatenate(list(r), axis=1) for r in (targets, preds)]
+    names = list(rows)
+    rows = [np.concatenate(list(r), axis=1) for r in rows.values()]
     grid = np.concatenate(rows, axis=0).repeat(scale, 0).repeat(scale, 1)
     gh, gw = grid.shape[:2]
     font = max(12, min(18, gw // 48))
@@ -145,7 +149,7 @@ def _picture(path: Path, targets: np.ndarray, preds: np.ndarray, lines: list[str
     canvas.paste(Image.fromarray((np.clip(grid, 0, 1) * 255 + 0.5).astype(np.uint8)), (0, head))
     for i, line in enumerate(lines):
         _label(canvas, line, (6, 4 + i * (font + 6)), font)
-    for r, name in enumerate(("target (held-out view)", "fit")):
+    for r, name in enumerate(names):
         for j in range(k):
             _label(canvas, name, (j * W * scale + 4, head + r * H * scale + 2), max(10, font - 4),
                    (90, 90, 90))
@@ -154,12 +158,14 @@ def _picture(path: Path, targets: np.ndarray, preds: np.ndarray, lines: list[str
 
 def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
              time_budget: float = 30.0, verbose: bool = True) -> DemoResult:
-    """Render views of the cow, fit a mesh and its colours to them, write the picture and PLY.
+    """Render views of the cow, fit a mesh and its colours to them, write the picture, the
+    textured OBJ and the vertex-coloured PLY.
 
     Parameters
     ----------
     out : str or os.PathLike
-        Output folder (created): ``demo.png`` and ``fit.ply`` are written there.
+        Output folder (created): ``demo.png``, ``fit.obj`` (+ ``fit.mtl``, ``fit.png``) and
+        ``fit.ply`` are written there.
     views : int
         Training views (>= 2).
     size : int
@@ -179,8 +185,10 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
 
     from ..data import load_textured_mesh
     from ..datasets import tutorial_views
-    from ..fit.views import ViewsEvaluator
+    from ..structures import Mesh, TexturesUV, TexturesVertex
+    from ..fit.views import ViewsEvaluator, render_mesh_at_views
     from ..io import save_mesh
+    from ..metrics import psnr
 
     for val, nm, lo in ((views, "views", 2), (size, "size", 16), (heldout, "heldout", 1)):
         if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < lo:
@@ -205,34 +213,39 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     fit = _fit(train, float(time_budget), verbose)
     t_fit = time.perf_counter() - t1
     fitted = fit.textured_mesh
-    metrics = ViewsEvaluator(train.held_out, mesh, n_samples=20000, taus=(0.01,))(
-        fit.mesh, fitted.textures.verts_features)
-
     h = train.held_out
+    metrics = ViewsEvaluator(h, mesh, n_samples=20000, taus=(0.01,))(fitted)
+    vertex = render_mesh_at_views(fit.mesh, h, fit.colors)
+    metrics["psnr_vertex"] = psnr(vertex, h.images)
     k = min(4, len(h))
     preds = fit.render(h, n_views=k)
     dest = Path(out)
     dest.mkdir(parents=True, exist_ok=True)
-    mesh_file = dest / "fit.ply"
-    save_mesh(mesh_file, fitted)
+    mesh_file, textured_file = dest / "fit.ply", dest / "fit.obj"
+    save_mesh(mesh_file, fit.mesh if fit.colors is None else Mesh(
+        fit.mesh.verts, fit.mesh.faces, TexturesVertex(np.clip(fit.colors, 0.0, 1.0))))
+    save_mesh(textured_file, fitted)
     total = time.perf_counter() - t0
+    what = (f"{fitted.textures.maps.shape[1]} x {fitted.textures.maps.shape[0]} texel texture"
+            if isinstance(fitted.textures, TexturesUV) else "vertex colours")
     lines = [f"geofit demo: a mesh fitted to {views} views ({size} px) of the {loaded.name}: "
-             f"{fit.mesh.n_verts} vertices with colours",
+             f"{fit.mesh.n_verts} vertices, a {what}",
              f"held-out views: silhouette IoU {metrics['iou']:.3f}, PSNR {metrics['psnr']:.1f} "
-             f"dB; surface: chamfer-L2 {metrics['chamfer_l2']:.2g}, "
-             f"F-score@0.01 {metrics['fscore@0.01']:.2f}",
+             f"dB (vertex colours {metrics['psnr_vertex']:.1f} dB); surface: chamfer-L2 "
+             f"{metrics['chamfer_l2']:.2g}, F-score@0.01 {metrics['fscore@0.01']:.2f}",
              f"fit {t_fit:.1f} s (time budget {time_budget:g} s: silhouettes, then "
              f"colours), {total:.1f} s in all"
              + ("" if fit.status in ("time_budget", "converged", "max_iter")
                 else f"; status {fit.status}")]
     picture = dest / "demo.png"
-    _picture(picture, h.images[:k], preds, lines)
+    _picture(picture, {"target (held-out view)": h.images[:k],
+                       "fit: vertex colours": vertex[:k], "fit: texture": preds}, lines)
     for line in lines[1:]:
         say(f"geofit demo: {line}")
-    say(f"geofit demo: wrote {picture} and {mesh_file}")
+    say(f"geofit demo: wrote {picture}, {textured_file} and {mesh_file}")
     return DemoResult(loaded.name, metrics, {"data": t_data, "fit": t_fit,
                                              "total": time.perf_counter() - t0},
-                      fitted, fit.status, picture, mesh_file)
+                      fitted, fit.status, picture, mesh_file, textured_file)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -245,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo", help="fit a mesh and its colours to rendered views of the cow "
-                     "(out/demo.png, out/fit.ply)",
+                     "(out/demo.png, out/fit.obj, out/fit.ply)",
         description=__doc__.split("\n\n", 1)[1].rsplit("\n\n", 1)[0].replace("``", "")
         if __doc__ else None, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")

@@ -88,7 +88,8 @@ class ViewsEvaluator:
     -----
     Predictions are rendered with :class:`geofit.render.MeshRenderer` (one ray per pixel: the
     hard render the targets were made with); the predicted silhouette is the coverage mask and
-    the RGB is Phong shading of the vertex colours with the dataset's light.
+    the RGB is Phong shading of the vertex colours (or of the mesh's textures) with the
+    dataset's light.
     """
 
     def __init__(self, heldout: MultiViewDataset, target_mesh: Mesh | None = None, *,
@@ -103,8 +104,9 @@ class ViewsEvaluator:
             self.mesh_eval = MeshEvaluator(target_mesh, n_samples=n_samples, taus=self.taus)
 
     def __call__(self, mesh: Mesh, colors=None, *, surface: bool = True) -> dict[str, float]:
-        """Metrics of a prediction (keys ``iou``, ``psnr`` if colours, ``chamfer_l2``,
-        ``fscore@tau`` if a target mesh and ``surface``)."""
+        """Metrics of a prediction (keys ``iou``, ``psnr`` if ``colors`` or the mesh's own
+        textures (e.g. a fit's UV texture), ``chamfer_l2``, ``fscore@tau`` if a target mesh and
+        ``surface``)."""
 
         h = self.heldout
         H, W = h.image_size
@@ -113,7 +115,7 @@ class ViewsEvaluator:
         frag = ras(mesh)
         if h.silhouettes is not None:
             out["iou"] = float(silhouette_iou(frag.mask, h.silhouettes).mean())
-        if colors is not None and h.images is not None:
+        if (colors is not None or mesh.textures is not None) and h.images is not None:
             out["psnr"] = psnr(render_mesh_at_views(mesh, h, colors), h.images)
         if surface and self.mesh_eval is not None:
             mm = self.mesh_eval.evaluate(Mesh(mesh.verts, mesh.faces))

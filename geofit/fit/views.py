@@ -14,7 +14,9 @@ plain sight in :class:`_Objective`.
   marching cubes, quadric decimation; the hull's genus and parts),
   then alternates L-BFGS on the soft silhouettes of all views (large steps, lambda 10; 64 then
   128 px) with **remeshing** (:func:`geofit.ops.remesh`) to edges of ``edge_px`` = 3 pixels
-  of the level's images, and ends with least-squares colours. Every length is a number of
+  of the level's images, and ends with least-squares colours: vertex colours, then a UV
+  texture on the final geometry (:func:`geofit.fit.texture.fit_texture`; ``texture="vertex"``
+  keeps the vertex colours). Every length is a number of
   pixels times the pixel's world size at the object
   (:func:`~geofit.structures.visual_hull.pixel_footprint`), so nothing depends on the object's scale. The hull is only a start:
   with 50 faces blended, a soft silhouette exceeds 0.5 up to about a pixel outside the
@@ -68,15 +70,18 @@ from ..structures import MultiViewDataset
 from ..render.soft import SoftRasterizationSettings
 from ..render.soft.contour import ContourSilhouetteLoss
 from ..shapes import ico_sphere, subdivide
-from ..structures import Mesh, as_mesh
+from ..structures import Mesh, TexturesUV, as_mesh
 from ._options import as_dataset, check_int, check_weights, merge_options, recipe_name
 from ._progress import NoBar, progress_bar
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
-from ._views_objective import REG_TERMS, _ContourObjective, _lstsq_colors, _Objective
+from ._views_objective import (
+    REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_lights,
+)
 from .history import Clock, FitHistory, FitResult
 from .large_steps import vertex_parameterization
 from .solvers import StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
+from .texture import fit_texture
 
 __all__ = [
     "FINAL_STAGE_SHARE",
@@ -86,6 +91,7 @@ __all__ = [
     "SILHOUETTE_LOSSES",
     "SILHOUETTE_METHODS",
     "TEXTURED_METHODS",
+    "TEXTURES",
     "TUTORIAL_SILHOUETTE_WEIGHTS",
     "TUTORIAL_TEXTURED_WEIGHTS",
     "ViewsEvaluator",
@@ -102,6 +108,9 @@ SILHOUETTE_METHODS = ("lbfgs", "lbfgs-nlopt", "sgd", "adam")
 SILHOUETTE_LOSSES = ("soft", "contour")
 #: Textured-stage methods of :func:`fit_mesh_to_views`.
 TEXTURED_METHODS = ("lstsq", "lbfgs", "sgd", "none")
+#: What the fitted mesh carries after a textured stage: a UV texture (``"uv"``:
+#: :func:`geofit.fit.texture.fit_texture` on the final geometry) or the vertex colours.
+TEXTURES = ("uv", "vertex")
 
 #: Weights of the default fit's silhouette stage (at the tutorial's pixel size, see
 #: :data:`TUTORIAL_PIXEL`): the tutorial's normal weight, edge and Laplacian 0.3 (the
@@ -186,6 +195,17 @@ class ViewsFitOptions:
     color_reg : float
         Weight of the Laplacian smoothness of the colours in the ``lstsq`` solve (fills
         vertices no view sees).
+    texture : {"uv", "vertex"}
+        What the result's mesh carries after the textured stage: ``"uv"`` (recipe
+        ``"default"``) a :class:`~geofit.structures.TexturesUV` solved on the final geometry
+        by :func:`geofit.fit.texture.fit_texture` (a xatlas atlas, texels by one sparse
+        least-squares solve over all views, with the dataset's lights or unlit colour, the
+        vertex colours filling texels no view sees); ``"vertex"`` (the other recipes) the
+        vertex colours (:class:`~geofit.structures.TexturesVertex`). The vertex colours are
+        in ``result.colors`` either way.
+    texel_px : float
+        Texel size of the ``"uv"`` atlas in pixels of the views at the object (1: about one
+        texel per pixel of surface seen).
     contour_threshold : float
         The contour method compares the mesh's hard silhouette with the targets binarised at
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
@@ -212,12 +232,14 @@ class ViewsFitOptions:
     faces_per_pixel: int | None = None
     color_reg: float | None = None
     contour_threshold: float | None = None
+    texture: str | None = None
+    texel_px: float | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
-               textured_weights=TUTORIAL_TEXTURED_WEIGHTS)
+               textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -229,28 +251,30 @@ RECIPES: dict[str, ViewsFitOptions] = {
         silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
         textured_init="silhouette", large_steps=10.0, init="hull", levels=((0, 2), (0, 1)),
         remesh_rounds=2, silhouette_iters=120, silhouette_weights=HULL_SILHOUETTE_WEIGHTS,
-        **_COMMON),
+        texture="uv", **_COMMON),
     "sphere-lbfgs": ViewsFitOptions(
         silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
         textured_init="silhouette", large_steps=0.0, init="sphere", levels=((0, 1),),
         remesh_rounds=0, silhouette_iters=2000,
-        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, **_COMMON),
+        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, texture="vertex", **_COMMON),
     "tutorial": ViewsFitOptions(
         silhouette_method="sgd", silhouette_loss="soft", textured_method="sgd",
         textured_init="sphere", large_steps=0.0, init="sphere", levels=((0, 1),),
         remesh_rounds=0, silhouette_iters=2000,
-        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, **_COMMON),
+        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, texture="vertex", **_COMMON),
     "contour": ViewsFitOptions(
         silhouette_method="adam", silhouette_loss="contour", textured_method="lstsq",
         textured_init="silhouette", large_steps=10.0, init="sphere", levels=((0, 1),),
         remesh_rounds=0, silhouette_iters=2000,
-        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, **_COMMON),
+        silhouette_weights=TUTORIAL_SILHOUETTE_WEIGHTS, texture="vertex", **_COMMON),
 }
 
 #: Share of a time budget the silhouette stage leaves to the final stage (the colours' hard
 #: render and sparse solve: about 1.5 s of a 30 s budget on the cow, measured under load).
 FINAL_STAGE_SHARE = 0.1
-
+#: The share it leaves with ``texture="uv"`` (the colours and the UV texture: on the cow's 20
+#: views of 128 px the two take 3-5 s under load).
+_TEXTURE_RESERVE = 0.15
 _MAX_FACES = 4000  # the default's remeshing keeps at most about this many faces (full size)
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
@@ -271,9 +295,10 @@ class ViewsFitResult(FitResult):
     Attributes
     ----------
     mesh : Mesh
-        The fitted mesh (with ``TexturesVertex`` when a textured stage ran).
+        The fitted mesh, after a textured stage with ``TexturesUV`` (``options.texture``
+        ``"uv"``, the default recipe's) or ``TexturesVertex`` (``"vertex"``).
     colors : (V, 3) float64 or None
-        Fitted vertex colours.
+        Fitted vertex colours (also with a UV texture: they fill the texels no view sees).
     silhouette_mesh : Mesh
         The mesh after the silhouette stage.
     stages : list of dict
@@ -298,8 +323,10 @@ class ViewsFitResult(FitResult):
 
     @property
     def textured_mesh(self) -> Mesh:
-        """The fitted mesh with its vertex colours (clipped to [0, 1]; uniform grey 0.7 when no
-        textured stage ran), ready to render or save."""
+        """The fitted mesh with its UV texture, or else its vertex colours (clipped to [0, 1];
+        uniform grey 0.7 when no textured stage ran), ready to render or save."""
+        if isinstance(self.mesh.textures, TexturesUV):
+            return self.mesh
         return colored_mesh(self.mesh, self.colors)
 
     def render(self, views: MultiViewDataset, *, n_views: int | None = None) -> np.ndarray:
@@ -389,12 +416,13 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
                       evaluator: Callable | None = None, eval_every: int | None = None,
                       callback: Callable[[StepInfo], bool | None] | None = None,
                       progress: bool = True) -> ViewsFitResult:
-    """Fit a mesh to multi-view silhouettes, then its vertex colours (tutorial 4).
+    """Fit a mesh to multi-view silhouettes, then its colours (tutorial 4).
 
     The default starts from the visual hull of the silhouettes (its genus and parts), and
     alternates L-BFGS on the soft silhouettes of all views (large steps, half then full
-    resolution) with remeshing to edges of ``edge_px`` pixels; the colours then come from one
-    sparse least-squares solve.
+    resolution) with remeshing to edges of ``edge_px`` pixels; the vertex colours then come
+    from one sparse least-squares solve, and the result's mesh carries a UV texture solved
+    likewise (:func:`geofit.fit.texture.fit_texture`, ``options.texture``).
 
     Parameters
     ----------
@@ -414,14 +442,17 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         with the clock checked between views), the solves (checked between view batches inside
         each evaluation), the remeshing and the final stage; not the time spent in the
         evaluator or callback you pass. The silhouette stage shares it over its solves and
-        leaves :data:`FINAL_STAGE_SHARE` of it to the final (colour) stage. A budget used up
-        while carving the hull returns the unfitted ico-sphere with status ``"time_budget"``
-        and says so.
+        leaves :data:`FINAL_STAGE_SHARE` of it (15 % with ``texture="uv"``) to the final
+        stage: the colours (one sparse solve) and the UV texture (one sparse solve). If the
+        budget is spent before the texture, the mesh keeps its vertex colours and the
+        ``"texture"`` stage says so. A budget used up while carving the hull returns the
+        unfitted ico-sphere with status ``"time_budget"`` and says so.
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
         ``evaluator(mesh, colors) -> dict`` run at checkpoints with the clock paused (e.g. a
-        :class:`ViewsEvaluator` of held-out views).
+        :class:`ViewsEvaluator` of held-out views; the last checkpoint is that of the vertex
+        colours: score the UV texture with ``evaluator(result.textured_mesh)``).
     eval_every : int, optional
         Steps between checkpoints (default 10); the colours of the ``lstsq`` stage are always
         evaluated.
@@ -498,6 +529,9 @@ class _Plan:
     remesh_rounds: int = 0
     edge_px: float = 3.0
     init_info: dict = field(default_factory=dict)
+    texture: str = "vertex"
+    texel_px: float = 1.0
+    reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -551,13 +585,20 @@ class _Plan:
             time_budget = check_positive(time_budget, "time_budget")
         threshold = check_positive(o.contour_threshold, "options.contour_threshold",
                                    strict=False) or None
-        return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
+        check_choice(o.texture, "options.texture", TEXTURES)
+        texel_px = check_positive(o.texel_px, "options.texel_px")
+        uv = o.texture == "uv" and tm != "none"
+        reserve = 0.0 if time_budget is None or tm == "none" else \
+            (_TEXTURE_RESERVE if uv else FINAL_STAGE_SHARE) * time_budget
+        plan = cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
                    o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
                    check_positive(o.lr, "options.lr"),
                    check_positive(o.momentum, "options.momentum", strict=False),
                    check_positive(o.adam_lr, "options.adam_lr"), o.faces_per_pixel,
                    check_positive(o.color_reg, "options.color_reg", strict=False), threshold,
                    init_name, remesh_rounds, edge_px)
+        plan.texture, plan.texel_px, plan.reserve = o.texture, texel_px, reserve
+        return plan
 
     def settings(self, size, persp=None) -> SoftRasterizationSettings:
         """The tutorial's soft rasterization at ``size`` with this fit's K, storing fragments
@@ -574,9 +615,7 @@ class _Plan:
 
     def final_reserve(self) -> float:
         """Seconds of the budget the silhouette stage leaves to the final stage."""
-        if self.time_budget is None or self.textured_method == "none":
-            return 0.0
-        return FINAL_STAGE_SHARE * self.time_budget
+        return self.reserve
 
 
 class _Solver:
@@ -764,7 +803,31 @@ def _textured_stage(plan: _Plan, run: _Solver, sil_mesh: Mesh):
     mesh = colored_mesh(tex_mesh, colors)
     run.stages.append({"name": "textured", "method": plan.textured_method, "status": status,
                        "message": message, "seconds": run.clock.elapsed() - t_stage})
+    if plan.texture == "uv" and status not in ("nonfinite", "failed"):
+        mesh = _uv_texture_stage(plan, run, tex_mesh, colors)
     return mesh, colors
+
+
+def _uv_texture_stage(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors) -> Mesh:
+    """The final geometry with a UV texture (:func:`geofit.fit.texture.fit_texture`: the
+    dataset's lights or unlit colour, the vertex colours as the prior of texels no view sees);
+    the vertex-coloured mesh if the time budget is already spent."""
+    t_stage = run.clock.elapsed()
+    stage = {"name": "texture", "method": "uv"}
+    if run.clock.over():
+        run.stages.append({**stage, "status": "time_budget", "seconds": 0.0,
+                           "message": "the time budget was spent: vertex colours kept"})
+        return colored_mesh(tex_mesh, colors)
+    views = plan.views
+    bg = views.background if views.background is not None else (1.0, 1.0, 1.0)
+    base = Mesh(tex_mesh.verts, tex_mesh.faces)
+    tex = fit_texture(base, views.cameras, views.images, lights=dataset_lights(views),
+                      background=bg, texel_px=plan.texel_px, prior=colors)
+    mesh = Mesh(base.verts, base.faces, tex)
+    H, W = tex.maps.shape[:2]
+    run.stages.append({**stage, "status": "converged", "seconds": run.clock.elapsed() - t_stage,
+                       "message": f"a {W} x {H} texel atlas by sparse least squares"})
+    return mesh
 
 
 def _textured_solve(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors):
@@ -814,10 +877,12 @@ def _views_result(plan: _Plan, run: _Solver, mesh: Mesh, colors,
             topo = topology(Mesh(mesh.verts, mesh.faces))
     msg = f"init: {plan.init_info.get('description', plan.init_name)}; {msg}; result: " + \
         (topo.describe() if topo is not None else "topology not checked (no time left)")
+    uv = isinstance(mesh.textures, TexturesUV)
     if topo is not None and topo.n_self_intersecting_pairs > 0:
         msg += " (the fitted surface self-intersects)"
     return ViewsFitResult(status=final, message=msg, history=run.history,
-                          n_params=mesh.n_verts * (6 if colors is not None else 3),
+                          n_params=mesh.n_verts * (6 if colors is not None else 3) + (
+                              mesh.textures.maps.size if uv else 0),
                           seconds=run.clock.elapsed(), cpu_seconds=run.clock.cpu_elapsed(),
                           wall_seconds=run.clock.wall(),
                           total_cpu_seconds=run.clock.cpu_total(),

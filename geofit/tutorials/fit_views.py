@@ -39,13 +39,13 @@ def _views_settings(size: str) -> dict:
         # PyTorch3D's recipe (fit_textured_mesh): SGD on 2 random views, then the textured
         # stage from the sphere
         "tutorial": {"silhouette_method": "sgd", "textured_method": "sgd",
-                     "textured_init": "sphere",
+                     "textured_init": "sphere", "texture": "vertex",
                      "silhouette_iters": pick_size(size, 4, 150, 2000),
                      "textured_iters": pick_size(size, 4, 150, 2000)},
         # geofit's best (benchmarks/fit_views.py "best"): L-BFGS on all views, large steps,
         # coarse-to-fine; least-squares colours, then joint L-BFGS
         "geofit": {"silhouette_method": "lbfgs", "textured_method": "lbfgs",
-                   "large_steps": 10.0,
+                   "large_steps": 10.0, "texture": "vertex",
                    "levels": pick_size(size, [(0, 1)], [(0, 2), (1, 1)], [(0, 2), (1, 1)]),
                    "silhouette_iters": pick_size(size, 4, 60, 2000),
                    "textured_iters": pick_size(size, 4, 30, 200)},
