@@ -28,7 +28,9 @@ def initial_mesh(plan, run) -> None:
     v = plan.views
     if plan.init_name == "hull":
         fac = plan.levels[0][1] if plan.silhouette_method != "sgd" else 1
-        hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac)
+        hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac,
+                                upsample=plan.hull_upsample,
+                                close_px=plan.hull_close_px)
         plan.init = hull.mesh
         info = {"voxel_size": hull.voxel_size, "pixel_size": hull.pixel_size,
                 "n_faces_marching_cubes": hull.n_faces_marching_cubes}
