@@ -279,3 +279,14 @@ def test_rgb_stage_runs_after_the_silhouettes(spheres):
     assert [s["name"] for s in res.stages] == ["silhouette", "rgb", "textured"]
     assert np.all(np.isfinite(res.mesh.verts))
     assert np.abs(res.mesh.verts - base.mesh.verts).max() > 0
+
+
+def test_closed_pixels_are_reported(spheres):
+    """The hull counts what the closing filled, and the fit's message says it."""
+    from scipy.ndimage import distance_transform_edt
+
+    sil = spheres.silhouettes.copy()
+    y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
+    sil[0, y, x] = 0.0
+    h = visual_hull_mesh(sil, spheres.cameras, edge_px=2.0, close_px=1.0)
+    assert h.n_closed_pixels >= 1 and visual_hull_mesh(sil, spheres.cameras).n_closed_pixels == 0

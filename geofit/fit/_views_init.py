@@ -33,9 +33,12 @@ def initial_mesh(plan, run) -> None:
                                 close_px=plan.hull_close_px)
         plan.init = hull.mesh
         info = {"voxel_size": hull.voxel_size, "pixel_size": hull.pixel_size,
-                "n_faces_marching_cubes": hull.n_faces_marching_cubes}
+                "n_faces_marching_cubes": hull.n_faces_marching_cubes,
+                "n_closed_pixels": hull.n_closed_pixels}
+        closed = (f"; {hull.n_closed_pixels:g} silhouette pixels of pinholes and slits "
+                  f"closed" if plan.hull_close_px else "")
         desc = (f"the visual hull of the silhouettes ({plan.init.n_verts} vertices, marching "
-                f"cubes on {info['voxel_size']:.3g} voxels, decimated)")
+                f"cubes on {info['voxel_size']:.3g} voxels, decimated{closed})")
     else:
         info = {"pixel_size": pixel_footprint(v.cameras, v.image_size,
                                               plan.init.verts.mean(axis=0))}

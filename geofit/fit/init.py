@@ -209,6 +209,8 @@ class VisualHullMesh:
         Faces before decimation.
     n_filled : int
         Grid nodes filled by ``close_handles`` (0 without it).
+    n_closed_pixels : float
+        Silhouette pixels (all views) that ``close_px`` filled before carving (0 without it).
     """
 
     mesh: Mesh
@@ -216,6 +218,7 @@ class VisualHullMesh:
     pixel_size: float
     n_faces_marching_cubes: int
     n_filled: int = 0
+    n_closed_pixels: float = 0.0
 
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
@@ -299,4 +302,5 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     area = float(mc.face_areas.sum())
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
-    return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled)
+    return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled,
+                          g.n_closed_pixels)

@@ -155,12 +155,16 @@ class HullGrid:
         Node spacing (world units).
     pixel_size : float
         World size of a pixel at the grid's centre (:func:`pixel_footprint`).
+    n_closed_pixels : float
+        Silhouette pixels (summed over the views) that ``close_px`` turned from outside to
+        inside: the pinholes and slits that carved nothing (0 without closing).
     """
 
     field: np.ndarray
     origin: np.ndarray
     voxel_size: float
     pixel_size: float
+    n_closed_pixels: float = 0.0
 
 
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
@@ -206,7 +210,12 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     """
     sil = np.asarray(silhouettes, dtype=np.float64)
     N, H, W = sil.shape
-    sd = signed_distance_images(sil, threshold, upsample=upsample, close_px=close_px) - shrink_px
+    sd = signed_distance_images(sil, threshold, upsample=upsample, close_px=close_px)
+    n_closed = 0.0
+    if close_px > 0:  # what the closing filled, in image pixels
+        plain = signed_distance_images(sil, threshold, upsample=upsample)
+        n_closed = float(((sd > 0) & (plain <= 0)).sum()) / (upsample * upsample)
+    sd -= shrink_px
     C = cameras.get_camera_center()
     r = 0.95 * float(np.linalg.norm(C, axis=1).min())
     h0 = 2.0 * r / (_COARSE - 1)
@@ -226,7 +235,7 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     if not (occ > 0).any():
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
-    return HullGrid(occ, lo, h, px)
+    return HullGrid(occ, lo, h, px, n_closed)
 
 
 def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras,
@@ -300,5 +309,6 @@ def close_unsupported_handles(grid: HullGrid, *, radius_px: float = 2.0,
     filled = closed & ~occ & (grid.field > -float(tolerance_px))
     field = grid.field.copy()
     field[filled] = 0.5  # half a pixel inside: marching cubes puts the surface past the node
-    return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size),
+    return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size,
+                                  grid.n_closed_pixels),
                          int(filled.sum()), filled)
