@@ -71,6 +71,7 @@ from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, as_mesh
 from ._options import as_dataset, check_int, check_weights, merge_options, recipe_name
 from ._progress import NoBar, progress_bar
+from ._rgb_refine import refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_lights
@@ -714,8 +715,6 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     """Refine the vertices against the RGB images (hard image term, variable-projection
     colours, large steps, L-BFGS; :func:`geofit.fit._rgb_refine.refine_rgb`); returns the
     mesh."""
-    from ._rgb_refine import refine_rgb
-
     t_stage = run.clock.elapsed()
     v = plan.views
     bg = v.background if v.background is not None else (1.0, 1.0, 1.0)
