@@ -200,3 +200,93 @@ def test_band_refinement_matches_the_fine_grid(spheres):
     assert np.array_equal(a > 0, b > 0)
     near = np.abs(b) < 1.0
     np.testing.assert_allclose(a[near], b[near], atol=1e-12)
+
+
+def test_signed_distance_upsample_follows_the_soft_outline():
+    """A soft silhouette that ramps linearly across columns crosses 0.5 between pixel centres
+    (at x0 = 10.3): at one sample per pixel the outline sits half-way between the centres
+    around it (10.5), upsampled 4 times it sits within a fine pixel of x0."""
+    from geofit.structures.visual_hull import signed_distance_images
+
+    x = np.arange(32.0)
+    x0 = 10.3
+    s = np.clip(0.5 + 0.2 * (x0 - x), 0.0, 1.0)  # inside on the left
+    sil = np.broadcast_to(s, (1, 8, 32)).copy()
+    coarse = signed_distance_images(sil, 0.5)[0, 4]
+    fine = signed_distance_images(sil, 0.5, upsample=4)[0, 16]
+    xf = (np.arange(128) + 0.5) / 4 - 0.5  # fine pixel centres in image pixel coordinates
+    # the outline: where the (linear between centres) signed distance crosses zero
+    cross = lambda xs, d: np.interp(0.0, -d, xs)  # noqa: E731 (d decreases along x)
+    assert abs(cross(x, coarse) - 10.5) < 1e-9
+    assert abs(cross(xf, fine) - x0) <= 0.25
+    assert np.array_equal(signed_distance_images(sil, 0.5, upsample=1), signed_distance_images(sil, 0.5))
+
+
+def test_close_px_fills_pinholes_but_keeps_holes():
+    """Closing with a 1 px disk fills a one-pixel pinhole (it no longer carves: the signed
+    distance there turns positive) and keeps a hole of radius 5 px (negative at its centre)."""
+    from geofit.structures.visual_hull import signed_distance_images
+
+    yy, xx = np.mgrid[:48, :48]
+    sil = ((yy - 24) ** 2 + (xx - 24) ** 2 < 20 ** 2).astype(float)
+    sil[12, 24] = 0.0                                        # a pinhole
+    sil[(yy - 28) ** 2 + (xx - 24) ** 2 < 25] = 0.0          # a hole of radius 5
+    plain = signed_distance_images(sil[None], 0.5)[0]
+    closed = signed_distance_images(sil[None], 0.5, close_px=1.0)[0]
+    assert plain[12, 24] < 0 < closed[12, 24]
+    assert closed[28, 24] < -3.0 and plain[28, 24] == closed[28, 24]
+
+
+def test_hull_close_px_ignores_a_pinhole(spheres):
+    """A 2 x 2 pinhole deep inside one view's silhouette carves a tunnel through the hull;
+    with ``close_px=1`` the hull is node for node the one of the silhouettes without it."""
+    from scipy.ndimage import distance_transform_edt
+
+    from geofit.structures.visual_hull import carve_hull
+
+    sil = spheres.silhouettes.copy()
+    y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
+    sil[0, y:y + 2, x:x + 2] = 0.0
+    cams = spheres.cameras
+    ref = carve_hull(spheres.silhouettes, cams, voxel_px=0.75).field > 0
+    holed = carve_hull(sil, cams, voxel_px=0.75).field > 0
+    assert holed.sum() < ref.sum()
+    ref_c = carve_hull(spheres.silhouettes, cams, voxel_px=0.75, close_px=1.0).field > 0
+    closed = carve_hull(sil, cams, voxel_px=0.75, close_px=1.0).field > 0
+    assert np.array_equal(closed, ref_c)
+
+
+def test_hull_carving_options_are_validated(spheres):
+    """upsample must be an integer >= 1 and close_px >= 0; the fit's options likewise."""
+    with pytest.raises(ValueError, match="upsample"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, upsample=0)
+    with pytest.raises(ValueError, match="close_px"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, close_px=-1.0)
+    with pytest.raises(ValueError, match="hull_upsample"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_upsample=0), progress=False)
+    with pytest.raises(ValueError, match="hull_close_px"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_close_px=-0.5), progress=False)
+    with pytest.raises(ValueError, match="rgb_iters"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
+
+
+def test_rgb_stage_runs_after_the_silhouettes(spheres):
+    """rgb_iters adds an "rgb" stage between the silhouette and the colour stages; it moves
+    the vertices (the RGB residual drives the geometry) and leaves them finite."""
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0)
+    base = fit_mesh_to_views(spheres, options=ViewsFitOptions(**o), progress=False)
+    res = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)
+    assert [s["name"] for s in res.stages] == ["silhouette", "rgb", "textured"]
+    assert np.all(np.isfinite(res.mesh.verts))
+    assert np.abs(res.mesh.verts - base.mesh.verts).max() > 0
+
+
+def test_closed_pixels_are_reported(spheres):
+    """The hull counts what the closing filled, and the fit's message says it."""
+    from scipy.ndimage import distance_transform_edt
+
+    sil = spheres.silhouettes.copy()
+    y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
+    sil[0, y, x] = 0.0
+    h = visual_hull_mesh(sil, spheres.cameras, edge_px=2.0, close_px=1.0)
+    assert h.n_closed_pixels >= 1 and visual_hull_mesh(sil, spheres.cameras).n_closed_pixels == 0

@@ -48,6 +48,8 @@ class RGBRefineResult:
         Objective per evaluation.
     seconds : float
     n_evaluations : int
+    stopped : bool
+        True when the time budget ended it.
     """
 
     mesh: Mesh
@@ -55,6 +57,7 @@ class RGBRefineResult:
     values: list
     seconds: float
     n_evaluations: int
+    stopped: bool = False
 
 
 def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4) -> np.ndarray:
@@ -131,10 +134,11 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
             best.update(value=value, V=V, C=C)
         return value, param.grad_params(gv).ravel()
 
+    stopped = False
     try:
         minimize(fun, u0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)})
     except _Stop:
-        pass
+        stopped = True
     C = best["C"] if best["C"] is not None else solve_vertex_colors(loss, mesh, reg)
     return RGBRefineResult(Mesh(best["V"], F), C, values, time.perf_counter() - t0,
-                           len(values))
+                           len(values), stopped)

@@ -38,7 +38,8 @@ def initial_mesh(plan, run) -> None:
         fac = plan.levels[0][1] if plan.silhouette_method != "sgd" else 1
         try:
             hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac,
-                                    check=run.clock.check)
+                                    upsample=plan.hull_upsample,
+                                    close_px=plan.hull_close_px, check=run.clock.check)
         except TimeUp:
             seconds = run.clock.elapsed() - t0
             plan.init, plan.init_name = ico_sphere(4), "sphere"
@@ -51,9 +52,12 @@ def initial_mesh(plan, run) -> None:
     if hull is not None:
         plan.init = hull.mesh
         info = {"voxel_size": hull.voxel_size, "pixel_size": hull.pixel_size,
-                "n_faces_marching_cubes": hull.n_faces_marching_cubes}
+                "n_faces_marching_cubes": hull.n_faces_marching_cubes,
+                "n_closed_pixels": hull.n_closed_pixels}
+        closed = (f"; {hull.n_closed_pixels:g} silhouette pixels of pinholes and slits "
+                  f"closed" if plan.hull_close_px else "")
         desc = (f"the visual hull of the silhouettes ({plan.init.n_verts} vertices, marching "
-                f"cubes on {info['voxel_size']:.3g} voxels, decimated)")
+                f"cubes on {info['voxel_size']:.3g} voxels, decimated{closed})")
     else:
         info = {"pixel_size": pixel_footprint(v.cameras, v.image_size,
                                               plan.init.verts.mean(axis=0))}

@@ -209,6 +209,8 @@ class VisualHullMesh:
         Faces before decimation.
     n_filled : int
         Grid nodes filled by ``close_handles`` (0 without it).
+    n_closed_pixels : float
+        Silhouette pixels (all views) that ``close_px`` filled before carving (0 without it).
     """
 
     mesh: Mesh
@@ -216,11 +218,13 @@ class VisualHullMesh:
     pixel_size: float
     n_faces_marching_cubes: int
     n_filled: int = 0
+    n_closed_pixels: float = 0.0
 
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
-                     close_handles: bool = False, check=None) -> VisualHullMesh:
+                     close_handles: bool = False, upsample: int = 1,
+                     close_px: float = 0.0, check=None) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -260,6 +264,12 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         Fill narrow tunnels no silhouette sees through
         (:func:`geofit.structures.visual_hull.close_unsupported_handles`); ``n_filled`` says
         how many nodes were filled.
+    upsample : int
+        Carve at sub-pixel outlines: the soft silhouettes interpolated on a grid ``upsample``
+        times finer (:func:`geofit.structures.visual_hull.signed_distance_images`).
+    close_px : float
+        Close each thresholded silhouette with a disk of this radius (pixels) first: pinholes
+        and slits narrower than ``2 close_px`` carve nothing.
     check : callable, optional
         Called between the carving's views and steps (a fit passes its clock's
         :meth:`~geofit.fit.Clock.check`, which raises :class:`~geofit.fit.TimeUp` once its
@@ -280,10 +290,13 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     if not 0.0 < float(threshold) < 1.0:
         raise ValueError(f"threshold: expected a number in (0, 1), got {threshold!r}")
     voxel_px = check_positive(voxel_px, "voxel_px")
-    if not isinstance(refine, (int, np.integer)) or isinstance(refine, bool) or refine < 1:
-        raise ValueError(f"refine: expected an integer >= 1, got {refine!r}")
+    for name, val in (("refine", refine), ("upsample", upsample)):
+        if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < 1:
+            raise ValueError(f"{name}: expected an integer >= 1, got {val!r}")
+    close_px = check_positive(close_px, "close_px", strict=False)
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
-                   voxel_px=voxel_px, refine=int(refine), check=check)
+                   voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
+                   close_px=close_px, check=check)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)
@@ -295,4 +308,5 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     area = float(mc.face_areas.sum())
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
-    return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled)
+    return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled,
+                          g.n_closed_pixels)

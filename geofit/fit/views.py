@@ -73,6 +73,7 @@ from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesUV, as_mesh
 from ._options import as_dataset, check_int, check_weights, merge_options, recipe_name
 from ._progress import NoBar, progress_bar
+from ._rgb_refine import refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import (
@@ -206,6 +207,19 @@ class ViewsFitOptions:
     texel_px : float
         Texel size of the ``"uv"`` atlas in pixels of the views at the object (1: about one
         texel per pixel of surface seen).
+    hull_upsample : int
+        Carve the visual hull at sub-pixel outlines: the soft silhouettes interpolated on a
+        grid this many times finer (:func:`geofit.fit.init.visual_hull_mesh`; 1: the pixels).
+    hull_close_px : float
+        Close each thresholded silhouette with a disk of this radius (pixels) before carving:
+        pinholes and slits narrower than twice that (cracks between the parts of a mesh, a
+        sheet seen edge-on) carve no tunnel through the hull (0: none).
+    rgb_iters : int
+        L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
+        the vertices against the RGB images with the hard image term
+        (:class:`geofit.render.mesh.HardImageLoss`), the vertex colours solved by sparse least
+        squares inside every evaluation (variable projection), so the residual moves the
+        geometry (:func:`geofit.fit._rgb_refine.refine_rgb`). Needs RGB images.
     contour_threshold : float
         The contour method compares the mesh's hard silhouette with the targets binarised at
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
@@ -234,12 +248,16 @@ class ViewsFitOptions:
     contour_threshold: float | None = None
     texture: str | None = None
     texel_px: float | None = None
+    hull_upsample: int | None = None
+    hull_close_px: float | None = None
+    rgb_iters: int | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
-               textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0)
+               textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
+               hull_close_px=0.0, rgb_iters=0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -483,6 +501,10 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         with run.clock.until(None if plan.time_budget is None
                              else plan.time_budget - plan.final_reserve()):
             sil_mesh = _silhouette_stage(plan, run)
+    sil_mesh = _silhouette_stage(plan, run) if plan.silhouette_method != "none" else plan.init
+    if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
+                           ("nonfinite", "failed", "callback")):
+        sil_mesh = _rgb_stage(plan, run, sil_mesh)
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
                                            ("nonfinite", "failed")):
@@ -529,9 +551,16 @@ class _Plan:
     remesh_rounds: int = 0
     edge_px: float = 3.0
     init_info: dict = field(default_factory=dict)
-    texture: str = "vertex"
-    texel_px: float = 1.0
-    reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
+    sil_mesh = plan.init
+    if plan.silhouette_method != "none":
+        # the silhouette stage (its checks inside evaluations too) ends where the final
+        # stage's share of the budget begins
+        with run.clock.until(None if plan.time_budget is None
+                             else plan.time_budget - plan.final_reserve()):
+            sil_mesh = _silhouette_stage(plan, run)
+            if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
+                                   ("nonfinite", "failed", "callback")):
+                sil_mesh = _rgb_stage(plan, run, sil_mesh)
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -590,15 +619,22 @@ class _Plan:
         uv = o.texture == "uv" and tm != "none"
         reserve = 0.0 if time_budget is None or tm == "none" else \
             (_TEXTURE_RESERVE if uv else FINAL_STAGE_SHARE) * time_budget
-        plan = cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
+        rgb_iters = check_int(o.rgb_iters, "options.rgb_iters", 0)
+        if rgb_iters and dataset.images is None:
+            raise ValueError("options.rgb_iters: the RGB refinement needs RGB images "
+                             "(dataset.images is None)")
+        return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
                    o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
                    check_positive(o.lr, "options.lr"),
                    check_positive(o.momentum, "options.momentum", strict=False),
                    check_positive(o.adam_lr, "options.adam_lr"), o.faces_per_pixel,
                    check_positive(o.color_reg, "options.color_reg", strict=False), threshold,
-                   init_name, remesh_rounds, edge_px)
-        plan.texture, plan.texel_px, plan.reserve = o.texture, texel_px, reserve
-        return plan
+                   init_name, remesh_rounds, edge_px, texture=o.texture, texel_px=texel_px,
+                   reserve=reserve,
+                   hull_upsample=check_int(o.hull_upsample, "options.hull_upsample"),
+                   hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
+                                                strict=False),
+                   rgb_iters=rgb_iters)
 
     def settings(self, size, persp=None) -> SoftRasterizationSettings:
         """The tutorial's soft rasterization at ``size`` with this fit's K, storing fragments
@@ -757,6 +793,30 @@ def _silhouette_solve(plan: _Plan, run: _Solver, obj, mesh: Mesh, li: int,
                            iters=iters, budget=budget, callback=cb, clock=clock)
     run.add(res, rec)
     return obj.base.update_verts(obj.split(res.x)[0]), res
+
+
+def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
+    """Refine the vertices against the RGB images (hard image term, variable-projection
+    colours, large steps, L-BFGS; :func:`geofit.fit._rgb_refine.refine_rgb`); returns the
+    mesh."""
+    t_stage = run.clock.elapsed()
+    v = plan.views
+    bg = v.background if v.background is not None else (1.0, 1.0, 1.0)
+    budget = None if plan.time_budget is None else max(plan.remaining(run.clock) * 0.5, 1e-3)
+    res = refine_rgb(mesh, v.cameras, v.images, lights=dataset_lights(v), background=bg,
+                     lam=plan.large_steps or 10.0, reg=plan.color_reg, maxiter=plan.rgb_iters,
+                     time_budget=budget)
+    run.n_evaluations += res.n_evaluations
+    status = "time_budget" if res.stopped else "max_iter"
+    gain = f", loss {res.values[0]:.4g} -> {min(res.values):.4g}" if res.values else ""
+    run.history.note(run.step, run.clock.elapsed(),
+                     f"rgb refinement: {res.n_evaluations} evaluations{gain}",
+                     n_verts=res.mesh.n_verts)
+    run.stages.append({"name": "rgb", "method": "lbfgs", "status": status,
+                       "message": "vertices against the RGB images (hard image term, "
+                                  "least-squares colours inside the loop)",
+                       "seconds": run.clock.elapsed() - t_stage})
+    return res.mesh
 
 
 def _adam_phases(obj, x0, *, lr, decay, iters, budget, callback, clock):

@@ -54,43 +54,82 @@ def pixel_footprint(cameras, image_size, point) -> float:
     return float(np.median(eps / np.maximum(moved, 1e-12)))
 
 
-def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5) -> np.ndarray:
-    """(N, H, W) float64 signed pixel distance to the ``threshold`` outline (positive inside).
+def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
+                           upsample: int = 1, close_px: float = 0.0) -> np.ndarray:
+    """(N, H u, W u) float64 signed pixel distance to the ``threshold`` outline (positive
+    inside), on a grid ``u = upsample`` times finer than the images.
 
     Parameters
     ----------
     silhouettes : (N, H, W) float64
         Silhouettes in [0, 1]; pixels above ``threshold`` are inside.
     threshold : float
+    upsample : int
+        Sub-pixel outlines: the silhouettes are interpolated (bilinear, pixel centres kept)
+        on a grid ``upsample`` times finer before the threshold, so the outline follows the
+        soft values between pixel centres (a limb that crosses a pixel between centres stays
+        connected where its soft values exceed ``threshold`` there). 1: the pixels as they are.
+    close_px : float
+        Morphological closing of each thresholded silhouette with a disk of this radius (image
+        pixels; 0: none): pinholes and slits narrower than about ``2 close_px`` pixels -- the
+        cracks between the parts of a multi-part mesh, a sheet seen edge-on breaking between
+        pixel centres -- are filled, so they carve no tunnel through the hull. Holes wider than
+        that (a torus's) stay.
 
     Returns
     -------
-    (N, H, W) float64
-        ``edt(inside) - 0.5`` inside, ``0.5 - edt(outside)`` outside: the outline sits half a
-        pixel from the centres of the pixels on either side of it.
+    (N, H u, W u) float64
+        ``edt(inside) - 0.5`` inside, ``0.5 - edt(outside)`` outside, in image pixels (fine
+        distances divided by ``u``): the outline sits half a fine pixel from the centres of
+        the fine pixels on either side of it. Fine pixel ``(i, j)`` has its centre at image
+        pixel coordinate ``((i + 0.5) / u - 0.5, (j + 0.5) / u - 0.5)``.
     """
-    from scipy.ndimage import distance_transform_edt
+    from scipy.ndimage import binary_closing, distance_transform_edt, map_coordinates
 
-    out = np.empty(silhouettes.shape)
-    for i, s in enumerate(silhouettes):  # views (each one vectorised transform)
+    sil = np.asarray(silhouettes, dtype=np.float64)
+    N, H, W = sil.shape
+    u = int(upsample)
+    if u > 1:  # bilinear at the fine pixel centres, edge values beyond the outer centres
+        r = (np.arange(H * u) + 0.5) / u - 0.5
+        c = (np.arange(W * u) + 0.5) / u - 0.5
+        rr, cc = np.meshgrid(r, c, indexing="ij")
+    disk = None
+    if close_px > 0:
+        k = max(1, int(round(close_px * u)))
+        y, x = np.mgrid[-k:k + 1, -k:k + 1]
+        disk = x * x + y * y <= k * k
+    out = np.empty((N, H * u, W * u))
+    for i, s in enumerate(sil):  # views (each one vectorised transform)
+        if u > 1:
+            s = map_coordinates(s, [rr, cc], order=1, mode="nearest")
         inside = s > threshold
+        if disk is not None:  # pad: a silhouette touching the border is not closed by it
+            k = disk.shape[0] // 2
+            inside = binary_closing(np.pad(inside, k), structure=disk)[k:-k, k:-k]
         out[i] = np.where(inside, distance_transform_edt(inside) - 0.5,
-                          0.5 - distance_transform_edt(~inside))
+                          0.5 - distance_transform_edt(~inside)) / u
     return out
 
 
-def hull_field(sd: np.ndarray, cameras, P: np.ndarray, check=None) -> np.ndarray:
+def hull_field(sd: np.ndarray, cameras, P: np.ndarray, image_size=None,
+               check=None) -> np.ndarray:
     """(k,) float64 minimum over the views of the signed distance (pixels) at the projections
     of ``P (k, 3)``; ``-(H + W)`` for points outside an image or behind a camera.
-    ``check()`` (optional) is called after each view: a fit's time budget raises there."""
+
+    ``sd`` is :func:`signed_distance_images`' output; ``image_size`` ``(H, W)`` the images'
+    size when it was upsampled (None: ``sd``'s own). ``check()`` (optional) is called after
+    each view: a fit's time budget raises there."""
     from scipy.ndimage import map_coordinates
 
-    N, H, W = sd.shape
+    N, Hu, Wu = sd.shape
+    H, W = (Hu, Wu) if image_size is None else tuple(image_size)
+    u = Hu // H  # the fine grid of signed_distance_images(upsample=u)
     field = np.full(len(P), np.inf)
     far = -float(H + W)
     for i in range(N):  # views (each one vectorised call over all points)
         cam = cameras[i]
-        xy = cam.transform_points_screen(P, (H, W))[0, :, :2] - 0.5  # pixel centres at integers
+        # fine pixel centres at integers
+        xy = cam.transform_points_screen(P, (H, W))[0, :, :2] * u - 0.5
         val = map_coordinates(sd[i], [xy[:, 1], xy[:, 0]], order=1, cval=far)
         val[cam.transform_points_view(P)[0, :, 2] <= 0] = far  # behind the camera
         np.minimum(field, val, out=field)
@@ -120,16 +159,21 @@ class HullGrid:
         Node spacing (world units).
     pixel_size : float
         World size of a pixel at the grid's centre (:func:`pixel_footprint`).
+    n_closed_pixels : float
+        Silhouette pixels (summed over the views) that ``close_px`` turned from outside to
+        inside: the pinholes and slits that carved nothing (0 without closing).
     """
 
     field: np.ndarray
     origin: np.ndarray
     voxel_size: float
     pixel_size: float
+    n_closed_pixels: float = 0.0
 
 
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
-               voxel_px: float = 1.5, refine: int = 1, check=None) -> HullGrid:
+               voxel_px: float = 1.5, refine: int = 1, upsample: int = 1,
+               close_px: float = 0.0, check=None) -> HullGrid:
     """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
 
     A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
@@ -155,6 +199,9 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
         of distance, and a node is at most ``sqrt(3) voxel_px / 2`` from its nearest grid
         node); elsewhere the nearest node's value is kept. Parts thinner than the grid step
         that fall between the nodes are found this way.
+    upsample, close_px
+        Sub-pixel outlines and the closing of pinholes and slits
+        (:func:`signed_distance_images`).
     check : callable, optional
         Called between views (:func:`hull_field`); whatever it raises (a fit's
         ``geofit.fit.TimeUp``) stops the carving.
@@ -170,13 +217,18 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     """
     sil = np.asarray(silhouettes, dtype=np.float64)
     N, H, W = sil.shape
-    sd = signed_distance_images(sil, threshold) - shrink_px
+    sd = signed_distance_images(sil, threshold, upsample=upsample, close_px=close_px)
+    n_closed = 0.0
+    if close_px > 0:  # what the closing filled, in image pixels
+        plain = signed_distance_images(sil, threshold, upsample=upsample)
+        n_closed = float(((sd > 0) & (plain <= 0)).sum()) / (upsample * upsample)
+    sd -= shrink_px
     C = cameras.get_camera_center()
     r = 0.95 * float(np.linalg.norm(C, axis=1).min())
     h0 = 2.0 * r / (_COARSE - 1)
     _, P0 = _grid(np.full(3, -r), np.full(3, r), h0)
     px0 = pixel_footprint(cameras, (H, W), np.zeros(3))
-    keep = hull_field(sd, cameras, P0, check) > -np.sqrt(3.0) * h0 / px0
+    keep = hull_field(sd, cameras, P0, (H, W), check) > -np.sqrt(3.0) * h0 / px0
     if not keep.any():
         raise ValueError("silhouettes: the visual hull is empty (no point projects inside "
                          "every silhouette); check the cameras")
@@ -184,17 +236,17 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     px = pixel_footprint(cameras, (H, W), 0.5 * (lo + hi))
     h = voxel_px * px
     axes, P = _grid(lo, hi, h)
-    occ = hull_field(sd, cameras, P, check).reshape([len(a) for a in axes])
+    occ = hull_field(sd, cameras, P, (H, W), check).reshape([len(a) for a in axes])
     if refine > 1:
-        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras, check)
+        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras, (H, W), check)
     if not (occ > 0).any():
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
-    return HullGrid(occ, lo, h, px)
+    return HullGrid(occ, lo, h, px, n_closed)
 
 
 def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras,
-                 check=None):
+                 image_size, check=None):
     """The field on a grid ``k`` times finer, evaluated only in the surface's band."""
     margin = np.sqrt(3.0) * h / px
     n = np.array(occ.shape)
@@ -206,7 +258,7 @@ def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, s
     hf = h / k
     ii = np.unravel_index(band, tuple(m))
     P = lo + hf * np.stack(ii, axis=1)
-    out[band] = hull_field(sd, cameras, P, check)
+    out[band] = hull_field(sd, cameras, P, image_size, check)
     return out.reshape(tuple(m)), hf
 
 
@@ -264,5 +316,6 @@ def close_unsupported_handles(grid: HullGrid, *, radius_px: float = 2.0,
     filled = closed & ~occ & (grid.field > -float(tolerance_px))
     field = grid.field.copy()
     field[filled] = 0.5  # half a pixel inside: marching cubes puts the surface past the node
-    return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size),
+    return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size,
+                                  grid.n_closed_pixels),
                          int(filled.sum()), filled)
