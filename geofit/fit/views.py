@@ -501,10 +501,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         with run.clock.until(None if plan.time_budget is None
                              else plan.time_budget - plan.final_reserve()):
             sil_mesh = _silhouette_stage(plan, run)
-    sil_mesh = _silhouette_stage(plan, run) if plan.silhouette_method != "none" else plan.init
-    if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
-                           ("nonfinite", "failed", "callback")):
-        sil_mesh = _rgb_stage(plan, run, sil_mesh)
+            if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
+                                   ("nonfinite", "failed", "callback")):
+                sil_mesh = _rgb_stage(plan, run, sil_mesh)
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
                                            ("nonfinite", "failed")):
@@ -551,16 +550,12 @@ class _Plan:
     remesh_rounds: int = 0
     edge_px: float = 3.0
     init_info: dict = field(default_factory=dict)
-    sil_mesh = plan.init
-    if plan.silhouette_method != "none":
-        # the silhouette stage (its checks inside evaluations too) ends where the final
-        # stage's share of the budget begins
-        with run.clock.until(None if plan.time_budget is None
-                             else plan.time_budget - plan.final_reserve()):
-            sil_mesh = _silhouette_stage(plan, run)
-            if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
-                                   ("nonfinite", "failed", "callback")):
-                sil_mesh = _rgb_stage(plan, run, sil_mesh)
+    texture: str = "vertex"
+    texel_px: float = 1.0
+    reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
+    hull_upsample: int = 1
+    hull_close_px: float = 0.0
+    rgb_iters: int = 0
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
