@@ -309,7 +309,9 @@ def _task_fit_views(path: Path, dest: Path, s: dict, clock: dict) -> dict:
     clock["fit_seconds"] = fit.seconds
     t = time.perf_counter()
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
-    metrics = ViewsEvaluator(heldout, truth, taus=(0.01,))(fit.mesh, colors)
+    ev = ViewsEvaluator(heldout, truth, taus=(0.01,))
+    # the result as it is (its UV texture by default), the vertex colours without one
+    metrics = ev(fit.mesh) if fit.mesh.textures is not None else ev(fit.mesh, colors)
     clock["eval_seconds"] = time.perf_counter() - t
     _save_mesh(dest / "fit.obj", fit.mesh)
     _save_npz(dest / "fit_colors.npz", verts=fit.mesh.verts, faces=fit.mesh.faces,

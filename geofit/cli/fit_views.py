@@ -49,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     fit = fit_mesh_to_views(ds, **kw)
     ev = ViewsEvaluator(held, ds.mesh)
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
-    metrics = ev(fit.mesh, colors)
+    # the result as it is (its UV texture by default), the vertex colours without one
+    metrics = ev(fit.mesh) if fit.mesh.textures is not None else ev(fit.mesh, colors)
 
     dest = out_dir(args)
     save_obj(dest / "fit_views.obj", fit.mesh)
