@@ -5,7 +5,8 @@ Each case runs in a fresh subprocess of this script (``--child``) whose ``PYTHON
 the *before* tree (a detached git worktree of the before commit, made with ``git worktree add
 --detach`` outside the repository unless ``--before-tree`` names one) or the current tree; the
 runs alternate before/after case by case (the order flips every case), so both see the same
-machine state. The child imports only geofit's public API of the tree it runs on; where the
+machine state (the identity part's ``--jobs 2`` runs the two side by side instead: its results
+do not depend on the load). The child imports only geofit's public API of the tree it runs on; where the
 before commit named a keyword differently (``config=``/``held_out=`` of ``fit_nerf``), the child
 maps it, so both commits make *the same default call*.
 
@@ -262,26 +263,41 @@ def before_tree(path: str | None, commit: str) -> Path:
     return tree
 
 
-def run_child(tree: Path, case: str, part: str, args) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree), MPLBACKEND="Agg")
+def run_children(trees: list[Path], case: str, part: str, args, parallel: bool) -> list[dict]:
+    """Run ``case`` once per tree, each in a fresh process with ``PYTHONPATH`` at the tree:
+    one after the other, or all at once (``parallel``: the identity part's ``--jobs 2``)."""
     with tempfile.TemporaryDirectory(prefix="before_after_") as tmp:
-        out = Path(tmp) / "case.json"
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--part", part,
-               "--child-out", str(out), "--nerf-steps", str(args.nerf_steps),
-               "--nerf-budget", str(args.nerf_budget)]
-        load = list(os.getloadavg())
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, env=env, cwd=tmp, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        if proc.returncode != 0 or not out.exists():
-            return {"error": proc.stderr[-3000:], "process_wall_seconds": wall,
-                    "loadavg_before": load}
-        rec = json.loads(out.read_text(encoding="utf-8"))
-    rec["process_wall_seconds"] = wall
-    rec["loadavg_before"] = load
-    if not str(Path(rec["geofit_file"]).resolve()).startswith(str(tree.resolve())):
-        rec["error"] = f"imported {rec['geofit_file']}, not the tree {tree}"
-    return rec
+        started, recs = [], []
+        for i, tree in enumerate(trees):  # the commits
+            out = Path(tmp) / f"case{i}.json"
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--part",
+                   part, "--child-out", str(out), "--nerf-steps", str(args.nerf_steps),
+                   "--nerf-budget", str(args.nerf_budget)]
+            env = dict(os.environ, PYTHONPATH=str(tree), MPLBACKEND="Agg")
+            load = list(os.getloadavg())
+            proc = subprocess.Popen(cmd, env=env, cwd=tmp, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, text=True)
+            started.append((tree, out, load, time.perf_counter(), proc))
+            if not parallel:
+                started[-1] = started[-1][:4] + (proc.communicate()[1], proc.returncode,
+                                                 time.perf_counter())
+        for item in started:  # collect in order
+            tree, out, load, t0 = item[:4]
+            if parallel:
+                err = item[4].communicate()[1]
+                code, t1 = item[4].returncode, time.perf_counter()
+            else:
+                err, code, t1 = item[4:]
+            if code != 0 or not out.exists():
+                recs.append({"error": (err or "")[-3000:], "process_wall_seconds": t1 - t0,
+                             "loadavg_before": load})
+                continue
+            rec = json.loads(out.read_text(encoding="utf-8"))
+            rec.update(process_wall_seconds=t1 - t0, loadavg_before=load)
+            if not str(Path(rec["geofit_file"]).resolve()).startswith(str(tree.resolve())):
+                rec["error"] = f"imported {rec['geofit_file']}, not the tree {tree}"
+            recs.append(rec)
+    return recs
 
 
 def compare(before: dict, after: dict) -> dict:
@@ -349,7 +365,8 @@ def identity_markdown(table: dict) -> str:
         f"Before = `{table['before_commit']}` (`{table['before_tree']}`), after = "
         f"`{table['after_commit']}`{' (uncommitted changes)' if table['after_dirty'] else ''}. "
         "No time budget binds; iteration limits are the fits' own (NeRF: "
-        f"`NerfConfig.scene(n_iter={table['nerf_steps']})`). **{n_id} of "
+        f"`NerfConfig.scene(n_iter={table['nerf_steps']})`); before and after ran "
+        f"{'side by side' if table.get('jobs', 1) > 1 else 'one after the other'}. **{n_id} of "
         f"{len(table['cases'])} cases identical** (loss history, result arrays, figures). "
         "Figures show `before -> after` where they differ; the loss hash is the before "
         f"commit's. Fit wall seconds are under load (informative only). Identity part: "
@@ -407,12 +424,16 @@ def main(argv=None) -> int:
                         f"{','.join(TIMING_CASES)})")
     p.add_argument("--views-shapes", default=",".join(VIEWS_SHAPES),
                    help="identity: the shapes of fit_views.py's table run beside the cow")
-    p.add_argument("--nerf-steps", type=int, default=2000,
-                   help="identity: steps of the scene NeRF (default 2000)")
+    p.add_argument("--nerf-steps", type=int, default=1000,
+                   help="identity: steps of the scene NeRF (default 1000: past its 400-step warm-up "
+                        "and 9 density-grid updates)")
     p.add_argument("--nerf-budget", type=float, default=60.0,
                    help="timings: time budget of the scene NeRF (default 60; the benchmark's "
                         "is 720)")
     p.add_argument("--repeats", type=int, default=1, help="timings: runs of each case")
+    p.add_argument("--jobs", type=int, default=1, choices=(1, 2),
+                   help="identity: 2 runs the before and after of a case at the same time "
+                        "(results do not depend on the load; the timing part never does)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results")
     p.add_argument("--child", default=None, help=argparse.SUPPRESS)
     p.add_argument("--part", default="identity", help=argparse.SUPPRESS)
@@ -439,7 +460,8 @@ def main(argv=None) -> int:
              "after_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
              "load_start": [round(x, 2) for x in os.getloadavg()],
              "nerf_steps": args.nerf_steps, "nerf_budget": args.nerf_budget,
-             "repeats": args.repeats, "cases": {}}
+             "repeats": args.repeats, "jobs": args.jobs if part == "identity" else 1,
+             "cases": {}}
     prev = report.tables.get(part)
     if args.cases and prev and prev.get("before_commit") == args.before_commit:
         # a rerun of some cases: the other cases of the table stay, with their commands
@@ -459,7 +481,8 @@ def main(argv=None) -> int:
         report.write(json_path)
         parts = [f"# Before ({args.before_commit}) and after: the four fits", "",
                  "Written by `benchmarks/before_after.py` (each case in a fresh process, "
-                 "before and after alternating). See the JSON beside this file for every "
+                 "before and after alternating, or side by side for the identity part's "
+                 "`--jobs 2`). See the JSON beside this file for every "
                  "recorded value."]
         if "identity" in report.tables:
             parts += ["", identity_markdown(report.tables["identity"])]
@@ -476,8 +499,9 @@ def main(argv=None) -> int:
         entry = table["cases"].setdefault(case, {} if part == "identity" else
                                           {"before": [], "after": []})
         for rep in range(1 if part == "identity" else args.repeats):  # repeats
-            for side, root in order:  # the two commits
-                rec = run_child(root, case, part, args)
+            recs = run_children([root for _, root in order], case, part, args,
+                                parallel=part == "identity" and args.jobs > 1)
+            for (side, _), rec in zip(order, recs):  # the two commits
                 if part == "identity":
                     entry[side] = rec
                 else:
