@@ -6,9 +6,9 @@ the *before* tree (a detached git worktree of the before commit, made with ``git
 --detach`` outside the repository unless ``--before-tree`` names one) or the current tree; the
 runs alternate before/after case by case (the order flips every case), so both see the same
 machine state (the identity part's ``--jobs 2`` runs the two side by side instead: its results
-do not depend on the load). The child imports only geofit's public API of the tree it runs on; where the
-before commit named a keyword differently (``config=``/``held_out=`` of ``fit_nerf``), the child
-maps it, so both commits make *the same default call*.
+do not depend on the load). The child imports only geofit's public API of the tree it runs
+on; where the before commit named a keyword differently (``config=``/``held_out=`` of
+``fit_nerf``), the child maps it, so both commits make *the same default call*.
 
 Two parts:
 
@@ -425,8 +425,8 @@ def main(argv=None) -> int:
     p.add_argument("--views-shapes", default=",".join(VIEWS_SHAPES),
                    help="identity: the shapes of fit_views.py's table run beside the cow")
     p.add_argument("--nerf-steps", type=int, default=1000,
-                   help="identity: steps of the scene NeRF (default 1000: past its 400-step warm-up "
-                        "and 9 density-grid updates)")
+                   help="identity: steps of the scene NeRF (default 1000: past its 400-step "
+                        "warm-up, with density-grid updates every 64 steps)")
     p.add_argument("--nerf-budget", type=float, default=60.0,
                    help="timings: time budget of the scene NeRF (default 60; the benchmark's "
                         "is 720)")
