@@ -422,19 +422,19 @@ def main(argv=None) -> int:
                    help="comma-separated cases, e.g. mesh:torus,views:cow,volume:cow,nerf:cow "
                         "(identity default: all; timings default: "
                         f"{','.join(TIMING_CASES)})")
+    p.add_argument("--repeats", type=int, default=1, help="timings: runs of each case")
+    p.add_argument("--jobs", type=int, default=1, choices=(1, 2),
+                   help="identity: 2 runs the before and after of a case at the same time "
+                        "(results do not depend on the load; the timing part never does)")
     p.add_argument("--views-shapes", default=",".join(VIEWS_SHAPES),
                    help="identity: the shapes of fit_views.py's table run beside the cow")
     p.add_argument("--nerf-steps", type=int, default=1000,
                    help="identity: steps of the scene NeRF (default 1000: past its 400-step "
                         "warm-up, with density-grid updates every 64 steps)")
+    p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results")
     p.add_argument("--nerf-budget", type=float, default=60.0,
                    help="timings: time budget of the scene NeRF (default 60; the benchmark's "
                         "is 720)")
-    p.add_argument("--repeats", type=int, default=1, help="timings: runs of each case")
-    p.add_argument("--jobs", type=int, default=1, choices=(1, 2),
-                   help="identity: 2 runs the before and after of a case at the same time "
-                        "(results do not depend on the load; the timing part never does)")
-    p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results")
     p.add_argument("--child", default=None, help=argparse.SUPPRESS)
     p.add_argument("--part", default="identity", help=argparse.SUPPRESS)
     p.add_argument("--child-out", default=None, help=argparse.SUPPRESS)
