@@ -5,10 +5,11 @@ Each case runs in a fresh subprocess of this script (``--child``) whose ``PYTHON
 the *before* tree (a detached git worktree of the before commit, made with ``git worktree add
 --detach`` outside the repository unless ``--before-tree`` names one) or the current tree; the
 runs alternate before/after case by case (the order flips every case), so both see the same
-machine state (the identity part's ``--jobs 2`` runs the two side by side instead: its results
-do not depend on the load). The child imports only geofit's public API of the tree it runs
-on; where the before commit named a keyword differently (``config=``/``held_out=`` of
-``fit_nerf``), the child maps it, so both commits make *the same default call*.
+machine state (the identity part's ``--jobs 2`` runs the two side by side instead, ``--jobs 4``
+two cases at a time: its results do not depend on the load). The child imports only geofit's
+public API of the tree it runs on; where the before commit named a keyword differently
+(``config=``/``held_out=`` of ``fit_nerf``), the child maps it, so both commits make *the same
+default call*.
 
 Two parts:
 
@@ -57,7 +58,9 @@ import resource
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 BEFORE_COMMIT = "cf676f5"
@@ -265,7 +268,7 @@ def before_tree(path: str | None, commit: str) -> Path:
 
 def run_children(trees: list[Path], case: str, part: str, args, parallel: bool) -> list[dict]:
     """Run ``case`` once per tree, each in a fresh process with ``PYTHONPATH`` at the tree:
-    one after the other, or all at once (``parallel``: the identity part's ``--jobs 2``)."""
+    one after the other, or all at once (``parallel``: the identity part's ``--jobs 2``/``4``)."""
     with tempfile.TemporaryDirectory(prefix="before_after_") as tmp:
         started, recs = [], []
         for i, tree in enumerate(trees):  # the commits
@@ -423,9 +426,10 @@ def main(argv=None) -> int:
                         "(identity default: all; timings default: "
                         f"{','.join(TIMING_CASES)})")
     p.add_argument("--repeats", type=int, default=1, help="timings: runs of each case")
-    p.add_argument("--jobs", type=int, default=1, choices=(1, 2),
-                   help="identity: 2 runs the before and after of a case at the same time "
-                        "(results do not depend on the load; the timing part never does)")
+    p.add_argument("--jobs", type=int, default=1, choices=(1, 2, 4),
+                   help="identity: 2 runs the before and after of a case at the same time, 4 "
+                        "two cases at a time (results do not depend on the load; the timing "
+                        "part always runs one process at a time)")
     p.add_argument("--views-shapes", default=",".join(VIEWS_SHAPES),
                    help="identity: the shapes of fit_views.py's table run beside the cow")
     p.add_argument("--nerf-steps", type=int, default=1000,
@@ -482,7 +486,7 @@ def main(argv=None) -> int:
         parts = [f"# Before ({args.before_commit}) and after: the four fits", "",
                  "Written by `benchmarks/before_after.py` (each case in a fresh process, "
                  "before and after alternating, or side by side for the identity part's "
-                 "`--jobs 2`). See the JSON beside this file for every "
+                 "`--jobs 2`/`4`). See the JSON beside this file for every "
                  "recorded value."]
         if "identity" in report.tables:
             parts += ["", identity_markdown(report.tables["identity"])]
@@ -490,14 +494,13 @@ def main(argv=None) -> int:
             parts += ["", timings_markdown(report.tables["timings"])]
         md_path.write_text("\n".join(parts) + "\n", encoding="utf-8")
 
-    flip = False
-    for case in cases:  # cases; before and after alternate, the order flips every case
+    lock = threading.Lock()
+
+    def run_case(i: int, case: str) -> None:
         order = [("before", tree), ("after", after)]
-        if flip:
+        if i % 2:  # before and after alternate: the order flips every case
             order.reverse()
-        flip = not flip
-        entry = table["cases"].setdefault(case, {} if part == "identity" else
-                                          {"before": [], "after": []})
+        entry = {} if part == "identity" else {"before": [], "after": []}
         for rep in range(1 if part == "identity" else args.repeats):  # repeats
             recs = run_children([root for _, root in order], case, part, args,
                                 parallel=part == "identity" and args.jobs > 1)
@@ -516,7 +519,19 @@ def main(argv=None) -> int:
             entry["compare"] = compare(entry["before"], entry["after"])
             print(f"{case:24s} -> {entry['compare']['verdict']} "
                   f"{entry['compare']['differs'] or ''}", flush=True)
-        write()
+        with lock:
+            table["cases"][case] = entry
+            known = identity_cases(argparse.Namespace(cases="", views_shapes=",".join(
+                FILE_SHAPES + tuple(MESH_SHAPES))))  # the reading order of the table
+            table["cases"] = dict(sorted(table["cases"].items(), key=lambda kv: (
+                known.index(kv[0]) if kv[0] in known else len(known), kv[0])))
+            write()
+
+    # identity: --jobs 4 runs two cases (each before and after side by side) at a time
+    workers = max(args.jobs // 2, 1) if part == "identity" else 1
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for f in [pool.submit(run_case, i, c) for i, c in enumerate(cases)]:  # cases
+            f.result()
     write()
     print(f"wrote {json_path} and {md_path} ({(time.perf_counter() - t_start) / 60:.1f} min)")
     return 0
