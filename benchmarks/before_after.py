@@ -366,8 +366,10 @@ def identity_markdown(table: dict) -> str:
     text = [
         "## Identity: the same default call at both commits, full benchmark sizes", "",
         f"Before = `{table['before_commit']}` (`{table['before_tree']}`), after = "
-        f"`{table['after_commit']}`{' (uncommitted changes)' if table['after_dirty'] else ''}. "
-        "No time budget binds; iteration limits are the fits' own (NeRF: "
+        f"`{table['after_commit']}`{' (uncommitted changes)' if table['after_dirty'] else ''} "
+        f"(its `geofit/` tree `{table.get('after_geofit_tree', '?')}`"
+        f"{', changed' if table.get('after_geofit_dirty') else ''}). No time budget binds; "
+        "iteration limits are the fits' own (NeRF: "
         f"`NerfConfig.scene(n_iter={table['nerf_steps']})`); before and after ran "
         f"{'side by side' if table.get('jobs', 1) > 1 else 'one after the other'}. **{n_id} of "
         f"{len(table['cases'])} cases identical** (loss history, result arrays, figures). "
@@ -399,7 +401,9 @@ def timings_markdown(table: dict) -> str:
     return "\n".join([
         "## Timings: each benchmark's default call", "",
         f"Before = `{table['before_commit']}`, after = `{table['after_commit']}`"
-        f"{' (uncommitted changes)' if table['after_dirty'] else ''}; {table['repeats']} "
+        f"{' (uncommitted changes)' if table['after_dirty'] else ''} (its `geofit/` tree "
+        f"`{table.get('after_geofit_tree', '?')}`"
+        f"{', changed' if table.get('after_geofit_dirty') else ''}); {table['repeats']} "
         "run(s) of each, alternating. Wall and CPU seconds of the fit call only (data set-up "
         "and scoring excluded); peak RSS of the whole child process; load = 1-minute load "
         "average before the run. `fit_mesh`'s default has its own 10 s budget and the NeRF "
@@ -462,6 +466,8 @@ def main(argv=None) -> int:
     table = {"command": report.command, "before_commit": args.before_commit,
              "before_tree": str(tree), "after_commit": _git("rev-parse", "--short", "HEAD"),
              "after_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+             "after_geofit_tree": _git("rev-parse", "--short", "HEAD:geofit"),  # the package
+             "after_geofit_dirty": bool(_git("status", "--porcelain", "--", "geofit")),
              "load_start": [round(x, 2) for x in os.getloadavg()],
              "nerf_steps": args.nerf_steps, "nerf_budget": args.nerf_budget,
              "repeats": args.repeats, "jobs": args.jobs if part == "identity" else 1,
