@@ -375,7 +375,10 @@ def identity_markdown(table: dict) -> str:
         f"{len(table['cases'])} cases identical** (loss history, result arrays, figures). "
         "Figures show `before -> after` where they differ; the loss hash is the before "
         f"commit's. Fit wall seconds are under load (informative only). Identity part: "
-        f"{table['seconds'] / 60:.1f} min, load {table['load_start']} at the start, "
+        f"{table['seconds'] / 60:.1f} min"
+        + (f" (plus {table['seconds_merged_runs'] / 60:.1f} min of the merged runs, which ran "
+           "at the same time)" if table.get("seconds_merged_runs") else "")
+        + f", load {table['load_start']} at the start, "
         f"{table['load_end']} at the end. Command: `{table['command']}`.", "",
         markdown_table(["case", "verdict", "loss hash", "figures", "sizes",
                         "fit wall s (before / after)", "load (before / after)"], rows)]
@@ -440,6 +443,9 @@ def main(argv=None) -> int:
                    help="identity: steps of the scene NeRF (default 1000: past its 400-step "
                         "warm-up, with density-grid updates every 64 steps)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results")
+    p.add_argument("--merge", type=Path, action="append", default=[],
+                   help="take the cases of another run's before_after.json into this table "
+                        "(with --merge and no --cases, no case runs)")
     p.add_argument("--nerf-budget", type=float, default=60.0,
                    help="timings: time budget of the scene NeRF (default 60; the benchmark's "
                         "is 720)")
@@ -473,19 +479,33 @@ def main(argv=None) -> int:
              "repeats": args.repeats, "jobs": args.jobs if part == "identity" else 1,
              "cases": {}}
     prev = report.tables.get(part)
-    if args.cases and prev and prev.get("before_commit") == args.before_commit:
+    if (args.cases or args.merge) and prev and prev.get("before_commit") == args.before_commit:
         # a rerun of some cases: the other cases of the table stay, with their commands
         table["cases"] = dict(prev["cases"])
         table["command"] = f"{prev['command']}; then {report.command}"
         table["load_start"] = prev["load_start"]
     seconds_before = prev.get("seconds", 0.0) if table["cases"] else 0.0
-    cases = (identity_cases(args) if part == "identity" else
-             [c.strip() for c in (args.cases or ",".join(TIMING_CASES)).split(",") if c.strip()])
+    for other in args.merge:  # cases of other runs of this script (e.g. run at the same time)
+        o = json.loads(other.read_text(encoding="utf-8"))["tables"][part]
+        if o["before_commit"] != args.before_commit:
+            raise SystemExit(f"--merge: {other} compares {o['before_commit']}, not "
+                             f"{args.before_commit}")
+        table["cases"].update(o["cases"])
+        table["command"] += f"; with the {len(o['cases'])} cases of `{o['command']}`"
+        table["seconds_merged_runs"] = table.get("seconds_merged_runs", 0.0) + o["seconds"]
+        table["jobs"] = max(table["jobs"], o.get("jobs", 1))
+    cases = (identity_cases(args) if part == "identity" and not (args.merge and not args.cases)
+             else [c.strip() for c in (args.cases or ("" if args.merge else ",".join(
+                 TIMING_CASES))).split(",") if c.strip()])
     t_start = time.perf_counter()
 
     def write() -> None:
         table["seconds"] = seconds_before + time.perf_counter() - t_start
         table["load_end"] = [round(x, 2) for x in os.getloadavg()]
+        known = identity_cases(argparse.Namespace(cases="", views_shapes=",".join(
+            FILE_SHAPES + tuple(MESH_SHAPES))))  # the reading order of the table
+        table["cases"] = dict(sorted(table["cases"].items(), key=lambda kv: (
+            known.index(kv[0]) if kv[0] in known else len(known), kv[0])))
         report.tables[part] = table
         args.out.mkdir(parents=True, exist_ok=True)
         report.write(json_path)
@@ -527,10 +547,6 @@ def main(argv=None) -> int:
                   f"{entry['compare']['differs'] or ''}", flush=True)
         with lock:
             table["cases"][case] = entry
-            known = identity_cases(argparse.Namespace(cases="", views_shapes=",".join(
-                FILE_SHAPES + tuple(MESH_SHAPES))))  # the reading order of the table
-            table["cases"] = dict(sorted(table["cases"].items(), key=lambda kv: (
-                known.index(kv[0]) if kv[0] in known else len(known), kv[0])))
             write()
 
     # identity: --jobs 4 runs two cases (each before and after side by side) at a time

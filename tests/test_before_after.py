@@ -46,7 +46,7 @@ def test_before_tree_refuses_a_folder_without_geofit(tmp_path):
 def test_same_tree_both_sides_is_identical(tmp_path):
     """This tree as both "before" and "after" (side by side, --jobs 2): the torus' default
     fit_mesh is identical in the two processes, each imported geofit from the tree, and the
-    JSON and markdown are written."""
+    JSON and markdown are written; ``--merge`` carries the cases into another table."""
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(ROOT))
     p = subprocess.run([sys.executable, str(SCRIPT), "--before-tree", str(ROOT), "--cases",
                         "mesh:torus", "--jobs", "2", "--out", str(tmp_path)],
@@ -62,3 +62,12 @@ def test_same_tree_both_sides_is_identical(tmp_path):
         assert r["n_verts"] > 0 and 0.0 < r["fscore@0.01"] <= 1.0 and r["n_loss"] > 0
     md = (tmp_path / "before_after.md").read_text()
     assert "**1 of 1 cases identical**" in md and "| mesh:torus | identical |" in md
+    # --merge alone runs nothing and takes that run's cases, naming its command
+    merged = tmp_path / "merged"
+    p = subprocess.run([sys.executable, str(SCRIPT), "--before-tree", str(ROOT), "--merge",
+                        str(tmp_path / "before_after.json"), "--out", str(merged)],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-4000:]
+    m = json.loads((merged / "before_after.json").read_text())["tables"]["identity"]
+    assert m["cases"] == d["tables"]["identity"]["cases"]
+    assert "--cases mesh:torus" in m["command"]
