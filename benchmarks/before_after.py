@@ -382,6 +382,12 @@ def identity_markdown(table: dict) -> str:
         f"{table['load_end']} at the end. Command: `{table['command']}`.", "",
         markdown_table(["case", "verdict", "loss hash", "figures", "sizes",
                         "fit wall s (before / after)", "load (before / after)"], rows)]
+    default = identity_cases(argparse.Namespace(cases="", views_shapes=",".join(VIEWS_SHAPES)))
+    missing = [c for c in default if c not in table["cases"]]
+    if missing:
+        text += ["", f"Not run yet (of the default list): {', '.join(missing)}; "
+                 f"`python benchmarks/before_after.py --cases {','.join(missing)}` adds them "
+                 "to this table."]
     return "\n".join(text)
 
 
