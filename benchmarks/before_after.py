@@ -254,7 +254,7 @@ def child(case: str, part: str, out: str, nerf_steps: int, nerf_budget: float) -
 def before_tree(path: str | None, commit: str) -> Path:
     """The before tree: ``path`` if given, else ``/tmp/ba_before``, made as a detached git
     worktree of ``commit`` (outside the repository) when it holds no geofit yet."""
-    tree = Path(path or "/tmp/ba_before")
+    tree = Path(path or "/tmp/ba_before").resolve()  # the children run in a temporary folder
     if not (tree / "geofit" / "__init__.py").exists():
         if tree.exists() and any(tree.iterdir()):
             raise SystemExit(f"--before-tree: {tree} exists and holds no geofit/")
