@@ -164,6 +164,8 @@ class _Objective:
         self._miss = (np.flatnonzero(miss), miss_c.mean(axis=1) + miss_s)
         # (1 + eps)^first: the factor of the skipped empty samples in front of each ray
         self.lead = ((1.0 + _EPS) ** lay.first).astype(self.dtype)
+        # float32: 1 + eps rounds to 1 and every leading factor is 1 (the march skips them)
+        self._unit_eps = bool(self.dtype.type(1.0 + _EPS) == 1.0 and np.all(self.lead == 1.0))
         self._blocks = None
         # smoothness: squared differences between face-neighbouring free voxels
         self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
@@ -189,12 +191,13 @@ class _Objective:
     # ---- objective ---------------------------------------------------------------------------
 
     def _values(self, x: np.ndarray):
+        """Voxel values, channel-major ``(4, n_columns)``: density, then RGB."""
         nd = self.n_free_density
-        X = np.zeros((self.n_columns, 4), dtype=self.dtype)
+        X = np.zeros((4, self.n_columns), dtype=self.dtype)
         sd = _sigmoid(x[:nd])
-        X[self.free_idx, 0] = sd
+        X[0, self.free_idx] = sd
         sc = _sigmoid(x[nd:].reshape(3, -1))
-        X[:, 1:] = sc.T
+        X[1:] = sc
         return X, sd, sc
 
     def _split(self):
@@ -216,6 +219,9 @@ class _Objective:
     def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
         """Loss sums over chunks lo:hi; writes their sample gradients into G (if given).
 
+        ``Y`` and ``G`` are channel-major ``(4, n_rows)`` (density, RGB), so each chunk's
+        channels are contiguous ``(rays, K)`` arrays. The sums over a ray's samples are
+        sequential (cumulative sums and products), in the same order as a strided einsum.
         With ``per_ray`` (n_kept,), each kept ray's colour mean plus silhouette loss is stored
         there (for per-view diagnostics).
         """
@@ -223,38 +229,56 @@ class _Objective:
         n_col = 3.0 * self.n_pixels
         n_sil = float(self.n_pixels)
         col_sum = sil_sum = 0.0
+        unit = self._unit_eps
         for row, a, b, K in self.layout.chunks[lo:hi]:  # chunks of rays
             r = b - a
             rays = slice(a, b)
-            blk = Y[row:row + r * K].reshape(r, K, 4)
-            d = blk[:, :, 0]
-            f = blk[:, :, 1:]
+            d = Y[0, row:row + r * K].reshape(r, K)
+            f = Y[1:, row:row + r * K].reshape(3, r, K)
             c = (1.0 + _EPS) - d
-            T = _shifted_cumprod(c, 1) * self.lead[rays, None]
+            # with 1 + eps == 1 in the working precision, c is 1 - d and the leading factor 1:
+            # the transmittances are then the prefix products of 1 - d
+            P = _shifted_cumprod(c, 1)
+            T = P if unit else P * self.lead[rays, None]
             w = d * T
-            rgb = np.einsum("rk,rkc->rc", w, f)
-            op = 1.0 - np.prod(1.0 - d, axis=1)
+            rgb = np.empty((r, 3), dtype=d.dtype)
+            for ch in range(3):  # colour channels
+                rgb[:, ch] = np.cumsum(w * f[ch], axis=1)[:, -1]
+            if unit:
+                op = 1.0 - P[:, -1] * c[:, -1]
+            else:
+                op = 1.0 - np.prod(1.0 - d, axis=1)
             hc, gc = huber_residual(rgb - self.rgb[rays], s)
             hs, gs = huber_residual(op - self.sil[rays], s)
             col_sum += float(hc.sum(dtype=np.float64))
             sil_sum += float(hs.sum(dtype=np.float64))
             if per_ray is not None:
                 per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
-            if G is not None:
-                g_rgb = gc / n_col
-                g_op = gs / n_sil
-                h = np.einsum("rkc,rc->rk", f, g_rgb)
-                S = _suffix_from(w * h, 1)
-                gblk = G[row:row + r * K].reshape(r, K, 4)
-                through = _through_transmittance(S, c, d, h * self.lead[rays, None], 1)
-                gblk[:, :, 0] = T * h - through + _exclusive_product(1.0 - d) * g_op[:, None]
-                gblk[:, :, 1:] = w[:, :, None] * g_rgb[:, None, :]
+            if G is None:
+                continue
+            g_rgb = gc / n_col
+            g_op = gs / n_sil
+            h = f[0] * g_rgb[:, 0, None]
+            h += f[1] * g_rgb[:, 1, None]
+            h += f[2] * g_rgb[:, 2, None]
+            S = _suffix_from(w * h, 1)
+            through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
+                                             1)
+            ex = _exclusive_product(c if unit else 1.0 - d)
+            ex *= g_op[:, None]
+            g0 = G[0, row:row + r * K].reshape(r, K)
+            np.multiply(T, h, out=g0)
+            g0 -= through
+            g0 += ex
+            gf = G[1:, row:row + r * K].reshape(3, r, K)
+            for ch in range(3):  # colour channels
+                np.multiply(w, g_rgb[:, ch, None], out=gf[ch])
         return col_sum, sil_sum
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
         """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
         X, _, _ = self._values(x)
-        Y = self.W @ X
+        Y = np.stack([self.W @ X[ch] for ch in range(4)])
         kept = np.zeros(len(self.ray_ids))
         self._march_chunks(Y, None, 0, len(self.layout.chunks), kept)
         out = np.empty(self.n_rays_total)
@@ -266,14 +290,18 @@ class _Objective:
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
 
         Sparse products and ray chunks run on geofit's threads (numpy and scipy release the GIL).
+        Values and sample gradients are channel-major: one sparse matrix-vector product per
+        channel (scipy's single-vector kernels are faster than its multi-vector ones, with the
+        same sums in the same order).
         """
         X, sd, sc = self._values(x)
         blocks = self._split()
-        Y = np.empty((self.layout.n_rows, 4), dtype=self.dtype)
+        Y = np.empty((4, self.layout.n_rows), dtype=self.dtype)
 
         def fwd(blk):
             r0, r1, Wb = blk
-            Y[r0:r1] = Wb @ X
+            for ch in range(4):  # channels
+                Y[ch, r0:r1] = Wb @ X[ch]
         parallel_map(fwd, blocks)
         if self.clock is not None:  # a time budget holds inside long evaluations
             self.clock.check()
@@ -298,13 +326,18 @@ class _Objective:
         value = sum(terms.values())
         if not want_grad:
             return value, terms
-        Zs = parallel_map(lambda blk: blk[2].T @ G[blk[0]:blk[1]], blocks)
+
+        def bwd(blk):
+            r0, r1, Wb = blk
+            Wt = Wb.T
+            return np.stack([Wt @ G[ch, r0:r1] for ch in range(4)])
+        Zs = parallel_map(bwd, blocks)
         Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
         nd = self.n_free_density
         grad = np.empty_like(x)
         Z = Z.astype(np.float64, copy=False)
-        g_sd = Z[self.free_idx, 0]
-        g_sc = Z[:, 1:].T
+        g_sd = Z[0, self.free_idx]
+        g_sc = Z[1:]
         if smooth:
             g_sd = g_sd + (2.0 * lam_d / e_d) * (self.D_density.T @ dd)
             g_sc = g_sc + (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T
