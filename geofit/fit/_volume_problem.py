@@ -387,15 +387,28 @@ def _resample(values: np.ndarray, coarse: _Grid, fine: _Grid) -> np.ndarray:
     coords = np.stack([zz, yy, xx])
     lead = values.shape[:-3]
     flat = values.reshape((-1,) + coarse.size)
-    out = np.stack([ndimage.map_coordinates(v, coords, order=1, mode="grid-constant", cval=0.0)
-                    for v in flat])  # channels
+    out = np.empty((len(flat),) + fine.size)
+    # channels x slabs of z on the pool (map_coordinates releases the GIL; each output voxel
+    # is computed on its own, so the slabs change nothing)
+    n_slabs = max(1, min(fine.size[0], 2 * get_num_threads()))
+    cuts = np.linspace(0, fine.size[0], n_slabs + 1).astype(int)
+
+    def slab(task):
+        ch, z0, z1 = task
+        out[ch, z0:z1] = ndimage.map_coordinates(flat[ch], coords[:, z0:z1], order=1,
+                                                 mode="grid-constant", cval=0.0)
+    parallel_map(slab, [(ch, z0, z1) for ch in range(len(flat))  # channels
+                        for z0, z1 in zip(cuts[:-1], cuts[1:]) if z1 > z0])
     return out.reshape(lead + fine.size)
 
 
 def _rays(cameras: CamerasBase, R_h: int, R_w: int, n_pts: int, min_depth: float,
           max_depth: float):
-    sampler = NDCMultinomialRaysampler(image_width=R_w, image_height=R_h, n_pts_per_ray=n_pts,
+    """Origins and directions ``(N R_h R_w, 3)`` of the tutorial's raysampler, and its sample
+    lengths ``(n_pts,)`` (the same for every ray: the sampler is asked for two samples only,
+    since its ``(N, H, W, n_pts)`` lengths would be one array per ray of the same values)."""
+    sampler = NDCMultinomialRaysampler(image_width=R_w, image_height=R_h, n_pts_per_ray=2,
                                        min_depth=min_depth, max_depth=max_depth)
     b = sampler(cameras)
-    return b.origins.reshape(-1, 3), b.directions.reshape(-1, 3), b.lengths.reshape(
-        -1, n_pts)[0]
+    return (b.origins.reshape(-1, 3), b.directions.reshape(-1, 3),
+            np.linspace(min_depth, max_depth, n_pts))
