@@ -20,6 +20,7 @@ from ..loss.robust import huber, huber_residual
 from ..render.volume.raymarching import exclusive_product as _exclusive_product
 from ..render.volume.raymarching import shifted_cumprod as _shifted_cumprod
 from ..render.volume.raymarching import suffix_from as _suffix_from
+from ..render.volume.raymarching import suffix_products as _suffix_products
 from ..render.volume.raymarching import through_transmittance as _through_transmittance
 from ..render.volume.raysampling import NDCMultinomialRaysampler
 from ..render.volume.skipping import cell_table as _cell_table
@@ -36,11 +37,11 @@ _LOGIT_CLIP = 1e-6    # opacities/colours are kept in [clip, 1 - clip] when conv
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
-    out = np.empty_like(x)
-    pos = x >= 0
-    out[pos] = 1.0 / (1.0 + np.exp(-x[pos]))
-    e = np.exp(x[~pos])
-    out[~pos] = e / (1.0 + e)
+    """``1 / (1 + exp(-x))`` for ``x >= 0``, ``exp(x) / (1 + exp(x))`` below (no overflow)."""
+    e = np.exp(-np.abs(x))
+    q = 1.0 + e
+    out = np.divide(e, q)
+    np.divide(1.0, q, out=out, where=x >= 0)
     return out
 
 
@@ -191,13 +192,22 @@ class _Objective:
     # ---- objective ---------------------------------------------------------------------------
 
     def _values(self, x: np.ndarray):
-        """Voxel values, channel-major ``(4, n_columns)``: density, then RGB."""
+        """Voxel values, channel-major ``(4, n_columns)``: density, then RGB (the sigmoids of
+        the four channels run on the pool)."""
         nd = self.n_free_density
         X = np.zeros((4, self.n_columns), dtype=self.dtype)
-        sd = _sigmoid(x[:nd])
-        X[0, self.free_idx] = sd
-        sc = _sigmoid(x[nd:].reshape(3, -1))
-        X[1:] = sc
+        lc = x[nd:].reshape(3, -1)
+        sc = np.empty(lc.shape)
+
+        def channel(ch):
+            if ch == 0:
+                v = _sigmoid(x[:nd])
+                X[0, self.free_idx] = v
+                return v
+            sc[ch - 1] = _sigmoid(lc[ch - 1])
+            X[ch] = sc[ch - 1]
+            return None
+        sd = parallel_map(channel, range(4))[0]
         return X, sd, sc
 
     def _split(self):
@@ -264,7 +274,11 @@ class _Objective:
             S = _suffix_from(w * h, 1)
             through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
                                              1)
-            ex = _exclusive_product(c if unit else 1.0 - d)
+            if unit:  # prod_{j != k} c_j: the prefix products P times the suffix products
+                ex = _suffix_products(c)
+                ex *= P
+            else:
+                ex = _exclusive_product(1.0 - d)
             ex *= g_op[:, None]
             g0 = G[0, row:row + r * K].reshape(r, K)
             np.multiply(T, h, out=g0)
@@ -316,34 +330,55 @@ class _Objective:
         terms = {"colour": loss_c, "silhouette": loss_s}
         lam_d, lam_c = self.smoothness
         smooth = lam_d > 0 or lam_c > 0
-        if smooth:
-            dd = self.D_density @ sd
-            dc = self.D_colour @ sc.T
-            e_d = max(dd.size, 1)
-            e_c = max(dc.size, 1)
-            terms["smoothness"] = lam_d * float(dd @ dd) / e_d + lam_c * float(
-                np.sum(dc * dc)) / e_c
-        value = sum(terms.values())
         if not want_grad:
-            return value, terms
+            if smooth:
+                terms["smoothness"] = self._smoothness(sd, sc, False)[0]
+            return sum(terms.values()), terms
 
-        def bwd(blk):
-            r0, r1, Wb = blk
+        # the transposed products of the row blocks and the prior beside them on the pool
+        def bwd(task):
+            if task is None:
+                return self._smoothness(sd, sc, True)
+            r0, r1, Wb = task
             Wt = Wb.T
             return np.stack([Wt @ G[ch, r0:r1] for ch in range(4)])
-        Zs = parallel_map(bwd, blocks)
+        Zs = parallel_map(bwd, blocks + [None] if smooth else blocks)
+        if smooth:
+            terms["smoothness"], s_sd, s_sc = Zs.pop()
+        value = sum(terms.values())
         Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
         nd = self.n_free_density
         grad = np.empty_like(x)
-        Z = Z.astype(np.float64, copy=False)
-        g_sd = Z[0, self.free_idx]
-        g_sc = Z[1:]
-        if smooth:
-            g_sd = g_sd + (2.0 * lam_d / e_d) * (self.D_density.T @ dd)
-            g_sc = g_sc + (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T
-        grad[:nd] = g_sd * sd * (1.0 - sd)
-        grad[nd:] = (g_sc * sc * (1.0 - sc)).reshape(-1)
+        gc = grad[nd:].reshape(3, -1)
+
+        def chain(ch):  # through the sigmoids, one channel per task
+            if ch == 0:
+                g = Z[0, self.free_idx].astype(np.float64)
+                if smooth:
+                    g = g + s_sd
+                grad[:nd] = g * sd * (1.0 - sd)
+            else:
+                g = Z[ch].astype(np.float64)
+                if smooth:
+                    g = g + s_sc[ch - 1]
+                v = sc[ch - 1]
+                gc[ch - 1] = g * v * (1.0 - v)
+        parallel_map(chain, range(4))
         return value, grad, terms
+
+    def _smoothness(self, sd: np.ndarray, sc: np.ndarray, want_grad: bool):
+        """The prior's value and (``want_grad``) its gradients with respect to the density
+        and colour values ``sd`` (n_free,) and ``sc`` (3, n_columns)."""
+        lam_d, lam_c = self.smoothness
+        dd = self.D_density @ sd
+        dc = self.D_colour @ sc.T
+        e_d = max(dd.size, 1)
+        e_c = max(dc.size, 1)
+        value = lam_d * float(dd @ dd) / e_d + lam_c * float(np.sum(dc * dc)) / e_c
+        if not want_grad:
+            return value, None, None
+        return (value, (2.0 * lam_d / e_d) * (self.D_density.T @ dd),
+                (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T)
 
 
 def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:

@@ -120,15 +120,19 @@ def suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
     return S
 
 
+def suffix_products(c: np.ndarray) -> np.ndarray:
+    """``U[:, k] = prod_{j > k} c[:, j]`` (1 for the last sample), multiplied from the end."""
+    U = np.empty_like(c)
+    U[:, -1:] = 1.0
+    if c.shape[1] > 1:
+        np.cumprod(c[:, :0:-1], axis=1, out=U[:, -2::-1])
+    return U
+
+
 def exclusive_product(c: np.ndarray) -> np.ndarray:
     """``E[:, k] = prod_{j != k} c[:, j]`` from prefix and suffix products (no division)."""
-    n = c.shape[1]
     pre = shifted_cumprod(c, 1)
-    if n > 1:
-        suf = np.empty_like(c)
-        suf[:, -1] = 1.0
-        np.cumprod(c[:, :0:-1], axis=1, out=suf[:, -2::-1])
-        pre *= suf
+    pre *= suffix_products(c)
     return pre
 
 
