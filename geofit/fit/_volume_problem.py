@@ -20,6 +20,7 @@ from ..loss.robust import huber, huber_residual
 from ..render.volume.raymarching import exclusive_product as _exclusive_product
 from ..render.volume.raymarching import shifted_cumprod as _shifted_cumprod
 from ..render.volume.raymarching import suffix_from as _suffix_from
+from ..render.volume.raymarching import suffix_products as _suffix_products
 from ..render.volume.raymarching import through_transmittance as _through_transmittance
 from ..render.volume.raysampling import NDCMultinomialRaysampler
 from ..render.volume.skipping import cell_table as _cell_table
@@ -36,11 +37,11 @@ _LOGIT_CLIP = 1e-6    # opacities/colours are kept in [clip, 1 - clip] when conv
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
-    out = np.empty_like(x)
-    pos = x >= 0
-    out[pos] = 1.0 / (1.0 + np.exp(-x[pos]))
-    e = np.exp(x[~pos])
-    out[~pos] = e / (1.0 + e)
+    """``1 / (1 + exp(-x))`` for ``x >= 0``, ``exp(x) / (1 + exp(x))`` below (no overflow)."""
+    e = np.exp(-np.abs(x))
+    q = 1.0 + e
+    out = np.divide(e, q)
+    np.divide(1.0, q, out=out, where=x >= 0)
     return out
 
 
@@ -164,6 +165,8 @@ class _Objective:
         self._miss = (np.flatnonzero(miss), miss_c.mean(axis=1) + miss_s)
         # (1 + eps)^first: the factor of the skipped empty samples in front of each ray
         self.lead = ((1.0 + _EPS) ** lay.first).astype(self.dtype)
+        # float32: 1 + eps rounds to 1 and every leading factor is 1 (the march skips them)
+        self._unit_eps = bool(self.dtype.type(1.0 + _EPS) == 1.0 and np.all(self.lead == 1.0))
         self._blocks = None
         # smoothness: squared differences between face-neighbouring free voxels
         self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
@@ -189,12 +192,22 @@ class _Objective:
     # ---- objective ---------------------------------------------------------------------------
 
     def _values(self, x: np.ndarray):
+        """Voxel values, channel-major ``(4, n_columns)``: density, then RGB (the sigmoids of
+        the four channels run on the pool)."""
         nd = self.n_free_density
-        X = np.zeros((self.n_columns, 4), dtype=self.dtype)
-        sd = _sigmoid(x[:nd])
-        X[self.free_idx, 0] = sd
-        sc = _sigmoid(x[nd:].reshape(3, -1))
-        X[:, 1:] = sc.T
+        X = np.zeros((4, self.n_columns), dtype=self.dtype)
+        lc = x[nd:].reshape(3, -1)
+        sc = np.empty(lc.shape)
+
+        def channel(ch):
+            if ch == 0:
+                v = _sigmoid(x[:nd])
+                X[0, self.free_idx] = v
+                return v
+            sc[ch - 1] = _sigmoid(lc[ch - 1])
+            X[ch] = sc[ch - 1]
+            return None
+        sd = parallel_map(channel, range(4))[0]
         return X, sd, sc
 
     def _split(self):
@@ -216,6 +229,9 @@ class _Objective:
     def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
         """Loss sums over chunks lo:hi; writes their sample gradients into G (if given).
 
+        ``Y`` and ``G`` are channel-major ``(4, n_rows)`` (density, RGB), so each chunk's
+        channels are contiguous ``(rays, K)`` arrays. The sums over a ray's samples are
+        sequential (cumulative sums and products), in the same order as a strided einsum.
         With ``per_ray`` (n_kept,), each kept ray's colour mean plus silhouette loss is stored
         there (for per-view diagnostics).
         """
@@ -223,38 +239,60 @@ class _Objective:
         n_col = 3.0 * self.n_pixels
         n_sil = float(self.n_pixels)
         col_sum = sil_sum = 0.0
+        unit = self._unit_eps
         for row, a, b, K in self.layout.chunks[lo:hi]:  # chunks of rays
             r = b - a
             rays = slice(a, b)
-            blk = Y[row:row + r * K].reshape(r, K, 4)
-            d = blk[:, :, 0]
-            f = blk[:, :, 1:]
+            d = Y[0, row:row + r * K].reshape(r, K)
+            f = Y[1:, row:row + r * K].reshape(3, r, K)
             c = (1.0 + _EPS) - d
-            T = _shifted_cumprod(c, 1) * self.lead[rays, None]
+            # with 1 + eps == 1 in the working precision, c is 1 - d and the leading factor 1:
+            # the transmittances are then the prefix products of 1 - d
+            P = _shifted_cumprod(c, 1)
+            T = P if unit else P * self.lead[rays, None]
             w = d * T
-            rgb = np.einsum("rk,rkc->rc", w, f)
-            op = 1.0 - np.prod(1.0 - d, axis=1)
+            rgb = np.empty((r, 3), dtype=d.dtype)
+            for ch in range(3):  # colour channels
+                rgb[:, ch] = np.cumsum(w * f[ch], axis=1)[:, -1]
+            if unit:
+                op = 1.0 - P[:, -1] * c[:, -1]
+            else:
+                op = 1.0 - np.prod(1.0 - d, axis=1)
             hc, gc = huber_residual(rgb - self.rgb[rays], s)
             hs, gs = huber_residual(op - self.sil[rays], s)
             col_sum += float(hc.sum(dtype=np.float64))
             sil_sum += float(hs.sum(dtype=np.float64))
             if per_ray is not None:
                 per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
-            if G is not None:
-                g_rgb = gc / n_col
-                g_op = gs / n_sil
-                h = np.einsum("rkc,rc->rk", f, g_rgb)
-                S = _suffix_from(w * h, 1)
-                gblk = G[row:row + r * K].reshape(r, K, 4)
-                through = _through_transmittance(S, c, d, h * self.lead[rays, None], 1)
-                gblk[:, :, 0] = T * h - through + _exclusive_product(1.0 - d) * g_op[:, None]
-                gblk[:, :, 1:] = w[:, :, None] * g_rgb[:, None, :]
+            if G is None:
+                continue
+            g_rgb = gc / n_col
+            g_op = gs / n_sil
+            h = f[0] * g_rgb[:, 0, None]
+            h += f[1] * g_rgb[:, 1, None]
+            h += f[2] * g_rgb[:, 2, None]
+            S = _suffix_from(w * h, 1)
+            through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
+                                             1)
+            if unit:  # prod_{j != k} c_j: the prefix products P times the suffix products
+                ex = _suffix_products(c)
+                ex *= P
+            else:
+                ex = _exclusive_product(1.0 - d)
+            ex *= g_op[:, None]
+            g0 = G[0, row:row + r * K].reshape(r, K)
+            np.multiply(T, h, out=g0)
+            g0 -= through
+            g0 += ex
+            gf = G[1:, row:row + r * K].reshape(3, r, K)
+            for ch in range(3):  # colour channels
+                np.multiply(w, g_rgb[:, ch, None], out=gf[ch])
         return col_sum, sil_sum
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
         """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
         X, _, _ = self._values(x)
-        Y = self.W @ X
+        Y = np.stack([self.W @ X[ch] for ch in range(4)])
         kept = np.zeros(len(self.ray_ids))
         self._march_chunks(Y, None, 0, len(self.layout.chunks), kept)
         out = np.empty(self.n_rays_total)
@@ -266,14 +304,18 @@ class _Objective:
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
 
         Sparse products and ray chunks run on geofit's threads (numpy and scipy release the GIL).
+        Values and sample gradients are channel-major: one sparse matrix-vector product per
+        channel (scipy's single-vector kernels are faster than its multi-vector ones, with the
+        same sums in the same order).
         """
         X, sd, sc = self._values(x)
         blocks = self._split()
-        Y = np.empty((self.layout.n_rows, 4), dtype=self.dtype)
+        Y = np.empty((4, self.layout.n_rows), dtype=self.dtype)
 
         def fwd(blk):
             r0, r1, Wb = blk
-            Y[r0:r1] = Wb @ X
+            for ch in range(4):  # channels
+                Y[ch, r0:r1] = Wb @ X[ch]
         parallel_map(fwd, blocks)
         if self.clock is not None:  # a time budget holds inside long evaluations
             self.clock.check()
@@ -288,29 +330,55 @@ class _Objective:
         terms = {"colour": loss_c, "silhouette": loss_s}
         lam_d, lam_c = self.smoothness
         smooth = lam_d > 0 or lam_c > 0
-        if smooth:
-            dd = self.D_density @ sd
-            dc = self.D_colour @ sc.T
-            e_d = max(dd.size, 1)
-            e_c = max(dc.size, 1)
-            terms["smoothness"] = lam_d * float(dd @ dd) / e_d + lam_c * float(
-                np.sum(dc * dc)) / e_c
-        value = sum(terms.values())
         if not want_grad:
-            return value, terms
-        Zs = parallel_map(lambda blk: blk[2].T @ G[blk[0]:blk[1]], blocks)
+            if smooth:
+                terms["smoothness"] = self._smoothness(sd, sc, False)[0]
+            return sum(terms.values()), terms
+
+        # the transposed products of the row blocks and the prior beside them on the pool
+        def bwd(task):
+            if task is None:
+                return self._smoothness(sd, sc, True)
+            r0, r1, Wb = task
+            Wt = Wb.T
+            return np.stack([Wt @ G[ch, r0:r1] for ch in range(4)])
+        Zs = parallel_map(bwd, blocks + [None] if smooth else blocks)
+        if smooth:
+            terms["smoothness"], s_sd, s_sc = Zs.pop()
+        value = sum(terms.values())
         Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
         nd = self.n_free_density
         grad = np.empty_like(x)
-        Z = Z.astype(np.float64, copy=False)
-        g_sd = Z[self.free_idx, 0]
-        g_sc = Z[:, 1:].T
-        if smooth:
-            g_sd = g_sd + (2.0 * lam_d / e_d) * (self.D_density.T @ dd)
-            g_sc = g_sc + (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T
-        grad[:nd] = g_sd * sd * (1.0 - sd)
-        grad[nd:] = (g_sc * sc * (1.0 - sc)).reshape(-1)
+        gc = grad[nd:].reshape(3, -1)
+
+        def chain(ch):  # through the sigmoids, one channel per task
+            if ch == 0:
+                g = Z[0, self.free_idx].astype(np.float64)
+                if smooth:
+                    g = g + s_sd
+                grad[:nd] = g * sd * (1.0 - sd)
+            else:
+                g = Z[ch].astype(np.float64)
+                if smooth:
+                    g = g + s_sc[ch - 1]
+                v = sc[ch - 1]
+                gc[ch - 1] = g * v * (1.0 - v)
+        parallel_map(chain, range(4))
         return value, grad, terms
+
+    def _smoothness(self, sd: np.ndarray, sc: np.ndarray, want_grad: bool):
+        """The prior's value and (``want_grad``) its gradients with respect to the density
+        and colour values ``sd`` (n_free,) and ``sc`` (3, n_columns)."""
+        lam_d, lam_c = self.smoothness
+        dd = self.D_density @ sd
+        dc = self.D_colour @ sc.T
+        e_d = max(dd.size, 1)
+        e_c = max(dc.size, 1)
+        value = lam_d * float(dd @ dd) / e_d + lam_c * float(np.sum(dc * dc)) / e_c
+        if not want_grad:
+            return value, None, None
+        return (value, (2.0 * lam_d / e_d) * (self.D_density.T @ dd),
+                (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T)
 
 
 def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
@@ -354,15 +422,28 @@ def _resample(values: np.ndarray, coarse: _Grid, fine: _Grid) -> np.ndarray:
     coords = np.stack([zz, yy, xx])
     lead = values.shape[:-3]
     flat = values.reshape((-1,) + coarse.size)
-    out = np.stack([ndimage.map_coordinates(v, coords, order=1, mode="grid-constant", cval=0.0)
-                    for v in flat])  # channels
+    out = np.empty((len(flat),) + fine.size)
+    # channels x slabs of z on the pool (map_coordinates releases the GIL; each output voxel
+    # is computed on its own, so the slabs change nothing)
+    n_slabs = max(1, min(fine.size[0], 2 * get_num_threads()))
+    cuts = np.linspace(0, fine.size[0], n_slabs + 1).astype(int)
+
+    def slab(task):
+        ch, z0, z1 = task
+        out[ch, z0:z1] = ndimage.map_coordinates(flat[ch], coords[:, z0:z1], order=1,
+                                                 mode="grid-constant", cval=0.0)
+    parallel_map(slab, [(ch, z0, z1) for ch in range(len(flat))  # channels
+                        for z0, z1 in zip(cuts[:-1], cuts[1:]) if z1 > z0])
     return out.reshape(lead + fine.size)
 
 
 def _rays(cameras: CamerasBase, R_h: int, R_w: int, n_pts: int, min_depth: float,
           max_depth: float):
-    sampler = NDCMultinomialRaysampler(image_width=R_w, image_height=R_h, n_pts_per_ray=n_pts,
+    """Origins and directions ``(N R_h R_w, 3)`` of the tutorial's raysampler, and its sample
+    lengths ``(n_pts,)`` (the same for every ray: the sampler is asked for two samples only,
+    since its ``(N, H, W, n_pts)`` lengths would be one array per ray of the same values)."""
+    sampler = NDCMultinomialRaysampler(image_width=R_w, image_height=R_h, n_pts_per_ray=2,
                                        min_depth=min_depth, max_depth=max_depth)
     b = sampler(cameras)
-    return b.origins.reshape(-1, 3), b.directions.reshape(-1, 3), b.lengths.reshape(
-        -1, n_pts)[0]
+    return (b.origins.reshape(-1, 3), b.directions.reshape(-1, 3),
+            np.linspace(min_depth, max_depth, n_pts))

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import ndimage
 
+from .._threads import get_num_threads, parallel_map
 from .._validate import as_array, check_choice, check_positive
 
 __all__ = ["Volume", "VolumeSamples", "carve", "silhouette_distances", "trilinear_matrix",
@@ -546,31 +547,42 @@ def carve(dist: np.ndarray, cameras, centres: np.ndarray, radius: float, toleran
     """
     N, H, W = dist.shape
     s = min(H, W) / 2.0
-    votes = np.zeros(len(centres), dtype=np.int64)
     alive = np.ones(len(centres), bool) if candidates is None else candidates.copy()
     Ms = cameras.get_full_projection_transform()
     Rz, Tz = cameras.R[:, :, 2], cameras.T[:, 2]
-    for i in range(N):  # views
-        idx = np.flatnonzero(alive)
-        if idx.size == 0:
-            break
-        M = Ms[i]
-        P = centres[idx]
-        h = P @ M[:3, :] + M[3]
-        w = h[:, 3]
-        depth = P @ Rz[i] + Tz[i]
-        ok = (depth > 0) & (w != 0)
-        wsafe = np.where(ok, w, 1.0)
-        xy = h[:, :2] / wsafe[:, None]
-        a = np.linalg.norm(M[:3, :2])
-        b = np.linalg.norm(M[:3, 3])
-        r_px = s * radius * (a + np.linalg.norm(xy, axis=1) * b) / np.abs(wsafe) + slack + margin
-        ix = np.rint(W / 2.0 - s * xy[:, 0] - 0.5)
-        iy = np.rint(H / 2.0 - s * xy[:, 1] - 0.5)
-        seen = ok & (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
-        sidx = np.flatnonzero(seen)
-        out = ~seen   # behind the camera or outside the image: outside the silhouette
-        out[sidx] = dist[i, iy[sidx].astype(np.int64), ix[sidx].astype(np.int64)] > r_px[sidx]
-        votes[idx[out]] += 1
-        alive[idx[votes[idx] > tolerance]] = False
+    a_all = [np.linalg.norm(M[:3, :2]) for M in Ms]  # views
+    b_all = [np.linalg.norm(M[:3, 3]) for M in Ms]   # views
+
+    def carve_part(cand):  # each ball on its own: parts of the candidates run on the pool
+        votes = np.zeros(len(cand), dtype=np.int64)
+        keep = np.ones(len(cand), bool)
+        for i in range(N):  # views
+            idx = np.flatnonzero(keep)
+            if idx.size == 0:
+                break
+            M = Ms[i]
+            P = centres[cand[idx]]
+            h = P @ M[:3, :] + M[3]
+            w = h[:, 3]
+            depth = P @ Rz[i] + Tz[i]
+            ok = (depth > 0) & (w != 0)
+            wsafe = np.where(ok, w, 1.0)
+            xy = h[:, :2] / wsafe[:, None]
+            r_px = (s * radius * (a_all[i] + np.linalg.norm(xy, axis=1) * b_all[i])
+                    / np.abs(wsafe) + slack + margin)
+            ix = np.rint(W / 2.0 - s * xy[:, 0] - 0.5)
+            iy = np.rint(H / 2.0 - s * xy[:, 1] - 0.5)
+            seen = ok & (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+            sidx = np.flatnonzero(seen)
+            out = ~seen   # behind the camera or outside the image: outside the silhouette
+            out[sidx] = dist[i, iy[sidx].astype(np.int64), ix[sidx].astype(np.int64)] > \
+                r_px[sidx]
+            votes[idx[out]] += 1
+            keep[idx[votes[idx] > tolerance]] = False
+        return keep
+
+    cand = np.flatnonzero(alive)
+    parts = np.array_split(cand, max(1, min(2 * get_num_threads(), len(cand) // 4096)))
+    for part, keep in zip(parts, parallel_map(carve_part, parts)):  # parts of the candidates
+        alive[part] = keep
     return alive

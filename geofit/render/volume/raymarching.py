@@ -103,31 +103,37 @@ def sample_deltas(lengths, directions=None) -> np.ndarray:
 def shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
     """``T[:, i] = prod_{j <= i - shift} c[:, j]`` (1 for ``i < shift``); ``c`` is (r, n)."""
     n = c.shape[1]
-    T = np.ones_like(c)
+    T = np.empty_like(c)
+    T[:, :shift] = 1.0
     if shift < n:
-        T[:, shift:] = np.cumprod(c[:, : n - shift], axis=1)
+        np.cumprod(c[:, : n - shift], axis=1, out=T[:, shift:])
     return T
 
 
 def suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
     """``S[:, k] = sum_{i >= k + shift} q[:, i]`` for (r, n) ``q`` (reversed cumulative sum)."""
     n = q.shape[1]
-    S = np.zeros_like(q)
-    if shift < n:
-        rev = np.cumsum(q[:, ::-1], axis=1)[:, ::-1]  # rev[:, k] = sum_{i >= k}
-        S[:, : n - shift] = rev[:, shift:]
+    S = np.empty_like(q)
+    S[:, max(n - shift, 0):] = 0.0
+    if shift < n:  # summed from the end: S[:, n - 1 - shift] = q[:, n - 1], ...
+        np.cumsum(q[:, shift:][:, ::-1], axis=1, out=S[:, : n - shift][:, ::-1])
     return S
+
+
+def suffix_products(c: np.ndarray) -> np.ndarray:
+    """``U[:, k] = prod_{j > k} c[:, j]`` (1 for the last sample), multiplied from the end."""
+    U = np.empty_like(c)
+    U[:, -1:] = 1.0
+    if c.shape[1] > 1:
+        np.cumprod(c[:, :0:-1], axis=1, out=U[:, -2::-1])
+    return U
 
 
 def exclusive_product(c: np.ndarray) -> np.ndarray:
     """``E[:, k] = prod_{j != k} c[:, j]`` from prefix and suffix products (no division)."""
-    n = c.shape[1]
-    pre = np.ones_like(c)
-    suf = np.ones_like(c)
-    if n > 1:
-        pre[:, 1:] = np.cumprod(c[:, :-1], axis=1)
-        suf[:, :-1] = np.cumprod(c[:, :0:-1], axis=1)[:, ::-1]
-    return pre * suf
+    pre = shifted_cumprod(c, 1)
+    pre *= suffix_products(c)
+    return pre
 
 
 def _suffix_excluding(c: np.ndarray, alpha: np.ndarray, h: np.ndarray, where, shift: int

@@ -16,6 +16,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
+from ..._threads import parallel_map
+
 __all__: list[str] = []
 
 
@@ -142,7 +144,9 @@ def sample_ranges(A, B, n_pts: int, grid_size, cell_any: np.ndarray, *,
     order, span = cand[srt], span[srt]
     any_flat = cell_any.reshape(-1)
     min_flat = None if cell_min is None else cell_min.reshape(-1)
-    for a, b in _chunk_bounds(span, chunk_samples):  # chunks of rays
+
+    def ranges(bounds):  # one chunk of rays (independent of the others: run on the pool)
+        a, b = bounds
         ids = order[a:b]
         K = int(span[b - 1])
         kk = k_lo[ids, None] + np.arange(K)[None, :]
@@ -156,7 +160,7 @@ def sample_ranges(A, B, n_pts: int, grid_size, cell_any: np.ndarray, *,
         act = any_flat[cells] & inr
         has = act.any(axis=1)
         if not has.any():
-            continue
+            return None
         f = np.argmax(act, axis=1)
         lst = K - 1 - np.argmax(act[:, ::-1], axis=1)
         if min_flat is not None and termination is not None:
@@ -165,8 +169,13 @@ def sample_ranges(A, B, n_pts: int, grid_size, cell_any: np.ndarray, *,
             below = T < termination
             stop = np.where(below.any(axis=1), np.argmax(below, axis=1), K - 1)
             lst = np.minimum(lst, np.maximum(stop, f))
-        first[ids[has]] = k_lo[ids[has]] + f[has]
-        last[ids[has]] = k_lo[ids[has]] + lst[has]
+        return ids[has], f[has], lst[has]
+
+    for res in parallel_map(ranges, _chunk_bounds(span, chunk_samples)):  # chunks of rays
+        if res is not None:
+            ids, f, lst = res
+            first[ids] = k_lo[ids] + f
+            last[ids] = k_lo[ids] + lst
     return first, last
 
 
@@ -227,11 +236,17 @@ def range_operator(A, B, layout: RangeLayout, grid_size, *, lengths=None,
     n_vox = D * H * W
     if all_columns:
         return _dense_range_operator(A, B, layout, grid_size, lengths, chunk_samples, dtype)
-    # pass 1: which cells are read -> which voxels are read (the 8 corners of every cell)
+    # pass 1: which cells are read -> which voxels are read (the 8 corners of every cell);
+    # chunks on the pool, their sample positions kept for pass 2
+    def read_cells(chunk):
+        row, a, b, K = chunk
+        pix, local, j = _range_samples(A, B, layout, a, b, lengths)
+        return pix, row + local * K + j, _cells_of(pix, grid_size)
+
+    samples = parallel_map(read_cells, layout.chunks)
     cells = np.zeros((D + 4) * (H + 4) * (W + 4), bool)
-    for row, a, b, K in layout.chunks:  # chunks of rays
-        pix, _, _ = _range_samples(A, B, layout, a, b, lengths)
-        cells[_cells_of(pix, grid_size)] = True
+    for _, _, c in samples:  # chunks of rays
+        cells[c] = True
     cells = cells.reshape(D + 4, H + 4, W + 4)
     read = np.zeros((D, H, W), bool)
     for dz in (0, 1):  # voxel v is corner (dz, dy, dx) of the cell with lowest corner v - d
@@ -242,23 +257,30 @@ def range_operator(A, B, layout: RangeLayout, grid_size, *, lengths=None,
     idx = np.int32 if max(layout.n_rows, n_vox) < 2 ** 31 - 1 else np.int64
     lookup = np.full(n_vox, -1, idx)
     lookup[columns] = np.arange(columns.size, dtype=idx)
-    # pass 2: the entries, chunk by chunk
-    counts = np.zeros(layout.n_rows, np.int64)
-    data_l, ind_l = [], []
-    for row, a, b, K in layout.chunks:  # chunks of rays
-        pix, local, j = _range_samples(A, B, layout, a, b, lengths)
-        rows = row + local * K + j
+
+    # pass 2: the entries, chunk by chunk on the pool
+    def entries(k):
+        pix, rows, _ = samples[k]
+        samples[k] = None
+        out = []
         for s0 in range(0, len(rows), chunk_samples):  # sub-chunks of samples
             sl = slice(s0, s0 + chunk_samples)
             flat, w, valid = _pix_corners(pix[sl], grid_size)
             col = lookup[flat]
             valid &= col >= 0
-            counts[rows[sl]] = valid.sum(axis=1)
-            data_l.append(w[valid])
-            ind_l.append(col[valid])
+            out.append((rows[sl], valid.sum(axis=1), w[valid].astype(dtype), col[valid]))
+        return out
+
+    counts = np.zeros(layout.n_rows, np.int64)
+    data_l, ind_l = [], []
+    for part in parallel_map(entries, range(len(samples))):  # chunks of rays
+        for rows, cnt, dat, ind in part:  # sub-chunks
+            counts[rows] = cnt
+            data_l.append(dat)
+            ind_l.append(ind)
     indptr = np.zeros(layout.n_rows + 1, np.int64)
     np.cumsum(counts, out=indptr[1:])
-    data = np.concatenate(data_l) if data_l else np.zeros(0)
+    data = np.concatenate(data_l) if data_l else np.zeros(0, dtype)
     ind = np.concatenate(ind_l) if ind_l else np.zeros(0, idx)
     if indptr[-1] >= 2 ** 31 - 1:
         idx = np.int64
