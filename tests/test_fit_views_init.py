@@ -271,12 +271,13 @@ def test_hull_carving_options_are_validated(spheres):
 
 
 def test_rgb_stage_runs_after_the_silhouettes(spheres):
-    """rgb_iters adds an "rgb" stage between the silhouette and the colour stages; it moves
-    the vertices (the RGB residual drives the geometry) and leaves them finite."""
+    """rgb_iters adds an "rgb" stage between the silhouette and the colour (and UV texture)
+    stages; it moves the vertices (the RGB residual drives the geometry) and leaves them
+    finite."""
     o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0)
     base = fit_mesh_to_views(spheres, options=ViewsFitOptions(**o), progress=False)
     res = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)
-    assert [s["name"] for s in res.stages] == ["silhouette", "rgb", "textured"]
+    assert [s["name"] for s in res.stages] == ["silhouette", "rgb", "textured", "texture"]
     assert np.all(np.isfinite(res.mesh.verts))
     assert np.abs(res.mesh.verts - base.mesh.verts).max() > 0
 
