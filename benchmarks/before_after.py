@@ -16,8 +16,8 @@ Two parts:
 ``identity`` (the default)
     Every fit's benchmark cases at the benchmark's full size, with no binding time budget and
     the same iteration limits at both commits: ``fit_mesh(target, time_budget=1e6)`` on the
-    dolphin and every shape of ``benchmarks/fit_mesh.py``'s shape table (its own 10 s budget
-    replaced by one that never binds); ``fit_mesh_to_views(train)`` (no budget by default) on
+    dolphin and every shape of ``benchmarks/fit_mesh.py``'s shape table (the before commit's
+    own 10 s budget replaced by one that never binds; the after commit has none); ``fit_mesh_to_views(train)`` (no budget by default) on
     the tutorial's cow (20 views, 128 px, 16 held-out) and, of ``benchmarks/fit_views.py``'s
     shape table, ``--views-shapes`` (default torus and teapot: genus 1, and a file shape with open
     parts and a complex hull; the whole 11-shape table at both commits would take about 25
@@ -35,7 +35,9 @@ Two parts:
     (``--before-tree .`` puts the current tree on both sides: a determinism check).
 ``timings`` (``--timings``)
     Each benchmark's *default* call as the benchmark runs it, with its default time budget:
-    ``fit_mesh(dolphin)`` (its 10 s budget), ``fit_mesh_to_views(cow 20 views)``,
+    ``fit_mesh(dolphin)`` (10 s budget before, none after), ``fit_mesh_to_views(cow 20 views)``
+    (scored by the vertex colours ``result.colors`` at both commits; the after result also
+    carries a UV texture, scored in ``benchmarks/fit_views.py``),
     ``fit_volume(cow 40 views)`` and the scene NeRF with ``time_budget=--nerf-budget`` (default
     60 s; the benchmark's 720 s with ``--nerf-budget 720``): wall and CPU seconds of the fit,
     peak RSS of the process, ``os.getloadavg()`` before each run, ``--repeats`` runs of each
@@ -419,7 +421,9 @@ def timings_markdown(table: dict) -> str:
         f"{', changed' if table.get('after_geofit_dirty') else ''}); {table['repeats']} "
         "run(s) of each, alternating. Wall and CPU seconds of the fit call only (data set-up "
         "and scoring excluded); peak RSS of the whole child process; load = 1-minute load "
-        "average before the run. `fit_mesh`'s default has its own 10 s budget and the NeRF "
+        "average before the run. `fit_mesh`'s default had its own 10 s budget before (none "
+        "after); the views fit is scored by its vertex colours at both commits (the after "
+        "result's UV texture is scored in benchmarks/fit_views.py); the NeRF "
         f"runs with a {table['nerf_budget']:g} s budget: compare their steps and figures. "
         f"Timing part: {table['seconds'] / 60:.1f} min. Command: `{table['command']}`.", "",
         markdown_table(["case", "commit", "run", "wall s", "CPU s", "peak RSS MB",
