@@ -18,7 +18,7 @@ from geofit.cli import fit_mesh as cli_fit_mesh
 from geofit.cli import fit_nerf as cli_fit_nerf
 from geofit.cli import fit_views as cli_fit_views
 from geofit.cli import fit_volume as cli_fit_volume
-from geofit.cli._common import api_doc
+from geofit.cli._common import FIT_OPTIONS, api_doc
 from geofit.io import load_mesh
 
 FIT_COMMANDS = {"fit-mesh": cli_fit_mesh, "fit-views": cli_fit_views,
@@ -161,7 +161,7 @@ class _Spy:
 
 
 def _spy(monkeypatch, name: str, module) -> _Spy:
-    spy = _Spy(getattr(geofit.fit, name), module.OPTIONS["time_budget"])
+    spy = _Spy(getattr(geofit.fit, name), FIT_OPTIONS["time_budget"])
     monkeypatch.setattr(geofit.fit, name, spy)
     return spy
 
@@ -287,8 +287,8 @@ def test_one_option_vocabulary_and_docstring_help():
         flags = {s for a in p._actions for s in a.option_strings}
         assert {"--time-budget", "--seed", "--no-progress"} <= flags and "--time" not in flags
         for action in p._actions:
-            if action.dest in module.OPTIONS:
-                doc = api_doc(module.API, module.OPTIONS[action.dest])
+            if action.dest in FIT_OPTIONS:
+                doc = api_doc(module.API, FIT_OPTIONS[action.dest])
                 assert doc and action.help.startswith(doc)
         text = p.format_help()
         assert "deforms a sphere" not in text and "target mesh (.obj)" not in text

@@ -201,6 +201,25 @@ def add_fit_options(p: argparse.ArgumentParser, api: tuple[str, str],
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+#: The command line's flags -> the fit's keywords, the same for every ``geofit fit-*``
+#: sub-command and passed on only when given: everything else is the fit's own default. When
+#: the fits' keywords change, this table changes (each fit takes one wall-clock ``time_budget``).
+FIT_OPTIONS = {"time_budget": "time_budget", "seed": "seed", "recipe": "recipe"}
+
+
+def add_views_fit_command(subparsers, name: str, doc: str | None, func, api: tuple[str, str],
+                          table: dict[str, str], frames: bool = True) -> argparse.ArgumentParser:
+    """The parser of a sub-command that fits multi-view images (``fit-views``, ``fit-volume``,
+    ``fit-nerf``): :func:`add_command`, the optional ``CAPTURE`` (:func:`add_capture_arg`), the
+    view flags (:func:`add_view_args`, ``--frames`` with ``frames``) and the fit's options
+    ``table`` documented from ``api`` (:func:`add_fit_options`)."""
+    p = add_command(subparsers, name, doc, func)
+    add_capture_arg(p)
+    add_view_args(p, frames=frames)
+    add_fit_options(p, api, table)
+    return p
+
+
 def fit_kwargs(args: argparse.Namespace, table: dict[str, str]) -> dict:
     """The keywords of the fit call: ``{keyword: value}`` for each flag of ``table`` the user
     gave, and ``progress=False`` with ``--no-progress``. Nothing else: the fit's defaults are

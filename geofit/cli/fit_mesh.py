@@ -15,16 +15,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import (add_command, add_fit_options, fit_kwargs, out_dir, timing_line,
-                      write_json, wrote)
+from ._common import (FIT_OPTIONS, add_command, add_fit_options, fit_kwargs, out_dir,
+                      timing_line, write_json, wrote)
 
-__all__ = ["API", "OPTIONS", "register", "run"]
+__all__ = ["API", "register", "run"]
 
 #: The function this sub-command runs (its docstring gives the options' help).
 API = ("fit/mesh.py", "fit_mesh")
-#: The command line's flags -> the fit's keywords, passed on only when given: everything else
-#: is ``fit_mesh``'s own default. When the fit's keywords change, this table changes.
-OPTIONS = {"time_budget": "time_budget", "seed": "seed", "recipe": "recipe"}
 
 #: Suffixes read as point clouds by trimesh's XYZ reader (one point a line: x y z, then
 #: optional columns); ``.npz`` and a ``.ply`` without faces go to geofit.io.load_pointcloud.
@@ -88,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io import save_obj
 
     target, name = load_target(args.target)
-    kwargs = fit_kwargs(args, OPTIONS)
+    kwargs = fit_kwargs(args, FIT_OPTIONS)
     print(f"target: {name} ({_describe(target)})"
           + "".join(f", {k}={v}" for k, v in kwargs.items()))
     res = fit_mesh(target, **kwargs)
@@ -117,4 +114,4 @@ def register(subparsers) -> None:
                     input=("target", "target mesh or point cloud (.obj, .ply, .stl, .off, .glb, "
                                      ".npz, .xyz, .pts); default: the tutorial dolphin if found, "
                                      "else the procedural stand-in"))
-    add_fit_options(p, API, OPTIONS)
+    add_fit_options(p, API, FIT_OPTIONS)

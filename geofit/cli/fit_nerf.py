@@ -19,16 +19,13 @@ from __future__ import annotations
 import argparse
 
 from .._atomic import atomic_write
-from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, finish,
-                      fit_kwargs, out_dir, save_png, save_rotation, tutorial_data, write_json)
+from ._common import (FIT_OPTIONS, add_views_fit_command, finish, fit_kwargs, out_dir,
+                      save_png, save_rotation, tutorial_data, write_json)
 
-__all__ = ["API", "OPTIONS", "register", "run"]
+__all__ = ["API", "register", "run"]
 
 #: The function this sub-command runs (its docstring gives the options' help).
 API = ("fit/nerf.py", "fit_nerf")
-#: The command line's flags -> the fit's keywords, passed on only when given: everything else
-#: is ``fit_nerf``'s own default. When the fit's keywords change, this table changes.
-OPTIONS = {"time_budget": "time_budget", "seed": "seed", "recipe": "recipe"}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from ..fit import fit_nerf
 
     train, test = tutorial_data(args, 6)
-    res = fit_nerf(train, **fit_kwargs(args, OPTIONS))
+    res = fit_nerf(train, **fit_kwargs(args, FIT_OPTIONS))
     out = out_dir(args)
     summary = res.summary()
     summary["history"] = res.history.to_dict()
@@ -67,7 +64,4 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``fit-nerf`` sub-command."""
-    p = add_command(subparsers, "fit-nerf", __doc__, run)
-    add_capture_arg(p)
-    add_view_args(p)
-    add_fit_options(p, API, OPTIONS)
+    add_views_fit_command(subparsers, "fit-nerf", __doc__, run, API, FIT_OPTIONS)

@@ -18,18 +18,13 @@ import argparse
 import time
 
 from .._atomic import atomic_write
-from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, fit_kwargs,
-                      metric_line, out_dir, save_png, timing_line, tutorial_data,
-                      write_json)
+from ._common import (FIT_OPTIONS, add_views_fit_command, fit_kwargs, metric_line, out_dir,
+                      save_png, timing_line, tutorial_data, write_json)
 
-__all__ = ["API", "OPTIONS", "register", "run"]
+__all__ = ["API", "register", "run"]
 
 #: The function this sub-command runs (its docstring gives the options' help).
 API = ("fit/views.py", "fit_mesh_to_views")
-#: The command line's flags -> the fit's keywords, passed on only when given: everything else
-#: is ``fit_mesh_to_views``' own default. When the fit's keywords change, this table changes
-#: (the fit takes one wall-clock ``time_budget``).
-OPTIONS = {"time_budget": "time_budget", "seed": "seed", "recipe": "recipe"}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     ds, held = tutorial_data(args, 4)
     t_data = time.perf_counter() - t0
-    kw = fit_kwargs(args, OPTIONS)
+    kw = fit_kwargs(args, FIT_OPTIONS)
     print(f"object: {ds.name}; {len(ds)} views of {ds.image_size[0]} px, {len(held)} held-out "
           f"views (made in {t_data:.1f} s)" + "".join(f", {k}={v}" for k, v in kw.items()))
     fit = fit_mesh_to_views(ds, **kw)
@@ -75,7 +70,4 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``fit-views`` sub-command."""
-    p = add_command(subparsers, "fit-views", __doc__, run)
-    add_capture_arg(p)
-    add_view_args(p, frames=False)
-    add_fit_options(p, API, OPTIONS)
+    add_views_fit_command(subparsers, "fit-views", __doc__, run, API, FIT_OPTIONS, frames=False)

@@ -21,16 +21,13 @@ import argparse
 import time
 
 from .._atomic import atomic_write
-from ._common import (add_capture_arg, add_command, add_fit_options, add_view_args, finish,
-                      fit_kwargs, out_dir, save_png, save_rotation, tutorial_data, write_json)
+from ._common import (FIT_OPTIONS, add_views_fit_command, finish, fit_kwargs, out_dir,
+                      save_png, save_rotation, tutorial_data, write_json)
 
-__all__ = ["API", "OPTIONS", "register", "run"]
+__all__ = ["API", "register", "run"]
 
 #: The function this sub-command runs (its docstring gives the options' help).
 API = ("fit/volume.py", "fit_volume")
-#: The command line's flags -> the fit's keywords, passed on only when given: everything else
-#: is ``fit_volume``'s own default. When the fit's keywords change, this table changes.
-OPTIONS = {"time_budget": "time_budget", "seed": "seed", "recipe": "recipe"}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     train, test = tutorial_data(args, 5)
     t_data = time.perf_counter() - t0
-    res = fit_volume(train, **fit_kwargs(args, OPTIONS))
+    res = fit_volume(train, **fit_kwargs(args, FIT_OPTIONS))
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
     out = out_dir(args)
     summary = res.summary()
@@ -71,7 +68,4 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add the ``fit-volume`` sub-command."""
-    p = add_command(subparsers, "fit-volume", __doc__, run)
-    add_capture_arg(p)
-    add_view_args(p)
-    add_fit_options(p, API, OPTIONS)
+    add_views_fit_command(subparsers, "fit-volume", __doc__, run, API, FIT_OPTIONS)

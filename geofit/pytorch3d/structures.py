@@ -59,6 +59,49 @@ def _lists(x, name: str):
     return [t[i] for i in range(t.shape[0])], True
 
 
+def _split_rows(t, counts: np.ndarray):
+    """Packed rows ``t`` (a Tensor or None) as a list of ``counts[i]`` rows each."""
+    if t is None:
+        return None
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    return [t[int(a):int(a + n)] for a, n in zip(starts, counts)]
+
+
+def _accessors(owner: str, name: str, packed, counts: str, docs: dict):
+    """PyTorch3D's ``{name}_packed``, ``{name}_list`` and ``{name}_padded`` methods of the
+    class ``owner``: ``packed(self)`` gives the packed rows (or None), ``counts`` names the
+    attribute with the rows per member; ``docs[form]``: each method's docstring."""
+    def as_list(self):
+        return _split_rows(packed(self), getattr(self, counts))
+
+    def padded(self):
+        t = packed(self)
+        return None if t is None else to_padded(t, getattr(self, counts))
+
+    for form, f in zip(("packed", "list", "padded"), (packed, as_list, padded)):
+        f.__name__, f.__doc__ = f"{name}_{form}", docs[form]
+        f.__qualname__ = f"{owner}.{f.__name__}"
+    return packed, as_list, padded
+
+
+def _mesh_accessors(name: str, attr: str, counts: str, rows: str, what: str):
+    """The accessors of :class:`Meshes` for the geofit meshes' ``(rows, 3)`` array ``attr``
+    (values only: no gradient)."""
+    return _accessors("Meshes", name, lambda self: Tensor(np.concatenate(
+        [getattr(m, attr) for m in self._geofit()])), counts, {
+        "packed": f"(sum {rows}, 3) {what} (no gradient).",
+        "list": f"The {what} of each mesh, ({rows}_i, 3) each (no gradient).",
+        "padded": f"(N, max {rows}, 3) {what}, zero-padded (no gradient)."})
+
+
+def _cloud_accessors(name: str):
+    """The accessors of :class:`Pointclouds` for its packed ``_{name}`` (None stays None)."""
+    return _accessors("Pointclouds", name, lambda self: getattr(self, "_" + name), "_counts", {
+        "packed": f"The {name} of all clouds, one row per point (None when not given).",
+        "list": f"The {name} of each cloud, a list (None when not given).",
+        "padded": f"The {name} padded to (N, max P, C) with zeros (None when not given)."})
+
+
 class Meshes:
     """A batch of triangle meshes (PyTorch3D's ``Meshes``).
 
@@ -232,25 +275,10 @@ class Meshes:
         return ms[0] if len(ms) == 1 else _gs.Meshes(ms)
 
     # ------------------------------------------------------------------ derived quantities
-    def verts_normals_packed(self) -> Tensor:
-        """(sum V, 3) unit vertex normals (no gradient)."""
-        return Tensor(np.concatenate([m.verts_normals for m in self._geofit()]))
-
-    def verts_normals_list(self) -> list:
-        return [Tensor(m.verts_normals) for m in self._geofit()]
-
-    def verts_normals_padded(self) -> Tensor:
-        return to_padded(self.verts_normals_packed(), self._counts)
-
-    def faces_normals_packed(self) -> Tensor:
-        """(sum F, 3) unit face normals (no gradient)."""
-        return Tensor(np.concatenate([m.face_normals for m in self._geofit()]))
-
-    def faces_normals_list(self) -> list:
-        return [Tensor(m.face_normals) for m in self._geofit()]
-
-    def faces_normals_padded(self) -> Tensor:
-        return to_padded(self.faces_normals_packed(), self._fcounts)
+    verts_normals_packed, verts_normals_list, verts_normals_padded = _mesh_accessors(
+        "verts_normals", "verts_normals", "_counts", "V", "unit vertex normals")
+    faces_normals_packed, faces_normals_list, faces_normals_padded = _mesh_accessors(
+        "faces_normals", "face_normals", "_fcounts", "F", "unit face normals")
 
     def faces_areas_packed(self) -> Tensor:
         """(sum F,) face areas (no gradient)."""
@@ -435,37 +463,9 @@ class Pointclouds:
     def packed_to_cloud_idx(self) -> Tensor:
         return Tensor(np.repeat(np.arange(len(self)), self._counts))
 
-    def _split(self, t):
-        if t is None:
-            return None
-        return [t[int(a):int(a + n)] for a, n in zip(self._starts(), self._counts)]
-
-    def points_packed(self) -> Tensor:
-        return self._points
-
-    def points_list(self) -> list:
-        return self._split(self._points)
-
-    def points_padded(self) -> Tensor:
-        return to_padded(self._points, self._counts)
-
-    def normals_packed(self):
-        return self._normals
-
-    def normals_list(self):
-        return self._split(self._normals)
-
-    def normals_padded(self):
-        return None if self._normals is None else to_padded(self._normals, self._counts)
-
-    def features_packed(self):
-        return self._features
-
-    def features_list(self):
-        return self._split(self._features)
-
-    def features_padded(self):
-        return None if self._features is None else to_padded(self._features, self._counts)
+    points_packed, points_list, points_padded = _cloud_accessors("points")
+    normals_packed, normals_list, normals_padded = _cloud_accessors("normals")
+    features_packed, features_list, features_padded = _cloud_accessors("features")
 
     def _geofit(self):
         """geofit Pointclouds (values only) for the points renderer."""

@@ -116,6 +116,15 @@ def _data(x):
     return x.data if isinstance(x, Tensor) else x
 
 
+def _comparison(ufunc):
+    """A comparison operator of :class:`Tensor`: ``ufunc`` (``np.less``, ...) on the values of
+    ``self`` and ``other`` (a tensor, an array or a number), as a new tensor without gradient."""
+    def compare(self, other):
+        return Tensor(ufunc(self.data, _data(other)))
+
+    return compare
+
+
 def _unbroadcast(g: np.ndarray, shape: tuple) -> np.ndarray:
     """Sum ``g`` over the axes that numpy broadcasting added or stretched to reach its shape."""
     if g.shape == shape:
@@ -643,42 +652,31 @@ class Tensor:
                             f"on tensor.detach(), or write the term as a (value, grad) function "
                             f"(see docs/custom_objective.md)")
 
+    def _extreme(self, reduce: str, dim, keepdim: bool):
+        """``max`` or ``min`` (``reduce``): the value, or ``(values, indices)`` along ``dim``."""
+        self._constant_op(reduce)
+        values = getattr(self.data, reduce)
+        if dim is None:
+            return Tensor(values())
+        indices = getattr(self.data, "arg" + reduce)
+        return MaxMin(Tensor(values(axis=dim, keepdims=keepdim)),
+                      Tensor(indices(axis=dim, keepdims=keepdim)))
+
     def max(self, dim=None, keepdim: bool = False):
         """The maximum, or ``(values, indices)`` along ``dim`` (torch's convention); no gradient."""
-        self._constant_op("max")
-        if dim is None:
-            return Tensor(self.data.max())
-        return MaxMin(Tensor(self.data.max(axis=dim, keepdims=keepdim)),
-                      Tensor(self.data.argmax(axis=dim, keepdims=keepdim)))
+        return self._extreme("max", dim, keepdim)
 
     def min(self, dim=None, keepdim: bool = False):
         """The minimum, or ``(values, indices)`` along ``dim``; no gradient."""
-        self._constant_op("min")
-        if dim is None:
-            return Tensor(self.data.min())
-        return MaxMin(Tensor(self.data.min(axis=dim, keepdims=keepdim)),
-                      Tensor(self.data.argmin(axis=dim, keepdims=keepdim)))
+        return self._extreme("min", dim, keepdim)
 
-    def _compare(self, other, fn):
-        return Tensor(fn(self.data, _data(other)))
-
-    def __lt__(self, other):
-        return self._compare(other, np.less)
-
-    def __le__(self, other):
-        return self._compare(other, np.less_equal)
-
-    def __gt__(self, other):
-        return self._compare(other, np.greater)
-
-    def __ge__(self, other):
-        return self._compare(other, np.greater_equal)
-
-    def __eq__(self, other):
-        return self._compare(other, np.equal)
-
-    def __ne__(self, other):
-        return self._compare(other, np.not_equal)
+    # the comparisons: the ufunc on the values, a constant tensor (no gradient)
+    __lt__ = _comparison(np.less)
+    __le__ = _comparison(np.less_equal)
+    __gt__ = _comparison(np.greater)
+    __ge__ = _comparison(np.greater_equal)
+    __eq__ = _comparison(np.equal)
+    __ne__ = _comparison(np.not_equal)
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         tracked = _tracks(*inputs)

@@ -11,6 +11,7 @@ from ..metrics import psnr
 from .shared import (
     StepResult,
     begin_step,
+    broken_views,
     close_comparison,
     cow_views,
     fit_row,
@@ -128,15 +129,9 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
     from ..fit.volume import VolumeFitOptions, fit_volume
 
     small = max(8, S // 4)
-    imgs, sils, cams = train.images, train.silhouettes, train.cameras
-    nan_i = imgs.copy()
-    nan_i[0, 0, 0, 0] = np.nan
-    cases = {
-        "one view only": (imgs[:1], sils[:1], cams[[0]]),
-        "black images, empty silhouettes": (np.zeros_like(imgs), np.zeros_like(sils), cams),
-        "NaN in an image": (nan_i, sils, cams),
-        "silhouettes of the wrong size": (imgs, sils[:, :-1], cams),
-    }
+    cases = broken_views(train)
+    cases["silhouettes of the wrong size"] = (train.images, train.silhouettes[:, :-1],
+                                              train.cameras)
     rows = []
     for method, kw in (("tutorial", {"recipe": "tutorial", "n_iter": pick_size(size, 2, 10, 30),
                                      "batch_size": 1}),

@@ -11,6 +11,7 @@ from ..fit.nerf import RECIPES, fit_nerf, render_nerf
 from .shared import (
     StepResult,
     begin_step,
+    broken_views,
     close_comparison,
     cow_views,
     fit_row,
@@ -119,16 +120,10 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
 def _nerf_stability(train, size: str, seed: int) -> list[dict]:
     from ..fit.nerf import RECIPES, fit_nerf
 
-    imgs, sils, cams = train.images, train.silhouettes, train.cameras
-    nan_i = imgs.copy()
-    nan_i[0, 0, 0, 0] = np.nan
     n_iter = pick_size(size, 2, 4, 50)
-    cases = {
-        "one view only": (imgs[:1], sils[:1], cams[[0]], {}),
-        "black images, empty silhouettes": (np.zeros_like(imgs), np.zeros_like(sils), cams, {}),
-        "NaN in an image": (nan_i, sils, cams, {}),
-        "learning rate x1000": (imgs, sils, cams, {"lr_x": 1000.0}),
-    }
+    cases = {case: (*arrays, {}) for case, arrays in broken_views(train).items()}
+    cases["learning rate x1000"] = (train.images, train.silhouettes, train.cameras,
+                                    {"lr_x": 1000.0})
     rows = []
     for method in ("tutorial", "scene"):
         for case, (i_, s_, c_, extra) in cases.items():  # failure cases

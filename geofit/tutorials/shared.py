@@ -395,6 +395,20 @@ def stability_views(images, silhouettes, cameras) -> MultiViewDataset:
     return MultiViewDataset(images=images, silhouettes=silhouettes, cameras=cameras)
 
 
+def broken_views(train: MultiViewDataset) -> dict[str, tuple]:
+    """The failure cases every views fit's stability table starts with: ``{case: (images,
+    silhouettes, cameras)}`` for one view only, black images with empty silhouettes and a NaN
+    in an image (made into data by :func:`stability_views` inside the run)."""
+    imgs, sils, cams = train.images, train.silhouettes, train.cameras
+    nan_i = imgs.copy()
+    nan_i[0, 0, 0, 0] = np.nan
+    return {
+        "one view only": (imgs[:1], sils[:1], cams[[0]]),
+        "black images, empty silhouettes": (np.zeros_like(imgs), np.zeros_like(sils), cams),
+        "NaN in an image": (nan_i, sils, cams),
+    }
+
+
 def cow_views(n_views: int, image_size: int, n_heldout: int, heldout_size: int):
     """Training and held-out renders of the volume and NeRF tutorials (:mod:`geofit.datasets`).
 
