@@ -50,6 +50,22 @@ def foreign_kind(obj) -> str | None:
     return None
 
 
+#: The kinds a converter requires, as its TypeError names them.
+_EXPECTED = {
+    "trimesh.Trimesh": "a trimesh.Trimesh",
+    "trimesh.PointCloud": "a trimesh.PointCloud",
+    "open3d.TriangleMesh": "an open3d.geometry.TriangleMesh",
+    "open3d.PointCloud": "an open3d.geometry.PointCloud",
+}
+
+
+def require_kind(obj, kind: str, name: str) -> None:
+    """Raise TypeError naming the argument ``name`` unless ``obj`` is of foreign ``kind``
+    (a key of ``_EXPECTED``)."""
+    if foreign_kind(obj) != kind:
+        raise TypeError(f"{name}: expected {_EXPECTED[kind]}, got {type(obj)!r}")
+
+
 def geometry_kind(obj) -> str | None:
     """:func:`foreign_kind`, or ``"geofit.Mesh"`` / ``"geofit.PointCloud"`` for geofit's own."""
     kind = foreign_kind(obj)

@@ -103,7 +103,8 @@ def plot_accuracy_vs_time(methods: Sequence[Any], panels: Sequence[Mapping[str, 
     Returns
     -------
     Path
-        ``path``.
+        ``path``, replaced only once the figure is complete (a failed write raises OSError and
+        leaves it unchanged).
 
     Raises
     ------

@@ -83,6 +83,27 @@ def test_time_bar_reads_seconds_of_the_budget():
     assert "7.9 s / 8.0 s" in text and "s/s" not in text and "7.93" not in text
 
 
+def test_advance_draws_the_bar_with_the_clock_paused():
+    """``advance`` steps the bar and shows its postfix while the fit's clock is paused."""
+    from geofit.fit import Clock
+    from geofit.fit._progress import advance
+
+    clock = Clock()
+    seen = []
+
+    class Bar:
+        def update(self, n=1):
+            seen.append(("update", n, clock.is_paused))
+
+        def set_postfix(self, **kw):
+            seen.append(("postfix", kw, clock.is_paused))
+
+    advance(Bar(), clock)
+    advance(Bar(), clock, {"loss": "0.5"})
+    assert seen == [("update", 1, True), ("update", 1, True), ("postfix", {"loss": "0.5"}, True)]
+    assert not clock.is_paused
+
+
 def test_open3d_offscreen_renderer_is_quiet():
     """Starting Open3D's offscreen renderer prints nothing (Filament's engine log and Open3D's
     INFO lines go to the C-level stdout; they are silenced around it), and importing geofit

@@ -6,7 +6,7 @@ clock paused, so drawing it is not charged to the solver.
 """
 from __future__ import annotations
 
-__all__ = ["NoBar", "progress_bar"]
+__all__ = ["NoBar", "advance", "progress_bar"]
 
 
 class NoBar:
@@ -40,3 +40,12 @@ def progress_bar(enabled: bool, total: float | None, desc: str, unit: str = "it"
 
     fmt = {"bar_format": TIME_BAR} if unit == "s" and total is not None else {}
     return tqdm(total=total, desc=desc, unit=unit, leave=False, dynamic_ncols=True, **fmt)
+
+
+def advance(bar, clock, postfix: dict | None = None) -> None:
+    """One step of ``bar`` (and its ``postfix`` fields, when given) drawn with ``clock`` paused,
+    so drawing is not charged to the fit."""
+    with clock.paused():
+        bar.update(1)
+        if postfix is not None:
+            bar.set_postfix(**postfix)

@@ -13,7 +13,7 @@ from scipy import ndimage
 from ..structures.volume import carve as _carve
 from ..structures.volume import silhouette_distances
 from . import solvers
-from ._progress import progress_bar
+from ._progress import advance, progress_bar
 from ._volume_problem import _downsample, _Grid, _logit, _Objective, _rays, _resample, _sigmoid
 from .history import Clock, FitHistory
 
@@ -226,8 +226,7 @@ class _Solver:
                 p.unpack_into(np.asarray(si.x), self.state["ld"], self.state["lc"])
                 self.run_monitor(self.step_counter)
                 self.state["ld"], self.state["lc"] = state_ld, state_lc
-            with self.clock.paused():
-                self.bar.update(1)
+            advance(self.bar, self.clock)
             if o.callback is not None:
                 with self.clock.paused(caller=True):
                     return o.callback(si._replace(stage=li, terms=dict(fun.terms)))
@@ -449,8 +448,7 @@ def _fit_tutorial(o: _Plan) -> dict:
                 history.checkpoint(step, clock.elapsed(),
                                    o.evaluator(fun.volume(np.asarray(si.x))))
             last_monitor[0] = step
-        with clock.paused():
-            bar.update(1)
+        advance(bar, clock)
         if o.callback is not None:
             with clock.paused(caller=True):
                 return o.callback(si._replace(terms=dict(fun.terms)))

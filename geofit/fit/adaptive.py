@@ -52,7 +52,7 @@ from ..structures import Mesh
 from ._cloud import CloudTarget, mesh_from_points, trim_to_evidence
 from ._mesh_objective import MeshObjective
 from ._mesh_plan import MeshFitResult, MeshTarget, Plan, empty_row_terms, repair_degenerate
-from ._progress import progress_bar
+from ._progress import advance, progress_bar
 from ._scan_report import evidence_limits, scan_report
 from .history import Clock, FitHistory, budget_status
 from .init import InitialMesh, initial_mesh
@@ -201,8 +201,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
             step = _base + info.n_evaluations
             history.record(step, clock.elapsed(), info.value, _obj.last_terms,
                            n_params=_obj.n_params, stage=_rnd)
-            with clock.paused():
-                bar.update(1)
+            advance(bar, clock)
             if plan.eval_every is not None and step - last_ckpt >= plan.eval_every:
                 with clock.paused():
                     m = _obj.source.update_verts(_obj.verts_from_params(info.x))

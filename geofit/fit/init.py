@@ -243,9 +243,9 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     Parameters
     ----------
     silhouettes : (N, H, W) float64
-        Silhouettes in [0, 1] (soft or binary).
+        The silhouettes and their ``N`` cameras, as in
+        :func:`geofit.structures.visual_hull.carve_hull`.
     cameras : CamerasBase
-        The ``N`` cameras.
     edge_px : float
         Edge length of the decimated mesh, in pixels at the hull's centre (> 0).
     shrink_px : float

@@ -69,7 +69,7 @@ from ._mesh_plan import (
     repair_degenerate,
     sphere_init,
 )
-from ._progress import progress_bar
+from ._progress import advance, progress_bar
 from .adaptive import solve_remeshing
 from .history import Clock, FitHistory, budget_status
 from .large_steps import LargeSteps
@@ -374,10 +374,8 @@ class _Solver:
                 self.evals = saved
             self.history.record(evals, self.clock.elapsed(), info.value, obj.last_terms,
                                 metrics, n_params=obj.n_params, stage=stage)
-            with self.clock.paused():
-                self.bar.update(1)
-                if info.iteration % 10 == 0:
-                    self.bar.set_postfix(loss=f"{info.value:.3g}", verts=obj.n_verts)
+            advance(self.bar, self.clock, dict(loss=f"{info.value:.3g}", verts=obj.n_verts)
+                    if info.iteration % 10 == 0 else None)
             if self.user_callback is not None:
                 with self.clock.paused(caller=True):
                     if self.user_callback(info):

@@ -72,7 +72,7 @@ from ..render.soft.contour import ContourSilhouetteLoss
 from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesUV, as_mesh
 from ._options import as_dataset, check_int, check_weights, merge_options, recipe_name
-from ._progress import NoBar, progress_bar
+from ._progress import NoBar, advance, progress_bar
 from ._rgb_refine import refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
@@ -416,10 +416,8 @@ class _Recorder:
             terms = {k: terms.get(k, 0.0) for k in self.h.terms}
         self.h.record(step, seconds, value, terms, metrics, n_params=len(info.x),
                       stage=self.stage)
-        with self.clock.paused():
-            self.bar.update(1)
-            if self.steps % 10 == 1:
-                self.bar.set_postfix(loss=f"{value:.4g}", stage=self.stage)
+        advance(self.bar, self.clock, dict(loss=f"{value:.4g}", stage=self.stage)
+                if self.steps % 10 == 1 else None)
         if self.callback is not None:
             with self.clock.paused(caller=True):
                 stop = self.callback(info._replace(stage=self.stage, terms=dict(terms),

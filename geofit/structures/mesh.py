@@ -432,8 +432,7 @@ class Mesh:
             the distinct per-corner UVs in order of first use), else a :class:`TexturesVertex`
             from ``vertex_colors`` when present, else no textures.
         """
-        if _foreign.foreign_kind(mesh) != "open3d.TriangleMesh":
-            raise TypeError(f"mesh: expected an open3d.geometry.TriangleMesh, got {type(mesh)!r}")
+        _foreign.require_kind(mesh, "open3d.TriangleMesh", "mesh")
         verts = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
         textures = None

@@ -5,7 +5,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .._foreign import foreign_kind, from_uint8, geofit_record, stash_matches, to_uint8
+from .._foreign import (foreign_kind, from_uint8, geofit_record, require_kind, stash_matches,
+                        to_uint8)
 from .._validate import as_array, as_points, as_rng
 from ._batch import Batch, as_batch, first_index, packed_to_item, padded
 
@@ -95,8 +96,7 @@ class PointCloud:
             normals are kept in ``cloud.metadata["geofit"]``, and used while they still agree
             with the trimesh object).
         """
-        if foreign_kind(cloud) != "trimesh.PointCloud":
-            raise TypeError(f"cloud: expected a trimesh.PointCloud, got {type(cloud)!r}")
+        require_kind(cloud, "trimesh.PointCloud", "cloud")
         points = np.asarray(cloud.vertices, dtype=np.float64)
         info = geofit_record(cloud)
         stash = info.get("features")
@@ -126,8 +126,7 @@ class PointCloud:
         cloud : open3d.geometry.PointCloud
             Its ``colors`` (float64 RGB) become ``features``, its ``normals`` ``normals``.
         """
-        if foreign_kind(cloud) != "open3d.PointCloud":
-            raise TypeError(f"cloud: expected an open3d.geometry.PointCloud, got {type(cloud)!r}")
+        require_kind(cloud, "open3d.PointCloud", "cloud")
         points = np.asarray(cloud.points, dtype=np.float64)
         features = np.asarray(cloud.colors, dtype=np.float64) if cloud.has_colors() else None
         normals = np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None
@@ -245,12 +244,12 @@ def as_pointcloud(cloud, name: str = "cloud") -> PointCloud:
         A geofit PointCloud is returned as it is; the others are converted by
         :meth:`PointCloud.from_trimesh` / :meth:`PointCloud.from_open3d`.
     name : str
-        The argument's name, for the error message.
+        As in :func:`geofit.structures.as_mesh`.
 
     Raises
     ------
     TypeError
-        For anything else, naming ``name`` and the types accepted.
+        For anything else, as :func:`geofit.structures.as_mesh` does.
     """
     if isinstance(cloud, PointCloud):
         return cloud
