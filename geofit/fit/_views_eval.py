@@ -15,7 +15,7 @@ from ..render import (
     SoftPhongShader,
 )
 from ..structures import Mesh, MultiViewDataset, TexturesVertex
-from ._views_objective import dataset_lights
+from ._views_objective import dataset_background, dataset_lights
 
 __all__ = ["ViewsEvaluator", "colored_mesh", "render_mesh_at_views"]
 
@@ -62,8 +62,7 @@ def render_mesh_at_views(mesh: Mesh, views: MultiViewDataset, colors=None, *,
     cams = views.cameras if n_views is None else views.cameras[np.arange(min(n_views,
                                                                              len(views)))]
     ras = MeshRasterizer(cams, RasterizationSettings(image_size=views.image_size))
-    blend = BlendParams() if views.background is None else BlendParams(
-        background_color=tuple(np.asarray(views.background, np.float64).tolist()))
+    blend = BlendParams(background_color=dataset_background(views))
     r = MeshRenderer(ras, SoftPhongShader(cameras=cams, lights=dataset_lights(views),
                                           blend_params=blend))
     return np.asarray(r(mesh)[..., :3], np.float64)

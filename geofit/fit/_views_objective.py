@@ -44,6 +44,15 @@ def dataset_lights(data: MultiViewDataset):
     return AmbientLights()
 
 
+def dataset_background(data: MultiViewDataset) -> tuple:
+    """The dataset's background colour, or white (the renderer's default
+    :class:`~geofit.render.BlendParams`) when it has none: the one background choice of the
+    views fit's texture and RGB stages and of its held-out renders."""
+    if data.background is None:
+        return (1.0, 1.0, 1.0)
+    return tuple(np.asarray(data.background, np.float64).tolist())
+
+
 #: The mesh regularisers of both stages.
 REG_TERMS = ("edge", "normal", "laplacian")
 

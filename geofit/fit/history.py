@@ -131,7 +131,9 @@ class Clock:
                 self.deadline < self.budget:
             return (f"reached the end of this stage's share ({self.deadline:.3g} s) of the "
                     f"time budget of {self.budget:g} s{after}")
-        return f"reached the time budget of {self.deadline:g} s{after}"
+        if steps is None:
+            return f"reached the time budget of {self.deadline:g} s"
+        return budget_status(self.deadline, steps)
 
     @contextmanager
     def until(self, seconds: float | None) -> Iterator[None]:

@@ -77,7 +77,7 @@ from ._rgb_refine import refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import (
-    REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_lights,
+    REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_background, dataset_lights,
 )
 from .history import Clock, FitHistory, FitResult
 from .large_steps import vertex_parameterization
@@ -497,7 +497,7 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         # the silhouette stage (its checks inside evaluations too) ends where the final
         # stage's share of the budget begins
         with run.clock.until(None if plan.time_budget is None
-                             else plan.time_budget - plan.final_reserve()):
+                             else plan.time_budget - plan.reserve):
             sil_mesh = _silhouette_stage(plan, run)
             if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
                                    ("nonfinite", "failed", "callback")):
@@ -641,10 +641,6 @@ class _Plan:
         if self.time_budget is None:
             return None
         return clock.remaining()
-
-    def final_reserve(self) -> float:
-        """Seconds of the budget the silhouette stage leaves to the final stage."""
-        return self.reserve
 
 
 class _Solver:
@@ -794,7 +790,7 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     mesh."""
     t_stage = run.clock.elapsed()
     v = plan.views
-    bg = v.background if v.background is not None else (1.0, 1.0, 1.0)
+    bg = dataset_background(v)
     budget = None if plan.time_budget is None else max(plan.remaining(run.clock) * 0.5, 1e-3)
     res = refine_rgb(mesh, v.cameras, v.images, lights=dataset_lights(v), background=bg,
                      lam=plan.large_steps or 10.0, reg=plan.color_reg, maxiter=plan.rgb_iters,
@@ -872,7 +868,7 @@ def _uv_texture_stage(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors) -> Mesh
                            "message": "the time budget was spent: vertex colours kept"})
         return colored_mesh(tex_mesh, colors)
     views = plan.views
-    bg = views.background if views.background is not None else (1.0, 1.0, 1.0)
+    bg = dataset_background(views)
     base = Mesh(tex_mesh.verts, tex_mesh.faces)
     tex = fit_texture(base, views.cameras, views.images, lights=dataset_lights(views),
                       background=bg, texel_px=plan.texel_px, prior=colors)
