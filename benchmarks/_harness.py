@@ -334,11 +334,15 @@ def output_dir(p: argparse.ArgumentParser, args: argparse.Namespace) -> Path:
     return out
 
 
-def add_shape_options(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """The stability tables' test-shape options: ``--shapes``, ``--shape-views`` and
+def add_shape_options(p: argparse.ArgumentParser, stem: str) -> argparse.ArgumentParser:
+    """The stability tables' test-shape options: ``--shapes-only`` (the table ``stem`` writes
+    to ``{stem}_stability_shapes.{json,md}``), ``--shapes``, ``--shape-views`` and
     ``--shape-image-size`` (see :func:`shape_datasets`)."""
     from geofit.tutorials.stability import STABILITY_SHAPES
 
+    p.add_argument("--shapes-only", action="store_true",
+                   help=f"only the stability cases on the test shapes, written to "
+                        f"{stem}_stability_shapes.{{json,md}} (the cow's table is kept)")
     default = ",".join(STABILITY_SHAPES)
     p.add_argument("--shapes", default=default,
                    help="test shapes the stability cases also run on (geofit.shapes.TEST_SHAPES "

@@ -109,16 +109,13 @@ def main(argv=None) -> int:
     p.add_argument("--stability-budget", type=float, default=90.0,
                    help="solver seconds of each stability case on the cow (default 90; 0: "
                         "no cow cases)")
-    p.add_argument("--shapes-only", action="store_true",
-                   help="only the stability cases on the test shapes, written to "
-                        "fit_nerf_stability_shapes.{json,md} (the cow's table is kept)")
     p.add_argument("--shape-budget", type=float, default=20.0,
                    help="solver seconds of each stability case on a test shape when "
                         "--shape-steps is 0 (default 20)")
     p.add_argument("--shape-steps", type=int, default=100,
                    help="Adam steps of each stability case on a test shape (default 100: the "
                         "same work at any load; 0: --shape-budget seconds instead)")
-    add_shape_options(p)
+    add_shape_options(p, "fit_nerf")
     p.add_argument("--replot", action="store_true",
                    help="only redraw fit_nerf.png from the existing fit_nerf.json")
     p.add_argument("--tutorial-steps", type=int, default=3,

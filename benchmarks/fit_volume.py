@@ -286,12 +286,9 @@ def main(argv=None) -> int:
     p.add_argument("--stability-only", action="store_true", help="only the stress cases")
     p.add_argument("--stability-size", type=int, default=128,
                    help="grid size of the stress cases on the cow (default 128)")
-    p.add_argument("--shapes-only", action="store_true",
-                   help="only the stress cases on the test shapes, written to "
-                        "fit_volume_stability_shapes.{json,md} (the cow's table is kept)")
     p.add_argument("--shape-size", type=int, default=64,
                    help="grid size of the stress cases on the test shapes (default 64)")
-    add_shape_options(p)
+    add_shape_options(p, "fit_volume")
     p.add_argument("--eval-every", type=int, default=10,
                    help="steps between held-out checkpoints (default 10)")
     p.add_argument("--tutorial-eval-every", type=int, default=30,
