@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import ast
 import re
+import time
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -229,6 +231,53 @@ def fit_kwargs(args: argparse.Namespace, table: dict[str, str]) -> dict:
     if getattr(args, "no_progress", False):
         kw["progress"] = False
     return kw
+
+
+@dataclass
+class ViewsFitRun:
+    """What :func:`run_views_fit` gives a multi-view sub-command.
+
+    Attributes
+    ----------
+    train, test : MultiViewDataset
+        The training views and the held-out views (:func:`tutorial_data`).
+    result : FitResult
+        The fit's result.
+    options : dict
+        The keywords the fit was called with (:func:`fit_kwargs` of :data:`FIT_OPTIONS`).
+    data_seconds : float
+        Wall seconds spent reading or rendering the views.
+    """
+
+    train: object
+    test: object
+    result: object
+    options: dict
+    data_seconds: float
+
+    def summary(self, history: bool = True) -> dict:
+        """The head of the sub-command's JSON summary: the dataset's name, view counts and
+        image size, the options, ``data_seconds`` and the result's ``summary()`` (its
+        ``to_dict()``, with the history, when ``history``)."""
+        res = self.result
+        return {"dataset": self.train.name, "views": len(self.train), "heldout": len(self.test),
+                "image_size": list(self.train.image_size), "options": self.options,
+                "data_seconds": self.data_seconds,
+                **(res.to_dict() if history else res.summary())}
+
+
+def run_views_fit(args: argparse.Namespace, tutorial: int, fit) -> ViewsFitRun:
+    """The common start of ``fit-views``, ``fit-volume`` and ``fit-nerf``: the views
+    (:func:`tutorial_data`, timed), a line saying what is fitted, then ``fit(train,
+    **options)`` with only the options given on the command line (:data:`FIT_OPTIONS`)."""
+    t0 = time.perf_counter()
+    train, test = tutorial_data(args, tutorial)
+    data_seconds = time.perf_counter() - t0
+    kw = fit_kwargs(args, FIT_OPTIONS)
+    print(f"object: {train.name}; {len(train)} views of {train.image_size[0]} px, {len(test)} "
+          f"held-out views (made in {data_seconds:.1f} s)"
+          + "".join(f", {k}={v}" for k, v in kw.items()))
+    return ViewsFitRun(train, test, fit(train, **kw), kw, data_seconds)
 
 
 def check_input(path, name: str, *, folder: bool = False) -> Path:

@@ -19,8 +19,8 @@ from __future__ import annotations
 import argparse
 
 from .._atomic import atomic_write
-from ._common import (FIT_OPTIONS, add_views_fit_command, finish, fit_kwargs, out_dir,
-                      save_png, save_rotation, tutorial_data, write_json)
+from ._common import (FIT_OPTIONS, add_views_fit_command, finish, out_dir, run_views_fit,
+                      save_png, save_rotation, write_json)
 
 __all__ = ["API", "register", "run"]
 
@@ -37,11 +37,10 @@ def run(args: argparse.Namespace) -> int:
 
     from ..fit import fit_nerf
 
-    train, test = tutorial_data(args, 6)
-    res = fit_nerf(train, **fit_kwargs(args, FIT_OPTIONS))
+    run_ = run_views_fit(args, 6, fit_nerf)
+    train, test, res = run_.train, run_.test, run_.result
     out = out_dir(args)
-    summary = res.summary()
-    summary["history"] = res.history.to_dict()
+    summary = run_.summary()
     write_json(out / "nerf_summary.json", summary)
     config = json.dumps(asdict(res.config))
     atomic_write(out / "nerf_field.npz",

@@ -15,11 +15,10 @@ F-score against the true mesh when known), ``fit_views_history.json`` and ``fit_
 from __future__ import annotations
 
 import argparse
-import time
 
 from .._atomic import atomic_write
-from ._common import (FIT_OPTIONS, add_views_fit_command, fit_kwargs, metric_line, out_dir,
-                      save_png, timing_line, tutorial_data, write_json)
+from ._common import (FIT_OPTIONS, add_views_fit_command, metric_line, out_dir,
+                      run_views_fit, save_png, timing_line, write_json)
 
 __all__ = ["API", "register", "run"]
 
@@ -35,13 +34,8 @@ def run(args: argparse.Namespace) -> int:
     from ..fit.views import ViewsEvaluator
     from ..io import save_obj
 
-    t0 = time.perf_counter()
-    ds, held = tutorial_data(args, 4)
-    t_data = time.perf_counter() - t0
-    kw = fit_kwargs(args, FIT_OPTIONS)
-    print(f"object: {ds.name}; {len(ds)} views of {ds.image_size[0]} px, {len(held)} held-out "
-          f"views (made in {t_data:.1f} s)" + "".join(f", {k}={v}" for k, v in kw.items()))
-    fit = fit_mesh_to_views(ds, **kw)
+    run_ = run_views_fit(args, 4, fit_mesh_to_views)
+    ds, held, fit = run_.train, run_.test, run_.result
     ev = ViewsEvaluator(held, ds.mesh)
     colors = fit.colors if fit.colors is not None else np.full((fit.mesh.n_verts, 3), 0.7)
     # the result as it is (its UV texture by default), the vertex colours without one
@@ -52,9 +46,7 @@ def run(args: argparse.Namespace) -> int:
     atomic_write(dest / "fit_views_colors.npz", lambda p: np.savez_compressed(
         p, verts=fit.mesh.verts, faces=fit.mesh.faces, colors=colors))
     fit.history.to_json(dest / "fit_views_history.json")
-    summary = {"object": ds.name, "options": kw, "views": len(ds), "heldout": len(held),
-               "image_size": list(ds.image_size), **fit.summary(), "stages": fit.stages,
-               "heldout_metrics": metrics, "dataset_seconds": t_data}
+    summary = {**run_.summary(history=False), "stages": fit.stages, "heldout_metrics": metrics}
     write_json(dest / "fit_views.json", summary)
     k = min(4, len(held))
     save_png(dest / "fit_views.png", [held.images[:k], fit.render(held, n_views=k)])

@@ -18,11 +18,10 @@ Prints the held-out metrics last.
 from __future__ import annotations
 
 import argparse
-import time
 
 from .._atomic import atomic_write
-from ._common import (FIT_OPTIONS, add_views_fit_command, finish, fit_kwargs, out_dir,
-                      save_png, save_rotation, tutorial_data, write_json)
+from ._common import (FIT_OPTIONS, add_views_fit_command, finish, out_dir, run_views_fit,
+                      save_png, save_rotation, write_json)
 
 __all__ = ["API", "register", "run"]
 
@@ -37,20 +36,13 @@ def run(args: argparse.Namespace) -> int:
     from ..fit import fit_volume
     from ..fit.volume import render_volume, volume_metrics
 
-    t0 = time.perf_counter()
-    train, test = tutorial_data(args, 5)
-    t_data = time.perf_counter() - t0
-    res = fit_volume(train, **fit_kwargs(args, FIT_OPTIONS))
+    run_ = run_views_fit(args, 5, fit_volume)
+    train, test, res = run_.train, run_.test, run_.result
     m = volume_metrics(res.volume, test.images, test.silhouettes, test.cameras)
     out = out_dir(args)
-    summary = res.summary()
-    summary.update({"dataset": train.name, "views": len(train),
-                    "image_size": list(train.image_size), "data_seconds": t_data,
-                    "held_out": {"psnr": m.psnr, "iou": m.iou,
-                                 "psnr_per_view": m.psnr_per_view,
-                                 "iou_per_view": m.iou_per_view}})
-    summary["history"] = res.history.to_dict()
-    write_json(out / "volume_summary.json", summary)
+    write_json(out / "volume_summary.json", {**run_.summary(), "held_out": {
+        "psnr": m.psnr, "iou": m.iou, "psnr_per_view": m.psnr_per_view,
+        "iou_per_view": m.iou_per_view}})
     vol = res.volume
     atomic_write(out / "volume.npz", lambda p: np.savez_compressed(
         p, densities=vol.densities, features=vol.features, voxel_size=vol.voxel_size,
