@@ -80,6 +80,24 @@ def cow_obj(tmp_path):
     return str(path)
 
 
+def _ball_renders(renderer, n_views: int, azim_span: float, grid: int, density: float, rgb):
+    """The volume and NeRF tests' dataset (the notebooks' ``generate_cow_renders`` is their
+    helper file, not PyTorch3D): ``n_views`` cameras at distance 2.7 around the y axis
+    (azimuths over ``azim_span`` degrees) and ``renderer``'s images of a ball of constant
+    ``density`` and colour ``rgb`` in a ``grid``^3 volume of side 2: ``(cameras, (n_views, H,
+    W, 4) RGB + silhouette)``."""
+    R, T = look_at_view_transform(
+        dist=2.7, elev=0.0, azim=np.linspace(-azim_span / 2, azim_span / 2, n_views) + 180.0)
+    cameras = FoVPerspectiveCameras(R=R, T=T)
+    g = np.linspace(-1, 1, grid)
+    ball = (g[:, None, None] ** 2 + g[None, :, None] ** 2 + g[None, None, :] ** 2) < 0.5
+    volumes = Volumes(
+        densities=np.broadcast_to(ball * density, (n_views, 1, grid, grid, grid)),
+        features=np.broadcast_to(np.stack([ball * c for c in rgb]), (n_views, 3, grid, grid, grid)),
+        voxel_size=2.0 / grid)
+    return cameras, renderer(cameras=cameras, volumes=volumes)[0]
+
+
 def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
     """The deform tutorial's cells (benchmarks/_p3d_tutorials.py); 20 steps lower the chamfer
     loss and the mesh is saved."""
@@ -251,12 +269,6 @@ def test_tutorial5_fit_textured_volume():
 
     torch.manual_seed(0)
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
-    # the dataset: a ball of colour rendered by the same renderer (the notebook's
-    # generate_cow_renders is its helper file, not PyTorch3D)
-    R, T = look_at_view_transform(dist=2.7, elev=0.0, azim=np.linspace(-180, 180, 8) + 180.0)
-    target_cameras = FoVPerspectiveCameras(R=R, T=T)
-    g = np.linspace(-1, 1, 16)
-    ball = (g[:, None, None] ** 2 + g[None, :, None] ** 2 + g[None, None, :] ** 2) < 0.5
     render_size = 16
     volume_extent_world = 3.0
     raysampler = NDCMultinomialRaysampler(image_width=render_size, image_height=render_size,
@@ -264,10 +276,8 @@ def test_tutorial5_fit_textured_volume():
                                           max_depth=volume_extent_world)
     raymarcher = EmissionAbsorptionRaymarcher()
     renderer = VolumeRenderer(raysampler=raysampler, raymarcher=raymarcher)
-    truth = Volumes(densities=np.broadcast_to(ball * 0.9, (8, 1, 16, 16, 16)),
-                    features=np.broadcast_to(np.stack([ball * 0.9, ball * 0.2, ball * 0.5]),
-                                             (8, 3, 16, 16, 16)), voxel_size=2.0 / 16)
-    rendered = renderer(cameras=target_cameras, volumes=truth)[0]
+    # the dataset: a ball of colour rendered by the same renderer
+    target_cameras, rendered = _ball_renders(renderer, 8, 360.0, 16, 0.9, (0.9, 0.2, 0.5))
     target_images, target_silhouettes = rendered[..., :3], rendered[..., 3]
 
     class VolumeModel(torch.nn.Module):
@@ -403,17 +413,10 @@ def test_tutorial6_fit_simple_neural_radiance_field():
 
     torch.manual_seed(1)
     device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
-    R, T = look_at_view_transform(dist=2.7, elev=0.0, azim=np.linspace(-90, 90, 4) + 180.0)
-    target_cameras = FoVPerspectiveCameras(R=R, T=T)
-    g = np.linspace(-1, 1, 12)
-    ball = (g[:, None, None] ** 2 + g[None, :, None] ** 2 + g[None, None, :] ** 2) < 0.5
-    truth = VolumeRenderer(raysampler=NDCMultinomialRaysampler(
-        image_width=16, image_height=16, n_pts_per_ray=32, min_depth=0.1, max_depth=3.0),
-        raymarcher=EmissionAbsorptionRaymarcher())(
-        cameras=target_cameras, volumes=Volumes(
-            densities=np.broadcast_to(ball * 0.8, (4, 1, 12, 12, 12)),
-            features=np.broadcast_to(np.stack([ball * 0.9, ball * 0.3, ball * 0.1]),
-                                     (4, 3, 12, 12, 12)), voxel_size=2.0 / 12))[0]
+    target_cameras, truth = _ball_renders(VolumeRenderer(
+        raysampler=NDCMultinomialRaysampler(image_width=16, image_height=16, n_pts_per_ray=32,
+                                            min_depth=0.1, max_depth=3.0),
+        raymarcher=EmissionAbsorptionRaymarcher()), 4, 180.0, 12, 0.8, (0.9, 0.3, 0.1))
     target_images, target_silhouettes = truth[..., :3], truth[..., 3]
 
     HarmonicEmbedding, NeuralRadianceField, huber, sample_images_at_mc_locs = \
