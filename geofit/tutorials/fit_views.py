@@ -10,18 +10,8 @@ from ..fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
 from ..io import save_obj
 from ..shapes import ico_sphere
 from ..structures import MultiViewDataset
-from .shared import (
-    StepResult,
-    begin_step,
-    close_comparison,
-    fit_row,
-    heldout_comparison,
-    pick_size,
-    progress_bar,
-    recipe_cut,
-    record_fit,
-    views_config,
-)
+from . import shared
+from .shared import pick_size
 
 __all__ = ["step_fit_views"]
 
@@ -55,7 +45,7 @@ def _views_settings(size: str) -> dict:
 
 
 def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: int = 0
-                   ) -> StepResult:
+                   ) -> shared.StepResult:
     """Fit a mesh and vertex colours to multi-view images: the tutorial's SGD and geofit's solvers.
 
     Sizes: ``"full"``: 20 views of 128 px, 2000 SGD steps per stage as the tutorial;
@@ -63,12 +53,12 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     stages; seed: random view choices of the SGD recipe. Writes into ``out/fit_views``; the
     signature and the StepResult are :func:`run_step`'s.
     """
-    res, d, t0 = begin_step(out, "fit_views", size)
+    res, d, t0 = shared.begin_step(out, "fit_views", size)
     cfg = _views_settings(size)
     ds = tutorial_views(4, num_views=cfg["num_views"], image_size=cfg["image_size"],
                         num_held_out=cfg["num_heldout"])
-    res.config = views_config(ds.name, cfg["num_views"], cfg["num_heldout"], cfg["image_size"],
-                               cfg["tutorial"], cfg["geofit"])
+    res.config = shared.views_config(ds.name, cfg["num_views"], cfg["num_heldout"],
+                                     cfg["image_size"], cfg["tutorial"], cfg["geofit"])
     res.description = (
         "A sphere is deformed to match the soft silhouettes of the training views, then its "
         "vertex colours (and positions) are fitted to the RGB images. Accuracy on held-out "
@@ -87,7 +77,7 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
             colors = np.full((mesh.n_verts, 3), 0.5)
         return ev(mesh, colors)
 
-    bar = progress_bar(progress, len(labels), "fit_views")
+    bar = shared.progress_bar(progress, len(labels), "fit_views")
     fits = {}
     for name, label in labels.items():  # methods
         kw = dict(cfg[name])
@@ -101,14 +91,14 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
         n_colors = 0 if fit.colors is None else int(np.size(fit.colors))
         res.files[f"{name} mesh"] = d / f"{name}.obj"
         save_obj(res.files[f"{name} mesh"], fit.mesh)
-        record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
-                    final={"seconds": fit.seconds, **final,
-                           "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
+        shared.record_fit(res, d, name, label, fit, ("iou", "chamfer_l2", "psnr"),
+                          final={"seconds": fit.seconds, **final,
+                                 "n_params": 3 * fit.mesh.n_verts + n_colors}, config=kw)
         cut = ""
         if name == "tutorial":
             full = _views_settings("full")["tutorial"]
-            cut = recipe_cut(kw["silhouette_iters"] + kw["textured_iters"],
-                              full["silhouette_iters"] + full["textured_iters"])
+            cut = shared.recipe_cut(kw["silhouette_iters"] + kw["textured_iters"],
+                                    full["silhouette_iters"] + full["textured_iters"])
         res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), **final})
         res.param_counts.append({"method": label, "vertices": fit.mesh.n_verts,
@@ -122,14 +112,14 @@ def step_fit_views(out, size: str = "default", *, progress: bool = True, seed: i
     h = ds.held_out
     k = min(3, len(h))
     renders = {name: fit.render(h, n_views=k) for name, fit in fits.items()}
-    heldout_comparison(res, d, h.images[:k], renders, fits,
-                        f"Held-out views of the {ds.name} (never trained on) and the fitted "
-                        "meshes rendered from them.")
+    shared.heldout_comparison(res, d, h.images[:k], renders, fits,
+                              f"Held-out views of the {ds.name} (never trained on) and the fitted "
+                              "meshes rendered from them.")
     panels = [{"metric": "iou", "label": "held-out silhouette IoU"}]
     if any("chamfer_l2" in m["curve"] for m in res.methods):
         panels.append({"metric": "chamfer_l2", "label": "chamfer-L2 vs true mesh (log)",
                        "logy": True})
-    return close_comparison(
+    return shared.close_comparison(
         res, d, t0, chart="held-out IoU and chamfer-L2", panels=panels,
         title=f"fit_mesh_to_views on the {ds.name} ({size} size)",
         stability=_views_stability(ds, size, seed),
@@ -173,7 +163,7 @@ def _views_stability(ds, size: str, seed: int) -> list[dict]:
                 return fit_mesh_to_views(views, options=ViewsFitOptions(
                     init=ico_sphere(2), silhouette_iters=iters, views_per_step=vps, **kw),
                     seed=seed)
-            rows.append(fit_row(method, case, run, lambda f: {
+            rows.append(shared.fit_row(method, case, run, lambda f: {
                 "NaN vertices": bool(np.isnan(f.mesh.verts).any()),
                 "seconds": round(f.seconds, 2)}))
     return rows

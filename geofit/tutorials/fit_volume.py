@@ -8,23 +8,8 @@ import numpy as np
 from .._atomic import atomic_write
 from ..fit.volume import VolumeFitOptions, fit_volume
 from ..metrics import psnr
-from .shared import (
-    StepResult,
-    begin_step,
-    broken_views,
-    close_comparison,
-    cow_views,
-    fit_row,
-    heldout_comparison,
-    mask_iou,
-    pick_size,
-    progress_bar,
-    recipe_cut,
-    record_fit,
-    render_volume_views,
-    stability_views,
-    views_config,
-)
+from . import shared
+from .shared import pick_size
 
 __all__ = ["step_fit_volume"]
 
@@ -49,7 +34,7 @@ def _volume_settings(size: str) -> dict:
 
 
 def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: int = 0
-                    ) -> StepResult:
+                    ) -> shared.StepResult:
     """Fit a voxel volume to posed renders: the tutorial's dense Adam and geofit's sparse L-BFGS.
 
     Sizes: ``"full"``: 40 views of 128 px, a 128^3 grid, 150 samples per ray, 300 Adam steps as
@@ -58,12 +43,13 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
     random view batches. Writes into ``out/fit_volume``; the signature and the StepResult are
     :func:`run_step`'s.
     """
-    res, d, t0 = begin_step(out, "fit_volume", size)
+    res, d, t0 = shared.begin_step(out, "fit_volume", size)
     cfg = _volume_settings(size)
+    full_iters = _volume_settings("full")["tutorial"]["n_iter"]  # the tutorial's own run length
     S, n_pts, img = cfg["volume_size"], cfg["n_pts_per_ray"], cfg["image_size"]
-    train, test, name = cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
-    res.config = views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
-                               cfg["lbfgs"], grid=f"{S}^3", **{"samples per ray": n_pts})
+    train, test, name = shared.cow_views(cfg["n_views"], img, cfg["n_heldout"], img)
+    res.config = shared.views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
+                                     cfg["lbfgs"], grid=f"{S}^3", **{"samples per ray": n_pts})
     res.description = (
         "A grid of densities and colours is fitted to the renders (black background) with "
         "the emission-absorption raymarcher. Accuracy: PSNR of the RGB and IoU of the "
@@ -74,12 +60,12 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
               "lbfgs": "geofit: visual hull, coarse-to-fine, pruning, L-BFGS on all rays"}
 
     def monitor(volume):
-        out_ = render_volume_views(volume, test.cameras, img, n_pts)
+        out_ = shared.render_volume_views(volume, test.cameras, img, n_pts)
         return {"psnr": float(psnr(out_[..., :3], test.images)),
-                "iou": float(np.mean([mask_iou(out_[i, ..., 3], test.silhouettes[i])
+                "iou": float(np.mean([shared.mask_iou(out_[i, ..., 3], test.silhouettes[i])
                                       for i in range(len(test.images))]))}
 
-    bar = progress_bar(progress, len(labels), "fit_volume")
+    bar = shared.progress_bar(progress, len(labels), "fit_volume")
     fits, renders = {}, {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
@@ -88,18 +74,17 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
             volume_size=S, n_pts_per_ray=n_pts, **kw), time_budget=budget, seed=seed,
             evaluator=monitor, eval_every=cfg["eval_every"])
         fits[key] = fit
-        renders[key] = render_volume_views(fit.volume, test.cameras, img, n_pts)
+        renders[key] = shared.render_volume_views(fit.volume, test.cameras, img, n_pts)
         final = monitor(fit.volume)
-        record_fit(res, d, key, label, fit, ("psnr", "iou"),
-                    final={"seconds": fit.seconds, **final, "n_params": fit.n_params},
-                    config={k: repr(v) for k, v in kw.items()})
+        shared.record_fit(res, d, key, label, fit, ("psnr", "iou"),
+                          final={"seconds": fit.seconds, **final, "n_params": fit.n_params},
+                          config={k: repr(v) for k, v in kw.items()})
         vol = fit.volume
         atomic_write(d / f"{key}_volume.npz", lambda p: np.savez_compressed(
             p, densities=vol.densities, features=vol.features, voxel_size=vol.voxel_size,
             volume_translation=vol.volume_translation))
         res.files[f"{key} volume"] = d / f"{key}_volume.npz"
-        cut = recipe_cut(fit.n_iterations, _volume_settings("full")["tutorial"]["n_iter"]) \
-            if key == "tutorial" else ""
+        cut = shared.recipe_cut(fit.n_iterations, full_iters) if key == "tutorial" else ""
         res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "held-out PSNR (dB)": final["psnr"],
                             "held-out IoU": final["iou"],
@@ -111,25 +96,20 @@ def step_fit_volume(out, size: str = "default", *, progress: bool = True, seed: 
                                  "free parameters": fit.n_params})
         bar.update(1)
     bar.close()
-    heldout_comparison(res, d, test.images[:3], renders, fits,
-                        f"Held-out views of the {name} and the fitted volumes rendered from them.")
-    cut = recipe_cut(fits["tutorial"].n_iterations, _volume_settings("full")["tutorial"]["n_iter"])
-    return close_comparison(
-        res, d, t0, chart="held-out PSNR and IoU",
+    return shared.close_psnr_step(
+        res, d, t0, test.images[:3], renders, fits, subject=name, fitted="volumes",
+        full_iters=full_iters, params="free parameters", chart="held-out PSNR and IoU",
         panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"},
                 {"metric": "iou", "label": "held-out silhouette IoU"}],
         title=f"fit_volume on the {name} ({size} size)",
-        stability=_volume_stability(train, S, n_pts, size, seed),
-        headline=lambda m, i: (f"PSNR {m['held-out PSNR (dB)']:.1f} dB in {m['seconds']:.1f} s, "
-                               f"{res.param_counts[i]['free parameters']:,} params"
-                               + (cut if i == 0 else "")))
+        stability=_volume_stability(train, S, n_pts, size, seed))
 
 
 def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[dict]:
     from ..fit.volume import VolumeFitOptions, fit_volume
 
     small = max(8, S // 4)
-    cases = broken_views(train)
+    cases = shared.broken_views(train)
     cases["silhouettes of the wrong size"] = (train.images, train.silhouettes[:, :-1],
                                               train.cameras)
     rows = []
@@ -139,8 +119,8 @@ def _volume_stability(train, S: int, n_pts: int, size: str, seed: int) -> list[d
                                   "iterations": pick_size(size, 2, 10, 30)})):
         for case, (i_, s_, c_) in cases.items():  # failure cases
             opts = {k: v for k, v in kw.items() if k != "recipe"}
-            rows.append(fit_row(method, case, lambda: fit_volume(
-                stability_views(i_, s_, c_), recipe=kw.get("recipe", "default"), seed=seed,
+            rows.append(shared.fit_row(method, case, lambda: fit_volume(
+                shared.stability_views(i_, s_, c_), recipe=kw.get("recipe", "default"), seed=seed,
                 options=VolumeFitOptions(volume_size=small, n_pts_per_ray=max(16, n_pts // 4),
                                          **opts)), lambda f: {
                 "NaN in volume": bool(np.isnan(f.volume.densities).any()),

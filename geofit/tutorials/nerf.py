@@ -8,21 +8,8 @@ import numpy as np
 
 from .._atomic import atomic_write
 from ..fit.nerf import RECIPES, fit_nerf, render_nerf
-from .shared import (
-    StepResult,
-    begin_step,
-    broken_views,
-    close_comparison,
-    cow_views,
-    fit_row,
-    heldout_comparison,
-    pick_size,
-    progress_bar,
-    recipe_cut,
-    record_fit,
-    stability_views,
-    views_config,
-)
+from . import shared
+from .shared import pick_size
 
 __all__ = ["step_nerf"]
 
@@ -51,7 +38,7 @@ def _nerf_settings(size: str) -> dict:
 
 
 def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 0
-              ) -> StepResult:
+              ) -> shared.StepResult:
     """Fit a neural radiance field: the tutorial's network and recipe, and geofit's scene-sized one.
 
     Sizes: ``"full"``: 40 views of 128 px, 3000 steps of the tutorial's recipe; ``"default"``:
@@ -60,13 +47,15 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
     Progress: a progress bar over the fits; seed: initialisation, view and ray choices. Writes
     into ``out/nerf``; the signature and the StepResult are :func:`run_step`'s.
     """
-    res, d, t0 = begin_step(out, "nerf", size)
+    res, d, t0 = shared.begin_step(out, "nerf", size)
     cfg = _nerf_settings(size)
+    full_iters = _nerf_settings("full")["tutorial"]["n_iter"]  # the tutorial's own run length
     img = cfg["image_size"]
-    train, test, name = cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
-    res.config = views_config(name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"],
-                               cfg["scene"], **{"held-out image size": cfg["heldout_size"],
-                                                "time budget per method (s)": cfg["time_budget"]})
+    train, test, name = shared.cow_views(cfg["n_views"], img, cfg["n_heldout"], cfg["heldout_size"])
+    res.config = shared.views_config(
+        name, cfg["n_views"], cfg["n_heldout"], img, cfg["tutorial"], cfg["scene"],
+        **{"held-out image size": cfg["heldout_size"],
+           "time budget per method (s)": cfg["time_budget"]})
     res.description = (
         "A radiance field (MLP on harmonic embeddings) is fitted to the renders with the "
         "emission-absorption raymarcher. Accuracy: PSNR of full renders of held-out views "
@@ -74,7 +63,7 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         "size: the network's weights.")
     labels = {"tutorial": "PyTorch3D recipe: 60 frequencies, 2 x 256 Softplus, MC rays",
               "scene": "geofit: scene-sized network, visual hull, density grid"}
-    bar = progress_bar(progress, len(labels), "nerf")
+    bar = shared.progress_bar(progress, len(labels), "nerf")
     fits = {}
     for key, label in labels.items():  # methods
         kw = dict(cfg[key])
@@ -84,14 +73,14 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
                        eval_every=cfg["eval_every"], seed=seed)
         kw["recipe"] = recipe
         fits[key] = fit
-        record_fit(res, d, key, label, fit, ("psnr",),
-                    final={"seconds": fit.seconds, "psnr": fit.psnr, "n_params": fit.n_params},
-                    config={k: repr(v) for k, v in kw.items()})
+        shared.record_fit(res, d, key, label, fit, ("psnr",),
+                          final={"seconds": fit.seconds, "psnr": fit.psnr,
+                                 "n_params": fit.n_params},
+                          config={k: repr(v) for k, v in kw.items()})
         atomic_write(d / f"{key}_weights.npz",
                      lambda p: np.savez_compressed(p, **fit.field.params))
         res.files[f"{key} weights"] = d / f"{key}_weights.npz"
-        cut = recipe_cut(fit.n_iterations, _nerf_settings("full")["tutorial"]["n_iter"]) \
-            if key == "tutorial" else ""
+        cut = shared.recipe_cut(fit.n_iterations, full_iters) if key == "tutorial" else ""
         res.metrics.append({"method": label + cut, "status": fit.status,
                             "seconds": round(fit.seconds, 2), "iterations": fit.n_iterations,
                             "held-out PSNR (dB)": fit.psnr,
@@ -104,24 +93,18 @@ def step_nerf(out, size: str = "default", *, progress: bool = True, seed: int = 
         renders[key] = fit.images if fit.images is not None else render_nerf(
             fit.field, test.cameras, cfg["heldout_size"], n_pts_per_ray=fit.config.n_pts_per_ray,
             occupancy=fit.occupancy)
-    heldout_comparison(res, d, test.images[:3], renders, fits,
-                        f"Held-out views of the {name} and the fitted fields rendered from them.")
-    cut = recipe_cut(fits["tutorial"].n_iterations, _nerf_settings("full")["tutorial"]["n_iter"])
-    return close_comparison(
-        res, d, t0, chart="held-out PSNR",
+    return shared.close_psnr_step(
+        res, d, t0, test.images[:3], renders, fits, subject=name, fitted="fields",
+        full_iters=full_iters, params="network parameters", chart="held-out PSNR",
         panels=[{"metric": "psnr", "label": "held-out PSNR (dB)"}],
-        title=f"fit_nerf on the {name} ({size} size)", stability=_nerf_stability(train, size, seed),
-        headline=lambda m, i: (f"PSNR {m['held-out PSNR (dB)'] or float('nan'):.1f} dB in "
-                               f"{m['seconds']:.1f} s, "
-                               f"{res.param_counts[i]['network parameters']:,} params"
-                               + (cut if i == 0 else "")))
+        title=f"fit_nerf on the {name} ({size} size)", stability=_nerf_stability(train, size, seed))
 
 
 def _nerf_stability(train, size: str, seed: int) -> list[dict]:
     from ..fit.nerf import RECIPES, fit_nerf
 
     n_iter = pick_size(size, 2, 4, 50)
-    cases = {case: (*arrays, {}) for case, arrays in broken_views(train).items()}
+    cases = {case: (*arrays, {}) for case, arrays in shared.broken_views(train).items()}
     cases["learning rate x1000"] = (train.images, train.silhouettes, train.cameras,
                                     {"lr_x": 1000.0})
     rows = []
@@ -133,8 +116,8 @@ def _nerf_stability(train, size: str, seed: int) -> list[dict]:
             if "lr_x" in extra:
                 kw["lr"] = (1e-3 if method == "tutorial" else 5e-3) * extra["lr_x"]
             recipe = kw.pop("recipe")
-            rows.append(fit_row(method, case, lambda: fit_nerf(
-                stability_views(i_, s_, c_), recipe=recipe, seed=seed,
+            rows.append(shared.fit_row(method, case, lambda: fit_nerf(
+                shared.stability_views(i_, s_, c_), recipe=recipe, seed=seed,
                 options=replace(RECIPES[recipe], **kw)), lambda f: {
                 "NaN weights": bool(np.isnan(f.field.get_flat()).any()),
                 "seconds": round(f.seconds, 2)}))

@@ -362,6 +362,26 @@ def close_comparison(res: StepResult, d: Path, t0: float, *, chart: str, panels:
     return res
 
 
+def close_psnr_step(res: StepResult, d: Path, t0: float, targets: np.ndarray, renders: Mapping,
+                    fits: Mapping, *, subject: str, fitted: str, full_iters: int, params: str,
+                    **close) -> StepResult:
+    """Finish a step scored by held-out PSNR (volume, NeRF): :func:`heldout_comparison` of the
+    ``fitted`` results of ``subject``, then :func:`close_comparison` (``close`` its keywords)
+    with one headline per recipe, "PSNR .. dB in .. s, .. params" from
+    ``res.param_counts[i][params]``, the tutorial's first, with what :func:`recipe_cut` says of
+    its run against the tutorial's ``full_iters``."""
+    heldout_comparison(res, d, targets, renders, fits,
+                       f"Held-out views of the {subject} and the fitted {fitted} rendered from "
+                       "them.")
+    cut = recipe_cut(fits["tutorial"].n_iterations, full_iters)
+
+    def headline(m: dict, i: int) -> str:
+        value = m["held-out PSNR (dB)"]
+        return (f"PSNR {float('nan') if value is None else value:.1f} dB in {m['seconds']:.1f} s, "
+                f"{res.param_counts[i][params]:,} params" + (cut if i == 0 else ""))
+    return close_comparison(res, d, t0, headline=headline, **close)
+
+
 def run_cases(cases: Mapping[str, Callable[[], Any]]) -> list[dict]:
     """One stability row per case: ``str`` of what it returned, or how it failed."""
     rows = []
