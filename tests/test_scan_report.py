@@ -116,20 +116,90 @@ def test_cloud_target_reach_drops_the_residual_where_there_is_no_point():
     assert np.all(grad[1:] == 0) and np.linalg.norm(grad[0]) > 0
 
 
-def test_trim_to_evidence_removes_only_the_faces_away_from_the_points():
-    """A plane whose points cover only x < 0: the faces with centroid x > reach go."""
+def test_trim_to_evidence_removes_the_surface_over_a_hole_only():
+    """A square whose points cover only x < 0: the faces well past the points' edge go, the
+    faces over the points stay, and the faces beside the edge are not cut on their own."""
     from geofit.fit._cloud import CloudTarget, trim_to_evidence
     from geofit.shapes import plane
 
-    m = plane()
+    m = plane(n=20)
     g = np.linspace(-1, 0, 41)
     P = np.stack(np.meshgrid(g, np.linspace(-1, 1, 81), [0.0], indexing="ij"), -1).reshape(-1, 3)
-    trimmed, n = trim_to_evidence(m, CloudTarget(P), 0.1)
+    t = trim_to_evidence(m, CloudTarget(P), 0.0)
     c = m.verts[m.faces].mean(1)
-    assert n == int((c[:, 0] > 0.1).sum()) > 0
-    assert trimmed.n_faces == m.n_faces - n
-    assert trimmed.verts[trimmed.faces].mean(1)[:, 0].max() <= 0.1
-    assert trimmed.n_verts == len(np.unique(trimmed.faces))  # no unused vertex left
+    cut = ~np.isin(np.arange(m.n_faces), _kept_faces(m, t.mesh))
+    assert t.n_holes == 1 and t.n_removed == int(cut.sum()) > 0
+    assert np.all(cut[c[:, 0] > 0.3]) and not np.any(cut[c[:, 0] < 0.0])
+    assert t.mesh.n_verts == len(np.unique(t.mesh.faces))  # no unused vertex left
+    assert "hole region" in t.describe()
+
+
+def _kept_faces(m, trimmed):
+    """Indices of the faces of ``m`` that ``trimmed`` kept (matched by their centroids)."""
+    from scipy.spatial import cKDTree
+
+    d, i = cKDTree(m.verts[m.faces].mean(1)).query(trimmed.verts[trimmed.faces].mean(1))
+    assert np.all(d < 1e-12)
+    return i
+
+
+def sphere_points(n, seed=0, keep=None):
+    """``n`` area-uniform samples of the unit sphere (those where ``keep(P)``)."""
+    from geofit.shapes import ico_sphere
+
+    P = sample_points_from_meshes(ico_sphere(6), n, seed=seed)
+    P /= np.linalg.norm(P, axis=1, keepdims=True)
+    return P if keep is None else P[keep(P)]
+
+
+@pytest.mark.parametrize("level", [2, 3])
+def test_trim_to_evidence_keeps_a_closed_well_sampled_surface_whole(level):
+    """Points all over the sphere: nothing is removed, even from a coarse mesh whose face
+    centroids lie several spacings inside the sphere (the former rule cut those out)."""
+    from geofit.fit._cloud import CloudTarget, trim_to_evidence
+    from geofit.ops import topology
+    from geofit.shapes import ico_sphere
+
+    m = ico_sphere(level)
+    cloud = CloudTarget(sphere_points(20_000))
+    d = cloud.tree.query(m.verts[m.faces].mean(1))[0]
+    assert d.max() > 3.0 * cloud.spacing  # what the former rule removed
+    t = trim_to_evidence(m, cloud, 0.0)
+    assert t.n_removed == 0 and t.mesh is m
+    assert topology(t.mesh).n_boundary_loops == 0
+
+
+def test_trim_to_evidence_opens_the_hole_of_a_capped_scan_and_no_more():
+    """No point above y = 0.5: the closed mesh loses the cap and keeps one part with one
+    boundary loop; nothing below y = 0.4 is removed."""
+    from geofit.fit._cloud import CloudTarget, trim_to_evidence
+    from geofit.ops import topology
+    from geofit.shapes import ico_sphere
+
+    m = ico_sphere(4)
+    t = trim_to_evidence(m, CloudTarget(sphere_points(20_000, keep=lambda P: P[:, 1] < 0.5)),
+                         0.0)
+    topo = topology(t.mesh)
+    assert t.n_holes == 1 and topo.n_components == 1 and topo.n_boundary_loops == 1
+    c = m.verts[m.faces].mean(1)
+    cut = ~np.isin(np.arange(m.n_faces), _kept_faces(m, t.mesh))
+    assert np.all(cut[c[:, 1] > 0.7]) and not np.any(cut[c[:, 1] < 0.4])
+
+
+def test_trim_to_evidence_drops_the_small_parts_a_hole_cuts_off():
+    """No point in the band 0.3 < y < 0.97: the cap above it (0.6 % of the faces, a part cut
+    off by the hole) goes with the hole, unless ``min_island`` allows it."""
+    from geofit.fit._cloud import CloudTarget, trim_to_evidence
+    from geofit.ops import topology
+    from geofit.shapes import ico_sphere
+
+    m = ico_sphere(4)
+    band = CloudTarget(sphere_points(20_000, keep=lambda P: (P[:, 1] < 0.3) | (P[:, 1] > 0.97)))
+    t = trim_to_evidence(m, band, 0.0)
+    assert t.n_islands == 1 and topology(t.mesh).n_components == 1
+    assert t.mesh.verts[:, 1].max() < 0.6
+    kept = trim_to_evidence(m, band, 0.0, min_island=1e-4)
+    assert kept.n_islands == 0 and topology(kept.mesh).n_components == 2
 
 
 def test_one_sided_scan_keeps_its_hole_unless_asked_to_close_it():
