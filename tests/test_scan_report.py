@@ -60,7 +60,7 @@ def test_strays_are_found_and_inliers_kept(sigma, n_out, found):
     assert keep[:20_000].mean() > 0.999
     assert (~keep[20_000:]).sum() >= found * n_out  # the rest lie within ~5 noise levels
     left = P[20_000:][keep[20_000:]]
-    assert np.all(PointToSurface(m).query(left).distances < 0.1)
+    assert np.all(PointToSurface(m).query(left).distances < max(0.1, 12 * sigma))
     assert rep.n_outliers == int((~keep).sum())
     assert rep.outlier_fraction == pytest.approx(rep.n_outliers / len(P))
 
@@ -69,7 +69,8 @@ def test_creases_and_thin_parts_of_clean_scans_are_not_outliers():
     """Noise-free scans of shapes with sharp creases and corners (a box), thin parts (a thin
     plate) and high curvature (a small torus tube): no point is an outlier (the neighbours'
     plane misses a crease point by about its neighbours' own spread, which the former test,
-    noise plus one spacing, did not allow for); 1 % strays added to them are still found."""
+    noise plus one spacing, did not allow for); 1 % strays added in the bounding cube are
+    still found (in the plate's own thin box every stray would lie within its thickness)."""
     from geofit.shapes import box, thin_plate
 
     for m in (box(), thin_plate(), torus(1.0, 0.12, 96, 24)):
@@ -77,7 +78,7 @@ def test_creases_and_thin_parts_of_clean_scans_are_not_outliers():
         P = sample_points_from_meshes(m, 20_000, seed=0)
         rep, keep = scan_report(P)
         assert rep.n_outliers == 0 and keep.all()
-        O = np.random.default_rng(0).uniform(P.min(0), P.max(0), (200, 3))
+        O = np.random.default_rng(0).uniform(-1.0, 1.0, (200, 3))
         rep, keep = scan_report(np.r_[P, O])
         assert keep[:20_000].all() and (~keep[20_000:]).sum() >= 0.6 * 200
 
