@@ -28,9 +28,10 @@ from the data's topology and remeshes where the error is.
    (``NOISE_NORMAL_WEIGHT * noise^2``, the recipe's 1e-5 on clean scans), and the model never
    has more faces than the scan has points (:func:`geofit.fit._scan_report.evidence_limits`).
    No surface is kept where the scan has no point: the start is trimmed to the points, the
-   distance past the cloud's boundary pulls surface back, and at the end the faces whose
-   centroid is farther than ``3 (spacing + noise)`` from every point are removed
-   (:func:`geofit.fit._cloud.trim_to_evidence`), so the holes of a one-sided scan stay holes.
+   distance past the cloud's boundary pulls surface back, and at the end the surface over
+   the scan's holes (gaps wider than the sampling explains) is removed
+   (:func:`geofit.fit._cloud.trim_to_evidence`), so the holes of a one-sided scan stay holes
+   and a closed, well-sampled scan stays closed.
    ``MeshFitOptions(watertight=True)`` closes them instead: the untrimmed Poisson start, and no
    data term where there is no point.
 3. The result reports the initialisation, the vertex count and the
@@ -268,11 +269,10 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         mesh = r.mesh
     bar.close()
     if cloud and not plan.watertight:  # no surface where the scan has no point
-        mesh, n_trim = trim_to_evidence(mesh, p2s, reach)
-        if n_trim:
-            history.note(evals, clock.elapsed(), f"removed {n_trim} faces farther than "
-                         f"{reach:.3g} (3 spacings + 3 noise) from every point",
-                         n_trimmed=n_trim)
+        trim = trim_to_evidence(mesh, p2s, report.noise)
+        mesh = trim.mesh
+        if trim.n_removed:
+            history.note(evals, clock.elapsed(), trim.describe(), n_trimmed=trim.n_removed)
     with clock.paused():  # not solver time; counted by the budget (its reserve)
         topo = topology(mesh)
     if not len(history):
