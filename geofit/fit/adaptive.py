@@ -27,6 +27,10 @@ from the data's topology and remeshes where the error is.
    the noise a face's points leave, the normal-consistency weight follows the noise
    (``NOISE_NORMAL_WEIGHT * noise^2``, the recipe's 1e-5 on clean scans), and the model never
    has more faces than the scan has points (:func:`geofit.fit._scan_report.evidence_limits`).
+   Each round fits :data:`CLOUD_SAMPLES_PER_VERT` samples a side per vertex (at most the points
+   and :data:`CLOUD_MAX_SAMPLES`); the refinement also stops when a round lowered the residual
+   by less than :data:`NOISE_STALL` noise levels, and before a mesh of more than
+   :data:`CLOUD_MAX_VERTS` vertices.
    No surface is kept where the scan has no point: the start is trimmed to the points, the
    distance past the cloud's boundary pulls surface back, and at the end the faces whose
    centroid is farther than ``3 (spacing + noise)`` from every point are removed
