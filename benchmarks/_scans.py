@@ -218,10 +218,33 @@ def conditions(names=None) -> list[tuple[str, str, dict]]:
     return out
 
 
+def _cached_poisson(P: np.ndarray, cache: Path | None, key: str):
+    """:func:`poisson` of ``P``, or the one saved in ``cache`` under ``key`` (the same scan:
+    its size and coordinate sum are checked) with the seconds it took then."""
+    import open3d as o3d
+
+    f = None if cache is None else cache / f"{key}.npz"
+    stamp = np.array([len(P), float(P.sum())])
+    if f is not None and f.exists():
+        d = np.load(f)
+        if np.array_equal(d["stamp"], stamp):
+            m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(d["V"]),
+                                          o3d.utility.Vector3iVector(d["F"]))
+            return m, float(d["wall"]), float(d["cpu"])
+    m, w, c = poisson(P)
+    if f is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez(f, V=np.asarray(m.vertices), F=np.asarray(m.triangles), wall=w, cpu=c,
+                 stamp=stamp)
+    return m, w, c
+
+
 def run_cell(sname: str, m, cname: str, factor: str, c: dict, *, peers: bool = True,
-             time_budget: float | None = None, label: str = "geofit") -> list[dict]:
+             time_budget: float | None = None, label: str = "geofit",
+             poisson_cache: Path | None = None, ball: bool = True) -> list[dict]:
     """One shape under one condition: geofit's default, Poisson (full, same size), ball
-    pivoting; one row each."""
+    pivoting; one row each. ``poisson_cache``: a folder where the full Poisson mesh of each
+    scan is kept between runs (its seconds are those of the run that made it)."""
     from geofit.fit import fit_mesh
 
     if c["one_sided"]:
@@ -250,12 +273,15 @@ def run_cell(sname: str, m, cname: str, factor: str, c: dict, *, peers: bool = T
     if not peers:
         return rows
     load = os.getloadavg()[0]
-    pm, pw, pc = poisson(P)
+    slug = "".join(ch if ch.isalnum() else "_" for ch in f"{sname}_{cname}")
+    pm, pw, pc = _cached_poisson(P, poisson_cache, slug)
     add("Poisson (full)", o3d_to_mesh(pm), pw, pc, load)
     t, cp = time.perf_counter(), time.process_time()
     small = o3d_to_mesh(pm.simplify_quadric_decimation(int(res.mesh.n_faces)))
     add("Poisson (same size)", small, pw + time.perf_counter() - t,
         pc + time.process_time() - cp, load)
+    if not ball:
+        return rows
     load = os.getloadavg()[0]
     bm, bw, bc = ball_pivoting(P)
     bpa = o3d_to_mesh(bm)
@@ -265,15 +291,23 @@ def run_cell(sname: str, m, cname: str, factor: str, c: dict, *, peers: bool = T
 
 
 def run(out: Path, shapes=SHAPES, names=None, *, peers: bool = True,
-        time_budget: float | None = None, name: str = "fit_mesh_scans") -> list[dict]:
-    """Every shape under every condition; the rows are written to ``out/<name>.json`` after
-    each cell (a run cut short keeps what it measured)."""
+        time_budget: float | None = None, name: str = "fit_mesh_scans", cells=None,
+        poisson_cache: Path | None = None, ball: bool = True) -> list[dict]:
+    """Every shape under every condition (or only the ``(shape, condition)`` pairs of
+    ``cells``); the rows are written to ``out/<name>.json`` after each cell (a run cut short
+    keeps what it measured)."""
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
+    if cells is not None:
+        shapes = list(dict.fromkeys(s for s, _ in cells))
+        names = list(dict.fromkeys(c for _, c in cells))
     for sname in shapes:
         m = true_mesh(sname)
         for cname, factor, c in conditions(names):
-            rows += run_cell(sname, m, cname, factor, c, peers=peers, time_budget=time_budget)
+            if cells is not None and (sname, cname) not in cells:
+                continue
+            rows += run_cell(sname, m, cname, factor, c, peers=peers, time_budget=time_budget,
+                             poisson_cache=poisson_cache, ball=ball)
             loads = [r["load"] for r in rows]
             write_json(out / f"{name}.json", {
                 "benchmark": name,
@@ -339,7 +373,7 @@ def table(out: Path, name: str = "fit_mesh_scans") -> str:
             f"`{doc['command']}`, load {doc['load'][0]:.1f}-{doc['load'][1]:.1f}: timings under "
             "that load). One factor at a time around the base (20,000 surface points, Gaussian "
             "noise 0.005 of the unit box, 1% uniform strays added). geofit = the default "
-            "`fit_mesh(points)` (its own 10 s budget); Poisson = Open3D screened Poisson, depth 8, "
+            "`fit_mesh(points)` (no time budget); Poisson = Open3D screened Poisson, depth 8, "
             "normals from 30 neighbours oriented by orient_normals_consistent_tangent_plane(30), "
             "the 2% lowest-density vertices trimmed; same size = quadric decimation to geofit's "
             "face count; ball pivoting = Open3D, radii 3 and 6 mean neighbour distances. "
@@ -379,14 +413,24 @@ def main(argv=None) -> int:
     p.add_argument("--name", default="fit_mesh_scans", help="file name of the JSON, md, PNGs")
     p.add_argument("--no-peers", action="store_true", help="geofit only")
     p.add_argument("--time-budget", type=float, default=None,
-                   help="geofit's wall-clock budget (default: the fit's own 10 s)")
+                   help="geofit's wall-clock budget (default: none)")
     p.add_argument("--table-only", action="store_true", help="only redraw from the JSON")
+    p.add_argument("--cells", default=None,
+                   help="';'-separated shape:condition pairs to run instead of the grid "
+                        "(e.g. 'teapot:density 50k;torus:strays 5%%')")
+    p.add_argument("--poisson-cache", default=None,
+                   help="folder keeping each scan's full Poisson mesh between runs")
+    p.add_argument("--no-ball", action="store_true", help="no ball pivoting")
     a = p.parse_args(argv)
     out = Path(a.out)
     if not a.table_only:
         names = None if a.conditions is None else a.conditions.split(";")
+        cells = (None if a.cells is None
+                 else [tuple(c.split(":", 1)) for c in a.cells.split(";") if c])
         run(out, [s for s in a.shapes.split(",") if s], names, peers=not a.no_peers,
-            time_budget=a.time_budget, name=a.name)
+            time_budget=a.time_budget, name=a.name, cells=cells,
+            poisson_cache=None if a.poisson_cache is None else Path(a.poisson_cache),
+            ball=not a.no_ball)
     print(table(out, a.name))
     return 0
 

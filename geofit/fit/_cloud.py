@@ -28,6 +28,7 @@ from functools import cached_property
 import numpy as np
 
 from .._foreign import foreign_kind
+from .._threads import get_num_threads
 from .._validate import as_points, as_rng
 from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
 from .init import decimate
@@ -189,7 +190,7 @@ class CloudTarget:
     def _residuals(self, X: np.ndarray):
         """Normal residual ``r_n`` (n,), tangential part ``t`` (n, 3), its excess over ``rho``
         ``e = max(0, |t| - rho)`` (n,), and the nearest points' normals (n, 3)."""
-        dist, idx = self.tree.query(X)
+        dist, idx = self.tree.query(X, workers=get_num_threads())
         d = X - self.points[idx]
         n = self.normals[idx]
         rn = np.einsum("ij,ij->i", d, n)

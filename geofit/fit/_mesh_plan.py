@@ -79,7 +79,8 @@ class Remeshing:
     max_rounds : int
         Solve-and-remesh rounds at most.
     max_verts : int
-        Do not refine past this many vertices.
+        Do not refine past this many vertices (a point cloud: nor past what a round's samples
+        fit, :data:`geofit.fit.adaptive.CLOUD_MAX_VERTS`).
     """
 
     n_faces: int = 2000
@@ -188,7 +189,8 @@ class MeshFitOptions:
     n_samples : int
         Samples per surface per step (SGD/Adam, default 5000 as the tutorial) or per stage
         (L-BFGS, default ``min(5000, max(1000, 8 V))``). Not for the remeshing fit
-        (``min(8000, max(2000, 4 V))`` per round).
+        (``min(8000, max(2000, 4 V))`` per round; a point cloud's
+        ``min(points, 20000, max(2000, 12 V))``).
     n_iter : int
         Steps (SGD/Adam, default 2000) or iterations per stage, level or round (L-BFGS,
         default 100; 40 per remeshing round).

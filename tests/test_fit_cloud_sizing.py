@@ -1,0 +1,79 @@
+"""How far the point-cloud fit refines (issue 25): samples a round, the vertex cap, the stall
+test in units of the noise."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from geofit.fit import MeshFitOptions, Remeshing, fit_mesh
+from geofit.fit import adaptive
+from geofit.ops import sample_points_from_meshes
+from geofit.shapes import torus
+
+
+def torus_cloud(n=3000, noise=0.0, seed=0):
+    m = torus(1.0, 0.35, 48, 24)
+    P = sample_points_from_meshes(m, n, seed=seed)
+    return P + np.random.default_rng(seed).normal(0.0, noise, P.shape)
+
+
+def test_round_samples_of_a_mesh_target_are_unchanged_and_a_cloud_gets_12_a_vertex():
+    """Mesh target: min(8000, max(2000, 4 V)); cloud: min(points, 20000, max(2000, 12 V))."""
+    rs = adaptive._round_samples
+    assert [rs(v, None) for v in (100, 1000, 5000)] == [2000, 4000, 8000]
+    assert rs(1000, 50_000) == 12 * 1000
+    assert rs(1000, 5000) == 5000                 # never more than the scan's points
+    assert rs(100, 100_000) == 2000
+    assert rs(5000, 100_000) == adaptive.CLOUD_MAX_SAMPLES
+    assert adaptive.CLOUD_MAX_VERTS * adaptive.CLOUD_SAMPLES_PER_VERT \
+        <= adaptive.CLOUD_MAX_SAMPLES
+
+
+def test_a_cloud_fit_uses_12_samples_a_vertex():
+    """The first round of a scan's fit draws 12 samples per vertex (at most the points)."""
+    P = torus_cloud(3000, 0.002)
+    res = fit_mesh(P, options=MeshFitOptions(n_iter=3, refine=Remeshing(max_rounds=1,
+                                                                        n_faces=300)))
+    st = res.stages[0]
+    assert st["n_samples"] == min(len(P) - res.data_report.n_outliers,
+                                  max(2000, 12 * st["n_verts"]))
+    assert st["n_samples"] > 4 * st["n_verts"]  # more than a mesh target's rule
+
+
+def test_residual_gain_is_in_units_of_the_noise():
+    """(sqrt(c0 / 2) - sqrt(c1 / 2)) / noise: 0.01 -> 0.008 a side at noise 0.01 is 0.2."""
+    stages = [{"estimate": {"chamfer_l2": 2 * 0.01 ** 2}},
+              {"estimate": {"chamfer_l2": 2 * 0.008 ** 2}}]
+    assert adaptive._residual_gain(stages, 0.01) == pytest.approx(0.2, rel=1e-12)
+    assert adaptive._residual_gain(stages[::-1], 0.02) == pytest.approx(-0.1, rel=1e-12)
+
+
+def _hard_goal(max_rounds=3, n_faces=100):
+    """Accuracy no scan reaches, so only the sizing rules stop the refinement."""
+    return MeshFitOptions(n_iter=5, refine=Remeshing(n_faces=n_faces, chamfer_l2=1e-12,
+                                                     fscore=1.0, max_rounds=max_rounds))
+
+
+def test_refinement_stops_when_the_residual_no_longer_falls(monkeypatch):
+    """With a stall threshold no round can beat, the fit stops after its second round and
+    says why; without it, the same fit goes on refining."""
+    P = torus_cloud(3000)
+    monkeypatch.setattr(adaptive, "NOISE_STALL", math.inf)
+    res = fit_mesh(P, options=_hard_goal())
+    assert len(res.stages) == 2 and "noise level" in res.message
+    monkeypatch.setattr(adaptive, "NOISE_STALL", -math.inf)
+    res = fit_mesh(P, options=_hard_goal())
+    assert len(res.stages) == 3 and "noise level" not in res.message
+
+
+def test_refinement_stops_before_the_vertex_cap_of_a_cloud(monkeypatch):
+    """A remesh that would pass CLOUD_MAX_VERTS is not taken: the fit ends at the mesh it had."""
+    P = torus_cloud(3000)
+    monkeypatch.setattr(adaptive, "CLOUD_MAX_VERTS", 100)
+    res = fit_mesh(P, options=_hard_goal())
+    assert len(res.stages) == 1 and "12 a vertex" in res.message
+    assert res.mesh.n_verts <= 100
+    monkeypatch.setattr(adaptive, "CLOUD_MAX_VERTS", 10_000)
+    assert len(fit_mesh(P, options=_hard_goal()).stages) > 1
