@@ -12,8 +12,8 @@ plain sight in :class:`_Objective`.
   (recipe ``"default"``) is geofit's best for any shape: it starts from the **visual hull** of
   the silhouettes (:mod:`geofit.fit._views_init`: carved at the soft silhouettes' 0.5 level,
   marching cubes, quadric decimation; the hull's genus and parts),
-  then alternates L-BFGS on the soft silhouettes of all views (large steps, lambda 10; 64 then
-  128 px) with **remeshing** (:func:`geofit.ops.remesh`) to edges of ``edge_px`` = 3 pixels
+  then alternates L-BFGS on the soft silhouettes of all views (large steps, lambda 10 at
+  64 px, 1 at 128 px) with **remeshing** (:func:`geofit.ops.remesh`) to edges of ``edge_px`` = 3 pixels
   of the level's images, and ends with least-squares colours: vertex colours, then a UV
   texture on the final geometry (:func:`geofit.fit.texture.fit_texture`; ``texture="vertex"``
   keeps the vertex colours). Every length is a number of
@@ -170,10 +170,12 @@ class ViewsFitOptions:
         ``lambda`` of the large-steps parameterisation (0: plain vertex positions).
     final_large_steps : float
         ``lambda`` at the last coarse-to-fine level (None: ``large_steps``). The default
-        recipe's 3 (10 before): the smoother parameterisation damps the small, local moves
-        that put the outline on the targets' last pixel, so at full resolution the fit stopped
-        short (on the cow, the fitted soft-silhouette error 6x that of the true surface
-        remeshed alike); 10 on the coarse level keeps the smooth start.
+        recipe's 1 (10 on the coarse level keeps the smooth start): at full resolution
+        lambda 10 damps the small, local moves that put the outline on the targets' last
+        pixel, and the fit stopped short (on the cow, a soft-silhouette error 6x that of the
+        true surface remeshed alike, the fit 0.2-0.5 px too wide along the outline). Cow,
+        measured: held-out IoU 0.9748 / 0.9781 / 0.9818 and F@0.01 0.781 / 0.783 / 0.803
+        with 10 / 3 / 1, at the same cost.
     levels : sequence of (int, int)
         Coarse-to-fine schedule of the L-BFGS and contour methods: per level the number of
         midpoint subdivisions to apply first and the image downsampling factor, e.g.
@@ -274,7 +276,7 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
 RECIPES: dict[str, ViewsFitOptions] = {
     "default": ViewsFitOptions(
         silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
-        textured_init="silhouette", large_steps=10.0, final_large_steps=3.0, init="hull",
+        textured_init="silhouette", large_steps=10.0, final_large_steps=1.0, init="hull",
         levels=((0, 2), (0, 1)),
         remesh_rounds=2, silhouette_iters=120, silhouette_weights=HULL_SILHOUETTE_WEIGHTS,
         texture="uv", **_COMMON),
