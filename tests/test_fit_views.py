@@ -484,3 +484,25 @@ def test_texture_options_are_validated(data):
                         (ViewsFitOptions(texel_px=0.0), "options.texel_px")):
         with pytest.raises(ValueError, match=match):
             fit_mesh_to_views(data, options=opts, progress=False)
+
+
+def test_final_large_steps_is_the_last_levels_lambda(data):
+    """``final_large_steps`` sets lambda of the last coarse-to-fine level only: with one level
+    it is that level's lambda (bit-identical to ``large_steps`` set alike, different from the
+    other lambda); a negative value is refused."""
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
+             textured_method="none")
+
+    def verts(**kw):
+        return fit_mesh_to_views(data, options=ViewsFitOptions(**o, **kw),
+                                 progress=False).mesh.verts
+
+    a = verts(large_steps=10.0, final_large_steps=3.0)
+    np.testing.assert_array_equal(a, verts(large_steps=3.0, final_large_steps=3.0))
+    assert np.abs(a - verts(large_steps=10.0, final_large_steps=10.0)).max() > 1e-6
+    # two levels: the first keeps large_steps
+    o["levels"] = ((0, 2), (0, 1))
+    b = verts(large_steps=10.0, final_large_steps=3.0)
+    assert np.abs(b - verts(large_steps=3.0, final_large_steps=3.0)).max() > 1e-6
+    with pytest.raises(ValueError, match="options.final_large_steps"):
+        fit_mesh_to_views(data, options=ViewsFitOptions(final_large_steps=-1.0), progress=False)
