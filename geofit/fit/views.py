@@ -222,8 +222,8 @@ class ViewsFitOptions:
         outside or two views outside (a pinhole, a seam between parts or a slit at most 2
         pixels wide in one view carves no tunnel). Not the default: on the tutorial's views
         ``(1, 0)`` gives the open cylinder held-out IoU 0.981 (0.965) and genus 1 (31), the
-        ogre 0.821 (0.791) and the fandisk one part (5), but the cow F@0.01 0.754 (0.781;
-        measured, benchmarks/results/fit_views_viewsthin.md).
+        thin plate F@0.01 0.504 (0.309), the ogre IoU 0.821 (0.791), but the cow F@0.01 0.754
+        (0.781; measured, benchmarks/results/fit_views_viewsthin.md).
     rgb_iters : int
         L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
         the vertices against the RGB images with the hard image term
