@@ -256,12 +256,64 @@ def test_hull_close_px_ignores_a_pinhole(spheres):
     assert np.array_equal(closed, ref_c)
 
 
+def test_hull_field_margins_are_a_vote_over_the_sorted_views():
+    """With margins (m_1, m_2) the field is min(s_1 + m_1, s_2 + m_2) of the views' sorted
+    values (a slow per-point reference); (0,) is the plain minimum."""
+    R, T = look_at_view_transform(2.7, [0.0, 30.0, -20.0], [0.0, 100.0, 200.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    rng = np.random.default_rng(1)
+    sd = rng.normal(size=(3, 16, 20))
+    P = rng.uniform(-1.0, 1.0, (40, 3))
+    per_view = np.stack([hull_field(sd[i:i + 1], cams[i], P) for i in range(3)])  # (3, k)
+    s = np.sort(per_view, axis=0)
+    np.testing.assert_allclose(hull_field(sd, cams, P), s[0], atol=1e-12)
+    np.testing.assert_allclose(hull_field(sd, cams, P, margins=(1.0, 0.25)),
+                               np.minimum(s[0] + 1.0, s[1] + 0.25), atol=1e-12)
+    field, plain = hull_field(sd, cams, P, margins=(1.0, 0.0), with_min=True)
+    np.testing.assert_allclose(plain, s[0], atol=1e-12)
+
+
+def test_hull_margins_keep_a_pinhole_and_carve_a_hole(spheres):
+    """A 2 x 2 pinhole deep inside one view's silhouette carves a tunnel through the plain
+    hull; with margins (1, 0) (one view must say more than a pixel outside, or two views
+    outside) the hull is node for node the one without the pinhole, and the vote reports the
+    nodes it kept. A hole of radius 4 px in the same view still carves."""
+    from scipy.ndimage import distance_transform_edt
+
+    from geofit.structures.visual_hull import carve_hull
+
+    sil = spheres.silhouettes.copy()
+    y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
+    sil[0, y:y + 2, x:x + 2] = 0.0
+    cams = spheres.cameras
+    plain = carve_hull(spheres.silhouettes, cams, voxel_px=0.75).field > 0
+    holed = carve_hull(sil, cams, voxel_px=0.75).field > 0
+    ref = carve_hull(spheres.silhouettes, cams, voxel_px=0.75, margins=(1.0, 0.0))
+    voted = carve_hull(sil, cams, voxel_px=0.75, margins=(1.0, 0.0))
+    tunnel = (plain & ~holed).sum()
+    lost = ((ref.field > 0) & ~(voted.field > 0)).sum()  # only where a 2nd view agrees
+    assert tunnel > 20 and lost < 0.2 * tunnel
+    assert voted.n_vote_kept > ref.n_vote_kept
+    big = spheres.silhouettes.copy()
+    yy, xx = np.mgrid[:big.shape[1], :big.shape[2]]
+    big[0][(yy - y) ** 2 + (xx - x) ** 2 < 16] = 0.0
+    assert (carve_hull(big, cams, voxel_px=0.75, margins=(1.0, 0.0)).field > 0).sum() < \
+        (ref.field > 0).sum()
+
+
 def test_hull_carving_options_are_validated(spheres):
-    """upsample must be an integer >= 1 and close_px >= 0; the fit's options likewise."""
+    """upsample must be an integer >= 1, close_px >= 0 and margins a non-empty,
+    non-increasing sequence of numbers >= 0; the fit's options likewise."""
     with pytest.raises(ValueError, match="upsample"):
         visual_hull_mesh(spheres.silhouettes, spheres.cameras, upsample=0)
     with pytest.raises(ValueError, match="close_px"):
         visual_hull_mesh(spheres.silhouettes, spheres.cameras, close_px=-1.0)
+    for bad in ((), (0.0, 1.0), (-1.0,), (np.nan,), "ab", 3.0):
+        with pytest.raises(ValueError, match="margins"):
+            visual_hull_mesh(spheres.silhouettes, spheres.cameras, margins=bad)
+    with pytest.raises(ValueError, match="hull_margins"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_margins=(0.0, 1.0)),
+                          progress=False)
     with pytest.raises(ValueError, match="hull_upsample"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_upsample=0), progress=False)
     with pytest.raises(ValueError, match="hull_close_px"):

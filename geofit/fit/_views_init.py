@@ -39,7 +39,8 @@ def initial_mesh(plan, run) -> None:
         try:
             hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac,
                                     upsample=plan.hull_upsample,
-                                    close_px=plan.hull_close_px, check=run.clock.check)
+                                    close_px=plan.hull_close_px, margins=plan.hull_margins,
+                                    check=run.clock.check)
         except TimeUp:
             seconds = run.clock.elapsed() - t0
             plan.init, plan.init_name = ico_sphere(4), "sphere"
@@ -53,9 +54,12 @@ def initial_mesh(plan, run) -> None:
         plan.init = hull.mesh
         info = {"voxel_size": hull.voxel_size, "pixel_size": hull.pixel_size,
                 "n_faces_marching_cubes": hull.n_faces_marching_cubes,
-                "n_closed_pixels": hull.n_closed_pixels}
+                "n_closed_pixels": hull.n_closed_pixels, "n_vote_kept": hull.n_vote_kept}
         closed = (f"; {hull.n_closed_pixels:g} silhouette pixels of pinholes and slits "
                   f"closed" if plan.hull_close_px else "")
+        if hull.n_vote_kept:
+            closed += (f"; {hull.n_vote_kept} grid nodes that one view alone would carve "
+                       f"kept by the vote")
         desc = (f"the visual hull of the silhouettes ({plan.init.n_verts} vertices, marching "
                 f"cubes on {info['voxel_size']:.3g} voxels, decimated{closed})")
     else:

@@ -211,6 +211,8 @@ class VisualHullMesh:
         Grid nodes filled by ``close_handles`` (0 without it).
     n_closed_pixels : float
         Silhouette pixels (all views) that ``close_px`` filled before carving (0 without it).
+    n_vote_kept : int
+        Carving-grid nodes the vote (``margins``) kept that one view alone would have carved.
     """
 
     mesh: Mesh
@@ -219,12 +221,29 @@ class VisualHullMesh:
     n_faces_marching_cubes: int
     n_filled: int = 0
     n_closed_pixels: float = 0.0
+    n_vote_kept: int = 0
+
+
+def _check_margins(margins, name: str = "margins") -> tuple:
+    """``margins`` of the carving vote (:func:`geofit.structures.visual_hull.hull_field`) as a
+    tuple of floats: non-empty, finite, >= 0 and non-increasing; else ValueError naming
+    ``name``."""
+    try:
+        m = tuple(float(x) for x in margins)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a sequence of numbers (pixels), got "
+                         f"{margins!r}") from None
+    if not m or not all(np.isfinite(m)) or min(m) < 0 or any(
+            b > a for a, b in zip(m, m[1:])):
+        raise ValueError(f"{name}: expected finite numbers >= 0, non-increasing, at least "
+                         f"one, got {margins!r}")
+    return m
 
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
                      close_handles: bool = False, upsample: int = 1,
-                     close_px: float = 0.0, check=None) -> VisualHullMesh:
+                     close_px: float = 0.0, margins=(0.0,), check=None) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -270,6 +289,11 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     close_px : float
         Close each thresholded silhouette with a disk of this radius (pixels) first: pinholes
         and slits narrower than ``2 close_px`` carve nothing.
+    margins : sequence of float
+        The carving vote (:func:`geofit.structures.visual_hull.hull_field`; pixels,
+        non-increasing): ``(0,)`` carves what any one view puts outside its silhouette;
+        ``(1, 0)`` only what one view puts more than a pixel outside or two views outside, so
+        a pinhole or seam at most 2 pixels wide in one view carves no tunnel.
     check : callable, optional
         Called between the carving's views and steps (a fit passes its clock's
         :meth:`~geofit.fit.Clock.check`, which raises :class:`~geofit.fit.TimeUp` once its
@@ -283,7 +307,8 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     ------
     ValueError
         If the silhouettes are not (N, H, W) with N cameras, ``edge_px`` <= 0, ``threshold``
-        is outside (0, 1), or the hull is empty.
+        is outside (0, 1), ``margins`` is not a non-increasing sequence of numbers >= 0, or
+        the hull is empty.
     """
     sil = as_array(silhouettes, "silhouettes", (len(cameras), None, None))
     edge_px = check_positive(edge_px, "edge_px")
@@ -294,9 +319,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < 1:
             raise ValueError(f"{name}: expected an integer >= 1, got {val!r}")
     close_px = check_positive(close_px, "close_px", strict=False)
+    margins = _check_margins(margins)
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
                    voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
-                   close_px=close_px, check=check)
+                   close_px=close_px, margins=margins, check=check)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)
@@ -309,4 +335,4 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
     return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled,
-                          g.n_closed_pixels)
+                          g.n_closed_pixels, g.n_vote_kept)

@@ -80,6 +80,7 @@ from ._views_objective import (
     REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_background, dataset_lights,
 )
 from .history import Clock, FitHistory, FitResult
+from .init import _check_margins
 from .large_steps import vertex_parameterization
 from .solvers import StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 from .texture import fit_texture
@@ -222,6 +223,15 @@ class ViewsFitOptions:
         Close each thresholded silhouette with a disk of this radius (pixels) before carving:
         pinholes and slits narrower than twice that (cracks between the parts of a mesh, a
         sheet seen edge-on) carve no tunnel through the hull (0: none).
+    hull_margins : sequence of float
+        The hull's carving vote (pixels, non-increasing;
+        :func:`geofit.structures.visual_hull.hull_field`): ``(0,)`` carves what any one view
+        puts outside its silhouette, ``(1, 0)`` only what one view puts more than a pixel
+        outside or two views outside (a pinhole, a seam between parts or a slit at most 2
+        pixels wide in one view carves no tunnel). Not the default: on the tutorial's views
+        ``(1, 0)`` gives the open cylinder held-out IoU 0.981 (0.965) and genus 1 (31), the
+        thin plate F@0.01 0.504 (0.309), the ogre IoU 0.821 (0.791), but the cow F@0.01 0.754
+        (0.781; measured, benchmarks/results/fit_views_viewsthin.md).
     rgb_iters : int
         L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
         the vertices against the RGB images with the hard image term
@@ -259,6 +269,7 @@ class ViewsFitOptions:
     texel_px: float | None = None
     hull_upsample: int | None = None
     hull_close_px: float | None = None
+    hull_margins: Any = None
     rgb_iters: int | None = None
 
 
@@ -266,7 +277,7 @@ class ViewsFitOptions:
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
-               hull_close_px=0.0, rgb_iters=0)
+               hull_close_px=0.0, hull_margins=(0.0,), rgb_iters=0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -563,6 +574,7 @@ class _Plan:
     reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
     hull_upsample: int = 1
     hull_close_px: float = 0.0
+    hull_margins: tuple = (0.0,)
     rgb_iters: int = 0
     final_large_steps: float | None = None  # the last level's lambda (None: large_steps)
 
@@ -638,6 +650,7 @@ class _Plan:
                    hull_upsample=check_int(o.hull_upsample, "options.hull_upsample"),
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
+                   hull_margins=_check_margins(o.hull_margins, "options.hull_margins"),
                    rgb_iters=rgb_iters,
                    final_large_steps=(large_steps if o.final_large_steps is None else
                                       check_positive(o.final_large_steps,

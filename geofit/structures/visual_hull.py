@@ -112,19 +112,30 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
 
 
 def hull_field(sd: np.ndarray, cameras, P: np.ndarray, image_size=None,
-               check=None) -> np.ndarray:
-    """(k,) float64 minimum over the views of the signed distance (pixels) at the projections
-    of ``P (k, 3)``; ``-(H + W)`` for points outside an image or behind a camera.
+               check=None, margins=(0.0,), with_min: bool = False):
+    """(k,) float64 signed distance (pixels) of ``P (k, 3)`` to the hull: the minimum over the
+    views of the signed distance at the projections; ``-(H + W)`` for points outside an image
+    or behind a camera.
 
     ``sd`` is :func:`signed_distance_images`' output; ``image_size`` ``(H, W)`` the images'
     size when it was upsampled (None: ``sd``'s own). ``check()`` (optional) is called after
-    each view: a fit's time budget raises there."""
+    each view: a fit's time budget raises there.
+
+    ``margins`` ``(m_1, ..., m_j)`` (pixels, non-increasing) make the carving a vote: with the
+    views' values sorted, ``s_1 <= s_2 <= ...``, the field is ``min_i (s_i + m_i)``, so a point
+    is carved only if one view puts it more than ``m_1`` pixels outside its silhouette, or two
+    views more than ``m_2``, ... (``(0,)``: the plain minimum). With ``(1, 0)`` a background
+    line or pinhole at most 2 pixels wide in one view (the dark seams a soft rasterizer leaves
+    between overlapping parts, a sheet seen edge-on breaking between pixel centres) carves
+    nothing unless a second view agrees. ``with_min``: also return the plain minimum (what
+    carving by any one view gives)."""
     from scipy.ndimage import map_coordinates
 
     N, Hu, Wu = sd.shape
     H, W = (Hu, Wu) if image_size is None else tuple(image_size)
     u = Hu // H  # the fine grid of signed_distance_images(upsample=u)
-    field = np.full(len(P), np.inf)
+    m = np.asarray(margins, dtype=np.float64)
+    low = np.full((min(len(m), N), len(P)), np.inf)  # the smallest values so far, sorted
     far = -float(H + W)
     for i in range(N):  # views (each one vectorised call over all points)
         cam = cameras[i]
@@ -132,10 +143,14 @@ def hull_field(sd: np.ndarray, cameras, P: np.ndarray, image_size=None,
         xy = cam.transform_points_screen(P, (H, W))[0, :, :2] * u - 0.5
         val = map_coordinates(sd[i], [xy[:, 1], xy[:, 0]], order=1, cval=far)
         val[cam.transform_points_view(P)[0, :, 2] <= 0] = far  # behind the camera
-        np.minimum(field, val, out=field)
+        for row in low:  # insert val into the sorted rows (as many as margins)
+            lo = np.minimum(row, val)
+            np.maximum(row, val, out=val)
+            row[:] = lo
         if check is not None:
             check()
-    return field
+    field = (low + m[:len(low), None]).min(axis=0)
+    return (field, low[0]) if with_min else field
 
 
 def _grid(lo: np.ndarray, hi: np.ndarray, h: float):
@@ -162,6 +177,9 @@ class HullGrid:
     n_closed_pixels : float
         Silhouette pixels (summed over the views) that ``close_px`` turned from outside to
         inside: the pinholes and slits that carved nothing (0 without closing).
+    n_vote_kept : int
+        Nodes of the ``voxel_px`` grid inside the hull by the carving vote (``margins``) that
+        one view alone would have carved (0 with ``margins=(0,)``).
     """
 
     field: np.ndarray
@@ -169,11 +187,12 @@ class HullGrid:
     voxel_size: float
     pixel_size: float
     n_closed_pixels: float = 0.0
+    n_vote_kept: int = 0
 
 
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
                voxel_px: float = 1.5, refine: int = 1, upsample: int = 1,
-               close_px: float = 0.0, check=None) -> HullGrid:
+               close_px: float = 0.0, margins=(0.0,), check=None) -> HullGrid:
     """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
 
     A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
@@ -202,6 +221,10 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     upsample, close_px
         Sub-pixel outlines and the closing of pinholes and slits
         (:func:`signed_distance_images`).
+    margins : sequence of float
+        The carving vote (:func:`hull_field`): ``(0,)`` carves what any view puts outside
+        its silhouette; ``(1, 0)`` what one view puts more than a pixel outside or two views
+        outside.
     check : callable, optional
         Called between views (:func:`hull_field`); whatever it raises (a fit's
         ``geofit.fit.TimeUp``) stops the carving.
@@ -228,7 +251,7 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     h0 = 2.0 * r / (_COARSE - 1)
     _, P0 = _grid(np.full(3, -r), np.full(3, r), h0)
     px0 = pixel_footprint(cameras, (H, W), np.zeros(3))
-    keep = hull_field(sd, cameras, P0, (H, W), check) > -np.sqrt(3.0) * h0 / px0
+    keep = hull_field(sd, cameras, P0, (H, W), check, margins) > -np.sqrt(3.0) * h0 / px0
     if not keep.any():
         raise ValueError("silhouettes: the visual hull is empty (no point projects inside "
                          "every silhouette); check the cameras")
@@ -236,17 +259,20 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     px = pixel_footprint(cameras, (H, W), 0.5 * (lo + hi))
     h = voxel_px * px
     axes, P = _grid(lo, hi, h)
-    occ = hull_field(sd, cameras, P, (H, W), check).reshape([len(a) for a in axes])
+    occ, plain_min = hull_field(sd, cameras, P, (H, W), check, margins, with_min=True)
+    n_kept = int(((occ > 0) & (plain_min <= 0)).sum())
+    occ = occ.reshape([len(a) for a in axes])
     if refine > 1:
-        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras, (H, W), check)
+        occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras, (H, W), check,
+                              margins)
     if not (occ > 0).any():
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
-    return HullGrid(occ, lo, h, px, n_closed)
+    return HullGrid(occ, lo, h, px, n_closed, n_kept)
 
 
 def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras,
-                 image_size, check=None):
+                 image_size, check=None, margins=(0.0,)):
     """The field on a grid ``k`` times finer, evaluated only in the surface's band."""
     margin = np.sqrt(3.0) * h / px
     n = np.array(occ.shape)
@@ -258,7 +284,7 @@ def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, s
     hf = h / k
     ii = np.unravel_index(band, tuple(m))
     P = lo + hf * np.stack(ii, axis=1)
-    out[band] = hull_field(sd, cameras, P, image_size, check)
+    out[band] = hull_field(sd, cameras, P, image_size, check, margins)
     return out.reshape(tuple(m)), hf
 
 
@@ -317,5 +343,5 @@ def close_unsupported_handles(grid: HullGrid, *, radius_px: float = 2.0,
     field = grid.field.copy()
     field[filled] = 0.5  # half a pixel inside: marching cubes puts the surface past the node
     return ClosedHandles(HullGrid(field, grid.origin, grid.voxel_size, grid.pixel_size,
-                                  grid.n_closed_pixels),
+                                  grid.n_closed_pixels, grid.n_vote_kept),
                          int(filled.sum()), filled)
