@@ -18,6 +18,7 @@ from .._threads import get_num_threads, parallel_map
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
 from ..render.volume.raymarching import exclusive_product as _exclusive_product
+from ..render.volume.raymarching import sequential_sum as _sequential_sum
 from ..render.volume.raymarching import shifted_cumprod as _shifted_cumprod
 from ..render.volume.raymarching import suffix_from as _suffix_from
 from ..render.volume.raymarching import suffix_products as _suffix_products
@@ -211,7 +212,7 @@ class _Objective:
         return X, sd, sc
 
     def _split(self):
-        """Row blocks of W at chunk boundaries, one per thread (built once)."""
+        """Row blocks of W at chunk boundaries, one per thread (built once; views of W)."""
         if self._blocks is None:
             n_t = get_num_threads()
             chunks = self.layout.chunks
@@ -223,7 +224,8 @@ class _Objective:
                 targets = self.W.nnz * np.arange(1, n_t) / n_t
                 cuts = np.unique(np.clip(np.searchsorted(nnz_at, targets), 1, len(chunks) - 1))
                 rows = [0, *starts[cuts].tolist(), self.layout.n_rows]
-                self._blocks = [(r0, r1, self.W[r0:r1]) for r0, r1 in zip(rows, rows[1:])]
+                self._blocks = [(r0, r1, _row_block(self.W, r0, r1))
+                                for r0, r1 in zip(rows, rows[1:])]
         return self._blocks
 
     def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
@@ -251,9 +253,7 @@ class _Objective:
             P = _shifted_cumprod(c, 1)
             T = P if unit else P * self.lead[rays, None]
             w = d * T
-            rgb = np.empty((r, 3), dtype=d.dtype)
-            for ch in range(3):  # colour channels
-                rgb[:, ch] = np.cumsum(w * f[ch], axis=1)[:, -1]
+            rgb = _sequential_sum(w * f).T  # (r, 3), each summed from the first sample on
             if unit:
                 op = 1.0 - P[:, -1] * c[:, -1]
             else:
@@ -291,14 +291,33 @@ class _Objective:
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
         """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
-        X, _, _ = self._values(x)
-        Y = np.stack([self.W @ X[ch] for ch in range(4)])
+        _, _, _, Y = self._forward(x)
         kept = np.zeros(len(self.ray_ids))
-        self._march_chunks(Y, None, 0, len(self.layout.chunks), kept)
+        parallel_map(lambda p: self._march_chunks(Y, None, *p, kept), self._parts())
         out = np.empty(self.n_rays_total)
         out[self.ray_ids] = kept
         out[self._miss[0]] = self._miss[1]
         return out
+
+    def _parts(self) -> list:
+        """Ranges of ray chunks marched by one task each (their loss sums are added in this
+        order, so the parts fix the value's rounding)."""
+        nch = len(self.layout.chunks)
+        bounds = np.linspace(0, nch, len(self._split()) + 1).astype(int).tolist()
+        return list(zip(bounds, bounds[1:]))
+
+    def _forward(self, x: np.ndarray):
+        """Voxel values (:meth:`_values`) and the sampled values ``Y (4, n_rows)`` (one sparse
+        product per row block and channel, on the pool)."""
+        X, sd, sc = self._values(x)
+        Y = np.empty((4, self.layout.n_rows), dtype=self.dtype)
+
+        def fwd(blk):
+            r0, r1, Wb = blk
+            for ch in range(4):  # channels
+                Y[ch, r0:r1] = Wb @ X[ch]
+        parallel_map(fwd, self._split())
+        return X, sd, sc, Y
 
     def evaluate(self, x: np.ndarray, *, want_grad: bool = True):
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
@@ -308,22 +327,12 @@ class _Objective:
         channel (scipy's single-vector kernels are faster than its multi-vector ones, with the
         same sums in the same order).
         """
-        X, sd, sc = self._values(x)
+        X, sd, sc, Y = self._forward(x)
         blocks = self._split()
-        Y = np.empty((4, self.layout.n_rows), dtype=self.dtype)
-
-        def fwd(blk):
-            r0, r1, Wb = blk
-            for ch in range(4):  # channels
-                Y[ch, r0:r1] = Wb @ X[ch]
-        parallel_map(fwd, blocks)
         if self.clock is not None:  # a time budget holds inside long evaluations
             self.clock.check()
         G = np.empty_like(Y) if want_grad else None
-        nch = len(self.layout.chunks)
-        bounds = np.linspace(0, nch, len(blocks) + 1).astype(int).tolist()
-        parts = list(zip(bounds, bounds[1:]))
-        sums = parallel_map(lambda p: self._march_chunks(Y, G, *p), parts)
+        sums = parallel_map(lambda p: self._march_chunks(Y, G, *p), self._parts())
         n_col = 3.0 * self.n_pixels
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
@@ -379,6 +388,14 @@ class _Objective:
             return value, None, None
         return (value, (2.0 * lam_d / e_d) * (self.D_density.T @ dd),
                 (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T)
+
+
+def _row_block(W: sp.csr_matrix, r0: int, r1: int) -> sp.csr_matrix:
+    """Rows ``r0:r1`` of a csr matrix as a view of its data and indices (``W[r0:r1]`` copies
+    them: 400 MB at 128^3); its products are ``W[r0:r1]``'s, entry for entry."""
+    p0, p1 = int(W.indptr[r0]), int(W.indptr[r1])
+    return sp.csr_matrix((W.data[p0:p1], W.indices[p0:p1], W.indptr[r0:r1 + 1] - p0),
+                         shape=(r1 - r0, W.shape[1]), copy=False)
 
 
 def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
