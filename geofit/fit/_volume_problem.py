@@ -51,6 +51,18 @@ def _logit(p: np.ndarray) -> np.ndarray:
     return np.log(p) - np.log1p(-p)
 
 
+def _elementwise(fn, a: np.ndarray) -> np.ndarray:
+    """``fn(a)`` (float64) for an elementwise ``fn``, in slabs on the pool (the same values)."""
+    flat = a.reshape(-1)
+    out = np.empty(flat.size)
+    cuts = np.linspace(0, flat.size, 2 * get_num_threads() + 1).astype(np.int64)
+
+    def slab(k):
+        out[cuts[k]:cuts[k + 1]] = fn(flat[cuts[k]:cuts[k + 1]])
+    parallel_map(slab, range(len(cuts) - 1))
+    return out.reshape(a.shape)
+
+
 def _downsample(a: np.ndarray, f: int) -> np.ndarray:
     """Block mean over f x f pixels of (N, H, W, ...)."""
     if f == 1:
@@ -76,9 +88,17 @@ class _Grid:
     def volume(self, densities, features=None) -> Volume:
         return Volume(densities, features, self.voxel_size, -0.0 + self.translation)
 
-    def centres(self) -> np.ndarray:
-        return Volume(np.zeros(self.size), voxel_size=self.voxel_size,
-                      volume_translation=self.translation).get_coord_grid().reshape(-1, 3)
+    def centres(self, flat: np.ndarray | None = None) -> np.ndarray:
+        """World centres ``(n, 3)`` of all voxels, or of the voxels ``flat`` (flat indices):
+        the values of :meth:`Volume.get_coord_grid`, computed only where asked."""
+        if flat is None:
+            flat = np.arange(self.n)
+        D, H, W = self.size
+        z, rem = np.divmod(flat, H * W)
+        y, x = np.divmod(rem, W)
+        P = np.stack([np.linspace(-1.0, 1.0, W)[x], np.linspace(-1.0, 1.0, H)[y],
+                      np.linspace(-1.0, 1.0, D)[z]], axis=1)
+        return P * self.scale - self.translation
 
 
 def _ray_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
