@@ -81,20 +81,21 @@ class _Plan:
 
 class _TrackedObjective:
     """``fun(x) -> (value, grad)`` of a level that remembers the terms of the last call, the
-    first value and the best point seen (Adam keeps its best iterate)."""
+    first value and (``keep_best``: Adam keeps its best iterate) the best point seen."""
 
-    def __init__(self, problem: _Objective, x0: np.ndarray):
+    def __init__(self, problem: _Objective, x0: np.ndarray, keep_best: bool = True):
         self.problem = problem
         self.terms: dict = {}
         self.first = None
         self.best = (np.inf, x0)
+        self.keep_best = keep_best
 
     def __call__(self, x):
         v, g, terms = self.problem.evaluate(x)
         self.terms = terms
         if self.first is None:
             self.first = v
-        if v < self.best[0]:
+        if self.keep_best and v < self.best[0]:  # a copy of x (8 MB at 128^3)
             self.best = (v, np.array(x, dtype=np.float64))
         return v, g
 
@@ -257,7 +258,7 @@ class _Solver:
     def solve_level(self, li: int, x0: np.ndarray, n_iter: int, remaining):
         """Run the method on the level's problem."""
         o, problem, clock = self.o, self.problem, self.clock
-        fun = _TrackedObjective(problem, x0)
+        fun = _TrackedObjective(problem, x0, keep_best=o.method == "adam")
         callback = self.callback(li, fun)
         if problem.n_params == 0:
             value, _ = problem.evaluate(x0, want_grad=False)

@@ -189,6 +189,7 @@ class _Objective:
         # float32: 1 + eps rounds to 1 and every leading factor is 1 (the march skips them)
         self._unit_eps = bool(self.dtype.type(1.0 + _EPS) == 1.0 and np.all(self.lead == 1.0))
         self._blocks = None
+        self._chunk_W = None
         self._buffers: dict = {}  # the sampled values and their gradients, reused
         # smoothness: squared differences between face-neighbouring free voxels
         self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
@@ -249,8 +250,9 @@ class _Objective:
                                 for r0, r1 in zip(rows, rows[1:])]
         return self._blocks
 
-    def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
-        """Loss sums over chunks lo:hi; writes their sample gradients into G (if given).
+    def _march_chunk(self, k: int, Y, G, per_ray: np.ndarray | None = None):
+        """The loss sums (colour, silhouette) of ray chunk ``k``; writes its sample gradients
+        into G (if given).
 
         ``Y`` and ``G`` are channel-major ``(4, n_rows)`` (density, RGB), so each chunk's
         channels are contiguous ``(rays, K)`` arrays. The sums over a ray's samples are
@@ -261,60 +263,58 @@ class _Objective:
         s = self.huber_scale
         n_col = 3.0 * self.n_pixels
         n_sil = float(self.n_pixels)
-        col_sum = sil_sum = 0.0
         unit = self._unit_eps
-        for row, a, b, K in self.layout.chunks[lo:hi]:  # chunks of rays
-            r = b - a
-            rays = slice(a, b)
-            d = Y[0, row:row + r * K].reshape(r, K)
-            f = Y[1:, row:row + r * K].reshape(3, r, K)
-            c = (1.0 + _EPS) - d
-            # with 1 + eps == 1 in the working precision, c is 1 - d and the leading factor 1:
-            # the transmittances are then the prefix products of 1 - d
-            P = _shifted_cumprod(c, 1)
-            T = P if unit else P * self.lead[rays, None]
-            w = d * T
-            rgb = _sequential_sum(w * f).T  # (r, 3), each summed from the first sample on
-            if unit:
-                op = 1.0 - P[:, -1] * c[:, -1]
-            else:
-                op = 1.0 - np.prod(1.0 - d, axis=1)
-            hc, gc = huber_residual(rgb - self.rgb[rays], s)
-            hs, gs = huber_residual(op - self.sil[rays], s)
-            col_sum += float(hc.sum(dtype=np.float64))
-            sil_sum += float(hs.sum(dtype=np.float64))
-            if per_ray is not None:
-                per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
-            if G is None:
-                continue
-            g_rgb = gc / n_col
-            g_op = gs / n_sil
-            h = f[0] * g_rgb[:, 0, None]
-            h += f[1] * g_rgb[:, 1, None]
-            h += f[2] * g_rgb[:, 2, None]
-            S = _suffix_from(w * h, 1)
-            through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
-                                             1)
-            if unit:  # prod_{j != k} c_j: the prefix products P times the suffix products
-                ex = _suffix_products(c)
-                ex *= P
-            else:
-                ex = _exclusive_product(1.0 - d)
-            ex *= g_op[:, None]
-            g0 = G[0, row:row + r * K].reshape(r, K)
-            np.multiply(T, h, out=g0)
-            g0 -= through
-            g0 += ex
-            gf = G[1:, row:row + r * K].reshape(3, r, K)
-            for ch in range(3):  # colour channels
-                np.multiply(w, g_rgb[:, ch, None], out=gf[ch])
-        return col_sum, sil_sum
+        row, a, b, K = self.layout.chunks[k]
+        r = b - a
+        rays = slice(a, b)
+        d = Y[0, row:row + r * K].reshape(r, K)
+        f = Y[1:, row:row + r * K].reshape(3, r, K)
+        c = (1.0 + _EPS) - d
+        # with 1 + eps == 1 in the working precision, c is 1 - d and the leading factor 1:
+        # the transmittances are then the prefix products of 1 - d
+        P = _shifted_cumprod(c, 1)
+        T = P if unit else P * self.lead[rays, None]
+        w = d * T
+        rgb = _sequential_sum(w * f).T  # (r, 3), each summed from the first sample on
+        if unit:
+            op = 1.0 - P[:, -1] * c[:, -1]
+        else:
+            op = 1.0 - np.prod(1.0 - d, axis=1)
+        hc, gc = huber_residual(rgb - self.rgb[rays], s)
+        hs, gs = huber_residual(op - self.sil[rays], s)
+        sums = float(hc.sum(dtype=np.float64)), float(hs.sum(dtype=np.float64))
+        if per_ray is not None:
+            per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
+        if G is None:
+            return sums
+        g_rgb = gc / n_col
+        g_op = gs / n_sil
+        h = f[0] * g_rgb[:, 0, None]
+        h += f[1] * g_rgb[:, 1, None]
+        h += f[2] * g_rgb[:, 2, None]
+        S = _suffix_from(w * h, 1)
+        through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
+                                         1)
+        if unit:  # prod_{j != k} c_j: the prefix products P times the suffix products
+            ex = _suffix_products(c)
+            ex *= P
+        else:
+            ex = _exclusive_product(1.0 - d)
+        ex *= g_op[:, None]
+        g0 = G[0, row:row + r * K].reshape(r, K)
+        np.multiply(T, h, out=g0)
+        g0 -= through
+        g0 += ex
+        gf = G[1:, row:row + r * K].reshape(3, r, K)
+        for ch in range(3):  # colour channels
+            np.multiply(w, g_rgb[:, ch, None], out=gf[ch])
+        return sums
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
         """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
-        _, _, _, Y = self._forward(x)
+        X, _, _ = self._values(x)
         kept = np.zeros(len(self.ray_ids))
-        parallel_map(lambda p: self._march_chunks(Y, None, *p, kept), self._parts())
+        self._sweep(X, None, kept)
         out = np.empty(self.n_rays_total)
         out[self.ray_ids] = kept
         out[self._miss[0]] = self._miss[1]
@@ -327,25 +327,43 @@ class _Objective:
             self._buffers[name] = np.empty((4, self.layout.n_rows), dtype=self.dtype)
         return self._buffers[name]
 
+    def _sweep(self, X: np.ndarray, G: np.ndarray | None, per_ray=None):
+        """Sample the values ``X (4, n_columns)`` along every kept ray and march: the loss sums
+        (colour, silhouette) and (G given) the sample gradients in ``G (4, n_rows)``.
+
+        One task per ray chunk on the pool: its rows of W times each channel (per row the
+        same sums as the whole product), then its march while they are in the cache. The
+        chunks' sums are added in chunk order within the parts of :meth:`_parts`, then the
+        parts' (the order that fixes the value's rounding).
+        """
+        chunks = self.layout.chunks
+        if self._chunk_W is None:  # views of W's rows, one per chunk
+            self._chunk_W = [_row_block(self.W, row, row + (b - a) * K)
+                             for row, a, b, K in chunks]
+        Y = self._buffer("Y")
+
+        def chunk(k):
+            row, a, b, K = chunks[k]
+            Wk = self._chunk_W[k]
+            for ch in range(4):  # channels
+                Y[ch, row:row + (b - a) * K] = Wk @ X[ch]
+            return self._march_chunk(k, Y, G, per_ray)
+        sums = parallel_map(chunk, range(len(chunks)))
+        part_sums = []
+        for lo, hi in self._parts():  # parts of the chunks
+            col_sum = sil_sum = 0.0
+            for c_k, s_k in sums[lo:hi]:  # chunks, in order
+                col_sum += c_k
+                sil_sum += s_k
+            part_sums.append((col_sum, sil_sum))
+        return part_sums
+
     def _parts(self) -> list:
-        """Ranges of ray chunks marched by one task each (their loss sums are added in this
-        order, so the parts fix the value's rounding)."""
+        """Ranges of ray chunks whose loss sums are added first (then the parts' sums, in this
+        order: the parts, one per row block, fix the value's rounding)."""
         nch = len(self.layout.chunks)
         bounds = np.linspace(0, nch, len(self._split()) + 1).astype(int).tolist()
         return list(zip(bounds, bounds[1:]))
-
-    def _forward(self, x: np.ndarray):
-        """Voxel values (:meth:`_values`) and the sampled values ``Y (4, n_rows)`` (one sparse
-        product per row block and channel, on the pool)."""
-        X, sd, sc = self._values(x)
-        Y = self._buffer("Y")
-
-        def fwd(blk):
-            r0, r1, Wb = blk
-            for ch in range(4):  # channels
-                Y[ch, r0:r1] = Wb @ X[ch]
-        parallel_map(fwd, self._split())
-        return X, sd, sc, Y
 
     def evaluate(self, x: np.ndarray, *, want_grad: bool = True):
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
@@ -355,12 +373,14 @@ class _Objective:
         channel (scipy's single-vector kernels are faster than its multi-vector ones, with the
         same sums in the same order).
         """
-        X, sd, sc, Y = self._forward(x)
-        blocks = self._split()
         if self.clock is not None:  # a time budget holds inside long evaluations
             self.clock.check()
+        X, sd, sc = self._values(x)
+        blocks = self._split()
         G = self._buffer("G") if want_grad else None
-        sums = parallel_map(lambda p: self._march_chunks(Y, G, *p), self._parts())
+        sums = self._sweep(X, G)
+        if self.clock is not None:
+            self.clock.check()
         n_col = 3.0 * self.n_pixels
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
