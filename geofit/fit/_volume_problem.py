@@ -137,18 +137,26 @@ class _Objective:
         self.n_rays_total = len(origins)
         l0 = float(lengths[0])
         dl = float(lengths[-1] - lengths[0]) / (n - 1)
-        A, B = _ray_pixel_affine(origins, directions, l0, dl, grid.size, grid.scale,
-                                 grid.translation)
         # 1. candidate samples: those inside the box of the allowed voxels (+ one voxel)
         zz, yy, xx = np.nonzero(allowed)
-        if zz.size == 0:
-            k_range = (np.zeros(len(A), np.int64), np.full(len(A), -1, np.int64))
-        else:
+        n_r = len(origins)
+        A, B = np.empty((n_r, 3)), np.empty((n_r, 3))
+        k_range = (np.zeros(n_r, np.int64), np.full(n_r, -1, np.int64))
+        lo = hi = None
+        if zz.size:
             lo = np.array([xx.min(), yy.min(), zz.min()], dtype=np.float64) - 1.0
             hi = np.array([xx.max(), yy.max(), zz.max()], dtype=np.float64) + 1.0
-            t0, t1 = _ray_box(A, B, lo, hi)   # in units of samples
-            k_range = (np.clip(np.ceil(t0 - 1e-9), 0, n).astype(np.int64),
-                       np.clip(np.floor(t1 + 1e-9), -1, n - 1).astype(np.int64))
+        cuts = np.linspace(0, n_r, 2 * get_num_threads() + 1).astype(np.int64)
+
+        def rays_part(i):  # each ray on its own: parts of the rays on the pool
+            sl = slice(cuts[i], cuts[i + 1])
+            A[sl], B[sl] = _ray_pixel_affine(origins[sl], directions[sl], l0, dl, grid.size,
+                                             grid.scale, grid.translation)
+            if lo is not None:
+                t0, t1 = _ray_box(A[sl], B[sl], lo, hi)   # in units of samples
+                k_range[0][sl] = np.clip(np.ceil(t0 - 1e-9), 0, n)
+                k_range[1][sl] = np.clip(np.floor(t1 + 1e-9), -1, n - 1)
+        parallel_map(rays_part, range(len(cuts) - 1))
         # 2. contiguous ranges: first sample reading an allowed voxel .. last one still visible
         if termination is None and allowed.all():
             # dense grid: the samples inside the box are exactly those that read a voxel
