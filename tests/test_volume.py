@@ -474,3 +474,26 @@ def test_implicit_docstring_examples():
     for mod in (gvi, gvf):
         result = doctest.testmod(mod, optionflags=doctest.NORMALIZE_WHITESPACE)
         assert result.attempted > 0 and result.failed == 0, mod.__name__
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_column_scans_equal_numpy_accumulate_bit_for_bit(dtype):
+    """The column-by-column scans (many rays, few samples) give numpy's accumulate's bits."""
+    from geofit.render.volume import raymarching as rm
+
+    rng = np.random.default_rng(3)
+    c = rng.uniform(0.2, 1.0, (4000, 27)).astype(dtype)  # 4000 >= 32 * 27: the column loop
+    assert c.shape[0] >= rm._SCAN_ROWS_PER_COLUMN * c.shape[1]
+    T = rm.shifted_cumprod(c, 1)
+    assert T.dtype == dtype
+    np.testing.assert_array_equal(T[:, 1:], np.cumprod(c[:, :-1], axis=1))
+    np.testing.assert_array_equal(T[:, 0], 1.0)
+    S = rm.suffix_from(c, 1)
+    np.testing.assert_array_equal(S[:, :-1], np.cumsum(c[:, :0:-1], axis=1)[:, ::-1])
+    np.testing.assert_array_equal(S[:, -1], 0.0)
+    U = rm.suffix_products(c)
+    np.testing.assert_array_equal(U[:, :-1], np.cumprod(c[:, :0:-1], axis=1)[:, ::-1])
+    q = np.stack([c, 2 * c, -c])
+    np.testing.assert_array_equal(rm.sequential_sum(q), np.cumsum(q, axis=-1)[..., -1])
+    # few rows: numpy's accumulate itself
+    np.testing.assert_array_equal(rm.sequential_sum(c[:3]), np.cumsum(c[:3], axis=1)[:, -1])

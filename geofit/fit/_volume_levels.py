@@ -14,7 +14,8 @@ from ..structures.volume import carve as _carve
 from ..structures.volume import silhouette_distances
 from . import solvers
 from ._progress import advance, progress_bar
-from ._volume_problem import _downsample, _Grid, _logit, _Objective, _rays, _resample, _sigmoid
+from ._volume_problem import (_downsample, _elementwise, _Grid, _logit, _Objective, _rays,
+                              _resample, _sigmoid)
 from .history import Clock, FitHistory
 
 
@@ -80,20 +81,21 @@ class _Plan:
 
 class _TrackedObjective:
     """``fun(x) -> (value, grad)`` of a level that remembers the terms of the last call, the
-    first value and the best point seen (Adam keeps its best iterate)."""
+    first value and (``keep_best``: Adam keeps its best iterate) the best point seen."""
 
-    def __init__(self, problem: _Objective, x0: np.ndarray):
+    def __init__(self, problem: _Objective, x0: np.ndarray, keep_best: bool = True):
         self.problem = problem
         self.terms: dict = {}
         self.first = None
         self.best = (np.inf, x0)
+        self.keep_best = keep_best
 
     def __call__(self, x):
         v, g, terms = self.problem.evaluate(x)
         self.terms = terms
         if self.first is None:
             self.first = v
-        if v < self.best[0]:
+        if self.keep_best and v < self.best[0]:  # a copy of x (8 MB at 128^3)
             self.best = (v, np.array(x, dtype=np.float64))
         return v, g
 
@@ -106,9 +108,6 @@ class _Solver:
         self.clock = Clock(o.time_budget)
         self.history = FitHistory()
         self.step_final = (o.max_depth - o.min_depth) / (o.n_pts - 1)
-        self.sigma = None      # extinction grid of the previous level (per unit view depth)
-        self.colour = None     # colour grid (3, D, H, W) of the previous level
-        self.prev_grid = None
         self.stages: list = []
         self.total_iter = self.total_eval = 0
         self.step_counter = 0
@@ -155,15 +154,17 @@ class _Solver:
         """Initial extinction and colour grids of a level and the voxels that may hold
         density: (from the second level) near the occupied region, inside the hull."""
         o = self.o
-        if self.sigma is None:
+        prev = self.previous_model()
+        if prev is None:
             d0 = _sigmoid(np.array([-4.0]))[0]              # the tutorial's initial log-density
             sig_init = -math.log1p(-d0) / self.step_final   # ... per final sample, as extinction
             sigma_grid = np.full(grid.size, sig_init)
             colour_grid = np.full((3,) + grid.size, 0.5)
             allowed = np.ones(grid.size, bool)
         else:
-            sigma_grid = np.maximum(_resample(self.sigma, self.prev_grid, grid), 0.0)
-            colour_grid = np.clip(_resample(self.colour, self.prev_grid, grid), 0.0, 1.0)
+            sigma, colour, prev_grid = prev
+            sigma_grid = np.maximum(_resample(sigma, prev_grid, grid), 0.0)
+            colour_grid = np.clip(_resample(colour, prev_grid, grid), 0.0, 1.0)
             allowed = (-np.expm1(-sigma_grid * self.step_final)) > o.prune_threshold
             if o.prune_dilation:
                 allowed = ndimage.binary_dilation(allowed, np.ones((3, 3, 3), bool),
@@ -171,10 +172,26 @@ class _Solver:
         if o.carve:
             if self.dist is None:  # full-resolution silhouettes at every level (thin parts)
                 self.dist = silhouette_distances(o.sils > 0.5)
-            allowed = _carve(self.dist, o.cameras, grid.centres(),
-                             math.sqrt(3.0) * grid.voxel_size, o.carve_tolerance,
-                             o.carve_margin, allowed.reshape(-1)).reshape(grid.size)
+            cand = np.flatnonzero(allowed)  # only the candidates' centres (1/10 of 128^3)
+            keep = _carve(self.dist, o.cameras, grid.centres(cand),
+                          math.sqrt(3.0) * grid.voxel_size, o.carve_tolerance, o.carve_margin)
+            allowed = np.zeros(grid.size, bool)
+            allowed.reshape(-1)[cand[keep]] = True
         return sigma_grid, colour_grid, allowed
+
+    def previous_model(self):
+        """Extinction (per unit view depth) and colour grids of the level fitted last, and its
+        grid (None before the first level); computed when the next level starts, so never after
+        the last one."""
+        st = self.state
+        if st["grid"] is None:
+            return None
+        grid, af = st["grid"], np.flatnonzero(st["allowed"])
+        dens_level = np.zeros(grid.n)
+        dens_level[af] = _sigmoid(st["ld"][af])
+        sigma = -np.log1p(-np.minimum(dens_level, 1.0 - 1e-15)) / st["step"]
+        colour = _elementwise(_sigmoid, st["lc"])
+        return sigma.reshape(grid.size), colour.reshape((3,) + grid.size), grid
 
     def setup_level(self, li: int, level: int):
         """Build the level's problem (rays, free voxels, sparse operator); returns the start
@@ -191,9 +208,13 @@ class _Solver:
         sil = _downsample(o.sils, f).reshape(-1)
         orig, dirs, lengths = _rays(o.cameras, Rh, Rw, n_pts, o.min_depth, o.max_depth)
         sigma_grid, colour_grid, allowed = self.allowed_voxels(li, grid, step)
-        dens = np.where(allowed, -np.expm1(-sigma_grid * step), 0.0)
-        ld = _logit(dens).reshape(-1)
-        lc = _logit(colour_grid).reshape(3, -1)
+        # logits: of the densities only where they may be non-zero (the others are never read)
+        af = np.flatnonzero(allowed)
+        dens = np.zeros(grid.size)
+        dens.reshape(-1)[af] = -np.expm1(-sigma_grid.reshape(-1)[af] * step)
+        ld = np.zeros(grid.n)
+        ld[af] = _logit(dens.reshape(-1)[af])
+        lc = _elementwise(_logit, colour_grid).reshape(3, -1)
         problem = _Objective(grid, orig, dirs, lengths, rgb, sil, dens, allowed,
                              termination=o.termination if li > 0 else None,
                              n_pixels=N * Rh * Rw, huber_scale=o.huber_scale, dtype=o.dtype,
@@ -237,7 +258,7 @@ class _Solver:
     def solve_level(self, li: int, x0: np.ndarray, n_iter: int, remaining):
         """Run the method on the level's problem."""
         o, problem, clock = self.o, self.problem, self.clock
-        fun = _TrackedObjective(problem, x0)
+        fun = _TrackedObjective(problem, x0, keep_best=o.method == "adam")
         callback = self.callback(li, fun)
         if problem.n_params == 0:
             value, _ = problem.evaluate(x0, want_grad=False)
@@ -302,11 +323,6 @@ class _Solver:
                     final_loss=res.value)
         self.stages.append(info)
         self.run_monitor(self.step_counter)
-        grid = st["grid"]
-        dens_level = np.where(st["allowed"].reshape(-1), _sigmoid(ld), 0.0).reshape(grid.size)
-        self.sigma = -np.log1p(-np.minimum(dens_level, 1.0 - 1e-15)) / st["step"]
-        self.colour = _sigmoid(lc).reshape((3,) + grid.size)
-        self.prev_grid = grid
 
     # -- the model and the observer
     def current_volume(self):
@@ -315,13 +331,15 @@ class _Solver:
         g = st["grid"]
         if g is None:
             return None
-        d = _sigmoid(st["ld"]).reshape(g.size)
+        af = np.flatnonzero(st["allowed"])  # the other voxels are empty
+        v = _sigmoid(st["ld"][af])
         if st["n_pts"] != o.n_pts:  # express the opacities for the final sampling
             step = (o.max_depth - o.min_depth) / (st["n_pts"] - 1)
-            d = -np.expm1(np.log1p(-np.minimum(d, 1.0 - 1e-15)) * (self.step_final / step))
-        d = np.where(st["allowed"].reshape(g.size), d, 0.0)
-        c = _sigmoid(st["lc"]).reshape((3,) + g.size)
-        return g.volume(d, c)
+            v = -np.expm1(np.log1p(-np.minimum(v, 1.0 - 1e-15)) * (self.step_final / step))
+        d = np.zeros(g.n)
+        d[af] = v
+        c = _elementwise(_sigmoid, st["lc"]).reshape((3,) + g.size)
+        return g.volume(d.reshape(g.size), c)
 
     def run_monitor(self, step: int) -> None:
         if self.o.evaluator is None:

@@ -18,6 +18,7 @@ from .._threads import get_num_threads, parallel_map
 from ..cameras import CamerasBase
 from ..loss.robust import huber, huber_residual
 from ..render.volume.raymarching import exclusive_product as _exclusive_product
+from ..render.volume.raymarching import sequential_sum as _sequential_sum
 from ..render.volume.raymarching import shifted_cumprod as _shifted_cumprod
 from ..render.volume.raymarching import suffix_from as _suffix_from
 from ..render.volume.raymarching import suffix_products as _suffix_products
@@ -50,6 +51,18 @@ def _logit(p: np.ndarray) -> np.ndarray:
     return np.log(p) - np.log1p(-p)
 
 
+def _elementwise(fn, a: np.ndarray) -> np.ndarray:
+    """``fn(a)`` (float64) for an elementwise ``fn``, in slabs on the pool (the same values)."""
+    flat = a.reshape(-1)
+    out = np.empty(flat.size)
+    cuts = np.linspace(0, flat.size, 2 * get_num_threads() + 1).astype(np.int64)
+
+    def slab(k):
+        out[cuts[k]:cuts[k + 1]] = fn(flat[cuts[k]:cuts[k + 1]])
+    parallel_map(slab, range(len(cuts) - 1))
+    return out.reshape(a.shape)
+
+
 def _downsample(a: np.ndarray, f: int) -> np.ndarray:
     """Block mean over f x f pixels of (N, H, W, ...)."""
     if f == 1:
@@ -75,9 +88,17 @@ class _Grid:
     def volume(self, densities, features=None) -> Volume:
         return Volume(densities, features, self.voxel_size, -0.0 + self.translation)
 
-    def centres(self) -> np.ndarray:
-        return Volume(np.zeros(self.size), voxel_size=self.voxel_size,
-                      volume_translation=self.translation).get_coord_grid().reshape(-1, 3)
+    def centres(self, flat: np.ndarray | None = None) -> np.ndarray:
+        """World centres ``(n, 3)`` of all voxels, or of the voxels ``flat`` (flat indices):
+        the values of :meth:`Volume.get_coord_grid`, computed only where asked."""
+        if flat is None:
+            flat = np.arange(self.n)
+        D, H, W = self.size
+        z, rem = np.divmod(flat, H * W)
+        y, x = np.divmod(rem, W)
+        P = np.stack([np.linspace(-1.0, 1.0, W)[x], np.linspace(-1.0, 1.0, H)[y],
+                      np.linspace(-1.0, 1.0, D)[z]], axis=1)
+        return P * self.scale - self.translation
 
 
 def _ray_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -116,18 +137,26 @@ class _Objective:
         self.n_rays_total = len(origins)
         l0 = float(lengths[0])
         dl = float(lengths[-1] - lengths[0]) / (n - 1)
-        A, B = _ray_pixel_affine(origins, directions, l0, dl, grid.size, grid.scale,
-                                 grid.translation)
         # 1. candidate samples: those inside the box of the allowed voxels (+ one voxel)
         zz, yy, xx = np.nonzero(allowed)
-        if zz.size == 0:
-            k_range = (np.zeros(len(A), np.int64), np.full(len(A), -1, np.int64))
-        else:
+        n_r = len(origins)
+        A, B = np.empty((n_r, 3)), np.empty((n_r, 3))
+        k_range = (np.zeros(n_r, np.int64), np.full(n_r, -1, np.int64))
+        lo = hi = None
+        if zz.size:
             lo = np.array([xx.min(), yy.min(), zz.min()], dtype=np.float64) - 1.0
             hi = np.array([xx.max(), yy.max(), zz.max()], dtype=np.float64) + 1.0
-            t0, t1 = _ray_box(A, B, lo, hi)   # in units of samples
-            k_range = (np.clip(np.ceil(t0 - 1e-9), 0, n).astype(np.int64),
-                       np.clip(np.floor(t1 + 1e-9), -1, n - 1).astype(np.int64))
+        cuts = np.linspace(0, n_r, 2 * get_num_threads() + 1).astype(np.int64)
+
+        def rays_part(i):  # each ray on its own: parts of the rays on the pool
+            sl = slice(cuts[i], cuts[i + 1])
+            A[sl], B[sl] = _ray_pixel_affine(origins[sl], directions[sl], l0, dl, grid.size,
+                                             grid.scale, grid.translation)
+            if lo is not None:
+                t0, t1 = _ray_box(A[sl], B[sl], lo, hi)   # in units of samples
+                k_range[0][sl] = np.clip(np.ceil(t0 - 1e-9), 0, n)
+                k_range[1][sl] = np.clip(np.floor(t1 + 1e-9), -1, n - 1)
+        parallel_map(rays_part, range(len(cuts) - 1))
         # 2. contiguous ranges: first sample reading an allowed voxel .. last one still visible
         if termination is None and allowed.all():
             # dense grid: the samples inside the box are exactly those that read a voxel
@@ -168,6 +197,8 @@ class _Objective:
         # float32: 1 + eps rounds to 1 and every leading factor is 1 (the march skips them)
         self._unit_eps = bool(self.dtype.type(1.0 + _EPS) == 1.0 and np.all(self.lead == 1.0))
         self._blocks = None
+        self._chunk_W = None
+        self._buffers: dict = {}  # the sampled values and their gradients, reused
         # smoothness: squared differences between face-neighbouring free voxels
         self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
         self.D_colour = _difference_operator(self.columns, grid.size)
@@ -211,7 +242,7 @@ class _Objective:
         return X, sd, sc
 
     def _split(self):
-        """Row blocks of W at chunk boundaries, one per thread (built once)."""
+        """Row blocks of W at chunk boundaries, one per thread (built once; views of W)."""
         if self._blocks is None:
             n_t = get_num_threads()
             chunks = self.layout.chunks
@@ -223,11 +254,13 @@ class _Objective:
                 targets = self.W.nnz * np.arange(1, n_t) / n_t
                 cuts = np.unique(np.clip(np.searchsorted(nnz_at, targets), 1, len(chunks) - 1))
                 rows = [0, *starts[cuts].tolist(), self.layout.n_rows]
-                self._blocks = [(r0, r1, self.W[r0:r1]) for r0, r1 in zip(rows, rows[1:])]
+                self._blocks = [(r0, r1, _row_block(self.W, r0, r1))
+                                for r0, r1 in zip(rows, rows[1:])]
         return self._blocks
 
-    def _march_chunks(self, Y, G, lo: int, hi: int, per_ray: np.ndarray | None = None):
-        """Loss sums over chunks lo:hi; writes their sample gradients into G (if given).
+    def _march_chunk(self, k: int, Y, G, per_ray: np.ndarray | None = None):
+        """The loss sums (colour, silhouette) of ray chunk ``k``; writes its sample gradients
+        into G (if given).
 
         ``Y`` and ``G`` are channel-major ``(4, n_rows)`` (density, RGB), so each chunk's
         channels are contiguous ``(rays, K)`` arrays. The sums over a ray's samples are
@@ -238,67 +271,107 @@ class _Objective:
         s = self.huber_scale
         n_col = 3.0 * self.n_pixels
         n_sil = float(self.n_pixels)
-        col_sum = sil_sum = 0.0
         unit = self._unit_eps
-        for row, a, b, K in self.layout.chunks[lo:hi]:  # chunks of rays
-            r = b - a
-            rays = slice(a, b)
-            d = Y[0, row:row + r * K].reshape(r, K)
-            f = Y[1:, row:row + r * K].reshape(3, r, K)
-            c = (1.0 + _EPS) - d
-            # with 1 + eps == 1 in the working precision, c is 1 - d and the leading factor 1:
-            # the transmittances are then the prefix products of 1 - d
-            P = _shifted_cumprod(c, 1)
-            T = P if unit else P * self.lead[rays, None]
-            w = d * T
-            rgb = np.empty((r, 3), dtype=d.dtype)
-            for ch in range(3):  # colour channels
-                rgb[:, ch] = np.cumsum(w * f[ch], axis=1)[:, -1]
-            if unit:
-                op = 1.0 - P[:, -1] * c[:, -1]
-            else:
-                op = 1.0 - np.prod(1.0 - d, axis=1)
-            hc, gc = huber_residual(rgb - self.rgb[rays], s)
-            hs, gs = huber_residual(op - self.sil[rays], s)
-            col_sum += float(hc.sum(dtype=np.float64))
-            sil_sum += float(hs.sum(dtype=np.float64))
-            if per_ray is not None:
-                per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
-            if G is None:
-                continue
-            g_rgb = gc / n_col
-            g_op = gs / n_sil
-            h = f[0] * g_rgb[:, 0, None]
-            h += f[1] * g_rgb[:, 1, None]
-            h += f[2] * g_rgb[:, 2, None]
-            S = _suffix_from(w * h, 1)
-            through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
-                                             1)
-            if unit:  # prod_{j != k} c_j: the prefix products P times the suffix products
-                ex = _suffix_products(c)
-                ex *= P
-            else:
-                ex = _exclusive_product(1.0 - d)
-            ex *= g_op[:, None]
-            g0 = G[0, row:row + r * K].reshape(r, K)
-            np.multiply(T, h, out=g0)
-            g0 -= through
-            g0 += ex
-            gf = G[1:, row:row + r * K].reshape(3, r, K)
-            for ch in range(3):  # colour channels
-                np.multiply(w, g_rgb[:, ch, None], out=gf[ch])
-        return col_sum, sil_sum
+        row, a, b, K = self.layout.chunks[k]
+        r = b - a
+        rays = slice(a, b)
+        d = Y[0, row:row + r * K].reshape(r, K)
+        f = Y[1:, row:row + r * K].reshape(3, r, K)
+        c = (1.0 + _EPS) - d
+        # with 1 + eps == 1 in the working precision, c is 1 - d and the leading factor 1:
+        # the transmittances are then the prefix products of 1 - d
+        P = _shifted_cumprod(c, 1)
+        T = P if unit else P * self.lead[rays, None]
+        w = d * T
+        rgb = _sequential_sum(w * f).T  # (r, 3), each summed from the first sample on
+        if unit:
+            op = 1.0 - P[:, -1] * c[:, -1]
+        else:
+            op = 1.0 - np.prod(1.0 - d, axis=1)
+        hc, gc = huber_residual(rgb - self.rgb[rays], s)
+        hs, gs = huber_residual(op - self.sil[rays], s)
+        sums = float(hc.sum(dtype=np.float64)), float(hs.sum(dtype=np.float64))
+        if per_ray is not None:
+            per_ray[rays] = hc.mean(axis=1, dtype=np.float64) + hs
+        if G is None:
+            return sums
+        g_rgb = gc / n_col
+        g_op = gs / n_sil
+        h = f[0] * g_rgb[:, 0, None]
+        h += f[1] * g_rgb[:, 1, None]
+        h += f[2] * g_rgb[:, 2, None]
+        S = _suffix_from(w * h, 1)
+        through = _through_transmittance(S, c, d, h if unit else h * self.lead[rays, None],
+                                         1)
+        if unit:  # prod_{j != k} c_j: the prefix products P times the suffix products
+            ex = _suffix_products(c)
+            ex *= P
+        else:
+            ex = _exclusive_product(1.0 - d)
+        ex *= g_op[:, None]
+        g0 = G[0, row:row + r * K].reshape(r, K)
+        np.multiply(T, h, out=g0)
+        g0 -= through
+        g0 += ex
+        gf = G[1:, row:row + r * K].reshape(3, r, K)
+        for ch in range(3):  # colour channels
+            np.multiply(w, g_rgb[:, ch, None], out=gf[ch])
+        return sums
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
         """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
         X, _, _ = self._values(x)
-        Y = np.stack([self.W @ X[ch] for ch in range(4)])
         kept = np.zeros(len(self.ray_ids))
-        self._march_chunks(Y, None, 0, len(self.layout.chunks), kept)
+        self._sweep(X, None, kept)
         out = np.empty(self.n_rays_total)
         out[self.ray_ids] = kept
         out[self._miss[0]] = self._miss[1]
         return out
+
+    def _buffer(self, name: str) -> np.ndarray:
+        """A (4, n_rows) work array kept from one evaluation to the next (fresh arrays of this
+        size, 107 MB each at 128^3, cost page faults every time: ~0.05 s of system time)."""
+        if name not in self._buffers:
+            self._buffers[name] = np.empty((4, self.layout.n_rows), dtype=self.dtype)
+        return self._buffers[name]
+
+    def _sweep(self, X: np.ndarray, G: np.ndarray | None, per_ray=None):
+        """Sample the values ``X (4, n_columns)`` along every kept ray and march: the loss sums
+        (colour, silhouette) and (G given) the sample gradients in ``G (4, n_rows)``.
+
+        One task per ray chunk on the pool: its rows of W times each channel (per row the
+        same sums as the whole product), then its march while they are in the cache. The
+        chunks' sums are added in chunk order within the parts of :meth:`_parts`, then the
+        parts' (the order that fixes the value's rounding).
+        """
+        chunks = self.layout.chunks
+        if self._chunk_W is None:  # views of W's rows, one per chunk
+            self._chunk_W = [_row_block(self.W, row, row + (b - a) * K)
+                             for row, a, b, K in chunks]
+        Y = self._buffer("Y")
+
+        def chunk(k):
+            row, a, b, K = chunks[k]
+            Wk = self._chunk_W[k]
+            for ch in range(4):  # channels
+                Y[ch, row:row + (b - a) * K] = Wk @ X[ch]
+            return self._march_chunk(k, Y, G, per_ray)
+        sums = parallel_map(chunk, range(len(chunks)))
+        part_sums = []
+        for lo, hi in self._parts():  # parts of the chunks
+            col_sum = sil_sum = 0.0
+            for c_k, s_k in sums[lo:hi]:  # chunks, in order
+                col_sum += c_k
+                sil_sum += s_k
+            part_sums.append((col_sum, sil_sum))
+        return part_sums
+
+    def _parts(self) -> list:
+        """Ranges of ray chunks whose loss sums are added first (then the parts' sums, in this
+        order: the parts, one per row block, fix the value's rounding)."""
+        nch = len(self.layout.chunks)
+        bounds = np.linspace(0, nch, len(self._split()) + 1).astype(int).tolist()
+        return list(zip(bounds, bounds[1:]))
 
     def evaluate(self, x: np.ndarray, *, want_grad: bool = True):
         """Loss (colour + silhouette Huber means) and its gradient with respect to ``x``.
@@ -308,22 +381,14 @@ class _Objective:
         channel (scipy's single-vector kernels are faster than its multi-vector ones, with the
         same sums in the same order).
         """
-        X, sd, sc = self._values(x)
-        blocks = self._split()
-        Y = np.empty((4, self.layout.n_rows), dtype=self.dtype)
-
-        def fwd(blk):
-            r0, r1, Wb = blk
-            for ch in range(4):  # channels
-                Y[ch, r0:r1] = Wb @ X[ch]
-        parallel_map(fwd, blocks)
         if self.clock is not None:  # a time budget holds inside long evaluations
             self.clock.check()
-        G = np.empty_like(Y) if want_grad else None
-        nch = len(self.layout.chunks)
-        bounds = np.linspace(0, nch, len(blocks) + 1).astype(int).tolist()
-        parts = list(zip(bounds, bounds[1:]))
-        sums = parallel_map(lambda p: self._march_chunks(Y, G, *p), parts)
+        X, sd, sc = self._values(x)
+        blocks = self._split()
+        G = self._buffer("G") if want_grad else None
+        sums = self._sweep(X, G)
+        if self.clock is not None:
+            self.clock.check()
         n_col = 3.0 * self.n_pixels
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
@@ -379,6 +444,14 @@ class _Objective:
             return value, None, None
         return (value, (2.0 * lam_d / e_d) * (self.D_density.T @ dd),
                 (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T)
+
+
+def _row_block(W: sp.csr_matrix, r0: int, r1: int) -> sp.csr_matrix:
+    """Rows ``r0:r1`` of a csr matrix as a view of its data and indices (``W[r0:r1]`` copies
+    them: 400 MB at 128^3); its products are ``W[r0:r1]``'s, entry for entry."""
+    p0, p1 = int(W.indptr[r0]), int(W.indptr[r1])
+    return sp.csr_matrix((W.data[p0:p1], W.indices[p0:p1], W.indptr[r0:r1 + 1] - p0),
+                         shape=(r1 - r0, W.shape[1]), copy=False)
 
 
 def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:

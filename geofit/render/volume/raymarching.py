@@ -100,13 +100,48 @@ def sample_deltas(lengths, directions=None) -> np.ndarray:
     return deltas
 
 
+def _scan(ufunc, a: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``ufunc.accumulate(a, axis=-1, out=out)`` for (..., n) views (reversed ones too).
+
+    Many short rows (the usual case: thousands of rays, tens of samples) are scanned one
+    column at a time: the same operations in the same order, so the same bits, but each step
+    runs over all rows at once instead of numpy's per-row inner loop (3x faster measured on
+    (20000, 27) float32).
+    """
+    n = a.shape[-1]
+    rows = a.size // max(n, 1)
+    if rows < _SCAN_ROWS_PER_COLUMN * n:
+        return ufunc.accumulate(a, axis=-1, out=out)
+    out[..., 0] = a[..., 0]
+    for k in range(1, n):  # columns (samples); all rays at once
+        ufunc(out[..., k - 1], a[..., k], out=out[..., k])
+    return out
+
+
+#: Rows per column above which :func:`_scan` loops over the columns (numpy's accumulate costs
+#: ~80 ns per row, a column step ~1.5 us).
+_SCAN_ROWS_PER_COLUMN = 32
+
+
+def sequential_sum(q: np.ndarray) -> np.ndarray:
+    """``q[..., 0] + q[..., 1] + ...`` added from the first sample on, as ``np.cumsum(q,
+    axis=-1)[..., -1]`` (``np.sum`` adds pairwise: other bits); ``q`` is (..., n), n >= 1."""
+    n = q.shape[-1]
+    if q.size // max(n, 1) < _SCAN_ROWS_PER_COLUMN * n:
+        return np.cumsum(q, axis=-1)[..., -1]
+    acc = q[..., 0].copy()
+    for k in range(1, n):  # columns (samples); all rays at once
+        acc += q[..., k]
+    return acc
+
+
 def shifted_cumprod(c: np.ndarray, shift: int) -> np.ndarray:
     """``T[:, i] = prod_{j <= i - shift} c[:, j]`` (1 for ``i < shift``); ``c`` is (r, n)."""
     n = c.shape[1]
     T = np.empty_like(c)
     T[:, :shift] = 1.0
     if shift < n:
-        np.cumprod(c[:, : n - shift], axis=1, out=T[:, shift:])
+        _scan(np.multiply, c[:, : n - shift], T[:, shift:])
     return T
 
 
@@ -116,7 +151,7 @@ def suffix_from(q: np.ndarray, shift: int) -> np.ndarray:
     S = np.empty_like(q)
     S[:, max(n - shift, 0):] = 0.0
     if shift < n:  # summed from the end: S[:, n - 1 - shift] = q[:, n - 1], ...
-        np.cumsum(q[:, shift:][:, ::-1], axis=1, out=S[:, : n - shift][:, ::-1])
+        _scan(np.add, q[:, shift:][:, ::-1], S[:, : n - shift][:, ::-1])
     return S
 
 
@@ -125,7 +160,7 @@ def suffix_products(c: np.ndarray) -> np.ndarray:
     U = np.empty_like(c)
     U[:, -1:] = 1.0
     if c.shape[1] > 1:
-        np.cumprod(c[:, :0:-1], axis=1, out=U[:, -2::-1])
+        _scan(np.multiply, c[:, :0:-1], U[:, -2::-1])
     return U
 
 

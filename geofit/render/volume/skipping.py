@@ -271,21 +271,26 @@ def range_operator(A, B, layout: RangeLayout, grid_size, *, lengths=None,
             out.append((rows[sl], valid.sum(axis=1), w[valid].astype(dtype), col[valid]))
         return out
 
-    counts = np.zeros(layout.n_rows, np.int64)
-    data_l, ind_l = [], []
-    for part in parallel_map(entries, range(len(samples))):  # chunks of rays
-        for rows, cnt, dat, ind in part:  # sub-chunks
-            counts[rows] = cnt
-            data_l.append(dat)
-            ind_l.append(ind)
-    indptr = np.zeros(layout.n_rows + 1, np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    data = np.concatenate(data_l) if data_l else np.zeros(0, dtype)
-    ind = np.concatenate(ind_l) if ind_l else np.zeros(0, idx)
-    if indptr[-1] >= 2 ** 31 - 1:
+    pieces = [sub for part in parallel_map(entries, range(len(samples)))  # chunks of rays
+              for sub in part]  # sub-chunks, in row order
+    sizes = [len(dat) for _, _, dat, _ in pieces]
+    offsets = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)])
+    if offsets[-1] >= 2 ** 31 - 1:
         idx = np.int64
-    Wm = sp.csr_matrix((data.astype(dtype, copy=False), ind.astype(idx, copy=False),
-                        indptr.astype(idx)), shape=(layout.n_rows, columns.size))
+    counts = np.zeros(layout.n_rows, np.uint8)  # entries per row (<= 8)
+    data = np.empty(int(offsets[-1]), dtype)
+    ind = np.empty(int(offsets[-1]), idx)
+
+    def place(k):  # each piece into its slice of data and indices (the pool copies)
+        rows, cnt, dat, col = pieces[k]
+        counts[rows] = cnt
+        data[offsets[k]:offsets[k + 1]] = dat
+        ind[offsets[k]:offsets[k + 1]] = col
+        pieces[k] = None
+    parallel_map(place, range(len(pieces)))
+    indptr = np.zeros(layout.n_rows + 1, idx)
+    np.cumsum(counts, out=indptr[1:], dtype=idx)
+    Wm = sp.csr_matrix((data, ind, indptr), shape=(layout.n_rows, columns.size))
     return Wm, columns
 
 
