@@ -13,7 +13,7 @@ from geofit.datasets import tutorial_views
 from geofit.fit import ViewsFitOptions, fit_mesh_to_views
 from geofit.fit._views_init import remesh_to_length
 from geofit.fit.init import visual_hull_mesh
-from geofit.structures.visual_hull import hull_field, pixel_footprint
+from geofit.structures.visual_hull import carve_hull, hull_field, pixel_footprint
 from geofit.fit.views import RECIPES, ViewsEvaluator
 from geofit.shapes import two_spheres
 from geofit.structures import Mesh, TexturesVertex
@@ -188,8 +188,6 @@ def test_band_refinement_matches_the_fine_grid(spheres):
     """carve_hull(refine=3) on a 1.5 px grid reads the field where the 0.5 px grid does in the
     band around the surface, and has the same inside/outside everywhere on the common nodes
     (nothing inside is missed outside the band)."""
-    from geofit.structures.visual_hull import carve_hull
-
     fine = carve_hull(spheres.silhouettes, spheres.cameras, voxel_px=0.5)
     band = carve_hull(spheres.silhouettes, spheres.cameras, voxel_px=1.5, refine=3)
     np.testing.assert_allclose(band.voxel_size, fine.voxel_size, rtol=1e-12)
@@ -237,17 +235,21 @@ def test_close_px_fills_pinholes_but_keeps_holes():
     assert closed[28, 24] < -3.0 and plain[28, 24] == closed[28, 24]
 
 
-def test_hull_close_px_ignores_a_pinhole(spheres):
-    """A 2 x 2 pinhole deep inside one view's silhouette carves a tunnel through the hull;
-    with ``close_px=1`` the hull is node for node the one of the silhouettes without it."""
+def _pinholed(spheres):
+    """The spheres' silhouettes with a 2 x 2 pinhole deep inside the first view's, the cameras
+    and the pinhole's pixel (y, x)."""
     from scipy.ndimage import distance_transform_edt
-
-    from geofit.structures.visual_hull import carve_hull
 
     sil = spheres.silhouettes.copy()
     y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
     sil[0, y:y + 2, x:x + 2] = 0.0
-    cams = spheres.cameras
+    return sil, spheres.cameras, (y, x)
+
+
+def test_hull_close_px_ignores_a_pinhole(spheres):
+    """A 2 x 2 pinhole deep inside one view's silhouette carves a tunnel through the hull;
+    with ``close_px=1`` the hull is node for node the one of the silhouettes without it."""
+    sil, cams, (y, x) = _pinholed(spheres)
     ref = carve_hull(spheres.silhouettes, cams, voxel_px=0.75).field > 0
     holed = carve_hull(sil, cams, voxel_px=0.75).field > 0
     assert holed.sum() < ref.sum()
@@ -278,14 +280,7 @@ def test_hull_margins_keep_a_pinhole_and_carve_a_hole(spheres):
     hull; with margins (1, 0) (one view must say more than a pixel outside, or two views
     outside) the hull is node for node the one without the pinhole, and the vote reports the
     nodes it kept. A hole of radius 4 px in the same view still carves."""
-    from scipy.ndimage import distance_transform_edt
-
-    from geofit.structures.visual_hull import carve_hull
-
-    sil = spheres.silhouettes.copy()
-    y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
-    sil[0, y:y + 2, x:x + 2] = 0.0
-    cams = spheres.cameras
+    sil, cams, (y, x) = _pinholed(spheres)
     plain = carve_hull(spheres.silhouettes, cams, voxel_px=0.75).field > 0
     holed = carve_hull(sil, cams, voxel_px=0.75).field > 0
     ref = carve_hull(spheres.silhouettes, cams, voxel_px=0.75, margins=(1.0, 0.0))
