@@ -84,3 +84,14 @@ def test_test_shapes_deterministic_and_outward():
 def test_shape_validation(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_face_components_connects_faces_through_shared_ids():
+    """Faces sharing an id are one component, labels 0..k-1; masked-out faces are -1 and
+    do not connect the others."""
+    from geofit.ops.topology import face_components
+
+    ids = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6], [7, 8, 9]])
+    np.testing.assert_array_equal(face_components(ids), [0, 0, 0, 1])
+    np.testing.assert_array_equal(face_components(ids, np.array([1, 0, 1, 1], bool)),
+                                  [0, -1, 1, 2])

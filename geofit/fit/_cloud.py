@@ -31,6 +31,7 @@ from .._foreign import foreign_kind
 from .._threads import get_num_threads
 from .._validate import as_points, as_rng
 from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
+from ..ops.topology import face_components
 from .init import decimate
 
 __all__ = ["CloudTarget", "EvidenceTrim", "as_cloud_points", "is_cloud", "mesh_from_points",
@@ -368,23 +369,6 @@ class EvidenceTrim:
                 f"at their centroid), {self.n_islands} island(s) they cut off")
 
 
-def _face_components(ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(F,) component label of each face of ``mask`` (-1 elsewhere); faces are connected
-    when they share an entry of ``ids (F, 3)`` (vertex or edge ids)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    f = np.flatnonzero(mask)
-    nf, ni = len(f), int(ids.max()) + 1 if ids.size else 0
-    rows = np.repeat(np.arange(nf), 3)
-    cols = nf + ids[f].ravel()
-    G = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nf + ni, nf + ni))
-    _, lab = connected_components(G, directed=False)
-    out = np.full(len(ids), -1, dtype=np.int64)
-    out[f] = lab[:nf]
-    return out
-
-
 def trim_to_evidence(mesh: Mesh, cloud: CloudTarget, noise: float, *,
                      min_island: float = 0.01) -> EvidenceTrim:
     """The mesh without the surface it has where the scan has a hole.
@@ -437,13 +421,13 @@ def trim_to_evidence(mesh: Mesh, cloud: CloudTarget, noise: float, *,
     if seed.any():
         cand = dist[:, -1] > 3.0 * (s_f + noise)
         cand |= seed
-        lab = _face_components(mesh.topology.faces_to_edges, cand)
+        lab = face_components(mesh.topology.faces_to_edges, cand)
         holes = np.unique(lab[seed])
         keep = ~np.isin(lab, holes)
         n_holes = len(holes)
         # the parts the holes cut off
-        before = _face_components(mesh.faces, np.ones(mesh.n_faces, dtype=bool))
-        after = _face_components(mesh.faces, keep)
+        before = face_components(mesh.faces)
+        after = face_components(mesh.faces, keep)
         size_before = np.bincount(before)
         lab_k, size_k = np.unique(after[keep], return_counts=True)
         src = np.zeros(len(lab_k), dtype=np.int64)

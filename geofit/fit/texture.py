@@ -27,6 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .._validate import as_array, check_positive
+from ..ops.topology import face_components
 from ..render.mesh.image_term import HardImageLoss, affine_color_operator
 from ..structures import Mesh, TexturesUV, as_mesh
 from ..structures.visual_hull import pixel_footprint
@@ -138,14 +139,7 @@ def _uv_pixels(faces_uvs, verts_uvs, size) -> np.ndarray:
 
 def uv_charts(faces_uvs: np.ndarray) -> np.ndarray:
     """(F,) int64 chart of every face: faces that share a UV vertex are in one chart."""
-    from scipy.sparse.csgraph import connected_components
-
-    f = np.asarray(faces_uvs, np.int64)
-    n = int(f.max()) + 1 if f.size else 0
-    rows = np.concatenate([f[:, 0], f[:, 1]])
-    cols = np.concatenate([f[:, 1], f[:, 2]])
-    g = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    return connected_components(g, directed=False)[1][f[:, 0]].astype(np.int64)
+    return face_components(faces_uvs)
 
 
 @dataclass(frozen=True)

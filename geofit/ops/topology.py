@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..structures import Mesh
 
-__all__ = ["TopologyReport", "topology"]
+__all__ = ["TopologyReport", "face_components", "topology"]
 
 
 @dataclass(frozen=True)
@@ -162,3 +162,31 @@ def topology(mesh: Mesh, *, self_intersections: bool = True) -> TopologyReport:
                                    if self_intersections else -1),
         winding_consistent=winding, n_degenerate_faces=degenerate,
     )
+
+
+def face_components(ids: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(F,) int64 component label of each face: faces are connected when they share an entry
+    of ``ids`` (the faces' vertex, UV-vertex or edge ids).
+
+    Parameters
+    ----------
+    ids : (F, 3) int64
+        What each face is made of; two faces with a common entry are in one component.
+    mask : (F,) bool, optional
+        Only these faces (connected through each other); the others get -1.
+
+    Returns
+    -------
+    (F,) int64
+        Labels ``0 .. k-1`` of the ``k`` components (-1 outside ``mask``).
+    """
+    ids = np.asarray(ids, np.int64)
+    f = np.arange(len(ids)) if mask is None else np.flatnonzero(mask)
+    nf, ni = len(f), int(ids.max()) + 1 if ids.size else 0
+    rows = np.repeat(np.arange(nf), ids.shape[1] if ids.ndim == 2 else 3)
+    cols = nf + ids[f].ravel()
+    G = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nf + ni, nf + ni))
+    lab = connected_components(G, directed=False)[1][:nf]
+    out = np.full(len(ids), -1, dtype=np.int64)
+    out[f] = np.unique(lab, return_inverse=True)[1].astype(np.int64)
+    return out
