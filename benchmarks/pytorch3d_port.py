@@ -58,7 +58,7 @@ def _obj(kind: str, tmp: Path) -> tuple[str, str]:
 
 # ------------------------------------------------------------------------------ tutorial 1
 def run_t1(n_iter: int, every: int, n_metric: int, tmp: Path) -> MethodRun:
-    from _p3d_tutorials import tutorial1
+    from third_party.p3d_tutorials import tutorial1
 
     from geofit import Mesh, load_mesh
     from geofit.metrics import MeshEvaluator
@@ -118,7 +118,7 @@ def _heldout(image_size: int):
 
 
 def run_t4(n_iter: int, image_size: int, tmp: Path) -> MethodRun:
-    from _p3d_tutorials import tutorial4
+    from third_party.p3d_tutorials import tutorial4
 
     from geofit import Mesh
 

@@ -27,8 +27,10 @@ def peak_bytes(fn, *args, **kwargs):
 
 @functools.cache
 def benchmark_module(name: str):
-    """The module ``benchmarks/<name>.py``, loaded from its file (benchmarks/ is no package)."""
-    spec = importlib.util.spec_from_file_location(f"_bench_{name}", ROOT / "benchmarks" / f"{name}.py")
+    """The module ``benchmarks/<name>.py`` (``name`` may hold a folder:
+    ``"third_party/p3d_tutorials"``), loaded from its file (benchmarks/ is no package)."""
+    spec = importlib.util.spec_from_file_location(f"_bench_{name.replace('/', '_')}",
+                                                  ROOT / "benchmarks" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -3,9 +3,10 @@
 Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``, ``import torch``
 -> ``import geofit.pytorch3d.torch as torch``, the tutorials' helper files ->
 :mod:`geofit.pytorch3d.tutorial_utils`; the six notebooks' imports gathered once at the top of
-this file; tutorials 1 and 4's cells and tutorial 6's model live in benchmarks/_p3d_tutorials.py
-(one copy, which the benchmarks also run); sizes reduced (steps, images, samples); data:
-geofit's procedural stand-ins written as OBJ files into ``tmp_path`` (the tests run offline).
+this file; tutorials 1 and 4's cells and tutorial 6's model live in
+benchmarks/third_party/p3d_tutorials.py (one copy, which the benchmarks also run); sizes reduced
+(steps, images, samples); data: geofit's procedural stand-ins written as OBJ files into
+``tmp_path`` (the tests run offline).
 Each test then checks something the tutorial relies on. ``tests/test_pytorch3d_notebooks.py``
 runs PyTorch3D's own notebooks the same way when they are given.
 """
@@ -62,7 +63,7 @@ from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
 from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib  # noqa: E402
 
 #: Tutorials 1 and 4's cells and tutorial 6's model: one copy, which the benchmarks also run.
-P3D = benchmark_module("_p3d_tutorials")
+P3D = benchmark_module("third_party/p3d_tutorials")
 
 
 @pytest.fixture
@@ -99,8 +100,8 @@ def _ball_renders(renderer, n_views: int, azim_span: float, grid: int, density: 
 
 
 def test_tutorial1_deform_source_mesh_to_target_mesh(dolphin_obj, tmp_path):
-    """The deform tutorial's cells (benchmarks/_p3d_tutorials.py); 20 steps lower the chamfer
-    loss and the mesh is saved."""
+    """The deform tutorial's cells (benchmarks/third_party/p3d_tutorials.py); 20 steps lower
+    the chamfer loss and the mesh is saved."""
     *steps, final = P3D.tutorial1(os.path.join(dolphin_obj), 20, plot_period=10,
                                   out_dir=str(tmp_path))
     chamfer_losses = final["chamfer_losses"]
@@ -249,8 +250,8 @@ def test_tutorial3_render_colored_points(tmp_path):
 
 
 def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
-    """fit_textured_mesh's cells (benchmarks/_p3d_tutorials.py) at 32 px and 6 steps per loop:
-    both losses go down, the colours get a gradient, the prediction is saved."""
+    """fit_textured_mesh's cells (benchmarks/third_party/p3d_tutorials.py) at 32 px and 6
+    steps per loop: both losses go down, the colours get a gradient, the prediction is saved."""
     np.random.seed(0)
     *steps, final = P3D.tutorial4(cow_obj, 32, 6, plot_period=5, out_dir=str(tmp_path))
     sil_values, losses = final["sil_values"], final["losses"]

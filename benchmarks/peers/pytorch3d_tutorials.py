@@ -226,7 +226,7 @@ def peer_fit_volume(steps: int | None, quick: bool) -> list[MethodRun]:
 def peer_nerf(steps: int | None, quick: bool) -> list[MethodRun]:
     import pytorch3d.renderer as p3d_renderer
     import torch
-    from _p3d_tutorials import tutorial6_cells
+    from third_party.p3d_tutorials import tutorial6_cells
     from pytorch3d.renderer import (EmissionAbsorptionRaymarcher, ImplicitRenderer,
                                     MonteCarloRaysampler)
 

@@ -1,3 +1,5 @@
+# Copyright (c) Meta Platforms, Inc. and affiliates. All rights reserved.
+# PyTorch3D's tutorial code (BSD licence: LICENSE-pytorch3d beside this file); see README.md.
 """PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh), and
 the model cells of tutorial 6 (fit_simple_neural_radiance_field), as written, imports changed
 to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
