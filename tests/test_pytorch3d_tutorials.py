@@ -3,11 +3,10 @@
 Changes from the notebooks: ``pytorch3d.*`` imports -> ``geofit.pytorch3d.*``, ``import torch``
 -> ``import geofit.pytorch3d.torch as torch``, the tutorials' helper files ->
 :mod:`geofit.pytorch3d.tutorial_utils`; the six notebooks' imports gathered once at the top of
-this file; tutorials 1 and 4's cells and tutorial 6's model live in
-benchmarks/third_party/p3d_tutorials.py (one copy, which the benchmarks also run); sizes reduced
-(steps, images, samples); data: geofit's procedural stand-ins written as OBJ files into
-``tmp_path`` (the tests run offline).
-Each test then checks something the tutorial relies on. ``tests/test_pytorch3d_notebooks.py``
+this file; tutorials 1 and 4's cells, tutorial 5's model and loop and tutorial 6's model and
+loop live in benchmarks/third_party/p3d_tutorials.py (one copy of PyTorch3D's code, which the
+benchmarks also run); sizes reduced (steps, images, samples); data: geofit's procedural
+stand-ins written as OBJ files into ``tmp_path`` (the tests run offline). Each test then checks something the tutorial relies on. ``tests/test_pytorch3d_notebooks.py``
 runs PyTorch3D's own notebooks the same way when they are given.
 """
 from __future__ import annotations
@@ -53,7 +52,7 @@ from geofit.pytorch3d.renderer import (  # noqa: E402
     look_at_view_transform,
 )
 from geofit.pytorch3d.structures import Meshes, Pointclouds, Volumes  # noqa: E402
-from geofit.pytorch3d.transforms import so3_exp_map, so3_exponential_map  # noqa: E402
+from geofit.pytorch3d.transforms import so3_exp_map  # noqa: E402
 from geofit.pytorch3d.tutorial_utils import generate_cow_renders, image_grid  # noqa: E402
 from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
     AxisArgs,
@@ -62,7 +61,7 @@ from geofit.pytorch3d.vis.plotly_vis import (  # noqa: E402
 )
 from geofit.pytorch3d.vis.texture_vis import texturesuv_image_matplotlib  # noqa: E402
 
-#: Tutorials 1 and 4's cells and tutorial 6's model: one copy, which the benchmarks also run.
+#: Tutorials 1 and 4's cells, 5's and 6's models and loops: one copy (the benchmarks run it).
 P3D = benchmark_module("third_party/p3d_tutorials")
 
 
@@ -265,11 +264,11 @@ def test_tutorial4_fit_textured_mesh(cow_obj, tmp_path):
 
 
 def test_tutorial5_fit_textured_volume():
-    """fit_textured_volume's model, huber and Adam loop (with its 10x learning-rate drop) on a
-    16^3 volume and 8 views of 16 px rendered from a known volume: the loss goes down."""
+    """fit_textured_volume's model, huber and Adam loop (with its 10x learning-rate drop;
+    benchmarks/third_party/p3d_tutorials.py) on a 16^3 volume and 8 views of 16 px rendered from
+    a known volume: the loss goes down."""
 
     torch.manual_seed(0)
-    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
     render_size = 16
     volume_extent_world = 3.0
     raysampler = NDCMultinomialRaysampler(image_width=render_size, image_height=render_size,
@@ -281,102 +280,16 @@ def test_tutorial5_fit_textured_volume():
     target_cameras, rendered = _ball_renders(renderer, 8, 360.0, 16, 0.9, (0.9, 0.2, 0.5))
     target_images, target_silhouettes = rendered[..., :3], rendered[..., 3]
 
-    class VolumeModel(torch.nn.Module):
-        def __init__(self, renderer, volume_size=[64] * 3, voxel_size=0.1):
-            super().__init__()
-            self.log_densities = torch.nn.Parameter(-4.0 * torch.ones(1, *volume_size))
-            self.log_colors = torch.nn.Parameter(torch.zeros(3, *volume_size))
-            self._voxel_size = voxel_size
-            self._renderer = renderer
+    *steps, final = P3D.tutorial5(renderer, target_cameras, target_images, target_silhouettes,
+                                  volume_extent_world=volume_extent_world, volume_size=16,
+                                  batch_size=4, n_iter=20, n_shown=4, n_frames=3)
+    volume_model, losses = final["volume_model"], final["losses"]
+    frames, rotating_volume_frames = final["frames"], final["rotating_volume_frames"]
 
-        def forward(self, cameras):
-            batch_size = cameras.R.shape[0]
-            densities = torch.sigmoid(self.log_densities)
-            colors = torch.sigmoid(self.log_colors)
-            volumes = Volumes(
-                densities=densities[None].expand(batch_size, *self.log_densities.shape),
-                features=colors[None].expand(batch_size, *self.log_colors.shape),
-                voxel_size=self._voxel_size,
-            )
-            return self._renderer(cameras=cameras, volumes=volumes)[0]
-
-    def huber(x, y, scaling=0.1):
-        diff_sq = (x - y) ** 2
-        loss = ((1 + diff_sq / (scaling**2)).clamp(1e-4).sqrt() - 1) * float(scaling)
-        return loss
-
-    volume_size = 16
-    volume_model = VolumeModel(renderer, volume_size=[volume_size] * 3,
-                               voxel_size=volume_extent_world / volume_size).to(device)
-    lr = 0.1
-    optimizer = torch.optim.Adam(volume_model.parameters(), lr=lr)
-    batch_size = 4
-    n_iter = 20
-    losses = []
-    for iteration in range(n_iter):
-        if iteration == round(n_iter * 0.75):
-            optimizer = torch.optim.Adam(volume_model.parameters(), lr=lr * 0.1)
-        optimizer.zero_grad()
-        batch_idx = torch.randperm(len(target_cameras))[:batch_size]
-        batch_cameras = FoVPerspectiveCameras(
-            R=target_cameras.R[batch_idx],
-            T=target_cameras.T[batch_idx],
-            znear=target_cameras.znear[batch_idx],
-            zfar=target_cameras.zfar[batch_idx],
-            aspect_ratio=target_cameras.aspect_ratio[batch_idx],
-            fov=target_cameras.fov[batch_idx],
-            device=device,
-        )
-        rendered_images, rendered_silhouettes = volume_model(batch_cameras).split([3, 1], dim=-1)
-        sil_err = huber(rendered_silhouettes[..., 0], target_silhouettes[batch_idx]).abs().mean()
-        color_err = huber(rendered_images, target_images[batch_idx]).abs().mean()
-        loss = color_err + sil_err
-        if iteration % 10 == 0:
-            print(f"Iteration {iteration:05d}: color_err = {float(color_err):1.2e}"
-                  f" mask_err = {float(sil_err):1.2e}")
-        loss.backward()
-        optimizer.step()
-        losses.append(float(loss))
-        if iteration % 10 == 0:
-            im_show_idx = int(torch.randint(low=0, high=batch_size, size=(1,)))
-
-            def clamp_and_detach(x):
-                return x.clamp(0.0, 1.0).cpu().detach().numpy()
-
-            fig, ax = plt.subplots(1, 2)
-            ax[0].imshow(clamp_and_detach(rendered_images[im_show_idx]))
-            ax[1].imshow(clamp_and_detach(rendered_silhouettes[im_show_idx, ..., 0]))
-            plt.close(fig)
-    with torch.no_grad():
-        frames = torch.cat([volume_model(target_cameras[i])[..., :3].clamp(0.0, 1.0)
-                            for i in range(4)])
-    image_grid(frames.clamp(0., 1.).cpu().numpy(), rows=1, cols=4, rgb=True, fill=True)
-    plt.close("all")
-
+    assert len(steps) == 21
     assert len(volume_model.parameters()) == 2
     assert np.mean(losses[-3:]) < 0.8 * losses[0]
     assert frames.shape == (4, 16, 16, 3)
-
-    def generate_rotating_volume(volume_model, n_frames=50):
-        logRs = torch.zeros(n_frames, 3, device=device)
-        logRs[:, 1] = torch.linspace(0.0, 2.0 * 3.14, n_frames, device=device)
-        Rs = so3_exponential_map(logRs)
-        Ts = torch.zeros(n_frames, 3, device=device)
-        Ts[:, 2] = 2.7
-        frames = []
-        for R, T in zip(Rs, Ts):
-            camera = FoVPerspectiveCameras(
-                R=R[None], T=T[None], znear=target_cameras.znear[0],
-                zfar=target_cameras.zfar[0], aspect_ratio=target_cameras.aspect_ratio[0],
-                fov=target_cameras.fov[0], device=device)
-            frames.append(volume_model(camera)[..., :3].clamp(0.0, 1.0))
-        return torch.cat(frames)
-
-    with torch.no_grad():
-        rotating_volume_frames = generate_rotating_volume(volume_model, n_frames=3)
-    image_grid(rotating_volume_frames.clamp(0., 1.).cpu().numpy(), rows=1, cols=3, rgb=True,
-               fill=True)
-    plt.close("all")
     assert rotating_volume_frames.shape == (3, 16, 16, 3)
     # the fitted ball is in view of the turning camera (it looks at the origin from 2.7)
     assert float(rotating_volume_frames.max()) > 0.3
@@ -407,7 +320,7 @@ def test_tutorial5_and_6_data_generate_cow_renders():
 
 def test_tutorial6_fit_simple_neural_radiance_field():
     """The NeRF tutorial's HarmonicEmbedding, NeuralRadianceField, huber and Adam loop as
-    written, at a tiny size (8 frequencies, 16 hidden units, 4 views of 16 px, 64 rays of 16
+    written (benchmarks/third_party/p3d_tutorials.py), at a tiny size (8 frequencies, 16 hidden units, 4 views of 16 px, 64 rays of 16
     samples, 40 steps) on renders of a known volume; ``sample_images_at_mc_locs`` (grid_sample)
     is geofit's ``sample_images_at_xys``. The loop runs; the gradient it follows equals
     central differences of the loss on fixed rays."""
@@ -437,34 +350,10 @@ def test_tutorial6_fit_simple_neural_radiance_field():
         return float(huber(out, ref).abs().mean())
 
     before = held_out_loss()
-    lr = 1e-3
-    optimizer = torch.optim.Adam(neural_radiance_field.parameters(), lr=lr)
-    batch_size = 2
-    n_iter = 40
-    losses = []
-    for iteration in range(n_iter):
-        if iteration == round(n_iter * 0.75):
-            optimizer = torch.optim.Adam(neural_radiance_field.parameters(), lr=lr * 0.1)
-        optimizer.zero_grad()
-        batch_idx = torch.randperm(len(target_cameras))[:batch_size]
-        batch_cameras = FoVPerspectiveCameras(
-            R=target_cameras.R[batch_idx], T=target_cameras.T[batch_idx],
-            znear=target_cameras.znear[batch_idx], zfar=target_cameras.zfar[batch_idx],
-            aspect_ratio=target_cameras.aspect_ratio[batch_idx],
-            fov=target_cameras.fov[batch_idx], device=device)
-        rendered_images_silhouettes, sampled_rays = renderer_mc(
-            cameras=batch_cameras, volumetric_function=neural_radiance_field)
-        rendered_images, rendered_silhouettes = rendered_images_silhouettes.split([3, 1],
-                                                                                  dim=-1)
-        silhouettes_at_rays = sample_images_at_mc_locs(target_silhouettes[batch_idx, ..., None],
-                                                       sampled_rays.xys)
-        sil_err = huber(rendered_silhouettes, silhouettes_at_rays).abs().mean()
-        colors_at_rays = sample_images_at_mc_locs(target_images[batch_idx], sampled_rays.xys)
-        color_err = huber(rendered_images, colors_at_rays).abs().mean()
-        loss = color_err + sil_err
-        loss.backward()
-        optimizer.step()
-        losses.append(float(loss))
+    *_, last = P3D.tutorial6(renderer_mc, neural_radiance_field, target_cameras, target_images,
+                             target_silhouettes, huber, sample_images_at_mc_locs, lr=1e-3,
+                             batch_size=2, n_iter=40)
+    losses, batch_idx, sampled_rays = last["losses"], last["batch_idx"], last["sampled_rays"]
 
     assert len(neural_radiance_field.parameters()) == 10
     # grid_sample (the tutorial's helper) samples as geofit's sample_images_at_xys

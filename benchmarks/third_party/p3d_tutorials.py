@@ -1,8 +1,9 @@
 # Copyright (c) Meta Platforms, Inc. and affiliates. All rights reserved.
 # PyTorch3D's tutorial code (BSD licence: LICENSE-pytorch3d beside this file); see README.md.
-"""PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh), and
-the model cells of tutorial 6 (fit_simple_neural_radiance_field), as written, imports changed
-to ``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
+"""PyTorch3D's tutorials 1 (deform_source_mesh_to_target_mesh) and 4 (fit_textured_mesh), the
+model, loop and renders of tutorial 5 (fit_textured_volume) and the model cells and loop of
+tutorial 6 (fit_simple_neural_radiance_field), as written, imports changed to
+``geofit.pytorch3d`` and ``geofit.pytorch3d.torch``: the one copy that
 benchmarks/pytorch3d_port.py runs at full size (benchmarks/peers/pytorch3d_tutorials.py runs
 tutorial 6's model on PyTorch itself) and tests/test_pytorch3d_tutorials.py at reduced size.
 
@@ -29,6 +30,7 @@ from geofit.pytorch3d.loss import (
 )
 from geofit.pytorch3d.ops import sample_points_from_meshes
 from geofit.pytorch3d.renderer import (
+    FoVPerspectiveCameras,
     MeshRasterizer,
     MeshRenderer,
     OpenGLPerspectiveCameras,
@@ -39,11 +41,12 @@ from geofit.pytorch3d.renderer import (
     TexturesVertex,
     look_at_view_transform,
 )
-from geofit.pytorch3d.structures import Meshes
+from geofit.pytorch3d.structures import Meshes, Volumes
+from geofit.pytorch3d.transforms import so3_exponential_map
 from geofit.pytorch3d.tutorial_utils import image_grid
 from geofit.pytorch3d.utils import ico_sphere
 
-__all__ = ["tutorial1", "tutorial4", "tutorial6_cells"]
+__all__ = ["tutorial1", "tutorial4", "tutorial5", "tutorial6", "tutorial6_cells"]
 
 
 def tutorial1(trg_obj: str, Niter: int, *, plot_period: int | None = None,
@@ -264,6 +267,113 @@ def tutorial4(obj_filename: str, image_size: int, Niter: int, *,
     yield state
 
 
+def tutorial5(renderer, target_cameras, target_images, target_silhouettes, *,
+              volume_extent_world: float, volume_size: int, batch_size: int, n_iter: int,
+              n_shown: int, n_frames: int):
+    """Tutorial 5's (fit_textured_volume) model, Huber loss, Adam loop (lr x 0.1 at 75 %),
+    renders and rotating views on ``renderer``'s target views (the notebook renders the cow
+    with its helper ``generate_cow_renders``): a ``volume_size``^3 grid over
+    ``volume_extent_world``, ``n_iter`` steps of ``batch_size`` views, then ``n_shown`` target
+    views and ``n_frames`` rotating ones rendered. Yields as :func:`tutorial1` does; the last
+    dict adds ``frames`` and ``rotating_volume_frames``."""
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
+
+    class VolumeModel(torch.nn.Module):
+        def __init__(self, renderer, volume_size=[64] * 3, voxel_size=0.1):
+            super().__init__()
+            self.log_densities = torch.nn.Parameter(-4.0 * torch.ones(1, *volume_size))
+            self.log_colors = torch.nn.Parameter(torch.zeros(3, *volume_size))
+            self._voxel_size = voxel_size
+            self._renderer = renderer
+
+        def forward(self, cameras):
+            batch_size = cameras.R.shape[0]
+            densities = torch.sigmoid(self.log_densities)
+            colors = torch.sigmoid(self.log_colors)
+            volumes = Volumes(
+                densities=densities[None].expand(batch_size, *self.log_densities.shape),
+                features=colors[None].expand(batch_size, *self.log_colors.shape),
+                voxel_size=self._voxel_size,
+            )
+            return self._renderer(cameras=cameras, volumes=volumes)[0]
+
+    def huber(x, y, scaling=0.1):
+        diff_sq = (x - y) ** 2
+        loss = ((1 + diff_sq / (scaling**2)).clamp(1e-4).sqrt() - 1) * float(scaling)
+        return loss
+
+    volume_model = VolumeModel(renderer, volume_size=[volume_size] * 3,
+                               voxel_size=volume_extent_world / volume_size).to(device)
+    lr = 0.1
+    optimizer = torch.optim.Adam(volume_model.parameters(), lr=lr)
+    losses = []
+    state = {"volume_model": volume_model, "losses": losses}
+    yield state
+    for iteration in range(n_iter):
+        if iteration == round(n_iter * 0.75):
+            optimizer = torch.optim.Adam(volume_model.parameters(), lr=lr * 0.1)
+        optimizer.zero_grad()
+        batch_idx = torch.randperm(len(target_cameras))[:batch_size]
+        batch_cameras = FoVPerspectiveCameras(
+            R=target_cameras.R[batch_idx],
+            T=target_cameras.T[batch_idx],
+            znear=target_cameras.znear[batch_idx],
+            zfar=target_cameras.zfar[batch_idx],
+            aspect_ratio=target_cameras.aspect_ratio[batch_idx],
+            fov=target_cameras.fov[batch_idx],
+            device=device,
+        )
+        rendered_images, rendered_silhouettes = volume_model(batch_cameras).split([3, 1], dim=-1)
+        sil_err = huber(rendered_silhouettes[..., 0], target_silhouettes[batch_idx]).abs().mean()
+        color_err = huber(rendered_images, target_images[batch_idx]).abs().mean()
+        loss = color_err + sil_err
+        if iteration % 10 == 0:
+            print(f"Iteration {iteration:05d}: color_err = {float(color_err):1.2e}"
+                  f" mask_err = {float(sil_err):1.2e}")
+        loss.backward()
+        optimizer.step()
+        losses.append(float(loss))
+        if iteration % 10 == 0:
+            im_show_idx = int(torch.randint(low=0, high=batch_size, size=(1,)))
+
+            def clamp_and_detach(x):
+                return x.clamp(0.0, 1.0).cpu().detach().numpy()
+
+            fig, ax = plt.subplots(1, 2)
+            ax[0].imshow(clamp_and_detach(rendered_images[im_show_idx]))
+            ax[1].imshow(clamp_and_detach(rendered_silhouettes[im_show_idx, ..., 0]))
+            plt.close(fig)
+        yield dict(state, iteration=iteration)
+    with torch.no_grad():
+        frames = torch.cat([volume_model(target_cameras[i])[..., :3].clamp(0.0, 1.0)
+                            for i in range(n_shown)])
+    image_grid(frames.clamp(0., 1.).cpu().numpy(), rows=1, cols=n_shown, rgb=True, fill=True)
+    plt.close("all")
+
+    def generate_rotating_volume(volume_model, n_frames=50):
+        logRs = torch.zeros(n_frames, 3, device=device)
+        logRs[:, 1] = torch.linspace(0.0, 2.0 * 3.14, n_frames, device=device)
+        Rs = so3_exponential_map(logRs)
+        Ts = torch.zeros(n_frames, 3, device=device)
+        Ts[:, 2] = 2.7
+        frames = []
+        for R, T in zip(Rs, Ts):
+            camera = FoVPerspectiveCameras(
+                R=R[None], T=T[None], znear=target_cameras.znear[0],
+                zfar=target_cameras.zfar[0], aspect_ratio=target_cameras.aspect_ratio[0],
+                fov=target_cameras.fov[0], device=device)
+            frames.append(volume_model(camera)[..., :3].clamp(0.0, 1.0))
+        return torch.cat(frames)
+
+    with torch.no_grad():
+        rotating_volume_frames = generate_rotating_volume(volume_model, n_frames=n_frames)
+    image_grid(rotating_volume_frames.clamp(0., 1.).cpu().numpy(), rows=1, cols=n_frames,
+               rgb=True, fill=True)
+    plt.close("all")
+    state.update(frames=frames, rotating_volume_frames=rotating_volume_frames)
+    yield state
+
+
 def tutorial6_cells(torch, renderer):
     """Tutorial 6's cells that define its model and loss: ``(HarmonicEmbedding,
     NeuralRadianceField, huber, sample_images_at_mc_locs)`` over ``torch`` (``geofit.pytorch3d.
@@ -358,3 +468,42 @@ def tutorial6_cells(torch, renderer):
         return images_sampled.permute(0, 2, 3, 1).view(ba, *spatial_size, dim)
 
     return HarmonicEmbedding, NeuralRadianceField, huber, sample_images_at_mc_locs
+
+
+def tutorial6(renderer_mc, neural_radiance_field, target_cameras, target_images,
+              target_silhouettes, huber, sample_images_at_mc_locs, *, lr: float,
+              batch_size: int, n_iter: int):
+    """Tutorial 6's training loop: Adam on ``neural_radiance_field`` (lr x 0.1 at 75 %),
+    ``batch_size`` random views a step, the Monte Carlo rays of ``renderer_mc``, Huber losses
+    on the colours and silhouettes sampled at the rays (``huber`` and
+    ``sample_images_at_mc_locs`` of :func:`tutorial6_cells`). Yields after the set-up and
+    after each step (with that step's ``batch_idx`` and ``sampled_rays``)."""
+    device = torch.device("cuda:0") if torch.cuda.is_available() else torch.device("cpu")
+    optimizer = torch.optim.Adam(neural_radiance_field.parameters(), lr=lr)
+    losses = []
+    state = {"losses": losses}
+    yield state
+    for iteration in range(n_iter):
+        if iteration == round(n_iter * 0.75):
+            optimizer = torch.optim.Adam(neural_radiance_field.parameters(), lr=lr * 0.1)
+        optimizer.zero_grad()
+        batch_idx = torch.randperm(len(target_cameras))[:batch_size]
+        batch_cameras = FoVPerspectiveCameras(
+            R=target_cameras.R[batch_idx], T=target_cameras.T[batch_idx],
+            znear=target_cameras.znear[batch_idx], zfar=target_cameras.zfar[batch_idx],
+            aspect_ratio=target_cameras.aspect_ratio[batch_idx],
+            fov=target_cameras.fov[batch_idx], device=device)
+        rendered_images_silhouettes, sampled_rays = renderer_mc(
+            cameras=batch_cameras, volumetric_function=neural_radiance_field)
+        rendered_images, rendered_silhouettes = rendered_images_silhouettes.split([3, 1],
+                                                                                  dim=-1)
+        silhouettes_at_rays = sample_images_at_mc_locs(target_silhouettes[batch_idx, ..., None],
+                                                       sampled_rays.xys)
+        sil_err = huber(rendered_silhouettes, silhouettes_at_rays).abs().mean()
+        colors_at_rays = sample_images_at_mc_locs(target_images[batch_idx], sampled_rays.xys)
+        color_err = huber(rendered_images, colors_at_rays).abs().mean()
+        loss = color_err + sil_err
+        loss.backward()
+        optimizer.step()
+        losses.append(float(loss))
+        yield dict(state, iteration=iteration, batch_idx=batch_idx, sampled_rays=sampled_rays)
