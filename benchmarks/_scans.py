@@ -55,17 +55,19 @@ SHAPES = ["torus", "fandisk", "suzanne", "teapot", "ogre", "open_cylinder"]
 
 def true_mesh(name: str):
     """The normalised true surface of a shape (procedural :data:`geofit.shapes.TEST_SHAPES`
-    with a finer torus, or a file of ``$GEOFIT_DATA/shapes``)."""
+    with a finer torus, tutorial 1's dolphin, or a file of ``$GEOFIT_DATA/shapes``)."""
     from geofit import load_mesh
     from geofit.shapes import TEST_SHAPES, torus
 
+    data = Path(os.environ.get("GEOFIT_DATA", "/work/shared/data"))
     if name == "torus":
         m = torus(1.0, 0.35, 96, 48)
     elif name in TEST_SHAPES:
         m = TEST_SHAPES[name]()
+    elif name == "dolphin":
+        m = load_mesh(data / "dolphin" / "dolphin.obj")
     else:
-        m = load_mesh(Path(os.environ.get("GEOFIT_DATA", "/work/shared/data")) / "shapes"
-                      / f"{name}.obj")
+        m = load_mesh(data / "shapes" / f"{name}.obj")
     return m.normalize().mesh
 
 
