@@ -270,14 +270,16 @@ def _past_the_points(V: np.ndarray, F: np.ndarray, cloud: CloudTarget,
     return far & (2 * n_past[lab] > n_far[lab])
 
 
-#: Neighbours of the normals of the Poisson start's points (in the subsample of at most
-#: ``n_max`` points, so their neighbourhood has the same size whatever the scan's density).
-#: Measured as the share of normals oriented against the true surface's (5 subsamples each):
-#: the fit's 12-neighbour normals of the full cloud gave 343-2,735 of 20,000 on Suzanne
-#: (50,000 points, noise 0.002), 355-5,393 on the fandisk (100,000, noise 0.005), 998-2,149
-#: on the teapot (100,000), with starts of genus 1-20 for the genus-0 fandisk; 20 neighbours of
-#: the subsample 159-452, 0-7, 277-1,338, and every fandisk start of genus 0 (30: no better).
-START_NORMAL_K = 20
+#: Neighbours of the normals of the Poisson start's points, among the at most ``n_max``
+#: points it uses (so their neighbourhood has the same size whatever the scan's density; on
+#: a scan of at most ``n_max`` points, the fit's own normals). Measured as the share of
+#: normals oriented against the true surface's (5 subsamples each): the fit's 12-neighbour
+#: normals of all 100,000 points of the fandisk (noise 0.005) gave 355-5,393 of 20,000 and
+#: starts of genus 1-20 for the genus-0 shape, 12 neighbours of the subsample starts of genus
+#: 0 (one of genus 2). 20 neighbours did better on dense scans (0-7; Suzanne at 50,000 points
+#: 159-452 against 216-2,451) but join the two sides of the dolphin's fins at 20,000 points
+#: (a genus-2 start).
+START_NORMAL_K = 12
 
 
 def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
