@@ -34,8 +34,8 @@ from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
 from ..ops.topology import face_components
 from .init import decimate
 
-__all__ = ["CloudTarget", "EvidenceTrim", "as_cloud_points", "is_cloud", "mesh_from_points",
-           "orient_normals", "trim_to_evidence"]
+__all__ = ["CloudTarget", "EvidenceTrim", "as_cloud_points", "close_small_loops", "is_cloud",
+           "mesh_from_points", "orient_normals", "trim_to_evidence"]
 
 #: Fewest points a target cloud may have.
 MIN_POINTS = 20
@@ -307,7 +307,8 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
     Returns
     -------
     Mesh
-        The reconstruction (trimmed), cleaned and decimated.
+        The reconstruction (trimmed), cleaned and decimated, its boundary loops of at most
+        :data:`SMALL_LOOP_EDGES` edges closed (:func:`close_small_loops`).
 
     Raises
     ------
@@ -347,7 +348,58 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
         raise ValueError("target: the Poisson reconstruction of the point cloud is empty")
     mesh = Mesh(np.asarray(m.vertices, dtype=np.float64),
                 np.asarray(m.triangles, dtype=np.int64))
-    return decimate(mesh, n_faces)
+    return close_small_loops(decimate(mesh, n_faces))
+
+
+#: Boundary loops of at most this many edges in the Poisson start are closed
+#: (:func:`close_small_loops`).
+SMALL_LOOP_EDGES = 6
+
+
+def close_small_loops(mesh: Mesh, max_edges: int = SMALL_LOOP_EDGES) -> Mesh:
+    """The mesh with its boundary loops of at most ``max_edges`` edges closed by a fan.
+
+    The decimation's clean-up (Open3D's ``remove_non_manifold_edges``) can leave a hole of a
+    few edges in a closed Poisson start (the clean dolphin at 20,000 points: one 4-edge loop);
+    a hole of the scan is far larger than that at the start's resolution, and the surface
+    over a real gap is removed at the end anyway (:func:`trim_to_evidence`). Each small loop
+    gets a vertex at its centroid and one face per boundary edge, oriented as the faces beside
+    it (Open3D's ``fill_holes`` joined two corners of that loop that an existing edge already
+    joined: a non-manifold edge).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    max_edges : int
+        Largest loop closed.
+
+    Returns
+    -------
+    Mesh
+        ``mesh`` itself when it has no such loop.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = mesh.faces
+    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed half-edges
+    _, inv, cnt = np.unique(np.sort(H, axis=1), axis=0, return_inverse=True,
+                            return_counts=True)
+    B = H[cnt[inv.ravel()] == 1]  # boundary half-edges, as their faces run them
+    if len(B) == 0:
+        return mesh
+    n = mesh.n_verts
+    G = coo_matrix((np.ones(len(B)), (B[:, 0], B[:, 1])), shape=(n, n))
+    loop = connected_components(G, directed=False)[1][B[:, 0]]
+    small = np.bincount(loop, minlength=n)[loop] <= max_edges
+    if not small.any():
+        return mesh
+    B = B[small]
+    _, li = np.unique(loop[small], return_inverse=True)
+    centroid = np.zeros((li.max() + 1, 3))
+    np.add.at(centroid, li, mesh.verts[B[:, 0]])
+    centroid /= np.bincount(li)[:, None]
+    return Mesh(np.r_[mesh.verts, centroid], np.r_[F, np.c_[B[:, 1], B[:, 0], n + li]])
 
 
 #: Barycentric sample points of a face for :func:`trim_to_evidence`: its corners, edge
