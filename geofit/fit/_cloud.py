@@ -292,7 +292,8 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
         The points (at most ``n_max`` of them are used, with their own normals from
         :data:`START_NORMAL_K` neighbours, oriented by :func:`orient_normals`).
     n_faces : int
-        Face budget of the decimated mesh.
+        Face budget of the decimated mesh (the closed loops' fans included, unless a second
+        decimation to fit them leaves loops again).
     depth : int
         Octree depth of the Poisson reconstruction.
     n_max : int
@@ -348,7 +349,10 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
         raise ValueError("target: the Poisson reconstruction of the point cloud is empty")
     mesh = Mesh(np.asarray(m.vertices, dtype=np.float64),
                 np.asarray(m.triangles, dtype=np.int64))
-    return close_small_loops(decimate(mesh, n_faces))
+    out = close_small_loops(decimate(mesh, n_faces))
+    if out.n_faces > n_faces:  # the fans' faces inside the budget (a scan's point count)
+        out = close_small_loops(decimate(mesh, max(4, 2 * n_faces - out.n_faces)))
+    return out
 
 
 #: Boundary loops of at most this many edges in the Poisson start are closed
