@@ -276,7 +276,12 @@ def run_cell(sname: str, m, cname: str, factor: str, c: dict, *, peers: bool = T
         return rows
     load = os.getloadavg()[0]
     slug = "".join(ch if ch.isalnum() else "_" for ch in f"{sname}_{cname}")
-    pm, pw, pc = _cached_poisson(P, poisson_cache, slug)
+    try:
+        pm, pw, pc = _cached_poisson(P, poisson_cache, slug)
+    except RuntimeError as e:  # Open3D's normal orientation fails on an exactly flat scan
+        print(json.dumps(dict(common, method="Poisson (full)", error=str(e).splitlines()[0])),
+              flush=True)
+        return rows
     add("Poisson (full)", o3d_to_mesh(pm), pw, pc, load)
     t, cp = time.perf_counter(), time.process_time()
     small = o3d_to_mesh(pm.simplify_quadric_decimation(int(res.mesh.n_faces)))
