@@ -55,17 +55,19 @@ SHAPES = ["torus", "fandisk", "suzanne", "teapot", "ogre", "open_cylinder"]
 
 def true_mesh(name: str):
     """The normalised true surface of a shape (procedural :data:`geofit.shapes.TEST_SHAPES`
-    with a finer torus, or a file of ``$GEOFIT_DATA/shapes``)."""
+    with a finer torus, tutorial 1's dolphin, or a file of ``$GEOFIT_DATA/shapes``)."""
     from geofit import load_mesh
     from geofit.shapes import TEST_SHAPES, torus
 
+    data = Path(os.environ.get("GEOFIT_DATA", "/work/shared/data"))
     if name == "torus":
         m = torus(1.0, 0.35, 96, 48)
     elif name in TEST_SHAPES:
         m = TEST_SHAPES[name]()
+    elif name == "dolphin":
+        m = load_mesh(data / "dolphin" / "dolphin.obj")
     else:
-        m = load_mesh(Path(os.environ.get("GEOFIT_DATA", "/work/shared/data")) / "shapes"
-                      / f"{name}.obj")
+        m = load_mesh(data / "shapes" / f"{name}.obj")
     return m.normalize().mesh
 
 
@@ -274,7 +276,12 @@ def run_cell(sname: str, m, cname: str, factor: str, c: dict, *, peers: bool = T
         return rows
     load = os.getloadavg()[0]
     slug = "".join(ch if ch.isalnum() else "_" for ch in f"{sname}_{cname}")
-    pm, pw, pc = _cached_poisson(P, poisson_cache, slug)
+    try:
+        pm, pw, pc = _cached_poisson(P, poisson_cache, slug)
+    except RuntimeError as e:  # Open3D's normal orientation fails on an exactly flat scan
+        print(json.dumps(dict(common, method="Poisson (full)", error=str(e).splitlines()[0])),
+              flush=True)
+        return rows
     add("Poisson (full)", o3d_to_mesh(pm), pw, pc, load)
     t, cp = time.perf_counter(), time.process_time()
     small = o3d_to_mesh(pm.simplify_quadric_decimation(int(res.mesh.n_faces)))

@@ -6,7 +6,13 @@ import pytest
 
 from geofit import ico_sphere
 from geofit.fit import MeshFitOptions, MeshObjective, Remeshing, fit_mesh
-from geofit.fit._cloud import CloudTarget, as_cloud_points, mesh_from_points, orient_normals
+from geofit.fit._cloud import (
+    CloudTarget,
+    as_cloud_points,
+    close_small_loops,
+    mesh_from_points,
+    orient_normals,
+)
 from geofit.metrics import evaluate_mesh
 from geofit.ops import sample_points_from_meshes, topology
 from geofit.shapes import open_cylinder, torus
@@ -121,6 +127,25 @@ def test_mesh_from_points_keeps_genus_and_boundaries():
         t = topology(g)
         assert (t.genus, t.n_boundary_loops, t.n_components) == (genus, loops, 1)
         assert g.n_faces <= 800
+
+
+def test_close_small_loops_closes_small_holes_only():
+    """A closed mesh with one face removed (a 3-edge loop) is closed again, manifold, with its
+    genus and the face orientation of its neighbours; an open cylinder's large rims stay."""
+    m = ico_sphere(2)
+    holed = type(m)(m.verts, m.faces[1:])
+    assert topology(holed).n_boundary_loops == 1
+    closed = close_small_loops(holed)
+    t = topology(closed)
+    assert t.is_closed and t.is_manifold and t.genus == 0
+    assert closed.n_verts == m.n_verts + 1 and closed.n_faces == m.n_faces + 2
+    # consistently oriented: every undirected edge is run once each way
+    F = closed.faces
+    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    assert len(np.unique(H, axis=0)) == len(H)
+    assert close_small_loops(m) is m
+    cyl = open_cylinder()
+    assert close_small_loops(cyl) is cyl
 
 
 def test_fit_mesh_to_points_default():

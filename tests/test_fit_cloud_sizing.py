@@ -20,19 +20,35 @@ def torus_cloud(n=3000, noise=0.0, seed=0):
 
 
 def test_round_samples_of_a_mesh_target_are_unchanged_and_a_cloud_gets_12_a_vertex():
-    """Mesh target: min(8000, max(2000, 4 V)); cloud: min(points, 20000, max(2000, 12 V))."""
+    """Mesh target: min(8000, max(2000, 4 V)); cloud: min(points, 20000, max(2000, s V)) with
+    s = 12 unless given."""
     rs = adaptive._round_samples
     assert [rs(v, None) for v in (100, 1000, 5000)] == [2000, 4000, 8000]
     assert rs(1000, 50_000) == 12 * 1000
+    assert rs(1000, 50_000, 8) == 8 * 1000
     assert rs(1000, 5000) == 5000                 # never more than the scan's points
     assert rs(100, 100_000) == 2000
     assert rs(5000, 100_000) == adaptive.CLOUD_MAX_SAMPLES
-    assert adaptive.CLOUD_MAX_VERTS * adaptive.CLOUD_SAMPLES_PER_VERT \
-        <= adaptive.CLOUD_MAX_SAMPLES
 
 
-def test_a_cloud_fit_uses_12_samples_a_vertex():
-    """The first round of a scan's fit draws 12 samples per vertex (at most the points)."""
+def test_refined_rounds_take_fewer_samples_a_vertex_on_precise_scans():
+    """ceil(2 sigma^2 / (share * goal)) within [8, 12]: monotone in the noise, 12 at noise
+    0.005 of the default goal, the floor on a clean scan."""
+    f = adaptive.cloud_samples_per_vert
+    goal = 3e-5
+    got = [f(s, goal) for s in (0.0, 0.001, 0.003, 0.004, 0.005, 0.05)]
+    assert got == sorted(got)
+    assert got[0] == adaptive.CLOUD_MIN_SAMPLES_PER_VERT == 8
+    assert f(0.005, goal) == f(0.05, goal) == adaptive.CLOUD_SAMPLES_PER_VERT == 12
+    # between the bounds: the formula itself
+    s = 0.0037
+    assert f(s, goal) == math.ceil(2 * s * s / (adaptive.SAMPLE_NOISE_SHARE * goal)) == 10
+    assert f(0.0037, 10 * goal) == 8             # a looser goal needs fewer
+
+
+def test_a_cloud_fit_uses_12_samples_a_vertex_then_fewer_on_a_clean_scan():
+    """The first round of a scan's fit draws 12 samples per vertex (at most the points); the
+    refined rounds of a clean scan 8."""
     P = torus_cloud(3000, 0.002)
     res = fit_mesh(P, options=MeshFitOptions(n_iter=3, refine=Remeshing(max_rounds=1,
                                                                         n_faces=300)))
@@ -40,6 +56,15 @@ def test_a_cloud_fit_uses_12_samples_a_vertex():
     assert st["n_samples"] == min(len(P) - res.data_report.n_outliers,
                                   max(2000, 12 * st["n_verts"]))
     assert st["n_samples"] > 4 * st["n_verts"]  # more than a mesh target's rule
+    P = torus_cloud(30_000)
+    # a goal the first round misses (its estimate ~2.6e-5) that leaves the refined rounds 8 a
+    # vertex at this scan's noise (~0.0009; 8 up to 0.0014)
+    res = fit_mesh(P, options=MeshFitOptions(n_iter=5, refine=Remeshing(
+        n_faces=600, chamfer_l2=5e-6, max_rounds=2)))
+    assert adaptive.cloud_samples_per_vert(res.data_report.noise / res.scale, 5e-6) == 8
+    assert len(res.stages) == 2
+    assert [st["n_samples"] for st in res.stages] == [
+        max(2000, 12 * res.stages[0]["n_verts"]), max(2000, 8 * res.stages[1]["n_verts"])]
 
 
 def test_residual_gain_is_in_units_of_the_noise():
@@ -69,11 +94,13 @@ def test_refinement_stops_when_the_residual_no_longer_falls(monkeypatch):
 
 
 def test_refinement_stops_before_the_vertex_cap_of_a_cloud(monkeypatch):
-    """A remesh that would pass CLOUD_MAX_VERTS is not taken: the fit ends at the mesh it had."""
+    """A remesh that would pass what CLOUD_MAX_SAMPLES fit at the refined rounds' samples a
+    vertex is not taken: the fit ends at the mesh it had."""
     P = torus_cloud(3000)
-    monkeypatch.setattr(adaptive, "CLOUD_MAX_VERTS", 100)
+    # 100 vertices at 12 a vertex (the hard goal leaves no room for fewer)
+    monkeypatch.setattr(adaptive, "CLOUD_MAX_SAMPLES", 1200)
     res = fit_mesh(P, options=_hard_goal())
     assert len(res.stages) == 1 and "12 a vertex" in res.message
     assert res.mesh.n_verts <= 100
-    monkeypatch.setattr(adaptive, "CLOUD_MAX_VERTS", 10_000)
+    monkeypatch.setattr(adaptive, "CLOUD_MAX_SAMPLES", 80_000)
     assert len(fit_mesh(P, options=_hard_goal()).stages) > 1

@@ -80,7 +80,8 @@ class Remeshing:
         Solve-and-remesh rounds at most.
     max_verts : int
         Do not refine past this many vertices (a point cloud: nor past what a round's samples
-        fit, :data:`geofit.fit.adaptive.CLOUD_MAX_VERTS`).
+        fit, :data:`geofit.fit.adaptive.CLOUD_MAX_SAMPLES` at
+        :func:`geofit.fit.adaptive.cloud_samples_per_vert` a vertex).
     """
 
     n_faces: int = 2000
@@ -190,7 +191,7 @@ class MeshFitOptions:
         Samples per surface per step (SGD/Adam, default 5000 as the tutorial) or per stage
         (L-BFGS, default ``min(5000, max(1000, 8 V))``). Not for the remeshing fit
         (``min(8000, max(2000, 4 V))`` per round; a point cloud's
-        ``min(points, 20000, max(2000, 12 V))``).
+        ``min(points, 20000, max(2000, s V))``, ``s`` 4 to 12 by the scan's noise).
     n_iter : int
         Steps (SGD/Adam, default 2000) or iterations per stage, level or round (L-BFGS,
         default 100; 40 per remeshing round).

@@ -27,10 +27,10 @@ from the data's topology and remeshes where the error is.
    the noise a face's points leave, the normal-consistency weight follows the noise
    (``NOISE_NORMAL_WEIGHT * noise^2``, the recipe's 1e-5 on clean scans), and the model never
    has more faces than the scan has points (:func:`geofit.fit._scan_report.evidence_limits`).
-   Each round fits :data:`CLOUD_SAMPLES_PER_VERT` samples a side per vertex (at most the points
-   and :data:`CLOUD_MAX_SAMPLES`); the refinement also stops when a round lowered the residual
-   by less than :data:`NOISE_STALL` noise levels, and before a mesh of more than
-   :data:`CLOUD_MAX_VERTS` vertices.
+   Each round fits 12 samples a side per vertex, the refined rounds of a precise scan 8 to 12
+   (:func:`cloud_samples_per_vert`; at most the points and :data:`CLOUD_MAX_SAMPLES`); the
+   refinement also stops when a round lowered the residual by less than :data:`NOISE_STALL`
+   noise levels, and before a mesh of more vertices than :data:`CLOUD_MAX_SAMPLES` fit.
    No surface is kept where the scan has no point: the start is trimmed to the points, the
    distance past the cloud's boundary pulls surface back, and at the end the surface over
    the scan's holes (gaps wider than the sampling explains) is removed
@@ -52,6 +52,7 @@ import math
 import numpy as np
 
 from .._validate import as_rng
+from ..loss.chamfer import morton_order
 from ..ops import remesh, topology
 from ..structures import Mesh
 from ._cloud import CloudTarget, mesh_from_points, trim_to_evidence
@@ -64,7 +65,7 @@ from .init import InitialMesh, initial_mesh
 from .large_steps import LargeSteps
 from .solvers import lbfgs_scipy
 
-__all__ = ["refine_lengths", "solve_remeshing"]
+__all__ = ["cloud_samples_per_vert", "refine_lengths", "solve_remeshing"]
 
 
 def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float = 0.5,
@@ -106,19 +107,24 @@ def refine_lengths(mesh: Mesh, edge_error: np.ndarray, eps: float, *, lo: float 
     return lv
 
 
-#: Samples a side of a round of a point-cloud fit: ``CLOUD_SAMPLES_PER_VERT`` per vertex, at
-#: most all the scan's points and ``CLOUD_MAX_SAMPLES``. A noisy scan fitted with 4 samples a
-#: vertex (a mesh target's rule) fits the noise: on 50,000 points of Suzanne (noise 0.005) the
-#: round at 2,300 vertices gave chamfer-L2 4.1e-5 with 8,000 samples, 3.0e-5 with 12 a vertex
+#: Samples a side per vertex of the first round of a point-cloud fit, and of the later rounds
+#: of a noisy scan; the later rounds of a precise scan take fewer, at least
+#: ``CLOUD_MIN_SAMPLES_PER_VERT`` (see :func:`cloud_samples_per_vert`). A noisy scan fitted
+#: with 4 samples a vertex fits the noise: on 50,000 points of Suzanne (noise 0.005) the round
+#: at 2,300 vertices gave chamfer-L2 4.1e-5 with 8,000 samples, 3.0e-5 with 12 a vertex
 #: (27,600), 3.4e-5 with 8 a vertex (true surface; Poisson at the same size 3.4e-5); the first
 #: round (1,000 vertices) 6.8e-5 with 4,000 samples, 5.6e-5 with 12,000 (Poisson 7.8e-5).
 CLOUD_SAMPLES_PER_VERT = 12
+CLOUD_MIN_SAMPLES_PER_VERT = 8
+#: Most samples a side of a round (at most the scan's points, too). A point-cloud fit refines
+#: to at most what they fit, ``CLOUD_MAX_SAMPLES // samples per vertex`` vertices (1,666 at 12
+#: a vertex, 2,500 at 8): past it, a round either fits the noise or costs more than 10 s on
+#: 2 cores (the round at 2,300 vertices with 27,000 samples took ~10 CPU s on 100,000 points,
+#: measured under load 12-15, as much as all the rest).
 CLOUD_MAX_SAMPLES = 20_000
-#: Most vertices a point-cloud fit refines to: what a round's samples fit at 12 a vertex
-#: (1,666 vertices, ~3,300 faces). Past it, a round either fits the noise (fewer samples a
-#: vertex) or costs more than 10 s on 2 cores: the round at 2,300 vertices with 27,000
-#: samples took ~10 CPU s on 100,000 points (measured under load 12-15), as much as all the rest.
-CLOUD_MAX_VERTS = CLOUD_MAX_SAMPLES // CLOUD_SAMPLES_PER_VERT
+#: Share of the accuracy goal (``Remeshing.chamfer_l2``) that the noise of a round's samples
+#: may add (:func:`cloud_samples_per_vert`).
+SAMPLE_NOISE_SHARE = 0.1
 
 #: A point-cloud fit stops refining when a round lowered the residual (the estimated
 #: chamfer-L2's root mean square a side, ``sqrt(chamfer / 2)``) by less than this many noise
@@ -126,12 +132,49 @@ CLOUD_MAX_VERTS = CLOUD_MAX_SAMPLES // CLOUD_SAMPLES_PER_VERT
 NOISE_STALL = 0.1
 
 
-def _round_samples(n_verts: int, n_points: int | None) -> int:
+def cloud_samples_per_vert(noise: float, chamfer_l2: float) -> int:
+    """Samples a side per vertex of the refined rounds of a point-cloud fit (the first round
+    takes :data:`CLOUD_SAMPLES_PER_VERT`).
+
+    A vertex fitted to ``s`` samples of a scan of noise ``sigma`` is off by about
+    ``sigma / sqrt(s)``, which adds about ``2 sigma^2 / s`` to the chamfer-L2 (both sides; the
+    Suzanne rounds of :data:`CLOUD_SAMPLES_PER_VERT`: 1.1e-5 from 12 to 3.5 a vertex at
+    ``sigma`` 0.005, against 1.0e-5 predicted). That is kept under :data:`SAMPLE_NOISE_SHARE`
+    of the goal ``chamfer_l2``: ``s = ceil(2 sigma^2 / (SAMPLE_NOISE_SHARE chamfer_l2))``,
+    within [:data:`CLOUD_MIN_SAMPLES_PER_VERT`, :data:`CLOUD_SAMPLES_PER_VERT`] (the default
+    goal 3e-5: 12 from a measured noise of 0.0042, 8 below 0.0035). A precise scan's refined
+    rounds need fewer samples a vertex, so the same samples fit more vertices. The first
+    round's fit starts from the Poisson start, whose error (not the noise) is what its samples
+    average: it takes 12 a vertex even on clean scans (on 50,000 points of the teapot, noise
+    0.002, one round: chamfer-L2 1.5e-5 with 12 a vertex, 1.8e-5 with 8, 2.1e-5 with 4).
+
+    Parameters
+    ----------
+    noise : float
+        The scan's noise (normalised frame).
+    chamfer_l2 : float
+        The accuracy goal (normalised frame, > 0).
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> cloud_samples_per_vert(0.0, 3e-5), cloud_samples_per_vert(0.01, 3e-5)
+    (8, 12)
+    """
+    s = math.ceil(2.0 * noise * noise / (SAMPLE_NOISE_SHARE * chamfer_l2))
+    return int(min(max(s, CLOUD_MIN_SAMPLES_PER_VERT), CLOUD_SAMPLES_PER_VERT))
+
+
+def _round_samples(n_verts: int, n_points: int | None,
+                   per_vert: int = CLOUD_SAMPLES_PER_VERT) -> int:
     """Samples a side of one round: a mesh target ``min(8000, max(2000, 4 V))``; a point
-    cloud of ``n_points`` points ``min(n_points, CLOUD_MAX_SAMPLES, max(2000, 12 V))``."""
+    cloud of ``n_points`` points ``min(n_points, CLOUD_MAX_SAMPLES, max(2000, per_vert V))``."""
     if n_points is None:
         return min(8000, max(2000, 4 * n_verts))
-    return min(n_points, CLOUD_MAX_SAMPLES, max(2000, CLOUD_SAMPLES_PER_VERT * n_verts))
+    return min(n_points, CLOUD_MAX_SAMPLES, max(2000, per_vert * n_verts))
 
 
 def _residual_gain(stages: list[dict], noise: float) -> float:
@@ -177,7 +220,11 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
     report = limits = None
     chamfer_goal, fscore_goal, max_verts = rem.chamfer_l2, rem.fscore, rem.max_verts
     n_faces = rem.n_faces
+    per_vert = refined_per_vert = CLOUD_SAMPLES_PER_VERT  # the first round's, the others'
     if cloud:  # what the scan supports: outliers out, targets at the noise floor
+        # the points in Z-order: every KD-tree over them, and every query by them, then reads
+        # memory in order (100,000 points' 17 neighbours: 1.32 -> 0.26-0.37 CPU s under load 9)
+        tgt = tgt[morton_order(tgt)]
         report, keep = scan_report(tgt)
         if report.n_outliers:
             tgt = tgt[keep]
@@ -188,6 +235,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
             p2s.reach = reach
         limits = evidence_limits(report, rem.chamfer_l2, rem.fscore, rem.tau)
         chamfer_goal, fscore_goal = limits.chamfer_l2, limits.fscore
+        refined_per_vert = cloud_samples_per_vert(limits.noise, rem.chamfer_l2)
         max_verts = min(max_verts, max(limits.max_faces // 2, 4))
         n_faces = min(n_faces, limits.max_faces)
         if not plan.weights_given:  # smoothing where the scan is noisy, none where clean
@@ -231,7 +279,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
             status, message = "time_budget", budget_status(time_budget, iters)
             break
         ls = LargeSteps(mesh, lam)
-        ns = _round_samples(mesh.n_verts, len(tgt) if cloud else None)
+        ns = _round_samples(mesh.n_verts, len(tgt) if cloud else None, per_vert)
         obj = MeshObjective(mesh, tgt, w, distance="cloud" if cloud else "surface",
                             n_samples=ns, large_steps=ls, seed=rng, target_distance=p2s)
         base = evals
@@ -307,11 +355,11 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
                        f"would give {r.mesh.n_faces} faces, more than the "
                        f"{limits.max_faces} points); {message}")
             break
-        if cloud and r.mesh.n_verts > CLOUD_MAX_VERTS:
+        per_vert = refined_per_vert
+        if cloud and r.mesh.n_verts > CLOUD_MAX_SAMPLES // per_vert:
             message = (f"stopped at {mesh.n_verts} vertices after {rnd + 1} rounds (refining "
                        f"would give {r.mesh.n_verts} vertices, more than a round's "
-                       f"{CLOUD_MAX_SAMPLES} samples fit at {CLOUD_SAMPLES_PER_VERT} a "
-                       f"vertex); {message}")
+                       f"{CLOUD_MAX_SAMPLES} samples fit at {per_vert} a vertex); {message}")
             break
         stage["remesh"] = {"n_split": r.n_split, "n_collapse": r.n_collapse, "n_flip": r.n_flip,
                            "n_verts": r.mesh.n_verts}
