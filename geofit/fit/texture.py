@@ -13,7 +13,7 @@
   :func:`chart_laplacian`) that fills texels no view sees and damps the views' disagreement on
   an imperfect surface, and a weak prior (the vertex colours at each texel's surface point)
   for whole charts no view sees. One sparse LU (SuperLU), shared by the channels when their
-  shading is the same (grey lights and materials); then two reweighted solves with Cauchy's
+  shading is the same (grey lights and materials); then four reweighted solves with Cauchy's
   robust loss (rays a fitted geometry gets wrong, e.g. a too-wide outline that sees the
   background, would otherwise pull the texels they hit to their colour); the texels are
   clipped to [0, 1].
@@ -429,9 +429,9 @@ def robust_scale(problem: TextureProblem, t: np.ndarray, k: float) -> float:
 def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=None,
                 background=(1.0, 1.0, 1.0), texel_px: float = 1.0, smoothness: float = 1e-2,
                 prior=None, prior_weight: float = 1e-3, robust: float | None = 2.0,
-                robust_rounds: int = 2, supersample: int = 1,
+                robust_rounds: int = 4, supersample: int = 1,
                 max_resolution: int = 2048) -> TexturesUV:
-    """A UV texture for ``mesh`` from images, by one sparse least-squares solve per channel.
+    """A UV texture for ``mesh`` from images, by sparse (robust) least squares.
 
     Parameters
     ----------
@@ -507,3 +507,4 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
         t = problem.solve_robust(rounds, t)
     maps = np.clip(t.reshape(size[0], size[1], 3), 0.0, 1.0)
     return TexturesUV(maps, faces_uvs, verts_uvs)
+
