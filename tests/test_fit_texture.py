@@ -8,6 +8,7 @@ from geofit.fit.texture import (
     _bilinear,
     chart_laplacian,
     fit_texture,
+    leave_views_out,
     robust_scale,
     texel_charts,
     texel_operator,
@@ -238,6 +239,51 @@ def test_robust_texture_ignores_a_too_wide_outline(scene):
     assert err[2.0] > err[None] + 3.0
 
 
+def test_leave_views_out_equals_solving_without_the_fold(small):
+    """Weight 0 on a fold's rays is the solve on the other views' rows alone (a dense
+    reference per fold and channel); the error is the fold's plain squared residual."""
+    cams, mesh, fuv, vuv, size, loss, _ = small
+    problem, _ = texture_problem(loss, mesh, fuv, vuv, size, smoothness=0.3)
+    n, R = 3, problem.A[0].shape[0]
+    u = np.random.default_rng(11).uniform(0.2, 1.0, R)
+    view = np.arange(R) // (R // n)
+    ref = 0.0
+    for k in range(n):  # folds = views here (3 folds of 3 views)
+        keep, out = view != k, view == k
+        for c in range(3):  # channels
+            A = problem.A[c].toarray()
+            s = problem.scale(c)
+            lhs = A[keep].T @ (u[keep, None] * A[keep]) + s * (
+                problem.smoothness * problem.L.toarray() + np.diag(problem.weights))
+            rhs = A[keep].T @ (u[keep] * problem.y[keep, c]) + s * problem.weights * \
+                problem.prior[:, c]
+            r = A[out] @ np.linalg.solve(lhs, rhs) - problem.y[out, c]
+            ref += r @ r
+    assert leave_views_out(problem, n, n, u) == pytest.approx(ref, rel=1e-8)
+    with pytest.raises(ValueError, match="n_folds"):
+        leave_views_out(problem, n, 4)
+    with pytest.raises(ValueError, match="n_folds"):
+        leave_views_out(problem, n, 1)
+    with pytest.raises(ValueError, match="equal blocks"):
+        leave_views_out(problem, 7, 2)
+
+
+def test_check_keeps_the_robust_texture_where_it_predicts_better(scene):
+    """On the too-wide-outline images the leave-views-out check keeps the robust texels (the
+    same texture as without the check)."""
+    from scipy.ndimage import binary_erosion
+
+    cams, mesh, images = scene
+    obj = np.any(images < 1.0, axis=-1)
+    bad = images.copy()
+    bad[obj & ~np.stack([binary_erosion(o) for o in obj])] = 1.0
+    checked = fit_texture(mesh, cams, bad, lights=LIGHTS)
+    unchecked = fit_texture(mesh, cams, bad, lights=LIGHTS, check_folds=0)
+    plain = fit_texture(mesh, cams, bad, lights=LIGHTS, robust=None)
+    np.testing.assert_array_equal(checked.maps, unchecked.maps)
+    assert np.abs(checked.maps - plain.maps).max() > 0.1
+
+
 def test_chart_laplacian_closed_form():
     """t^T L t equals the sum of (t_i - t_j)^2 over the 4-neighbour pairs of one chart (a loop
     reference); free texels and pairs across charts are not linked."""
@@ -335,6 +381,8 @@ def test_fit_texture_validation(scene):
         fit_texture(mesh, cams, images, robust=0.0)
     with pytest.raises(ValueError, match="robust_rounds"):
         fit_texture(mesh, cams, images, robust_rounds=-1)
+    with pytest.raises(ValueError, match="check_folds"):
+        fit_texture(mesh, cams, images, check_folds=-1)
     with pytest.raises(ValueError, match="target_images"):
         fit_texture(mesh, cams, images[:2])
     with pytest.raises(ValueError, match="texel_size"):

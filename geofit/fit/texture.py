@@ -35,8 +35,9 @@ from ..render.mesh.image_term import HardImageLoss, affine_color_operator
 from ..structures import Mesh, TexturesUV, as_mesh
 from ..structures.visual_hull import pixel_footprint
 
-__all__ = ["TexelCharts", "TextureProblem", "chart_laplacian", "fit_texture", "robust_scale",
-           "texel_charts", "texel_operator", "texture_problem", "uv_atlas", "uv_charts"]
+__all__ = ["TexelCharts", "TextureProblem", "chart_laplacian", "fit_texture", "leave_views_out",
+           "robust_scale", "texel_charts", "texel_operator", "texture_problem", "uv_atlas",
+           "uv_charts"]
 
 
 def uv_atlas(mesh: Mesh, texel_size: float, *, padding: int = 2,
@@ -426,10 +427,55 @@ def robust_scale(problem: TextureProblem, t: np.ndarray, k: float) -> float:
     return max(float(k) * 1.4826 * float(np.median(r)), 1e-3)
 
 
+def leave_views_out(problem: TextureProblem, n_views: int, n_folds: int,
+                    ray_weights=None) -> float:
+    """Squared error of texels solved without each fold of views, on that fold's rays.
+
+    The rays are ordered view by view (``R = n_views`` blocks of equal size, as
+    :func:`texel_operator` makes them); view ``v`` is in fold ``v % n_folds``. For each fold
+    the texels minimise the quadratic of :meth:`TextureProblem.solve` with the ray weights
+    ``ray_weights`` (default 1) and the fold's rays at weight 0; the fold's error is the plain
+    ``sum over its rays and channels of (A_c t_c - y_c)^2`` (its views' render error).
+
+    Parameters
+    ----------
+    problem : TextureProblem
+    n_views : int
+    n_folds : int
+        2 to ``n_views``.
+    ray_weights : (R,) float64, optional
+
+    Returns
+    -------
+    float
+        The summed error over the folds.
+
+    Raises
+    ------
+    ValueError
+        If ``n_folds`` is not in ``[2, n_views]`` or the rays do not split into ``n_views``
+        equal blocks.
+    """
+    n_views = check_int(n_views, "n_views")
+    n_folds = check_int(n_folds, "n_folds", 2)
+    R = problem.A[0].shape[0]
+    if n_folds > n_views:
+        raise ValueError(f"n_folds: expected at most n_views = {n_views}, got {n_folds}")
+    if R % n_views:
+        raise ValueError(f"problem: expected its {R} rays in {n_views} equal blocks (views)")
+    fold = (np.arange(R) // (R // n_views)) % n_folds
+    u = np.ones(R) if ray_weights is None else np.asarray(ray_weights, np.float64)
+    total = 0.0
+    for k in range(n_folds):  # folds of views
+        r = problem.residuals(problem.solve(np.where(fold == k, 0.0, u)))[fold == k]
+        total += float(np.einsum("rc,rc->", r, r))
+    return total
+
+
 def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=None,
                 background=(1.0, 1.0, 1.0), texel_px: float = 1.0, smoothness: float = 1e-2,
                 prior=None, prior_weight: float = 1e-3, robust: float | None = 2.0,
-                robust_rounds: int = 4, supersample: int = 1,
+                robust_rounds: int = 4, check_folds: int = 2, supersample: int = 1,
                 max_resolution: int = 2048) -> TexturesUV:
     """A UV texture for ``mesh`` from images, by sparse (robust) least squares.
 
@@ -468,6 +514,13 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
         see inside the object). Default 2 (see Notes).
     robust_rounds : int
         Reweighted solves after the least-squares one (:meth:`TextureProblem.solve_robust`).
+    check_folds : int
+        With ``robust``: the robust texels are kept only if they predict views left out of
+        the solve no worse than least squares does (:func:`leave_views_out`, this many folds
+        of views, the robust weights of the full solve held; 0: no check). On an exact
+        geometry Cauchy's scale (a multiple of the median residual, there ~0) drops the rays
+        that carry the texture's sharp detail (the true cow: 34.1 dB least squares, 29.0
+        robust); the check keeps least squares there.
     max_resolution : int
         Largest side of the texture image.
 
@@ -501,10 +554,16 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
     rounds = check_int(robust_rounds, "robust_rounds", 0)
     problem, _ = texture_problem(loss, mesh, faces_uvs, verts_uvs, size, smoothness=lam,
                                  prior=prior, prior_weight=prior_weight)
+    folds = check_int(check_folds, "check_folds", 0)
     t = problem.solve()
     if k is not None and rounds:
         problem.robust_scale = robust_scale(problem, t, k)
-        t = problem.solve_robust(rounds, t)
+        t_rob = problem.solve_robust(rounds, t)
+        n = len(cameras)
+        folds = min(folds, n) if n >= 2 else 0
+        if not folds or (leave_views_out(problem, n, folds, problem.ray_weights(t_rob))
+                         <= leave_views_out(problem, n, folds)):
+            t = t_rob
     maps = np.clip(t.reshape(size[0], size[1], 3), 0.0, 1.0)
     return TexturesUV(maps, faces_uvs, verts_uvs)
 
