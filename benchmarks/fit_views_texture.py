@@ -24,8 +24,7 @@ from _harness import BenchmarkReport, markdown_table
 from fit_views import shape_factories, vertex_coloured
 
 from geofit.datasets import tutorial_views
-from geofit.fit._views_eval import render_mesh_at_views
-from geofit.fit._views_objective import _lstsq_colors, dataset_background, dataset_lights
+from geofit.fit import render_mesh_at_views
 from geofit.fit.texture import fit_texture
 from geofit.fit.views import ViewsFitOptions, fit_mesh_to_views
 from geofit.metrics import psnr
@@ -48,6 +47,12 @@ def geometry(name, ds, folder: Path):
     return Mesh(z["verts"], z["faces"]), z["colors"]
 
 
+def true_colours(mesh, ds):
+    """The default's vertex colours (its textured stage's least squares) on ``mesh`` as it is."""
+    opts = ViewsFitOptions(init=mesh, silhouette_method="none", texture="vertex")
+    return fit_mesh_to_views(ds, options=opts, seed=0, progress=False).colors
+
+
 def heldout(mesh, ds, colors=None) -> tuple[float, float]:
     """Held-out PSNR and the outline share of its squared error."""
     h = ds.held_out
@@ -61,8 +66,8 @@ def heldout(mesh, ds, colors=None) -> tuple[float, float]:
 def solve(mesh, colors, ds, **kw):
     t0 = time.perf_counter()
     base = Mesh(mesh.verts, mesh.faces)
-    tex = fit_texture(base, ds.cameras, ds.images, lights=dataset_lights(ds),
-                      background=dataset_background(ds), prior=colors, **kw)
+    tex = fit_texture(base, ds.cameras, ds.images, lights=ds.lights, background=ds.background,
+                      prior=colors, **kw)
     return Mesh(base.verts, base.faces, tex), time.perf_counter() - t0
 
 
@@ -107,7 +112,7 @@ def main(argv=None) -> int:
         print(rows[-1], flush=True)
         if name in true_shapes:
             true = Mesh(target.verts, target.faces)
-            rows.append(row(name, "true", true, _lstsq_colors(true, ds, 1e-4), ds))
+            rows.append(row(name, "true", true, true_colours(true, ds), ds))
             print(rows[-1], flush=True)
         report.tables["rows"] = rows
         report.write(Path(args.out) / "fit_views_texture.json")
