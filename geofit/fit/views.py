@@ -905,7 +905,7 @@ def _uv_texture_stage(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors) -> Mesh
     mesh = Mesh(base.verts, base.faces, tex)
     H, W = tex.maps.shape[:2]
     run.stages.append({**stage, "status": "converged", "seconds": run.clock.elapsed() - t_stage,
-                       "message": f"a {W} x {H} texel atlas by sparse least squares"})
+                       "message": f"a {W} x {H} texel atlas by sparse (robust) least squares"})
     return mesh
 
 
