@@ -243,7 +243,8 @@ def _check_margins(margins, name: str = "margins") -> tuple:
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
                      close_handles: bool = False, upsample: int = 1,
-                     close_px: float = 0.0, margins=(0.0,), check=None) -> VisualHullMesh:
+                     close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
+                     check=None) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -294,6 +295,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         non-increasing): ``(0,)`` carves what any one view puts outside its silhouette;
         ``(1, 0)`` only what one view puts more than a pixel outside or two views outside, so
         a pinhole or seam at most 2 pixels wide in one view carves no tunnel.
+    vote_depth : float
+        The vote only fills, and only where its hull is deeper than this many pixels
+        (:func:`geofit.structures.visual_hull.carve_hull`): tunnels are filled, the outline
+        keeps the plain hull's. 0: the vote as it is. Needs ``refine=1``.
     check : callable, optional
         Called between the carving's views and steps (a fit passes its clock's
         :meth:`~geofit.fit.Clock.check`, which raises :class:`~geofit.fit.TimeUp` once its
@@ -320,9 +325,13 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
             raise ValueError(f"{name}: expected an integer >= 1, got {val!r}")
     close_px = check_positive(close_px, "close_px", strict=False)
     margins = _check_margins(margins)
+    vote_depth = check_positive(vote_depth, "vote_depth", strict=False)
+    if vote_depth > 0 and refine != 1:
+        raise ValueError(f"vote_depth: the deep vote needs refine=1, got vote_depth "
+                         f"{vote_depth!r} with refine {refine!r}")
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
                    voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
-                   close_px=close_px, margins=margins, check=check)
+                   close_px=close_px, margins=margins, vote_depth=vote_depth, check=check)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)
