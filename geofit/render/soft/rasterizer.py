@@ -282,10 +282,15 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         dist[fast] = dmin * dmin
         edge[fast] = np.where(use01, 0, np.where(use02, 1, 2))
         if gen.size:
-            lg = loc[gen]
+            # loc[gen] is sorted (runs of faces): its per-face values by np.repeat
+            g_cnt = np.bincount(loc[gen] - start, minlength=stop - start)
+
+            def grun(a, g_cnt=g_cnt, start=start, stop=stop):  # a[loc[gen]]
+                return np.repeat(a[start:stop], g_cnt)
+
             qxg, qyg = qx[gen], qy[gen]
-            d = [_seg_sqdist(qxg, qyg, ax[lg], ay[lg], dx[lg], dy[lg], il[lg], dg[lg])
-                 for ax, ay, dx, dy, il, dg in segs]
+            d = [_seg_sqdist(qxg, qyg, grun(ax), grun(ay), grun(dx), grun(dy), grun(il),
+                             grun(dg)) for ax, ay, dx, dy, il, dg in segs]
             use01 = (d[0] <= d[1]) & (d[0] <= d[2])
             use02 = ~use01 & (d[1] <= d[2])
             dist[gen] = np.where(use01, d[0], np.where(use02, d[1], d[2]))
