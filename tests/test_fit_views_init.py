@@ -11,8 +11,9 @@ import pytest
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import tutorial_views
 from geofit.fit import ViewsFitOptions, fit_mesh_to_views
-from geofit.fit import _views_init
-from geofit.fit._views_init import remesh_to_length, shortest_edge
+from geofit.fit import init as _fit_init
+from geofit.fit._views_init import remesh_to_length
+from geofit.fit.init import shortest_edge
 from geofit.fit.init import visual_hull_mesh
 from geofit.structures.visual_hull import carve_hull, hull_field, pixel_footprint
 from geofit.fit.views import RECIPES, ViewsEvaluator
@@ -344,15 +345,15 @@ def test_shortest_edge_keeps_faces_and_entries_bounded():
     small = 10_000 * px * px  # 10 000 square pixels of surface
     for fac, size in ((1, (128, 128)), (2, (64, 64))):
         e = shortest_edge(small, px, fac, size, blur)
-        np.testing.assert_allclose(small / (0.433 * e * e), _views_init.MAX_FACES / fac ** 2,
+        np.testing.assert_allclose(small / (0.433 * e * e), _fit_init.MAX_FACES / fac ** 2,
                                    rtol=1e-12)
     big = 40_000 * px * px
     e = shortest_edge(big, px, 1, (128, 128), blur) / px  # pixels
     a, r = 40_000.0, math.sqrt(blur) * 64.0
-    entries = a / 2 + a / (0.433 * e * e) * (_views_init._BAND * r * e + math.pi * r * r)
-    np.testing.assert_allclose(entries, _views_init.MAX_ENTRIES_PER_PIXEL * 128 * 128,
+    entries = a / 2 + a / (0.433 * e * e) * (_fit_init._BAND * r * e + math.pi * r * r)
+    np.testing.assert_allclose(entries, _fit_init.MAX_ENTRIES_PER_PIXEL * 128 * 128,
                                rtol=1e-9)
-    assert a / (0.433 * e * e) < _views_init.MAX_FACES
+    assert a / (0.433 * e * e) < _fit_init.MAX_FACES
     assert shortest_edge(2 * big, px, 1, (128, 128), blur) > e * px
     assert shortest_edge(big, px, 1, (128, 128), 2 * blur) > e * px
 
@@ -376,7 +377,7 @@ def test_shortest_edge_bounds_the_rasterizer_entries():
     mesh = remesh_to_length(sphere, e)
     fr = rasterize_soft(mesh, cams, s_)
     per_view = len(fr) / len(cams)
-    bound = _views_init.MAX_ENTRIES_PER_PIXEL * 128 * 128
+    bound = _fit_init.MAX_ENTRIES_PER_PIXEL * 128 * 128
     assert 0.7 * bound < per_view < 1.15 * bound
 
 

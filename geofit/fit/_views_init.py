@@ -7,14 +7,13 @@
   so no setting depends on the object's scale or on the image size.
 * :func:`remesh_to_length` -- :func:`geofit.ops.remesh` towards one edge length (split,
   collapse, flip; manifold in, manifold out).
-* :func:`shortest_edge` -- the shortest remeshing edge that keeps one evaluation of the soft
-  silhouettes bounded (faces, and the rasterizer's (pixel, face) entries).
+* the remeshing's shortest and longest edges are :func:`geofit.fit.init.shortest_edge` and
+  :func:`geofit.fit.init.max_edge_length`.
 
 No gradient is defined here.
 """
 from __future__ import annotations
 
-import math
 
 from ..shapes import ico_sphere
 from ..structures import Mesh
@@ -22,21 +21,7 @@ from ..structures.visual_hull import pixel_footprint
 from .history import TimeUp
 from .init import max_edge_length, visual_hull_mesh
 
-__all__ = ["initial_mesh", "remesh_to_length", "shortest_edge"]
-
-#: The remeshing keeps at most about this many faces at full image size (``/ factor**2`` at
-#: a level downsampled by ``factor``).
-MAX_FACES = 4000
-#: ... and at most about this many soft-rasterizer entries ((pixel, face) pairs within the blur
-#: radius) per pixel of a view: the evaluation's time is proportional to the entries. The cow's
-#: fit has about 5.5, a box or the double-walled open cylinder 8.5-10.7 at 4000 faces
-#: (measured at 128 px, tutorial blur); 7.45 leaves every shape of at most about 16 000
-#: square pixels of surface at the default's 3 px edges.
-MAX_ENTRIES_PER_PIXEL = 7.45
-# entries per face beyond its own area: about _BAND r e + pi r^2 for edges e and blur radius r
-# (pixels): a face's blur band, foreshortened (fitted on the cow, box and open cylinder, 20
-# views of 128 px: within 5 % of the measured entries)
-_BAND = 2.78
+__all__ = ["initial_mesh", "remesh_to_length"]
 
 
 def initial_mesh(plan, run) -> None:
@@ -97,48 +82,3 @@ def remesh_to_length(mesh: Mesh, length: float, n_passes: int = 3) -> Mesh:
 
     return remesh(mesh, float(length), n_passes=n_passes).mesh
 
-
-def shortest_edge(area: float, pixel_size: float, factor: int, image_size,
-                  blur_radius: float) -> float:
-    """The shortest remeshing edge (world units) of a silhouette level: the face count stays
-    under :data:`MAX_FACES` ``/ factor**2`` and the soft rasterizer's expected entries per view
-    under :data:`MAX_ENTRIES_PER_PIXEL` per pixel, so an evaluation's time stays bounded
-    whatever the object's surface area.
-
-    The expected entries of one view, in pixels of the level (``p = pixel_size * factor``
-    world units, surface area ``a = area / p**2``, ``n = a / (0.433 e**2)`` faces of edge
-    ``e``, blur radius ``r = sqrt(blur_radius) min(H, W) / 2``): ``a / 2`` (the mean projected
-    area of a closed surface's faces) plus ``n (2.78 r e + pi r**2)`` (each face's blur band);
-    the bound is a quadratic in ``1 / e``.
-
-    Parameters
-    ----------
-    area : float
-        Surface area of the mesh (world units squared).
-    pixel_size : float
-        World size of a full-resolution pixel at the object.
-    factor : int
-        The level's downsampling factor.
-    image_size : (2,) int
-        The level's ``(H, W)``.
-    blur_radius : float
-        The soft rasterizer's blur radius (squared NDC units).
-
-    Returns
-    -------
-    float
-        World units (0 for an empty surface).
-    """
-    H, W = (int(v) for v in image_size)
-    faces = math.sqrt(float(area) * factor * factor / (0.433 * MAX_FACES))
-    p = float(pixel_size) * factor
-    a = float(area) / (p * p)
-    r = math.sqrt(float(blur_radius)) * min(H, W) / 2.0
-    if a <= 0 or r <= 0:
-        return faces
-    extra = MAX_ENTRIES_PER_PIXEL * H * W / a - 0.5  # entries per unit area beyond a / 2
-    if extra <= 0:  # even the faces' own area is over the bound: the face cap decides
-        return faces
-    c2, c1 = math.pi * r * r / 0.433, _BAND * r / 0.433  # c2 u^2 + c1 u <= extra, u = 1 / e
-    u = (-c1 + math.sqrt(c1 * c1 + 4.0 * c2 * extra)) / (2.0 * c2)
-    return max(faces, p / u)

@@ -75,12 +75,12 @@ from ._options import as_dataset, check_int, check_weights, merge_options, recip
 from ._progress import NoBar, advance, progress_bar
 from ._rgb_refine import refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
-from ._views_init import initial_mesh, remesh_to_length, shortest_edge
+from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import (
     REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_background, dataset_lights,
 )
 from .history import Clock, FitHistory, FitResult
-from .init import _check_margins
+from .init import _check_margins, shortest_edge
 from .large_steps import vertex_parameterization
 from .solvers import StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 from .texture import fit_texture
@@ -187,7 +187,10 @@ class ViewsFitOptions:
         Remesh-and-solve rounds per level (0: no remeshing). Before each solve the mesh is
         remeshed (:func:`geofit.ops.remesh`) to edges of ``edge_px`` pixels of that level's
         images (at most a fifteenth of the initial mesh's bounding-box diagonal, and long
-        enough to keep about 4000 faces at full resolution, 1000 at half).
+        enough to keep about 4000 faces at full resolution, 1000 at half, and about 7.45
+        soft-rasterizer entries per pixel of a view: a large surface, a box's or a hull's
+        double wall, gets longer edges, so one evaluation's time stays bounded;
+        :func:`geofit.fit.init.shortest_edge`).
     edge_px : float
         Target edge length of the remeshing in pixels (measured at the initial mesh's centre).
     textured_init : {"silhouette", "sphere"}
