@@ -11,7 +11,9 @@ import pytest
 from geofit.cameras import FoVPerspectiveCameras, look_at_view_transform
 from geofit.datasets import tutorial_views
 from geofit.fit import ViewsFitOptions, fit_mesh_to_views
+from geofit.fit import init as _fit_init
 from geofit.fit._views_init import remesh_to_length
+from geofit.fit.init import shortest_edge
 from geofit.fit.init import visual_hull_mesh
 from geofit.structures.visual_hull import carve_hull, hull_field, pixel_footprint
 from geofit.fit.views import RECIPES, ViewsEvaluator
@@ -294,6 +296,89 @@ def test_hull_margins_keep_a_pinhole_and_carve_a_hole(spheres):
     big[0][(yy - y) ** 2 + (xx - x) ** 2 < 16] = 0.0
     assert (carve_hull(big, cams, voxel_px=0.75, margins=(1.0, 0.0)).field > 0).sum() < \
         (ref.field > 0).sum()
+
+
+def test_deep_vote_fills_the_tunnel_not_the_outline(spheres):
+    """With ``vote_depth`` the vote only fills, and only deep inside its hull: the tunnel a
+    2 x 2 pinhole in one view bores is mostly filled, the vote's shell of up to a pixel around
+    the outline is not added (node counts near the plain hull's, well under the vote's), every
+    node is inside the vote's hull, and without the pinhole nothing is kept."""
+    sil, cams, _ = _pinholed(spheres)
+
+    def n(g):
+        return int((g.field > 0).sum())
+
+    plain = carve_hull(spheres.silhouettes, cams, voxel_px=0.75)
+    holed = carve_hull(sil, cams, voxel_px=0.75)
+    vote = carve_hull(sil, cams, voxel_px=0.75, margins=(1.0, 0.0))
+    deep = carve_hull(sil, cams, voxel_px=0.75, margins=(1.0, 0.0), vote_depth=1.5)
+    tunnel = n(plain) - n(holed)
+    assert tunnel > 20 and n(deep) - n(holed) > 0.6 * tunnel
+    assert n(deep) < 1.03 * n(plain) and n(vote) > 1.1 * n(plain)
+    assert not ((deep.field > 0) & ~(vote.field > 0)).any()  # the same grid (same vote box)
+    assert deep.n_vote_kept > 0
+    clean = carve_hull(spheres.silhouettes, cams, voxel_px=0.75, margins=(1.0, 0.0),
+                       vote_depth=1.5)
+    assert clean.n_vote_kept == 0
+
+
+def test_deep_vote_options_are_validated(spheres):
+    """vote_depth must be >= 0 and needs refine=1; the fit's hull_vote_depth likewise."""
+    with pytest.raises(ValueError, match="vote_depth"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, margins=(1.0, 0.0),
+                         vote_depth=-1.0)
+    with pytest.raises(ValueError, match="vote_depth"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, margins=(1.0, 0.0),
+                         vote_depth=1.5, refine=2)
+    with pytest.raises(ValueError, match="hull_vote_depth"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_vote_depth=-0.5),
+                          progress=False)
+
+
+def test_shortest_edge_keeps_faces_and_entries_bounded():
+    """Below the entries bound the shortest edge is the face cap's (area / (0.433 e^2) =
+    MAX_FACES / factor^2); above it, the model's expected entries per view at the returned
+    edge equal MAX_ENTRIES_PER_PIXEL per pixel; it grows with the area and the blur."""
+    from geofit.render.soft.rasterizer import TUTORIAL_BLUR_RADIUS as blur
+
+    px = 0.02
+    small = 10_000 * px * px  # 10 000 square pixels of surface
+    for fac, size in ((1, (128, 128)), (2, (64, 64))):
+        e = shortest_edge(small, px, fac, size, blur)
+        np.testing.assert_allclose(small / (0.433 * e * e), _fit_init.MAX_FACES / fac ** 2,
+                                   rtol=1e-12)
+    big = 40_000 * px * px
+    e = shortest_edge(big, px, 1, (128, 128), blur) / px  # pixels
+    a, r = 40_000.0, math.sqrt(blur) * 64.0
+    entries = a / 2 + a / (0.433 * e * e) * (_fit_init._BAND * r * e + math.pi * r * r)
+    np.testing.assert_allclose(entries, _fit_init.MAX_ENTRIES_PER_PIXEL * 128 * 128,
+                               rtol=1e-9)
+    assert a / (0.433 * e * e) < _fit_init.MAX_FACES
+    assert shortest_edge(2 * big, px, 1, (128, 128), blur) > e * px
+    assert shortest_edge(big, px, 1, (128, 128), 2 * blur) > e * px
+
+
+def test_shortest_edge_bounds_the_rasterizer_entries():
+    """The model holds for the soft rasterizer itself: a sphere of 40 000 square pixels of
+    surface, remeshed to the shortest edge, gives at most 15 % more entries per view than
+    the bound (6 views of 128 px, the tutorial's blur)."""
+    from geofit.render.soft import SoftRasterizationSettings, rasterize_soft
+    from geofit.shapes import ico_sphere
+
+    R, T = look_at_view_transform(2.7, [0.0, 30.0, -20.0, 10.0, 60.0, -45.0],
+                                  [0.0, 60.0, 120.0, 180.0, 240.0, 300.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    px = pixel_footprint(cams, (128, 128), np.zeros(3))
+    radius = math.sqrt(40_000.0 / (4.0 * math.pi)) * px
+    s = ico_sphere(3)
+    sphere = Mesh(s.verts * radius, s.faces)
+    s_ = SoftRasterizationSettings.tutorial(128)
+    e = shortest_edge(float(sphere.face_areas.sum()), px, 1, (128, 128), s_.blur_radius)
+    mesh = remesh_to_length(sphere, e)
+    fr = rasterize_soft(mesh, cams, s_)
+    per_view = len(fr) / len(cams)
+    bound = _fit_init.MAX_ENTRIES_PER_PIXEL * 128 * 128
+    assert 0.7 * bound < per_view < 1.15 * bound
 
 
 def test_hull_carving_options_are_validated(spheres):

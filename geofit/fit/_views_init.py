@@ -7,6 +7,8 @@
   so no setting depends on the object's scale or on the image size.
 * :func:`remesh_to_length` -- :func:`geofit.ops.remesh` towards one edge length (split,
   collapse, flip; manifold in, manifold out).
+* the remeshing's shortest and longest edges are :func:`geofit.fit.init.shortest_edge` and
+  :func:`geofit.fit.init.max_edge_length`.
 
 No gradient is defined here.
 """
@@ -40,6 +42,7 @@ def initial_mesh(plan, run) -> None:
             hull = visual_hull_mesh(v.silhouettes, v.cameras, edge_px=plan.edge_px * fac,
                                     upsample=plan.hull_upsample,
                                     close_px=plan.hull_close_px, margins=plan.hull_margins,
+                                    vote_depth=plan.hull_vote_depth,
                                     check=run.clock.check)
         except TimeUp:
             seconds = run.clock.elapsed() - t0
@@ -78,3 +81,4 @@ def remesh_to_length(mesh: Mesh, length: float, n_passes: int = 3) -> Mesh:
     from ..ops import remesh
 
     return remesh(mesh, float(length), n_passes=n_passes).mesh
+

@@ -13,6 +13,7 @@ start from a shape that already has the data's topology:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,8 +23,9 @@ from ..shapes import ico_sphere
 from ..structures import Mesh
 from ..structures.visual_hull import carve_hull, close_unsupported_handles
 
-__all__ = ["INITS", "InitialMesh", "VisualHullMesh", "decimate", "initial_mesh",
-           "max_edge_length", "mesh_from_occupancy", "visual_hull_mesh"]
+__all__ = ["INITS", "InitialMesh", "MAX_ENTRIES_PER_PIXEL", "MAX_FACES", "VisualHullMesh",
+           "decimate", "initial_mesh", "max_edge_length", "mesh_from_occupancy",
+           "shortest_edge", "visual_hull_mesh"]
 
 #: Initialisations :func:`initial_mesh` accepts.
 INITS = ("auto", "sphere", "target")
@@ -193,6 +195,68 @@ def max_edge_length(mesh: Mesh) -> float:
     return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) / _MIN_EDGES_ACROSS
 
 
+#: The remeshing keeps at most about this many faces at full image size (``/ factor**2`` at
+#: a level downsampled by ``factor``).
+MAX_FACES = 4000
+#: ... and at most about this many soft-rasterizer entries ((pixel, face) pairs within the blur
+#: radius) per pixel of a view: the evaluation's time is proportional to the entries. The cow's
+#: fit has about 5.5, a box or the double-walled open cylinder 8.5-10.7 at 4000 faces
+#: (measured at 128 px, tutorial blur); 7.45 leaves every surface of at most about 16 500
+#: square pixels as it was (the face cap binds first).
+MAX_ENTRIES_PER_PIXEL = 7.45
+# entries per face beyond its own area: about _BAND r e + pi r^2 for edges e and blur radius r
+# (pixels): a face's blur band, foreshortened (fitted on the cow, box and open cylinder, 20
+# views of 128 px, at their face counts: within 5 % of the measured entries; the remesher
+# can leave more faces than a / (0.433 e^2), e.g. 3262 for 2516 on a box's hull)
+_BAND = 2.78
+
+
+def shortest_edge(area: float, pixel_size: float, factor: int, image_size,
+                  blur_radius: float) -> float:
+    """The shortest remeshing edge (world units) of a silhouette level: the face count stays
+    under :data:`MAX_FACES` ``/ factor**2`` and the soft rasterizer's expected entries per view
+    under :data:`MAX_ENTRIES_PER_PIXEL` per pixel, so an evaluation's time stays bounded
+    whatever the object's surface area.
+
+    The expected entries of one view, in pixels of the level (``p = pixel_size * factor``
+    world units, surface area ``a = area / p**2``, ``n = a / (0.433 e**2)`` faces of edge
+    ``e``, blur radius ``r = sqrt(blur_radius) min(H, W) / 2``): ``a / 2`` (the mean projected
+    area of a closed surface's faces) plus ``n (2.78 r e + pi r**2)`` (each face's blur band);
+    the bound is a quadratic in ``1 / e``.
+
+    Parameters
+    ----------
+    area : float
+        Surface area of the mesh (world units squared).
+    pixel_size : float
+        World size of a full-resolution pixel at the object.
+    factor : int
+        The level's downsampling factor.
+    image_size : (2,) int
+        The level's ``(H, W)``.
+    blur_radius : float
+        The soft rasterizer's blur radius (squared NDC units).
+
+    Returns
+    -------
+    float
+        World units (0 for an empty surface).
+    """
+    H, W = (int(v) for v in image_size)
+    faces = math.sqrt(float(area) * factor * factor / (0.433 * MAX_FACES))
+    p = float(pixel_size) * factor
+    a = float(area) / (p * p)
+    r = math.sqrt(float(blur_radius)) * min(H, W) / 2.0
+    if a <= 0 or r <= 0:
+        return faces
+    extra = MAX_ENTRIES_PER_PIXEL * H * W / a - 0.5  # entries per unit area beyond a / 2
+    if extra <= 0:  # even the faces' own area is over the bound: the face cap decides
+        return faces
+    c2, c1 = math.pi * r * r / 0.433, _BAND * r / 0.433  # c2 u^2 + c1 u <= extra, u = 1 / e
+    u = (-c1 + math.sqrt(c1 * c1 + 4.0 * c2 * extra)) / (2.0 * c2)
+    return max(faces, p / u)
+
+
 @dataclass
 class VisualHullMesh:
     """A mesh of the visual hull and how it was carved (:func:`visual_hull_mesh`).
@@ -243,7 +307,8 @@ def _check_margins(margins, name: str = "margins") -> tuple:
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
                      close_handles: bool = False, upsample: int = 1,
-                     close_px: float = 0.0, margins=(0.0,), check=None) -> VisualHullMesh:
+                     close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
+                     check=None) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -294,6 +359,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         non-increasing): ``(0,)`` carves what any one view puts outside its silhouette;
         ``(1, 0)`` only what one view puts more than a pixel outside or two views outside, so
         a pinhole or seam at most 2 pixels wide in one view carves no tunnel.
+    vote_depth : float
+        The vote only fills, and only where its hull is deeper than this many pixels
+        (:func:`geofit.structures.visual_hull.carve_hull`): tunnels are filled, the outline
+        keeps the plain hull's. 0: the vote as it is. Needs ``refine=1``.
     check : callable, optional
         Called between the carving's views and steps (a fit passes its clock's
         :meth:`~geofit.fit.Clock.check`, which raises :class:`~geofit.fit.TimeUp` once its
@@ -320,9 +389,13 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
             raise ValueError(f"{name}: expected an integer >= 1, got {val!r}")
     close_px = check_positive(close_px, "close_px", strict=False)
     margins = _check_margins(margins)
+    vote_depth = check_positive(vote_depth, "vote_depth", strict=False)
+    if vote_depth > 0 and refine != 1:
+        raise ValueError(f"vote_depth: the deep vote needs refine=1, got vote_depth "
+                         f"{vote_depth!r} with refine {refine!r}")
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
                    voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
-                   close_px=close_px, margins=margins, check=check)
+                   close_px=close_px, margins=margins, vote_depth=vote_depth, check=check)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)

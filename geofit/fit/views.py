@@ -80,7 +80,7 @@ from ._views_objective import (
     REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_background, dataset_lights,
 )
 from .history import Clock, FitHistory, FitResult
-from .init import _check_margins
+from .init import _check_margins, shortest_edge
 from .large_steps import vertex_parameterization
 from .solvers import StepInfo, adam, lbfgs_nlopt, lbfgs_scipy, sgd
 from .texture import fit_texture
@@ -187,7 +187,10 @@ class ViewsFitOptions:
         Remesh-and-solve rounds per level (0: no remeshing). Before each solve the mesh is
         remeshed (:func:`geofit.ops.remesh`) to edges of ``edge_px`` pixels of that level's
         images (at most a fifteenth of the initial mesh's bounding-box diagonal, and long
-        enough to keep about 4000 faces at full resolution, 1000 at half).
+        enough to keep about 4000 faces at full resolution, 1000 at half, and about 7.45
+        soft-rasterizer entries per pixel of a view: a large surface, a box's or a hull's
+        double wall, gets longer edges, so one evaluation's time stays bounded;
+        :func:`geofit.fit.init.shortest_edge`).
     edge_px : float
         Target edge length of the remeshing in pixels (measured at the initial mesh's centre).
     textured_init : {"silhouette", "sphere"}
@@ -232,6 +235,11 @@ class ViewsFitOptions:
         ``(1, 0)`` gives the open cylinder held-out IoU 0.981 (0.965) and genus 1 (31), the
         thin plate F@0.01 0.504 (0.309), the ogre IoU 0.821 (0.791), but the cow F@0.01 0.754
         (0.781; measured, benchmarks/results/fit_views_viewsthin.md).
+    hull_vote_depth : float
+        With ``hull_margins``, the vote only fills, and only where its hull is deeper than
+        this many pixels (:func:`geofit.structures.visual_hull.carve_hull`): the tunnels that
+        single-view seams and slits bore are filled, the outline stays the plain hull's (0:
+        the vote as it is).
     rgb_iters : int
         L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
         the vertices against the RGB images with the hard image term
@@ -270,6 +278,7 @@ class ViewsFitOptions:
     hull_upsample: int | None = None
     hull_close_px: float | None = None
     hull_margins: Any = None
+    hull_vote_depth: float | None = None
     rgb_iters: int | None = None
 
 
@@ -277,7 +286,7 @@ class ViewsFitOptions:
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
-               hull_close_px=0.0, hull_margins=(0.0,), rgb_iters=0)
+               hull_close_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0, rgb_iters=0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -314,7 +323,6 @@ FINAL_STAGE_SHARE = 0.1
 #: The share it leaves with ``texture="uv"`` (the colours and the UV texture: on the cow's 20
 #: views of 128 px the two take 3-5 s under load).
 _TEXTURE_RESERVE = 0.15
-_MAX_FACES = 4000  # the default's remeshing keeps at most about this many faces (full size)
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
@@ -575,6 +583,7 @@ class _Plan:
     hull_upsample: int = 1
     hull_close_px: float = 0.0
     hull_margins: tuple = (0.0,)
+    hull_vote_depth: float = 0.0
     rgb_iters: int = 0
     final_large_steps: float | None = None  # the last level's lambda (None: large_steps)
 
@@ -651,6 +660,8 @@ class _Plan:
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
                    hull_margins=_check_margins(o.hull_margins, "options.hull_margins"),
+                   hull_vote_depth=check_positive(o.hull_vote_depth, "options.hull_vote_depth",
+                                                  strict=False),
                    rgb_iters=rgb_iters,
                    final_large_steps=(large_steps if o.final_large_steps is None else
                                       check_positive(o.final_large_steps,
@@ -746,8 +757,11 @@ def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
                 break
             if plan.remesh_rounds:
                 # edge_px pixels, at most max_edge; at least the length that keeps the face
-                # count under _MAX_FACES / fac^2 (a bounded time per evaluation)
-                floor = math.sqrt(float(mesh.face_areas.sum()) * fac * fac / (0.433 * _MAX_FACES))
+                # count and the soft rasterizer's entries bounded (a bounded time per
+                # evaluation)
+                floor = shortest_edge(float(mesh.face_areas.sum()),
+                                      plan.init_info["pixel_size"], fac, data.image_size,
+                                      plan.settings(data.image_size).blur_radius)
                 mesh = remesh_to_length(mesh, max(min(plan.edge_px * fac * plan.init_info[
                     "pixel_size"], plan.init_info["max_edge"]), floor))
             k = li * rounds + ri

@@ -192,7 +192,8 @@ class HullGrid:
 
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
                voxel_px: float = 1.5, refine: int = 1, upsample: int = 1,
-               close_px: float = 0.0, margins=(0.0,), check=None) -> HullGrid:
+               close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
+               check=None) -> HullGrid:
     """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
 
     A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
@@ -260,8 +261,12 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     h = voxel_px * px
     axes, P = _grid(lo, hi, h)
     occ, plain_min = hull_field(sd, cameras, P, (H, W), check, margins, with_min=True)
+    shape = [len(a) for a in axes]
+    if vote_depth > 0:
+        occ = _deep_vote(occ.reshape(shape), plain_min.reshape(shape), h / px,
+                         float(vote_depth)).ravel()
     n_kept = int(((occ > 0) & (plain_min <= 0)).sum())
-    occ = occ.reshape([len(a) for a in axes])
+    occ = occ.reshape(shape)
     if refine > 1:
         occ, h = _refine_band(occ, lo, h, px, int(refine), sd, cameras, (H, W), check,
                               margins)
@@ -269,6 +274,16 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
         raise ValueError("silhouettes: the visual hull is empty after carving; check the "
                          "cameras")
     return HullGrid(occ, lo, h, px, n_closed, n_kept)
+
+
+def _deep_vote(vote: np.ndarray, plain: np.ndarray, node_px: float, depth: float):
+    """The plain field, raised where the vote's hull is deeper than ``depth`` pixels
+    (:func:`carve_hull`'s ``vote_depth``; ``node_px``: pixels per node)."""
+    from scipy.ndimage import distance_transform_edt
+
+    inside = np.pad(vote > 0, 1)  # the box's border is outside
+    deep = distance_transform_edt(inside)[(slice(1, -1),) * 3] * node_px - depth
+    return np.maximum(plain, np.minimum(vote, deep))
 
 
 def _refine_band(occ: np.ndarray, lo: np.ndarray, h: float, px: float, k: int, sd, cameras,

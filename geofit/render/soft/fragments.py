@@ -224,25 +224,22 @@ def _grad(x, name, shape):
     return as_array(x, name, shape, np.float32 if keep else np.float64)
 
 
-_EDGE_ENDS = np.array([[0, 1], [0, 2], [1, 2]])
-
-
 def _dist_vjp(fr: SoftFragments, n: int, s: slice, gd: np.ndarray, V: int) -> np.ndarray:
     """World-vertex gradient of one view from gradients on the signed distances only: only the
     two ends of each entry's nearest edge move (``dD/da = 2 (1 - t)(c - q)``,
     ``dD/db = 2 t (c - q)``, ``c = a + t (b - a)``; the sign flips inside)."""
     ctx = fr._ctx
     X, Y = ctx["x"][n], ctx["y"][n]
-    ends = _EDGE_ENDS[fr._edge[s]]
-    f = fr.face[s]
-    faces = ctx["faces"]
-    va = faces[f, ends[:, 0]]
-    vb = faces[f, ends[:, 1]]
+    edge = fr._edge[s]
+    fv = ctx["faces"][fr.face[s]]
+    # the nearest edge's ends: edge 0 is (0, 1), 1 is (0, 2), 2 is (1, 2)
+    va = np.where(edge == 2, fv[:, 1], fv[:, 0])
+    vb = np.where(edge == 0, fv[:, 1], fv[:, 2])
     W = fr.image_size[1]
-    pix = fr.pixel[s]
+    prow, pcol = np.divmod(fr.pixel[s], W)
     ax, ay = X[va], Y[va]
     dx, dy = X[vb] - ax, Y[vb] - ay
-    rx, ry = ctx["px"][pix % W] - ax, ctx["py"][pix // W] - ay
+    rx, ry = ctx["px"][pcol] - ax, ctx["py"][prow] - ay
     l2 = dx * dx + dy * dy
     degenerate = l2 <= _EPS
     t = np.clip((rx * dx + ry * dy) / np.where(degenerate, 1.0, l2), 0.0, 1.0)

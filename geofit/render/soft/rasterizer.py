@@ -243,27 +243,34 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         n_pairs = int(cc.sum())
         stats["peak_pairs"] = max(stats["peak_pairs"], n_pairs)
         loc = np.repeat(np.arange(start, stop), cc)  # position in fids
+
+        def rep(a, cc=cc, start=start, stop=stop):  # a[loc]: runs, no gather
+            return np.repeat(a[start:stop], cc)
+
         off = np.arange(n_pairs, dtype=np.int64) - np.repeat(np.cumsum(cc) - cc, cc)
-        nxl = nx[loc]
-        col = i_lo[loc] + off % nxl
-        row = j_lo[loc] + off // nxl
-        del off, nxl
+        row, col = np.divmod(off, rep(nx))
+        col += rep(i_lo)
+        row += rep(j_lo)
+        del off
         qx = px[col]
         qy = py[row]
         # stage 1: signed distances to the three edge lines; a pair whose pixel lies beyond
         # sqrt(blur) outside one of them is farther than sqrt(blur) from the triangle
-        sl = [a[loc] * qx + b[loc] * qy + c[loc] for a, b, c in lines]
+        sl = [rep(a) * qx + rep(b) * qy + rep(c) for a, b, c in lines]
         s_min = np.minimum(np.minimum(sl[0], sl[1]), sl[2])
         live = np.flatnonzero(s_min > cut)
-        loc, col, row, qx, qy, s_min = (v[live] for v in (loc, col, row, qx, qy, s_min))
+        pix = row * W + col
+        del row, col
+        loc, pix, qx, qy, s_min = (v[live] for v in (loc, pix, qx, qy, s_min))
         sl = [v[live] for v in sl]
         # stage 2: exact squared distance to the triangle (the nearest of the three segments,
         # PyTorch3D's order e01, e02, e12 on ties). Inside a triangle the nearest segment point
         # is the foot on the nearest edge line, so there it is (min_i s_i)^2 (faces with a
         # degenerate edge, whose distance PyTorch3D takes to an end point, excepted).
         inside = s_min > 0.0
-        gen = np.flatnonzero(~inside | degface[loc])
-        fast = np.flatnonzero(inside & ~degface[loc])
+        general = ~inside | degface[loc]
+        gen = np.flatnonzero(general)
+        fast = np.flatnonzero(~general)
         n_live = len(loc)
         dist = np.empty(n_live)
         edge = np.empty(n_live, np.int8)
@@ -275,9 +282,15 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         dist[fast] = dmin * dmin
         edge[fast] = np.where(use01, 0, np.where(use02, 1, 2))
         if gen.size:
-            lg = loc[gen]
-            d = [_seg_sqdist(qx[gen], qy[gen], ax[lg], ay[lg], dx[lg], dy[lg], il[lg], dg[lg])
-                 for ax, ay, dx, dy, il, dg in segs]
+            # loc[gen] is sorted (runs of faces): its per-face values by np.repeat
+            g_cnt = np.bincount(loc[gen] - start, minlength=stop - start)
+
+            def grun(a, g_cnt=g_cnt, start=start, stop=stop):  # a[loc[gen]]
+                return np.repeat(a[start:stop], g_cnt)
+
+            qxg, qyg = qx[gen], qy[gen]
+            d = [_seg_sqdist(qxg, qyg, grun(ax), grun(ay), grun(dx), grun(dy), grun(il),
+                             grun(dg)) for ax, ay, dx, dy, il, dg in segs]
             use01 = (d[0] <= d[1]) & (d[0] <= d[2])
             use02 = ~use01 & (d[1] <= d[2])
             dist[gen] = np.where(use01, d[0], np.where(use02, d[1], d[2]))
@@ -293,7 +306,7 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
             pz = raw[0] * Zc[loc, 0] + raw[1] * Zc[loc, 1] + raw[2] * Zc[loc, 2]
             keep &= pz >= 0.0
         sel = np.flatnonzero(keep)
-        parts.append((fids[loc[sel]], row[sel] * W + col[sel],
+        parts.append((fids[loc[sel]], pix[sel],
                       np.where(inside[sel], -dist[sel], dist[sel]), edge[sel], inside[sel]))
         start = stop
     f, pix, sd, edge, inside = (np.concatenate(c) for c in zip(*parts))
