@@ -424,8 +424,9 @@ def test_one_visual_hull_for_fit_volume_and_occupancy_grid(scene):
 
 
 def test_grid_centres_of_some_voxels_and_row_block_views():
-    """Centres of selected voxels are get_coord_grid's values; a row block of W shares its
-    arrays and its products are W[r0:r1]'s, entry for entry."""
+    """Centres of selected voxels are get_coord_grid's values; a row block of W (a small one:
+    scipy's constructor would copy it) and its transpose share W's arrays, and their products
+    are W[r0:r1]'s, entry for entry."""
     import scipy.sparse as sp
 
     g = fv._Grid((5, 6, 7), 0.3, np.array([0.1, -0.2, 0.05]))
@@ -435,9 +436,12 @@ def test_grid_centres_of_some_voxels_and_row_block_views():
     np.testing.assert_array_equal(g.centres(flat), ref[flat])
     np.testing.assert_array_equal(g.centres(), ref)
     W = sp.random(300, 50, density=0.1, format="csr", dtype=np.float32, random_state=1)
-    B = fv._row_block(W, 40, 210)
-    assert np.shares_memory(B.data, W.data) and B.shape == (170, 50)
+    B = fv._row_block(W, 40, 90)
+    Bt = fv._transposed(B)
+    assert B.shape == (50, 50) and Bt.shape == (50, 50)
+    for M in (B, Bt):
+        assert np.shares_memory(M.data, W.data) and np.shares_memory(M.indices, W.indices)
     x = np.random.default_rng(0).random(50).astype(np.float32)
-    y = np.random.default_rng(1).random(170).astype(np.float32)
-    np.testing.assert_array_equal(B @ x, W[40:210] @ x)
-    np.testing.assert_array_equal(B.T @ y, W[40:210].T @ y)
+    y = np.random.default_rng(1).random(50).astype(np.float32)
+    np.testing.assert_array_equal(B @ x, W[40:90] @ x)
+    np.testing.assert_array_equal(Bt @ y, W[40:90].T @ y)

@@ -242,19 +242,20 @@ class _Objective:
         return X, sd, sc
 
     def _split(self):
-        """Row blocks of W at chunk boundaries, one per thread (built once; views of W)."""
+        """Row blocks of W at chunk boundaries, one per thread, transposed (built once; views
+        of W's arrays): ``(r0, r1, W[r0:r1].T)``."""
         if self._blocks is None:
             n_t = get_num_threads()
             chunks = self.layout.chunks
             if n_t < 2 or len(chunks) < 2:
-                self._blocks = [(0, self.layout.n_rows, self.W)]
+                self._blocks = [(0, self.layout.n_rows, _transposed(self.W))]
             else:
                 starts = np.array([row for row, a, b, K in chunks])
                 nnz_at = self.W.indptr[starts]  # nonzeros before each chunk
                 targets = self.W.nnz * np.arange(1, n_t) / n_t
                 cuts = np.unique(np.clip(np.searchsorted(nnz_at, targets), 1, len(chunks) - 1))
                 rows = [0, *starts[cuts].tolist(), self.layout.n_rows]
-                self._blocks = [(r0, r1, _row_block(self.W, r0, r1))
+                self._blocks = [(r0, r1, _transposed(_row_block(self.W, r0, r1)))
                                 for r0, r1 in zip(rows, rows[1:])]
         return self._blocks
 
@@ -404,8 +405,7 @@ class _Objective:
         def bwd(task):
             if task is None:
                 return self._smoothness(sd, sc, True)
-            r0, r1, Wb = task
-            Wt = Wb.T
+            r0, r1, Wt = task
             return np.stack([Wt @ G[ch, r0:r1] for ch in range(4)])
         Zs = parallel_map(bwd, blocks + [None] if smooth else blocks)
         if smooth:
@@ -446,12 +446,26 @@ class _Objective:
                 (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T)
 
 
+def _sharing(cls, data: np.ndarray, indices: np.ndarray, indptr: np.ndarray, shape):
+    """``cls((data, indices, indptr), shape)`` on these very arrays: scipy's constructor
+    copies arrays that are views of less than half their base (its ``prune``), which the row
+    blocks below are (the chunks' views of W: 400 MB copied per level at 128^3)."""
+    m = cls(shape, dtype=data.dtype)
+    m.data, m.indices, m.indptr = data, indices, indptr
+    return m
+
+
 def _row_block(W: sp.csr_matrix, r0: int, r1: int) -> sp.csr_matrix:
     """Rows ``r0:r1`` of a csr matrix as a view of its data and indices (``W[r0:r1]`` copies
-    them: 400 MB at 128^3); its products are ``W[r0:r1]``'s, entry for entry."""
+    them); its products are ``W[r0:r1]``'s, entry for entry."""
     p0, p1 = int(W.indptr[r0]), int(W.indptr[r1])
-    return sp.csr_matrix((W.data[p0:p1], W.indices[p0:p1], W.indptr[r0:r1 + 1] - p0),
-                         shape=(r1 - r0, W.shape[1]), copy=False)
+    return _sharing(sp.csr_matrix, W.data[p0:p1], W.indices[p0:p1],
+                    W.indptr[r0:r1 + 1] - W.indptr[r0], (r1 - r0, W.shape[1]))
+
+
+def _transposed(B: sp.csr_matrix) -> sp.csc_matrix:
+    """``B.T`` sharing B's arrays (``B.T`` copies them when they are a small view)."""
+    return _sharing(sp.csc_matrix, B.data, B.indices, B.indptr, B.shape[::-1])
 
 
 def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
