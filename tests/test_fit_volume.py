@@ -117,6 +117,37 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
     assert np.abs(g32 - grad).max() < 1e-5 * np.abs(grad).max()
 
 
+def test_ray_losses_reuse_the_last_evaluation(scene):
+    """Each ray's loss averages to the image terms; asked at the point evaluated last, it is
+    that evaluation's (no new sweep), bit for bit what a fresh computation gives."""
+    images, sils, cams, _, _ = scene
+    grid = fv._Grid((8, 8, 8), 3.0 / 8, np.zeros(3))
+    o, d, L = fv._rays(cams[:3], 12, 12, 30, 0.1, 3.0)
+    rgb = fv._downsample(images[:3], 2).reshape(-1, 3)
+    sil = fv._downsample(sils[:3], 2).reshape(-1)
+    allowed = np.zeros(grid.size, bool)
+    allowed[1:7, 2:6, 1:7] = True
+    dens = np.where(allowed, 0.3, 0.0)
+
+    def problem():
+        return fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=1e-2,
+                             n_pixels=3 * 144, huber_scale=0.1, dtype=np.float32,
+                             smoothness=(0.3, 0.2))
+    p = problem()
+    rng = np.random.default_rng(3)
+    x = p.pack(fv._logit(dens).reshape(-1), rng.normal(0, 1, (3, grid.n)))
+    x2 = x + rng.normal(0, 0.3, x.size)
+    p.evaluate(x2)
+    _, _, terms = p.evaluate(x)
+    sweep = p._sweep
+    p._sweep = lambda *a, **k: pytest.fail("ray_losses swept again at the last point")
+    at_x = p.ray_losses(x.copy())
+    p._sweep = sweep
+    assert at_x.mean() == pytest.approx(terms["colour"] + terms["silhouette"], rel=1e-9)
+    np.testing.assert_array_equal(at_x, problem().ray_losses(x))
+    np.testing.assert_array_equal(p.ray_losses(x2), problem().ray_losses(x2))
+
+
 def test_objective_matches_renderer(scene):
     """Without termination the skipping objective renders exactly what VolumeRenderer does."""
     images, sils, cams, truth, renderer = scene

@@ -199,6 +199,7 @@ class _Objective:
         self._blocks = None
         self._chunk_W = None
         self._buffers: dict = {}  # the sampled values and their gradients, reused
+        self._last = None  # (x, each kept ray's loss) of the last evaluation
         # smoothness: squared differences between face-neighbouring free voxels
         self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
         self.D_colour = _difference_operator(self.columns, grid.size)
@@ -320,10 +321,14 @@ class _Objective:
         return sums
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
-        """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
-        X, _, _ = self._values(x)
-        kept = np.zeros(len(self.ray_ids))
-        self._sweep(X, None, kept)
+        """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray (the last
+        evaluation's when it was at ``x``: the fit asks at its final point)."""
+        if self._last is not None and np.array_equal(self._last[0], x):
+            kept = self._last[1]
+        else:
+            X, _, _ = self._values(x)
+            kept = np.zeros(len(self.ray_ids))
+            self._sweep(X, None, kept)
         out = np.empty(self.n_rays_total)
         out[self.ray_ids] = kept
         out[self._miss[0]] = self._miss[1]
@@ -387,7 +392,9 @@ class _Objective:
         X, sd, sc = self._values(x)
         blocks = self._split()
         G = self._buffer("G") if want_grad else None
-        sums = self._sweep(X, G)
+        per_ray = np.empty(len(self.ray_ids))
+        sums = self._sweep(X, G, per_ray)
+        self._remember(x, per_ray)
         if self.clock is not None:
             self.clock.check()
         n_col = 3.0 * self.n_pixels
@@ -430,6 +437,14 @@ class _Objective:
                 gc[ch - 1] = g * v * (1.0 - v)
         parallel_map(chain, range(4))
         return value, grad, terms
+
+    def _remember(self, x: np.ndarray, per_ray: np.ndarray) -> None:
+        """Keep a copy of ``x`` (in a reused array) and its rays' losses for :meth:`ray_losses`."""
+        if self._last is None or self._last[0].shape != x.shape:
+            self._last = (np.array(x, dtype=np.float64), per_ray)
+        else:
+            np.copyto(self._last[0], x)
+            self._last = (self._last[0], per_ray)
 
     def _smoothness(self, sd: np.ndarray, sc: np.ndarray, want_grad: bool):
         """The prior's value and (``want_grad``) its gradients with respect to the density
