@@ -341,14 +341,16 @@ class _Objective:
             self._buffers[name] = np.empty((4, self.layout.n_rows), dtype=self.dtype)
         return self._buffers[name]
 
-    def _sweep(self, X: np.ndarray, G: np.ndarray | None, per_ray=None):
+    def _sweep(self, X: np.ndarray, G: np.ndarray | None, per_ray=None, extra=None):
         """Sample the values ``X (4, n_columns)`` along every kept ray and march: the loss sums
         (colour, silhouette) and (G given) the sample gradients in ``G (4, n_rows)``.
 
         One task per ray chunk on the pool: its rows of W times each channel (per row the
         same sums as the whole product), then its march while they are in the cache. The
         chunks' sums are added in chunk order within the parts of :meth:`_parts`, then the
-        parts' (the order that fixes the value's rounding).
+        parts' (the order that fixes the value's rounding). ``extra()``, if given, runs as
+        one more task after the chunks (filling the pool's tail); returns the sums and its
+        result.
         """
         chunks = self.layout.chunks
         if self._chunk_W is None:  # views of W's rows, one per chunk
@@ -357,12 +359,15 @@ class _Objective:
         Y = self._buffer("Y")
 
         def chunk(k):
+            if k is None:
+                return extra()
             row, a, b, K = chunks[k]
             Wk = self._chunk_W[k]
             for ch in range(4):  # channels
                 Y[ch, row:row + (b - a) * K] = Wk @ X[ch]
             return self._march_chunk(k, Y, G, per_ray)
-        sums = parallel_map(chunk, range(len(chunks)))
+        sums = parallel_map(chunk, [*range(len(chunks)), *([None] if extra else [])])
+        extra_result = sums.pop() if extra else None
         part_sums = []
         for lo, hi in self._parts():  # parts of the chunks
             col_sum = sil_sum = 0.0
@@ -370,7 +375,7 @@ class _Objective:
                 col_sum += c_k
                 sil_sum += s_k
             part_sums.append((col_sum, sil_sum))
-        return part_sums
+        return part_sums, extra_result
 
     def _parts(self) -> list:
         """Ranges of ray chunks whose loss sums are added first (then the parts' sums, in this
@@ -393,7 +398,11 @@ class _Objective:
         blocks = self._split()
         G = self._buffer("G") if want_grad else None
         per_ray = np.empty(len(self.ray_ids))
-        sums = self._sweep(X, G, per_ray)
+        lam_d, lam_c = self.smoothness
+        smooth = lam_d > 0 or lam_c > 0
+        # the prior runs on the pool beside the ray chunks
+        sums, prior = self._sweep(X, G, per_ray, extra=(
+            lambda: self._smoothness(sd, sc, want_grad)) if smooth else None)
         self._remember(x, per_ray)
         if self.clock is not None:
             self.clock.check()
@@ -401,22 +410,15 @@ class _Objective:
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
         terms = {"colour": loss_c, "silhouette": loss_s}
-        lam_d, lam_c = self.smoothness
-        smooth = lam_d > 0 or lam_c > 0
+        if smooth:
+            terms["smoothness"], s_sd, s_sc = prior
         if not want_grad:
-            if smooth:
-                terms["smoothness"] = self._smoothness(sd, sc, False)[0]
             return sum(terms.values()), terms
 
-        # the transposed products of the row blocks and the prior beside them on the pool
-        def bwd(task):
-            if task is None:
-                return self._smoothness(sd, sc, True)
+        def bwd(task):  # the transposed products of the row blocks, one per thread
             r0, r1, Wt = task
             return np.stack([Wt @ G[ch, r0:r1] for ch in range(4)])
-        Zs = parallel_map(bwd, blocks + [None] if smooth else blocks)
-        if smooth:
-            terms["smoothness"], s_sd, s_sc = Zs.pop()
+        Zs = parallel_map(bwd, blocks)
         value = sum(terms.values())
         Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
         nd = self.n_free_density
