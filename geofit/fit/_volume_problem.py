@@ -201,8 +201,9 @@ class _Objective:
         self._buffers: dict = {}  # the sampled values and their gradients, reused
         self._last = None  # (x, each kept ray's loss) of the last evaluation
         # smoothness: squared differences between face-neighbouring free voxels
-        self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
-        self.D_colour = _difference_operator(self.columns, grid.size)
+        self.D_density, self.D_colour = parallel_map(
+            lambda flat: _difference_operator(flat, grid.size),
+            [self.columns[self.free_idx], self.columns])
 
     @property
     def n_params(self) -> int:
@@ -505,12 +506,16 @@ def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
         keep = np.flatnonzero(j >= 0)
         rows_i.append(keep)
         rows_j.append(j[keep])
-    i = np.concatenate(rows_i)
-    j = np.concatenate(rows_j)
-    e = len(i)
-    data = np.concatenate([np.ones(e), -np.ones(e)])
-    return sp.csr_matrix((data, (np.concatenate([np.arange(e), np.arange(e)]),
-                                 np.concatenate([i, j]))), shape=(e, n))
+    e = sum(len(k) for k in rows_i)
+    idx = np.int32 if max(n, 2 * e) < 2 ** 31 - 1 else np.int64
+    ij = np.empty((e, 2), idx)  # row e: +1 at i, -1 at j > i (sorted, no duplicates)
+    ij[:, 0] = np.concatenate(rows_i)
+    ij[:, 1] = np.concatenate(rows_j)
+    data = np.empty((e, 2))
+    data[:, 0] = 1.0
+    data[:, 1] = -1.0
+    return sp.csr_matrix((data.reshape(-1), ij.reshape(-1), np.arange(0, 2 * e + 1, 2,
+                                                                      dtype=idx)), shape=(e, n))
 
 
 def _resample(values: np.ndarray, coarse: _Grid, fine: _Grid) -> np.ndarray:
