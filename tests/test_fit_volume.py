@@ -80,9 +80,9 @@ def test_huber_value_and_gradient():
         huber(x, y, 0.0)
 
 
-@pytest.mark.parametrize("termination,smoothness", [(None, (0.0, 0.0)), (1e-2, (0.3, 0.2))])
-def test_objective_gradient_finite_differences(scene, termination, smoothness):
-    """The level objective's analytic gradient matches central differences (float64)."""
+def _small_level(scene, termination, smoothness, dtype=np.float64):
+    """A level objective: 3 of the scene's views at 12 px, an 8^3 grid whose allowed voxels
+    are a box of density 0.3; returns it and its density grid."""
     images, sils, cams, _, _ = scene
     grid = fv._Grid((8, 8, 8), 3.0 / 8, np.zeros(3))
     o, d, L = fv._rays(cams[:3], 12, 12, 30, 0.1, 3.0)
@@ -91,8 +91,16 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
     allowed = np.zeros(grid.size, bool)
     allowed[1:7, 2:6, 1:7] = True
     dens = np.where(allowed, 0.3, 0.0)
-    p = fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
-                    n_pixels=3 * 144, huber_scale=0.1, smoothness=smoothness)
+    return fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
+                         n_pixels=3 * 144, huber_scale=0.1, dtype=dtype,
+                         smoothness=smoothness), dens
+
+
+@pytest.mark.parametrize("termination,smoothness", [(None, (0.0, 0.0)), (1e-2, (0.3, 0.2))])
+def test_objective_gradient_finite_differences(scene, termination, smoothness):
+    """The level objective's analytic gradient matches central differences (float64)."""
+    p, dens = _small_level(scene, termination, smoothness)
+    grid = p.grid
     rng = np.random.default_rng(2)
     x = p.pack(fv._logit(dens).reshape(-1) + rng.normal(0, 0.5, grid.n),
                rng.normal(0, 1, (3, grid.n)))
@@ -109,9 +117,7 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
             2 * h)
         assert abs(grad[i] - fd) <= 1e-6 * np.abs(grad).max() + 1e-12
     # float32 arithmetic agrees to float32 precision
-    p32 = fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
-                      n_pixels=3 * 144, huber_scale=0.1, dtype=np.float32,
-                      smoothness=smoothness)
+    p32, _ = _small_level(scene, termination, smoothness, np.float32)
     v32, g32, _ = p32.evaluate(x)
     assert abs(v32 - value) < 1e-6 * value
     assert np.abs(g32 - grad).max() < 1e-5 * np.abs(grad).max()
@@ -120,22 +126,11 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
 def test_ray_losses_reuse_the_last_evaluation(scene):
     """Each ray's loss averages to the image terms; asked at the point evaluated last, it is
     that evaluation's (no new sweep), bit for bit what a fresh computation gives."""
-    images, sils, cams, _, _ = scene
-    grid = fv._Grid((8, 8, 8), 3.0 / 8, np.zeros(3))
-    o, d, L = fv._rays(cams[:3], 12, 12, 30, 0.1, 3.0)
-    rgb = fv._downsample(images[:3], 2).reshape(-1, 3)
-    sil = fv._downsample(sils[:3], 2).reshape(-1)
-    allowed = np.zeros(grid.size, bool)
-    allowed[1:7, 2:6, 1:7] = True
-    dens = np.where(allowed, 0.3, 0.0)
-
     def problem():
-        return fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=1e-2,
-                             n_pixels=3 * 144, huber_scale=0.1, dtype=np.float32,
-                             smoothness=(0.3, 0.2))
-    p = problem()
+        return _small_level(scene, 1e-2, (0.3, 0.2), np.float32)[0]
+    p, dens = _small_level(scene, 1e-2, (0.3, 0.2), np.float32)
     rng = np.random.default_rng(3)
-    x = p.pack(fv._logit(dens).reshape(-1), rng.normal(0, 1, (3, grid.n)))
+    x = p.pack(fv._logit(dens).reshape(-1), rng.normal(0, 1, (3, p.grid.n)))
     x2 = x + rng.normal(0, 0.3, x.size)
     p.evaluate(x2)
     _, _, terms = p.evaluate(x)
