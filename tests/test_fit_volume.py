@@ -80,9 +80,9 @@ def test_huber_value_and_gradient():
         huber(x, y, 0.0)
 
 
-@pytest.mark.parametrize("termination,smoothness", [(None, (0.0, 0.0)), (1e-2, (0.3, 0.2))])
-def test_objective_gradient_finite_differences(scene, termination, smoothness):
-    """The level objective's analytic gradient matches central differences (float64)."""
+def _small_level(scene, termination, smoothness, dtype=np.float64):
+    """A level objective: 3 of the scene's views at 12 px, an 8^3 grid whose allowed voxels
+    are a box of density 0.3; returns it and its density grid."""
     images, sils, cams, _, _ = scene
     grid = fv._Grid((8, 8, 8), 3.0 / 8, np.zeros(3))
     o, d, L = fv._rays(cams[:3], 12, 12, 30, 0.1, 3.0)
@@ -91,8 +91,16 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
     allowed = np.zeros(grid.size, bool)
     allowed[1:7, 2:6, 1:7] = True
     dens = np.where(allowed, 0.3, 0.0)
-    p = fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
-                    n_pixels=3 * 144, huber_scale=0.1, smoothness=smoothness)
+    return fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
+                         n_pixels=3 * 144, huber_scale=0.1, dtype=dtype,
+                         smoothness=smoothness), dens
+
+
+@pytest.mark.parametrize("termination,smoothness", [(None, (0.0, 0.0)), (1e-2, (0.3, 0.2))])
+def test_objective_gradient_finite_differences(scene, termination, smoothness):
+    """The level objective's analytic gradient matches central differences (float64)."""
+    p, dens = _small_level(scene, termination, smoothness)
+    grid = p.grid
     rng = np.random.default_rng(2)
     x = p.pack(fv._logit(dens).reshape(-1) + rng.normal(0, 0.5, grid.n),
                rng.normal(0, 1, (3, grid.n)))
@@ -109,12 +117,30 @@ def test_objective_gradient_finite_differences(scene, termination, smoothness):
             2 * h)
         assert abs(grad[i] - fd) <= 1e-6 * np.abs(grad).max() + 1e-12
     # float32 arithmetic agrees to float32 precision
-    p32 = fv._Objective(grid, o, d, L, rgb, sil, dens, allowed, termination=termination,
-                      n_pixels=3 * 144, huber_scale=0.1, dtype=np.float32,
-                      smoothness=smoothness)
+    p32, _ = _small_level(scene, termination, smoothness, np.float32)
     v32, g32, _ = p32.evaluate(x)
     assert abs(v32 - value) < 1e-6 * value
     assert np.abs(g32 - grad).max() < 1e-5 * np.abs(grad).max()
+
+
+def test_ray_losses_reuse_the_last_evaluation(scene):
+    """Each ray's loss averages to the image terms; asked at the point evaluated last, it is
+    that evaluation's (no new sweep), bit for bit what a fresh computation gives."""
+    def problem():
+        return _small_level(scene, 1e-2, (0.3, 0.2), np.float32)[0]
+    p, dens = _small_level(scene, 1e-2, (0.3, 0.2), np.float32)
+    rng = np.random.default_rng(3)
+    x = p.pack(fv._logit(dens).reshape(-1), rng.normal(0, 1, (3, p.grid.n)))
+    x2 = x + rng.normal(0, 0.3, x.size)
+    p.evaluate(x2)
+    _, _, terms = p.evaluate(x)
+    sweep = p._sweep
+    p._sweep = lambda *a, **k: pytest.fail("ray_losses swept again at the last point")
+    at_x = p.ray_losses(x.copy())
+    p._sweep = sweep
+    assert at_x.mean() == pytest.approx(terms["colour"] + terms["silhouette"], rel=1e-9)
+    np.testing.assert_array_equal(at_x, problem().ray_losses(x))
+    np.testing.assert_array_equal(p.ray_losses(x2), problem().ray_losses(x2))
 
 
 def test_objective_matches_renderer(scene):
@@ -424,8 +450,9 @@ def test_one_visual_hull_for_fit_volume_and_occupancy_grid(scene):
 
 
 def test_grid_centres_of_some_voxels_and_row_block_views():
-    """Centres of selected voxels are get_coord_grid's values; a row block of W shares its
-    arrays and its products are W[r0:r1]'s, entry for entry."""
+    """Centres of selected voxels are get_coord_grid's values; a row block of W (a small one:
+    scipy's constructor would copy it) and its transpose share W's arrays, and their products
+    are W[r0:r1]'s, entry for entry."""
     import scipy.sparse as sp
 
     g = fv._Grid((5, 6, 7), 0.3, np.array([0.1, -0.2, 0.05]))
@@ -435,9 +462,12 @@ def test_grid_centres_of_some_voxels_and_row_block_views():
     np.testing.assert_array_equal(g.centres(flat), ref[flat])
     np.testing.assert_array_equal(g.centres(), ref)
     W = sp.random(300, 50, density=0.1, format="csr", dtype=np.float32, random_state=1)
-    B = fv._row_block(W, 40, 210)
-    assert np.shares_memory(B.data, W.data) and B.shape == (170, 50)
+    B = fv._row_block(W, 40, 90)
+    Bt = fv._transposed(B)
+    assert B.shape == (50, 50) and Bt.shape == (50, 50)
+    for M in (B, Bt):
+        assert np.shares_memory(M.data, W.data) and np.shares_memory(M.indices, W.indices)
     x = np.random.default_rng(0).random(50).astype(np.float32)
-    y = np.random.default_rng(1).random(170).astype(np.float32)
-    np.testing.assert_array_equal(B @ x, W[40:210] @ x)
-    np.testing.assert_array_equal(B.T @ y, W[40:210].T @ y)
+    y = np.random.default_rng(1).random(50).astype(np.float32)
+    np.testing.assert_array_equal(B @ x, W[40:90] @ x)
+    np.testing.assert_array_equal(Bt @ y, W[40:90].T @ y)

@@ -497,3 +497,23 @@ def test_column_scans_equal_numpy_accumulate_bit_for_bit(dtype):
     np.testing.assert_array_equal(rm.sequential_sum(q), np.cumsum(q, axis=-1)[..., -1])
     # few rows: numpy's accumulate itself
     np.testing.assert_array_equal(rm.sequential_sum(c[:3]), np.cumsum(c[:3], axis=1)[:, -1])
+
+
+def test_cell_indices_match_the_padded_cell_table_layout():
+    """The cells of sample coordinates (axis by axis, in float64) are the flat indices of
+    ``floor(clip(pix, -2, size + 1)) + 2`` in the padded (D+4, H+4, W+4) cell table, also for
+    samples far outside the grid; from the rays' affine form the same cells."""
+    from geofit.render.volume import skipping as sk
+
+    size = (5, 6, 7)  # D, H, W
+    rng = np.random.default_rng(4)
+    A = rng.uniform(-6.0, 12.0, (50, 3))
+    B = rng.uniform(-1.5, 1.5, (50, 3))
+    t = np.sort(rng.uniform(0.0, 9.0, (50, 13)), axis=1)
+    t[:, 0] = 0.0
+    pix = A[:, None, :] + t[..., None] * B[:, None, :]
+    c = (np.floor(np.clip(pix, -2.0, np.array([8.0, 7.0, 6.0]))) + 2.0).astype(np.int64)
+    ref = np.ravel_multi_index((c[..., 2], c[..., 1], c[..., 0]), (9, 10, 11))
+    np.testing.assert_array_equal(sk._cells_of(pix, size), ref)
+    np.testing.assert_array_equal(sk._cells_affine(A, B, t, size), ref)
+    assert ref.min() == 0 and ref.max() == 9 * 10 * 11 - 1  # both clipped corners are met

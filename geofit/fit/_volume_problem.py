@@ -199,9 +199,11 @@ class _Objective:
         self._blocks = None
         self._chunk_W = None
         self._buffers: dict = {}  # the sampled values and their gradients, reused
+        self._last = None  # (x, each kept ray's loss) of the last evaluation
         # smoothness: squared differences between face-neighbouring free voxels
-        self.D_density = _difference_operator(self.columns[self.free_idx], grid.size)
-        self.D_colour = _difference_operator(self.columns, grid.size)
+        self.D_density, self.D_colour = parallel_map(
+            lambda flat: _difference_operator(flat, grid.size),
+            [self.columns[self.free_idx], self.columns])
 
     @property
     def n_params(self) -> int:
@@ -242,19 +244,20 @@ class _Objective:
         return X, sd, sc
 
     def _split(self):
-        """Row blocks of W at chunk boundaries, one per thread (built once; views of W)."""
+        """Row blocks of W at chunk boundaries, one per thread, transposed (built once; views
+        of W's arrays): ``(r0, r1, W[r0:r1].T)``."""
         if self._blocks is None:
             n_t = get_num_threads()
             chunks = self.layout.chunks
             if n_t < 2 or len(chunks) < 2:
-                self._blocks = [(0, self.layout.n_rows, self.W)]
+                self._blocks = [(0, self.layout.n_rows, _transposed(self.W))]
             else:
                 starts = np.array([row for row, a, b, K in chunks])
                 nnz_at = self.W.indptr[starts]  # nonzeros before each chunk
                 targets = self.W.nnz * np.arange(1, n_t) / n_t
                 cuts = np.unique(np.clip(np.searchsorted(nnz_at, targets), 1, len(chunks) - 1))
                 rows = [0, *starts[cuts].tolist(), self.layout.n_rows]
-                self._blocks = [(r0, r1, _row_block(self.W, r0, r1))
+                self._blocks = [(r0, r1, _transposed(_row_block(self.W, r0, r1)))
                                 for r0, r1 in zip(rows, rows[1:])]
         return self._blocks
 
@@ -319,10 +322,14 @@ class _Objective:
         return sums
 
     def ray_losses(self, x: np.ndarray) -> np.ndarray:
-        """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray."""
-        X, _, _ = self._values(x)
-        kept = np.zeros(len(self.ray_ids))
-        self._sweep(X, None, kept)
+        """(n_rays,) colour (mean over RGB) plus silhouette Huber loss of every ray (the last
+        evaluation's when it was at ``x``: the fit asks at its final point)."""
+        if self._last is not None and np.array_equal(self._last[0], x):
+            kept = self._last[1]
+        else:
+            X, _, _ = self._values(x)
+            kept = np.zeros(len(self.ray_ids))
+            self._sweep(X, None, kept)
         out = np.empty(self.n_rays_total)
         out[self.ray_ids] = kept
         out[self._miss[0]] = self._miss[1]
@@ -335,14 +342,16 @@ class _Objective:
             self._buffers[name] = np.empty((4, self.layout.n_rows), dtype=self.dtype)
         return self._buffers[name]
 
-    def _sweep(self, X: np.ndarray, G: np.ndarray | None, per_ray=None):
+    def _sweep(self, X: np.ndarray, G: np.ndarray | None, per_ray=None, extra=None):
         """Sample the values ``X (4, n_columns)`` along every kept ray and march: the loss sums
         (colour, silhouette) and (G given) the sample gradients in ``G (4, n_rows)``.
 
         One task per ray chunk on the pool: its rows of W times each channel (per row the
         same sums as the whole product), then its march while they are in the cache. The
         chunks' sums are added in chunk order within the parts of :meth:`_parts`, then the
-        parts' (the order that fixes the value's rounding).
+        parts' (the order that fixes the value's rounding). ``extra()``, if given, runs as
+        one more task after the chunks (filling the pool's tail); returns the sums and its
+        result.
         """
         chunks = self.layout.chunks
         if self._chunk_W is None:  # views of W's rows, one per chunk
@@ -351,12 +360,15 @@ class _Objective:
         Y = self._buffer("Y")
 
         def chunk(k):
+            if k is None:
+                return extra()
             row, a, b, K = chunks[k]
             Wk = self._chunk_W[k]
             for ch in range(4):  # channels
                 Y[ch, row:row + (b - a) * K] = Wk @ X[ch]
             return self._march_chunk(k, Y, G, per_ray)
-        sums = parallel_map(chunk, range(len(chunks)))
+        sums = parallel_map(chunk, [*range(len(chunks)), *([None] if extra else [])])
+        extra_result = sums.pop() if extra else None
         part_sums = []
         for lo, hi in self._parts():  # parts of the chunks
             col_sum = sil_sum = 0.0
@@ -364,7 +376,7 @@ class _Objective:
                 col_sum += c_k
                 sil_sum += s_k
             part_sums.append((col_sum, sil_sum))
-        return part_sums
+        return part_sums, extra_result
 
     def _parts(self) -> list:
         """Ranges of ray chunks whose loss sums are added first (then the parts' sums, in this
@@ -386,30 +398,28 @@ class _Objective:
         X, sd, sc = self._values(x)
         blocks = self._split()
         G = self._buffer("G") if want_grad else None
-        sums = self._sweep(X, G)
+        per_ray = np.empty(len(self.ray_ids))
+        lam_d, lam_c = self.smoothness
+        smooth = lam_d > 0 or lam_c > 0
+        # the prior runs on the pool beside the ray chunks
+        sums, prior = self._sweep(X, G, per_ray, extra=(
+            lambda: self._smoothness(sd, sc, want_grad)) if smooth else None)
+        self._remember(x, per_ray)
         if self.clock is not None:
             self.clock.check()
         n_col = 3.0 * self.n_pixels
         loss_c = (self.const_colour + sum(v[0] for v in sums)) / n_col
         loss_s = (self.const_sil + sum(v[1] for v in sums)) / float(self.n_pixels)
         terms = {"colour": loss_c, "silhouette": loss_s}
-        lam_d, lam_c = self.smoothness
-        smooth = lam_d > 0 or lam_c > 0
+        if smooth:
+            terms["smoothness"], s_sd, s_sc = prior
         if not want_grad:
-            if smooth:
-                terms["smoothness"] = self._smoothness(sd, sc, False)[0]
             return sum(terms.values()), terms
 
-        # the transposed products of the row blocks and the prior beside them on the pool
-        def bwd(task):
-            if task is None:
-                return self._smoothness(sd, sc, True)
-            r0, r1, Wb = task
-            Wt = Wb.T
+        def bwd(task):  # the transposed products of the row blocks, one per thread
+            r0, r1, Wt = task
             return np.stack([Wt @ G[ch, r0:r1] for ch in range(4)])
-        Zs = parallel_map(bwd, blocks + [None] if smooth else blocks)
-        if smooth:
-            terms["smoothness"], s_sd, s_sc = Zs.pop()
+        Zs = parallel_map(bwd, blocks)
         value = sum(terms.values())
         Z = Zs[0] if len(Zs) == 1 else sum(Zs[1:], Zs[0])
         nd = self.n_free_density
@@ -431,6 +441,14 @@ class _Objective:
         parallel_map(chain, range(4))
         return value, grad, terms
 
+    def _remember(self, x: np.ndarray, per_ray: np.ndarray) -> None:
+        """Keep a copy of ``x`` (in a reused array) and its rays' losses for :meth:`ray_losses`."""
+        if self._last is None or self._last[0].shape != x.shape:
+            self._last = (np.array(x, dtype=np.float64), per_ray)
+        else:
+            np.copyto(self._last[0], x)
+            self._last = (self._last[0], per_ray)
+
     def _smoothness(self, sd: np.ndarray, sc: np.ndarray, want_grad: bool):
         """The prior's value and (``want_grad``) its gradients with respect to the density
         and colour values ``sd`` (n_free,) and ``sc`` (3, n_columns)."""
@@ -446,12 +464,26 @@ class _Objective:
                 (2.0 * lam_c / e_c) * (self.D_colour.T @ dc).T)
 
 
+def _sharing(cls, data: np.ndarray, indices: np.ndarray, indptr: np.ndarray, shape):
+    """``cls((data, indices, indptr), shape)`` on these very arrays: scipy's constructor
+    copies arrays that are views of less than half their base (its ``prune``), which the row
+    blocks below are (the chunks' views of W: 400 MB copied per level at 128^3)."""
+    m = cls(shape, dtype=data.dtype)
+    m.data, m.indices, m.indptr = data, indices, indptr
+    return m
+
+
 def _row_block(W: sp.csr_matrix, r0: int, r1: int) -> sp.csr_matrix:
     """Rows ``r0:r1`` of a csr matrix as a view of its data and indices (``W[r0:r1]`` copies
-    them: 400 MB at 128^3); its products are ``W[r0:r1]``'s, entry for entry."""
+    them); its products are ``W[r0:r1]``'s, entry for entry."""
     p0, p1 = int(W.indptr[r0]), int(W.indptr[r1])
-    return sp.csr_matrix((W.data[p0:p1], W.indices[p0:p1], W.indptr[r0:r1 + 1] - p0),
-                         shape=(r1 - r0, W.shape[1]), copy=False)
+    return _sharing(sp.csr_matrix, W.data[p0:p1], W.indices[p0:p1],
+                    W.indptr[r0:r1 + 1] - W.indptr[r0], (r1 - r0, W.shape[1]))
+
+
+def _transposed(B: sp.csr_matrix) -> sp.csc_matrix:
+    """``B.T`` sharing B's arrays (``B.T`` copies them when they are a small view)."""
+    return _sharing(sp.csc_matrix, B.data, B.indices, B.indptr, B.shape[::-1])
 
 
 def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
@@ -474,12 +506,16 @@ def _difference_operator(flat: np.ndarray, size) -> sp.csr_matrix:
         keep = np.flatnonzero(j >= 0)
         rows_i.append(keep)
         rows_j.append(j[keep])
-    i = np.concatenate(rows_i)
-    j = np.concatenate(rows_j)
-    e = len(i)
-    data = np.concatenate([np.ones(e), -np.ones(e)])
-    return sp.csr_matrix((data, (np.concatenate([np.arange(e), np.arange(e)]),
-                                 np.concatenate([i, j]))), shape=(e, n))
+    e = sum(len(k) for k in rows_i)
+    idx = np.int32 if max(n, 2 * e) < 2 ** 31 - 1 else np.int64
+    ij = np.empty((e, 2), idx)  # row e: +1 at i, -1 at j > i (sorted, no duplicates)
+    ij[:, 0] = np.concatenate(rows_i)
+    ij[:, 1] = np.concatenate(rows_j)
+    data = np.empty((e, 2))
+    data[:, 0] = 1.0
+    data[:, 1] = -1.0
+    return sp.csr_matrix((data.reshape(-1), ij.reshape(-1), np.arange(0, 2 * e + 1, 2,
+                                                                      dtype=idx)), shape=(e, n))
 
 
 def _resample(values: np.ndarray, coarse: _Grid, fine: _Grid) -> np.ndarray:

@@ -62,10 +62,37 @@ def ray_voxel_affine(origins, directions, l0: float, dl: float, grid_size, scale
 
 def _cells_of(pix: np.ndarray, grid_size) -> np.ndarray:
     """Flat index into a :func:`cell_table` of the cell of continuous voxel coordinates."""
+    return _flat_cells(lambda ax: np.array(pix[..., ax], dtype=np.float64), grid_size)
+
+
+def _cells_affine(A: np.ndarray, B: np.ndarray, t: np.ndarray, grid_size) -> np.ndarray:
+    """``_cells_of(A[:, None] + t[..., None] * B[:, None])`` for rays ``A, B (r, 3)`` at sample
+    parameters ``t (r, K)``: the same cells without the ``(r, K, 3)`` coordinates."""
+    def coordinate(ax):
+        p = t * B[:, ax, None]
+        p += A[:, ax, None]
+        return p
+    return _flat_cells(coordinate, grid_size)
+
+
+def _flat_cells(coordinate, grid_size) -> np.ndarray:
+    """The cells' flat indices from ``coordinate(ax)``, a new float64 array of the continuous
+    voxel coordinate along axis ``ax`` (0: x), worked on in place axis by axis (the index is
+    summed in float64: integers, exact far beyond any grid's size)."""
     D, H, W = grid_size
-    hi = np.array([W + 1, H + 1, D + 1], dtype=np.float64)
-    c = (np.floor(np.clip(pix, -2.0, hi)) + 2.0).astype(np.int64)
-    return (c[..., 2] * (H + 4) + c[..., 1]) * (W + 4) + c[..., 0]
+    hi = (W + 1.0, H + 1.0, D + 1.0)
+    acc = None
+    for ax, stride in ((2, 0), (1, H + 4), (0, W + 4)):  # z, y, x
+        p = coordinate(ax)
+        np.clip(p, -2.0, hi[ax], out=p)
+        np.floor(p, out=p)
+        p += 2.0
+        if acc is None:
+            acc = p
+        else:
+            acc *= stride
+            acc += p
+    return acc.astype(np.int64)
 
 
 def _pix_corners(pix: np.ndarray, grid_size):
@@ -155,8 +182,7 @@ def sample_ranges(A, B, n_pts: int, grid_size, cell_any: np.ndarray, *,
             t = kk.astype(np.float64)
         else:
             t = lengths[ids[:, None], np.minimum(kk, n_pts - 1)]
-        pix = A[ids, None, :] + t[..., None] * B[ids, None, :]
-        cells = _cells_of(pix, grid_size)
+        cells = _cells_affine(A[ids], B[ids], t, grid_size)
         act = any_flat[cells] & inr
         has = act.any(axis=1)
         if not has.any():
