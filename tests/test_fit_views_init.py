@@ -315,6 +315,10 @@ def test_hull_carving_options_are_validated(spheres):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_close_px=-0.5), progress=False)
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
+    for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg"):
+        with pytest.raises(ValueError, match=name):
+            fit_mesh_to_views(spheres, options=ViewsFitOptions(**{name: -1.0}),
+                              progress=False)
 
 
 def test_rgb_stage_runs_after_the_silhouettes(spheres):
@@ -327,6 +331,17 @@ def test_rgb_stage_runs_after_the_silhouettes(spheres):
     assert [s["name"] for s in res.stages] == ["silhouette", "rgb", "textured", "texture"]
     assert np.all(np.isfinite(res.mesh.verts))
     assert np.abs(res.mesh.verts - base.mesh.verts).max() > 0
+
+
+def test_rgb_stage_keeps_the_silhouettes_when_asked(spheres):
+    """rgb_silhouette > 0 adds the last level's silhouette term and regularisers to the RGB
+    stage's objective: the result differs from the image term alone and stays finite."""
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0, rgb_iters=2)
+    alone = fit_mesh_to_views(spheres, options=ViewsFitOptions(**o), progress=False)
+    both = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_silhouette=1.0, **o),
+                             progress=False)
+    assert np.all(np.isfinite(both.mesh.verts))
+    assert np.abs(both.mesh.verts - alone.mesh.verts).max() > 0
 
 
 def test_closed_pixels_are_reported(spheres):
