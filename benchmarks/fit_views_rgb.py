@@ -97,6 +97,8 @@ def main(argv=None) -> int:
                     help="write the JSON and table from the cache's rows, fit nothing")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
     ap.add_argument("--name", default="fit_views_rgbstage")
+    ap.add_argument("--notes", help="a JSON file of notes (a list) to keep in the report, "
+                                    "e.g. rows of a diagnosis run")
     args = ap.parse_args(argv)
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -118,6 +120,8 @@ def main(argv=None) -> int:
                     fh.write(json.dumps(row) + "\n")
     rows = [json.loads(x) for x in rows_path.read_text().splitlines() if x.strip()]
     report.tables["rows"] = rows
+    if args.notes:
+        report.notes.extend(json.loads(Path(args.notes).read_text()))
     out = Path(args.out)
     report.write(out / f"{args.name}.json")
     (out / f"{args.name}_table.md").write_text(markdown(rows), encoding="utf-8")
