@@ -4,8 +4,10 @@ For each shape of ``benchmarks/fit_views.py --shapes`` (normalised, vertex-colou
 textured; the tutorial's 20 views of 128 px, 16 held-out views) the default fit runs once
 (``before``: held-out IoU, F@0.01 with 100 000 samples a side, PSNR of its UV texture and of
 its vertex colours). Every variant then continues from that fit's silhouette-stage mesh (the
-stages before the RGB stage are deterministic and the same): the RGB stage with the variant's
-options, then the default's colour and UV-texture stages, scored alike. No time budget, so the
+stages before the RGB stage are deterministic and the same): ``fit_mesh_to_views`` with
+``init=`` that mesh, ``silhouette_method="none"`` and the variant's options runs the RGB stage,
+then the default's colour and UV-texture stages, scored alike (the regularisers' pixel size is
+then taken at the given mesh's centre, not from the visual hull). No time budget, so the
 figures do not depend on the load (the seconds do).
 
 Rows are appended to ``--cache``/rows.jsonl (with the silhouette meshes kept there), so a
@@ -28,8 +30,6 @@ from _harness import BenchmarkReport
 from fit_views import shape_factories, vertex_coloured
 
 from geofit.datasets import tutorial_views
-from geofit.fit import views as fv
-from geofit.fit._views_init import initial_mesh
 from geofit.fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
 from geofit.structures import Mesh
 
@@ -57,19 +57,16 @@ def _before(shape: str, ds, ev, cache: Path) -> dict:
 
 
 def _variant(shape: str, ds, ev, sil: Mesh, opts: dict) -> dict:
-    """The RGB stage (``opts``) and the default's colour and texture stages from ``sil``."""
-    plan = fv._Plan.validate(ds, "default", ViewsFitOptions(**opts), None)
-    run = fv._Solver(plan, seed=0, evaluator=None, eval_every=None, callback=None,
-                     progress=False)
-    initial_mesh(plan, run)  # the pixel size the default's weights are set in
-    t0, c0, load = time.time(), time.process_time(), os.getloadavg()[0]
-    mesh = fv._rgb_stage(plan, run, sil) if plan.rgb_iters else sil
-    wall, cpu = time.time() - t0, time.process_time() - c0
-    out, colors = fv._textured_stage(plan, run, mesh)
-    m, mv = ev(out), ev(mesh, colors, surface=False)
+    """The RGB stage (``opts``) and the default's colour and texture stages from ``sil`` (the
+    public call with ``init=sil, silhouette_method="none"``)."""
+    load = os.getloadavg()[0]
+    r = fit_mesh_to_views(ds, options=ViewsFitOptions(init=sil, silhouette_method="none",
+                                                      **opts), progress=False)
+    rgb = next(st for st in r.stages if st["name"] == "rgb")
+    m, mv = ev(r.mesh), ev(r.mesh, r.colors, surface=False)
     return dict(iou=round(m["iou"], 4), f=round(m["fscore@0.01"], 3),
                 psnr_uv=round(m["psnr"], 2), psnr_v=round(mv["psnr"], 2),
-                rgb_wall=round(wall, 1), rgb_cpu=round(cpu, 1), load=round(load, 1))
+                rgb_wall=round(rgb["seconds"], 1), rgb_cpu=None, load=round(load, 1))
 
 
 def markdown(rows: list) -> str:
@@ -82,7 +79,7 @@ def markdown(rows: list) -> str:
         lines.append(f"| {r['shape']} | {r['tag']} | {b['iou']:.4f} -> {r['iou']:.4f} | "
                      f"{b['f']:.3f} -> {r['f']:.3f} | {b['psnr_uv']:.2f} -> {r['psnr_uv']:.2f} | "
                      f"{b['psnr_v']:.2f} -> {r['psnr_v']:.2f} | {r['rgb_wall']:.0f} / "
-                     f"{r['rgb_cpu']:.0f} ({r['load']:.0f}) |")
+                     f"{r['rgb_cpu'] if r['rgb_cpu'] is not None else '-'} ({r['load']:.0f}) |")
     return "\n".join(lines) + "\n"
 
 

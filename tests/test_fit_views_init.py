@@ -353,3 +353,17 @@ def test_closed_pixels_are_reported(spheres):
     sil[0, y, x] = 0.0
     h = visual_hull_mesh(sil, spheres.cameras, edge_px=2.0, close_px=1.0)
     assert h.n_closed_pixels >= 1 and visual_hull_mesh(sil, spheres.cameras).n_closed_pixels == 0
+
+
+def test_rgb_stage_refines_a_given_mesh(spheres):
+    """With silhouette_method="none" the RGB stage refines the given initial mesh, then the
+    colour stages run."""
+    from geofit import ico_sphere
+
+    init = ico_sphere(2)
+    res = fit_mesh_to_views(spheres, options=ViewsFitOptions(
+        init=init, silhouette_method="none", rgb_iters=2, rgb_silhouette=1.0,
+        texture="vertex"), progress=False)
+    assert [s["name"] for s in res.stages] == ["rgb", "textured"]
+    assert np.abs(res.mesh.verts - init.verts).max() > 0
+    assert np.all(np.isfinite(res.mesh.verts))

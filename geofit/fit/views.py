@@ -237,7 +237,9 @@ class ViewsFitOptions:
         the vertices against the RGB images with the hard image term
         (:class:`geofit.render.mesh.HardImageLoss`), the vertex colours solved by sparse least
         squares inside every evaluation (variable projection), so the residual moves the
-        geometry (:func:`geofit.fit._rgb_refine.refine_rgb`). Needs RGB images.
+        geometry (:func:`geofit.fit._rgb_refine.refine_rgb`). Needs RGB images. With
+        ``silhouette_method="none"`` it refines the initial mesh (e.g. a Mesh given as
+        ``init``).
     rgb_weight : float
         Weight of the image term in the RGB stage (1).
     rgb_silhouette : float
@@ -543,6 +545,8 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
             if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
                                    ("nonfinite", "failed", "callback")):
                 sil_mesh = _rgb_stage(plan, run, sil_mesh)
+    elif plan.rgb_iters:  # a given mesh refined against the images alone
+        sil_mesh = _rgb_stage(plan, run, sil_mesh)
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
                                            ("nonfinite", "failed")):
