@@ -400,6 +400,10 @@ def test_hull_carving_options_are_validated(spheres):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_close_px=-0.5), progress=False)
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
+    for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg"):
+        with pytest.raises(ValueError, match=name):
+            fit_mesh_to_views(spheres, options=ViewsFitOptions(**{name: -1.0}),
+                              progress=False)
 
 
 def test_rgb_stage_runs_after_the_silhouettes(spheres):
@@ -414,6 +418,17 @@ def test_rgb_stage_runs_after_the_silhouettes(spheres):
     assert np.abs(res.mesh.verts - base.mesh.verts).max() > 0
 
 
+def test_rgb_stage_keeps_the_silhouettes_when_asked(spheres):
+    """rgb_silhouette > 0 adds the last level's silhouette term and regularisers to the RGB
+    stage's objective: the result differs from the image term alone and stays finite."""
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0, rgb_iters=2)
+    alone = fit_mesh_to_views(spheres, options=ViewsFitOptions(**o), progress=False)
+    both = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_silhouette=1.0, **o),
+                             progress=False)
+    assert np.all(np.isfinite(both.mesh.verts))
+    assert np.abs(both.mesh.verts - alone.mesh.verts).max() > 0
+
+
 def test_closed_pixels_are_reported(spheres):
     """The hull counts what the closing filled, and the fit's message says it."""
     from scipy.ndimage import distance_transform_edt
@@ -423,3 +438,17 @@ def test_closed_pixels_are_reported(spheres):
     sil[0, y, x] = 0.0
     h = visual_hull_mesh(sil, spheres.cameras, edge_px=2.0, close_px=1.0)
     assert h.n_closed_pixels >= 1 and visual_hull_mesh(sil, spheres.cameras).n_closed_pixels == 0
+
+
+def test_rgb_stage_refines_a_given_mesh(spheres):
+    """With silhouette_method="none" the RGB stage refines the given initial mesh, then the
+    colour stages run."""
+    from geofit import ico_sphere
+
+    init = ico_sphere(2)
+    res = fit_mesh_to_views(spheres, options=ViewsFitOptions(
+        init=init, silhouette_method="none", rgb_iters=2, rgb_silhouette=1.0,
+        texture="vertex"), progress=False)
+    assert [s["name"] for s in res.stages] == ["rgb", "textured"]
+    assert np.abs(res.mesh.verts - init.verts).max() > 0
+    assert np.all(np.isfinite(res.mesh.verts))

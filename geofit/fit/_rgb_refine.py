@@ -29,9 +29,9 @@ import scipy.sparse.linalg as spla
 from ..ops import uniform_laplacian
 from ..render.mesh.image_term import HardImageLoss
 from ..structures import Mesh
-from .large_steps import LargeSteps
+from .large_steps import vertex_parameterization
 
-__all__ = ["RGBRefineResult", "refine_rgb", "solve_vertex_colors"]
+__all__ = ["RGBRefineResult", "projected_image_loss", "refine_rgb", "solve_vertex_colors"]
 
 
 @dataclass
@@ -62,6 +62,11 @@ class RGBRefineResult:
 
 def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4) -> np.ndarray:
     """``argmin_C L(mesh, C) + reg |L_u C|^2 / V`` by one sparse solve per channel."""
+    return _solve_colors(loss, mesh, reg)[0]
+
+
+def _solve_colors(loss, mesh: Mesh, reg: float):
+    """The colours of :func:`solve_vertex_colors` and their smoothness term's value."""
 
     A, y = loss.color_operator(mesh)
     N = len(loss.cameras)
@@ -74,12 +79,33 @@ def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4) -> np.ndarray:
     for c in range(3):  # channels
         lhs = ((A[c].T @ A[c]) / n + R + 1e-9 * eye).tocsc()
         C[:, c] = spla.spsolve(lhs, A[c].T @ y[:, c] / n + 1e-9 * 0.5)
-    return C
+    LC = Lu @ C
+    # the value of the minimised terms: smoothness and the 1e-9 ridge towards grey
+    return C, float(reg / mesh.n_verts * np.sum(LC * LC) + 1e-9 * np.sum((C - 0.5) ** 2))
+
+
+def projected_image_loss(loss, mesh: Mesh, reg: float = 1e-4):
+    """``f(V) = min_C L(V, C) + reg |L_u C|^2 / V`` and its gradient to the vertices.
+
+    The colours are solved (:func:`solve_vertex_colors`); at that minimum the colour gradient
+    vanishes, so ``df/dV = dL/dV`` at ``C*`` (the envelope theorem).
+
+    Returns
+    -------
+    value : float
+    grad_verts : (V, 3) float64
+    colors : (V, 3) float64
+        ``C*``.
+    """
+    C, r = _solve_colors(loss, mesh, reg)
+    value, gv, _ = loss(mesh, C)
+    return value + r, gv, C
 
 
 def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0, 1.0),
                lam: float = 10.0, reg: float = 1e-4, maxiter: int = 30,
-               supersample: int = 2, time_budget: float | None = None) -> RGBRefineResult:
+               supersample: int = 2, time_budget: float | None = None,
+               image_weight: float = 1.0, extra=None, masks=None) -> RGBRefineResult:
     """Refine ``mesh`` against RGB ``images`` (variable projection of the colours, L-BFGS).
 
     Parameters
@@ -92,7 +118,7 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
         The lights the images were shot with.
     background : (3,) float64
     lam : float
-        Large-steps weight.
+        Large-steps weight (0: plain vertex positions).
     reg : float
         Colour smoothness weight.
     maxiter : int
@@ -102,6 +128,13 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
         edge gradient differentiates more closely, which the line search needs.
     time_budget : float, optional
         Stop (at the next evaluation) after this many seconds.
+    image_weight : float
+        Weight of the image term.
+    extra : callable, optional
+        ``extra(verts) -> (value, grad)`` ((V, 3) float64 gradient): terms added to the
+        objective (e.g. the silhouettes and the mesh regularisers of the silhouette stage).
+    masks : (N, H, W) float64, optional
+        Per-pixel weights of the image term (:class:`HardImageLoss`'s ``masks``).
 
     Returns
     -------
@@ -109,12 +142,11 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     """
     from scipy.optimize import minimize
 
-
     t0 = time.perf_counter()
     loss = HardImageLoss(cameras, images, lights=lights, background=background,
-                         supersample=supersample)
+                         supersample=supersample, masks=masks)
     F = mesh.faces
-    param = LargeSteps(mesh, lam)
+    param = vertex_parameterization(mesh, lam)
     u0 = param.to_params(mesh.verts).ravel()
     values: list = []
     best = {"value": np.inf, "V": mesh.verts, "C": None}
@@ -127,8 +159,11 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
             raise _Stop
         V = param.to_verts(u.reshape(-1, 3))
         m = Mesh(V, F)
-        C = solve_vertex_colors(loss, m, reg)
-        value, gv, _ = loss(m, C)
+        value, gv, C = projected_image_loss(loss, m, reg)
+        value, gv = image_weight * value, image_weight * gv
+        if extra is not None:
+            e, ge = extra(V)
+            value, gv = value + e, gv + ge
         values.append(float(value))
         if value < best["value"]:
             best.update(value=value, V=V, C=C)
