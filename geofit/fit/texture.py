@@ -551,13 +551,13 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
                          background=background, supersample=supersample, edges=False)
     texel_px = check_positive(texel_px, "texel_px")
     lam = check_positive(smoothness, "smoothness")
-    px = pixel_footprint(cameras, loss.image_size, mesh.verts.mean(axis=0))
-    faces_uvs, verts_uvs, size = uv_atlas(mesh, texel_px * px, max_resolution=max_resolution)
     k = None if robust is None else check_positive(robust, "robust")
     rounds = check_int(robust_rounds, "robust_rounds", 0)
+    folds = check_int(check_folds, "check_folds", 0)
+    px = pixel_footprint(cameras, loss.image_size, mesh.verts.mean(axis=0))
+    faces_uvs, verts_uvs, size = uv_atlas(mesh, texel_px * px, max_resolution=max_resolution)
     problem, _ = texture_problem(loss, mesh, faces_uvs, verts_uvs, size, smoothness=lam,
                                  prior=prior, prior_weight=prior_weight)
-    folds = check_int(check_folds, "check_folds", 0)
     t = problem.solve()
     if k is not None and rounds:
         problem.robust_scale = robust_scale(problem, t, k)
