@@ -385,11 +385,11 @@ def close_small_loops(mesh: Mesh, max_edges: int = SMALL_LOOP_EDGES) -> Mesh:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    F = mesh.faces
+    F, topo = mesh.faces, mesh.topology
     H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed half-edges
-    _, inv, cnt = np.unique(np.sort(H, axis=1), axis=0, return_inverse=True,
-                            return_counts=True)
-    B = H[cnt[inv.ravel()] == 1]  # boundary half-edges, as their faces run them
+    # their undirected edges (faces_to_edges[:, k] is the edge opposite corner k)
+    on = topo.faces_to_edges[:, [2, 0, 1]].T.ravel()
+    B = H[topo.edge_face_counts[on] == 1]  # boundary half-edges, as their faces run them
     if len(B) == 0:
         return mesh
     n = mesh.n_verts
