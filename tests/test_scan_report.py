@@ -297,3 +297,78 @@ def test_smoothing_follows_the_noise_and_leaves_the_users_weights_alone():
     mine = dict(base, normal=2e-5)
     res = fit_mesh(P, options=MeshFitOptions(weights=mine, **one), time_budget=20.0)
     assert res.stages[0]["weights"] == mine
+
+
+def square_points(half=1.0, step=0.025, seed=0):
+    """A jittered grid of points on the square ``|x|, |y| <= half`` of the plane z = 0."""
+    rng = np.random.default_rng(seed)
+    g = np.arange(-half, half + 1e-9, step)
+    P = np.stack(np.meshgrid(g, g, [0.0], indexing="ij"), -1).reshape(-1, 3)
+    P[:, :2] += rng.uniform(-0.2 * step, 0.2 * step, (len(P), 2))
+    P[:, :2] = np.clip(P[:, :2], -half, half)
+    return P
+
+
+@pytest.mark.parametrize("size", [1.96, 2.1])
+def test_place_boundary_puts_the_boundary_rho_past_the_last_points(size):
+    """Points on the square |x|, |y| <= 1; a mesh that stops short of them (1.96 wide) or
+    overshoots them (2.1 wide): either way its boundary ends rho past the last points, in
+    the plane, with no face turned over and nothing inside moved."""
+    from geofit.fit._cloud import CloudTarget, place_boundary
+    from geofit.shapes import plane
+
+    cloud = CloudTarget(square_points())
+    m = plane(size=size, n=8)
+    placed = place_boundary(m, cloud)
+    out = placed.mesh
+    topo = out.topology
+    bv = np.unique(topo.edges[topo.boundary_edges])
+    d = cloud.tree.query(out.verts[bv])[0]
+    np.testing.assert_allclose(d, cloud.rho, rtol=0.1)
+    xy = np.abs(out.verts[bv, :2])
+    side = xy.min(1) < 0.9  # away from the corners, rho past the square's side
+    np.testing.assert_allclose(xy[side].max(1), 1.0 + cloud.rho, atol=0.2 * cloud.rho)
+    np.testing.assert_allclose(out.verts[:, 2], 0.0, atol=1e-12)
+    assert np.all(out.face_normals[:, 2] > 0.99)
+    inner = np.flatnonzero(np.abs(m.verts[:, :2]).max(1) < size / 2 - 1e-9)
+    np.testing.assert_array_equal(out.verts[inner], m.verts[inner])  # splits append vertices
+    assert placed.n_split > 0 and placed.n_boundary == len(bv)
+    assert np.sign(placed.shift) == np.sign(2.0 - size)  # out when short, in when over
+    assert "placed the boundary" in placed.describe()
+
+
+def test_place_boundary_leaves_a_closed_mesh_alone():
+    """No boundary: the mesh itself, nothing split or moved."""
+    from geofit.fit._cloud import CloudTarget, place_boundary
+    from geofit.shapes import ico_sphere
+
+    m = ico_sphere(3)
+    placed = place_boundary(m, CloudTarget(sphere_points(5_000)))
+    assert placed.mesh is m and placed.n_boundary == placed.n_split == 0
+
+
+def test_one_sided_fit_reaches_past_its_last_points_and_no_farther():
+    """The capped sphere (no point above y = 0.5): the fit's boundary lies about rho past the
+    last points, so the true sphere up to about rho past them is covered, and no surface lies
+    much farther than rho from every point (the hole stays a hole)."""
+    P = capped_sphere()
+    res = fit_mesh(P, time_budget=6.0, seed=0)
+    assert any("placed the boundary" in e["message"] for e in res.history.events)
+    from geofit.fit._cloud import CloudTarget
+
+    cloud = CloudTarget(P)
+    m = res.mesh
+    topo = m.topology
+    bv = np.unique(topo.edges[topo.boundary_edges])
+    d = cloud.tree.query(m.verts[bv])[0]
+    assert np.median(d) == pytest.approx(cloud.rho, rel=0.25)
+    Q = sample_points_from_meshes(m, 20_000, seed=1)
+    assert cloud.tree.query(Q)[0].max() < 2.0 * cloud.rho
+    # the true sphere within rho / 2 past the points is within the noise of the fit
+    S = sphere_points(20_000, seed=3)
+    ds = cloud.tree.query(S)[0]
+    band = S[(ds > 0.0) & (ds < 0.5 * cloud.rho) & (S[:, 1] > 0.4)]
+    from geofit.raycast import PointToMeshDistance
+
+    assert len(band) > 50
+    assert PointToMeshDistance(m).query(band).distances.max() < 0.02

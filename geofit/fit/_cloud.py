@@ -34,8 +34,9 @@ from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
 from ..ops.topology import face_components
 from .init import decimate
 
-__all__ = ["CloudTarget", "EvidenceTrim", "as_cloud_points", "close_small_loops", "is_cloud",
-           "mesh_from_points", "orient_normals", "trim_to_evidence"]
+__all__ = ["BoundaryPlacement", "CloudTarget", "EvidenceTrim", "as_cloud_points",
+           "close_small_loops", "is_cloud", "mesh_from_points", "orient_normals",
+           "place_boundary", "trim_to_evidence"]
 
 #: Fewest points a target cloud may have.
 MIN_POINTS = 20
@@ -518,3 +519,119 @@ def trim_to_evidence(mesh: Mesh, cloud: CloudTarget, noise: float, *,
     remap = np.full(mesh.n_verts, -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     return EvidenceTrim(Mesh(mesh.verts[used], remap[F]), n_removed, n_holes, n_islands, gap)
+
+
+
+def _boundary_half_edges(mesh: Mesh) -> np.ndarray:
+    """(b, 3) int64: each boundary edge ``(p, q, f)`` as its face ``f`` runs it (``p -> q``)."""
+    F, topo = mesh.faces, mesh.topology
+    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed half-edges
+    on = topo.faces_to_edges[:, [2, 0, 1]].T.ravel()  # their undirected edges
+    b = topo.edge_face_counts[on] == 1
+    return np.c_[H[b], np.tile(np.arange(mesh.n_faces), 3)[b]]
+
+
+@dataclass(frozen=True)
+class BoundaryPlacement:
+    """What :func:`place_boundary` did.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The mesh with its boundary placed (the input itself when it has no boundary).
+    distance : float
+        Distance of the placed boundary from the nearest point (the cloud's ``rho``).
+    n_split : int
+        Boundary edges split so that the boundary can follow the points.
+    n_boundary : int
+        Boundary vertices placed.
+    shift : float
+        Median signed move of the boundary vertices (> 0: outwards, past the points).
+    """
+
+    mesh: Mesh
+    distance: float
+    n_split: int
+    n_boundary: int
+    shift: float
+
+    def describe(self) -> str:
+        """One line for a fit's history."""
+        return (f"placed the boundary ({self.n_boundary} vertices, {self.n_split} edges split) "
+                f"at {self.distance:.3g} from the nearest point (the tangent disks' radius): "
+                f"median move {self.shift:+.3g}")
+
+
+def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> BoundaryPlacement:
+    """The mesh with its boundary on the boundary of the cloud's surface.
+
+    The cloud's surface (:class:`CloudTarget`) is the union of the tangent disks of radius
+    ``rho`` (two spacings) around its points: where a scan ends, at a real rim or where the
+    surface turned away from the scanner, the evidence of a surface reaches ``rho`` past the
+    last points, and so does the fitted mesh. The fit alone leaves its boundary anywhere
+    within a few spacings of that line: its data term is flat within ``rho`` of the points
+    and its smoothness shortens the boundary, and a boundary edge many spacings long cuts
+    across the points' outline as a chord. Here
+
+    1. the boundary edges longer than ``2 rho`` are split (:func:`geofit.ops.remesh`, splits
+       only, up to twice), so the boundary can follow the points' outline;
+    2. each boundary vertex moves in its tangent plane, along the outward normal of the
+       boundary (away from its faces), to where its nearest point is ``rho`` away (a few
+       fixed-point steps ``t += rho - d(v + t b)``, the move kept within ``[-h / 2, 2 rho]``
+       with ``h`` the vertex's shortest edge, so no face turns over).
+
+    Measured on the one-sided 20,000-point scans of ``benchmarks/_scans.py`` (noise 0.005,
+    F@0.01 where the scan has evidence): the torus 0.9968-0.9975 -> 0.9993-0.9995 (its
+    missed true surface lay 1.2-2.4 clean spacings past the last points, where the fit's
+    boundary stopped short), the open cylinder's real rim 0.9993 -> 0.9983 (Poisson at the
+    same size 0.997), the other four shapes up by 0.001-0.002, the invented area down.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        A fitted mesh (the cloud's frame), edge-manifold and consistently oriented.
+    cloud : CloudTarget
+        The scan.
+    n_iter : int
+        Fixed-point steps of the moves.
+
+    Returns
+    -------
+    BoundaryPlacement
+        The mesh and what was done.
+    """
+    from ..ops import remesh
+
+    rho = cloud.rho
+    B = _boundary_half_edges(mesh)
+    if len(B) == 0:
+        return BoundaryPlacement(mesh, rho, 0, 0, 0.0)
+    # only the boundary edges are split: an edge's target is its endpoints' mean, and every
+    # vertex off the boundary asks for more than any edge's length
+    lv = np.full(mesh.n_verts, 10.0 * float(mesh.edge_lengths.max()))
+    lv[B[:, :2].ravel()] = 1.5 * rho  # split above 4/3 of it
+    r = remesh(mesh, lv, n_passes=2, collapse=False, flip=False)
+    mesh = r.mesh
+    B = _boundary_half_edges(mesh)
+    V = mesh.verts
+    # outward normal of each boundary edge (its face on its left), |pq| long, summed per vertex
+    out = np.cross(V[B[:, 1]] - V[B[:, 0]], mesh.face_normals[B[:, 2]])
+    b = np.zeros_like(V)
+    np.add.at(b, B[:, 0], out)
+    np.add.at(b, B[:, 1], out)
+    vb = np.unique(B[:, :2])
+    n = mesh.verts_normals[vb]
+    d = b[vb] - np.einsum("ij,ij->i", b[vb], n)[:, None] * n  # in the tangent plane
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    E, le = mesh.edges, mesh.edge_lengths
+    h = np.full(mesh.n_verts, np.inf)
+    np.minimum.at(h, E[:, 0], le)
+    np.minimum.at(h, E[:, 1], le)
+    lo = -0.5 * h[vb]
+    t = np.zeros(len(vb))
+    for _ in range(n_iter):
+        dist = cloud.tree.query(V[vb] + t[:, None] * d, workers=get_num_threads())[0]
+        t = np.clip(t + rho - dist, lo, 2.0 * rho)
+    V = V.copy()
+    V[vb] += t[:, None] * d
+    return BoundaryPlacement(mesh.update_verts(V), rho, r.n_split, len(vb), float(np.median(t)))

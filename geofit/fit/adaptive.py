@@ -35,7 +35,9 @@ from the data's topology and remeshes where the error is.
    distance past the cloud's boundary pulls surface back, and at the end the surface over
    the scan's holes (gaps wider than the sampling explains) is removed
    (:func:`geofit.fit._cloud.trim_to_evidence`), so the holes of a one-sided scan stay holes
-   and a closed, well-sampled scan stays closed.
+   and a closed, well-sampled scan stays closed; the boundary left (the scan's rims, its
+   holes' edges) is then placed where the points' tangent disks end, ``rho`` past the last
+   points (:func:`geofit.fit._cloud.place_boundary`).
    ``MeshFitOptions(watertight=True)`` closes them instead: the untrimmed Poisson start, and no
    data term where there is no point.
 3. The result reports the initialisation, the vertex count and the
@@ -55,7 +57,7 @@ from .._validate import as_rng
 from ..loss.chamfer import morton_order
 from ..ops import remesh, topology
 from ..structures import Mesh
-from ._cloud import CloudTarget, mesh_from_points, trim_to_evidence
+from ._cloud import CloudTarget, mesh_from_points, place_boundary, trim_to_evidence
 from ._mesh_objective import MeshObjective
 from ._mesh_plan import MeshFitResult, MeshTarget, Plan, empty_row_terms, repair_degenerate
 from ._progress import advance, progress_bar
@@ -373,6 +375,10 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         mesh = trim.mesh
         if trim.n_removed:
             history.note(evals, clock.elapsed(), trim.describe(), n_trimmed=trim.n_removed)
+        placed = place_boundary(mesh, p2s)  # the boundary where the points' evidence ends
+        mesh = placed.mesh
+        if placed.n_boundary:
+            history.note(evals, clock.elapsed(), placed.describe(), n_boundary=placed.n_boundary)
     with clock.paused():  # not solver time; counted by the budget (its reserve)
         topo = topology(mesh)
     if not len(history):
