@@ -361,6 +361,16 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
 SMALL_LOOP_EDGES = 6
 
 
+def _boundary_half_edges(mesh: Mesh) -> np.ndarray:
+    """(b, 3) int64: each boundary edge ``(p, q, f)`` as its face ``f`` runs it (``p -> q``)."""
+    F, topo = mesh.faces, mesh.topology
+    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed half-edges
+    # their undirected edges (faces_to_edges[:, k] is the edge opposite corner k)
+    on = topo.faces_to_edges[:, [2, 0, 1]].T.ravel()
+    b = topo.edge_face_counts[on] == 1
+    return np.c_[H[b], np.tile(np.arange(mesh.n_faces), 3)[b]]
+
+
 def close_small_loops(mesh: Mesh, max_edges: int = SMALL_LOOP_EDGES) -> Mesh:
     """The mesh with its boundary loops of at most ``max_edges`` edges closed by a fan.
 
@@ -386,11 +396,8 @@ def close_small_loops(mesh: Mesh, max_edges: int = SMALL_LOOP_EDGES) -> Mesh:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    F, topo = mesh.faces, mesh.topology
-    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed half-edges
-    # their undirected edges (faces_to_edges[:, k] is the edge opposite corner k)
-    on = topo.faces_to_edges[:, [2, 0, 1]].T.ravel()
-    B = H[topo.edge_face_counts[on] == 1]  # boundary half-edges, as their faces run them
+    F = mesh.faces
+    B = _boundary_half_edges(mesh)[:, :2]  # boundary half-edges, as their faces run them
     if len(B) == 0:
         return mesh
     n = mesh.n_verts
@@ -520,15 +527,6 @@ def trim_to_evidence(mesh: Mesh, cloud: CloudTarget, noise: float, *,
     remap[used] = np.arange(len(used))
     return EvidenceTrim(Mesh(mesh.verts[used], remap[F]), n_removed, n_holes, n_islands, gap)
 
-
-
-def _boundary_half_edges(mesh: Mesh) -> np.ndarray:
-    """(b, 3) int64: each boundary edge ``(p, q, f)`` as its face ``f`` runs it (``p -> q``)."""
-    F, topo = mesh.faces, mesh.topology
-    H = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed half-edges
-    on = topo.faces_to_edges[:, [2, 0, 1]].T.ravel()  # their undirected edges
-    b = topo.edge_face_counts[on] == 1
-    return np.c_[H[b], np.tile(np.arange(mesh.n_faces), 3)[b]]
 
 
 @dataclass(frozen=True)
