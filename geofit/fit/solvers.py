@@ -331,8 +331,9 @@ def _lbfgsb_loop(core, tr: _Tracker, x0: np.ndarray, *, m: int, ftol: float, gto
     (tested against :func:`scipy.optimize.minimize`), without the wrapper's copies and
     comparisons of ``x`` and ``g`` at every evaluation (``ScalarFunction``, ``MemoizeJac``,
     ``g.astype``): ~4 ms per evaluation at a million parameters, measured. ``tr`` gets a
-    fresh copy of ``x`` (scipy's wrapper also hands the objective a copy) and the callback
-    runs at every new iterate. Returns an object with scipy's ``x``, ``fun``, ``status``
+    fresh copy of ``x`` (scipy's wrapper also hands the objective a copy), is not called again
+    at the point it saw last (scipy's ``ScalarFunction`` keeps that value too) and the
+    callback runs at every new iterate. Returns an object with scipy's ``x``, ``fun``, ``status``
     (0 converged, 1 iteration limit, 2 other stop) and ``message``.
     """
     n = x0.size
@@ -345,13 +346,15 @@ def _lbfgsb_loop(core, tr: _Tracker, x0: np.ndarray, *, m: int, ftol: float, gto
     task, ln_task = np.zeros(2, np.int32), np.zeros(2, np.int32)
     lsave, isave, dsave = np.zeros(4, np.int32), np.zeros(44, np.int32), np.zeros(29)
     factr = ftol / np.finfo(float).eps
-    n_iter = 0
+    n_iter, last, g_last = 0, None, None
     while True:  # one call per evaluation or new iterate, as scipy's
         core._lbfgsb.setulb(m, x, lower, upper, nbd, f, g, factr, gtol, wa, iwa, task, lsave,
                             isave, dsave, max_line_search, ln_task)
-        if task[0] == 3:  # f and g wanted at x
-            f, g = tr(x.copy(), owned=True)
-            g = np.ascontiguousarray(g, dtype=np.float64)
+        if task[0] == 3:  # f and g wanted at x (at the last point evaluated: kept, as scipy)
+            if last is None or not np.array_equal(x, last):
+                last = x.copy()
+                f, g_last = tr(last, owned=True)
+            np.copyto(g, g_last)  # setulb may write into g: it gets a copy, as scipy's
         elif task[0] == 1:  # a new iterate
             n_iter += 1
             tr.iteration(x, f)
