@@ -330,12 +330,12 @@ def _lbfgsb_loop(core, tr: _Tracker, x0: np.ndarray, *, m: int, ftol: float, gto
     The same calls of ``setulb`` with the same arguments, so the same iterates bit for bit
     (tested against :func:`scipy.optimize.minimize`), without the wrapper's copies and
     comparisons of ``x`` and ``g`` at every evaluation (``ScalarFunction``, ``MemoizeJac``,
-    ``g.astype``): at 948,148 parameters, 25-30 ms of main-thread CPU per evaluation
-    beyond ``setulb`` and the objective, against ~9 ms here with the tracker (measured). ``tr`` gets a
-    fresh copy of ``x`` (scipy's wrapper also hands the objective a copy), is not called again
-    at the point it saw last (scipy's ``ScalarFunction`` keeps that value too) and the
-    callback runs at every new iterate. Returns an object with scipy's ``x``, ``fun``, ``status``
-    (0 converged, 1 iteration limit, 2 other stop) and ``message``.
+    ``g.astype``): at 948,148 parameters, 25-30 ms of main-thread CPU per evaluation beyond
+    ``setulb`` and the objective, against ~9 ms here with the tracker (measured). ``tr`` gets
+    a fresh copy of ``x`` (scipy's wrapper also hands the objective a copy), is not called
+    again at the point it saw last (scipy's ``ScalarFunction`` keeps that value too) and the
+    callback runs at every new iterate. Returns an object with scipy's ``x``, ``fun``,
+    ``status`` (0 converged, 1 iteration limit, 2 other stop) and ``message``.
     """
     n = x0.size
     x = np.array(x0, dtype=np.float64)
