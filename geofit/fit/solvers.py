@@ -310,7 +310,7 @@ def _lbfgsb_core():
     """scipy's L-BFGS-B module (``scipy.optimize._lbfgsb_py``) when its compiled step
     ``_lbfgsb.setulb`` has the calling convention of scipy >= 1.15 (the C translation), else
     None (then :func:`scipy.optimize.minimize` runs the loop)."""
-    import scipy
+    import scipy  # kept local, as lbfgs_scipy's minimize: scipy.optimize loads when used
     from scipy.optimize import _lbfgsb_py
 
     try:
