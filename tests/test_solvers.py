@@ -155,6 +155,33 @@ def test_max_eval_budget():
         assert res.n_evaluations == 7
 
 
+@pytest.mark.parametrize("max_iter, memory", [(1000, 10), (6, 3), (25, 20)])
+def test_lbfgs_scipy_iterates_equal_scipy_minimize(max_iter, memory):
+    """lbfgs_scipy drives scipy's compiled L-BFGS-B step itself: the objective sees the same
+    points, bit for bit, as under scipy.optimize.minimize, and the result is the same."""
+    from scipy.optimize import minimize as sp_minimize
+
+    rng = np.random.default_rng(3)
+    D, b = rng.uniform(0.5, 3.0, 200), rng.standard_normal(200)
+
+    def fun(x):  # a smooth non-quadratic objective
+        r = x - b
+        return float(0.5 * (D * r) @ r + 0.3 * np.sum(np.cos(3 * x))), D * r - 0.9 * np.sin(3 * x)
+
+    ours, theirs = [], []
+    res = lbfgs_scipy(lambda x: (ours.append(x.copy()), fun(x))[1], np.zeros(200),
+                      max_iter=max_iter, memory=memory, ftol=1e-12, gtol=1e-10)
+    ref = sp_minimize(lambda x: (theirs.append(x.copy()), fun(x))[1], np.zeros(200), jac=True,
+                      method="L-BFGS-B", options={"maxiter": max_iter, "maxcor": memory,
+                                                  "ftol": 1e-12, "gtol": 1e-10,
+                                                  "maxfun": np.iinfo(np.int32).max})
+    assert len(ours) == len(theirs) == res.n_evaluations > 3
+    assert all(np.array_equal(a, c) for a, c in zip(ours, theirs))
+    assert np.array_equal(res.x, ref.x) and res.value == ref.fun
+    assert res.n_iterations == ref.nit
+    assert res.status == ("max_iter" if ref.status == 1 else "converged"), ref.message
+
+
 def test_max_iter_scipy():
     res = lbfgs_scipy(rosenbrock, np.array([-1.2, 1.0]), max_iter=3)
     assert res.status == "max_iter" and res.n_iterations == 3
