@@ -104,3 +104,24 @@ def test_refinement_stops_before_the_vertex_cap_of_a_cloud(monkeypatch):
     assert res.mesh.n_verts <= 100
     monkeypatch.setattr(adaptive, "CLOUD_MAX_SAMPLES", 80_000)
     assert len(fit_mesh(P, options=_hard_goal()).stages) > 1
+
+
+def test_a_precise_scan_refines_past_the_unit_box_goal_to_its_noise_floor():
+    """A precise scan's first round can meet the unit-box goal (3e-5) with a model residual
+    well above the noise: the fit is held to 2.5 sigma^2 (or CLOUD_GOAL_SHARE of the goal)
+    instead, and refines; a noisy scan's floor is unchanged (2.5 sigma^2 above 3e-5)."""
+    P = torus_cloud(30_000)
+    res = fit_mesh(P, options=MeshFitOptions(n_iter=5, refine=Remeshing(n_faces=600,
+                                                                        max_rounds=2)))
+    sigma = res.data_report.noise / res.scale
+    goal = res.stages[0]["goal"]["chamfer_l2"]
+    assert goal == pytest.approx(max(adaptive.CLOUD_GOAL_SHARE * 3e-5, 2.5 * sigma ** 2))
+    assert goal < 3e-5
+    assert res.stages[0]["estimate"]["chamfer_l2"] < 3e-5  # the old rule stopped here
+    assert len(res.stages) == 2 and res.stages[1]["n_verts"] > res.stages[0]["n_verts"]
+    P = torus_cloud(3000, 0.01)
+    res = fit_mesh(P, options=MeshFitOptions(n_iter=3, refine=Remeshing(max_rounds=1,
+                                                                        n_faces=300)))
+    sigma = res.data_report.noise / res.scale
+    goal = res.stages[0]["goal"]["chamfer_l2"]
+    assert goal == pytest.approx(2.5 * sigma ** 2) and goal > 3e-5
