@@ -136,7 +136,7 @@ def test_the_start_uses_more_points_of_a_precise_dense_scan_only():
     assert sp(50_000, 0.0064, 0.002) == 50_000              # noise 0.002: all of them
     assert sp(200_000, 0.004, 0.0) == adaptive.START_MAX_POINTS
     assert sp(5_000, 0.02, 0.007) == 5_000                  # never more than the scan has
-    n = 300_000 * (0.005 / (3 * 0.004)) ** 2
-    assert sp(300_000, 0.005, 0.004) == int(n)              # between the bounds: the formula
+    n = 200_000 * (0.005 / (3 * 0.004)) ** 2
+    assert sp(200_000, 0.005, 0.004) == int(n)              # between the bounds: the formula
     assert [sp(100_000, 0.006, s) for s in (0.001, 0.002, 0.004, 0.008)] == sorted(
         [sp(100_000, 0.006, s) for s in (0.001, 0.002, 0.004, 0.008)], reverse=True)
