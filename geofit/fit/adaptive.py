@@ -215,9 +215,11 @@ def start_points(n_points: int, spacing: float, noise: float) -> int:
     dense scan keeps about the 20,000-point subsample it had (100,000 points at noise 0.005,
     measured spacing 0.0063 and noise 0.0044: 22,778; 50,000: 20,000; all 100,000 gave
     mis-oriented normals and starts of genus 1-20 for the genus-0 fandisk); a precise one
-    uses all its points: on 50,000 points of Suzanne at noise 0.002 the fit's chamfer-L2
-    1.92e-5 -> 1.25e-5, F@0.01 0.981 -> 0.990 (Poisson at the same size 2.0e-5, 0.981; one
-    process each, under load): the 20,000-point start left one ear off the surface.
+    uses more: the 50,000-point scans at noise 0.002 of the scans grid 23,000 (ogre) to
+    50,000 (torus, open cylinder). Suzanne's (34,930 points) fit: chamfer-L2 1.93e-5-1.95e-5,
+    F@0.01 0.980-0.981 in three processes from 20,000 points -> 1.42e-5, 0.987 (Poisson at the
+    same size 2.0e-5, 0.981; all 50,000 points: 1.25e-5, 0.990): the 20,000-point start left
+    one ear off the surface.
 
     Parameters
     ----------
