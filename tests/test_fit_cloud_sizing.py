@@ -104,3 +104,39 @@ def test_refinement_stops_before_the_vertex_cap_of_a_cloud(monkeypatch):
     assert res.mesh.n_verts <= 100
     monkeypatch.setattr(adaptive, "CLOUD_MAX_SAMPLES", 80_000)
     assert len(fit_mesh(P, options=_hard_goal()).stages) > 1
+
+
+def test_a_precise_scan_refines_past_the_unit_box_goal_to_its_noise_floor():
+    """A precise scan's first round can meet the unit-box goal (3e-5) with a model residual
+    well above the noise: the fit is held to 2.5 sigma^2 (or CLOUD_GOAL_SHARE of the goal)
+    instead, and refines; a noisy scan's floor is unchanged (2.5 sigma^2 above 3e-5)."""
+    P = torus_cloud(30_000)
+    res = fit_mesh(P, options=MeshFitOptions(n_iter=5, refine=Remeshing(n_faces=600,
+                                                                        max_rounds=2)))
+    sigma = res.data_report.noise / res.scale
+    goal = res.stages[0]["goal"]["chamfer_l2"]
+    assert goal == pytest.approx(max(adaptive.CLOUD_GOAL_SHARE * 3e-5, 2.5 * sigma ** 2))
+    assert goal < 3e-5
+    assert res.stages[0]["estimate"]["chamfer_l2"] < 3e-5  # the old rule stopped here
+    assert len(res.stages) == 2 and res.stages[1]["n_verts"] > res.stages[0]["n_verts"]
+    P = torus_cloud(3000, 0.01)
+    res = fit_mesh(P, options=MeshFitOptions(n_iter=3, refine=Remeshing(max_rounds=1,
+                                                                        n_faces=300)))
+    sigma = res.data_report.noise / res.scale
+    goal = res.stages[0]["goal"]["chamfer_l2"]
+    assert goal == pytest.approx(2.5 * sigma ** 2) and goal > 3e-5
+
+
+def test_the_start_uses_more_points_of_a_precise_dense_scan_only():
+    """start_points: n (spacing / (3 noise))^2 within [20,000, 50,000] and the scan's count:
+    a noisy dense scan keeps about 20,000, a precise one all its points (up to 50,000)."""
+    sp = adaptive.start_points
+    assert sp(100_000, 0.0063, 0.0044) < 25_000            # noise 0.005: about today's 20,000
+    assert sp(50_000, 0.0081, 0.0049) == adaptive.START_MIN_POINTS
+    assert sp(50_000, 0.0064, 0.002) == 50_000              # noise 0.002: all of them
+    assert sp(200_000, 0.004, 0.0) == adaptive.START_MAX_POINTS
+    assert sp(5_000, 0.02, 0.007) == 5_000                  # never more than the scan has
+    n = 200_000 * (0.005 / (3 * 0.004)) ** 2
+    assert sp(200_000, 0.005, 0.004) == int(n)              # between the bounds: the formula
+    assert [sp(100_000, 0.006, s) for s in (0.001, 0.002, 0.004, 0.008)] == sorted(
+        [sp(100_000, 0.006, s) for s in (0.001, 0.002, 0.004, 0.008)], reverse=True)

@@ -282,6 +282,12 @@ def _past_the_points(V: np.ndarray, F: np.ndarray, cloud: CloudTarget,
 #: (a genus-2 start).
 START_NORMAL_K = 12
 
+#: Threads of the Poisson start's reconstruction. Open3D's multi-threaded solve gives a
+#: different start in every process (Suzanne, 50,000 points, noise 0.002: three processes,
+#: three different starts, and fits whose F@0.01 spread 0.981-0.988); on one thread the start
+#: is the same in every process, at the same cost at depth 6 (1.1-1.3 CPU s with or without).
+POISSON_THREADS = 1
+
 
 def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
                      n_max: int = 20_000, seed=0, trim: bool = True) -> Mesh:
@@ -331,7 +337,7 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
     # closed: a reconstruction cube 1.5x the points' box (Open3D's 1.1 clips the surface that
     # closes a one-sided scan, leaving a boundary where the box cuts it)
     m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-        pcd, depth=int(depth), scale=1.1 if trim else 1.5)
+        pcd, depth=int(depth), scale=1.1 if trim else 1.5, n_threads=POISSON_THREADS)
     if len(m.vertices) and trim:
         cell = 2.0 * float(np.abs(P - P.mean(0)).max()) / 2 ** depth
         reach = max(3.0 * cloud.spacing, 2.0 * cell)
@@ -342,7 +348,7 @@ def mesh_from_points(cloud: CloudTarget, *, n_faces: int = 2000, depth: int = 6,
             # the cube cut surface that is not over a hole (Poisson's surface around a thin
             # part at the points' extremes, the dolphin's tail): the closed reconstruction
             m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-                pcd, depth=int(depth), scale=1.5)
+                pcd, depth=int(depth), scale=1.5, n_threads=POISSON_THREADS)
             mv, mf = np.asarray(m.vertices), np.asarray(m.triangles)
             hole = _past_the_points(mv, mf, cloud, reach)
         m.remove_vertices_by_mask(hole)

@@ -75,7 +75,11 @@ class Remeshing:
         decimated Poisson reconstruction of a point cloud).
     chamfer_l2, fscore, tau : float
         Stop refining once the estimated chamfer-L2 (normalised frame) is at most
-        ``chamfer_l2`` and the F-score at ``tau`` at least ``fscore``.
+        ``chamfer_l2`` and the F-score at ``tau`` at least ``fscore``. A point cloud: once
+        the estimate (to the points) is at most ``2.5 sigma^2`` for the scan's noise
+        ``sigma`` (the noise's own ``2 sigma^2`` and a model residual of half the noise), or
+        :data:`geofit.fit.adaptive.CLOUD_GOAL_SHARE` of ``chamfer_l2`` where that is larger,
+        and the F-score at least ``fscore`` (lowered to what the noise allows).
     max_rounds : int
         Solve-and-remesh rounds at most.
     max_verts : int
@@ -527,7 +531,8 @@ class MeshFitResult(FitResult):
         Final accuracy (the evaluator's), None without an evaluator.
     stages : list of dict
         One entry per solve: level or round, vertices, solver status and message,
-        evaluations, seconds, and (with refinement) the accuracy estimate.
+        evaluations, seconds, and (with refinement) the accuracy estimate (the remeshing
+        fit: and the ``goal`` it was held to, a scan's at its noise floor).
     init : str or Mesh
         The remeshing fit: the initialisation's name (``"target"``, ``"points"``,
         ``"sphere"``, ``"user"``); the other recipes: the starting mesh.
