@@ -506,3 +506,19 @@ def test_final_large_steps_is_the_last_levels_lambda(data):
     assert np.abs(b - verts(large_steps=3.0, final_large_steps=3.0)).max() > 1e-6
     with pytest.raises(ValueError, match="options.final_large_steps"):
         fit_mesh_to_views(data, options=ViewsFitOptions(final_large_steps=-1.0), progress=False)
+
+
+def test_rgb_stage_gets_its_share_of_the_time_budget(data):
+    """With a time budget the silhouette stage ends at the start of the RGB stage's share
+    (its message says so) instead of spending the geometry's whole part, the RGB stage then
+    runs in its share and ends by the budget without letting the clock's TimeUp escape, and
+    the colours and texture still come after it."""
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(
+        init=ico_sphere(2), silhouette_iters=10 ** 6, rgb_iters=10 ** 4), time_budget=3.0,
+        progress=False)
+    names = [s["name"] for s in res.stages]
+    assert names[:3] == ["silhouette", "rgb", "textured"]
+    sil, rgb = res.stages[0], res.stages[1]
+    assert sil["status"] == "time_budget" and "share" in sil["message"]
+    assert rgb["status"] == "time_budget" and rgb["seconds"] > 0
+    assert res.status == "time_budget" and np.all(np.isfinite(res.mesh.verts))

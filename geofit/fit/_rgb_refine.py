@@ -29,6 +29,7 @@ import scipy.sparse.linalg as spla
 from ..ops import uniform_laplacian
 from ..render.mesh.image_term import HardImageLoss
 from ..structures import Mesh
+from .history import TimeUp
 from .large_steps import vertex_parameterization
 
 __all__ = ["RGBRefineResult", "projected_image_loss", "refine_rgb", "solve_vertex_colors"]
@@ -158,7 +159,8 @@ def projected_image_loss(loss, mesh: Mesh, reg: float = 1e-4, solver=None):
 def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0, 1.0),
                lam: float = 10.0, reg: float = 1e-4, maxiter: int = 30,
                supersample: int = 2, time_budget: float | None = None,
-               image_weight: float = 1.0, extra=None, masks=None) -> RGBRefineResult:
+               image_weight: float = 1.0, extra=None, masks=None,
+               clock=None) -> RGBRefineResult:
     """Refine ``mesh`` against RGB ``images`` (variable projection of the colours, L-BFGS).
 
     Parameters
@@ -181,6 +183,9 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
         edge gradient differentiates more closely, which the line search needs.
     time_budget : float, optional
         Stop (at the next evaluation) after this many seconds.
+    clock : geofit.fit.history.Clock, optional
+        The fit's clock: stop (at the next evaluation, or inside ``extra`` where it checks
+        the clock) once it passes its deadline.
     image_weight : float
         Weight of the image term.
     extra : callable, optional
@@ -211,6 +216,8 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     def fun(u):
         if time_budget is not None and time.perf_counter() - t0 > time_budget:
             raise _Stop
+        if clock is not None:
+            clock.check()  # TimeUp past the deadline
         V = param.to_verts(u.reshape(-1, 3))
         m = Mesh(V, F)
         value, gv, C = projected_image_loss(loss, m, reg, solver)
@@ -226,7 +233,7 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     stopped = False
     try:
         minimize(fun, u0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)})
-    except _Stop:
+    except (_Stop, TimeUp):
         stopped = True
     C = best["C"] if best["C"] is not None else solver(loss, mesh)[0]
     return RGBRefineResult(Mesh(best["V"], F), C, values, time.perf_counter() - t0,

@@ -345,6 +345,9 @@ FINAL_STAGE_SHARE = 0.1
 #: The share it leaves with ``texture="uv"`` (the colours and the UV texture: on the cow's 20
 #: views of 128 px the two take 3-5 s under load).
 _TEXTURE_RESERVE = 0.15
+#: Share of the geometry's part of a time budget (the budget minus the final stage's share)
+#: that the silhouette stage leaves to the RGB stage when ``rgb_iters``: on the cow the RGB stage takes about that share of an unbudgeted default fit's geometry time (measured below in the notes of benchmarks/results/fit_views_session9_rgb.md).
+RGB_STAGE_SHARE = 0.25
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
@@ -544,17 +547,19 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
                   callback=callback, progress=progress)
     initial_mesh(plan, run)
     sil_mesh = plan.init
-    if plan.silhouette_method != "none":
-        # the silhouette stage (its checks inside evaluations too) ends where the final
-        # stage's share of the budget begins
-        with run.clock.until(None if plan.time_budget is None
-                             else plan.time_budget - plan.reserve):
-            sil_mesh = _silhouette_stage(plan, run)
+    # the geometry (its checks inside evaluations too) ends where the final stage's share of
+    # the budget begins; the silhouette stage leaves the RGB stage its share before that
+    geometry_end = None if plan.time_budget is None else plan.time_budget - plan.reserve
+    with run.clock.until(geometry_end):
+        if plan.silhouette_method != "none":
+            with run.clock.until(None if geometry_end is None else
+                                 geometry_end - plan.rgb_reserve):
+                sil_mesh = _silhouette_stage(plan, run)
             if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
                                    ("nonfinite", "failed", "callback")):
                 sil_mesh = _rgb_stage(plan, run, sil_mesh)
-    elif plan.rgb_iters:  # a given mesh refined against the images alone
-        sil_mesh = _rgb_stage(plan, run, sil_mesh)
+        elif plan.rgb_iters:  # a given mesh refined against the images alone
+            sil_mesh = _rgb_stage(plan, run, sil_mesh)
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
                                            ("nonfinite", "failed")):
@@ -604,6 +609,7 @@ class _Plan:
     texture: str = "vertex"
     texel_px: float = 1.0
     reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
+    rgb_reserve: float = 0.0  # seconds the silhouette stage leaves to the RGB stage
     hull_upsample: int = 1
     hull_close_px: float = 0.0
     hull_margins: tuple = (0.0,)
@@ -676,6 +682,8 @@ class _Plan:
         if rgb_iters and dataset.images is None:
             raise ValueError("options.rgb_iters: the RGB refinement needs RGB images "
                              "(dataset.images is None)")
+        rgb_reserve = 0.0 if time_budget is None or not rgb_iters or sm == "none" else \
+            RGB_STAGE_SHARE * (time_budget - reserve)
         return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
                    o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
                    check_positive(o.lr, "options.lr"),
@@ -683,7 +691,7 @@ class _Plan:
                    check_positive(o.adam_lr, "options.adam_lr"), o.faces_per_pixel,
                    check_positive(o.color_reg, "options.color_reg", strict=False), threshold,
                    init_name, remesh_rounds, edge_px, texture=o.texture, texel_px=texel_px,
-                   reserve=reserve,
+                   reserve=reserve, rgb_reserve=rgb_reserve,
                    hull_upsample=check_int(o.hull_upsample, "options.hull_upsample"),
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
@@ -876,7 +884,6 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     t_stage = run.clock.elapsed()
     v = plan.views
     bg = dataset_background(v)
-    budget = None if plan.time_budget is None else max(plan.remaining(run.clock) * 0.5, 1e-3)
     extra = None
     if plan.rgb_silhouette:
         # the last level's silhouettes and regularisers stay in the objective: the outline
@@ -891,8 +898,8 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
 
     res = refine_rgb(mesh, v.cameras, v.images, lights=dataset_lights(v), background=bg,
                      lam=plan.rgb_large_steps, reg=plan.rgb_color_reg,
-                     maxiter=plan.rgb_iters, time_budget=budget, extra=extra,
-                     image_weight=plan.rgb_weight)
+                     maxiter=plan.rgb_iters, extra=extra, image_weight=plan.rgb_weight,
+                     clock=run.clock if plan.time_budget is not None else None)
     run.n_evaluations += res.n_evaluations
     status = "time_budget" if res.stopped else "max_iter"
     gain = f", loss {res.values[0]:.4g} -> {min(res.values):.4g}" if res.values else ""
