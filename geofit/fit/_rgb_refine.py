@@ -43,8 +43,9 @@ class RGBRefineResult:
     ----------
     mesh : Mesh
         Refined geometry.
-    colors : (V, 3) float64
-        The colours solved for it.
+    colors : (V, 3) float64 or None
+        The colours solved for it (None when the clock or budget stopped the refinement
+        before its first evaluation).
     values : list of float
         Objective per evaluation.
     seconds : float
@@ -235,6 +236,6 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
         minimize(fun, u0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)})
     except (_Stop, TimeUp):
         stopped = True
-    C = best["C"] if best["C"] is not None else solver(loss, mesh)[0]
+    C = best["C"]  # None: stopped before the first evaluation
     return RGBRefineResult(Mesh(best["V"], F), C, values, time.perf_counter() - t0,
                            len(values), stopped)

@@ -882,6 +882,10 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     colours, large steps, L-BFGS; :func:`geofit.fit._rgb_refine.refine_rgb`); returns the
     mesh."""
     t_stage = run.clock.elapsed()
+    if run.clock.over():  # the geometry's part of the budget is spent (e.g. on the hull)
+        run.stages.append({"name": "rgb", "method": "lbfgs", "status": "time_budget",
+                           "seconds": 0.0, "message": "not run: " + run.clock.status_words()})
+        return mesh
     v = plan.views
     bg = dataset_background(v)
     extra = None
