@@ -436,8 +436,8 @@ def test_default_result_carries_a_uv_texture(data):
                            progress=False)
     assert isinstance(uv.mesh.textures, TexturesUV) and uv.textured_mesh is uv.mesh
     assert isinstance(vx.mesh.textures, TexturesVertex)
-    assert [s["name"] for s in uv.stages] == ["silhouette", "textured", "texture"]
-    assert [s["name"] for s in vx.stages] == ["silhouette", "textured"]
+    assert [s["name"] for s in uv.stages] == ["silhouette", "rgb", "textured", "texture"]
+    assert [s["name"] for s in vx.stages] == ["silhouette", "rgb", "textured"]
     np.testing.assert_array_equal(uv.mesh.verts, vx.mesh.verts)
     np.testing.assert_array_equal(uv.colors, vx.colors)
     assert uv.n_params == vx.n_params + uv.mesh.textures.maps.size
@@ -522,3 +522,18 @@ def test_rgb_stage_gets_its_share_of_the_time_budget(data):
     assert sil["status"] == "time_budget" and "share" in sil["message"]
     assert rgb["status"] == "time_budget" and rgb["seconds"] > 0
     assert res.status == "time_budget" and np.all(np.isfinite(res.mesh.verts))
+
+
+def test_default_rgb_stage_needs_a_silhouette_stage_and_images(data):
+    """The default recipe's RGB stage refines the silhouette stage's result: it is left out
+    for silhouettes alone (no RGB images) and after ``silhouette_method="none"``; asked for
+    explicitly without images it is refused."""
+    sil_only = MultiViewDataset(images=None, silhouettes=data.silhouettes, cameras=data.cameras)
+    o = dict(init=ico_sphere(2), silhouette_iters=2, textured_method="none")
+    res = fit_mesh_to_views(sil_only, options=ViewsFitOptions(**o), progress=False)
+    assert [s["name"] for s in res.stages] == ["silhouette"]
+    given = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
+                              silhouette_method="none"), progress=False)
+    assert [s["name"] for s in given.stages][:1] == ["textured"]
+    with pytest.raises(ValueError, match="rgb_iters"):
+        fit_mesh_to_views(sil_only, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)

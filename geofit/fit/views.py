@@ -87,6 +87,7 @@ from .texture import fit_texture
 
 __all__ = [
     "FINAL_STAGE_SHARE",
+    "RGB_STAGE_SHARE",
     "HULL_SILHOUETTE_WEIGHTS",
     "INITS",
     "RECIPES",
@@ -247,9 +248,14 @@ class ViewsFitOptions:
         squares inside every evaluation (variable projection), so the residual moves the
         geometry (:func:`geofit.fit._rgb_refine.refine_rgb`). Needs RGB images. With
         ``silhouette_method="none"`` it refines the initial mesh (e.g. a Mesh given as
-        ``init``).
+        ``init``; set explicitly: the recipe's stage runs only after a silhouette stage and
+        with RGB images). 5 for ``"default"`` (with ``rgb_silhouette=1, rgb_large_steps=1,
+        rgb_weight=0.3``), 0 otherwise: on the 11 shapes of ``benchmarks/fit_views.py --shapes
+        all`` it raises the median held-out F@0.01 and IoU and loses on none more than 0.01
+        IoU or 0.02 F@0.01, for about 12-14 CPU s on the cow
+        (benchmarks/results/fit_views_session9_rgb.md).
     rgb_weight : float
-        Weight of the image term in the RGB stage (1).
+        Weight of the image term in the RGB stage (1; 0.3 for ``"default"``).
     rgb_silhouette : float
         Weight of the last level's soft-silhouette term kept in the RGB stage, with that
         level's edge, normal and Laplacian regularisers (0: the image term alone, as before).
@@ -257,8 +263,8 @@ class ViewsFitOptions:
         degrade (thin plate, 10 iterations: held-out IoU 0.9620 / F@0.01 0.280 alone, 0.9694 /
         0.349 with it and ``rgb_large_steps=1``; before the stage 0.9614 / 0.377).
     rgb_large_steps : float
-        ``lambda`` of the large-steps parameterisation in the RGB stage (10; 0: plain vertex
-        positions).
+        ``lambda`` of the large-steps parameterisation in the RGB stage (10, 1 for
+        ``"default"``; 0: plain vertex positions).
     rgb_color_reg : float
         Weight of the colours' Laplacian smoothness inside the RGB stage's variable
         projection (1e-4): larger leaves the colours fewer degrees of freedom to absorb what
@@ -321,7 +327,8 @@ RECIPES: dict[str, ViewsFitOptions] = {
         textured_init="silhouette", large_steps=10.0, final_large_steps=1.0, init="hull",
         levels=((0, 2), (0, 1)),
         remesh_rounds=2, silhouette_iters=120, silhouette_weights=HULL_SILHOUETTE_WEIGHTS,
-        texture="uv", **_COMMON),
+        texture="uv", **dict(_COMMON, rgb_iters=5, rgb_silhouette=1.0, rgb_large_steps=1.0,
+                             rgb_weight=0.3)),
     "sphere-lbfgs": ViewsFitOptions(
         silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
         textured_init="silhouette", large_steps=0.0, init="sphere", levels=((0, 1),),
@@ -346,8 +353,10 @@ FINAL_STAGE_SHARE = 0.1
 #: views of 128 px the two take 3-5 s under load).
 _TEXTURE_RESERVE = 0.15
 #: Share of the geometry's part of a time budget (the budget minus the final stage's share)
-#: that the silhouette stage leaves to the RGB stage when ``rgb_iters``: on the cow the RGB stage takes about that share of an unbudgeted default fit's geometry time (measured below in the notes of benchmarks/results/fit_views_session9_rgb.md).
-RGB_STAGE_SHARE = 0.25
+#: that the silhouette stage leaves to the RGB stage when ``rgb_iters``: about the RGB stage's
+#: part of the cow's unbudgeted default (5 iterations: 13.5 of 74.6 CPU s, measured under
+#: load; benchmarks/results/fit_views_session9_rgb.md).
+RGB_STAGE_SHARE = 0.2
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
@@ -490,7 +499,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
 
     The default starts from the visual hull of the silhouettes (its genus and parts), and
     alternates L-BFGS on the soft silhouettes of all views (large steps, half then full
-    resolution) with remeshing to edges of ``edge_px`` pixels; the vertex colours then come
+    resolution) with remeshing to edges of ``edge_px`` pixels, then refines the vertices
+    against the RGB images (the hard image term with the colours solved inside every
+    evaluation, the silhouettes kept; ``options.rgb_iters``); the vertex colours then come
     from one sparse least-squares solve, and the result's mesh carries a UV texture solved
     likewise (:func:`geofit.fit.texture.fit_texture`, ``options.texture``).
 
@@ -511,12 +522,16 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         Wall-clock seconds for the whole fit: the start (the visual hull, carved view by view
         with the clock checked between views), the solves (checked between view batches inside
         each evaluation), the remeshing and the final stage; not the time spent in the
-        evaluator or callback you pass. The silhouette stage shares it over its solves and
-        leaves :data:`FINAL_STAGE_SHARE` of it (15 % with ``texture="uv"``) to the final
-        stage: the colours (one sparse solve) and the UV texture (one sparse solve). If the
+        evaluator or callback you pass. The geometry leaves :data:`FINAL_STAGE_SHARE` of it
+        (15 % with ``texture="uv"``) to the final stage: the colours (one sparse solve) and
+        the UV texture (one sparse solve); of the rest the silhouette stage shares all but
+        :data:`RGB_STAGE_SHARE` over its solves, which the RGB stage gets. If the
         budget is spent before the texture, the mesh keeps its vertex colours and the
         ``"texture"`` stage says so. A budget used up while carving the hull returns the
-        unfitted ico-sphere with status ``"time_budget"`` and says so.
+        unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
+        no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
+        about 75 CPU s on 2 cores (measured under load: 61 s before the RGB stage, 13.5 s in
+        it; without the RGB stage it took 39-47 s wall on a quiet machine).
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
@@ -679,6 +694,10 @@ class _Plan:
         reserve = 0.0 if time_budget is None or tm == "none" else \
             (_TEXTURE_RESERVE if uv else FINAL_STAGE_SHARE) * time_budget
         rgb_iters = check_int(o.rgb_iters, "options.rgb_iters", 0)
+        if user.rgb_iters is None and (dataset.images is None or sm == "none"):
+            # the recipe's RGB stage refines the silhouette stage's result; silhouettes alone
+            # have nothing for it (rgb_iters set explicitly refines a given mesh, or refuses)
+            rgb_iters = 0
         if rgb_iters and dataset.images is None:
             raise ValueError("options.rgb_iters: the RGB refinement needs RGB images "
                              "(dataset.images is None)")
