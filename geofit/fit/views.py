@@ -530,8 +530,8 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         ``"texture"`` stage says so. A budget used up while carving the hull returns the
         unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
         no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
-        about 75 CPU s on 2 cores (measured under load: 61 s before the RGB stage, 13.5 s in
-        it; without the RGB stage it took 39-47 s wall on a quiet machine).
+        about 68-75 CPU s on 2 cores (measured under load: 72 s wall at load 8-10, the RGB
+        stage 12.5 s of it; without the RGB stage it took 39-47 s wall on a quiet machine).
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
