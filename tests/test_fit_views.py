@@ -436,8 +436,8 @@ def test_default_result_carries_a_uv_texture(data):
                            progress=False)
     assert isinstance(uv.mesh.textures, TexturesUV) and uv.textured_mesh is uv.mesh
     assert isinstance(vx.mesh.textures, TexturesVertex)
-    assert [s["name"] for s in uv.stages] == ["silhouette", "textured", "texture"]
-    assert [s["name"] for s in vx.stages] == ["silhouette", "textured"]
+    assert [s["name"] for s in uv.stages] == ["silhouette", "rgb", "textured", "texture"]
+    assert [s["name"] for s in vx.stages] == ["silhouette", "rgb", "textured"]
     np.testing.assert_array_equal(uv.mesh.verts, vx.mesh.verts)
     np.testing.assert_array_equal(uv.colors, vx.colors)
     assert uv.n_params == vx.n_params + uv.mesh.textures.maps.size
@@ -506,3 +506,34 @@ def test_final_large_steps_is_the_last_levels_lambda(data):
     assert np.abs(b - verts(large_steps=3.0, final_large_steps=3.0)).max() > 1e-6
     with pytest.raises(ValueError, match="options.final_large_steps"):
         fit_mesh_to_views(data, options=ViewsFitOptions(final_large_steps=-1.0), progress=False)
+
+
+def test_rgb_stage_gets_its_share_of_the_time_budget(data):
+    """With a time budget the silhouette stage ends at the start of the RGB stage's share
+    (its message says so) instead of spending the geometry's whole part, the RGB stage then
+    runs in its share and ends by the budget without letting the clock's TimeUp escape, and
+    the colours and texture still come after it."""
+    res = fit_mesh_to_views(data, options=ViewsFitOptions(
+        init=ico_sphere(2), silhouette_iters=10 ** 6, rgb_iters=10 ** 4), time_budget=3.0,
+        progress=False)
+    names = [s["name"] for s in res.stages]
+    assert names[:3] == ["silhouette", "rgb", "textured"]
+    sil, rgb = res.stages[0], res.stages[1]
+    assert sil["status"] == "time_budget" and "share" in sil["message"]
+    assert rgb["status"] == "time_budget" and rgb["seconds"] > 0
+    assert res.status == "time_budget" and np.all(np.isfinite(res.mesh.verts))
+
+
+def test_default_rgb_stage_needs_a_silhouette_stage_and_images(data):
+    """The default recipe's RGB stage refines the silhouette stage's result: it is left out
+    for silhouettes alone (no RGB images) and after ``silhouette_method="none"``; asked for
+    explicitly without images it is refused."""
+    sil_only = MultiViewDataset(images=None, silhouettes=data.silhouettes, cameras=data.cameras)
+    o = dict(init=ico_sphere(2), silhouette_iters=2, textured_method="none")
+    res = fit_mesh_to_views(sil_only, options=ViewsFitOptions(**o), progress=False)
+    assert [s["name"] for s in res.stages] == ["silhouette"]
+    given = fit_mesh_to_views(data, options=ViewsFitOptions(init=ico_sphere(2),
+                              silhouette_method="none"), progress=False)
+    assert [s["name"] for s in given.stages][:1] == ["textured"]
+    with pytest.raises(ValueError, match="rgb_iters"):
+        fit_mesh_to_views(sil_only, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)

@@ -411,7 +411,8 @@ def test_rgb_stage_runs_after_the_silhouettes(spheres):
     stages; it moves the vertices (the RGB residual drives the geometry) and leaves them
     finite."""
     o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0)
-    base = fit_mesh_to_views(spheres, options=ViewsFitOptions(**o), progress=False)
+    base = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=0, **o),
+                             progress=False)
     res = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)
     assert [s["name"] for s in res.stages] == ["silhouette", "rgb", "textured", "texture"]
     assert np.all(np.isfinite(res.mesh.verts))
@@ -422,7 +423,8 @@ def test_rgb_stage_keeps_the_silhouettes_when_asked(spheres):
     """rgb_silhouette > 0 adds the last level's silhouette term and regularisers to the RGB
     stage's objective: the result differs from the image term alone and stays finite."""
     o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0, rgb_iters=2)
-    alone = fit_mesh_to_views(spheres, options=ViewsFitOptions(**o), progress=False)
+    alone = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_silhouette=0.0, **o),
+                              progress=False)
     both = fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_silhouette=1.0, **o),
                              progress=False)
     assert np.all(np.isfinite(both.mesh.verts))

@@ -197,3 +197,26 @@ def test_color_operator_reproduces_the_loss(blob):
     np.testing.assert_allclose(sum(float(r @ r) for r in res) / n, value, rtol=1e-10)
     g = np.stack([2.0 / n * (A[c].T @ res[c]) for c in range(3)], 1)
     np.testing.assert_allclose(g, gc, rtol=1e-8, atol=1e-14)
+
+
+def test_one_cast_serves_the_loss_and_the_colour_operator(blob):
+    """``pixel_hits`` cast once gives the loss, gradients and colour operator of a fresh cast
+    exactly; it casts only the sub-pixels faces may cover, and hits of another mesh or of
+    another type are refused."""
+    cams, V, F, col = blob
+    tgt = np.random.default_rng(6).uniform(0, 1, (2, 40, 40, 3))
+    loss = HardImageLoss(cams, tgt, lights=LIGHTS, supersample=2)
+    mesh = Mesh(V, F)
+    hits = loss.pixel_hits(mesh)
+    assert 0 < len(hits.ray) <= hits.n_cast < 0.8 * 2 * 80 * 80
+    a, b = loss(mesh, col, hits=hits), loss(mesh, col)
+    assert a.value == b.value
+    np.testing.assert_array_equal(a.grad_verts, b.grad_verts)
+    A1, y1 = loss.color_operator(mesh, hits)
+    A2, y2 = loss.color_operator(mesh)
+    np.testing.assert_array_equal(y1, y2)
+    assert all((p != q).nnz == 0 for p, q in zip(A1, A2))
+    with pytest.raises(ValueError, match="hits"):
+        loss(Mesh(V * 1.01, F), col, hits=hits)
+    with pytest.raises(TypeError, match="hits"):
+        loss(mesh, col, hits=(hits.ray, hits.face))

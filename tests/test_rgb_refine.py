@@ -63,3 +63,47 @@ def test_projected_gradient_matches_finite_differences():
         fd = (fp - fm) / (2 * h)
         an = float(np.sum(gv * d))
         assert abs(fd - an) < 1e-5 * abs(an) + 1e-12, (fd, an)
+
+
+def test_colour_solve_matches_the_explicit_normal_equations():
+    """The face-by-face assembly of the colours' normal equations (one factorisation for grey
+    shading, one per channel otherwise) gives the colours of the explicit ray-by-vertex
+    operator ``A^T A / n + R`` (coloured lights, masks, 2 x 2 rays a pixel)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from geofit.fit._rgb_refine import _ColorSolve
+
+    cams, s, images = _scene()
+    rng = np.random.default_rng(3)
+    for lights in (LIGHTS, PointLights(location=[[0.0, 1.0, -3.0]],
+                                       diffuse_color=[[0.6, 0.3, 0.2]])):
+        loss = HardImageLoss(cams, images, lights=lights, supersample=2,
+                             masks=rng.uniform(0.2, 1.0, images.shape[:3]))
+        mesh = Mesh(s.verts * 1.02, s.faces)
+        C, _ = _ColorSolve(mesh, 1e-3)(loss, mesh)
+        A, y = loss.color_operator(mesh)
+        n = images.shape[0] * images.shape[1] * images.shape[2]
+        Lu = uniform_laplacian(mesh)
+        R = (Lu.T @ Lu) * (1e-3 / mesh.n_verts) + 1e-9 * sp.identity(mesh.n_verts)
+        for c in range(3):  # channels
+            ref = spla.spsolve((A[c].T @ A[c] / n + R).tocsc(), A[c].T @ y[:, c] / n + 5e-10)
+            np.testing.assert_allclose(C[:, c], ref, rtol=1e-8, atol=1e-10)
+
+
+def test_refine_rgb_stops_at_the_clocks_deadline():
+    """A clock past its deadline stops the refinement before its first evaluation, and a
+    TimeUp raised inside ``extra`` (the silhouette objective checks the fit's clock) ends it
+    as stopped, the start kept, instead of escaping."""
+    from geofit.fit.history import Clock, TimeUp
+
+    cams, s, images = _scene()
+    r = refine_rgb(s, cams, images, lights=LIGHTS, maxiter=5, clock=Clock(deadline=1e-9))
+    assert r.stopped and r.n_evaluations == 0 and r.colors is None
+    np.testing.assert_array_equal(r.mesh.verts, s.verts)
+
+    def extra(verts):
+        raise TimeUp("reached the time budget")
+
+    r = refine_rgb(s, cams, images, lights=LIGHTS, maxiter=5, extra=extra)
+    assert r.stopped and r.n_evaluations == 0 and r.colors is None

@@ -52,7 +52,7 @@ def test_views_budget_spent_on_the_hull_returns_the_sphere_and_says_so():
     assert fit.stages[0]["name"] == "init" and fit.stages[0]["status"] == "time_budget"
     assert "while carving the visual hull" in fit.message
     assert fit.n_iterations == 0 and fit.colors is None
-    assert [s["status"] for s in fit.stages] == ["time_budget"] * 3
+    assert [s["status"] for s in fit.stages] == ["time_budget"] * 4  # init, sil., rgb, colours
 
 
 def test_nerf_held_out_renders_stay_inside_the_budget(monkeypatch):

@@ -113,8 +113,9 @@ class DemoResult(NamedTuple):
 
 def _fit(train, time_budget: float, progress: bool):
     """The one call of the fit: the plain default of tutorial 4 (geofit's best: the visual
-    hull, L-BFGS with large steps at half then full resolution, remeshing; least-squares
-    colours), the whole fit bounded by ``time_budget`` wall-clock seconds."""
+    hull, L-BFGS with large steps at half then full resolution, remeshing; the vertices
+    refined against the RGB images; least-squares colours), the whole fit bounded by
+    ``time_budget`` wall-clock seconds."""
     from ..fit import fit_mesh_to_views
 
     return fit_mesh_to_views(train, time_budget=time_budget, progress=progress)
@@ -233,8 +234,8 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
              f"held-out views: silhouette IoU {metrics['iou']:.3f}, PSNR {metrics['psnr']:.1f} "
              f"dB (vertex colours {metrics['psnr_vertex']:.1f} dB); surface: chamfer-L2 "
              f"{metrics['chamfer_l2']:.2g}, F-score@0.01 {metrics['fscore@0.01']:.2f}",
-             f"fit {t_fit:.1f} s (time budget {time_budget:g} s: silhouettes, then "
-             f"colours), {total:.1f} s in all"
+             f"fit {t_fit:.1f} s (time budget {time_budget:g} s: silhouettes, the RGB "
+             f"images, then colours), {total:.1f} s in all"
              + ("" if fit.status in ("time_budget", "converged", "max_iter")
                 else f"; status {fit.status}")]
     picture = dest / "demo.png"

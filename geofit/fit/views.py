@@ -87,6 +87,7 @@ from .texture import fit_texture
 
 __all__ = [
     "FINAL_STAGE_SHARE",
+    "RGB_STAGE_SHARE",
     "HULL_SILHOUETTE_WEIGHTS",
     "INITS",
     "RECIPES",
@@ -247,9 +248,14 @@ class ViewsFitOptions:
         squares inside every evaluation (variable projection), so the residual moves the
         geometry (:func:`geofit.fit._rgb_refine.refine_rgb`). Needs RGB images. With
         ``silhouette_method="none"`` it refines the initial mesh (e.g. a Mesh given as
-        ``init``).
+        ``init``; set explicitly: the recipe's stage runs only after a silhouette stage and
+        with RGB images). 5 for ``"default"`` (with ``rgb_silhouette=1, rgb_large_steps=1,
+        rgb_weight=0.3``), 0 otherwise: on the 11 shapes of ``benchmarks/fit_views.py --shapes
+        all`` it raises the median held-out F@0.01 and IoU and loses on none more than 0.01
+        IoU or 0.02 F@0.01, for about 12-14 CPU s on the cow
+        (benchmarks/results/fit_views_session9_rgb.md).
     rgb_weight : float
-        Weight of the image term in the RGB stage (1).
+        Weight of the image term in the RGB stage (1; 0.3 for ``"default"``).
     rgb_silhouette : float
         Weight of the last level's soft-silhouette term kept in the RGB stage, with that
         level's edge, normal and Laplacian regularisers (0: the image term alone, as before).
@@ -257,8 +263,8 @@ class ViewsFitOptions:
         degrade (thin plate, 10 iterations: held-out IoU 0.9620 / F@0.01 0.280 alone, 0.9694 /
         0.349 with it and ``rgb_large_steps=1``; before the stage 0.9614 / 0.377).
     rgb_large_steps : float
-        ``lambda`` of the large-steps parameterisation in the RGB stage (10; 0: plain vertex
-        positions).
+        ``lambda`` of the large-steps parameterisation in the RGB stage (10, 1 for
+        ``"default"``; 0: plain vertex positions).
     rgb_color_reg : float
         Weight of the colours' Laplacian smoothness inside the RGB stage's variable
         projection (1e-4): larger leaves the colours fewer degrees of freedom to absorb what
@@ -321,7 +327,8 @@ RECIPES: dict[str, ViewsFitOptions] = {
         textured_init="silhouette", large_steps=10.0, final_large_steps=1.0, init="hull",
         levels=((0, 2), (0, 1)),
         remesh_rounds=2, silhouette_iters=120, silhouette_weights=HULL_SILHOUETTE_WEIGHTS,
-        texture="uv", **_COMMON),
+        texture="uv", **dict(_COMMON, rgb_iters=5, rgb_silhouette=1.0, rgb_large_steps=1.0,
+                             rgb_weight=0.3)),
     "sphere-lbfgs": ViewsFitOptions(
         silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
         textured_init="silhouette", large_steps=0.0, init="sphere", levels=((0, 1),),
@@ -345,6 +352,11 @@ FINAL_STAGE_SHARE = 0.1
 #: The share it leaves with ``texture="uv"`` (the colours and the UV texture: on the cow's 20
 #: views of 128 px the two take 3-5 s under load).
 _TEXTURE_RESERVE = 0.15
+#: Share of the geometry's part of a time budget (the budget minus the final stage's share)
+#: that the silhouette stage leaves to the RGB stage when ``rgb_iters``: about the RGB stage's
+#: part of the cow's unbudgeted default (5 iterations: 13.5 of 74.6 CPU s, measured under
+#: load; benchmarks/results/fit_views_session9_rgb.md).
+RGB_STAGE_SHARE = 0.2
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
@@ -487,7 +499,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
 
     The default starts from the visual hull of the silhouettes (its genus and parts), and
     alternates L-BFGS on the soft silhouettes of all views (large steps, half then full
-    resolution) with remeshing to edges of ``edge_px`` pixels; the vertex colours then come
+    resolution) with remeshing to edges of ``edge_px`` pixels, then refines the vertices
+    against the RGB images (the hard image term with the colours solved inside every
+    evaluation, the silhouettes kept; ``options.rgb_iters``); the vertex colours then come
     from one sparse least-squares solve, and the result's mesh carries a UV texture solved
     likewise (:func:`geofit.fit.texture.fit_texture`, ``options.texture``).
 
@@ -508,12 +522,16 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         Wall-clock seconds for the whole fit: the start (the visual hull, carved view by view
         with the clock checked between views), the solves (checked between view batches inside
         each evaluation), the remeshing and the final stage; not the time spent in the
-        evaluator or callback you pass. The silhouette stage shares it over its solves and
-        leaves :data:`FINAL_STAGE_SHARE` of it (15 % with ``texture="uv"``) to the final
-        stage: the colours (one sparse solve) and the UV texture (one sparse solve). If the
+        evaluator or callback you pass. The geometry leaves :data:`FINAL_STAGE_SHARE` of it
+        (15 % with ``texture="uv"``) to the final stage: the colours (one sparse solve) and
+        the UV texture (one sparse solve); of the rest the silhouette stage shares all but
+        :data:`RGB_STAGE_SHARE` over its solves, which the RGB stage gets. If the
         budget is spent before the texture, the mesh keeps its vertex colours and the
         ``"texture"`` stage says so. A budget used up while carving the hull returns the
-        unfitted ico-sphere with status ``"time_budget"`` and says so.
+        unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
+        no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
+        about 68-75 CPU s on 2 cores (measured under load: 72 s wall at load 8-10, the RGB
+        stage 12.5 s of it; without the RGB stage it took 39-47 s wall on a quiet machine).
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
@@ -544,17 +562,19 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
                   callback=callback, progress=progress)
     initial_mesh(plan, run)
     sil_mesh = plan.init
-    if plan.silhouette_method != "none":
-        # the silhouette stage (its checks inside evaluations too) ends where the final
-        # stage's share of the budget begins
-        with run.clock.until(None if plan.time_budget is None
-                             else plan.time_budget - plan.reserve):
-            sil_mesh = _silhouette_stage(plan, run)
+    # the geometry (its checks inside evaluations too) ends where the final stage's share of
+    # the budget begins; the silhouette stage leaves the RGB stage its share before that
+    geometry_end = None if plan.time_budget is None else plan.time_budget - plan.reserve
+    with run.clock.until(geometry_end):
+        if plan.silhouette_method != "none":
+            with run.clock.until(None if geometry_end is None else
+                                 geometry_end - plan.rgb_reserve):
+                sil_mesh = _silhouette_stage(plan, run)
             if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
                                    ("nonfinite", "failed", "callback")):
                 sil_mesh = _rgb_stage(plan, run, sil_mesh)
-    elif plan.rgb_iters:  # a given mesh refined against the images alone
-        sil_mesh = _rgb_stage(plan, run, sil_mesh)
+        elif plan.rgb_iters:  # a given mesh refined against the images alone
+            sil_mesh = _rgb_stage(plan, run, sil_mesh)
     mesh, colors = sil_mesh, None
     if plan.textured_method != "none" and (not run.stages or run.stages[-1]["status"] not in
                                            ("nonfinite", "failed")):
@@ -604,6 +624,7 @@ class _Plan:
     texture: str = "vertex"
     texel_px: float = 1.0
     reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
+    rgb_reserve: float = 0.0  # seconds the silhouette stage leaves to the RGB stage
     hull_upsample: int = 1
     hull_close_px: float = 0.0
     hull_margins: tuple = (0.0,)
@@ -673,9 +694,15 @@ class _Plan:
         reserve = 0.0 if time_budget is None or tm == "none" else \
             (_TEXTURE_RESERVE if uv else FINAL_STAGE_SHARE) * time_budget
         rgb_iters = check_int(o.rgb_iters, "options.rgb_iters", 0)
+        if user.rgb_iters is None and (dataset.images is None or sm == "none"):
+            # the recipe's RGB stage refines the silhouette stage's result; silhouettes alone
+            # have nothing for it (rgb_iters set explicitly refines a given mesh, or refuses)
+            rgb_iters = 0
         if rgb_iters and dataset.images is None:
             raise ValueError("options.rgb_iters: the RGB refinement needs RGB images "
                              "(dataset.images is None)")
+        rgb_reserve = 0.0 if time_budget is None or not rgb_iters or sm == "none" else \
+            RGB_STAGE_SHARE * (time_budget - reserve)
         return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
                    o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
                    check_positive(o.lr, "options.lr"),
@@ -683,7 +710,7 @@ class _Plan:
                    check_positive(o.adam_lr, "options.adam_lr"), o.faces_per_pixel,
                    check_positive(o.color_reg, "options.color_reg", strict=False), threshold,
                    init_name, remesh_rounds, edge_px, texture=o.texture, texel_px=texel_px,
-                   reserve=reserve,
+                   reserve=reserve, rgb_reserve=rgb_reserve,
                    hull_upsample=check_int(o.hull_upsample, "options.hull_upsample"),
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
@@ -874,9 +901,12 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     colours, large steps, L-BFGS; :func:`geofit.fit._rgb_refine.refine_rgb`); returns the
     mesh."""
     t_stage = run.clock.elapsed()
+    if run.clock.over():  # the geometry's part of the budget is spent (e.g. on the hull)
+        run.stages.append({"name": "rgb", "method": "lbfgs", "status": "time_budget",
+                           "seconds": 0.0, "message": "not run: " + run.clock.status_words()})
+        return mesh
     v = plan.views
     bg = dataset_background(v)
-    budget = None if plan.time_budget is None else max(plan.remaining(run.clock) * 0.5, 1e-3)
     extra = None
     if plan.rgb_silhouette:
         # the last level's silhouettes and regularisers stay in the objective: the outline
@@ -891,8 +921,8 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
 
     res = refine_rgb(mesh, v.cameras, v.images, lights=dataset_lights(v), background=bg,
                      lam=plan.rgb_large_steps, reg=plan.rgb_color_reg,
-                     maxiter=plan.rgb_iters, time_budget=budget, extra=extra,
-                     image_weight=plan.rgb_weight)
+                     maxiter=plan.rgb_iters, extra=extra, image_weight=plan.rgb_weight,
+                     clock=run.clock if plan.time_budget is not None else None)
     run.n_evaluations += res.n_evaluations
     status = "time_budget" if res.stopped else "max_iter"
     gain = f", loss {res.values[0]:.4g} -> {min(res.values):.4g}" if res.values else ""

@@ -66,7 +66,8 @@ from ..soft.shading import (
 )
 from . import _raycast
 
-__all__ = ["HardImageLoss", "ImageLossValue", "ShadedHits", "affine_color_operator"]
+__all__ = ["HardImageLoss", "ImageLossValue", "PixelRayHits", "ShadedHits",
+           "affine_color_operator"]
 
 _RAY_CHUNK = 65_536  # rays per Embree call on a worker thread
 
@@ -94,6 +95,44 @@ class _Hits(NamedTuple):
     bary: np.ndarray   # (k, 3) float64 of the hits only
     depth: np.ndarray  # (k,) view depth of the hits
     dirs: np.ndarray   # (k, 3) world ray directions of the hits (view z = 1)
+
+
+class PixelRayHits(NamedTuple):
+    """One cast of every (sub-)pixel ray of :class:`HardImageLoss` against one mesh.
+
+    Built by :meth:`HardImageLoss.pixel_hits` and accepted by its ``__call__``,
+    :meth:`~HardImageLoss.shaded_hits` and :meth:`~HardImageLoss.color_operator` (``hits=``),
+    so that an evaluation that needs both the colour operator and the loss casts once.
+    Only the rays whose sub-pixel may lie inside a projected face are cast
+    (``_raycast.coverage_mask``); the others miss by construction.
+
+    Attributes
+    ----------
+    mesh : Mesh
+        The mesh cast against (the hits are valid for it only).
+    scene : EmbreeScene
+        Its Embree scene (reused by the edge term's casts).
+    ray : (k,) int64
+        The rays that hit, sorted: flat index into ``(N, H s, W s)``.
+    face : (k,) int64
+    bary : (k, 3) float64
+        Perspective-correct barycentrics, refined in float64 along the ray.
+    depth : (k,) float64
+        View depth of the hit.
+    dirs : (k, 3) float64
+        World ray directions (view z = 1).
+    n_cast : int
+        Rays cast (of ``N H W s^2``).
+    """
+
+    mesh: Mesh
+    scene: EmbreeScene
+    ray: np.ndarray
+    face: np.ndarray
+    bary: np.ndarray
+    depth: np.ndarray
+    dirs: np.ndarray
+    n_cast: int
 
 
 class ShadedHits(NamedTuple):
@@ -135,21 +174,22 @@ def affine_color_operator(loss: HardImageLoss, h: ShadedHits, hit_of: np.ndarray
     ``A[c]`` has the entries ``(ray of hit_of[j], cols[j]) = weights[j] shade[hit_of[j], c]``
     scaled by the ray's ``sqrt(m) / s``, and ``y`` the scaled targets minus the specular part
     (minus the background where nothing is hit), so that the loss is
-    ``1/(N H W) sum_c |A[c] x[:, c] - y[:, c]|^2``.
+    ``1/(N H W) sum_c |A[c] x[:, c] - y[:, c]|^2``. ``hit_of`` must be non-decreasing (the
+    matrices are built row by row, no sort).
     """
     import scipy.sparse as sp
 
     R = h.n_rays
-    view_pix = loss._pixel_rays()[3]
-    m = np.sqrt(loss.masks.ravel()[view_pix]) / loss.supersample  # (R,)
-    rows = h.ray[hit_of]
+    m = np.sqrt(loss.masks.ravel()[h.pixel]) / loss.supersample  # (k,) of the hits
+    # rows in order: the csr structure directly (h.ray is sorted, hit_of non-decreasing)
+    indptr = np.zeros(R + 1, np.int64)
+    np.cumsum(np.bincount(h.ray[hit_of], minlength=R), out=indptr[1:])
     mats = []
     for c in range(3):  # colour channels
-        data = weights * h.shade[hit_of, c] * m[rows]
-        mats.append(sp.csr_matrix((data, (rows, cols)), shape=(R, n_cols)))
-    base = np.tile(loss.background, (R, 1))
-    base[h.ray] = h.specular
-    y = (loss.targets.reshape(-1, 3)[view_pix] - base) * m[:, None]
+        data = weights * (h.shade[:, c] * m)[hit_of]
+        mats.append(sp.csr_matrix((data, cols, indptr), shape=(R, n_cols)))
+    y = loss._miss_residual().copy()
+    y[h.ray] = (loss.targets.reshape(-1, 3)[h.pixel] - h.specular) * m[:, None]
     return mats, y
 
 
@@ -240,10 +280,14 @@ class HardImageLoss:
         self.perspective = bool(cameras.is_perspective())
         self.tnear = (np.broadcast_to(np.asarray(cameras.znear, np.float64), (N,)) / 2.0
                       if self.perspective else np.zeros(N))
-        self._coef = np.stack([np.stack(vr) for vr in _raycast.view_rays(cameras)])  # (N, 6, 3)
         sH, sW = H * self.supersample, W * self.supersample
         g = ndc_grid((sH, sW))
         self._xs, self._ys = g[0, :, 0].copy(), g[:, 0, 1].copy()
+        self._grid = (sH, sW)
+        self._rays = _raycast.view_rays(cameras)
+        self._coef = np.stack([np.stack(vr) for vr in self._rays])  # (N, 6, 3) for _cast
+        self._miss_y = None    # (R, 3) of _miss_residual, made when first needed
+        self._miss_sum = None  # float of _miss_total
 
     # --------------------------------------------------------------------------------------
     # rasterize
@@ -282,18 +326,77 @@ class HardImageLoss:
                                       b32, t[hit] + tn[hit])
         return _Hits(face, bary, depth, d[hit])
 
-    def _pixel_rays(self):
-        """View, NDC x, y, and the (N, H, W) pixel of every sub-pixel ray."""
+    def pixel_hits(self, mesh) -> PixelRayHits:
+        """Cast every (sub-)pixel ray against ``mesh`` once (see :class:`PixelRayHits`).
+
+        Each view casts only the rays of the 8 x 8 tiles of sub-pixels that a projected face's
+        bounding box (grown by a sub-pixel) touches; a view that a face reaches at the near
+        plane casts all its rays. Hits are refined in float64 along their rays.
+        """
+        mesh = as_mesh(mesh, "mesh")
         N = len(self.cameras)
+        sH, sW = self._grid
+        z = np.zeros(0, np.int64)
+        if mesh.n_faces == 0:
+            return PixelRayHits(mesh, None, z, z, np.zeros((0, 3)), np.zeros(0),
+                                np.zeros((0, 3)), 0)
+        scene = EmbreeScene([(mesh.verts, mesh.faces)])
+        rays = self._rays
+        pixels = []
+        for v in range(N):  # views: the sub-pixels each may cover
+            xy, zv = _raycast.project(mesh.verts, rays[v], self.perspective)
+            mk = _raycast.coverage_mask(xy, zv, mesh.faces, sH, sW, float(self.tnear[v]))
+            pixels.append(v * sH * sW + np.flatnonzero(mk))
+        pixels = np.concatenate(pixels)
+        h = _raycast.cast_pixels(scene, pixels, rays, self._xs, self._ys, self.tnear,
+                                 self.n_threads)
+        V, F = mesh.verts, mesh.faces
+        bary = np.empty((len(h.face), 3))
+        depth = np.empty(len(h.face))
+        dirs = np.empty((len(h.face), 3))
+
+        def one(sl):  # float64 hits along the rays, chunk by chunk on the workers
+            o, d, _ = _raycast.hit_rays(h.pixel[sl], rays, self._xs, self._ys)
+            tri = F[h.face[sl]]
+            bary[sl], depth[sl] = _raycast.refine(o, d, V[tri[:, 0]], V[tri[:, 1]],
+                                                  V[tri[:, 2]], h.bary[sl], h.depth[sl])
+            dirs[sl] = d
+
+        parallel_map(one, _chunks(len(h.face)), self.n_threads)
+        return PixelRayHits(mesh, scene, h.pixel, h.face, bary, depth, dirs, len(pixels))
+
+    def _hits_for(self, mesh: Mesh, hits) -> PixelRayHits:
+        """``hits`` if given (checked to belong to ``mesh``), else a new cast."""
+        if hits is None:
+            return self.pixel_hits(mesh)
+        if not isinstance(hits, PixelRayHits):
+            raise TypeError(f"hits: expected the PixelRayHits of pixel_hits(mesh), got "
+                            f"{type(hits)!r}")
+        if hits.mesh.verts is not mesh.verts and not (
+                hits.mesh.verts.shape == mesh.verts.shape
+                and np.array_equal(hits.mesh.verts, mesh.verts)
+                and np.array_equal(hits.mesh.faces, mesh.faces)):
+            raise ValueError("hits: cast against another mesh (pixel_hits(mesh) of this one)")
+        return hits
+
+    def _ray_pixel(self, ray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """View and flat ``(N, H, W)`` pixel of sub-pixel rays (flat ``(N, H s, W s)``)."""
         H, W = self.image_size
         s = self.supersample
-        sH, sW = H * s, W * s
-        n = N * sH * sW
-        idx = np.arange(n)
-        view, rem = np.divmod(idx, sH * sW)
+        sH, sW = self._grid
+        view, rem = np.divmod(ray, sH * sW)
         row, col = np.divmod(rem, sW)
-        pix = (view * H + row // s) * W + col // s
-        return view, self._xs[col], self._ys[row], pix
+        return view, (view * H + row // s) * W + col // s
+
+    def _miss_residual(self) -> np.ndarray:
+        """(R, 3): every ray's ``(target - background) sqrt(m) / s`` (computed once)."""
+        if self._miss_y is None:
+            N = len(self.cameras)
+            sH, sW = self._grid
+            _, pix = self._ray_pixel(np.arange(N * sH * sW))
+            m = np.sqrt(self.masks.ravel()[pix]) / self.supersample
+            self._miss_y = (self.targets.reshape(-1, 3)[pix] - self.background) * m[:, None]
+        return self._miss_y
 
     # --------------------------------------------------------------------------------------
     # shading (chunks of hits), forward and backward
@@ -325,17 +428,17 @@ class HardImageLoss:
         H, W = self.image_size
         s = shading_state(mesh, vcol, self.lights, self.cameras, self.materials, N,
                           self.n_threads)
-        view, x, y, pix = self._pixel_rays()
-        hits = self._cast(EmbreeScene([(mesh.verts, mesh.faces)]), mesh, view, x, y)
-        col = np.tile(self.background, (len(view), 1))
-        hit = hits.face >= 0
-        col[hit] = self._shade(s, mesh, hits.face[hit], hits.bary, view[hit])
-        img = np.zeros((N * H * W, 3))
+        hits = self.pixel_hits(mesh)
+        view, pix = self._ray_pixel(hits.ray)
+        col = self._shade(s, mesh, hits.face, hits.bary, view)
+        n_hit = np.bincount(pix, minlength=N * H * W)  # covered rays per pixel
+        img = np.empty((N * H * W, 3))
         for c in range(3):  # channels
-            img[:, c] = np.bincount(pix, col[:, c], N * H * W)
+            img[:, c] = (np.bincount(pix, col[:, c], N * H * W)
+                         + (self.supersample ** 2 - n_hit) * self.background[c])
         return img.reshape(N, H, W, 3) / self.supersample ** 2
 
-    def shaded_hits(self, mesh) -> ShadedHits:
+    def shaded_hits(self, mesh, hits: PixelRayHits | None = None) -> ShadedHits:
         """Every ray's hit and its Phong factors, for operators linear in the surface colour.
 
         A covered ray's colour is ``shade * albedo + specular`` with ``albedo`` the surface
@@ -346,6 +449,8 @@ class HardImageLoss:
         Parameters
         ----------
         mesh : Mesh
+        hits : PixelRayHits, optional
+            :meth:`pixel_hits` of ``mesh``, if already cast.
 
         Returns
         -------
@@ -353,30 +458,36 @@ class HardImageLoss:
         """
         mesh = as_mesh(mesh, "mesh")
         N = len(self.cameras)
-        s = shading_state(mesh, np.ones((mesh.n_verts, 3)), self.lights, self.cameras,
-                          self.materials, N, self.n_threads)
-        view, x, y, pix = self._pixel_rays()
+        sH, sW = self._grid
+        n_rays = N * sH * sW
         if mesh.n_faces == 0:
             z = np.zeros(0, np.int64)
             return ShadedHits(z, z, z, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
-                              len(view))
-        hits = self._cast(EmbreeScene([(mesh.verts, mesh.faces)]), mesh, view, x, y)
-        ray = np.flatnonzero(hits.face >= 0)
-        face = hits.face[ray]
-        shade = np.empty((len(ray), 3))
-        spec = np.empty((len(ray), 3))
+                              n_rays)
+        hits = self._hits_for(mesh, hits)
+        s = shading_state(mesh, np.ones((mesh.n_verts, 3)), self.lights, self.cameras,
+                          self.materials, N, self.n_threads)
+        view, pix = self._ray_pixel(hits.ray)
+        shade = np.empty((len(hits.ray), 3))
+        spec = np.empty((len(hits.ray), 3))
 
         def one(sl):
-            b, i = self._entries(mesh, face[sl], hits.bary[sl])
-            _, shade[sl], spec[sl], _ = _phong_chunk(b, i, view[ray[sl]], s)
+            b, i = self._entries(mesh, hits.face[sl], hits.bary[sl])
+            _, shade[sl], spec[sl], _ = _phong_chunk(b, i, view[sl], s)
 
-        parallel_map(one, _chunks(len(ray)), self.n_threads)
-        return ShadedHits(ray, pix[ray], face, hits.bary, shade, spec, len(view))
+        parallel_map(one, _chunks(len(hits.ray)), self.n_threads)
+        return ShadedHits(hits.ray, pix, hits.face, hits.bary, shade, spec, n_rays)
 
-    def color_operator(self, mesh):
+    def color_operator(self, mesh, hits: PixelRayHits | None = None):
         """The loss's residual as an affine map of the vertex colours (geometry fixed).
 
         ``L = 1/(N H W) sum_c |A[c] @ colors[:, c] - y[:, c]|^2`` exactly (up to rounding).
+
+        Parameters
+        ----------
+        mesh : Mesh
+        hits : PixelRayHits, optional
+            :meth:`pixel_hits` of ``mesh``, if already cast.
 
         Returns
         -------
@@ -387,13 +498,14 @@ class HardImageLoss:
             background), scaled alike.
         """
         mesh = as_mesh(mesh, "mesh")
-        h = self.shaded_hits(mesh)
+        h = self.shaded_hits(mesh, hits)
         tri = mesh.faces[h.face]
         hit_of = np.repeat(np.arange(len(h.ray)), 3)
         return affine_color_operator(self, h, hit_of, tri.ravel(), h.bary.ravel(),
                                      mesh.n_verts)
 
-    def __call__(self, mesh, vertex_colors) -> ImageLossValue:
+    def __call__(self, mesh, vertex_colors, hits: PixelRayHits | None = None
+                 ) -> ImageLossValue:
         """The loss, its gradient to the vertex positions and to the vertex colours.
 
         Parameters
@@ -401,6 +513,9 @@ class HardImageLoss:
         mesh : Mesh
             ``V`` vertices (a trimesh or Open3D mesh is converted).
         vertex_colors : (V, 3) float64
+        hits : PixelRayHits, optional
+            :meth:`pixel_hits` of ``mesh``, if already cast (one cast serves the colour
+            operator and the loss).
 
         Returns
         -------
@@ -415,20 +530,15 @@ class HardImageLoss:
         norm = 1.0 / (N * H * W * ss * ss)
         s = shading_state(mesh, vcol, self.lights, self.cameras, self.materials, N,
                           self.n_threads)
-        scene = EmbreeScene([(mesh.verts, mesh.faces)]) if mesh.n_faces else None
-        view, x, y, pix = self._pixel_rays()
+        hits = self._hits_for(mesh, hits)
         T = self.targets.reshape(-1, 3)
         m = self.masks.ravel()
-        if scene is None:
-            hits = _Hits(np.full(len(view), -1), np.zeros((0, 3)), np.zeros(0),
-                         np.zeros((0, 3)))
-        else:
-            hits = self._cast(scene, mesh, view, x, y)
-        hit = hits.face >= 0
-        miss_pix = pix[~hit]
-        value = norm * float(np.sum(m[miss_pix] * np.sum((self.background - T[miss_pix]) ** 2,
-                                                         axis=1)))
-        h_face, h_view, h_pix = hits.face[hit], view[hit], pix[hit]
+        bg = self.background
+        # every ray that misses adds m |background - T|^2: the sum over all rays (once) minus
+        # that over the hits, which add their own error instead
+        value = norm * self._miss_total()
+        h_view, h_pix = self._ray_pixel(hits.ray)
+        h_face = hits.face
         V = mesh.verts
 
         def one(sl):
@@ -436,7 +546,8 @@ class HardImageLoss:
             colors, shade, _, saved = _phong_chunk(b, i, h_view[sl], s)
             p = h_pix[sl]
             r = colors - T[p]
-            val = norm * float(np.sum(m[p] * np.sum(r * r, axis=1)))
+            val = norm * float(np.sum(m[p] * (np.sum(r * r, axis=1)
+                                               - np.sum((bg - T[p]) ** 2, axis=1))))
             g = (2.0 * norm) * m[p][:, None] * r
             gP, gN, gT, gb, _ = _phong_chunk_vjp(saved, g, shade, s)
             gv = _scatter(b, gP, i, Vn)
@@ -466,9 +577,16 @@ class HardImageLoss:
             gc += c
         gv += _vertex_normals_vjp([np.ascontiguousarray(gn[:, c]) for c in range(3)], s["vn"],
                                   s["vn_saved"], Vn)
-        if self.edges and scene is not None:
-            gv += self._edge_grad(mesh, s, scene)
+        if self.edges and hits.scene is not None:
+            gv += self._edge_grad(mesh, s, hits.scene)
         return ImageLossValue(value, gv, gc)
+
+    def _miss_total(self) -> float:
+        """``sum`` over all rays of ``m |background - T|^2`` (computed once)."""
+        if self._miss_sum is None:
+            d = np.sum((self.background - self.targets) ** 2, axis=-1)
+            self._miss_sum = float(np.sum(self.masks * d)) * self.supersample ** 2
+        return self._miss_sum
 
     # --------------------------------------------------------------------------------------
     # edges
