@@ -226,6 +226,11 @@ class ViewsFitOptions:
         Close each thresholded silhouette with a disk of this radius (pixels) before carving:
         pinholes and slits narrower than twice that (cracks between the parts of a mesh, a
         sheet seen edge-on) carve no tunnel through the hull (0: none).
+    hull_fill_px : float
+        Fill each thresholded silhouette's pinholes before carving: background regions that
+        do not reach the image's border and cover at most this many pixels
+        (:func:`geofit.structures.visual_hull.signed_distance_images`; 0: none). The outline
+        stays as it is (a closing, ``hull_close_px``, also fills notches of the outline).
     hull_margins : sequence of float
         The hull's carving vote (pixels, non-increasing;
         :func:`geofit.structures.visual_hull.hull_field`): ``(0,)`` carves what any one view
@@ -294,6 +299,7 @@ class ViewsFitOptions:
     texel_px: float | None = None
     hull_upsample: int | None = None
     hull_close_px: float | None = None
+    hull_fill_px: float | None = None
     hull_margins: Any = None
     hull_vote_depth: float | None = None
     rgb_iters: int | None = None
@@ -307,7 +313,7 @@ class ViewsFitOptions:
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
-               hull_close_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0, rgb_iters=0,
+               hull_close_px=0.0, hull_fill_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0, rgb_iters=0,
                rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
@@ -606,6 +612,7 @@ class _Plan:
     reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
     hull_upsample: int = 1
     hull_close_px: float = 0.0
+    hull_fill_px: float = 0.0
     hull_margins: tuple = (0.0,)
     hull_vote_depth: float = 0.0
     rgb_iters: int = 0
@@ -687,6 +694,8 @@ class _Plan:
                    hull_upsample=check_int(o.hull_upsample, "options.hull_upsample"),
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
+                   hull_fill_px=check_positive(o.hull_fill_px, "options.hull_fill_px",
+                                               strict=False),
                    hull_margins=_check_margins(o.hull_margins, "options.hull_margins"),
                    hull_vote_depth=check_positive(o.hull_vote_depth, "options.hull_vote_depth",
                                                   strict=False),
