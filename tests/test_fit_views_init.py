@@ -368,7 +368,7 @@ def test_shortest_edge_keeps_faces_and_entries_bounded():
     from geofit.render.soft.rasterizer import TUTORIAL_BLUR_RADIUS as blur
 
     px = 0.02
-    small = 10_000 * px * px  # 10 000 square pixels of surface
+    small = 6_000 * px * px  # 6 000 square pixels of surface
     for fac, size in ((1, (128, 128)), (2, (64, 64))):
         e = shortest_edge(small, px, fac, size, blur)
         np.testing.assert_allclose(small / (0.433 * e * e), _fit_init.MAX_FACES / fac ** 2,

@@ -187,7 +187,7 @@ class ViewsFitOptions:
         Remesh-and-solve rounds per level (0: no remeshing). Before each solve the mesh is
         remeshed (:func:`geofit.ops.remesh`) to edges of ``edge_px`` pixels of that level's
         images (at most a fifteenth of the initial mesh's bounding-box diagonal, and long
-        enough to keep about 4000 faces at full resolution, 1000 at half, and about 7.45
+        enough to keep about 4000 faces at full resolution, 1000 at half, and about 6
         soft-rasterizer entries per pixel of a view: a large surface, a box's or a hull's
         double wall, gets longer edges, so one evaluation's time stays bounded;
         :func:`geofit.fit.init.shortest_edge`).
