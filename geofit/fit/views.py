@@ -313,8 +313,8 @@ class ViewsFitOptions:
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
-               hull_close_px=0.0, hull_fill_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0, rgb_iters=0,
-               rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4)
+               hull_close_px=0.0, hull_fill_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0,
+               rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
