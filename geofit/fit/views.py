@@ -235,7 +235,8 @@ class ViewsFitOptions:
         such pinholes in the silhouettes of a dense mesh, and each carved a tunnel through
         the hull (the ogre's 20 views have 221 of at most 9 pixels, the fandisk's 21, the
         teapot's 56). With 9 against 0, held-out IoU / F@0.01: ogre 0.8311 / 0.405 -> 0.8348 /
-        0.452, teapot 0.9787 / 0.823 -> 0.9810 / 0.845, torus 0.9927 / 0.981 -> 0.9936 / 0.997, cow 0.9818 / 0.803 -> 0.9828 / 0.813,
+        0.452, teapot 0.9787 / 0.823 -> 0.9810 / 0.845, torus 0.9927 / 0.981 -> 0.9936 /
+        0.997, cow 0.9818 / 0.803 -> 0.9828 / 0.813,
         double torus 0.9761 / 0.972 -> 0.9757 / 0.955; no shape of the 11 of
         benchmarks/fit_views.py loses more than IoU 0.01 or F 0.02 (measured,
         benchmarks/results/fit_views_session9_thin.md).
@@ -322,7 +323,8 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
                hull_close_px=0.0, hull_fill_px=9.0, hull_margins=(0.0,), hull_vote_depth=0.0,
-               rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4)
+               rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0,
+               rgb_color_reg=1e-4)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
