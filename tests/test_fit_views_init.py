@@ -237,6 +237,29 @@ def test_close_px_fills_pinholes_but_keeps_holes():
     assert closed[28, 24] < -3.0 and plain[28, 24] == closed[28, 24]
 
 
+def test_fill_px_fills_pinholes_keeps_the_outline_and_holes():
+    """``fill_px`` fills an enclosed background region of at most that many pixels (a 1 px
+    and a 2 x 2 pinhole: the signed distance there turns positive), keeps a hole of radius
+    5 px and a notch that reaches the border, and leaves every other pixel as it was."""
+    from geofit.structures.visual_hull import signed_distance_images
+
+    yy, xx = np.mgrid[:48, :48]
+    sil = ((yy - 24) ** 2 + (xx - 24) ** 2 < 20 ** 2).astype(float)
+    sil[12, 24] = 0.0                                        # a pinhole
+    sil[20:22, 12:14] = 0.0                                  # a 2 x 2 pinhole
+    sil[(yy - 28) ** 2 + (xx - 24) ** 2 < 25] = 0.0          # a hole of radius 5
+    sil[23:25, :10] = 0.0                                    # a notch from the outside
+    plain = signed_distance_images(sil[None], 0.5)[0] > 0
+    filled = signed_distance_images(sil[None], 0.5, fill_px=4.0)[0] > 0
+    one = signed_distance_images(sil[None], 0.5, fill_px=1.0)[0] > 0
+    changed = filled & ~plain
+    assert changed[12, 24] and changed[20:22, 12:14].all() and changed.sum() == 5
+    assert one[12, 24] and not one[20, 12]
+    assert not filled[28, 24] and not filled[23, 5] and not (plain & ~filled).any()
+    fine = signed_distance_images(sil[None], 0.5, fill_px=4.0, upsample=2)[0] > 0
+    assert fine[24:26, 48:50].all()  # the pinhole at (12, 24) on the twice finer grid
+
+
 def _pinholed(spheres):
     """The spheres' silhouettes with a 2 x 2 pinhole deep inside the first view's, the cameras
     and the pinhole's pixel (y, x)."""
@@ -258,6 +281,9 @@ def test_hull_close_px_ignores_a_pinhole(spheres):
     ref_c = carve_hull(spheres.silhouettes, cams, voxel_px=0.75, close_px=1.0).field > 0
     closed = carve_hull(sil, cams, voxel_px=0.75, close_px=1.0).field > 0
     assert np.array_equal(closed, ref_c)
+    ref_f = carve_hull(spheres.silhouettes, cams, voxel_px=0.75, fill_px=4.0).field > 0
+    filled = carve_hull(sil, cams, voxel_px=0.75, fill_px=4.0)
+    assert np.array_equal(filled.field > 0, ref_f) and filled.n_closed_pixels >= 4
 
 
 def test_hull_field_margins_are_a_vote_over_the_sorted_views():
@@ -342,7 +368,7 @@ def test_shortest_edge_keeps_faces_and_entries_bounded():
     from geofit.render.soft.rasterizer import TUTORIAL_BLUR_RADIUS as blur
 
     px = 0.02
-    small = 10_000 * px * px  # 10 000 square pixels of surface
+    small = 6_000 * px * px  # 6 000 square pixels of surface
     for fac, size in ((1, (128, 128)), (2, (64, 64))):
         e = shortest_edge(small, px, fac, size, blur)
         np.testing.assert_allclose(small / (0.433 * e * e), _fit_init.MAX_FACES / fac ** 2,
@@ -398,6 +424,10 @@ def test_hull_carving_options_are_validated(spheres):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_upsample=0), progress=False)
     with pytest.raises(ValueError, match="hull_close_px"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_close_px=-0.5), progress=False)
+    with pytest.raises(ValueError, match="fill_px"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, fill_px=-1.0)
+    with pytest.raises(ValueError, match="hull_fill_px"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_fill_px=-1.0), progress=False)
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
     for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg"):

@@ -336,6 +336,22 @@ def test_chunking_and_threads_do_not_change_the_result():
     assert base.stats["peak_bytes_estimate"] > 0
 
 
+
+def test_blend_threads_do_not_change_the_result():
+    """The sigmoid terms computed in blocks on two threads equal one thread's, bit for bit."""
+    mesh = ico_sphere(4)
+    R, T = look_at_view_transform(2.7, [0.0, 40.0, 80.0, 10.0], [0.0, 90.0, 200.0, 300.0])
+    cams = FoVPerspectiveCameras(R=R, T=T)
+    out = []
+    for n in (1, 2):  # threads
+        fr = rasterize_soft(mesh, cams, SoftRasterizationSettings.tutorial(
+            96, n_threads=n, dtype=np.float64))
+        S = sigmoid_alpha_blend(fr, 1e-4)
+        out.append((S, sigmoid_alpha_blend_vjp(fr, S, 1e-4, S)))
+    assert len(fr) > 2 * 65536  # enough entries for two blocks
+    np.testing.assert_array_equal(out[1][0], out[0][0])
+    np.testing.assert_array_equal(out[1][1], out[0][1])
+
 # ------------------------------------------------------------------------------------------
 # Finite differences
 # ------------------------------------------------------------------------------------------

@@ -201,9 +201,13 @@ MAX_FACES = 4000
 #: ... and at most about this many soft-rasterizer entries ((pixel, face) pairs within the blur
 #: radius) per pixel of a view: the evaluation's time is proportional to the entries. The cow's
 #: fit has about 5.5, a box or the double-walled open cylinder 8.5-10.7 at 4000 faces
-#: (measured at 128 px, tutorial blur); 7.45 leaves every surface of at most about 16 500
-#: square pixels as it was (the face cap binds first).
-MAX_ENTRIES_PER_PIXEL = 7.45
+#: (measured at 128 px, tutorial blur). 6 leaves every surface of at most 12 770 square
+#: pixels as it was at 128 px (the face cap binds first; the cow and fandisk, whose hulls are
+#: 13 062 and 12 772, fit bit for bit as with 7.45): of the 11 shapes of benchmarks/fit_views.py
+#: only the open cylinder changes (held-out IoU 0.9717 -> 0.9747, F@0.01 0.727 -> 0.729); a
+#: procedural box 0.9817 / 0.385 -> 0.9800 / 0.448 and 98 -> 84 CPU s (7.45 before; measured,
+#: benchmarks/results/fit_views_session9_thin.md).
+MAX_ENTRIES_PER_PIXEL = 6.0
 # entries per face beyond its own area: about _BAND r e + pi r^2 for edges e and blur radius r
 # (pixels): a face's blur band, foreshortened (fitted on the cow, box and open cylinder, 20
 # views of 128 px, at their face counts: within 5 % of the measured entries; the remesher
@@ -308,7 +312,7 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
                      close_handles: bool = False, upsample: int = 1,
                      close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
-                     check=None) -> VisualHullMesh:
+                     check=None, fill_px: float = 0.0) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -354,6 +358,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     close_px : float
         Close each thresholded silhouette with a disk of this radius (pixels) first: pinholes
         and slits narrower than ``2 close_px`` carve nothing.
+    fill_px : float
+        Fill each thresholded silhouette's pinholes first: background regions not reaching
+        the image's border of at most this many pixels
+        (:func:`geofit.structures.visual_hull.signed_distance_images`); the outline stays.
     margins : sequence of float
         The carving vote (:func:`geofit.structures.visual_hull.hull_field`; pixels,
         non-increasing): ``(0,)`` carves what any one view puts outside its silhouette;
@@ -388,6 +396,7 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < 1:
             raise ValueError(f"{name}: expected an integer >= 1, got {val!r}")
     close_px = check_positive(close_px, "close_px", strict=False)
+    fill_px = check_positive(fill_px, "fill_px", strict=False)
     margins = _check_margins(margins)
     vote_depth = check_positive(vote_depth, "vote_depth", strict=False)
     if vote_depth > 0 and refine != 1:
@@ -395,7 +404,8 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
                          f"{vote_depth!r} with refine {refine!r}")
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
                    voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
-                   close_px=close_px, margins=margins, vote_depth=vote_depth, check=check)
+                   close_px=close_px, margins=margins, vote_depth=vote_depth, check=check,
+                   fill_px=fill_px)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)

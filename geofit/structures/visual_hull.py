@@ -55,7 +55,8 @@ def pixel_footprint(cameras, image_size, point) -> float:
 
 
 def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
-                           upsample: int = 1, close_px: float = 0.0) -> np.ndarray:
+                           upsample: int = 1, close_px: float = 0.0,
+                           fill_px: float = 0.0) -> np.ndarray:
     """(N, H u, W u) float64 signed pixel distance to the ``threshold`` outline (positive
     inside), on a grid ``u = upsample`` times finer than the images.
 
@@ -75,6 +76,13 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
         cracks between the parts of a multi-part mesh, a sheet seen edge-on breaking between
         pixel centres -- are filled, so they carve no tunnel through the hull. Holes wider than
         that (a torus's) stay.
+    fill_px : float
+        Fill the pinholes of each thresholded silhouette: background regions that do not reach
+        the image's border (4-connected) and cover at most this many image pixels (0: none).
+        Unlike the closing, the outline is left as it is. A soft rasterizer that blends its
+        K nearest faces leaves such pinholes where a dense mesh puts more than K faces within
+        the blur radius of a pixel (the covering face is cut): 206 of the ogre's 227 enclosed
+        background regions in the tutorial's 20 views are of 1-4 pixels.
 
     Returns
     -------
@@ -84,7 +92,7 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
         the fine pixels on either side of it. Fine pixel ``(i, j)`` has its centre at image
         pixel coordinate ``((i + 0.5) / u - 0.5, (j + 0.5) / u - 0.5)``.
     """
-    from scipy.ndimage import binary_closing, distance_transform_edt, map_coordinates
+    from scipy.ndimage import binary_closing, distance_transform_edt, label, map_coordinates
 
     sil = np.asarray(silhouettes, dtype=np.float64)
     N, H, W = sil.shape
@@ -106,6 +114,12 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
         if disk is not None:  # pad: a silhouette touching the border is not closed by it
             k = disk.shape[0] // 2
             inside = binary_closing(np.pad(inside, k), structure=disk)[k:-k, k:-k]
+        if fill_px > 0:  # enclosed background regions of at most fill_px image pixels
+            lab, n = label(np.pad(~inside, 1))  # the padded border is one background region
+            size = np.bincount(lab.ravel(), minlength=n + 1)
+            small = size <= fill_px * u * u
+            small[0] = small[lab[0, 0]] = False
+            inside = inside | small[lab[1:-1, 1:-1]]
         out[i] = np.where(inside, distance_transform_edt(inside) - 0.5,
                           0.5 - distance_transform_edt(~inside)) / u
     return out
@@ -175,8 +189,8 @@ class HullGrid:
     pixel_size : float
         World size of a pixel at the grid's centre (:func:`pixel_footprint`).
     n_closed_pixels : float
-        Silhouette pixels (summed over the views) that ``close_px`` turned from outside to
-        inside: the pinholes and slits that carved nothing (0 without closing).
+        Silhouette pixels (summed over the views) that ``close_px`` or ``fill_px`` turned
+        from outside to inside: the pinholes and slits that carved nothing (0 without them).
     n_vote_kept : int
         Nodes of the ``voxel_px`` grid inside the hull by the carving vote (``margins``) that
         one view alone would have carved (0 with ``margins=(0,)``).
@@ -193,7 +207,7 @@ class HullGrid:
 def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float = 0.0,
                voxel_px: float = 1.5, refine: int = 1, upsample: int = 1,
                close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
-               check=None) -> HullGrid:
+               check=None, fill_px: float = 0.0) -> HullGrid:
     """The visual hull's signed-distance field on a grid of ``voxel_px`` pixels.
 
     A coarse pass (32 nodes per side over a cube every camera sits outside of) finds the box the
@@ -219,8 +233,8 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
         of distance, and a node is at most ``sqrt(3) voxel_px / 2`` from its nearest grid
         node); elsewhere the nearest node's value is kept. Parts thinner than the grid step
         that fall between the nodes are found this way.
-    upsample, close_px
-        Sub-pixel outlines and the closing of pinholes and slits
+    upsample, close_px, fill_px
+        Sub-pixel outlines, the closing of pinholes and slits, the filling of pinholes
         (:func:`signed_distance_images`).
     margins : sequence of float
         The carving vote (:func:`hull_field`): ``(0,)`` carves what any view puts outside
@@ -241,9 +255,10 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     """
     sil = np.asarray(silhouettes, dtype=np.float64)
     N, H, W = sil.shape
-    sd = signed_distance_images(sil, threshold, upsample=upsample, close_px=close_px)
+    sd = signed_distance_images(sil, threshold, upsample=upsample, close_px=close_px,
+                                fill_px=fill_px)
     n_closed = 0.0
-    if close_px > 0:  # what the closing filled, in image pixels
+    if close_px > 0 or fill_px > 0:  # what the closing and filling filled, in image pixels
         plain = signed_distance_images(sil, threshold, upsample=upsample)
         n_closed = float(((sd > 0) & (plain <= 0)).sum()) / (upsample * upsample)
     sd -= shrink_px

@@ -204,16 +204,18 @@ class SoftFragments(DenseFragmentImages):
                     out += np.bincount(vid, gz[c], V)[:, None] * ctx["R"][n][:, 2][None, :]
             return out
 
-        def one(n):
-            # a view in chunks of at most _VJP_CHUNK entries (bounded float64 temporaries)
-            lo, hi = int(self.view_offsets[n]), int(self.view_offsets[n + 1])
-            out = None
-            for a in range(lo, hi, _VJP_CHUNK):  # chunks of the view's entries
-                g = chunk(n, slice(a, min(a + _VJP_CHUNK, hi)))
-                out = g if out is None else out + g
-            return out
-
-        parts = _map_views(one, self.n_views, ctx["n_threads"])
+        # each view in chunks of at most _VJP_CHUNK entries (bounded float64 temporaries),
+        # the chunks of all views shared by the threads (evenly, whatever the number of
+        # views), then summed per view and over the views in order (the same sums as view
+        # by view)
+        off = self.view_offsets
+        tasks = [(n, a, min(a + _VJP_CHUNK, int(off[n + 1]))) for n in range(self.n_views)
+                 for a in range(int(off[n]), int(off[n + 1]), _VJP_CHUNK)]
+        done = _map_views(lambda i: chunk(tasks[i][0], slice(tasks[i][1], tasks[i][2])),
+                          len(tasks), ctx["n_threads"])
+        parts = [None] * self.n_views
+        for (n, _, _), g in zip(tasks, done):  # each view's chunks in order
+            parts[n] = g if parts[n] is None else parts[n] + g
         return sum((p for p in parts if p is not None), np.zeros((V, 3)))
 
 

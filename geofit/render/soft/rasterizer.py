@@ -171,11 +171,36 @@ def _seg_sqdist(qx, qy, ax, ay, dx, dy, inv_l2, degenerate):
 
 
 _TEMP_FLOATS_PER_PAIR = 24  # float64 temporaries alive per candidate pair (rough count)
+_CHUNKS_PER_THREAD = 4  # chunks of candidate pairs per thread and call (load balance)
+
+
+@dataclass
+class _ViewJob:
+    """One view's rasterization, split so that chunks of its candidate pairs can run on
+    different threads: ``run(start, stop)`` tests the pairs of faces ``start:stop`` (positions
+    in the view's kept faces; any split gives the same entries, in the same order, as one
+    pass), ``finish(parts)`` concatenates the chunks' entries in order and cuts them at K."""
+
+    cum: np.ndarray  # cumulative candidate pairs over the kept faces
+    stats: dict
+    run: Any = None
+    finish: Any = None
+
+    def chunks(self, limit: int) -> list:
+        """(start, stop) runs of faces of at most ``limit`` pairs (or one face)."""
+        out, start, cum = [], 0, self.cum
+        while start < len(cum):  # chunks of faces (bounded memory)
+            base = int(cum[start - 1]) if start else 0
+            stop = max(int(np.searchsorted(cum, base + limit, side="right")), start + 1)
+            out.append((start, stop))
+            start = stop
+        return out
 
 
 def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, clip, cull,
-                    zclip, max_pairs):
-    """Kept entries of one view: (face, pixel, signed dist, edge, inside) and its stats."""
+                    zclip) -> _ViewJob:
+    """One view's job (:class:`_ViewJob`): its ``finish`` gives the kept entries (face,
+    pixel, signed dist, edge, inside) and the view's stats."""
     stats = {"candidates": 0, "peak_pairs": 0, "max_faces_per_pixel": 0, "truncated_pixels": 0}
     S = min(H, W)
     x0, x1, x2 = (np.ascontiguousarray(a) for a in x[faces].T)
@@ -191,7 +216,7 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
     empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int8),
              np.zeros(0, bool))
     if fids.size == 0:
-        return empty, stats
+        return _ViewJob(np.zeros(0, np.int64), stats, finish=lambda parts: (empty, stats))
     r = math.sqrt(blur)
     X = np.stack([x0[fids], x1[fids], x2[fids]], 1)
     Y = np.stack([y0[fids], y1[fids], y2[fids]], 1)
@@ -207,7 +232,7 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
     nz = counts > 0
     fids, i_lo, j_lo, nx, counts = fids[nz], i_lo[nz], j_lo[nz], nx[nz], counts[nz]
     if fids.size == 0:
-        return empty, stats
+        return _ViewJob(np.zeros(0, np.int64), stats, finish=lambda parts: (empty, stats))
     stats["candidates"] = int(counts.sum())
     # Per-face constants (indexed by position in fids). Edge lines scaled to signed distances,
     # positive inside: s_i = a_i qx + b_i qy + c_i, edge i opposite corner i.
@@ -233,15 +258,10 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
             zz = (Zc[:, 1] * Zc[:, 2], Zc[:, 0] * Zc[:, 2], Zc[:, 0] * Zc[:, 1])
         Aeps = area[fids] + _EPS
     cut = -r - 1e-12
-    parts = []
-    cum = np.cumsum(counts)
-    start = 0
-    while start < len(fids):  # chunks of faces (bounded memory)
-        base = int(cum[start - 1]) if start else 0
-        stop = max(int(np.searchsorted(cum, base + max_pairs, side="right")), start + 1)
+
+    def run(start, stop):  # the pairs of faces start:stop
         cc = counts[start:stop]
         n_pairs = int(cc.sum())
-        stats["peak_pairs"] = max(stats["peak_pairs"], n_pairs)
         loc = np.repeat(np.arange(start, stop), cc)  # position in fids
 
         def rep(a, cc=cc, start=start, stop=stop):  # a[loc]: runs, no gather
@@ -306,21 +326,25 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
             pz = raw[0] * Zc[loc, 0] + raw[1] * Zc[loc, 1] + raw[2] * Zc[loc, 2]
             keep &= pz >= 0.0
         sel = np.flatnonzero(keep)
-        parts.append((fids[loc[sel]], pix[sel],
-                      np.where(inside[sel], -dist[sel], dist[sel]), edge[sel], inside[sel]))
-        start = stop
-    f, pix, sd, edge, inside = (np.concatenate(c) for c in zip(*parts))
-    n = len(f)
-    if n:
-        cnt = np.bincount(pix, minlength=H * W)
-        stats["max_faces_per_pixel"] = int(cnt.max())
-        over = cnt > K
-        stats["truncated_pixels"] = int(np.count_nonzero(over))
-        if stats["truncated_pixels"]:
-            f, pix, sd, edge, inside = _truncate(f, pix, sd, edge, inside, over[pix], x, y, z,
-                                                 faces, px, py, W, K, perspective_correct,
-                                                 clip)
-    return (f, pix, sd, edge, inside), stats
+        return (fids[loc[sel]], pix[sel], np.where(inside[sel], -dist[sel], dist[sel]),
+                edge[sel], inside[sel]), n_pairs
+
+    def finish(parts):  # parts: (entries, pairs) of the chunks, in order
+        stats["peak_pairs"] = max(n_pairs for _, n_pairs in parts)
+        f, pix, sd, edge, inside = (np.concatenate(c) for c in zip(*(e for e, _ in parts)))
+        n = len(f)
+        if n:
+            cnt = np.bincount(pix, minlength=H * W)
+            stats["max_faces_per_pixel"] = int(cnt.max())
+            over = cnt > K
+            stats["truncated_pixels"] = int(np.count_nonzero(over))
+            if stats["truncated_pixels"]:
+                f, pix, sd, edge, inside = _truncate(f, pix, sd, edge, inside, over[pix], x, y,
+                                                     z, faces, px, py, W, K,
+                                                     perspective_correct, clip)
+        return (f, pix, sd, edge, inside), stats
+
+    return _ViewJob(np.cumsum(counts), stats, run, finish)
 
 
 def _edge_function(i, qx, qy, x0, y0, x1, y1, x2, y2):
@@ -429,12 +453,34 @@ def rasterize_soft(mesh: Mesh, cameras: CamerasBase,
     px, py = _pixel_centres(H, W)
     threads = _n_threads(s.n_threads)
 
-    def one(n):
+    def setup(n):
         with np.errstate(invalid="ignore", divide="ignore"):
             return _rasterize_view(x[n], y[n], zview[n], faces, H, W, px, py, s.blur_radius, K,
-                                   persp, clip, s.cull_backfaces, zclip, int(s.max_pairs))
+                                   persp, clip, s.cull_backfaces, zclip)
 
-    results = _map_views(one, N, threads)
+    jobs = _map_views(setup, N, threads)
+    # the views' candidate pairs in chunks of at most max_pairs, and small enough that the
+    # threads share them evenly (5 views on 2 threads would leave one thread idle for a
+    # view); any chunking gives the same entries
+    limit = int(s.max_pairs)
+    if threads > 1:
+        total = sum(int(j.cum[-1]) for j in jobs if len(j.cum))
+        limit = max(min(limit, -(-total // (_CHUNKS_PER_THREAD * threads))), 1)
+    tasks = [(n, a, b) for n, j in enumerate(jobs) for a, b in j.chunks(limit)]
+
+    def run(t):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return jobs[t[0]].run(t[1], t[2])
+
+    done = _map_views(lambda i: run(tasks[i]), len(tasks), threads)
+    per_view = [[] for _ in range(N)]
+    for (n, _, _), part in zip(tasks, done):  # chunks back to their views, in order
+        per_view[n].append(part)
+
+    def finish(n):
+        return jobs[n].finish(per_view[n])
+
+    results = _map_views(finish, N, threads)
     cols = [r[0] for r in results]
     counts = [len(c[0]) for c in cols]
     f, pix, sd, edge, inside = (np.concatenate(c) for c in zip(*cols))
