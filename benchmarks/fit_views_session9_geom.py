@@ -202,21 +202,26 @@ def write(rows_path: Path, out: Path) -> None:
            "tau": TAU, "edge_radius": EDGE_R, "dihedral_deg": DIHEDRAL,
            "machine": machine_info(), "rows": rows}
     (out / f"{stem}.json").write_text(json.dumps(doc, indent=1))
-    head = ("| tag | shape | mesh | IoU | F@0.01 | P / R | misses P / R: hidden | edge | face "
-            "| median offset (hidden / edge / face) | F offset removed | verts | edge | CPU s "
-            "(load) |")
-    lines = [head, "|" + "---|" * 14]
+    head = ("| shape | mesh | options | IoU | F@0.01 | precision / recall | recall misses: "
+            "hidden / edge / face (unpinned) | precision misses: hidden / edge / face "
+            "(unpinned) | median offset: all (hidden / edge / face) | F offset removed | "
+            "verts | CPU s (load) |")
+    lines = [head, "|" + "---|" * 12]
     for r in rows:
         h, e, f = (r[c] for c in CLASSES)
-        cpu = f"{r['cpu']:.0f} ({r['load']:.1f})" if r.get("cpu") else "-"
+        cpu = f"{r['cpu']:.0f} ({r['load']:.0f})" if r.get("cpu") else "-"
+        opt = json.dumps(r["options"].get("silhouette_weights", r["options"])) \
+            if r["options"] else "default"
         lines.append(
-            f"| {r['tag']} | {r['shape']} | {r['mesh']} | {r['iou']:.4f} | {r['fscore']:.3f} | "
-            f"{r['precision']:.3f} / {r['recall']:.3f} | {h['prec_miss']:.3f} / "
-            f"{h['rec_miss']:.3f} | {e['prec_miss']:.3f} / {e['rec_miss']:.3f} | "
-            f"{f['prec_miss']:.3f} / {f['rec_miss']:.3f} | {r['median_offset']:+.4f} "
+            f"| {r['shape']} | {r['mesh']} | {opt} | {r['iou']:.4f} | {r['fscore']:.3f} | "
+            f"{r['precision']:.3f} / {r['recall']:.3f} | {h['rec_miss']:.3f} / "
+            f"{e['rec_miss']:.3f} ({e['rec_miss_unpinned']:.3f}) / {f['rec_miss']:.3f} "
+            f"({f['rec_miss_unpinned']:.3f}) | {h['prec_miss']:.3f} / {e['prec_miss']:.3f} "
+            f"({e['prec_miss_unpinned']:.3f}) / {f['prec_miss']:.3f} "
+            f"({f['prec_miss_unpinned']:.3f}) | {r['median_offset']:+.4f} "
             f"({h['median_offset']:+.4f} / {e['median_offset']:+.4f} / "
             f"{f['median_offset']:+.4f}) | {r['fscore_offset_removed']:.3f} | {r['n_verts']} | "
-            f"{r['mean_edge']:.4f} | {cpu} |")
+            f"{cpu} |")
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
