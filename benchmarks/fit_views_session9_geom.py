@@ -16,10 +16,12 @@ For the precision side (samples of the fit farther than tau from the truth) each
 the class of its closest true point; for the recall side (true samples farther than tau from
 the fit) its own. Also the signed offset of the fit's samples (outward positive, by the true
 face's normal): median over all samples and per class, and the F-score the fit would have
-were it moved inward by its median offset (a systematic inflation). ``unpinned``: the misses
+were it moved inward by its median offset (a systematic inflation); ``--init-true`` starts
+the fit from the true mesh (e.g. with ``--options '{"levels": [[0, 1]]}'``: the 128 px level
+alone). ``unpinned``: the misses
 whose true point the 20 training views do not pin (moved tau along its normal it is still
 inside all 20 silhouettes): there only the regularisers decide where the surface is. ``--compare`` adds the
-rows of what is possible: the true mesh remeshed to the fit's mean edge length, the visual
+rows of what is possible: the true mesh remeshed to about the fit's vertex count, the visual
 hull the fit starts from, and the fit started from the true mesh.
 
 Rows (JSON lines) go to ``--rows``; ``write`` makes ``results/fit_views_session9_geom.json``
@@ -151,13 +153,24 @@ def breakdown(pred, target, t_points, t_cls, t_pinned) -> dict:
     return out
 
 
-def run(name: str, options: dict, tag: str, compare: bool) -> list[dict]:
+def remesh_to_count(mesh, edge: float, n_verts: int):
+    """``mesh`` remeshed towards ``edge`` (5 passes at a time, at most 6 times) until it has
+    fewer than 1.3 ``n_verts`` vertices (a fine mesh coarsens only a little per pass)."""
+    from geofit.ops import remesh
+
+    for _ in range(6):  # rounds of passes
+        mesh = remesh(mesh, edge, n_passes=5).mesh
+        if mesh.n_verts < 1.3 * n_verts:
+            break
+    return mesh
+
+
+def run(name: str, options: dict, tag: str, compare: bool, init_true: bool = False
+        ) -> list[dict]:
     from fit_views_thin import dataset
 
     from geofit import Mesh
     from geofit.fit.views import ViewsEvaluator, ViewsFitOptions, fit_mesh_to_views
-    from geofit.ops import remesh
-
     target, ds = dataset(name)
     geom = Mesh(target.verts, target.faces)
     t_points, t_cls, t_pinned = classify(geom, ds.cameras)
@@ -182,11 +195,12 @@ def run(name: str, options: dict, tag: str, compare: bool) -> list[dict]:
         res = fit_mesh_to_views(ds, options=ViewsFitOptions(**opts), progress=False)
         return res, time.perf_counter() - t0, time.process_time() - c0
 
-    res, wall, cpu = fit(options)
-    row("fit", res.mesh, wall, cpu)
+    res, wall, cpu = fit({**options, "init": geom} if init_true else options)
+    row("fit from the true mesh" if init_true else "fit", res.mesh, wall, cpu)
     if compare:
         edge = float(res.mesh.edge_lengths.mean())
-        row("true remeshed to the fit's edge", remesh(geom, edge, n_passes=3).mesh)
+        row("true mesh remeshed to about the fit's vertex count",
+            remesh_to_count(geom, edge, res.mesh.n_verts))
         row("visual hull (the fit's start)", res.init_mesh)
         res2, w2, c2 = fit({**options, "init": geom})
         row("fit from the true mesh", res2.mesh, w2, c2)
@@ -233,6 +247,7 @@ def main(argv=None) -> int:
     ap.add_argument("--options", default="{}", help="ViewsFitOptions fields as JSON")
     ap.add_argument("--tag", default="")
     ap.add_argument("--compare", action="store_true")
+    ap.add_argument("--init-true", action="store_true", help="start from the true mesh")
     ap.add_argument("--rows", type=Path, default=ROWS)
     a = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
@@ -240,7 +255,7 @@ def main(argv=None) -> int:
         write(a.rows, HERE / "results")
         return 0
     for name in a.shapes:  # shapes
-        for r in run(name, json.loads(a.options), a.tag, a.compare):
+        for r in run(name, json.loads(a.options), a.tag, a.compare, a.init_true):
             with open(a.rows, "a") as f:
                 f.write(json.dumps(r) + "\n")
     return 0
