@@ -114,12 +114,13 @@ def test_large_steps_parameterisation_is_consistent():
 
 @pytest.mark.parametrize("textured,large", [(False, None), (True, None), (False, 5.0)])
 def test_objective_gradient_matches_finite_differences(data, textured, large):
-    """The composed objective (data terms, edge / normal / Laplacian terms, parameterisation):
-    a central difference along a random direction matches <grad, u>."""
+    """The composed objective (data terms, edge / normal / Laplacian / normal-variation terms,
+    parameterisation): a central difference along a random direction matches <grad, u>."""
     m = ico_sphere(2)
     m = m.update_verts(m.verts * 0.7)
     param = LargeSteps(m, large) if large else IdentityParameterization(m)
-    weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0}
+    weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "normal": 0.01, "laplacian": 1.0,
+               "normal_variation": 0.05}
     st = SoftRasterizationSettings.tutorial(24, perspective_correct=False if textured else None,
                                             dtype=np.float64)  # exact to float64
     obj = _Objective(m, data, weights, textured=textured, param=param, settings=st)
@@ -132,9 +133,9 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     h = 1e-7
     fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
     assert fd == pytest.approx(float(g @ u), rel=1e-4)
-    assert set(obj.last["terms"]) == ({"silhouette", "rgb", "edge", "normal", "laplacian"}
-                                      if textured else {"silhouette", "edge", "normal",
-                                                        "laplacian"})
+    regs = {"edge", "normal", "laplacian", "normal_variation"}
+    assert set(obj.last["terms"]) == regs | ({"silhouette", "rgb"} if textured else
+                                             {"silhouette"})
 
 
 def test_lstsq_colours_recover_known_vertex_colours():

@@ -10,6 +10,7 @@ from geofit.loss import (
     mesh_edge_loss,
     mesh_laplacian_smoothing,
     mesh_normal_consistency,
+    mesh_normal_variation,
     normal_consistency_pairs,
 )
 from geofit.ops import cot_laplacian, norm_laplacian, uniform_laplacian
@@ -422,3 +423,61 @@ def test_validation_errors():
         norm_laplacian(m.verts, m.edges, eps=-1.0)
     with pytest.raises(ValueError, match="verts"):
         norm_laplacian(np.full((12, 3), np.nan), m.edges)
+
+
+# --------------------------------------------------------------------------- normal variation
+@pytest.mark.parametrize("mesh", [_noisy(ico_sphere(1), seed=2), _nonmanifold(),
+                                  _noisy(plane(n=3), sigma=0.1, seed=4)],
+                         ids=["sphere", "nonmanifold", "open_plane"])
+@pytest.mark.parametrize("eps", [0.05, 1.0])
+def test_normal_variation_finite_differences(mesh, eps):
+    _v, g = mesh_normal_variation(mesh, eps)
+    fd = _fd_grad(lambda V: mesh_normal_variation(mesh.update_verts(V), eps)[0], mesh.verts)
+    assert_allclose(g, fd, rtol=1e-6, atol=1e-9)
+
+
+def test_normal_variation_closed_forms_and_loop():
+    """Flat plane: 0 with zero gradient; a right-angle hinge: sqrt(2 + eps^2) - eps; the value
+    equals a loop over the normal-consistency pairs; rigid motions leave it unchanged."""
+    v, g = mesh_normal_variation(plane(n=3), 0.1)
+    assert v == 0.0
+    assert_allclose(g, 0.0, atol=1e-15)
+    hinge = Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]), [[0, 1, 2], [1, 0, 3]])
+    assert_allclose(mesh_normal_variation(hinge, 0.1)[0], np.sqrt(2.01) - 0.1, rtol=1e-14)
+    m = _noisy(ico_sphere(1), seed=5)
+    p = normal_consistency_pairs(m)
+    V = m.verts
+    total = 0.0
+    for v0, v1, a, b in zip(p["v0"], p["v1"], p["a"], p["b"]):  # reference loop over pairs
+        n0 = np.cross(V[v1] - V[v0], V[a] - V[v0])
+        n1 = np.cross(V[b] - V[v0], V[v1] - V[v0])
+        d = n0 / np.linalg.norm(n0) - n1 / np.linalg.norm(n1)
+        total += np.sqrt(d @ d + 0.04) - 0.2
+    assert_allclose(mesh_normal_variation(m, 0.2)[0], total / len(p["v0"]), rtol=1e-12)
+    R = _rotation()
+    assert_allclose(mesh_normal_variation(m.update_verts(V @ R.T + 0.3), 0.2)[0],
+                    total / len(p["v0"]), rtol=1e-12)
+
+
+def _hinge(bend):
+    """Two triangles on the z axis whose normals differ by ``bend`` radians."""
+    return Mesh(np.array([[0.0, 0, 0], [0, 0, 1], [1, 0, 0],
+                          [-np.cos(bend), -np.sin(bend), 0]]), [[0, 1, 2], [1, 0, 3]])
+
+
+def test_normal_variation_does_not_pay_to_round_a_crease():
+    """Linear above eps: a right-angle crease spread over two 45-degree bends costs about as
+    much as the crease (normal consistency halves it, so it rounds creases)."""
+    eps = 0.01
+    sharp = mesh_normal_variation(_hinge(np.pi / 2), eps)[0]
+    spread = 2 * mesh_normal_variation(_hinge(np.pi / 4), eps)[0]
+    assert_allclose(sharp, np.sqrt(2 + eps ** 2) - eps, rtol=1e-12)
+    assert spread > 1.05 * sharp
+    assert 2 * mesh_normal_consistency(_hinge(np.pi / 4))[0] < 0.6 * \
+        mesh_normal_consistency(_hinge(np.pi / 2))[0]
+
+
+def test_normal_variation_validates_eps():
+    for bad in (0.0, -1.0, np.inf, "a"):
+        with pytest.raises(ValueError, match="eps"):
+            mesh_normal_variation(plane(n=3), bad)

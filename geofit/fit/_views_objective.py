@@ -16,7 +16,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..structures import MultiViewDataset
-from ..loss import mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency
+from ..loss import (
+    mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency, mesh_normal_variation,
+)
 from ..ops import uniform_laplacian
 from ..render import AmbientLights
 from ..render.blending import BlendParams
@@ -54,15 +56,17 @@ def dataset_background(data: MultiViewDataset) -> tuple:
 
 
 #: The mesh regularisers of both stages.
-REG_TERMS = ("edge", "normal", "laplacian")
+REG_TERMS = ("edge", "normal", "laplacian", "normal_variation")
 
 
 def regularizers(mesh: Mesh, weights: Mapping[str, float]):
-    """Weighted edge / normal-consistency / uniform-Laplacian terms and their gradient."""
+    """Weighted edge / normal-consistency / uniform-Laplacian / normal-variation terms and
+    their gradient."""
     g = np.zeros((mesh.n_verts, 3))
     terms = {}
     for name, fn in (("edge", mesh_edge_loss), ("normal", mesh_normal_consistency),
-                     ("laplacian", lambda m: mesh_laplacian_smoothing(m, "uniform"))):
+                     ("laplacian", lambda m: mesh_laplacian_smoothing(m, "uniform")),
+                     ("normal_variation", mesh_normal_variation)):
         w = float(weights.get(name, 0.0))
         if w == 0.0:
             continue

@@ -120,7 +120,8 @@ TEXTURES = ("uv", "vertex")
 #: large-steps parameterisation already smooths the steps; the smoothing still carries the
 #: shape into directions no view sees: on the cow, held-out IoU 0.976 with these against 0.972
 #: with edge 0, measured).
-HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3}
+HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3,
+                           "normal_variation": 0.0}
 
 #: The world size of a pixel in the tutorial's views (distance 2.7, field of view 60 degrees,
 #: 128 px): the default recipe's edge and Laplacian weights are set at this pixel size and

@@ -5,7 +5,8 @@
 - :class:`PointToSurface`: exact squared distance to a fixed target surface (no sampling noise);
 - :func:`huber`: the volume and NeRF tutorials' pseudo-Huber image loss;
 - mesh regularisers (:mod:`geofit.loss.mesh`): :func:`mesh_edge_loss`,
-  :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`.
+  :func:`mesh_normal_consistency`, :func:`mesh_laplacian_smoothing`,
+  :func:`mesh_normal_variation`.
 """
 from .chamfer import ChamferResult, ChamferTarget, chamfer_distance
 from .robust import huber, huber_residual
@@ -13,6 +14,7 @@ from .mesh import (
     mesh_edge_loss,
     mesh_laplacian_smoothing,
     mesh_normal_consistency,
+    mesh_normal_variation,
     normal_consistency_pairs,
 )
 from .point_to_surface import PointToSurface
@@ -27,5 +29,6 @@ __all__ = [
     "mesh_edge_loss",
     "mesh_laplacian_smoothing",
     "mesh_normal_consistency",
+    "mesh_normal_variation",
     "normal_consistency_pairs",
 ]
