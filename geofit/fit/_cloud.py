@@ -31,6 +31,7 @@ from .._foreign import foreign_kind
 from .._threads import get_num_threads
 from .._validate import as_points, as_rng
 from ..structures import Mesh, PointCloud, Pointclouds, as_pointcloud
+from ..ops import remesh
 from ..ops.topology import face_components
 from .init import decimate
 
@@ -608,7 +609,6 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> Bounda
     BoundaryPlacement
         The mesh and what was done.
     """
-    from ..ops import remesh
 
     rho = cloud.rho
     B = _boundary_half_edges(mesh)
