@@ -308,7 +308,7 @@ def lbfgs_scipy(fun: Objective, x0, *, max_iter: int | None = 1000, max_eval: in
 
 def _lbfgsb_core():
     """scipy's L-BFGS-B module (``scipy.optimize._lbfgsb_py``) when its compiled step
-    ``_lbfgsb.setulb`` has the calling convention of scipy >= 1.15 (the C translation), else
+    ``_lbfgsb.setulb`` has the calling convention of scipy 1.15-1.17 (the C translation), else
     None (then :func:`scipy.optimize.minimize` runs the loop)."""
     import scipy  # kept local, as lbfgs_scipy's minimize: scipy.optimize loads when used
     from scipy.optimize import _lbfgsb_py
@@ -317,9 +317,11 @@ def _lbfgsb_core():
         version = tuple(int(v) for v in scipy.__version__.split(".")[:2])
     except ValueError:  # pragma: no cover - an unusual version string
         return None
-    if version < (1, 15) or not all(hasattr(_lbfgsb_py, name) for name in (
+    # setulb is private: used only in the versions whose calling convention we know (the C
+    # translation of 1.15 to 1.17; tested against minimize here); other versions run minimize
+    if not (1, 15) <= version < (1, 18) or not all(hasattr(_lbfgsb_py, name) for name in (
             "_lbfgsb", "status_messages", "task_messages")):
-        return None  # pragma: no cover - older scipy: the Fortran interface
+        return None  # pragma: no cover - another scipy: minimize runs the loop
     return _lbfgsb_py
 
 
