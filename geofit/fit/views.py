@@ -547,8 +547,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         ``"texture"`` stage says so. A budget used up while carving the hull returns the
         unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
         no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
-        about 68-75 CPU s on 2 cores (measured under load: 72 s wall at load 8-10, the RGB
-        stage 12.5 s of it; without the RGB stage it took 39-47 s wall on a quiet machine).
+        about 52 s wall and 79 CPU s on 2 cores (quiet machine, load 1.6; the RGB stage about
+        13 CPU s of it; benchmarks/results/session9_volume/before_after.md); larger surfaces
+        take longer (the procedural box 71 s, the open cylinder 65 s).
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
