@@ -383,3 +383,21 @@ def parse_args(p: argparse.ArgumentParser, **quick) -> argparse.Namespace:
         for name, value in quick.items():
             setattr(args, name, value)
     return args
+
+
+def rows_parser(description: str, modes: Sequence[str], rows: Path) -> argparse.ArgumentParser:
+    """The parser of a per-shape diagnostic script that appends JSON rows to a file and writes
+    its table from them: ``MODE SHAPE... [--options JSON] [--tag T] [--rows PATH]``."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("mode", choices=tuple(modes))
+    p.add_argument("shapes", nargs="*")
+    p.add_argument("--options", default="{}", help="ViewsFitOptions fields as JSON")
+    p.add_argument("--tag", default="")
+    p.add_argument("--rows", type=Path, default=rows)
+    return p
+
+
+def append_row(path: str | Path, row: Mapping[str, Any]) -> None:
+    """One JSON line appended to ``path`` (the rows a diagnostic script's table is written from)."""
+    with open(path, "a") as f:
+        f.write(json.dumps(row) + "\n")

@@ -32,7 +32,6 @@ and ``.md``.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -208,7 +207,7 @@ def run(name: str, options: dict, tag: str, compare: bool, init_true: bool = Fal
 
 
 def write(rows_path: Path, out: Path) -> None:
-    from _harness import machine_info
+    from _harness import machine_info, markdown_table
 
     rows = [json.loads(x) for x in rows_path.read_text().splitlines() if x.strip()]
     stem = "fit_views_session9_geom"
@@ -216,48 +215,48 @@ def write(rows_path: Path, out: Path) -> None:
            "tau": TAU, "edge_radius": EDGE_R, "dihedral_deg": DIHEDRAL,
            "machine": machine_info(), "rows": rows}
     (out / f"{stem}.json").write_text(json.dumps(doc, indent=1))
-    head = ("| shape | mesh | options | IoU | F@0.01 | precision / recall | recall misses: "
-            "hidden / edge / face (unpinned) | precision misses: hidden / edge / face "
-            "(unpinned) | median offset: all (hidden / edge / face) | F offset removed | "
-            "verts | CPU s (load) |")
-    lines = [head, "|" + "---|" * 12]
+    header = ["shape", "mesh", "options", "IoU", "F@0.01", "precision / recall",
+              "recall misses: hidden / edge / face (unpinned)",
+              "precision misses: hidden / edge / face (unpinned)",
+              "median offset: all (hidden / edge / face)", "F offset removed", "verts",
+              "CPU s (load)"]
+    table = []
     for r in rows:
         h, e, f = (r[c] for c in CLASSES)
-        cpu = f"{r['cpu']:.0f} ({r['load']:.0f})" if r.get("cpu") else "-"
         opt = json.dumps(r["options"].get("silhouette_weights", r["options"])) \
             if r["options"] else "default"
-        lines.append(
-            f"| {r['shape']} | {r['mesh']} | {opt} | {r['iou']:.4f} | {r['fscore']:.3f} | "
-            f"{r['precision']:.3f} / {r['recall']:.3f} | {h['rec_miss']:.3f} / "
-            f"{e['rec_miss']:.3f} ({e['rec_miss_unpinned']:.3f}) / {f['rec_miss']:.3f} "
-            f"({f['rec_miss_unpinned']:.3f}) | {h['prec_miss']:.3f} / {e['prec_miss']:.3f} "
-            f"({e['prec_miss_unpinned']:.3f}) / {f['prec_miss']:.3f} "
-            f"({f['prec_miss_unpinned']:.3f}) | {r['median_offset']:+.4f} "
-            f"({h['median_offset']:+.4f} / {e['median_offset']:+.4f} / "
-            f"{f['median_offset']:+.4f}) | {r['fscore_offset_removed']:.3f} | {r['n_verts']} | "
-            f"{cpu} |")
+        table.append([
+            r["shape"], r["mesh"], opt, f"{r['iou']:.4f}", f"{r['fscore']:.3f}",
+            f"{r['precision']:.3f} / {r['recall']:.3f}",
+            "{:.3f} / {:.3f} ({:.3f}) / {:.3f} ({:.3f})".format(
+                h["rec_miss"], e["rec_miss"], e["rec_miss_unpinned"], f["rec_miss"],
+                f["rec_miss_unpinned"]),
+            "{:.3f} / {:.3f} ({:.3f}) / {:.3f} ({:.3f})".format(
+                h["prec_miss"], e["prec_miss"], e["prec_miss_unpinned"], f["prec_miss"],
+                f["prec_miss_unpinned"]),
+            "{:+.4f} ({:+.4f} / {:+.4f} / {:+.4f})".format(
+                r["median_offset"], h["median_offset"], e["median_offset"], f["median_offset"]),
+            f"{r['fscore_offset_removed']:.3f}", r["n_verts"],
+            f"{r['cpu']:.0f} ({r['load']:.0f})" if r.get("cpu") else "-"])
+    lines = markdown_table(header, table).splitlines()
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("mode", choices=("diag", "write"))
-    ap.add_argument("shapes", nargs="*")
-    ap.add_argument("--options", default="{}", help="ViewsFitOptions fields as JSON")
-    ap.add_argument("--tag", default="")
+    sys.path.insert(0, str(HERE))
+    from _harness import append_row, rows_parser
+
+    ap = rows_parser(__doc__.split("\n")[0], ("diag", "write"), ROWS)
     ap.add_argument("--compare", action="store_true")
     ap.add_argument("--init-true", action="store_true", help="start from the true mesh")
-    ap.add_argument("--rows", type=Path, default=ROWS)
     a = ap.parse_args(argv)
-    sys.path.insert(0, str(HERE))
     if a.mode == "write":
         write(a.rows, HERE / "results")
         return 0
     for name in a.shapes:  # shapes
         for r in run(name, json.loads(a.options), a.tag, a.compare, a.init_true):
-            with open(a.rows, "a") as f:
-                f.write(json.dumps(r) + "\n")
+            append_row(a.rows, r)
     return 0
 
 

@@ -22,7 +22,6 @@ seconds; appends rows.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -129,15 +128,12 @@ def write(rows_path: Path, out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("mode", choices=("fit", "entries", "write"))
-    ap.add_argument("shapes", nargs="*")
-    ap.add_argument("--options", default="{}", help="ViewsFitOptions fields as JSON")
-    ap.add_argument("--tag", default="")
-    ap.add_argument("--faces-only", action="store_true")
-    ap.add_argument("--rows", type=Path, default=ROWS)
-    a = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
+    from _harness import append_row, rows_parser
+
+    ap = rows_parser(__doc__.split("\n")[0], ("fit", "entries", "write"), ROWS)
+    ap.add_argument("--faces-only", action="store_true")
+    a = ap.parse_args(argv)
     if a.mode == "write":
         write(a.rows, HERE / "results")
         return 0
@@ -145,8 +141,7 @@ def main(argv=None) -> int:
         row = (fit_row(name, json.loads(a.options), a.tag) if a.mode == "fit" else
                entries_row(name, a.faces_only))
         print(json.dumps(row), flush=True)
-        with open(a.rows, "a") as f:
-            f.write(json.dumps(row) + "\n")
+        append_row(a.rows, row)
     return 0
 
 

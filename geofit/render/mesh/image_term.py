@@ -485,9 +485,8 @@ class HardImageLoss:
 
         Parameters
         ----------
-        mesh : Mesh
-        hits : PixelRayHits, optional
-            :meth:`pixel_hits` of ``mesh``, if already cast.
+        mesh, hits : Mesh, PixelRayHits (optional)
+            As in :meth:`shaded_hits`.
 
         Returns
         -------
