@@ -309,25 +309,29 @@ def square_points(half=1.0, step=0.025, seed=0):
     return P
 
 
-@pytest.mark.parametrize("size", [1.96, 2.1])
-def test_place_boundary_puts_the_boundary_rho_past_the_last_points(size):
+@pytest.mark.parametrize("size", [1.96, 2.14])
+def test_place_boundary_puts_the_boundary_past_the_last_points(size):
     """Points on the square |x|, |y| <= 1; a mesh that stops short of them (1.96 wide) or
-    overshoots them (2.1 wide): either way its boundary ends rho past the last points, in
-    the plane, with no face turned over and nothing inside moved."""
-    from geofit.fit._cloud import CloudTarget, place_boundary
+    overshoots them (2.14 wide): either way its boundary ends ``boundary_distance`` (a clean
+    scan's) past the last points, in the plane, with no face turned over and nothing inside
+    moved."""
+    from geofit.fit._cloud import CloudTarget, boundary_distance, place_boundary
     from geofit.shapes import plane
 
     cloud = CloudTarget(square_points())
+    T = boundary_distance(cloud.spacing, 0.0)
     m = plane(size=size, n=8)
     placed = place_boundary(m, cloud)
     out = placed.mesh
     topo = out.topology
     bv = np.unique(topo.edges[topo.boundary_edges])
     d = cloud.tree.query(out.verts[bv])[0]
-    np.testing.assert_allclose(d, cloud.rho, rtol=0.1)
     xy = np.abs(out.verts[bv, :2])
-    side = xy.min(1) < 0.9  # away from the corners, rho past the square's side
-    np.testing.assert_allclose(xy[side].max(1), 1.0 + cloud.rho, atol=0.2 * cloud.rho)
+    side = xy.min(1) < 0.9  # away from the corners, T past the square's side
+    np.testing.assert_allclose(d[side], T, rtol=0.1)
+    np.testing.assert_allclose(d, T, rtol=0.4)
+    assert placed.distance == T
+    np.testing.assert_allclose(xy[side].max(1), 1.0 + T, atol=0.2 * T)
     np.testing.assert_allclose(out.verts[:, 2], 0.0, atol=1e-12)
     assert np.all(out.face_normals[:, 2] > 0.99)
     inner = np.flatnonzero(np.abs(m.verts[:, :2]).max(1) < size / 2 - 1e-9)
@@ -335,6 +339,49 @@ def test_place_boundary_puts_the_boundary_rho_past_the_last_points(size):
     assert placed.n_split > 0 and placed.n_boundary == len(bv)
     assert np.sign(placed.shift) == np.sign(2.0 - size)  # out when short, in when over
     assert "placed the boundary" in placed.describe()
+
+
+def test_boundary_distance_shrinks_with_the_noise():
+    """A clean scan's boundary goes ``RIM_DISTANCE[0]`` spacings past the last points; the
+    noisier the scan (against its spacing), the fewer: never negative, interpolated in the
+    table, its last value past it; it scales with the frame."""
+    from geofit.fit._cloud import RIM_CLEAN, RIM_DISTANCE, RIM_NOISE, boundary_distance
+
+    assert RIM_DISTANCE[0] == RIM_CLEAN
+    assert boundary_distance(0.01, 0.0) == pytest.approx(0.01 * RIM_CLEAN)
+    r = np.linspace(0.0, 3.0, 61)
+    T = np.array([boundary_distance(0.01, 0.01 * q) for q in r]) / 0.01
+    assert np.all(np.diff(T) <= 0) and T[-1] == pytest.approx(RIM_DISTANCE[-1]) and T.min() > 0
+    assert np.all(np.diff(RIM_NOISE) > 0) and np.all(np.diff(RIM_DISTANCE) < 0)
+    assert boundary_distance(3.0, 1.5) == pytest.approx(300.0 * boundary_distance(0.01, 0.005))
+
+
+def test_place_boundary_where_a_noisy_scan_ends_as_where_the_clean_one_does():
+    """A noisy straight rim (points uniform on the square |x|, |y| <= 1, Gaussian noise of
+    one clean spacing in all three axes; the mesh starts at the rim): the boundary placed
+    with the scan report's noise lies where the clean scan's lies (within half a clean
+    spacing along the sides), while the clean scan's distance applied to the noisy points
+    overshoots it by more than 3/4 of one."""
+    from geofit.fit._cloud import CloudTarget, place_boundary
+    from geofit.shapes import plane
+
+    rng = np.random.default_rng(0)
+    P0 = np.c_[rng.uniform(-1, 1, (12_000, 2)), np.zeros(12_000)]
+    clean = CloudTarget(P0)
+    s0 = clean.spacing
+    P = P0 + rng.normal(0.0, s0, P0.shape)
+    rep, _ = scan_report(P)
+    noisy = CloudTarget(P)
+    m = plane(size=2.0, n=8)
+
+    def side(placed):
+        topo = placed.mesh.topology
+        xy = np.abs(placed.mesh.verts[np.unique(topo.edges[topo.boundary_edges]), :2])
+        return float(np.median(xy[xy.min(1) < 0.8].max(1)))
+
+    at_clean = side(place_boundary(m, clean))
+    assert abs(side(place_boundary(m, noisy, rep.noise)) - at_clean) < 0.5 * s0
+    assert side(place_boundary(m, noisy)) - at_clean > 0.75 * s0
 
 
 def test_place_boundary_leaves_a_closed_mesh_alone():

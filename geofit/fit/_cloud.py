@@ -36,6 +36,7 @@ from ..ops.topology import face_components
 from .init import decimate
 
 __all__ = ["BoundaryPlacement", "CloudTarget", "EvidenceTrim", "as_cloud_points",
+           "boundary_distance",
            "close_small_loops", "is_cloud", "mesh_from_points", "orient_normals",
            "place_boundary", "trim_to_evidence"]
 
@@ -545,7 +546,8 @@ class BoundaryPlacement:
     mesh : Mesh
         The mesh with its boundary placed (the input itself when it has no boundary).
     distance : float
-        Distance of the placed boundary from the nearest point (the cloud's ``rho``).
+        Distance of the placed boundary from the nearest point (:func:`boundary_distance`:
+        the cloud's ``rho`` on a clean scan, less where the scan is noisy).
     n_split : int
         Boundary edges split so that the boundary can follow the points.
     n_boundary : int
@@ -563,17 +565,71 @@ class BoundaryPlacement:
     def describe(self) -> str:
         """One line for a fit's history."""
         return (f"placed the boundary ({self.n_boundary} vertices, {self.n_split} edges split) "
-                f"at {self.distance:.3g} from the nearest point (the tangent disks' radius): "
+                f"at {self.distance:.3g} from the nearest point (2.5 clean spacings, the noise's "
+                f"overshoot removed): "
                 f"median move {self.shift:+.3g}")
 
 
-def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> BoundaryPlacement:
+#: :func:`boundary_distance`'s table: the scan's noise over its spacing, ``sigma / s`` ...
+RIM_NOISE = np.array([0.0, 0.235, 0.414, 0.559, 0.684, 0.796, 0.910, 1.093, 1.270, 1.435, 1.741])
+#: ... and the distance from the nearest point, in spacings ``s``, at which a boundary lies
+#: where :data:`RIM_CLEAN` clean spacings put it on the same scan without noise
+#: (``python benchmarks/scans_rim_offset.py --clean 2.5``).
+RIM_DISTANCE = np.array([2.5, 2.346, 2.056, 1.860, 1.727, 1.589, 1.554, 1.413, 1.365, 1.337,
+                         1.273])
+#: Distance of a clean scan's boundary from its last points, in spacings. Measured on the
+#: one-sided 20,000-point scans of ``benchmarks/_scans.py`` at noise 0.005 (session 9, where
+#: the boundary at 2 measured spacings took the torus's F@0.01 from 0.997 to 0.9994 and lost
+#: nowhere; measured at ``sigma / s = 0.4-0.6`` the measured spacing ``s`` is 1.2-1.34 clean
+#: spacings, so that placement is 2.4-2.7 clean spacings).
+RIM_CLEAN = 2.5
+
+
+def boundary_distance(spacing: float, noise: float) -> float:
+    """How far past the nearest point a fit's boundary goes where the scan ends.
+
+    On a clean scan the boundary lies :data:`RIM_CLEAN` ``s`` (2.5 spacings; ``s`` the
+    spacing, :class:`CloudTarget`) from the nearest point: the evidence of a surface reaches
+    about that far (the tangent disks' radius ``rho = 2 s``, and a little more). With noise
+    ``sigma`` (isotropic, as the scan report estimates it along the normals) the same rule
+    would move the boundary outwards, for two reasons: the outermost noisy points already
+    overshoot the rim (tangential noise), and the measured spacing ``s`` (the median distance
+    to the nearest *noisy* point) grows with the noise. Both are those of a straight rim: a
+    uniform (Poisson) sampling of a half-plane at the scan's clean spacing ``s0``, each point
+    moved by ``N(0, sigma^2)`` in all three axes, a boundary vertex on the mean surface placed
+    where its nearest point is ``T`` away. :data:`RIM_DISTANCE` is the ``T`` (in units of the
+    noisy ``s``) that puts the boundary where ``2.5 s0`` puts it without noise, as a function
+    of ``sigma / s`` (:data:`RIM_NOISE`; simulated, 10,000 points a seed, 3 seeds, +-0.05 at
+    most: benchmarks/scans_rim_offset.py). At ``sigma = s0`` (``sigma / s = 0.68``) it is
+    ``1.73 s`` (``2.53 s0``), where ``2.5 s`` (``3.66 s0``) would put the boundary more than
+    a clean spacing past the clean placement; past the table the last value holds.
+    Interpolated linearly.
+
+    Parameters
+    ----------
+    spacing : float
+        The cloud's spacing (:attr:`CloudTarget.spacing`).
+    noise : float
+        The scan's noise level (same frame; see
+        :func:`geofit.fit._scan_report.scan_report`).
+
+    Returns
+    -------
+    float
+        The distance (same frame).
+    """
+    return float(spacing * np.interp(noise / spacing, RIM_NOISE, RIM_DISTANCE))
+
+
+def place_boundary(mesh: Mesh, cloud: CloudTarget, noise: float = 0.0, *,
+                   n_iter: int = 4) -> BoundaryPlacement:
     """The mesh with its boundary on the boundary of the cloud's surface.
 
     The cloud's surface (:class:`CloudTarget`) is the union of the tangent disks of radius
     ``rho`` (two spacings) around its points: where a scan ends, at a real rim or where the
     surface turned away from the scanner, the evidence of a surface reaches ``rho`` past the
-    last points, and so does the fitted mesh. The fit alone leaves its boundary anywhere
+    last points of a clean scan, and so does the fitted mesh (on a noisy scan, where the last
+    points already overshoot the rim, less: ``T`` = :func:`boundary_distance`). The fit alone leaves its boundary anywhere
     within a few spacings of that line: its data term is flat within ``rho`` of the points
     and its smoothness shortens the boundary, and a boundary edge many spacings long cuts
     across the points' outline as a chord. Here
@@ -581,8 +637,8 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> Bounda
     1. the boundary edges longer than ``2 rho`` are split (:func:`geofit.ops.remesh`, splits
        only, up to twice), so the boundary can follow the points' outline;
     2. each boundary vertex moves in its tangent plane, along the outward normal of the
-       boundary (away from its faces), to where its nearest point is ``rho`` away (a few
-       fixed-point steps ``t += rho - d(v + t b)``, the move kept within ``[-h / 2, 2 rho]``
+       boundary (away from its faces), to where its nearest point is ``T`` away (a few
+       fixed-point steps ``t += T - d(v + t b)``, the move kept within ``[-h / 2, 2 T]``
        with ``h`` the vertex's shortest edge, so no face turns over).
 
     Measured on the 20,000-point scans of ``benchmarks/_scans.py`` (noise 0.005, 1 % strays;
@@ -601,6 +657,8 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> Bounda
         A fitted mesh (the cloud's frame), edge-manifold and consistently oriented.
     cloud : CloudTarget
         The scan.
+    noise : float
+        The scan's noise level (same frame; 0: a clean scan, ``T = rho``).
     n_iter : int
         Fixed-point steps of the moves.
 
@@ -610,10 +668,10 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> Bounda
         The mesh and what was done.
     """
 
-    rho = cloud.rho
+    rho, T = cloud.rho, boundary_distance(cloud.spacing, noise)
     B = _boundary_half_edges(mesh)
     if len(B) == 0:
-        return BoundaryPlacement(mesh, rho, 0, 0, 0.0)
+        return BoundaryPlacement(mesh, T, 0, 0, 0.0)
     # only the boundary edges are split: an edge's target is its endpoints' mean, and every
     # vertex off the boundary asks for more than any edge's length
     lv = np.full(mesh.n_verts, 10.0 * float(mesh.edge_lengths.max()))
@@ -639,7 +697,7 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, *, n_iter: int = 4) -> Bounda
     t = np.zeros(len(vb))
     for _ in range(n_iter):
         dist = cloud.tree.query(V[vb] + t[:, None] * d, workers=get_num_threads())[0]
-        t = np.clip(t + rho - dist, lo, 2.0 * rho)
+        t = np.clip(t + T - dist, lo, 2.0 * T)
     V = V.copy()
     V[vb] += t[:, None] * d
-    return BoundaryPlacement(mesh.update_verts(V), rho, r.n_split, len(vb), float(np.median(t)))
+    return BoundaryPlacement(mesh.update_verts(V), T, r.n_split, len(vb), float(np.median(t)))

@@ -436,7 +436,7 @@ def solve_remeshing(plan: Plan, target: MeshTarget, *, seed, callback,
         mesh = trim.mesh
         if trim.n_removed:
             history.note(evals, clock.elapsed(), trim.describe(), n_trimmed=trim.n_removed)
-        placed = place_boundary(mesh, p2s)  # the boundary where the points' evidence ends
+        placed = place_boundary(mesh, p2s, report.noise)  # where the evidence ends
         mesh = placed.mesh
         if placed.n_boundary:
             history.note(evals, clock.elapsed(), placed.describe(), n_boundary=placed.n_boundary)
