@@ -36,8 +36,9 @@ from the data's topology and remeshes where the error is.
    the scan's holes (gaps wider than the sampling explains) is removed
    (:func:`geofit.fit._cloud.trim_to_evidence`), so the holes of a one-sided scan stay holes
    and a closed, well-sampled scan stays closed; the boundary left (the scan's rims, its
-   holes' edges) is then placed where the points' tangent disks end, ``rho`` past the last
-   points (:func:`geofit.fit._cloud.place_boundary`).
+   holes' edges) is then placed where the points' evidence ends, 2.5 clean spacings past the
+   last points whatever the noise (:func:`geofit.fit._cloud.place_boundary`,
+   :func:`~geofit.fit._cloud.boundary_distance`).
    ``MeshFitOptions(watertight=True)`` closes them instead: the untrimmed Poisson start, and no
    data term where there is no point.
 3. The result reports the initialisation, the vertex count and the
