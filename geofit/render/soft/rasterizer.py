@@ -156,18 +156,29 @@ def _pixel_centres(H: int, W: int):
     return px, py
 
 
-def _seg_sqdist(qx, qy, ax, ay, dx, dy, inv_l2, degenerate):
+def _seg_sqdist(rx, ry, dx, dy, inv_l2, degenerate):
     """Squared distance from q to segment a + t d (PyTorch3D's PointLineDistanceForward).
 
-    ``inv_l2 = 1 / |d|^2`` (0 for a degenerate segment) and ``degenerate`` (0/1): a degenerate
-    segment (``|d|^2 <= 1e-8``) gives the distance to its second end ``a + d`` (t = 1).
+    ``r = q - a``; ``inv_l2 = 1 / |d|^2`` (0 for a degenerate segment) and ``degenerate``
+    (0/1, or None when no segment is degenerate): a degenerate segment (``|d|^2 <= 1e-8``)
+    gives the distance to its second end ``a + d`` (t = 1). Written in place (the same
+    operations in the same order as ``clip((r.d) inv_l2 + degenerate, 0, 1)``,
+    ``|r - t d|^2``).
     """
-    rx = qx - ax
-    ry = qy - ay
-    t = np.clip((rx * dx + ry * dy) * inv_l2 + degenerate, 0.0, 1.0)
-    ex = rx - t * dx
-    ey = ry - t * dy
-    return ex * ex + ey * ey
+    t = rx * dx
+    t += ry * dy
+    t *= inv_l2
+    if degenerate is not None:
+        t += degenerate
+    np.clip(t, 0.0, 1.0, out=t)
+    dx = dx * t
+    dy = dy * t
+    np.subtract(rx, dx, out=dx)  # ex
+    np.subtract(ry, dy, out=dy)  # ey
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx
 
 
 _TEMP_FLOATS_PER_PAIR = 24  # float64 temporaries alive per candidate pair (rough count)
@@ -309,8 +320,15 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
                 return np.repeat(a[start:stop], g_cnt)
 
             qxg, qyg = qx[gen], qy[gen]
-            d = [_seg_sqdist(qxg, qyg, grun(ax), grun(ay), grun(dx), grun(dy), grun(il),
-                             grun(dg)) for ax, ay, dx, dy, il, dg in segs]
+            # r = q - a: edges (0, 1) and (0, 2) share their first end; the degenerate
+            # term is skipped when no face of the chunk has a degenerate edge (adding 0)
+            r0 = (qxg - grun(X0), qyg - grun(Y0))
+            r1 = (qxg - grun(X1), qyg - grun(Y1))
+            del qxg, qyg
+            some = bool(degface[start:stop].any())
+            d = [_seg_sqdist(*r, grun(dx), grun(dy), grun(il), grun(dg) if some else None)
+                 for r, (_, _, dx, dy, il, dg) in zip((r0, r0, r1), segs)]
+            del r0, r1
             use01 = (d[0] <= d[1]) & (d[0] <= d[2])
             use02 = ~use01 & (d[1] <= d[2])
             dist[gen] = np.where(use01, d[0], np.where(use02, d[1], d[2]))
