@@ -241,7 +241,8 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
     ny = np.maximum(j_hi - j_lo + 1, 0)
     counts = nx * ny
     nz = counts > 0
-    fids, i_lo, j_lo, nx, counts = fids[nz], i_lo[nz], j_lo[nz], nx[nz], counts[nz]
+    fids, i_lo, j_lo, nx, ny, counts = (fids[nz], i_lo[nz], j_lo[nz], nx[nz], ny[nz],
+                                         counts[nz])
     if fids.size == 0:
         return _ViewJob(np.zeros(0, np.int64), stats, finish=lambda parts: (empty, stats))
     stats["candidates"] = int(counts.sum())
@@ -278,11 +279,17 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         def rep(a, cc=cc, start=start, stop=stop):  # a[loc]: runs, no gather
             return np.repeat(a[start:stop], cc)
 
-        off = np.arange(n_pairs, dtype=np.int64) - np.repeat(np.cumsum(cc) - cc, cc)
-        row, col = np.divmod(off, rep(nx))
-        col += rep(i_lo)
-        row += rep(j_lo)
-        del off
+        # each face's pixel rectangle row by row (the same pairs in the same order as
+        # divmod(offset in the rectangle, nx), without an integer division per pair)
+        ny_c = ny[start:stop]
+        face_row = np.repeat(np.arange(stop - start), ny_c)  # the face of each rectangle row
+        j = np.arange(len(face_row), dtype=np.int64) - np.repeat(np.cumsum(ny_c) - ny_c, ny_c)
+        j += j_lo[start:stop][face_row]
+        n_row = nx[start:stop][face_row]
+        row = np.repeat(j, n_row)
+        col = np.arange(n_pairs, dtype=np.int64) - np.repeat(np.cumsum(n_row) - n_row, n_row)
+        col += np.repeat(i_lo[start:stop][face_row], n_row)
+        del face_row, j, n_row
         qx = px[col]
         qy = py[row]
         # stage 1: signed distances to the three edge lines; a pair whose pixel lies beyond
@@ -290,7 +297,9 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         sl = [rep(a) * qx + rep(b) * qy + rep(c) for a, b, c in lines]
         s_min = np.minimum(np.minimum(sl[0], sl[1]), sl[2])
         live = np.flatnonzero(s_min > cut)
-        pix = row * W + col
+        row *= W
+        row += col
+        pix = row  # row * W + col
         del row, col
         loc, pix, qx, qy, s_min = (v[live] for v in (loc, pix, qx, qy, s_min))
         sl = [v[live] for v in sl]
@@ -299,7 +308,7 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         # is the foot on the nearest edge line, so there it is (min_i s_i)^2 (faces with a
         # degenerate edge, whose distance PyTorch3D takes to an end point, excepted).
         inside = s_min > 0.0
-        general = ~inside | degface[loc]
+        general = ~inside | degface[loc] if degface[start:stop].any() else ~inside
         gen = np.flatnonzero(general)
         fast = np.flatnonzero(~general)
         n_live = len(loc)
