@@ -464,6 +464,25 @@ def test_uv_texture_uses_the_datasets_lights_or_unlit_colour(data, lit):
         assert psnr(res.render(data), data.images) < psnr(res.render(train), train.images) - 3
 
 
+def test_uv_texture_skipped_when_predicted_past_the_budget(data, monkeypatch):
+    """With a time budget the UV texture is not started when its predicted time (a multiple
+    of the colours' stage) does not fit in what is left (a budget ends the fit near it on a
+    loaded machine); without a budget it always runs."""
+    from geofit.fit import views
+
+    truth = Mesh(data.mesh.verts, data.mesh.faces)
+    opts = ViewsFitOptions(init=truth, silhouette_method="none")
+    monkeypatch.setattr(views, "_TEXTURE_PER_COLOURS", 1e9)
+    res = fit_mesh_to_views(data, options=opts, time_budget=600.0, progress=False)
+    st = res.stages[-1]
+    assert st["name"] == "texture" and st["status"] == "time_budget"
+    assert "needs about" in st["message"] and "vertex colours kept" in st["message"]
+    assert isinstance(res.mesh.textures, TexturesVertex)
+    res = fit_mesh_to_views(data, options=opts, progress=False)
+    assert res.stages[-1]["status"] == "converged"
+    assert isinstance(res.mesh.textures, TexturesUV)
+
+
 def test_uv_texture_respects_the_time_budget(data):
     """A budget spent before the texture stage solves no texture and says so: the colour
     stage is not run when nothing is left of the budget for it, else the texture stage keeps

@@ -374,6 +374,11 @@ _TEXTURE_RESERVE = 0.15
 #: part of the cow's unbudgeted default (5 iterations: 13.5 of 74.6 CPU s, measured under
 #: load; benchmarks/results/fit_views_session9_rgb.md).
 RGB_STAGE_SHARE = 0.2
+#: The UV texture's wall time over the vertex colours' (the stage before it, on the same
+#: views): 3.5-5.0 in five fits of the cow and the thin plate at loads 12-22 (both cast every
+#: pixel ray and solve a sparse system, so both slow down alike). With a time budget the
+#: texture is skipped when this times the colours' seconds does not fit in what is left.
+_TEXTURE_PER_COLOURS = 5.0
 _ADAM_PHASES = (1.0, 0.3, 0.1)  # lr factors of the contour method's Adam phases
 _ADAM_LEVEL_DECAY = 0.3         # and per coarse-to-fine level
 # the overall status of a fit is the first of these that a stage ended with
@@ -543,8 +548,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         (15 % with ``texture="uv"``) to the final stage: the colours (one sparse solve) and
         the UV texture (one sparse solve); of the rest the silhouette stage shares all but
         :data:`RGB_STAGE_SHARE` over its solves, which the RGB stage gets. If the
-        budget is spent before the texture, the mesh keeps its vertex colours and the
-        ``"texture"`` stage says so. A budget used up while carving the hull returns the
+        budget is spent before the texture, or what is left is less than the texture's
+        predicted time (five times the colours' stage, as measured under load), the mesh
+        keeps its vertex colours and the ``"texture"`` stage says so. A budget used up while carving the hull returns the
         unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
         no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
         about 52 s wall and 79 CPU s on 2 cores (quiet machine, load 1.6; the RGB stage about
@@ -1012,9 +1018,13 @@ def _uv_texture_stage(plan: _Plan, run: _Solver, tex_mesh: Mesh, colors) -> Mesh
     the vertex-coloured mesh if the time budget is already spent."""
     t_stage = run.clock.elapsed()
     stage = {"name": "texture", "method": "uv"}
-    if run.clock.over():
+    prev = run.stages[-1]  # the colours' stage (a sparse solve when "lstsq")
+    need = _TEXTURE_PER_COLOURS * prev["seconds"] if prev["method"] == "lstsq" else 0.0
+    if run.clock.over() or (plan.time_budget is not None and run.clock.remaining() < need):
         run.stages.append({**stage, "status": "time_budget", "seconds": 0.0,
-                           "message": "the time budget was spent: vertex colours kept"})
+                           "message": f"not run: {max(run.clock.remaining(), 0.0):.3g} s left "
+                                      f"of the time budget, the texture needs about "
+                                      f"{need:.3g} s: vertex colours kept"})
         return colored_mesh(tex_mesh, colors)
     views = plan.views
     bg = dataset_background(views)

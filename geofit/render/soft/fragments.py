@@ -233,25 +233,46 @@ def _dist_vjp(fr: SoftFragments, n: int, s: slice, gd: np.ndarray, V: int) -> np
     ctx = fr._ctx
     X, Y = ctx["x"][n], ctx["y"][n]
     edge = fr._edge[s]
-    fv = ctx["faces"][fr.face[s]]
-    # the nearest edge's ends: edge 0 is (0, 1), 1 is (0, 2), 2 is (1, 2)
-    va = np.where(edge == 2, fv[:, 1], fv[:, 0])
-    vb = np.where(edge == 0, fv[:, 1], fv[:, 2])
-    W = fr.image_size[1]
-    prow, pcol = np.divmod(fr.pixel[s], W)
+    # the nearest edge's ends: edge 0 is (0, 1), 1 is (0, 2), 2 is (1, 2); gathered from the
+    # flat faces (no (m, 3) copy of the entries' corners)
+    f3 = fr.face[s] * 3
+    flat = np.ravel(ctx["faces"])
+    va = flat[f3 + (edge == 2)]
+    f3 += 1
+    f3 += edge != 0
+    vb = flat[f3]
+    H, W = fr.image_size
+    pix = fr.pixel[s]
     ax, ay = X[va], Y[va]
-    dx, dy = X[vb] - ax, Y[vb] - ay
-    rx, ry = ctx["px"][pcol] - ax, ctx["py"][prow] - ay
-    l2 = dx * dx + dy * dy
+    dx, dy = X[vb], Y[vb]
+    dx -= ax
+    dy -= ay
+    rx = np.tile(ctx["px"], H)[pix]  # px[pix % W] and py[pix // W], no integer division
+    ry = np.repeat(ctx["py"], W)[pix]
+    rx -= ax
+    ry -= ay
+    del ax, ay
+    l2 = dx * dx
+    l2 += dy * dy
     degenerate = l2 <= _EPS
-    t = np.clip((rx * dx + ry * dy) / np.where(degenerate, 1.0, l2), 0.0, 1.0)
-    t[degenerate] = 1.0
-    g = np.where(fr._inside[s], 2.0 * gd, -2.0 * gd)   # 2 * sign * gd, and c - q = -(r - t d)
-    cx = (rx - t * dx) * g
-    cy = (ry - t * dy) * g
+    any_degenerate = bool(degenerate.any())
+    t = rx * dx
+    t += ry * dy
+    t /= np.where(degenerate, 1.0, l2) if any_degenerate else l2
+    np.clip(t, 0.0, 1.0, out=t)
+    if any_degenerate:
+        t[degenerate] = 1.0
+    g = 2.0 * gd   # 2 * sign * gd (exactly -2 gd outside), and c - q = -(r - t d)
+    np.negative(g, out=g, where=~fr._inside[s])
+    dx *= t
+    rx -= dx
+    rx *= g    # cx
+    dy *= t
+    ry -= dy
+    ry *= g    # cy
     ta = 1.0 - t
-    gx = np.bincount(va, ta * cx, V) + np.bincount(vb, t * cx, V)
-    gy = np.bincount(va, ta * cy, V) + np.bincount(vb, t * cy, V)
+    gx = np.bincount(va, ta * rx, V) + np.bincount(vb, t * rx, V)
+    gy = np.bincount(va, ta * ry, V) + np.bincount(vb, t * ry, V)
     J = ctx["J"][n]
     return gx[:, None] * J[:, 0, :] + gy[:, None] * J[:, 1, :]
 

@@ -156,18 +156,29 @@ def _pixel_centres(H: int, W: int):
     return px, py
 
 
-def _seg_sqdist(qx, qy, ax, ay, dx, dy, inv_l2, degenerate):
+def _seg_sqdist(rx, ry, dx, dy, inv_l2, degenerate):
     """Squared distance from q to segment a + t d (PyTorch3D's PointLineDistanceForward).
 
-    ``inv_l2 = 1 / |d|^2`` (0 for a degenerate segment) and ``degenerate`` (0/1): a degenerate
-    segment (``|d|^2 <= 1e-8``) gives the distance to its second end ``a + d`` (t = 1).
+    ``r = q - a``; ``inv_l2 = 1 / |d|^2`` (0 for a degenerate segment) and ``degenerate``
+    (0/1, or None when no segment is degenerate): a degenerate segment (``|d|^2 <= 1e-8``)
+    gives the distance to its second end ``a + d`` (t = 1). Written in place (the same
+    operations in the same order as ``clip((r.d) inv_l2 + degenerate, 0, 1)``,
+    ``|r - t d|^2``).
     """
-    rx = qx - ax
-    ry = qy - ay
-    t = np.clip((rx * dx + ry * dy) * inv_l2 + degenerate, 0.0, 1.0)
-    ex = rx - t * dx
-    ey = ry - t * dy
-    return ex * ex + ey * ey
+    t = rx * dx
+    t += ry * dy
+    t *= inv_l2
+    if degenerate is not None:
+        t += degenerate
+    np.clip(t, 0.0, 1.0, out=t)
+    dx = dx * t
+    dy = dy * t
+    np.subtract(rx, dx, out=dx)  # ex
+    np.subtract(ry, dy, out=dy)  # ey
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx
 
 
 _TEMP_FLOATS_PER_PAIR = 24  # float64 temporaries alive per candidate pair (rough count)
@@ -230,7 +241,8 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
     ny = np.maximum(j_hi - j_lo + 1, 0)
     counts = nx * ny
     nz = counts > 0
-    fids, i_lo, j_lo, nx, counts = fids[nz], i_lo[nz], j_lo[nz], nx[nz], counts[nz]
+    fids, i_lo, j_lo, nx, ny, counts = (fids[nz], i_lo[nz], j_lo[nz], nx[nz], ny[nz],
+                                         counts[nz])
     if fids.size == 0:
         return _ViewJob(np.zeros(0, np.int64), stats, finish=lambda parts: (empty, stats))
     stats["candidates"] = int(counts.sum())
@@ -267,11 +279,17 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         def rep(a, cc=cc, start=start, stop=stop):  # a[loc]: runs, no gather
             return np.repeat(a[start:stop], cc)
 
-        off = np.arange(n_pairs, dtype=np.int64) - np.repeat(np.cumsum(cc) - cc, cc)
-        row, col = np.divmod(off, rep(nx))
-        col += rep(i_lo)
-        row += rep(j_lo)
-        del off
+        # each face's pixel rectangle row by row (the same pairs in the same order as
+        # divmod(offset in the rectangle, nx), without an integer division per pair)
+        ny_c = ny[start:stop]
+        face_row = np.repeat(np.arange(stop - start), ny_c)  # the face of each rectangle row
+        j = np.arange(len(face_row), dtype=np.int64) - np.repeat(np.cumsum(ny_c) - ny_c, ny_c)
+        j += j_lo[start:stop][face_row]
+        n_row = nx[start:stop][face_row]
+        row = np.repeat(j, n_row)
+        col = np.arange(n_pairs, dtype=np.int64) - np.repeat(np.cumsum(n_row) - n_row, n_row)
+        col += np.repeat(i_lo[start:stop][face_row], n_row)
+        del face_row, j, n_row
         qx = px[col]
         qy = py[row]
         # stage 1: signed distances to the three edge lines; a pair whose pixel lies beyond
@@ -279,7 +297,9 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         sl = [rep(a) * qx + rep(b) * qy + rep(c) for a, b, c in lines]
         s_min = np.minimum(np.minimum(sl[0], sl[1]), sl[2])
         live = np.flatnonzero(s_min > cut)
-        pix = row * W + col
+        row *= W
+        row += col
+        pix = row  # row * W + col
         del row, col
         loc, pix, qx, qy, s_min = (v[live] for v in (loc, pix, qx, qy, s_min))
         sl = [v[live] for v in sl]
@@ -288,7 +308,7 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
         # is the foot on the nearest edge line, so there it is (min_i s_i)^2 (faces with a
         # degenerate edge, whose distance PyTorch3D takes to an end point, excepted).
         inside = s_min > 0.0
-        general = ~inside | degface[loc]
+        general = ~inside | degface[loc] if degface[start:stop].any() else ~inside
         gen = np.flatnonzero(general)
         fast = np.flatnonzero(~general)
         n_live = len(loc)
@@ -309,8 +329,15 @@ def _rasterize_view(x, y, z, faces, H, W, px, py, blur, K, perspective_correct, 
                 return np.repeat(a[start:stop], g_cnt)
 
             qxg, qyg = qx[gen], qy[gen]
-            d = [_seg_sqdist(qxg, qyg, grun(ax), grun(ay), grun(dx), grun(dy), grun(il),
-                             grun(dg)) for ax, ay, dx, dy, il, dg in segs]
+            # r = q - a: edges (0, 1) and (0, 2) share their first end; the degenerate
+            # term is skipped when no face of the chunk has a degenerate edge (adding 0)
+            r0 = (qxg - grun(X0), qyg - grun(Y0))
+            r1 = (qxg - grun(X1), qyg - grun(Y1))
+            del qxg, qyg
+            some = bool(degface[start:stop].any())
+            d = [_seg_sqdist(*r, grun(dx), grun(dy), grun(il), grun(dg) if some else None)
+                 for r, (_, _, dx, dy, il, dg) in zip((r0, r0, r1), segs)]
+            del r0, r1
             use01 = (d[0] <= d[1]) & (d[0] <= d[2])
             use02 = ~use01 & (d[1] <= d[2])
             dist[gen] = np.where(use01, d[0], np.where(use02, d[1], d[2]))
