@@ -284,6 +284,11 @@ class ViewsFitOptions:
         Weight of the colours' Laplacian smoothness inside the RGB stage's variable
         projection (1e-4): larger leaves the colours fewer degrees of freedom to absorb what
         the geometry should explain.
+    rgb_color_smooth : float
+        Weight of the colours' Dirichlet energy ``int |grad C|^2 dA`` (cotangent stiffness of
+        the stage's starting mesh) in the same solve: the same on any shape's size and vertex
+        count; larger makes the shading that the world-fixed lights put on the surface
+        the geometry's to explain rather than the colours' (0: none).
     contour_threshold : float
         The contour method compares the mesh's hard silhouette with the targets binarised at
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
@@ -323,6 +328,7 @@ class ViewsFitOptions:
     rgb_silhouette: float | None = None
     rgb_large_steps: float | None = None
     rgb_color_reg: float | None = None
+    rgb_color_smooth: float | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
@@ -331,7 +337,7 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
                hull_close_px=0.0, hull_fill_px=9.0, hull_margins=(0.0,), hull_vote_depth=0.0,
                rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0,
-               rgb_color_reg=1e-4)
+               rgb_color_reg=1e-4, rgb_color_smooth=0.0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -654,6 +660,7 @@ class _Plan:
     rgb_silhouette: float = 0.0
     rgb_large_steps: float = 10.0
     rgb_color_reg: float = 1e-4
+    rgb_color_smooth: float = 0.0
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -746,6 +753,8 @@ class _Plan:
                                                   strict=False),
                    rgb_color_reg=check_positive(o.rgb_color_reg, "options.rgb_color_reg",
                                                 strict=False),
+                   rgb_color_smooth=check_positive(o.rgb_color_smooth,
+                                                   "options.rgb_color_smooth", strict=False),
                    final_large_steps=(large_steps if o.final_large_steps is None else
                                       check_positive(o.final_large_steps,
                                                      "options.final_large_steps",
@@ -943,6 +952,7 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     res = refine_rgb(mesh, v.cameras, v.images, lights=dataset_lights(v), background=bg,
                      lam=plan.rgb_large_steps, reg=plan.rgb_color_reg,
                      maxiter=plan.rgb_iters, extra=extra, image_weight=plan.rgb_weight,
+                     smooth=plan.rgb_color_smooth,
                      clock=run.clock if plan.time_budget is not None else None)
     run.n_evaluations += res.n_evaluations
     status = "time_budget" if res.stopped else "max_iter"
