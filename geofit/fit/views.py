@@ -73,7 +73,7 @@ from ..shapes import ico_sphere, subdivide
 from ..structures import Mesh, TexturesUV, as_mesh
 from ._options import as_dataset, check_int, check_weights, merge_options, recipe_name
 from ._progress import NoBar, advance, progress_bar
-from ._rgb_refine import refine_rgb
+from ._rgb_refine import interior_masks, refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import (
@@ -289,6 +289,9 @@ class ViewsFitOptions:
         the stage's starting mesh) in the same solve: the same on any shape's size and vertex
         count; larger makes the shading that the world-fixed lights put on the surface
         the geometry's to explain rather than the colours' (0: none).
+    rgb_inner_px : int
+        The RGB stage's image term only on the pixels this many pixels or more inside the
+        target silhouettes (0: on every pixel): the outline is the silhouettes' to fit.
     contour_threshold : float
         The contour method compares the mesh's hard silhouette with the targets binarised at
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
@@ -329,6 +332,7 @@ class ViewsFitOptions:
     rgb_large_steps: float | None = None
     rgb_color_reg: float | None = None
     rgb_color_smooth: float | None = None
+    rgb_inner_px: int | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
@@ -337,7 +341,7 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
                hull_close_px=0.0, hull_fill_px=9.0, hull_margins=(0.0,), hull_vote_depth=0.0,
                rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0,
-               rgb_color_reg=1e-4, rgb_color_smooth=0.0)
+               rgb_color_reg=1e-4, rgb_color_smooth=0.0, rgb_inner_px=0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -661,6 +665,7 @@ class _Plan:
     rgb_large_steps: float = 10.0
     rgb_color_reg: float = 1e-4
     rgb_color_smooth: float = 0.0
+    rgb_inner_px: int = 0
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -755,6 +760,7 @@ class _Plan:
                                                 strict=False),
                    rgb_color_smooth=check_positive(o.rgb_color_smooth,
                                                    "options.rgb_color_smooth", strict=False),
+                   rgb_inner_px=check_int(o.rgb_inner_px, "options.rgb_inner_px", 0),
                    final_large_steps=(large_steps if o.final_large_steps is None else
                                       check_positive(o.final_large_steps,
                                                      "options.final_large_steps",
@@ -953,6 +959,8 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
                      lam=plan.rgb_large_steps, reg=plan.rgb_color_reg,
                      maxiter=plan.rgb_iters, extra=extra, image_weight=plan.rgb_weight,
                      smooth=plan.rgb_color_smooth,
+                     masks=(interior_masks(v.silhouettes, plan.rgb_inner_px)
+                            if plan.rgb_inner_px else None),
                      clock=run.clock if plan.time_budget is not None else None)
     run.n_evaluations += res.n_evaluations
     status = "time_budget" if res.stopped else "max_iter"
