@@ -161,3 +161,20 @@ def test_colour_smoothness_solve_and_gradient():
         fd = (fp - fm) / (2 * h)
         an = float(np.sum(gv * d))
         assert abs(fd - an) < 1e-5 * abs(an) + 1e-12, (fd, an)
+
+
+def test_interior_masks_erode_the_thresholded_silhouettes():
+    """A 10 x 10 square silhouette keeps its 6 x 6 core at 2 px (the cross erodes one pixel a
+    side per step), itself at 0 px; soft values are thresholded at 0.5."""
+    from geofit.fit._rgb_refine import interior_masks
+
+    sil = np.zeros((2, 16, 16))
+    sil[:, 3:13, 3:13] = 0.8
+    sil[1, 0, 0] = 0.4  # below the threshold
+    np.testing.assert_array_equal(interior_masks(sil, 0), sil > 0.5)
+    core = np.zeros((16, 16))
+    core[5:11, 5:11] = 1.0
+    m = interior_masks(sil, 2)
+    assert m.dtype == np.float64 and m.shape == sil.shape
+    np.testing.assert_array_equal(m[0], core)
+    np.testing.assert_array_equal(m[1], core)
