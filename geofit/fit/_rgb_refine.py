@@ -1,4 +1,4 @@
-"""Prototype (not in the default): refine a mesh against the RGB images with the hard image term.
+"""The views fit's RGB stage: refine a mesh against the RGB images with the hard image term.
 
 :func:`refine_rgb` minimises over the vertex positions ``V`` ::
 
