@@ -430,9 +430,10 @@ def test_hull_carving_options_are_validated(spheres):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_fill_px=-1.0), progress=False)
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
-    for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg"):
+    for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg",
+                 "rgb_color_smooth", "rgb_inner_px"):
         with pytest.raises(ValueError, match=name):
-            fit_mesh_to_views(spheres, options=ViewsFitOptions(**{name: -1.0}),
+            fit_mesh_to_views(spheres, options=ViewsFitOptions(**{name: -1}),
                               progress=False)
 
 

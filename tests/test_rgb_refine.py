@@ -107,3 +107,74 @@ def test_refine_rgb_stops_at_the_clocks_deadline():
 
     r = refine_rgb(s, cams, images, lights=LIGHTS, maxiter=5, extra=extra)
     assert r.stopped and r.n_evaluations == 0 and r.colors is None
+
+
+def test_dirichlet_stiffness_is_the_gradient_energy_of_a_linear_field():
+    """On a planar mesh ``u^T K u`` of a linear field ``u = a . x`` is ``|a|^2 x area`` exactly
+    (piecewise-linear interpolation reproduces it), whatever the mesh's size or refinement;
+    ``K`` is symmetric with zero row sums."""
+    from geofit.fit._rgb_refine import dirichlet_stiffness
+
+    rng = np.random.default_rng(4)
+    n = 7
+    x, y = np.meshgrid(np.linspace(0.0, 1.0, n), np.linspace(0.0, 2.0, n))
+    V = np.stack([x.ravel() + 0.02 * rng.standard_normal(n * n), y.ravel(),
+                  np.zeros(n * n)], axis=1)
+    i = np.arange(n - 1)
+    q = (i[:, None] * n + i[None, :]).ravel()  # lower-left corners
+    F = np.concatenate([np.stack([q, q + 1, q + n + 1], 1), np.stack([q, q + n + 1, q + n], 1)])
+    a = np.array([0.7, -1.3, 0.0])
+    for scale in (1.0, 3.0):  # sizes
+        m = Mesh(V * scale, F)
+        K = dirichlet_stiffness(m)
+        u = (m.verts @ a)
+        np.testing.assert_allclose(u @ (K @ u), (a @ a) * m.face_areas.sum(), rtol=1e-12)
+        np.testing.assert_allclose((K - K.T).toarray(), 0.0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(K.sum(axis=1)).ravel(), 0.0, atol=1e-12)
+
+
+def test_colour_smoothness_solve_and_gradient():
+    """With the Dirichlet prior the solved colours are the inner minimum (colour gradient of
+    L + smooth C^T K_0 C zero), and the projected loss's vertex gradient matches central
+    differences in float64 (K_0 of the solver's mesh held fixed, as in the refinement;
+    interior term only)."""
+    from geofit.fit._rgb_refine import _ColorSolve, dirichlet_stiffness, projected_image_loss
+
+    cams, s, images = _scene()
+    loss = HardImageLoss(cams, images, lights=LIGHTS, edges=False)
+    mesh = Mesh(s.verts * 1.02, s.faces)
+    smooth = 1e-3
+    solver = _ColorSolve(mesh, 0.0, smooth)
+    _, gv, C = projected_image_loss(loss, mesh, 0.0, solver)
+    _, _, gc = loss(mesh, C)
+    K = dirichlet_stiffness(mesh)
+    g = gc + 2 * smooth * (K @ C) + 2e-9 * (C - 0.5)
+    assert np.abs(g).max() < 1e-7 * np.abs(gc).max() + 1e-12
+    C0 = solve_vertex_colors(loss, mesh, reg=0.0)
+    assert np.sum(C * (K @ C)) < np.sum(C0 * (K @ C0))  # the prior smooths the colours
+    rng = np.random.default_rng(1)
+    for _ in range(3):  # random directions
+        d = rng.normal(size=mesh.verts.shape)
+        h = 1e-6
+        fp = projected_image_loss(loss, Mesh(mesh.verts + h * d, s.faces), 0.0, solver)[0]
+        fm = projected_image_loss(loss, Mesh(mesh.verts - h * d, s.faces), 0.0, solver)[0]
+        fd = (fp - fm) / (2 * h)
+        an = float(np.sum(gv * d))
+        assert abs(fd - an) < 1e-5 * abs(an) + 1e-12, (fd, an)
+
+
+def test_interior_masks_erode_the_thresholded_silhouettes():
+    """A 10 x 10 square silhouette keeps its 6 x 6 core at 2 px (the cross erodes one pixel a
+    side per step), itself at 0 px; soft values are thresholded at 0.5."""
+    from geofit.fit._rgb_refine import interior_masks
+
+    sil = np.zeros((2, 16, 16))
+    sil[:, 3:13, 3:13] = 0.8
+    sil[1, 0, 0] = 0.4  # below the threshold
+    np.testing.assert_array_equal(interior_masks(sil, 0), sil > 0.5)
+    core = np.zeros((16, 16))
+    core[5:11, 5:11] = 1.0
+    m = interior_masks(sil, 2)
+    assert m.dtype == np.float64 and m.shape == sil.shape
+    np.testing.assert_array_equal(m[0], core)
+    np.testing.assert_array_equal(m[1], core)

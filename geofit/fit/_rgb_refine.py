@@ -1,15 +1,20 @@
-"""Prototype (not in the default): refine a mesh against the RGB images with the hard image term.
+"""The views fit's RGB stage: refine a mesh against the RGB images with the hard image term.
 
 :func:`refine_rgb` minimises over the vertex positions ``V`` ::
 
-    f(V) = min_C  L(V, C) + reg |L_u C|^2 / V_count,
+    f(V) = min_C  L(V, C) + reg |L_u C|^2 / V_count + smooth sum_c C_c^T K_0 C_c,
 
 ``L`` the hard image loss (:class:`geofit.render.mesh.HardImageLoss`: interior shading and
-barycentric gradient, visibility by edge sampling) and ``C`` the vertex colours. For fixed
+barycentric gradient, visibility by edge sampling) and ``C`` the vertex colours (the albedo
+when the dataset has lights). ``K_0`` is the cotangent stiffness matrix of the *starting* mesh:
+``C^T K_0 C`` is the Dirichlet energy ``int |grad C|^2 dA`` of the piecewise-linear colours,
+which does not depend on the shape's size nor on its vertex count (it converges under
+refinement), so ``smooth`` means the same on any shape; it makes shading (a function of the
+normals) cheaper to explain by the geometry than by the colours (shape from shading). For fixed
 geometry the image is affine in the colours (:meth:`HardImageLoss.color_operator`), so the inner
 minimum is one sparse least-squares solve per channel (variable projection). At the minimiser
-``dL/dC + reg term = 0``, so ``df/dV = dL/dV`` at ``C*`` (the envelope theorem; the uniform
-Laplacian ``L_u`` does not depend on ``V``): the residual moves the geometry, not the colours.
+``dL/dC + prior terms = 0``, so ``df/dV = dL/dV`` at ``C*`` (the envelope theorem; ``L_u`` and
+``K_0`` do not depend on ``V``): the residual moves the geometry, not the colours.
 The vertices are parameterised with large steps (Nicolet et al. 2021,
 :class:`geofit.fit.large_steps.LargeSteps`), and scipy's L-BFGS-B runs on ``u``.
 
@@ -26,13 +31,14 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..ops import uniform_laplacian
+from ..ops import cot_laplacian, uniform_laplacian
 from ..render.mesh.image_term import HardImageLoss
 from ..structures import Mesh
 from .history import TimeUp
 from .large_steps import vertex_parameterization
 
-__all__ = ["RGBRefineResult", "projected_image_loss", "refine_rgb", "solve_vertex_colors"]
+__all__ = ["RGBRefineResult", "dirichlet_stiffness", "interior_masks", "projected_image_loss", "refine_rgb",
+           "solve_vertex_colors"]
 
 
 @dataclass
@@ -62,12 +68,36 @@ class RGBRefineResult:
     stopped: bool = False
 
 
+def dirichlet_stiffness(mesh: Mesh) -> sp.csr_matrix:
+    """(V, V) cotangent stiffness ``K``: ``u^T K u = int |grad u|^2 dA`` for the piecewise-linear
+    function with vertex values ``u`` (symmetric, positive semi-definite, zero row sums)."""
+    L, _ = cot_laplacian(mesh.verts, mesh.faces)
+    return ((sp.diags(np.asarray(L.sum(axis=1)).ravel()) - L) * 0.5).tocsr()
+
+
+def interior_masks(silhouettes, px: int) -> np.ndarray:
+    """(N, H, W) float64: 1 on the pixels at least ``px`` pixels inside the silhouettes
+    (thresholded at 0.5, eroded ``px`` times with the 3 x 3 cross), else 0.
+
+    As the image term's ``masks`` it leaves the outline to the silhouettes: there the hard
+    render and the targets differ by sub-pixel sampling more than by anything the geometry
+    inside the outline does.
+    """
+    from scipy.ndimage import binary_erosion
+
+    inside = np.asarray(silhouettes) > 0.5
+    if px <= 0:
+        return inside.astype(np.float64)
+    return np.stack([binary_erosion(s, iterations=int(px)) for s in inside]).astype(np.float64)
+
+
 class _ColorSolve:
-    """``argmin_C L(V, C) + reg |L_u C|^2 / V`` for one topology (faces fixed, vertices free).
+    """``argmin_C L(V, C) + reg |L_u C|^2 / V + smooth sum_c C_c^T K_0 C_c`` for one topology
+    (faces fixed, vertices free; ``K_0`` of the mesh it is built for).
 
     The normal equations ``(A_c^T A_c / n + R) C_c = A_c^T y_c / n`` (:meth:`HardImageLoss.
-    color_operator`'s ``A``, ``y``; ``n = N H W``; ``R`` the smoothness and a 1e-9 ridge towards
-    grey) are assembled face by face: a ray that hits face ``f`` at barycentrics ``b`` adds
+    color_operator`'s ``A``, ``y``; ``n = N H W``; ``R`` the smoothness terms and a 1e-9 ridge
+    towards grey) are assembled face by face: a ray that hits face ``f`` at barycentrics ``b`` adds
     ``w b b^T`` to ``f``'s 3 x 3 block, so per evaluation the blocks are six bincounts over the
     hits and the matrix is one bincount into a sparsity pattern built once (instead of forming
     the ray-by-vertex ``A`` and ``A^T A``: measured 0.37 -> 0.05 CPU s per evaluation on the
@@ -75,7 +105,7 @@ class _ColorSolve:
     grey (white lights and materials), else one per channel.
     """
 
-    def __init__(self, mesh: Mesh, reg: float):
+    def __init__(self, mesh: Mesh, reg: float, smooth: float = 0.0):
         F = mesh.faces
         Vn = mesh.n_verts
         self.V, self.F, self.reg = Vn, F, reg
@@ -85,7 +115,10 @@ class _ColorSolve:
         self.indptr = np.zeros(Vn + 1, np.int64)
         np.cumsum(np.bincount(uniq // Vn, minlength=Vn), out=self.indptr[1:])
         self.Lu = uniform_laplacian(mesh)
-        self.R = ((self.Lu.T @ self.Lu) * (reg / Vn) + 1e-9 * sp.identity(Vn)).tocsr()
+        self.Q = (self.Lu.T @ self.Lu) * (reg / Vn)  # the smoothness terms' quadratic form
+        if smooth:
+            self.Q = self.Q + smooth * dirichlet_stiffness(mesh)
+        self.R = (self.Q + 1e-9 * sp.identity(Vn)).tocsr()
 
     def _matrix(self, face, bary, w):
         """``sum_hits w b b^T`` scattered onto the vertices (csr, the pattern of the faces)."""
@@ -119,16 +152,18 @@ class _ColorSolve:
                 lhs = self._matrix(h.face, h.bary, m * h.shade[:, c] ** 2) + self.R
                 lu = spla.splu(lhs.tocsc())
             C[:, c] = lu.solve(rhs)
-        LC = self.Lu @ C
-        return C, float(self.reg / self.V * np.sum(LC * LC) + 1e-9 * np.sum((C - 0.5) ** 2))
+        return C, float(np.sum(C * (self.Q @ C)) + 1e-9 * np.sum((C - 0.5) ** 2))
 
 
-def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4) -> np.ndarray:
-    """``argmin_C L(mesh, C) + reg |L_u C|^2 / V`` by one sparse solve per channel."""
-    return _ColorSolve(mesh, reg)(loss, mesh)[0]
+def solve_vertex_colors(loss, mesh: Mesh, reg: float = 1e-4, smooth: float = 0.0
+                        ) -> np.ndarray:
+    """``argmin_C L(mesh, C) + reg |L_u C|^2 / V + smooth sum_c C_c^T K C_c`` by one sparse
+    solve per channel."""
+    return _ColorSolve(mesh, reg, smooth)(loss, mesh)[0]
 
 
-def projected_image_loss(loss, mesh: Mesh, reg: float = 1e-4, solver=None):
+def projected_image_loss(loss, mesh: Mesh, reg: float = 1e-4, solver=None,
+                         smooth: float = 0.0):
     """``f(V) = min_C L(V, C) + reg |L_u C|^2 / V`` and its gradient to the vertices.
 
     The colours are solved (:func:`solve_vertex_colors`); at that minimum the colour gradient
@@ -141,7 +176,10 @@ def projected_image_loss(loss, mesh: Mesh, reg: float = 1e-4, solver=None):
     mesh : Mesh
     reg : float
     solver : _ColorSolve, optional
-        Built once for ``mesh``'s faces and ``reg`` (reused between evaluations).
+        Built once for ``mesh``'s faces, ``reg`` and ``smooth`` (reused between evaluations;
+        its stiffness is that of the mesh it was built for).
+    smooth : float
+        Weight of the colours' Dirichlet energy (when ``solver`` is not given).
 
     Returns
     -------
@@ -150,7 +188,7 @@ def projected_image_loss(loss, mesh: Mesh, reg: float = 1e-4, solver=None):
     colors : (V, 3) float64
         ``C*``.
     """
-    solver = solver if solver is not None else _ColorSolve(mesh, reg)
+    solver = solver if solver is not None else _ColorSolve(mesh, reg, smooth)
     hits = loss.pixel_hits(mesh)  # one cast for the colour solve and the loss
     C, r = solver(loss, mesh, hits)
     value, gv, _ = loss(mesh, C, hits=hits)
@@ -161,7 +199,7 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
                lam: float = 10.0, reg: float = 1e-4, maxiter: int = 30,
                supersample: int = 2, time_budget: float | None = None,
                image_weight: float = 1.0, extra=None, masks=None,
-               clock=None) -> RGBRefineResult:
+               clock=None, smooth: float = 0.0) -> RGBRefineResult:
     """Refine ``mesh`` against RGB ``images`` (variable projection of the colours, L-BFGS).
 
     Parameters
@@ -176,7 +214,10 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     lam : float
         Large-steps weight (0: plain vertex positions).
     reg : float
-        Colour smoothness weight.
+        Weight of the colours' uniform-Laplacian smoothness ``|L_u C|^2 / V``.
+    smooth : float
+        Weight of the colours' Dirichlet energy ``int |grad C|^2 dA`` (cotangent stiffness of
+        ``mesh``, held fixed during the refinement; 0: none).
     maxiter : int
         L-BFGS iterations.
     supersample : int
@@ -206,7 +247,7 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
                          supersample=supersample, masks=masks)
     F = mesh.faces
     param = vertex_parameterization(mesh, lam)
-    solver = _ColorSolve(mesh, reg)  # the faces are fixed: pattern and smoothness once
+    solver = _ColorSolve(mesh, reg, smooth)  # the faces are fixed: pattern and priors once
     u0 = param.to_params(mesh.verts).ravel()
     values: list = []
     best = {"value": np.inf, "V": mesh.verts, "C": None}
