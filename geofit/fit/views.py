@@ -291,9 +291,10 @@ class ViewsFitOptions:
         the geometry's to explain rather than the colours' (0: none). Measured from the
         default's silhouette mesh (``benchmarks/fit_views_shade.py stage``), 1e-4: F@0.01
         Suzanne 0.643 -> 0.646, fandisk 0.400 -> 0.403, thin plate 0.378 -> 0.378 (5
-        iterations); 0.656 -> 0.663 on Suzanne with 20. The least-squares colours keep
-        ~90 % of the image term's curvature around the truth (``scan``), so what the colours
-        absorb is not what holds the geometry back.
+        iterations); with 20 iterations Suzanne 0.656 -> 0.663, fandisk 0.412 -> 0.412, thin
+        plate 0.406 -> 0.401. The least-squares colours keep ~90 % of the image term's
+        curvature around the truth (``scan``), so what the colours absorb is not what holds
+        the geometry back.
     rgb_inner_px : int
         The RGB stage's image term only on the pixels this many pixels or more inside the
         target silhouettes (0: on every pixel): the outline is the silhouettes' to fit.
