@@ -226,24 +226,37 @@ def test_robust_rounds_never_increase_the_objective(small):
     assert u.min() < 0.5 and u.max() <= 1.0  # the random targets disagree: some rays weigh less
 
 
-def test_robust_texture_ignores_a_too_wide_outline(scene):
-    """Every view's outermost ring of object pixels replaced by the background (what a fitted
-    outline one pixel too wide sees): least squares pulls the texels those rays hit towards
-    white, and the other views show that pale rim inside the object; Cauchy's robust solve
-    keeps it out (renders of the images' interiors, the ring excluded, closer to the truth)."""
+@pytest.fixture(scope="module")
+def too_wide(scene):
+    """``(bad, inner)``: the scene's images with every view's outermost ring of object pixels
+    replaced by the background (what a fitted outline one pixel too wide sees), and the
+    (N, H, W) interiors without that ring."""
     from scipy.ndimage import binary_erosion
 
-    cams, mesh, images = scene
+    _, _, images = scene
     obj = np.any(images < 1.0, axis=-1)
     inner = np.stack([binary_erosion(o) for o in obj])
     bad = images.copy()
     bad[obj & ~inner] = 1.0
-    err = {}
-    for robust in (None, 2.0):  # least squares, Cauchy
-        tex = fit_texture(mesh, cams, bad, lights=LIGHTS, robust=robust)
+    return bad, inner
+
+
+@pytest.mark.parametrize("keeps_it_out", [dict(robust=2.0), dict(outline_weight=0.03)],
+                         ids=["cauchy", "outline_weights"])
+def test_texture_keeps_a_too_wide_outline_out(scene, too_wide, keeps_it_out):
+    """On the too-wide-outline images plain least squares pulls the texels the ring's rays hit
+    towards white, and the other views show that pale rim inside the object; Cauchy's robust
+    solve, or least squares with the outline rays down-weighted (ray_reliability), keeps it
+    out (renders of the images' interiors > 3 dB closer to the truth)."""
+    cams, mesh, images = scene
+    bad, inner = too_wide
+    err = []
+    for kw in (dict(robust=None, outline_weight=None),  # plain least squares
+               dict(dict(robust=None, outline_weight=None), **keeps_it_out)):
+        tex = fit_texture(mesh, cams, bad, lights=LIGHTS, **kw)
         img = _render(Mesh(mesh.verts, mesh.faces, tex), cams, 32)
-        err[robust] = psnr(img[inner], images[inner])
-    assert err[2.0] > err[None] + 3.0
+        err.append(psnr(img[inner], images[inner]))
+    assert err[1] > err[0] + 3.0
 
 
 def test_leave_views_out_equals_solving_without_the_fold(small):
@@ -275,15 +288,11 @@ def test_leave_views_out_equals_solving_without_the_fold(small):
         leave_views_out(problem, 7, 2)
 
 
-def test_check_keeps_the_robust_texture_where_it_predicts_better(scene):
+def test_check_keeps_the_robust_texture_where_it_predicts_better(scene, too_wide):
     """On the too-wide-outline images the leave-views-out check keeps the robust texels (the
     same texture as without the check)."""
-    from scipy.ndimage import binary_erosion
-
-    cams, mesh, images = scene
-    obj = np.any(images < 1.0, axis=-1)
-    bad = images.copy()
-    bad[obj & ~np.stack([binary_erosion(o) for o in obj])] = 1.0
+    cams, mesh, _ = scene
+    bad, _ = too_wide
     checked = fit_texture(mesh, cams, bad, lights=LIGHTS)
     unchecked = fit_texture(mesh, cams, bad, lights=LIGHTS, check_folds=0)
     plain = fit_texture(mesh, cams, bad, lights=LIGHTS, robust=None)
@@ -453,23 +462,3 @@ def test_ray_weights_scale_the_residuals(small):
         ray_reliability(loss, mesh, outline_weight=-0.1)
     with pytest.raises(ValueError, match="outline_px"):
         ray_reliability(loss, mesh, outline_px=-1.0)
-
-
-def test_outline_weights_keep_a_too_wide_outline_out(scene):
-    """The too-wide-outline images (every view's outermost ring of object pixels replaced by
-    the background): least squares with the outline rays down-weighted keeps the pale rim out
-    of the texture as Cauchy's robust solve does (interior renders > 3 dB closer to the truth
-    than unweighted least squares)."""
-    from scipy.ndimage import binary_erosion
-
-    cams, mesh, images = scene
-    obj = np.any(images < 1.0, axis=-1)
-    inner = np.stack([binary_erosion(o) for o in obj])
-    bad = images.copy()
-    bad[obj & ~inner] = 1.0
-    err = {}
-    for ow in (None, 0.03):  # unweighted, outline rays down-weighted
-        tex = fit_texture(mesh, cams, bad, lights=LIGHTS, robust=None, outline_weight=ow)
-        img = _render(Mesh(mesh.verts, mesh.faces, tex), cams, 32)
-        err[ow] = psnr(img[inner], images[inner])
-    assert err[0.03] > err[None] + 3.0
