@@ -536,8 +536,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         evaluator or callback you pass. The geometry leaves :data:`FINAL_STAGE_SHARE` of it
         (15 % with ``texture="uv"``) to the final stage: the colours (one sparse solve) and
         the UV texture (one sparse solve); the silhouette stage shares the rest over its
-        solves and the RGB stage gets what it leaves (on the cow's 20 views of 128 px, a
-        30 s budget leaves none: the silhouettes' geometry is what the budget buys first).
+        solves and the RGB stage gets what it leaves (the silhouettes' geometry is what a
+        short budget buys first; on the cow's 20 views of 128 px a 30 s budget left the RGB
+        stage nothing in our runs).
         If the budget is spent before the texture, the mesh keeps its vertex colours and the
         ``"texture"`` stage says so. A budget used up while carving the hull returns the
         unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
