@@ -9,6 +9,7 @@ from geofit.fit.texture import (
     chart_laplacian,
     fit_texture,
     leave_views_out,
+    ray_reliability,
     robust_scale,
     texel_charts,
     texel_operator,
@@ -103,7 +104,8 @@ def test_texel_operator_reproduces_the_textured_render(scene):
 def test_fit_texture_holds_the_images(scene):
     """The solved texture re-renders the training views closely (> 38 dB; the vertex-coloured
     truth is smooth), robust or not, and the gradient of the least-squares objective vanishes
-    at the least-squares texture where no texel was clipped."""
+    at the least-squares texture where no texel was clipped (the rays weighted as
+    fit_texture weighs them)."""
     cams, mesh, images = scene
     rob = fit_texture(mesh, cams, images, lights=LIGHTS)
     assert psnr(_render(Mesh(mesh.verts, mesh.faces, rob), cams, 32), images) > 38.0
@@ -112,8 +114,9 @@ def test_fit_texture_holds_the_images(scene):
     img = _render(Mesh(mesh.verts, mesh.faces, tex), cams, 32)
     assert psnr(img, images) > 38.0
     size = tex.maps.shape[:2]
-    problem, _ = texture_problem(HardImageLoss(cams, images, lights=LIGHTS), mesh,
-                                 tex.faces_uvs, tex.verts_uvs, size)
+    loss = HardImageLoss(cams, images, lights=LIGHTS)
+    problem, _ = texture_problem(loss, mesh, tex.faces_uvs, tex.verts_uvs, size,
+                                 ray_weights=ray_reliability(loss, mesh))
     t = tex.maps.reshape(-1, 3)
     _, g = problem(t)
     free = (t > 0) & (t < 1)
@@ -171,15 +174,19 @@ def test_texel_operator_transpose_dot_product(small):
         assert (A[c] @ x) @ z == pytest.approx(x @ (A[c].T @ z), rel=1e-12, abs=1e-12)
 
 
-@pytest.mark.parametrize("data_term, robust", [(True, None), (False, None), (True, 0.3)])
-def test_texture_objective_gradient_matches_finite_differences(small, data_term, robust):
+@pytest.mark.parametrize("data_term, robust, weighted", [
+    (True, None, False), (False, None, False), (True, 0.3, False), (True, None, True),
+    (True, 0.3, True)])
+def test_texture_objective_gradient_matches_finite_differences(small, data_term, robust,
+                                                                weighted):
     """The gradient of TextureProblem (data + within-chart Laplacian + prior; the smoothness
-    and prior terms alone; Cauchy's robust data term) against central differences in
-    float64."""
+    and prior terms alone; Cauchy's robust data term; each with the rays weighted by
+    ray_reliability) against central differences in float64."""
     cams, mesh, fuv, vuv, size, loss, t = small
     prior = np.random.default_rng(7).uniform(0, 1, (mesh.n_verts, 3))
+    u = ray_reliability(loss, mesh, outline_weight=0.2) if weighted else None
     problem, _ = texture_problem(loss, mesh, fuv, vuv, size, smoothness=0.3, prior=prior,
-                                 prior_weight=0.05)
+                                 prior_weight=0.05, ray_weights=u)
     problem.robust_scale = robust
     if not data_term:  # the regularisers alone (the scale s_c still from A)
         s = [problem.scale(c) for c in range(3)]
@@ -219,24 +226,37 @@ def test_robust_rounds_never_increase_the_objective(small):
     assert u.min() < 0.5 and u.max() <= 1.0  # the random targets disagree: some rays weigh less
 
 
-def test_robust_texture_ignores_a_too_wide_outline(scene):
-    """Every view's outermost ring of object pixels replaced by the background (what a fitted
-    outline one pixel too wide sees): least squares pulls the texels those rays hit towards
-    white, and the other views show that pale rim inside the object; Cauchy's robust solve
-    keeps it out (renders of the images' interiors, the ring excluded, closer to the truth)."""
+@pytest.fixture(scope="module")
+def too_wide(scene):
+    """``(bad, inner)``: the scene's images with every view's outermost ring of object pixels
+    replaced by the background (what a fitted outline one pixel too wide sees), and the
+    (N, H, W) interiors without that ring."""
     from scipy.ndimage import binary_erosion
 
-    cams, mesh, images = scene
+    _, _, images = scene
     obj = np.any(images < 1.0, axis=-1)
     inner = np.stack([binary_erosion(o) for o in obj])
     bad = images.copy()
     bad[obj & ~inner] = 1.0
-    err = {}
-    for robust in (None, 2.0):  # least squares, Cauchy
-        tex = fit_texture(mesh, cams, bad, lights=LIGHTS, robust=robust)
+    return bad, inner
+
+
+@pytest.mark.parametrize("keeps_it_out", [dict(robust=2.0), dict(outline_weight=0.03)],
+                         ids=["cauchy", "outline_weights"])
+def test_texture_keeps_a_too_wide_outline_out(scene, too_wide, keeps_it_out):
+    """On the too-wide-outline images plain least squares pulls the texels the ring's rays hit
+    towards white, and the other views show that pale rim inside the object; Cauchy's robust
+    solve, or least squares with the outline rays down-weighted (ray_reliability), keeps it
+    out (renders of the images' interiors > 3 dB closer to the truth)."""
+    cams, mesh, images = scene
+    bad, inner = too_wide
+    err = []
+    for kw in (dict(robust=None, outline_weight=None),  # plain least squares
+               dict(dict(robust=None, outline_weight=None), **keeps_it_out)):
+        tex = fit_texture(mesh, cams, bad, lights=LIGHTS, **kw)
         img = _render(Mesh(mesh.verts, mesh.faces, tex), cams, 32)
-        err[robust] = psnr(img[inner], images[inner])
-    assert err[2.0] > err[None] + 3.0
+        err.append(psnr(img[inner], images[inner]))
+    assert err[1] > err[0] + 3.0
 
 
 def test_leave_views_out_equals_solving_without_the_fold(small):
@@ -268,15 +288,11 @@ def test_leave_views_out_equals_solving_without_the_fold(small):
         leave_views_out(problem, 7, 2)
 
 
-def test_check_keeps_the_robust_texture_where_it_predicts_better(scene):
+def test_check_keeps_the_robust_texture_where_it_predicts_better(scene, too_wide):
     """On the too-wide-outline images the leave-views-out check keeps the robust texels (the
     same texture as without the check)."""
-    from scipy.ndimage import binary_erosion
-
-    cams, mesh, images = scene
-    obj = np.any(images < 1.0, axis=-1)
-    bad = images.copy()
-    bad[obj & ~np.stack([binary_erosion(o) for o in obj])] = 1.0
+    cams, mesh, _ = scene
+    bad, _ = too_wide
     checked = fit_texture(mesh, cams, bad, lights=LIGHTS)
     unchecked = fit_texture(mesh, cams, bad, lights=LIGHTS, check_folds=0)
     plain = fit_texture(mesh, cams, bad, lights=LIGHTS, robust=None)
@@ -393,3 +409,56 @@ def test_fit_texture_validation(scene):
         fit_texture(mesh, cams, images, prior=np.zeros((mesh.n_verts, 3)), prior_weight=0.0)
     with pytest.raises(ValueError, match="no view sees the mesh"):
         fit_texture(mesh, cams, images, masks=np.zeros(images.shape[:3]))
+
+
+# ------------------------------------------------------------------------------------------
+# the rays' reliability weights
+# ------------------------------------------------------------------------------------------
+
+
+def test_ray_reliability_matches_a_loop_reference(small):
+    """Each covered ray weighs |cos| of its angle to the face normal, times outline_weight
+    when a ray of its view that misses lies within outline_px pixels (a loop over rays and a
+    brute-force nearest miss); misses weigh 1; all weights in [0, 1]."""
+    cams, mesh, fuv, vuv, size, loss, _ = small
+    u = ray_reliability(loss, mesh, outline_weight=0.25, outline_px=1.5)
+    hits = loss.pixel_hits(mesh)
+    H, W = loss.image_size
+    N = len(cams)
+    covered = np.zeros(N * H * W, bool)
+    covered[hits.ray] = True
+    ref = np.ones(N * H * W)
+    nrm = mesh.face_normals
+    for i, r in enumerate(hits.ray):  # reference: one ray at a time
+        d = hits.dirs[i] / np.linalg.norm(hits.dirs[i])
+        w = abs(float(nrm[hits.face[i]] @ d))
+        v, rem = divmod(int(r), H * W)
+        row, col = divmod(rem, W)
+        miss = np.argwhere(~covered[v * H * W:(v + 1) * H * W].reshape(H, W))
+        if len(miss) and np.hypot(*(miss - [row, col]).T).min() <= 1.5:
+            w *= 0.25
+        ref[r] = w
+    np.testing.assert_allclose(u, ref, rtol=1e-12, atol=1e-15)
+    assert u.min() >= 0 and u.max() <= 1 and np.any(u[hits.ray] < 0.25)
+
+
+def test_ray_weights_scale_the_residuals(small):
+    """texture_problem with ray_weights u has residuals sqrt(u) times those without (the
+    same affine map, rows scaled), so its data term is sum_i u_i |r_i|^2."""
+    cams, mesh, fuv, vuv, size, loss, t = small
+    u = np.random.default_rng(12).uniform(0.0, 1.0, len(cams) * 12 * 12)
+    plain, _ = texture_problem(loss, mesh, fuv, vuv, size)
+    weighted, _ = texture_problem(loss, mesh, fuv, vuv, size, ray_weights=u)
+    x = t.reshape(-1, 3)
+    np.testing.assert_allclose(weighted.residuals(x), np.sqrt(u)[:, None] * plain.residuals(x),
+                               rtol=1e-12, atol=1e-14)
+    with pytest.raises(ValueError, match="ray_weights"):
+        texture_problem(loss, mesh, fuv, vuv, size, ray_weights=u[:-1])
+    with pytest.raises(ValueError, match="ray_weights"):
+        texture_problem(loss, mesh, fuv, vuv, size, ray_weights=-u)
+    with pytest.raises(ValueError, match="outline_weight"):
+        ray_reliability(loss, mesh, outline_weight=1.5)
+    with pytest.raises(ValueError, match="outline_weight"):
+        ray_reliability(loss, mesh, outline_weight=-0.1)
+    with pytest.raises(ValueError, match="outline_px"):
+        ray_reliability(loss, mesh, outline_px=-1.0)

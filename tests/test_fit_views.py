@@ -528,18 +528,27 @@ def test_final_large_steps_is_the_last_levels_lambda(data):
         fit_mesh_to_views(data, options=ViewsFitOptions(final_large_steps=-1.0), progress=False)
 
 
-def test_rgb_stage_gets_its_share_of_the_time_budget(data):
-    """With a time budget the silhouette stage ends at the start of the RGB stage's share
-    (its message says so) instead of spending the geometry's whole part, the RGB stage then
-    runs in its share and ends by the budget without letting the clock's TimeUp escape, and
-    the colours and texture still come after it."""
-    res = fit_mesh_to_views(data, options=ViewsFitOptions(
-        init=ico_sphere(2), silhouette_iters=10 ** 6, rgb_iters=10 ** 4), time_budget=3.0,
-        progress=False)
-    names = [s["name"] for s in res.stages]
-    assert names[:3] == ["silhouette", "rgb", "textured"]
+def test_rgb_stage_gets_what_the_silhouette_stage_leaves(data):
+    """With a time budget the silhouette stage may spend the geometry's whole part: a
+    silhouette stage without an iteration limit ends by the budget and the RGB stage is not
+    run (and says so); one that ends early leaves the rest to the RGB stage, which runs and
+    ends by the budget without letting the clock's TimeUp escape; the colours and texture
+    come after it either way."""
+    def fit(sil_iters, budget):
+        return fit_mesh_to_views(data, options=ViewsFitOptions(
+            init=ico_sphere(2), silhouette_iters=sil_iters, rgb_iters=10 ** 4),
+            time_budget=budget, progress=False)
+
+    res = fit(10 ** 6, 3.0)
+    assert [s["name"] for s in res.stages][:3] == ["silhouette", "rgb", "textured"]
     sil, rgb = res.stages[0], res.stages[1]
-    assert sil["status"] == "time_budget" and "share" in sil["message"]
+    assert sil["status"] == "time_budget"
+    assert rgb["status"] == "time_budget" and rgb["seconds"] == 0.0
+    assert "not run" in rgb["message"]
+    res = fit(2, 6.0)
+    assert [s["name"] for s in res.stages][:3] == ["silhouette", "rgb", "textured"]
+    sil, rgb = res.stages[0], res.stages[1]
+    assert sil["status"] != "time_budget"
     assert rgb["status"] == "time_budget" and rgb["seconds"] > 0
     assert res.status == "time_budget" and np.all(np.isfinite(res.mesh.verts))
 

@@ -7,7 +7,9 @@
   in the texels: a covered ray shows ``shade * texture(uv) + specular``, ``texture(uv)`` a
   bilinear lookup of four texels (PyTorch3D's ``TexturesUV`` sampling, ``align_corners=True``,
   border padding). Stacking every ray of every view gives one sparse operator ``A_c``
-  (:func:`texel_operator`) per channel, and the texels minimise the quadratic
+  (:func:`texel_operator`) per channel, each ray weighted by how reliably a fitted surface
+  shows it the right texel (:func:`ray_reliability`: face-on rays, away from the mesh's
+  outline, count most), and the texels minimise the quadratic
   :class:`TextureProblem`: the data term, a within-chart Laplacian (4-neighbours; texels of
   two charts are never linked, so nothing bleeds across a seam: :func:`texel_charts`,
   :func:`chart_laplacian`) that fills texels no view sees and damps the views' disagreement on
@@ -36,7 +38,7 @@ from ..structures import Mesh, TexturesUV, as_mesh
 from ..structures.visual_hull import pixel_footprint
 
 __all__ = ["TexelCharts", "TextureProblem", "chart_laplacian", "fit_texture", "leave_views_out",
-           "robust_scale", "texel_charts", "texel_operator", "texture_problem", "uv_atlas",
+           "ray_reliability", "robust_scale", "texel_charts", "texel_operator", "texture_problem", "uv_atlas",
            "uv_charts"]
 
 
@@ -106,7 +108,7 @@ def _bilinear(uv: np.ndarray, size: tuple[int, int]):
     return ids, w
 
 
-def texel_operator(loss, mesh: Mesh, faces_uvs, verts_uvs, size):
+def texel_operator(loss, mesh: Mesh, faces_uvs, verts_uvs, size, hits=None):
     """``(A, y)``: the loss's residual as an affine map of the texels (geometry fixed).
 
     ``loss(mesh with TexturesUV(t)) = 1/(N H W) sum_c |A[c] t[..., c].ravel() - y[:, c]|^2``.
@@ -119,6 +121,8 @@ def texel_operator(loss, mesh: Mesh, faces_uvs, verts_uvs, size):
     verts_uvs : (T, 2) float64
     size : (2,) int
         ``(H, W)`` of the texture.
+    hits : PixelRayHits, optional
+        ``loss.pixel_hits(mesh)``, if already cast.
 
     Returns
     -------
@@ -126,11 +130,68 @@ def texel_operator(loss, mesh: Mesh, faces_uvs, verts_uvs, size):
     y : (R, 3) float64
     """
 
-    h = loss.shaded_hits(mesh)
+    h = loss.shaded_hits(mesh, hits)
     uv = np.einsum("kj,kjd->kd", h.bary, verts_uvs[faces_uvs[h.face]])
     ids, w = _bilinear(uv, size)
     hit_of = np.repeat(np.arange(len(h.ray)), 4)
     return affine_color_operator(loss, h, hit_of, ids.ravel(), w.ravel(), size[0] * size[1])
+
+
+def ray_reliability(loss, mesh: Mesh, hits=None, *, outline_weight: float = 0.03,
+                    outline_px: float = 1.0) -> np.ndarray:
+    """(R,) float64 weight of every ray of ``loss`` in the texels' data term, by how far an
+    error of the geometry moves what the ray sees.
+
+    A covered ray weighs ``|cos theta|`` (``theta`` between the ray and the normal of the face
+    it hits): a surface off the true one by ``d`` shows the ray the true texture ``d tan
+    theta`` away, so grazing rays carry the most misplaced colour. A covered ray within
+    ``outline_px`` pixels of the mesh's own outline in its view (the distance to the nearest
+    ray that misses) is further multiplied by ``outline_weight``: there a fitted outline that
+    is off by a fraction of a pixel sees the background or the other side of the object.
+    Rays that miss weigh 1 (they hold no texel).
+
+    Parameters
+    ----------
+    loss : HardImageLoss
+    mesh : Mesh
+    hits : PixelRayHits, optional
+        ``loss.pixel_hits(mesh)``, if already cast.
+    outline_weight : float
+        In [0, 1].
+    outline_px : float
+        Width of the outline band in pixels (>= 0).
+
+    Returns
+    -------
+    (R,) float64
+        In [0, 1]; ``R = N H W s^2`` rays in the loss's order.
+
+    Raises
+    ------
+    ValueError
+        If ``outline_weight`` is not in [0, 1] or ``outline_px`` is negative.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    mesh = as_mesh(mesh, "mesh")
+    w_out = check_positive(outline_weight, "outline_weight", strict=False)
+    if w_out > 1.0:
+        raise ValueError(f"outline_weight: expected a value in [0, 1], got {w_out}")
+    band = check_positive(outline_px, "outline_px", strict=False) * loss.supersample
+    h = loss.pixel_hits(mesh) if hits is None else hits
+    N = len(loss.cameras)
+    sH, sW = (k * loss.supersample for k in loss.image_size)
+    n = mesh.face_normals[h.face]
+    d = h.dirs / np.linalg.norm(h.dirs, axis=1, keepdims=True)
+    w = np.ones(N * sH * sW)
+    w[h.ray] = np.abs(np.einsum("kd,kd->k", n, d))
+    covered = np.zeros(N * sH * sW, bool)
+    covered[h.ray] = True
+    dist = np.stack([distance_transform_edt(c) for c in covered.reshape(N, sH, sW)])  # views
+    near = np.zeros(N * sH * sW, bool)
+    near[h.ray] = dist.reshape(-1)[h.ray] <= band
+    w[near] *= w_out
+    return w
 
 
 def _uv_pixels(faces_uvs, verts_uvs, size) -> np.ndarray:
@@ -371,7 +432,8 @@ class TextureProblem:
 
 
 def texture_problem(loss, mesh: Mesh, faces_uvs, verts_uvs, size, *, smoothness: float = 1e-2,
-                    prior=None, prior_weight: float = 1e-3) -> tuple[TextureProblem, TexelCharts]:
+                    prior=None, prior_weight: float = 1e-3, ray_weights=None,
+                    hits=None) -> tuple[TextureProblem, TexelCharts]:
     """The texels' objective (:class:`TextureProblem`) for ``mesh`` under ``loss``.
 
     Parameters
@@ -388,6 +450,11 @@ def texture_problem(loss, mesh: Mesh, faces_uvs, verts_uvs, size, *, smoothness:
     prior_weight : float
         ``w`` of the texels a chart reads; free texels (read by no face) get 1e-9 and the
         prior's mean.
+    ray_weights : (R,) float64, optional
+        Non-negative weight of every ray's squared residual (e.g. :func:`ray_reliability`):
+        the rows of ``A_c`` and ``y`` are scaled by its square root. Default 1.
+    hits : PixelRayHits, optional
+        ``loss.pixel_hits(mesh)``, if already cast.
 
     Returns
     -------
@@ -397,10 +464,17 @@ def texture_problem(loss, mesh: Mesh, faces_uvs, verts_uvs, size, *, smoothness:
     Raises
     ------
     ValueError
-        If ``smoothness`` or ``prior_weight`` is not positive or ``prior`` is not ``(V, 3)``.
+        If ``smoothness`` or ``prior_weight`` is not positive, ``prior`` is not ``(V, 3)`` or
+        ``ray_weights`` is not ``(R,)``, finite and non-negative.
     """
     smoothness = check_positive(smoothness, "smoothness")
-    A, y = texel_operator(loss, mesh, faces_uvs, verts_uvs, size)
+    A, y = texel_operator(loss, mesh, faces_uvs, verts_uvs, size, hits)
+    if ray_weights is not None:
+        u = as_array(ray_weights, "ray_weights", (y.shape[0],))
+        if np.any(u < 0):
+            raise ValueError("ray_weights: expected non-negative weights, got a negative one")
+        r = sp.diags(np.sqrt(u))
+        A, y = [(r @ a).tocsr() for a in A], y * np.sqrt(u)[:, None]
     charts = texel_charts(faces_uvs, verts_uvs, size)
     n = size[0] * size[1]
     used = charts.face >= 0
@@ -474,9 +548,9 @@ def leave_views_out(problem: TextureProblem, n_views: int, n_folds: int,
 
 def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=None,
                 background=(1.0, 1.0, 1.0), texel_px: float = 1.0, smoothness: float = 1e-2,
-                prior=None, prior_weight: float = 1e-3, robust: float | None = 2.0,
-                robust_rounds: int = 4, check_folds: int = 2, supersample: int = 1,
-                max_resolution: int = 2048) -> TexturesUV:
+                prior=None, prior_weight: float = 1e-5, outline_weight: float | None = 0.03,
+                robust: float | None = 2.0, robust_rounds: int = 4, check_folds: int = 4,
+                supersample: int = 1, max_resolution: int = 2048) -> TexturesUV:
     """A UV texture for ``mesh`` from images, by sparse (robust) least squares.
 
     Parameters
@@ -503,7 +577,15 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
     prior : (V, 3) float64, optional
         Vertex colours for texels no view sees (see :func:`texture_problem`).
     prior_weight : float
-        Weight of the prior, relative to a seen texel's data weight.
+        Weight of the prior, relative to a seen texel's data weight (default 1e-5: on a
+        fitted surface the blurred vertex colours pulled seen texels too; 1e-3 cost the cow
+        0.1-0.3 dB).
+    outline_weight : float or None
+        Rays weighted by :func:`ray_reliability` (``|cos theta|`` to the face hit, times
+        ``outline_weight`` within one pixel of the mesh's outline in the ray's view), so that
+        the views that see a surface face-on and away from its outline decide its texels;
+        None: every ray weighs 1. On the default fit's geometry (see Notes) this with
+        ``check_folds=4`` raised the cow's held-out PSNR 27.12 -> 27.45 dB.
     robust : float or None
         Cauchy's scale ``C`` of the data term (:class:`TextureProblem`) in robust standard
         deviations (1.4826 times the median) of the rays' residuals after the least-squares
@@ -520,7 +602,9 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
         of views, the robust weights of the full solve held; 0: no check). On an exact
         geometry Cauchy's scale (a multiple of the median residual, there ~0) drops the rays
         that carry the texture's sharp detail (the true cow: 34.1 dB least squares, 29.0
-        robust); the check keeps least squares there.
+        robust); the check keeps least squares there. Default 4: with 2 folds each solve
+        sees half the views and the check kept least squares where the robust texels
+        predicted the held-out views better (cow 27.12 against 27.29 dB).
     max_resolution : int
         Largest side of the texture image.
 
@@ -533,7 +617,8 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
     ------
     ValueError
         If the images do not match the cameras, ``texel_px``, ``smoothness`` or ``robust`` is
-        not positive, ``robust_rounds`` is negative, or no view sees the mesh.
+        not positive, ``robust_rounds`` is negative, ``outline_weight`` is not in [0, 1], or
+        no view sees the mesh.
 
     Notes
     -----
@@ -545,19 +630,32 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
     shapes and above the vertex colours on 9 (fandisk 27.34, torus 31.64; the ogre and the
     thin plate 0.03-0.04 dB below them). On the exact geometry the check keeps least squares
     (the cow: 34.08 dB; the robust texels alone 28.97).
+
+    Where the cow's held-out error lies (default fit, 16 held-out views, texture before the
+    ray weights: 27.12 dB): 60 % on the 889 outline pixels where the fit's coverage differs
+    from the truth's (612 covered too wide, 277 missed; without them 31.1 dB), 3 % on
+    interior pixels that read a chart's border texels, the rest inside. On the true surface
+    the same solve gives 34.1 dB; a texture solved on the held-out views themselves, on the
+    fitted surface, 28.7 dB (texel_px 0.5: 28.8): what any texture on that geometry can
+    reach. With the ray weights: cow 27.45 dB, teapot 30.45 -> 30.50, fandisk 26.95 -> 27.23,
+    true cow 34.14 -> 34.13.
     """
     mesh = as_mesh(mesh, "mesh")
     loss = HardImageLoss(cameras, images, lights=lights, materials=materials, masks=masks,
                          background=background, supersample=supersample, edges=False)
     texel_px = check_positive(texel_px, "texel_px")
     lam = check_positive(smoothness, "smoothness")
+    hits = loss.pixel_hits(mesh)
+    u = None if outline_weight is None else ray_reliability(loss, mesh, hits,
+                                                            outline_weight=outline_weight)
     k = None if robust is None else check_positive(robust, "robust")
     rounds = check_int(robust_rounds, "robust_rounds", 0)
     folds = check_int(check_folds, "check_folds", 0)
     px = pixel_footprint(cameras, loss.image_size, mesh.verts.mean(axis=0))
     faces_uvs, verts_uvs, size = uv_atlas(mesh, texel_px * px, max_resolution=max_resolution)
     problem, _ = texture_problem(loss, mesh, faces_uvs, verts_uvs, size, smoothness=lam,
-                                 prior=prior, prior_weight=prior_weight)
+                                 prior=prior, prior_weight=prior_weight, ray_weights=u,
+                                 hits=hits)
     t = problem.solve()
     if k is not None and rounds:
         problem.robust_scale = robust_scale(problem, t, k)

@@ -87,7 +87,6 @@ from .texture import fit_texture
 
 __all__ = [
     "FINAL_STAGE_SHARE",
-    "RGB_STAGE_SHARE",
     "HULL_SILHOUETTE_WEIGHTS",
     "INITS",
     "RECIPES",
@@ -387,11 +386,6 @@ FINAL_STAGE_SHARE = 0.1
 #: The share it leaves with ``texture="uv"`` (the colours and the UV texture: on the cow's 20
 #: views of 128 px the two take 3-5 s under load).
 _TEXTURE_RESERVE = 0.15
-#: Share of the geometry's part of a time budget (the budget minus the final stage's share)
-#: that the silhouette stage leaves to the RGB stage when ``rgb_iters``: about the RGB stage's
-#: part of the cow's unbudgeted default (5 iterations: 13.5 of 74.6 CPU s, measured under
-#: load; benchmarks/results/fit_views_session9_rgb.md).
-RGB_STAGE_SHARE = 0.2
 #: The UV texture's wall time over the vertex colours' (the stage before it, on the same
 #: views): 3.5-5.0 in five fits of the cow and the thin plate at loads 12-22 (both cast every
 #: pixel ray and solve a sparse system, so both slow down alike). With a time budget the
@@ -564,11 +558,14 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         each evaluation), the remeshing and the final stage; not the time spent in the
         evaluator or callback you pass. The geometry leaves :data:`FINAL_STAGE_SHARE` of it
         (15 % with ``texture="uv"``) to the final stage: the colours (one sparse solve) and
-        the UV texture (one sparse solve); of the rest the silhouette stage shares all but
-        :data:`RGB_STAGE_SHARE` over its solves, which the RGB stage gets. If the
-        budget is spent before the texture, or what is left is less than the texture's
+        the UV texture (one sparse solve); the silhouette stage shares the rest over its
+        solves and the RGB stage gets what it leaves (the silhouettes' geometry is what a
+        short budget buys first; on the cow's 20 views of 128 px a 30 s budget left the RGB
+        stage nothing in our runs).
+        If the budget is spent before the texture, or what is left is less than the texture's
         predicted time (five times the colours' stage, as measured under load), the mesh
-        keeps its vertex colours and the ``"texture"`` stage says so. A budget used up while carving the hull returns the
+        keeps its vertex colours and the ``"texture"`` stage says so. A budget used up while
+        carving the hull returns the
         unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
         no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
         about 52 s wall and 79 CPU s on 2 cores (quiet machine, load 1.6; the RGB stage about
@@ -605,13 +602,11 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
     initial_mesh(plan, run)
     sil_mesh = plan.init
     # the geometry (its checks inside evaluations too) ends where the final stage's share of
-    # the budget begins; the silhouette stage leaves the RGB stage its share before that
+    # the budget begins; the RGB stage gets what the silhouette stage leaves of it
     geometry_end = None if plan.time_budget is None else plan.time_budget - plan.reserve
     with run.clock.until(geometry_end):
         if plan.silhouette_method != "none":
-            with run.clock.until(None if geometry_end is None else
-                                 geometry_end - plan.rgb_reserve):
-                sil_mesh = _silhouette_stage(plan, run)
+            sil_mesh = _silhouette_stage(plan, run)
             if plan.rgb_iters and (not run.stages or run.stages[-1]["status"] not in
                                    ("nonfinite", "failed", "callback")):
                 sil_mesh = _rgb_stage(plan, run, sil_mesh)
@@ -666,7 +661,6 @@ class _Plan:
     texture: str = "vertex"
     texel_px: float = 1.0
     reserve: float = 0.0  # seconds of the budget the geometry leaves to colours and texture
-    rgb_reserve: float = 0.0  # seconds the silhouette stage leaves to the RGB stage
     hull_upsample: int = 1
     hull_close_px: float = 0.0
     hull_fill_px: float = 0.0
@@ -746,8 +740,6 @@ class _Plan:
         if rgb_iters and dataset.images is None:
             raise ValueError("options.rgb_iters: the RGB refinement needs RGB images "
                              "(dataset.images is None)")
-        rgb_reserve = 0.0 if time_budget is None or not rgb_iters or sm == "none" else \
-            RGB_STAGE_SHARE * (time_budget - reserve)
         return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
                    o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
                    check_positive(o.lr, "options.lr"),
@@ -755,7 +747,7 @@ class _Plan:
                    check_positive(o.adam_lr, "options.adam_lr"), o.faces_per_pixel,
                    check_positive(o.color_reg, "options.color_reg", strict=False), threshold,
                    init_name, remesh_rounds, edge_px, texture=o.texture, texel_px=texel_px,
-                   reserve=reserve, rgb_reserve=rgb_reserve,
+                   reserve=reserve,
                    hull_upsample=check_int(o.hull_upsample, "options.hull_upsample"),
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
