@@ -288,12 +288,24 @@ def _naive_rasterize(xy, z, faces, H, W, blur, K, persp, clip, zclip):
     return out
 
 
-@pytest.mark.parametrize("persp,clip,K", [(True, True, 3), (False, True, 50), (True, False, 2),
-                                          (False, False, 4)])
-def test_rasterizer_matches_naive_loop(persp, clip, K):
+def _with_sliver(mesh: Mesh) -> Mesh:
+    """``mesh`` plus a sliver face in front of it whose shortest edge (5e-5) projects to a
+    degenerate segment (squared NDC length <= 1e-8) while its area does not vanish."""
+    V = np.vstack([mesh.verts, [[0.0, 0.0, 1.2], [5e-5, 0.0, 1.2], [0.0, 0.5, 1.2]]])
+    n = len(mesh.verts)
+    return Mesh(V, np.vstack([mesh.faces, [[n, n + 1, n + 2]]]))
+
+
+@pytest.mark.parametrize("persp,clip,K,sliver", [
+    (True, True, 3, False), (False, True, 50, False), (True, False, 2, False),
+    (False, False, 4, False), (True, True, 3, True), (False, False, 50, True)])
+def test_rasterizer_matches_naive_loop(persp, clip, K, sliver):
     """Every kept (pixel, face), its rank, signed distance, depth and barycentrics equal the
-    loop reference's (float64, both), including the top-K cut."""
+    loop reference's (float64, both), including the top-K cut and (``sliver``) a face with a
+    degenerate projected edge (the distance to its end point)."""
     mesh = _noisy_mesh(1, seed=5)
+    if sliver:
+        mesh = _with_sliver(mesh)
     R, T = look_at_view_transform(2.2, [15.0, -30.0], [30.0, 200.0])
     cams = FoVPerspectiveCameras(R=R, T=T)
     H, W = 10, 12
@@ -319,6 +331,10 @@ def test_rasterizer_matches_naive_loop(persp, clip, K):
     assert n_entries == len(fr) > 50
     if K <= 3:
         assert fr.stats["truncated_pixels"] > 0
+    if sliver:  # the sliver's short edge is degenerate in every view, and the face is kept
+        d = xy[:, -2] - xy[:, -3]
+        assert np.all(np.sum(d * d, axis=1) <= 1e-8)
+        assert np.any(fr.face == mesh.n_faces - 1)
 
 
 def test_chunking_and_threads_do_not_change_the_result():

@@ -141,15 +141,7 @@ class SoftFragments(DenseFragmentImages):
     @cached_property
     def k(self) -> np.ndarray:
         """(m,) int64 rank of each entry in its pixel (0 = nearest; ties by face index)."""
-        gp = self.global_pixel
-        order = np.lexsort((self.face, self.depth, gp))
-        sg = gp[order]
-        start = np.r_[True, sg[1:] != sg[:-1]] if len(sg) else np.zeros(0, bool)
-        first = np.flatnonzero(start)
-        rank_sorted = np.arange(len(sg)) - np.repeat(first, np.diff(np.r_[first, len(sg)]))
-        rank = np.empty(len(sg), np.int64)
-        rank[order] = rank_sorted
-        return rank
+        return _ranks(self.global_pixel, self.depth, self.face)
 
     def _slots(self):
         return self.global_pixel, self.k, self.faces_per_pixel
@@ -217,6 +209,19 @@ class SoftFragments(DenseFragmentImages):
         for (n, _, _), g in zip(tasks, done):  # each view's chunks in order
             parts[n] = g if parts[n] is None else parts[n] + g
         return sum((p for p in parts if p is not None), np.zeros((V, 3)))
+
+
+def _ranks(gp: np.ndarray, depth: np.ndarray, face: np.ndarray) -> np.ndarray:
+    """(m,) int64 rank of each entry among the entries of its pixel ``gp`` (0 = nearest in
+    ``depth``; ties by ``face``)."""
+    order = np.lexsort((face, depth, gp))
+    sg = gp[order]
+    start = np.r_[True, sg[1:] != sg[:-1]] if len(sg) else np.zeros(0, bool)
+    first = np.flatnonzero(start)
+    rank_sorted = np.arange(len(sg)) - np.repeat(first, np.diff(np.r_[first, len(sg)]))
+    rank = np.empty(len(sg), np.int64)
+    rank[order] = rank_sorted
+    return rank
 
 
 def _grad(x, name, shape):
@@ -290,10 +295,10 @@ class _EntryGeometry:
         self.x0, self.y0, self.z0 = X[i0], Y[i0], Z[i0]
         self.x1, self.y1, self.z1 = X[i1], Y[i1], Z[i1]
         self.x2, self.y2, self.z2 = X[i2], Y[i2], Z[i2]
-        W = fr.image_size[1]
+        H, W = fr.image_size
         pix = fr.pixel[s]
-        self.qx = ctx["px"][pix % W]
-        self.qy = ctx["py"][pix // W]
+        self.qx = np.tile(ctx["px"], H)[pix]  # px[pix % W], py[pix // W]: no integer division
+        self.qy = np.repeat(ctx["py"], W)[pix]
 
     def edge_functions(self):
         qx, qy = self.qx, self.qy

@@ -20,7 +20,7 @@ from ..._validate import as_instance, check_positive
 from ...cameras import CamerasBase
 from ...structures import Mesh, as_mesh
 from .._settings import float_dtype, image_hw
-from .fragments import _EPS, SoftFragments, _map_views, _n_threads
+from .fragments import _EPS, SoftFragments, _EntryGeometry, _map_views, _n_threads, _ranks
 
 __all__ = [
     "TUTORIAL_BLUR_RADIUS",
@@ -387,11 +387,15 @@ def _truncate(f, pix, sd, edge, inside, crowded, x, y, z, faces, px, py, W, K,
               perspective_correct, clip):
     """Keep the K nearest entries (in view depth, ties by face) of the pixels with more."""
     sel = np.flatnonzero(crowded)
-    tmp = SoftFragments(1, (len(py), W), K, np.zeros(len(sel), np.int64), pix[sel], f[sel],
-                        sd[sel], np.array([0, len(sel)]), {}, edge[sel], inside[sel],
-                        {"faces": faces, "x": x[None], "y": y[None], "z": z[None], "px": px,
-                         "py": py, "perspective_correct": perspective_correct, "clip": clip})
-    drop = sel[tmp.k >= K]
+    ps, fs = pix[sel], f[sel]
+    # the entries' view depth as SoftFragments.depth computes it (float64), without the
+    # fragments' other arrays and the barycentrics' copy
+    tmp = SoftFragments(1, (len(py), W), K, None, ps, fs, None, np.array([0, len(sel)]), {},
+                        None, None, {"faces": faces, "x": x[None], "y": y[None], "z": z[None],
+                                     "px": px, "py": py})
+    g = _EntryGeometry(tmp, 0, slice(0, len(sel)))
+    b, _, _ = g.bary(perspective_correct, clip)
+    drop = sel[_ranks(ps, b[0] * g.z0 + b[1] * g.z1 + b[2] * g.z2, fs) >= K]
     keep = np.ones(len(f), bool)
     keep[drop] = False
     return f[keep], pix[keep], sd[keep], edge[keep], inside[keep]
