@@ -528,6 +528,33 @@ def test_final_large_steps_is_the_last_levels_lambda(data):
         fit_mesh_to_views(data, options=ViewsFitOptions(final_large_steps=-1.0), progress=False)
 
 
+def test_final_regularization_scales_the_last_levels_regularisers(data):
+    """``final_regularization`` multiplies the edge / normal / Laplacian / normal-variation
+    weights of the last coarse-to-fine level only: with one level, factor 0.5 is bit-identical
+    to those weights halved (the silhouette weight kept); with two levels the first keeps its
+    weights; a negative factor is refused."""
+    w = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3,
+         "normal_variation": 0.02}
+    half = {k: (v if k == "silhouette" else 0.5 * v) for k, v in w.items()}
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
+             textured_method="none")
+
+    def verts(**kw):
+        return fit_mesh_to_views(data, options=ViewsFitOptions(**o, **kw),
+                                 progress=False).mesh.verts
+
+    a = verts(silhouette_weights=w, final_regularization=0.5)
+    np.testing.assert_array_equal(a, verts(silhouette_weights=half, final_regularization=1.0))
+    assert np.abs(a - verts(silhouette_weights=w, final_regularization=1.0)).max() > 1e-6
+    # two levels: the first keeps the weights as given
+    o["levels"] = ((0, 2), (0, 1))
+    b = verts(silhouette_weights=w, final_regularization=0.5)
+    assert np.abs(b - verts(silhouette_weights=half, final_regularization=1.0)).max() > 1e-6
+    with pytest.raises(ValueError, match="options.final_regularization"):
+        fit_mesh_to_views(data, options=ViewsFitOptions(final_regularization=-1.0),
+                          progress=False)
+
+
 def test_rgb_stage_gets_what_the_silhouette_stage_leaves(data):
     """With a time budget the silhouette stage may spend the geometry's whole part: a
     silhouette stage without an iteration limit ends by the budget and the RGB stage is not

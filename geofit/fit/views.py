@@ -178,6 +178,10 @@ class ViewsFitOptions:
         true surface remeshed alike, the fit 0.2-0.5 px too wide along the outline). Cow,
         measured: held-out IoU 0.9748 / 0.9781 / 0.9818 and F@0.01 0.781 / 0.783 / 0.803
         with 10 / 3 / 1, at the same cost.
+    final_regularization : float
+        Factor on the edge, normal, Laplacian and normal-variation weights at the last
+        coarse-to-fine level (and in the RGB stage, which keeps that level's terms; 1: as on
+        the other levels).
     levels : sequence of (int, int)
         Coarse-to-fine schedule of the L-BFGS and contour methods: per level the number of
         midpoint subdivisions to apply first and the image downsampling factor, e.g.
@@ -315,6 +319,7 @@ class ViewsFitOptions:
     textured_iters: int | None = None
     large_steps: float | None = None
     final_large_steps: float | None = None
+    final_regularization: float | None = None
     levels: Any = None
     remesh_rounds: int | None = None
     edge_px: float | None = None
@@ -347,8 +352,8 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
                hull_close_px=0.0, hull_fill_px=9.0, hull_margins=(0.0,), hull_vote_depth=0.0,
-               rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0,
-               rgb_color_reg=1e-4, rgb_color_smooth=0.0, rgb_inner_px=0)
+               final_regularization=1.0, rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0,
+               rgb_large_steps=10.0, rgb_color_reg=1e-4, rgb_color_smooth=0.0, rgb_inner_px=0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -668,6 +673,7 @@ class _Plan:
     hull_vote_depth: float = 0.0
     rgb_iters: int = 0
     final_large_steps: float | None = None  # the last level's lambda (None: large_steps)
+    final_regularization: float = 1.0  # factor on the regularisers at the last level
     rgb_weight: float = 1.0
     rgb_silhouette: float = 0.0
     rgb_large_steps: float = 10.0
@@ -767,6 +773,8 @@ class _Plan:
                    rgb_color_smooth=check_positive(o.rgb_color_smooth,
                                                    "options.rgb_color_smooth", strict=False),
                    rgb_inner_px=check_int(o.rgb_inner_px, "options.rgb_inner_px", 0),
+                   final_regularization=check_positive(
+                       o.final_regularization, "options.final_regularization", strict=False),
                    final_large_steps=(large_steps if o.final_large_steps is None else
                                       check_positive(o.final_large_steps,
                                                      "options.final_large_steps",
@@ -888,7 +896,8 @@ def _level_weights(plan: _Plan, sub_levels, li: int) -> dict:
     # the regularisers scale with the squared edge length (1/4 per subdivision): on a
     # coarse level they get the weight that gives them their final-level magnitude
     later = sum(s_ for s_, _ in sub_levels[li + 1:])
-    weights = {k: (v * 0.25 ** later if k in REG_TERMS else v)
+    scale = 0.25 ** later * (plan.final_regularization if li == len(sub_levels) - 1 else 1.0)
+    weights = {k: (v * scale if k in REG_TERMS else v)
                for k, v in plan.silhouette_weights.items()}
     if plan.recipe == "default":  # weights set in pixels (TUTORIAL_PIXEL)
         r = TUTORIAL_PIXEL / plan.init_info["pixel_size"]
