@@ -316,6 +316,7 @@ class ViewsFitOptions:
     hull_upsample: int | None = None
     hull_close_px: float | None = None
     hull_fill_px: float | None = None
+    hull_grey_px: float | None = None
     hull_margins: Any = None
     hull_vote_depth: float | None = None
     rgb_iters: int | None = None
@@ -329,7 +330,7 @@ class ViewsFitOptions:
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
-               hull_close_px=0.0, hull_fill_px=9.0, hull_margins=(0.0,), hull_vote_depth=0.0,
+               hull_close_px=0.0, hull_fill_px=9.0, hull_grey_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0,
                rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0,
                rgb_color_reg=1e-4)
 
@@ -646,6 +647,7 @@ class _Plan:
     hull_upsample: int = 1
     hull_close_px: float = 0.0
     hull_fill_px: float = 0.0
+    hull_grey_px: float = 0.0
     hull_margins: tuple = (0.0,)
     hull_vote_depth: float = 0.0
     rgb_iters: int = 0
@@ -734,6 +736,8 @@ class _Plan:
                    hull_close_px=check_positive(o.hull_close_px, "options.hull_close_px",
                                                 strict=False),
                    hull_fill_px=check_positive(o.hull_fill_px, "options.hull_fill_px",
+                                               strict=False),
+                   hull_grey_px=check_positive(o.hull_grey_px, "options.hull_grey_px",
                                                strict=False),
                    hull_margins=_check_margins(o.hull_margins, "options.hull_margins"),
                    hull_vote_depth=check_positive(o.hull_vote_depth, "options.hull_vote_depth",
