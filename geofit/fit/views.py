@@ -242,6 +242,13 @@ class ViewsFitOptions:
         double torus 0.9761 / 0.972 -> 0.9757 / 0.955; no shape of the 11 of
         benchmarks/fit_views.py loses more than IoU 0.01 or F 0.02 (measured,
         benchmarks/results/fit_views_session9_thin.md).
+    hull_grey_px : float
+        Carve the hull where the soft silhouettes are known to be background: grey pixels
+        (above 0.05) more than this many pixels from every pixel at or below 0.05 count as
+        inside (:func:`geofit.fit.init.visual_hull_mesh`'s ``grey_px``; 0: none, the
+        default). With 2 the ogre's hull keeps 1 253 true-mask pixels its soft targets lose
+        (hull held-out IoU 0.46 -> 0.62) but the fit ends lower (IoU 0.8587 -> 0.8494,
+        F@0.01 0.476 -> 0.433; measured), so it is not the default.
     hull_margins : sequence of float
         The hull's carving vote (pixels, non-increasing;
         :func:`geofit.structures.visual_hull.hull_field`): ``(0,)`` carves what any one view
@@ -330,7 +337,8 @@ class ViewsFitOptions:
 _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momentum=0.9,
                adam_lr=0.01, faces_per_pixel=50, color_reg=1e-4, contour_threshold=0.9,
                textured_weights=TUTORIAL_TEXTURED_WEIGHTS, texel_px=1.0, hull_upsample=1,
-               hull_close_px=0.0, hull_fill_px=9.0, hull_grey_px=0.0, hull_margins=(0.0,), hull_vote_depth=0.0,
+               hull_close_px=0.0, hull_fill_px=9.0, hull_grey_px=0.0, hull_margins=(0.0,),
+               hull_vote_depth=0.0,
                rgb_iters=0, rgb_weight=1.0, rgb_silhouette=0.0, rgb_large_steps=10.0,
                rgb_color_reg=1e-4)
 
