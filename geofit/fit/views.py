@@ -247,8 +247,10 @@ class ViewsFitOptions:
         (above 0.05) more than this many pixels from every pixel at or below 0.05 count as
         inside (:func:`geofit.fit.init.visual_hull_mesh`'s ``grey_px``; 0: none, the
         default). With 2 the ogre's hull keeps 1 253 true-mask pixels its soft targets lose
-        (hull held-out IoU 0.46 -> 0.62) but the fit ends lower (IoU 0.8587 -> 0.8494,
-        F@0.01 0.476 -> 0.433; measured), so it is not the default.
+        (hull held-out IoU 0.46 -> 0.62) but its fit ends lower (IoU 0.8587 -> 0.8494,
+        F@0.01 0.476 -> 0.433), while the thin plate's edge-on strip survives (0.9626 / 0.378
+        -> 0.9824 / 0.527) and the 9 other shapes of benchmarks/fit_views.py move by at most
+        IoU 0.001 / F 0.014 (measured): not the default while the ogre loses F.
     hull_margins : sequence of float
         The hull's carving vote (pixels, non-increasing;
         :func:`geofit.structures.visual_hull.hull_field`): ``(0,)`` carves what any one view
