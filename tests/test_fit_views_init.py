@@ -260,6 +260,32 @@ def test_fill_px_fills_pinholes_keeps_the_outline_and_holes():
     assert fine[24:26, 48:50].all()  # the pinhole at (12, 24) on the twice finer grid
 
 
+def test_grey_px_keeps_a_thin_part_whose_soft_values_stay_below_the_threshold():
+    """A rod thinner than a pixel peaks below 0.5 in a soft silhouette (here a band 7 px wide
+    at 0.3): ``grey_px=2`` keeps its core (more than 2 px from every pixel at or below
+    ``grey_level``; inside a silhouette, all of it), the plain carving drops it; a hole seen
+    through (values 0), the soft outline's ramp (0.5 -> 0 over 2 px) and a grey band 3 px
+    wide are left as they were."""
+    from geofit.structures.visual_hull import signed_distance_images
+
+    yy, xx = np.mgrid[:48, :48]
+    r = np.hypot(yy - 24, xx - 24)
+    sil = np.clip((22.0 - r) / 2.0 + 0.5, 0.0, 1.0)         # a disk, soft ramp at r = 22
+    sil[(yy - 30) ** 2 + (xx - 24) ** 2 < 16] = 0.0         # a hole seen through
+    sil[14:21, 10:38] = 0.3                                  # a grey band 7 px wide
+    plain = signed_distance_images(sil[None], 0.5)[0] > 0
+    grey = signed_distance_images(sil[None], 0.5, grey_px=2.0)[0] > 0
+    changed = grey & ~plain
+    assert not plain[17, 12:36].any() and grey[17, 12:36].all()
+    assert not changed[(yy - 30) ** 2 + (xx - 24) ** 2 < 16].any()
+    assert not changed[r > 20].any() and not (plain & ~grey).any()
+    rod = np.zeros((1, 32, 32))
+    rod[0, 4:28, 8:15] = 0.3                                 # a free-standing rod, 7 px wide
+    rod[0, 4:28, 20:23] = 0.3                                # and one 3 px wide: too thin
+    kept = signed_distance_images(rod, 0.5, grey_px=2.0)[0] > 0
+    assert kept[8:24, 11].all() and not kept[:, 8].any() and not kept[:, 20:23].any()
+
+
 def _pinholed(spheres):
     """The spheres' silhouettes with a 2 x 2 pinhole deep inside the first view's, the cameras
     and the pinhole's pixel (y, x)."""
@@ -428,6 +454,13 @@ def test_hull_carving_options_are_validated(spheres):
         visual_hull_mesh(spheres.silhouettes, spheres.cameras, fill_px=-1.0)
     with pytest.raises(ValueError, match="hull_fill_px"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_fill_px=-1.0), progress=False)
+    with pytest.raises(ValueError, match="grey_px"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, grey_px=-1.0)
+    for bad in (-0.1, 0.5, 0.7):
+        with pytest.raises(ValueError, match="grey_level"):
+            visual_hull_mesh(spheres.silhouettes, spheres.cameras, grey_px=2.0, grey_level=bad)
+    with pytest.raises(ValueError, match="hull_grey_px"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_grey_px=-1.0), progress=False)
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
     for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg",

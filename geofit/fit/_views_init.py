@@ -47,7 +47,8 @@ def initial_mesh(plan, run) -> None:
                                     upsample=plan.hull_upsample,
                                     close_px=plan.hull_close_px, margins=plan.hull_margins,
                                     vote_depth=plan.hull_vote_depth,
-                                    check=run.clock.check, fill_px=plan.hull_fill_px)
+                                    check=run.clock.check, fill_px=plan.hull_fill_px,
+                                    grey_px=plan.hull_grey_px)
         except TimeUp:
             seconds = run.clock.elapsed() - t0
             plan.init, plan.init_name = ico_sphere(4), "sphere"
@@ -63,7 +64,8 @@ def initial_mesh(plan, run) -> None:
                 "n_faces_marching_cubes": hull.n_faces_marching_cubes,
                 "n_closed_pixels": hull.n_closed_pixels, "n_vote_kept": hull.n_vote_kept}
         closed = (f"; {hull.n_closed_pixels:g} silhouette pixels of pinholes and slits "
-                  f"closed" if plan.hull_close_px or plan.hull_fill_px else "")
+                  f"closed" if plan.hull_close_px or plan.hull_fill_px or plan.hull_grey_px
+                  else "")
         if hull.n_vote_kept:
             closed += (f"; {hull.n_vote_kept} grid nodes that one view alone would carve "
                        f"kept by the vote")

@@ -312,7 +312,8 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
                      close_handles: bool = False, upsample: int = 1,
                      close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
-                     check=None, fill_px: float = 0.0) -> VisualHullMesh:
+                     check=None, fill_px: float = 0.0, grey_px: float = 0.0,
+                     grey_level: float = 0.05) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -362,6 +363,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         Fill each thresholded silhouette's pinholes first: background regions not reaching
         the image's border of at most this many pixels
         (:func:`geofit.structures.visual_hull.signed_distance_images`); the outline stays.
+    grey_px, grey_level : float
+        Keep the grey cores of the soft silhouettes: pixels above ``grey_level`` (default
+        0.05) and more than ``grey_px`` pixels (0: none) from every pixel at or below it
+        count as inside (:func:`geofit.structures.visual_hull.signed_distance_images`).
     margins : sequence of float
         The carving vote (:func:`geofit.structures.visual_hull.hull_field`; pixels,
         non-increasing): ``(0,)`` carves what any one view puts outside its silhouette;
@@ -397,6 +402,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
             raise ValueError(f"{name}: expected an integer >= 1, got {val!r}")
     close_px = check_positive(close_px, "close_px", strict=False)
     fill_px = check_positive(fill_px, "fill_px", strict=False)
+    grey_px = check_positive(grey_px, "grey_px", strict=False)
+    if not 0.0 <= float(grey_level) < float(threshold):
+        raise ValueError(f"grey_level: expected a number in [0, threshold = {threshold!r}), "
+                         f"got {grey_level!r}")
     margins = _check_margins(margins)
     vote_depth = check_positive(vote_depth, "vote_depth", strict=False)
     if vote_depth > 0 and refine != 1:
@@ -405,7 +414,7 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     g = carve_hull(sil, cameras, threshold=float(threshold), shrink_px=float(shrink_px),
                    voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
                    close_px=close_px, margins=margins, vote_depth=vote_depth, check=check,
-                   fill_px=fill_px)
+                   fill_px=fill_px, grey_px=grey_px, grey_level=grey_level)
     n_filled = 0
     if close_handles:
         closed = close_unsupported_handles(g)
