@@ -547,7 +547,7 @@ class BoundaryPlacement:
         The mesh with its boundary placed (the input itself when it has no boundary).
     distance : float
         Distance of the placed boundary from the nearest point (:func:`boundary_distance`:
-        the cloud's ``rho`` on a clean scan, less where the scan is noisy).
+        2.5 spacings on a clean scan, fewer measured spacings where the scan is noisy).
     n_split : int
         Boundary edges split so that the boundary can follow the points.
     n_boundary : int
@@ -628,10 +628,11 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, noise: float = 0.0, *,
     The cloud's surface (:class:`CloudTarget`) is the union of the tangent disks of radius
     ``rho`` (two spacings) around its points: where a scan ends, at a real rim or where the
     surface turned away from the scanner, the evidence of a surface reaches ``rho`` past the
-    last points of a clean scan, and so does the fitted mesh (on a noisy scan, where the last
-    points already overshoot the rim, less: ``T`` = :func:`boundary_distance`). The fit alone leaves its boundary anywhere
-    within a few spacings of that line: its data term is flat within ``rho`` of the points
-    and its smoothness shortens the boundary, and a boundary edge many spacings long cuts
+    last points of a clean scan, and the fitted mesh a little more (``T`` =
+    :func:`boundary_distance`: 2.5 spacings clean, less on a noisy scan, where the last points
+    already overshoot the rim). The fit alone leaves its boundary anywhere within a few
+    spacings of that line: its data term is flat within ``rho`` of the points and its
+    smoothness shortens the boundary, and a boundary edge many spacings long cuts
     across the points' outline as a chord. Here
 
     1. the boundary edges longer than ``2 rho`` are split (:func:`geofit.ops.remesh`, splits
@@ -667,7 +668,7 @@ def place_boundary(mesh: Mesh, cloud: CloudTarget, noise: float = 0.0, *,
     cloud : CloudTarget
         The scan.
     noise : float
-        The scan's noise level (same frame; 0: a clean scan, ``T = rho``).
+        The scan's noise level (same frame; 0: a clean scan, ``T`` = 2.5 spacings).
     n_iter : int
         Fixed-point steps of the moves.
 
