@@ -269,8 +269,8 @@ def memory_report(ds) -> dict:
 
 
 # ------------------------------------------------------------------------------ test shapes
-SHAPE_LIMIT = 60.0  # issue 14: held-out IoU >= 0.97 and F@0.01 >= 0.7 in <= 60 s on 2 cores
-SHAPE_ACCEPT = {"iou": (">=", 0.97), "fscore@0.01": (">=", 0.7)}
+SHAPE_LIMIT = 60.0  # issue 24: held-out IoU >= 0.97 and F@0.01 >= 0.75 in <= 60 s wall on 2 cores
+SHAPE_ACCEPT = {"iou": (">=", 0.97), "fscore@0.01": (">=", 0.75)}
 # the alternatives of --compare all: every recipe but the default (the former default among
 # them where fit_mesh_to_views names it), the tutorial's sphere start and the former "best"
 COMPARE = ("sphere", "best") + tuple(f"recipe:{r}" for r in RECIPES if r != "default")
@@ -419,7 +419,7 @@ def _beats(alt: dict, default: dict, noise: dict) -> list[str]:
 def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
     header = ["shape", "fit", "init", "held-out IoU", "F@0.01", "chamfer-L2", "PSNR (dB)",
               "PSNR vertex colours (dB)", "texture (texels, PNG bytes)", "solver s", "CPU s", "vertices", "genus (target / fit)", "parts", "boundary loops",
-              "load (1 min)", "IoU >= 0.97, F >= 0.7, <= 60 s (min of wall and CPU s)"]
+              "load (1 min)", "IoU >= 0.97, F >= 0.75, <= 60 s wall"]
     lines = ["# fit_mesh_to_views on every test shape (tutorial 4)", "",
              ("Each shape normalised like the tutorial (the cow textured, the others "
               "vertex-coloured), the tutorial's 20 views of 128 px (`tutorial_views(4, mesh=...)`, "
@@ -450,11 +450,9 @@ def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
 
 
 def _accepted(f: dict) -> bool:
-    """Issue 14's acceptance: IoU >= 0.97, F@0.01 >= 0.7 in <= 60 s, the time being the wall
-    seconds, or the CPU seconds when the machine's load made the wall clock longer (a fit that
-    keeps one core busy needs no more wall time than CPU time on a quiet machine)."""
-    return bool(f["iou"] >= 0.97 and f["fscore@0.01"] >= 0.7
-                and min(f["seconds"], f["cpu_seconds"]) <= SHAPE_LIMIT)
+    """Issue 24's acceptance: IoU >= 0.97, F@0.01 >= 0.75 in <= 60 s wall (the fit's wall
+    clock as the table gives it: run on a quiet machine, the load is in the table)."""
+    return bool(f["iou"] >= 0.97 and f["fscore@0.01"] >= 0.75 and f["seconds"] <= SHAPE_LIMIT)
 
 
 def _row(r: MethodRun) -> list:
@@ -480,7 +478,7 @@ def _shape_chart(runs, path: Path, title: str) -> None:
         [r for r in runs if ":seed" not in r.name],
         [{"metric": "iou", "label": "held-out IoU", "target": 0.97,
           "target_label": "IoU 0.97"},
-         {"metric": "fscore@0.01", "label": "F-score@0.01", "target": 0.7},
+         {"metric": "fscore@0.01", "label": "F-score@0.01", "target": 0.75},
          {"metric": "psnr", "label": "held-out PSNR (dB)"}],
         path, time_limit=SHAPE_LIMIT, title=title)
 
