@@ -581,12 +581,11 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         If the budget is spent before the texture, or what is left is less than the texture's
         predicted time (five times the colours' stage, as measured under load), the mesh
         keeps its vertex colours and the ``"texture"`` stage says so. A budget used up while
-        carving the hull returns the
-        unfitted ico-sphere with status ``"time_budget"`` and says so. None (the default):
-        no budget; the default fit of the tutorial's 20 views of 128 px of the cow then needs
-        about 52 s wall and 79 CPU s on 2 cores (quiet machine, load 1.6; the RGB stage about
-        13 CPU s of it; benchmarks/results/session9_volume/before_after.md); larger surfaces
-        take longer (the procedural box 71 s, the open cylinder 65 s).
+        carving the hull returns the unfitted ico-sphere with status ``"time_budget"`` and
+        says so. None (the default): no budget; the default fit of the tutorial's 20 views of
+        128 px of the cow then needs about 46 s wall and 72 CPU s on 2 cores (quiet machine,
+        load 1.6; benchmarks/results/fit_views_shapes_session10.md); larger surfaces take
+        longer (the thin plate 52 s, the open cylinder 61 s).
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
