@@ -5,6 +5,7 @@ import shlex
 from pathlib import Path
 
 import pytest
+from _helpers import benchmark_module
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 RESULTS = BENCHMARKS / "results"
@@ -76,3 +77,30 @@ def test_peers_script_skips_cleanly_without_pytorch3d(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "skipped: PyTorch3D not installed" in proc.stdout
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_scans_quiet_timings_join_only_the_same_fits(tmp_path):
+    """``benchmarks/_scans.py --quiet-timings``: a quiet geofit-only run's wall seconds go
+    beside the grid's geofit row only where the quiet fit is the same (faces, chamfer-L2,
+    F@0.01 equal), and the verdict's 10 s then uses them."""
+    scans = benchmark_module("_scans")
+    row = {"shape": "torus", "condition": "noise 0", "factor": "noise", "n_points": 100,
+           "faces": 50, "chamfer_l2": 1e-5, "fscore": 0.99, "seconds": 30.0, "cpu_seconds": 8.0,
+           "load": 20.0}
+    peer = dict(row, method="Poisson (same size)", chamfer_l2=2e-5, fscore=0.98)
+    grid = {"benchmark": "g", "command": "c", "load": [20.0, 20.0],
+            "rows": [dict(row, method="geofit"), peer,
+                     dict(row, method="geofit", shape="teapot"),
+                     dict(peer, shape="teapot")]}
+    quiet = {"benchmark": "q", "command": "cq", "load": [1.5, 1.9],
+             "rows": [dict(row, method="geofit", seconds=4.0, load=1.5),
+                      dict(row, method="geofit", shape="teapot", chamfer_l2=1.1e-5,
+                           seconds=3.0, load=1.5)]}
+    (tmp_path / "g.json").write_text(json.dumps(grid))
+    (tmp_path / "q.json").write_text(json.dumps(quiet))
+    assert scans.verdicts(grid["rows"])[0]["time"] is False
+    assert scans.add_quiet_timings(tmp_path, "g", tmp_path / "q.json") == 1
+    rows = json.loads((tmp_path / "g.json").read_text())["rows"]
+    assert rows[0]["quiet_seconds"] == 4.0 and "quiet_seconds" not in rows[2]
+    v = {x["shape"]: x for x in scans.verdicts(rows)}
+    assert v["torus"]["time"] and v["torus"]["pass"] and not v["teapot"]["time"]
