@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.ndimage import binary_erosion
 
 from ..ops import cot_laplacian, uniform_laplacian
 from ..render.mesh.image_term import HardImageLoss
@@ -37,8 +38,8 @@ from ..structures import Mesh
 from .history import TimeUp
 from .large_steps import vertex_parameterization
 
-__all__ = ["RGBRefineResult", "dirichlet_stiffness", "interior_masks", "projected_image_loss", "refine_rgb",
-           "solve_vertex_colors"]
+__all__ = ["RGBRefineResult", "dirichlet_stiffness", "interior_masks", "projected_image_loss",
+           "refine_rgb", "solve_vertex_colors"]
 
 
 @dataclass
@@ -83,8 +84,6 @@ def interior_masks(silhouettes, px: int) -> np.ndarray:
     render and the targets differ by sub-pixel sampling more than by anything the geometry
     inside the outline does.
     """
-    from scipy.ndimage import binary_erosion
-
     inside = np.asarray(silhouettes) > 0.5
     if px <= 0:
         return inside.astype(np.float64)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.ndimage import distance_transform_edt
 
 from .._validate import as_array, check_int, check_positive
 from ..ops.topology import face_components
@@ -38,8 +39,8 @@ from ..structures import Mesh, TexturesUV, as_mesh
 from ..structures.visual_hull import pixel_footprint
 
 __all__ = ["TexelCharts", "TextureProblem", "chart_laplacian", "fit_texture", "leave_views_out",
-           "ray_reliability", "robust_scale", "texel_charts", "texel_operator", "texture_problem", "uv_atlas",
-           "uv_charts"]
+           "ray_reliability", "robust_scale", "texel_charts", "texel_operator", "texture_problem",
+           "uv_atlas", "uv_charts"]
 
 
 def uv_atlas(mesh: Mesh, texel_size: float, *, padding: int = 2,
@@ -171,8 +172,6 @@ def ray_reliability(loss, mesh: Mesh, hits=None, *, outline_weight: float = 0.03
     ValueError
         If ``outline_weight`` is not in [0, 1] or ``outline_px`` is negative.
     """
-    from scipy.ndimage import distance_transform_edt
-
     mesh = as_mesh(mesh, "mesh")
     w_out = check_positive(outline_weight, "outline_weight", strict=False)
     if w_out > 1.0:

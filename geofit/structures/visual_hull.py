@@ -275,7 +275,7 @@ def carve_hull(silhouettes, cameras, *, threshold: float = 0.5, shrink_px: float
     sd = signed_distance_images(sil, threshold, upsample=upsample, close_px=close_px,
                                 fill_px=fill_px, grey_px=grey_px, grey_level=grey_level)
     n_closed = 0.0
-    if close_px > 0 or fill_px > 0 or grey_px > 0:  # what the closing and filling filled, in image pixels
+    if close_px > 0 or fill_px > 0 or grey_px > 0:  # what closing and filling added, image px
         plain = signed_distance_images(sil, threshold, upsample=upsample)
         n_closed = float(((sd > 0) & (plain <= 0)).sum()) / (upsample * upsample)
     sd -= shrink_px
