@@ -32,7 +32,11 @@ topology and the initialisation used. ``--compare`` adds alternatives (``sphere`
 tutorial's ico-sphere start; ``best``: the former hand-set recipe above; ``recipe:<name>``, each
 with ``--budget`` seconds a stage); ``--seeds 2`` repeats the default to measure the run-to-run
 noise, and every alternative that beats the default by more than that noise is flagged.
-Writes ``fit_views_shapes.json`` / ``.md`` and ``fit_views_shapes_<shape>.png``.
+Writes ``fit_views_shapes.json`` / ``.md`` and ``fit_views_shapes_<shape>.png``. ``--shapes
+unseen`` runs the same table on procedural analogues of the public shapes issue 24's reviewers
+measure (``benchmarks/unseen_shapes.py``: a flat sheet at z = 0, a thin-legged beetle, a
+character with thin ears, a cartoon figure, a genus-1 machine part, a noisy 70k-face scan); they
+are not part of ``all``.
 
 ``--stability`` runs the perturbation table instead: 4 views, noisy silhouettes, cameras off
 by 1 degree, a hole in every silhouette, a start too small, a start off-centre, on the cow and
@@ -278,16 +282,23 @@ COMPARE = ("sphere", "best") + tuple(f"recipe:{r}" for r in RECIPES if r != "def
 
 def shape_factories(names=None) -> dict:
     """name -> factory of an (untextured or textured) mesh: the cow, the data's shapes and
-    geofit's procedural ones (:data:`geofit.shapes.TEST_SHAPES`)."""
+    geofit's procedural ones (:data:`geofit.shapes.TEST_SHAPES`); without ``names`` these (the
+    table's 11, ``--shapes all``). The name ``unseen`` stands for the procedural analogues of
+    the reviewers' public shapes (``unseen_shapes.UNSEEN_SHAPES``), which can also be named
+    one by one; they are never part of ``all``."""
     from fit_mesh import load_shapes  # the shapes of benchmarks/fit_mesh.py (one list)
+    from unseen_shapes import UNSEEN_SHAPES
 
     shapes = {"cow": lambda: cow_mesh()[0]}  # textured; the tutorial's normalisation
     shapes.update({k: v for k, v in load_shapes().items() if k != "dolphin"})
     if names:
-        unknown = sorted(set(names) - set(shapes))
+        names = [n for name in names
+                 for n in (UNSEEN_SHAPES if name == "unseen" else [name])]
+        known = {**shapes, **UNSEEN_SHAPES}
+        unknown = sorted(set(names) - set(known))
         if unknown:
-            raise SystemExit(f"--shapes: unknown {unknown}; known: {sorted(shapes)}")
-        shapes = {k: shapes[k] for k in names}  # in the order given
+            raise SystemExit(f"--shapes: unknown {unknown}; known: {sorted(known)}, unseen")
+        shapes = {k: known[k] for k in names}  # in the order given
     return shapes
 
 
@@ -369,7 +380,9 @@ def run_shape_method(shape, name, label, kw, ds, ev_curve, ev_final, eval_every,
     if final["texels"]:  # the result's PSNR: its UV texture
         final["psnr"] = ev_final(fit.textured_mesh, None, surface=False)["psnr"]
     topo = topology(fit.mesh)
+    start = topology(fit.init_mesh) if fit.init_mesh is not None else topo
     run.final = {"seconds": fit.seconds, "cpu_seconds": cpu.now(),
+                 "init_genus": start.genus, "init_n_components": start.n_components,
                  "wall_seconds_incl_checkpoints": wall, **final, "n_verts": fit.mesh.n_verts,
                  "genus": topo.genus, "n_components": topo.n_components,
                  "n_boundary_loops": topo.n_boundary_loops,
@@ -418,7 +431,7 @@ def _beats(alt: dict, default: dict, noise: dict) -> list[str]:
 
 def shapes_markdown(rows, medians, flags, noise, load, args_line) -> str:
     header = ["shape", "fit", "init", "held-out IoU", "F@0.01", "chamfer-L2", "PSNR (dB)",
-              "PSNR vertex colours (dB)", "texture (texels, PNG bytes)", "solver s", "CPU s", "vertices", "genus (target / fit)", "parts", "boundary loops",
+              "PSNR vertex colours (dB)", "texture (texels, PNG bytes)", "solver s", "CPU s", "vertices", "genus (target / start / fit)", "parts", "boundary loops",
               "load (1 min)", "IoU >= 0.97, F >= 0.75, <= 60 s wall"]
     lines = ["# fit_mesh_to_views on every test shape (tutorial 4)", "",
              ("Each shape normalised like the tutorial (the cow textured, the others "
@@ -466,7 +479,7 @@ def _row(r: MethodRun) -> list:
             f"{f.get('psnr', 0.0):.2f}", f"{f.get('psnr_vertex', f.get('psnr', 0.0)):.2f}",
             (f"{f['texels']:,}, {f['texture_bytes']:,}" if f.get("texels") else "-"),
             f"{f['seconds']:.1f}", f"{f['cpu_seconds']:.1f}",
-            f["n_verts"], f"{t['genus']} / {f['genus']}",
+            f["n_verts"], f"{t['genus']} / {f.get('init_genus', '?')} / {f['genus']}",
             f"{t['n_components']} / {f['n_components']}",
             f"{t['n_boundary_loops']} / {f['n_boundary_loops']}",
             f"{f['loadavg_start'][0]:.1f}", "yes" if accepted else "no"]
@@ -812,7 +825,9 @@ def main(argv=None) -> int:
     p.add_argument("--shapes", default=None,
                    help="run the table over test shapes: 'all' or comma-separated names (cow, "
                         "fandisk, teapot, suzanne, woody, ogre, torus, double_torus, "
-                        "open_cylinder, thin_plate, two_spheres)")
+                        "open_cylinder, thin_plate, two_spheres); 'unseen' for the analogues "
+                        "of the reviewers' public shapes (flat_sheet, beetle, eared_character, "
+                        "cartoon_figure, machine_part, scan_blob; not in 'all')")
     p.add_argument("--compare", default="",
                    help=f"with --shapes: alternatives to run beside the default, comma-separated "
                         f"(e.g. {','.join(COMPARE)}; 'all' for these)")
