@@ -281,6 +281,13 @@ class VisualHullMesh:
         Silhouette pixels (all views) that ``close_px`` filled before carving (0 without it).
     n_vote_kept : int
         Carving-grid nodes the vote (``margins``) kept that one view alone would have carved.
+    depth_px : float
+        The hull field's largest value at the grid's nodes (pixels): how far inside every
+        silhouette the hull's deepest node projects, about half the hull's largest
+        thickness. Below half a grid step (``voxel_size / pixel_size``) the hull is thinner
+        than a grid step everywhere (a zero-thickness sheet, whose hull some view sees
+        edge-on as a line of a pixel or two): marching cubes cannot resolve it and the mesh
+        is a few fragments.
     """
 
     mesh: Mesh
@@ -290,6 +297,7 @@ class VisualHullMesh:
     n_filled: int = 0
     n_closed_pixels: float = 0.0
     n_vote_kept: int = 0
+    depth_px: float = float("inf")
 
 
 def _check_margins(margins, name: str = "margins") -> tuple:
@@ -427,4 +435,4 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     n_faces = int(max(200, area / (0.433 * le * le)))
     mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
     return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled,
-                          g.n_closed_pixels, g.n_vote_kept)
+                          g.n_closed_pixels, g.n_vote_kept, float(g.field.max()))
