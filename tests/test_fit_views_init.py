@@ -588,3 +588,18 @@ def test_close_handles_and_per_part_options_are_validated(spheres):
     with pytest.raises(TypeError, match="hull_per_part"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_per_part="yes"),
                           progress=False)
+
+
+def test_fit_reports_the_handles_it_closed():
+    """With hull_close_handles the fit's first history note and its message say how many
+    handles of the hull were closed and how many grid nodes filled."""
+    from geofit.shapes import open_cylinder
+
+    ds = tutorial_views(4, mesh=_colored(open_cylinder()), num_views=20, image_size=64,
+                        num_held_out=1)
+    fit = fit_mesh_to_views(ds, options=ViewsFitOptions(
+        hull_close_handles=4.0, silhouette_method="none", texture="vertex"), progress=False)
+    ev = fit.history.events[0]
+    assert ev["hull_handles_closed"] > 0 and ev["hull_filled_nodes"] > 0
+    assert ev["hull_genus"] > ev["hull_handles_closed"]
+    assert "handles no silhouette supports closed" in fit.message
