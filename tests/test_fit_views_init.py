@@ -518,3 +518,88 @@ def test_rgb_stage_refines_a_given_mesh(spheres):
     assert [s["name"] for s in res.stages] == ["rgb", "textured"]
     assert np.abs(res.mesh.verts - init.verts).max() > 0
     assert np.all(np.isfinite(res.mesh.verts))
+
+
+def test_close_unsupported_handles_fills_a_hole_in_a_one_node_wall():
+    """A wall one node thick with a 2 x 2 hole barely outside every silhouette (the tunnels
+    that carving an open cylinder's zero-thickness wall leaves) is filled by the bridging
+    lines, which a closing with a ball cannot do; the nodes beside the flat wall stay
+    empty, and the same hole seen through (far outside a silhouette) stays open."""
+    from geofit.structures.visual_hull import HullGrid, close_unsupported_handles
+
+    field = np.full((14, 14, 7), -5.0)
+    field[2:12, 2:12, 3] = 1.0      # the wall
+    field[6:8, 6:8, 3] = -0.4       # the hole
+    field[:, :, 2] = field[:, :, 4] = -0.6   # beside the wall: barely outside too
+    out = close_unsupported_handles(HullGrid(field, np.zeros(3), 1.0, 1.0), radius_px=2.0)
+    hole = np.zeros(field.shape, bool)
+    hole[6:8, 6:8, 3] = True
+    assert np.array_equal(out.filled, hole)
+    field[6:8, 6:8, 3] = -3.0
+    assert close_unsupported_handles(HullGrid(field, np.zeros(3), 1.0, 1.0),
+                                     radius_px=2.0).n_filled == 0
+
+
+def test_visual_hull_mesh_close_handles_lowers_the_open_cylinders_genus():
+    """The hull of an open cylinder (a zero-thickness tube, genus 0) comes out of the
+    carving with handles through its thin wall; closing them lowers the genus, which
+    genus_before / genus_after report, and a fill that would not lower it is not kept."""
+    from geofit.ops import topology
+    from geofit.shapes import open_cylinder
+
+    ds = tutorial_views(4, mesh=_colored(open_cylinder()), num_views=20, image_size=64,
+                        num_held_out=1)
+    plain = visual_hull_mesh(ds.silhouettes, ds.cameras, fill_px=9.0)
+    h = visual_hull_mesh(ds.silhouettes, ds.cameras, fill_px=9.0, close_handles=4.0)
+    g0 = topology(plain.mesh, self_intersections=False).genus
+    assert h.genus_before is not None and h.genus_before > h.genus_after >= 1
+    assert h.n_filled > 0 and plain.genus_before is None and plain.n_filled == 0
+    assert topology(h.mesh, self_intersections=False).genus < g0
+
+
+def test_decimate_parts_keeps_every_part():
+    """Each part is decimated on its own to at least 48 faces (or kept as it is): a part
+    far smaller than the edge keeps a shape, the parts' count is kept."""
+    from geofit.fit.init import _decimate_parts
+    from geofit.ops import topology
+    from geofit.shapes import ico_sphere
+
+    big, small = ico_sphere(4), ico_sphere(3)
+    m = Mesh(np.concatenate([big.verts, 0.05 * small.verts + 3.0]),
+             np.concatenate([big.faces, small.faces + big.n_verts]))
+    out = _decimate_parts(m, 0.5)
+    r = topology(out, self_intersections=False)
+    assert (r.n_components, r.genus) == (2, 0)
+    far = out.verts[:, 0] > 2.0
+    n_small = int(far[out.faces[:, 0]].sum())
+    assert n_small >= 48 and out.n_faces - n_small < big.n_faces
+
+
+def test_close_handles_and_per_part_options_are_validated(spheres):
+    """close_handles must be >= 0 and per_part a bool, in visual_hull_mesh and in the fit's
+    options."""
+    with pytest.raises(ValueError, match="close_handles"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, close_handles=-1.0)
+    with pytest.raises(TypeError, match="per_part"):
+        visual_hull_mesh(spheres.silhouettes, spheres.cameras, per_part=1)
+    with pytest.raises(ValueError, match="hull_close_handles"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_close_handles=-2.0),
+                          progress=False)
+    with pytest.raises(TypeError, match="hull_per_part"):
+        fit_mesh_to_views(spheres, options=ViewsFitOptions(hull_per_part="yes"),
+                          progress=False)
+
+
+def test_fit_reports_the_handles_it_closed():
+    """With hull_close_handles the fit's first history note and its message say how many
+    handles of the hull were closed and how many grid nodes filled."""
+    from geofit.shapes import open_cylinder
+
+    ds = tutorial_views(4, mesh=_colored(open_cylinder()), num_views=20, image_size=64,
+                        num_held_out=1)
+    fit = fit_mesh_to_views(ds, options=ViewsFitOptions(
+        hull_close_handles=4.0, silhouette_method="none", texture="vertex"), progress=False)
+    ev = fit.history.events[0]
+    assert ev["hull_handles_closed"] > 0 and ev["hull_filled_nodes"] > 0
+    assert ev["hull_genus"] > ev["hull_handles_closed"]
+    assert "handles no silhouette supports closed" in fit.message

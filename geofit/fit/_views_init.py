@@ -52,7 +52,9 @@ def initial_mesh(plan, run) -> None:
                                     close_px=plan.hull_close_px, margins=plan.hull_margins,
                                     vote_depth=plan.hull_vote_depth,
                                     check=run.clock.check, fill_px=plan.hull_fill_px,
-                                    grey_px=plan.hull_grey_px)
+                                    grey_px=plan.hull_grey_px,
+                                    close_handles=plan.hull_close_handles,
+                                    per_part=plan.hull_per_part)
         except TimeUp:
             seconds = run.clock.elapsed() - t0
             plan.init, plan.init_name = ico_sphere(4), "sphere"
@@ -80,10 +82,15 @@ def initial_mesh(plan, run) -> None:
         plan.init = hull.mesh
         info = {"voxel_size": hull.voxel_size, "pixel_size": hull.pixel_size,
                 "n_faces_marching_cubes": hull.n_faces_marching_cubes,
-                "n_closed_pixels": hull.n_closed_pixels, "n_vote_kept": hull.n_vote_kept}
+                "n_closed_pixels": hull.n_closed_pixels, "n_vote_kept": hull.n_vote_kept,
+                "n_filled": hull.n_filled, "genus_before": hull.genus_before,
+                "genus_after": hull.genus_after}
         closed = (f"; {hull.n_closed_pixels:g} silhouette pixels of pinholes and slits "
                   f"closed" if plan.hull_close_px or plan.hull_fill_px or plan.hull_grey_px
                   else "")
+        handles = _handles_note(hull)
+        if handles:
+            closed += "; " + handles
         if hull.n_vote_kept:
             closed += (f"; {hull.n_vote_kept} grid nodes that one view alone would carve "
                        f"kept by the vote")
@@ -96,8 +103,25 @@ def initial_mesh(plan, run) -> None:
                 else f"the given mesh ({plan.init.n_verts} vertices)")
     plan.init_info = dict(info, description=desc, seconds=run.clock.elapsed() - t0,
                           max_edge=max_edge_length(plan.init))
+    extra = {}
+    if info.get("genus_before") is not None:  # what closing the unsupported handles removed
+        extra = {"hull_genus": info["genus_before"], "hull_filled_nodes": info["n_filled"],
+                 "hull_handles_closed": (info["genus_before"] - info["genus_after"]
+                                         if info["n_filled"] else 0)}
     run.history.note(0, run.clock.elapsed(), f"initial mesh: {desc}", init=plan.init_name,
-                     n_verts=plan.init.n_verts)
+                     n_verts=plan.init.n_verts, **extra)
+
+
+def _handles_note(hull) -> str:
+    """What ``close_handles`` removed from the hull, in words ("" when it found nothing)."""
+    if hull.genus_before is None:
+        return ""
+    if hull.n_filled:
+        return (f"{hull.genus_before - hull.genus_after} handles no silhouette supports "
+                f"closed (genus {hull.genus_before} -> {hull.genus_after}, {hull.n_filled} "
+                f"grid nodes filled)")
+    return (f"no handle closed (filling would give genus {hull.genus_before} -> "
+            f"{hull.genus_after}: not applied)")
 
 
 def remesh_to_length(mesh: Mesh, length: float, n_passes: int = 3) -> Mesh:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_array, check_positive
+from ..ops import topology
 from ..shapes import ico_sphere
 from ..structures import Mesh
 from ..structures.visual_hull import carve_hull, close_unsupported_handles
@@ -288,6 +289,10 @@ class VisualHullMesh:
         than a grid step everywhere (a zero-thickness sheet, whose hull some view sees
         edge-on as a line of a pixel or two): marching cubes cannot resolve it and the mesh
         is a few fragments.
+    genus_before, genus_after : int or None
+        Genus of the marching-cubes surface without and with the nodes ``close_handles``
+        would fill (None when it found none); they were filled only if ``genus_after <
+        genus_before``.
     """
 
     mesh: Mesh
@@ -298,6 +303,8 @@ class VisualHullMesh:
     n_closed_pixels: float = 0.0
     n_vote_kept: int = 0
     depth_px: float = float("inf")
+    genus_before: int | None = None
+    genus_after: int | None = None
 
 
 def _check_margins(margins, name: str = "margins") -> tuple:
@@ -318,10 +325,10 @@ def _check_margins(margins, name: str = "margins") -> tuple:
 
 def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: float = 0.0,
                      threshold: float = 0.5, voxel_px: float = 1.5, refine: int = 1,
-                     close_handles: bool = False, upsample: int = 1,
+                     close_handles: float = 0.0, upsample: int = 1,
                      close_px: float = 0.0, margins=(0.0,), vote_depth: float = 0.0,
                      check=None, fill_px: float = 0.0, grey_px: float = 0.0,
-                     grey_level: float = 0.05) -> VisualHullMesh:
+                     grey_level: float = 0.05, per_part: bool = False) -> VisualHullMesh:
     """A coarse mesh of the visual hull of silhouettes (tutorial 4's default start).
 
     The hull's signed-distance field (:func:`geofit.structures.visual_hull.carve_hull`: carved on
@@ -357,10 +364,18 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
         Subdivide the grid this many times per axis in the band around the surface only
         (:func:`geofit.structures.visual_hull.carve_hull`); 3 gives 0.5 px near the surface at
         a fraction of ``voxel_px=0.5``'s cost.
-    close_handles : bool
-        Fill narrow tunnels no silhouette sees through
-        (:func:`geofit.structures.visual_hull.close_unsupported_handles`); ``n_filled`` says
-        how many nodes were filled.
+    close_handles : float
+        Fill narrow tunnels no silhouette sees through, bridging gaps of up to this many
+        pixels on either side of a node
+        (:func:`geofit.structures.visual_hull.close_unsupported_handles`; 0 or False: none,
+        True: 1 pixel). The filling is kept only if it lowers the genus of the hull's surface
+        (filling a crevice can close a loop around it and add a handle): ``genus_before``
+        and ``genus_after`` say what it gave, ``n_filled`` how many nodes were filled (0 when
+        it was not kept).
+    per_part : bool
+        Decimate each connected part of the hull on its own, to its area's share of the faces
+        but at least 48 (a part the carving cut off, a leg, keeps a shape; the quadric
+        decimation of the whole collapses small parts). False: the whole at once.
     upsample : int
         Carve at sub-pixel outlines: the soft silhouettes interpolated on a grid ``upsample``
         times finer (:func:`geofit.structures.visual_hull.signed_distance_images`).
@@ -411,6 +426,10 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     close_px = check_positive(close_px, "close_px", strict=False)
     fill_px = check_positive(fill_px, "fill_px", strict=False)
     grey_px = check_positive(grey_px, "grey_px", strict=False)
+    close_handles = check_positive(float(close_handles) if isinstance(close_handles, bool)
+                                   else close_handles, "close_handles", strict=False)
+    if not isinstance(per_part, (bool, np.bool_)):
+        raise TypeError(f"per_part: expected a bool, got {per_part!r}")
     if not 0.0 <= float(grey_level) < float(threshold):
         raise ValueError(f"grey_level: expected a number in [0, threshold = {threshold!r}), "
                          f"got {grey_level!r}")
@@ -423,16 +442,61 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
                    voxel_px=voxel_px, refine=int(refine), upsample=int(upsample),
                    close_px=close_px, margins=margins, vote_depth=vote_depth, check=check,
                    fill_px=fill_px, grey_px=grey_px, grey_level=grey_level)
-    n_filled = 0
+    n_filled, genus = 0, None
+    mc = None
     if close_handles:
-        closed = close_unsupported_handles(g)
-        g, n_filled = closed.grid, closed.n_filled
+        closed = close_unsupported_handles(g, radius_px=float(close_handles))
+        if closed.n_filled:  # kept only if it lowers the genus (bridging a crevice can add one)
+            plain = mesh_from_occupancy(g.field, g.origin, g.voxel_size, level=0.0)
+            mc = mesh_from_occupancy(closed.grid.field, g.origin, g.voxel_size, level=0.0)
+            genus = (topology(plain, self_intersections=False).genus,
+                     topology(mc, self_intersections=False).genus)
+            if genus[1] < genus[0]:
+                g, n_filled = closed.grid, closed.n_filled
+            else:
+                mc = plain
     if check is not None:
         check()
-    mc = mesh_from_occupancy(g.field, g.origin, g.voxel_size, level=0.0)
+    if mc is None:
+        mc = mesh_from_occupancy(g.field, g.origin, g.voxel_size, level=0.0)
     le = min(edge_px * g.pixel_size, max_edge_length(mc))
-    area = float(mc.face_areas.sum())
-    n_faces = int(max(200, area / (0.433 * le * le)))
-    mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
+    if per_part:
+        mesh = _decimate_parts(mc, le)
+    else:
+        n_faces = int(max(200, float(mc.face_areas.sum()) / (0.433 * le * le)))
+        mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
     return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled,
-                          g.n_closed_pixels, g.n_vote_kept, float(g.field.max()))
+                          g.n_closed_pixels, g.n_vote_kept, float(g.field.max()),
+                          genus_before=None if genus is None else genus[0],
+                          genus_after=None if genus is None else genus[1])
+
+
+#: The fewest faces :func:`visual_hull_mesh` decimates a part of the hull to (``per_part``).
+_MIN_PART_FACES = 48
+
+
+def _decimate_parts(mc: Mesh, edge: float) -> Mesh:
+    """Each connected part of ``mc`` decimated on its own to faces of about ``edge`` (its
+    area's share, at least :data:`_MIN_PART_FACES`), so that a small part (a leg the carving
+    cut off at an ankle thinner than the grid) keeps a shape instead of collapsing."""
+    from scipy.sparse.csgraph import connected_components
+
+    n_parts, lab = connected_components(mc.topology.adjacency, directed=False)
+    if n_parts == 1:
+        n = int(max(200, float(mc.face_areas.sum()) / (0.433 * edge * edge)))
+        return decimate(mc, n) if n < mc.n_faces else mc
+    flab = lab[mc.faces[:, 0]]
+    area = np.bincount(flab, weights=mc.face_areas, minlength=n_parts)
+    V, F, off = [], [], 0
+    for i in range(n_parts):  # parts (few; each one Open3D call)
+        faces = mc.faces[flab == i]
+        used, inv = np.unique(faces, return_inverse=True)
+        part = Mesh(mc.verts[used], inv.reshape(-1, 3).astype(np.int64))
+        n = int(max(_MIN_PART_FACES, area[i] / (0.433 * edge * edge)))
+        part = decimate(part, n) if n < part.n_faces else part
+        if part.n_faces == 0:
+            continue
+        V.append(part.verts)
+        F.append(part.faces + off)
+        off += part.n_verts
+    return Mesh(np.concatenate(V), np.concatenate(F))
