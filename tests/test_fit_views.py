@@ -630,7 +630,8 @@ def test_anchored_laplacian_gradient_matches_finite_differences(data, large):
 def test_laplacian_anchor_changes_the_fit_only_where_asked(data):
     """``laplacian_anchor``: "none" is the plain Laplacian (the result bit-identical to the
     option left out), "round" and "last" move the fit differently from it (with one level
-    "last" is "round"); an unknown form is refused."""
+    and one round "last" and "final" are "round"; with two levels of one round each "final"
+    is "last", which differs from "round"); an unknown form is refused."""
     o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
              textured_method="none")
 
@@ -643,8 +644,11 @@ def test_laplacian_anchor_changes_the_fit_only_where_asked(data):
     r = verts(laplacian_anchor="round")
     assert np.abs(r - base).max() > 1e-6
     np.testing.assert_array_equal(r, verts(laplacian_anchor="last"))
+    np.testing.assert_array_equal(r, verts(laplacian_anchor="final"))
     o["levels"] = ((0, 2), (0, 1))
-    assert np.abs(verts(laplacian_anchor="last") - verts(laplacian_anchor="round")).max() > 1e-6
+    last = verts(laplacian_anchor="last")
+    assert np.abs(last - verts(laplacian_anchor="round")).max() > 1e-6
+    np.testing.assert_array_equal(last, verts(laplacian_anchor="final"))
     with pytest.raises(ValueError, match="options.laplacian_anchor"):
         fit_mesh_to_views(data, options=ViewsFitOptions(laplacian_anchor="vertices"),
                           progress=False)
