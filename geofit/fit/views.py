@@ -323,20 +323,21 @@ class ViewsFitOptions:
         What the silhouette stage's Laplacian term smooths: the vertices (``"none"``, the
         tutorial's ``mean_i |(L V)_i|``), or the displacement from the start of each
         remesh-and-solve round (``"round"``: ``mean_i |(L (V - V0))_i|``, re-anchored after
-        every remeshing; the RGB stage anchors at its start), or so on the last
-        coarse-to-fine level only (``"last"``: the plain term keeps the start from the hull
-        smooth), or in the last remesh-and-solve round only (``"final"``). The plain term has the surface's own curvature as its cost, so it shrinks and
-        rounds what the silhouettes do not pin; the anchored one only smooths the moves.
-        Started from the true Suzanne (``init=`` the true mesh, the default otherwise),
-        held-out F@0.01 0.639 with ``"none"``, 0.829 with ``"round"``; but from the visual
-        hull (the default's start, a superset of the object) the plain term's shrinkage is
-        what moves the surface the silhouettes do not pin inward, and both anchored forms
-        lose (measured, IoU / F@0.01, ``"none"`` -> ``"last"``: fandisk 0.9838 / 0.400 ->
-        0.9799 / 0.390, Suzanne 0.9764 / 0.643 -> 0.9746 / 0.621, thin plate 0.9626 / 0.378
-        -> 0.9609 / 0.371, double torus 0.9807 / 0.949 -> 0.9752 / 0.918; ``"round"``:
-        Suzanne 0.9702 / 0.615, torus 0.9933 / 0.997 -> 0.9874 / 0.945; ``"final"``:
-        fandisk 0.9822 / 0.380, Suzanne 0.9752 / 0.639, double torus 0.9779 / 0.954):
-        ``"none"`` in every recipe.
+        every remeshing; the RGB stage anchors at its start), or so on the last coarse-to-fine
+        level only (``"last"``: the plain term keeps the start from the hull smooth), or in the
+        last remesh-and-solve round only (``"final"``). The plain term has the surface's own
+        curvature as its cost, so it shrinks and rounds what the silhouettes do not pin; the
+        anchored one only smooths the moves. Started from the true Suzanne (``init=`` the true
+        mesh, the default otherwise), held-out F@0.01 0.639 with ``"none"``, 0.829 with
+        ``"round"`` (fandisk 0.557 -> 0.870); but from the visual hull (the default's start, a
+        superset of the object) the plain term's shrinkage is what moves the surface the
+        silhouettes do not pin inward, and the anchored forms lose (measured, IoU / F@0.01,
+        ``"none"`` -> ``"last"``: fandisk 0.9838 / 0.400 -> 0.9799 / 0.390, Suzanne 0.9764 /
+        0.643 -> 0.9746 / 0.621, thin plate 0.9626 / 0.378 -> 0.9609 / 0.371, double torus
+        0.9807 / 0.949 -> 0.9752 / 0.918, open cylinder 0.9837 / 0.729 -> 0.9746 / 0.678;
+        ``"round"``: Suzanne 0.9702 / 0.615, torus 0.9933 / 0.997 -> 0.9874 / 0.945;
+        ``"final"``: fandisk 0.9822 / 0.380, Suzanne 0.9752 / 0.639, double torus 0.9779 /
+        0.954): ``"none"`` in every recipe.
     contour_threshold : float
         The contour method compares the mesh's hard silhouette with the targets binarised at
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
