@@ -14,7 +14,8 @@ import pytest
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
 from geofit.structures import MultiViewDataset, TexturesUV
 from geofit.datasets import tutorial_views
-from geofit.fit._views_objective import _lstsq_colors, _Objective
+from geofit.fit._views_objective import _lstsq_colors, _Objective, regularizers
+from geofit.loss import mesh_laplacian_smoothing
 from geofit.fit.large_steps import IdentityParameterization, LargeSteps
 from geofit.fit.views import (
     SILHOUETTE_METHODS,
@@ -593,3 +594,61 @@ def test_default_rgb_stage_needs_a_silhouette_stage_and_images(data):
     assert [s["name"] for s in given.stages][:1] == ["textured"]
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(sil_only, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)
+
+
+@pytest.mark.parametrize("large", [None, 5.0])
+def test_anchored_laplacian_gradient_matches_finite_differences(data, large):
+    """With ``anchor`` the objective's Laplacian term acts on ``V - anchor``: a central
+    difference along a random direction matches <grad, u> (float64), the term is 0 at the
+    anchor and equal to the plain term of the displacement mesh elsewhere."""
+    m = ico_sphere(2)
+    rng = np.random.default_rng(3)
+    m = m.update_verts(m.verts * 0.7)
+    anchor = m.verts + 0.02 * rng.normal(size=m.verts.shape)  # a rest shape with bumps
+    param = LargeSteps(m, large) if large else IdentityParameterization(m)
+    weights = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 1.0}
+    st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
+    obj = _Objective(m, data, weights, textured=False, param=param, settings=st, anchor=anchor)
+    x = param.to_params(m.verts).ravel()
+    f, g = obj(x)
+    u = rng.normal(size=x.shape)
+    h = 1e-7
+    fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
+    assert fd == pytest.approx(float(g @ u), rel=1e-4)
+    terms, _ = regularizers(m, {"laplacian": 1.0}, anchor)
+    lap, _ = mesh_laplacian_smoothing(m.update_verts(m.verts - anchor), "uniform")
+    assert terms["laplacian"] == pytest.approx(lap, rel=1e-12) and lap > 0
+    # at the anchor the term and its (zero) subgradient vanish; a rigid move costs nothing
+    t0, g0 = regularizers(m, {"laplacian": 1.0}, m.verts)
+    assert t0["laplacian"] == 0.0 and not np.any(g0)
+    t1, _ = regularizers(m.update_verts(m.verts + [0.1, -0.2, 0.3]), {"laplacian": 1.0},
+                         m.verts)
+    assert t1["laplacian"] == pytest.approx(0.0, abs=1e-12)
+    assert regularizers(m, {"laplacian": 1.0})[0]["laplacian"] > 0.01  # the sphere's curvature
+
+
+def test_laplacian_anchor_changes_the_fit_only_where_asked(data):
+    """``laplacian_anchor``: "none" is the plain Laplacian (the result bit-identical to the
+    option left out), "round" and "last" move the fit differently from it (with one level
+    and one round "last" and "final" are "round"; with two levels of one round each "final"
+    is "last", which differs from "round"); an unknown form is refused."""
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
+             textured_method="none")
+
+    def verts(**kw):
+        return fit_mesh_to_views(data, options=ViewsFitOptions(**o, **kw),
+                                 progress=False).mesh.verts
+
+    base = verts()
+    np.testing.assert_array_equal(base, verts(laplacian_anchor="none"))
+    r = verts(laplacian_anchor="round")
+    assert np.abs(r - base).max() > 1e-6
+    np.testing.assert_array_equal(r, verts(laplacian_anchor="last"))
+    np.testing.assert_array_equal(r, verts(laplacian_anchor="final"))
+    o["levels"] = ((0, 2), (0, 1))
+    last = verts(laplacian_anchor="last")
+    assert np.abs(last - verts(laplacian_anchor="round")).max() > 1e-6
+    np.testing.assert_array_equal(last, verts(laplacian_anchor="final"))
+    with pytest.raises(ValueError, match="options.laplacian_anchor"):
+        fit_mesh_to_views(data, options=ViewsFitOptions(laplacian_anchor="vertices"),
+                          progress=False)

@@ -59,13 +59,22 @@ def dataset_background(data: MultiViewDataset) -> tuple:
 REG_TERMS = ("edge", "normal", "laplacian", "normal_variation")
 
 
-def regularizers(mesh: Mesh, weights: Mapping[str, float]):
+def regularizers(mesh: Mesh, weights: Mapping[str, float], anchor: np.ndarray | None = None):
     """Weighted edge / normal-consistency / uniform-Laplacian / normal-variation terms and
-    their gradient."""
+    their gradient.
+
+    ``anchor`` (V, 3) float64, optional: the Laplacian term acts on the displacement
+    ``V - anchor`` (``mean_i |(L (V - anchor))_i|``) instead of on ``V``: smooth moves cost
+    nothing, so the curvature the surface already has (creases, flat faces, a head's
+    features) is no cost that pulls it away from the silhouettes' equilibrium. The uniform
+    ``L`` depends on the faces alone, so its gradient is that of
+    :func:`geofit.loss.mesh_laplacian_smoothing` at the displaced vertices.
+    """
     g = np.zeros((mesh.n_verts, 3))
     terms = {}
+    lap = mesh if anchor is None else mesh.update_verts(mesh.verts - anchor)
     for name, fn in (("edge", mesh_edge_loss), ("normal", mesh_normal_consistency),
-                     ("laplacian", lambda m: mesh_laplacian_smoothing(m, "uniform")),
+                     ("laplacian", lambda m: mesh_laplacian_smoothing(lap, "uniform")),
                      ("normal_variation", mesh_normal_variation)):
         w = float(weights.get(name, 0.0))
         if w == 0.0:
@@ -88,8 +97,9 @@ class _Objective:
     def __init__(self, base: Mesh, data: MultiViewDataset, weights: Mapping[str, float], *,
                  textured: bool, param, settings: SoftRasterizationSettings,
                  views_per_step: int | None = None, rng=None, sigma: float = SIGMA,
-                 max_views: int = 5):
+                 max_views: int = 5, anchor: np.ndarray | None = None):
         self.base = base
+        self.anchor = anchor  # the Laplacian's rest vertices (regularizers), None: V itself
         self.max_views = max_views
         self.data = data
         self.weights = dict(weights)
@@ -123,7 +133,7 @@ class _Objective:
             idx = self.rng.permutation(len(self.data))[:self.views_per_step]
         nv = len(idx)
         H, W = self.data.image_size
-        terms, g_verts = regularizers(mesh, self.weights)
+        terms, g_verts = regularizers(mesh, self.weights, self.anchor)
         w_s = float(self.weights.get("silhouette", 0.0))
         w_rgb = float(self.weights.get("rgb", 0.0))
         sil = 0.0
@@ -199,8 +209,9 @@ class _ContourObjective:
     """Geometry-first silhouette objective (see :mod:`geofit.render.soft.contour`) plus
     regularisers."""
 
-    def __init__(self, base: Mesh, closs, weights, param):
+    def __init__(self, base: Mesh, closs, weights, param, anchor: np.ndarray | None = None):
         self.base = base
+        self.anchor = anchor
         self.closs = closs
         self.weights = dict(weights)
         self.param = param
@@ -213,7 +224,7 @@ class _ContourObjective:
     def __call__(self, x):
         verts, _ = self.split(x)
         mesh = self.base.update_verts(verts)
-        terms, g = regularizers(mesh, self.weights)
+        terms, g = regularizers(mesh, self.weights, self.anchor)
         v, gv = self.closs(mesh)
         w = float(self.weights.get("silhouette", 0.0))
         terms["silhouette"] = w * v
