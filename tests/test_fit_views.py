@@ -14,7 +14,7 @@ import pytest
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
 from geofit.structures import MultiViewDataset, TexturesUV
 from geofit.datasets import tutorial_views
-from geofit.fit._views_objective import _lstsq_colors, _Objective
+from geofit.fit._views_objective import _lstsq_colors, _Objective, _silhouette_residual
 from geofit.fit.large_steps import IdentityParameterization, LargeSteps
 from geofit.fit.views import (
     SILHOUETTE_METHODS,
@@ -136,6 +136,42 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     regs = {"edge", "normal", "laplacian", "normal_variation"}
     assert set(obj.last["terms"]) == regs | ({"silhouette", "rgb"} if textured else
                                              {"silhouette"})
+
+
+@pytest.mark.parametrize("large", [None, 5.0])
+def test_log_transmittance_silhouette_gradient_matches_finite_differences(data, large):
+    """options.silhouette_log_eps: the silhouette residual in log-transmittance
+    (-log(1 - S + e)); a central difference along a random direction matches <grad, u>."""
+    m = ico_sphere(2)
+    m = m.update_verts(m.verts * 0.7)
+    param = LargeSteps(m, large) if large else IdentityParameterization(m)
+    st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
+    obj = _Objective(m, data, {"silhouette": 1.0, "edge": 1.0, "laplacian": 1.0}, textured=False,
+                     param=param, settings=st, log_eps=0.02)
+    x = param.to_params(m.verts).ravel()
+    f, g = obj(x)
+    assert np.all(np.isfinite(g)) and f > 0
+    u = np.random.default_rng(2).normal(size=x.shape)
+    h = 1e-7
+    fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
+    assert fd == pytest.approx(float(g @ u), rel=1e-4)
+
+
+def test_log_transmittance_residual_keeps_the_truth_and_weighs_covered_pixels():
+    """g(S) - g(T) is 0 where S = T (a mesh rendering the targets stays a minimum), its slope is
+    1 / (1 + e) at S = 0, and a covered pixel the target leaves empty gets the full pull: the
+    factor (1 - S) dr/dS of the chain rule is (1 - S) / (1 - S + e), not 1 - S."""
+    S = np.array([0.0, 0.3, 0.95, 0.999])
+    r, dr = _silhouette_residual(S, S, 0.01)
+    np.testing.assert_allclose(r, 0.0, atol=1e-15)
+    assert dr[0] == pytest.approx(1.0 / 1.01, rel=1e-12)
+    r0, dr0 = _silhouette_residual(S, np.zeros(4), 0.0)
+    np.testing.assert_allclose(r0, S) and dr0 == 1.0
+    r1, dr1 = _silhouette_residual(S, np.zeros(4), 0.01)
+    np.testing.assert_allclose(r1, -np.log((1 - S + 0.01) / 1.01), rtol=1e-12)
+    # the chain rule's (1 - S) dr/dS at the 0.95-covered pixel: 0.05 plain, 0.83 here
+    assert (1 - S[2]) * dr1[2] == pytest.approx(0.05 / 0.06, rel=1e-12)
+    assert (1 - S[2]) * dr0 == pytest.approx(0.05, rel=1e-12)
 
 
 def test_lstsq_colours_recover_known_vertex_colours():
@@ -331,6 +367,11 @@ def test_validation(data):
         fit_mesh_to_views(tr, options=ViewsFitOptions(views_per_step=7), progress=False)
     with pytest.raises(ValueError, match="large_steps"):
         fit_mesh_to_views(tr, options=ViewsFitOptions(large_steps=-1.0), progress=False)
+    with pytest.raises(ValueError, match="silhouette_log_eps"):
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_log_eps=-0.1), progress=False)
+    with pytest.raises(ValueError, match="silhouette_log_eps"):
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_log_eps=float("nan")),
+                          progress=False)
     with pytest.raises(ValueError, match="levels"):
         fit_mesh_to_views(tr, options=ViewsFitOptions(levels=[(0,)]), progress=False)
     with pytest.raises(ValueError, match="levels"):

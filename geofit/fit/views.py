@@ -317,6 +317,13 @@ class ViewsFitOptions:
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
         the true hard masks, 3514 of 327680, against 5478 at 0.5 and 3311 at 0.95, which loses
         interior pixels); 0: the targets as they are, compared at 0.5.
+    silhouette_log_eps : float
+        Compare the soft silhouettes in log-transmittance, ``-log(1 - S + e)`` with ``e`` this
+        value (0: ``S`` itself, the tutorial's; the soft method only). The product coverage's
+        pull on a pixel the mesh covers and the target leaves empty fades with ``1 - S``
+        (squared where the front and back faces meet at the outline), so the fit leaves
+        concave corners filled; in log-transmittance both sides pull alike and the true
+        surface is still a minimum.
     """
     init: Any = None
     silhouette_method: str | None = None
@@ -355,6 +362,7 @@ class ViewsFitOptions:
     rgb_color_reg: float | None = None
     rgb_color_smooth: float | None = None
     rgb_inner_px: int | None = None
+    silhouette_log_eps: float | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
@@ -364,7 +372,7 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                hull_close_px=0.0, hull_fill_px=9.0, hull_grey_px=0.0, hull_margins=(0.0,),
                hull_vote_depth=0.0, final_regularization=1.0, rgb_iters=0, rgb_weight=1.0,
                rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4,
-               rgb_color_smooth=0.0, rgb_inner_px=0)
+               rgb_color_smooth=0.0, rgb_inner_px=0, silhouette_log_eps=0.0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -691,6 +699,7 @@ class _Plan:
     rgb_color_reg: float = 1e-4
     rgb_color_smooth: float = 0.0
     rgb_inner_px: int = 0
+    silhouette_log_eps: float = 0.0
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -786,6 +795,9 @@ class _Plan:
                    rgb_color_smooth=check_positive(o.rgb_color_smooth,
                                                    "options.rgb_color_smooth", strict=False),
                    rgb_inner_px=check_int(o.rgb_inner_px, "options.rgb_inner_px", 0),
+                   silhouette_log_eps=check_positive(o.silhouette_log_eps,
+                                                     "options.silhouette_log_eps",
+                                                     strict=False),
                    final_regularization=check_positive(
                        o.final_regularization, "options.final_regularization", strict=False),
                    final_large_steps=(large_steps if o.final_large_steps is None else
@@ -931,7 +943,8 @@ def _silhouette_objective(plan: _Plan, run: _Solver, mesh: Mesh,
         return _ContourObjective(mesh, closs, weights, param)
     vps = plan.views_per_step if plan.silhouette_method == "sgd" else None
     obj = _Objective(mesh, data, weights, textured=False, param=param,
-                     settings=plan.settings(data.image_size), views_per_step=vps, rng=run.rng)
+                     settings=plan.settings(data.image_size), views_per_step=vps, rng=run.rng,
+                     log_eps=plan.silhouette_log_eps)
     obj.clock = run.clock
     return obj
 
