@@ -151,6 +151,9 @@ def test_log_transmittance_silhouette_gradient_matches_finite_differences(data, 
     x = param.to_params(m.verts).ravel()
     f, g = obj(x)
     assert np.all(np.isfinite(g)) and f > 0
+    plain = _Objective(m, data, {"silhouette": 1.0, "edge": 1.0, "laplacian": 1.0},
+                       textured=False, param=param, settings=st)
+    assert f > plain(x)[0]  # the log branch is exercised (the sphere covers background)
     u = np.random.default_rng(2).normal(size=x.shape)
     h = 1e-7
     fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
@@ -158,20 +161,30 @@ def test_log_transmittance_silhouette_gradient_matches_finite_differences(data, 
 
 
 def test_log_transmittance_residual_keeps_the_truth_and_weighs_covered_pixels():
-    """g(S) - g(T) is 0 where S = T (a mesh rendering the targets stays a minimum), its slope is
-    1 / (1 + e) at S = 0, and a covered pixel the target leaves empty gets the full pull: the
-    factor (1 - S) dr/dS of the chain rule is (1 - S) / (1 - S + e), not 1 - S."""
+    """r = 0 where S = T (a mesh rendering the targets stays a minimum); on background pixels
+    (T < e) the mesh over-covers, the chain rule's factor (1 - S) dr/dS is (1 - S) / (1 - S + e)
+    instead of 1 - S; under-covered pixels and T >= e keep r = S - T."""
     S = np.array([0.0, 0.3, 0.95, 0.999])
-    r, dr = _silhouette_residual(S, S, 0.01)
+    r, dr = _silhouette_residual(S, S, 0.02)
     np.testing.assert_allclose(r, 0.0, atol=1e-15)
-    assert dr[0] == pytest.approx(1.0 / 1.01, rel=1e-12)
     r0, dr0 = _silhouette_residual(S, np.zeros(4), 0.0)
-    np.testing.assert_allclose(r0, S) and dr0 == 1.0
-    r1, dr1 = _silhouette_residual(S, np.zeros(4), 0.01)
-    np.testing.assert_allclose(r1, -np.log((1 - S + 0.01) / 1.01), rtol=1e-12)
-    # the chain rule's (1 - S) dr/dS at the 0.95-covered pixel: 0.05 plain, 0.83 here
-    assert (1 - S[2]) * dr1[2] == pytest.approx(0.05 / 0.06, rel=1e-12)
-    assert (1 - S[2]) * dr0 == pytest.approx(0.05, rel=1e-12)
+    np.testing.assert_allclose(r0, S)
+    assert dr0 == 1.0
+    e = 0.02
+    r1, dr1 = _silhouette_residual(S, np.zeros(4), e)
+    np.testing.assert_allclose(r1, np.log((1 + e) / (1 - S + e)), rtol=1e-12)
+    assert (1 - S[2]) * dr1[2] == pytest.approx(0.05 / 0.07, rel=1e-12)   # 0.05 plain
+    # the target above e, or the mesh under-covering: the plain residual
+    T = np.array([0.5, 0.5, 0.5, 0.5])
+    r2, dr2 = _silhouette_residual(S, T, e)
+    np.testing.assert_allclose(r2, S - T)
+    np.testing.assert_allclose(dr2, 1.0)
+    r3, dr3 = _silhouette_residual(np.array([0.005]), np.array([0.01]), e)
+    np.testing.assert_allclose(r3, [-0.005])
+    # C1 at S = T: the residual's two branches both vanish there
+    lo, _ = _silhouette_residual(np.array([0.01 - 1e-9]), np.array([0.01]), e)
+    hi, _ = _silhouette_residual(np.array([0.01 + 1e-9]), np.array([0.01]), e)
+    assert abs(lo[0]) < 2e-9 and abs(hi[0]) < 2e-9
 
 
 def test_lstsq_colours_recover_known_vertex_colours():

@@ -40,15 +40,20 @@ SIGMA = 1e-4
 def _silhouette_residual(S: np.ndarray, T: np.ndarray, log_eps: float):
     """Residual of the silhouette term and its derivative in ``S``.
 
-    ``log_eps`` 0: ``r = S - T`` (the tutorial's). ``log_eps = e > 0``: the residual of the
-    log-transmittance ``g(S) = -log((1 - S + e) / (1 + e))`` (``g(0) = 0``, ``g'(0) = 1 / (1 + e)``),
-    ``r = g(S) - g(T)``, ``dr/dS = 1 / (1 - S + e)``. The product coverage
-    ``S = 1 - prod_k (1 - p_k)`` has ``dS/dd_k = -(p_k / sigma) (1 - S)``: where the mesh
-    covers a pixel the target leaves empty (``S`` near 1) its pull vanishes with ``1 - S``
-    (on a closed mesh two layers of faces, the front and the back, multiply it), while an
-    uncovered pixel the target fills pulls with full strength; in ``g`` the factor
-    ``(1 - S) / (1 - S + e)`` is about 1 on both sides. ``g`` is monotone, so a mesh whose
-    soft render equals the targets (the true surface) stays a minimum.
+    ``log_eps`` 0: ``r = S - T`` (the tutorial's). ``log_eps = e > 0``: where the target is
+    background (``T < e``) and the mesh covers more than it (``S > T``), the residual of the
+    log-transmittance ``g(S) = -log(1 - S + e)``, ``r = g(S) - g(T)``,
+    ``dr/dS = 1 / (1 - S + e)``; elsewhere ``S - T``. The product coverage
+    ``S = 1 - prod_k (1 - p_k)`` has ``dS/dd_k = -(p_k / sigma) (1 - S)``: the pull on a pixel
+    the mesh covers and the target leaves empty fades with ``1 - S`` (on a closed mesh the
+    front and the back faces multiply it), while an uncovered pixel the target fills pulls
+    with full strength; with ``g`` the factor is ``(1 - S) / (1 - S + e)``, about 1. Both
+    branches vanish with zero slope at ``S = T`` (the loss is C1), so a mesh whose soft render
+    equals the targets (the true surface) stays a minimum. Applied to every pixel (not only
+    ``T < e``) the transform also magnifies the under-coverage just inside the outline that a
+    mesh coarser than the target's leaves, and the fit grows (the cow's held-out outline
+    0.08 -> 0.23 px too wide, measured); applied to every over-covered pixel it shrinks a
+    mesh finer than the target's (Suzanne 0.08 -> 0.39 px too narrow).
 
     Returns
     -------
@@ -60,8 +65,9 @@ def _silhouette_residual(S: np.ndarray, T: np.ndarray, log_eps: float):
     if log_eps == 0.0:
         return S - T, 1.0
     den = 1.0 - S + log_eps
-    r = np.log((1.0 - T + log_eps) / den)
-    return r, 1.0 / den
+    over = (S > T) & (T < log_eps)
+    r = np.where(over, np.log((1.0 - T + log_eps) / den), S - T)
+    return r, np.where(over, 1.0 / den, 1.0)
 
 
 def dataset_lights(data: MultiViewDataset):
