@@ -326,8 +326,8 @@ class ViewsFitOptions:
         an uncovered pixel the target fills. The true surface stays a minimum. Measured with
         0.05 on the 11 shapes of ``benchmarks/fit_views.py`` (its views and metrics, held-out
         F@0.01): Suzanne 0.643 -> 0.659, thin plate 0.378 -> 0.475, double torus 0.949 ->
-        0.973, cow 0.834 -> 0.828, but the ogre 0.476 -> 0.355 (IoU 0.859 -> 0.781; its soft
-        targets drop 3 291 true pixels, which the stronger pull may carve) and the open
+        0.973, cow 0.834 -> 0.828, but the ogre 0.476 -> 0.355 (IoU 0.859 -> 0.781; 479
+        true-mask pixels of its views have soft targets below 0.05, which it carves) and the open
         cylinder 0.729 -> 0.707: not the default (CHANGELOG.md has the table).
     """
     init: Any = None
