@@ -114,9 +114,9 @@ class _Objective:
 
     ``x = [u (3V), colours (3V, textured only)]``; vertices come from the parameterisation.
     Data terms are the tutorial's: per view the mean over pixels of the squared error, averaged
-    over the views used (the silhouettes' in log-transmittance with ``log_eps > 0``, untextured
-    only: :func:`_silhouette_residual`) (all of them, or ``views_per_step`` random ones per call). Views are
-    rendered in batches of at most ``max_views`` (bounded memory).
+    over the views used (all of them, or ``views_per_step`` random ones per call); with
+    ``log_eps > 0`` (untextured only) the silhouette residual of :func:`_silhouette_residual`.
+    Views are rendered in batches of at most ``max_views`` (bounded memory).
     """
 
     def __init__(self, base: Mesh, data: MultiViewDataset, weights: Mapping[str, float], *,
