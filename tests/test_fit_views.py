@@ -14,7 +14,8 @@ import pytest
 from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look_at_view_transform
 from geofit.structures import MultiViewDataset, TexturesUV
 from geofit.datasets import tutorial_views
-from geofit.fit._views_objective import _lstsq_colors, _Objective, regularizers
+from geofit.fit._views_objective import (_lstsq_colors, _Objective, _silhouette_residual,
+                                             regularizers)
 from geofit.loss import mesh_laplacian_smoothing
 from geofit.fit.large_steps import IdentityParameterization, LargeSteps
 from geofit.fit.views import (
@@ -137,6 +138,55 @@ def test_objective_gradient_matches_finite_differences(data, textured, large):
     regs = {"edge", "normal", "laplacian", "normal_variation"}
     assert set(obj.last["terms"]) == regs | ({"silhouette", "rgb"} if textured else
                                              {"silhouette"})
+
+
+@pytest.mark.parametrize("large", [None, 5.0])
+def test_log_transmittance_silhouette_gradient_matches_finite_differences(data, large):
+    """options.silhouette_log_eps: the silhouette residual in log-transmittance
+    (-log(1 - S + e)); a central difference along a random direction matches <grad, u>."""
+    m = ico_sphere(2)
+    m = m.update_verts(m.verts * 0.7)
+    param = LargeSteps(m, large) if large else IdentityParameterization(m)
+    st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
+    obj = _Objective(m, data, {"silhouette": 1.0, "edge": 1.0, "laplacian": 1.0}, textured=False,
+                     param=param, settings=st, log_eps=0.02)
+    x = param.to_params(m.verts).ravel()
+    f, g = obj(x)
+    assert np.all(np.isfinite(g)) and f > 0
+    plain = _Objective(m, data, {"silhouette": 1.0, "edge": 1.0, "laplacian": 1.0},
+                       textured=False, param=param, settings=st)
+    assert f > plain(x)[0]  # the log branch is exercised (the sphere covers background)
+    u = np.random.default_rng(2).normal(size=x.shape)
+    h = 1e-7
+    fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
+    assert fd == pytest.approx(float(g @ u), rel=1e-4)
+
+
+def test_log_transmittance_residual_keeps_the_truth_and_weighs_covered_pixels():
+    """r = 0 where S = T (a mesh rendering the targets stays a minimum); on background pixels
+    (T < e) the mesh over-covers, the chain rule's factor (1 - S) dr/dS is (1 - S) / (1 - S + e)
+    instead of 1 - S; under-covered pixels and T >= e keep r = S - T."""
+    S = np.array([0.0, 0.3, 0.95, 0.999])
+    r, dr = _silhouette_residual(S, S, 0.02)
+    np.testing.assert_allclose(r, 0.0, atol=1e-15)
+    r0, dr0 = _silhouette_residual(S, np.zeros(4), 0.0)
+    np.testing.assert_allclose(r0, S)
+    assert dr0 == 1.0
+    e = 0.02
+    r1, dr1 = _silhouette_residual(S, np.zeros(4), e)
+    np.testing.assert_allclose(r1, np.log((1 + e) / (1 - S + e)), rtol=1e-12)
+    assert (1 - S[2]) * dr1[2] == pytest.approx(0.05 / 0.07, rel=1e-12)   # 0.05 plain
+    # the target above e, or the mesh under-covering: the plain residual
+    T = np.array([0.5, 0.5, 0.5, 0.5])
+    r2, dr2 = _silhouette_residual(S, T, e)
+    np.testing.assert_allclose(r2, S - T)
+    np.testing.assert_allclose(dr2, 1.0)
+    r3, dr3 = _silhouette_residual(np.array([0.005]), np.array([0.01]), e)
+    np.testing.assert_allclose(r3, [-0.005])
+    # C1 at S = T: the residual's two branches both vanish there
+    lo, _ = _silhouette_residual(np.array([0.01 - 1e-9]), np.array([0.01]), e)
+    hi, _ = _silhouette_residual(np.array([0.01 + 1e-9]), np.array([0.01]), e)
+    assert abs(lo[0]) < 2e-9 and abs(hi[0]) < 2e-9
 
 
 def test_lstsq_colours_recover_known_vertex_colours():
@@ -332,6 +382,11 @@ def test_validation(data):
         fit_mesh_to_views(tr, options=ViewsFitOptions(views_per_step=7), progress=False)
     with pytest.raises(ValueError, match="large_steps"):
         fit_mesh_to_views(tr, options=ViewsFitOptions(large_steps=-1.0), progress=False)
+    with pytest.raises(ValueError, match="silhouette_log_eps"):
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_log_eps=-0.1), progress=False)
+    with pytest.raises(ValueError, match="silhouette_log_eps"):
+        fit_mesh_to_views(tr, options=ViewsFitOptions(silhouette_log_eps=float("nan")),
+                          progress=False)
     with pytest.raises(ValueError, match="levels"):
         fit_mesh_to_views(tr, options=ViewsFitOptions(levels=[(0,)]), progress=False)
     with pytest.raises(ValueError, match="levels"):

@@ -37,6 +37,39 @@ __all__ = ["REG_TERMS", "SIGMA", "dataset_lights", "regularizers"]
 SIGMA = 1e-4
 
 
+def _silhouette_residual(S: np.ndarray, T: np.ndarray, log_eps: float):
+    """Residual of the silhouette term and its derivative in ``S``.
+
+    ``log_eps`` 0: ``r = S - T`` (the tutorial's). ``log_eps = e > 0``: where the target is
+    background (``T < e``) and the mesh covers more than it (``S > T``), the residual of the
+    log-transmittance ``g(S) = -log(1 - S + e)``, ``r = g(S) - g(T)``,
+    ``dr/dS = 1 / (1 - S + e)``; elsewhere ``S - T``. The product coverage
+    ``S = 1 - prod_k (1 - p_k)`` has ``dS/dd_k = -(p_k / sigma) (1 - S)``: the pull on a pixel
+    the mesh covers and the target leaves empty fades with ``1 - S`` (on a closed mesh the
+    front and the back faces multiply it), while an uncovered pixel the target fills pulls
+    with full strength; with ``g`` the factor is ``(1 - S) / (1 - S + e)``, about 1. Both
+    branches vanish with zero slope at ``S = T`` (the loss is C1), so a mesh whose soft render
+    equals the targets (the true surface) stays a minimum. Applied to every pixel (not only
+    ``T < e``) the transform also magnifies the under-coverage just inside the outline that a
+    mesh coarser than the target's leaves, and the fit grows (the cow's held-out outline
+    0.08 -> 0.23 px too wide, measured); applied to every over-covered pixel it shrinks a
+    mesh finer than the target's (Suzanne 0.08 -> 0.39 px too narrow).
+
+    Returns
+    -------
+    r : ndarray
+        The residual (same shape as ``S``).
+    dr : ndarray or float
+        ``dr/dS``.
+    """
+    if log_eps == 0.0:
+        return S - T, 1.0
+    den = 1.0 - S + log_eps
+    over = (S > T) & (T < log_eps)
+    r = np.where(over, np.log((1.0 - T + log_eps) / den), S - T)
+    return r, np.where(over, 1.0 / den, 1.0)
+
+
 def dataset_lights(data: MultiViewDataset):
     """The dataset's lights, or ``AmbientLights()`` (unlit colour: what the camera saw) when it
     has none (a capture: its lighting is in its pixels)."""
@@ -90,14 +123,15 @@ class _Objective:
 
     ``x = [u (3V), colours (3V, textured only)]``; vertices come from the parameterisation.
     Data terms are the tutorial's: per view the mean over pixels of the squared error, averaged
-    over the views used (all of them, or ``views_per_step`` random ones per call). Views are
-    rendered in batches of at most ``max_views`` (bounded memory).
+    over the views used (all of them, or ``views_per_step`` random ones per call); with
+    ``log_eps > 0`` (untextured only) the silhouette residual of :func:`_silhouette_residual`.
+    Views are rendered in batches of at most ``max_views`` (bounded memory).
     """
 
     def __init__(self, base: Mesh, data: MultiViewDataset, weights: Mapping[str, float], *,
                  textured: bool, param, settings: SoftRasterizationSettings,
                  views_per_step: int | None = None, rng=None, sigma: float = SIGMA,
-                 max_views: int = 5, anchor: np.ndarray | None = None):
+                 max_views: int = 5, anchor: np.ndarray | None = None, log_eps: float = 0.0):
         self.base = base
         self.anchor = anchor  # the Laplacian's rest vertices (regularizers), None: V itself
         self.max_views = max_views
@@ -110,6 +144,7 @@ class _Objective:
         self.rng = rng
         self.clock = None  # the fit's Clock, whose deadline is checked between view batches
         self.sigma = sigma
+        self.log_eps = float(log_eps)  # silhouette residual in log-transmittance (0: S - T)
         self.V = base.n_verts
         self.last: dict = {}
         self.n_calls = 0
@@ -148,9 +183,9 @@ class _Objective:
             if not self.textured:
                 fr = rasterize_soft(mesh, cams, self.settings)
                 S = sigmoid_alpha_blend(fr, self.sigma)
-                res = S - tgt_s
+                res, dres = _silhouette_residual(S, tgt_s, self.log_eps)
                 sil += float(np.sum(res * res))
-                gS = (2.0 * w_s / (nv * H * W)) * res
+                gS = (2.0 * w_s / (nv * H * W)) * res * dres
                 gd = sigmoid_alpha_blend_vjp(fr, gS, self.sigma, S)
                 g_verts = g_verts + fr.vjp(grad_dists=gd)
             else:
