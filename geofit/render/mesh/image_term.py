@@ -612,20 +612,21 @@ class HardImageLoss:
         lo, hi = mesh.verts.min(axis=0), mesh.verts.max(axis=0)
         tol = self.depth_tolerance * float(np.linalg.norm(hi - lo))
         views, ea, eb, ts, ws, ps, ns = [], [], [], [], [], [], []
-        for v in range(N):  # views
+
+        def samples(v):  # one view's contour edges and their samples (views on the threads)
             xy = proj.xy[v]
             if not np.all(np.isfinite(xy)):
-                continue  # a vertex on the camera plane: no contour for this view
+                return None  # a vertex on the camera plane: no contour for this view
             edges, nrm = contour_edges(mesh, xy)
             e, t, w, p = edge_samples(xy[edges[:, 0]], xy[edges[:, 1]], S,
                                       self.samples_per_pixel)
-            views.append(np.full(len(e), v))
-            ea.append(edges[e, 0])
-            eb.append(edges[e, 1])
-            ts.append(t)
-            ws.append(w)
-            ps.append(p)
-            ns.append(nrm[e])
+            return np.full(len(e), v), edges[e, 0], edges[e, 1], t, w, p, nrm[e]
+
+        for r in parallel_map(samples, range(N), self.n_threads):  # views, in order
+            if r is None:
+                continue
+            for lst, a in zip((views, ea, eb, ts, ws, ps, ns), r):  # the seven arrays
+                lst.append(a)
         grad = np.zeros((Vn, 3))
         if not views:
             return grad
