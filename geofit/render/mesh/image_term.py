@@ -342,12 +342,13 @@ class HardImageLoss:
                                 np.zeros((0, 3)), 0)
         scene = EmbreeScene([(mesh.verts, mesh.faces)])
         rays = self._rays
-        pixels = []
-        for v in range(N):  # views: the sub-pixels each may cover
+
+        def covered(v):  # one view's sub-pixels that a face may cover (views on the threads)
             xy, zv = _raycast.project(mesh.verts, rays[v], self.perspective)
             mk = _raycast.coverage_mask(xy, zv, mesh.faces, sH, sW, float(self.tnear[v]))
-            pixels.append(v * sH * sW + np.flatnonzero(mk))
-        pixels = np.concatenate(pixels)
+            return v * sH * sW + np.flatnonzero(mk)
+
+        pixels = np.concatenate(parallel_map(covered, range(N), self.n_threads))
         h = _raycast.cast_pixels(scene, pixels, rays, self._xs, self._ys, self.tnear,
                                  self.n_threads)
         V, F = mesh.verts, mesh.faces
