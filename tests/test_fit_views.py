@@ -189,6 +189,32 @@ def test_log_transmittance_residual_keeps_the_truth_and_weighs_covered_pixels():
     assert abs(lo[0]) < 2e-9 and abs(hi[0]) < 2e-9
 
 
+@pytest.mark.parametrize("textured", [False, True])
+def test_objective_batches_on_threads_are_bit_identical(data, textured):
+    """Whole view batches on each of 2 threads (6 views in 2 batches of 3) give exactly the
+    value and gradient of the batches one after the other on 1 thread."""
+    from geofit import set_num_threads
+
+    m = ico_sphere(2)
+    m = m.update_verts(m.verts * 0.7)
+    weights = {"silhouette": 1.0, "rgb": 1.0, "edge": 1.0, "laplacian": 1.0}
+    st = SoftRasterizationSettings.tutorial(24)
+    obj = _Objective(m, data, weights, textured=textured, param=IdentityParameterization(m),
+                     settings=st, max_views=3)
+    x = m.verts.ravel()
+    if textured:
+        x = np.concatenate([x, np.random.default_rng(1).uniform(0.2, 0.8, 3 * m.n_verts)])
+    out = {}
+    try:
+        for n in (1, 2):  # threads
+            set_num_threads(n)
+            out[n] = obj(x)
+    finally:
+        set_num_threads(None)
+    assert out[1][0] == out[2][0]
+    np.testing.assert_array_equal(out[1][1], out[2][1])
+
+
 def test_lstsq_colours_recover_known_vertex_colours():
     """With the true geometry the hard render is affine in the colours: one sparse solve
     recovers the colours of every vertex the views see well."""

@@ -178,3 +178,22 @@ def test_interior_masks_erode_the_thresholded_silhouettes():
     assert m.dtype == np.float64 and m.shape == sil.shape
     np.testing.assert_array_equal(m[0], core)
     np.testing.assert_array_equal(m[1], core)
+
+
+def test_colour_solve_on_threads_is_bit_identical():
+    """The colour solve's bincounts on 2 threads give exactly the colours and the projected
+    value and gradient of 1 thread."""
+    from geofit import set_num_threads
+    from geofit.fit._rgb_refine import projected_image_loss
+
+    cams, s, images = _scene()
+    out = {}
+    try:
+        for n in (1, 2):  # threads
+            set_num_threads(n)
+            out[n] = projected_image_loss(HardImageLoss(cams, images, lights=LIGHTS), s, 1e-3)
+    finally:
+        set_num_threads(None)
+    assert out[1][0] == out[2][0]
+    np.testing.assert_array_equal(out[1][1], out[2][1])
+    np.testing.assert_array_equal(out[1][2], out[2][2])

@@ -32,6 +32,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.ndimage import binary_erosion
 
+from .._threads import parallel_map
 from ..ops import cot_laplacian, uniform_laplacian
 from ..render.mesh.image_term import HardImageLoss
 from ..structures import Mesh
@@ -123,10 +124,14 @@ class _ColorSolve:
         """``sum_hits w b b^T`` scattered onto the vertices (csr, the pattern of the faces)."""
         nf = len(self.F)
         blocks = np.empty((nf, 3, 3))
-        for j in range(3):  # corners
-            for k in range(j, 3):  # corners (symmetric)
-                blocks[:, j, k] = np.bincount(face, w * bary[:, j] * bary[:, k], nf)
-                blocks[:, k, j] = blocks[:, j, k]
+        pairs = [(j, k) for j in range(3) for k in range(j, 3)]  # corners (symmetric)
+
+        def block(jk):
+            j, k = jk
+            blocks[:, j, k] = np.bincount(face, w * bary[:, j] * bary[:, k], nf)
+            blocks[:, k, j] = blocks[:, j, k]
+
+        parallel_map(block, pairs)  # the six bincounts on the threads
         data = np.bincount(self.slot, blocks.ravel(), len(self.indices))
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.V, self.V))
 
@@ -143,10 +148,15 @@ class _ColorSolve:
             np.array_equal(h.shade[:, 0], h.shade[:, 2])
         C = np.empty((self.V, 3))
         lu = None
-        for c in range(3):  # colour channels
+
+        def rhs_of(c):  # one channel's right-hand side (channels on the threads)
             wy = m * h.shade[:, c] * (T[:, c] - h.specular[:, c])
             rhs = sum(np.bincount(tri[:, j], wy * h.bary[:, j], self.V) for j in range(3))
-            rhs = rhs + 1e-9 * 0.5
+            return rhs + 1e-9 * 0.5
+
+        rhss = parallel_map(rhs_of, range(3))
+        for c in range(3):  # colour channels
+            rhs = rhss[c]
             if lu is None or not grey:
                 lhs = self._matrix(h.face, h.bary, m * h.shade[:, c] ** 2) + self.R
                 lu = spla.splu(lhs.tocsc())

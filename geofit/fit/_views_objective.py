@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .._threads import get_num_threads, parallel_map
 from ..structures import MultiViewDataset
 from ..loss import (
     mesh_edge_loss, mesh_laplacian_smoothing, mesh_normal_consistency, mesh_normal_variation,
@@ -174,8 +175,8 @@ class _Objective:
         sil = 0.0
         rgb = 0.0
         g_colors = np.zeros((self.V, 3)) if self.textured else None
-        # views in batches of at most max_views: memory stays bounded, sums are the same
-        for b in np.array_split(idx, -(-nv // self.max_views)):  # view batches
+
+        def batch(b):  # one batch of views: (silhouette sum, rgb sum, vertex, colour grads)
             if self.clock is not None:  # a time budget holds inside long evaluations
                 self.clock.check()
             cams = self.data.cameras[b]
@@ -184,22 +185,34 @@ class _Objective:
                 fr = rasterize_soft(mesh, cams, self.settings)
                 S = sigmoid_alpha_blend(fr, self.sigma)
                 res, dres = _silhouette_residual(S, tgt_s, self.log_eps)
-                sil += float(np.sum(res * res))
                 gS = (2.0 * w_s / (nv * H * W)) * res * dres
                 gd = sigmoid_alpha_blend_vjp(fr, gS, self.sigma, S)
-                g_verts = g_verts + fr.vjp(grad_dists=gd)
-            else:
-                out = self.renderer(mesh, colors, cameras=cams)
-                res_s = out.images[..., 3] - tgt_s
-                res_c = out.images[..., :3] - self.data.images[b]
-                sil += float(np.sum(res_s * res_s))
-                rgb += float(np.sum(res_c * res_c))
-                gi = np.empty(out.images.shape)
-                gi[..., 3] = (2.0 * w_s / (nv * H * W)) * res_s
-                gi[..., :3] = (2.0 * w_rgb / (nv * H * W * 3)) * res_c
-                grads = out.vjp(gi)
-                g_verts = g_verts + grads.verts
-                g_colors += grads.colors
+                return float(np.sum(res * res)), 0.0, fr.vjp(grad_dists=gd), None
+            out = self.renderer(mesh, colors, cameras=cams)
+            res_s = out.images[..., 3] - tgt_s
+            res_c = out.images[..., :3] - self.data.images[b]
+            gi = np.empty(out.images.shape)
+            gi[..., 3] = (2.0 * w_s / (nv * H * W)) * res_s
+            gi[..., :3] = (2.0 * w_rgb / (nv * H * W * 3)) * res_c
+            grads = out.vjp(gi)
+            return (float(np.sum(res_s * res_s)), float(np.sum(res_c * res_c)), grads.verts,
+                    grads.colors)
+
+        # views in batches of at most max_views: memory stays bounded, sums are the same.
+        # When the batches split evenly over the threads, each thread renders whole batches
+        # (the renderers run single-threaded inside a pool worker; no barrier per phase, no
+        # idle thread on a batch of 5 views): the same values, summed in batch order
+        batches = np.array_split(idx, -(-nv // self.max_views))
+        n_threads = get_num_threads()
+        per_batch = n_threads > 1 and len(batches) % n_threads == 0
+        parts = (parallel_map(batch, batches, n_threads) if per_batch
+                 else (batch(b) for b in batches))
+        for s_b, c_b, gv_b, gc_b in parts:  # view batches, in order
+            sil += s_b
+            rgb += c_b
+            g_verts = g_verts + gv_b
+            if self.textured:
+                g_colors += gc_b
         terms["silhouette"] = w_s * sil / (nv * H * W)
         if self.textured:
             terms["rgb"] = w_rgb * rgb / (nv * H * W * 3)

@@ -216,7 +216,8 @@ def hit_rays(pixels: np.ndarray, rays: list[ViewRays], xs: np.ndarray, ys: np.nd
 
 
 def refine(o: np.ndarray, d: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray,
-           bary: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+           bary: np.ndarray, t: np.ndarray, clip: bool = True
+           ) -> tuple[np.ndarray, np.ndarray]:
     """Float64 Moller-Trumbore of ray ``i`` against triangle ``i``: exact ``t`` and barycentrics.
 
     Embree (float32) chose the triangle; where the float64 plane intersection is undefined
@@ -224,14 +225,21 @@ def refine(o: np.ndarray, d: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.nda
     float64 puts slightly outside the triangle (the ray passes within float32 rounding of an
     edge) are clipped to it and renormalised.
 
-    Returns ``bary (r, 3)``, ``t (r,)``.
+    Returns ``bary (r, 3)``, ``t (r,)``. ``clip=False`` leaves the clipping to the caller
+    (:func:`clip_bary` over all the rays: it renormalises every row when any is outside).
     """
     tt, u, v, det = moller_trumbore(o, d, A, B, C)
     ok = det != 0
     w = np.stack([1.0 - u - v, u, v], axis=1)
     w = np.where(ok[:, None], w, bary)
     tt = np.where(ok, tt, t)
+    return (clip_bary(w) if clip else w), tt
+
+
+def clip_bary(w: np.ndarray) -> np.ndarray:
+    """``w (r, 3)``, or, when any barycentric is negative, all rows clipped at 0 and
+    renormalised (:func:`refine`'s last step)."""
     if np.any(w < 0):
         w = np.maximum(w, 0.0)
         w /= w.sum(axis=1, keepdims=True)
-    return w, tt
+    return w

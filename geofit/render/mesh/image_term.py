@@ -294,37 +294,44 @@ class HardImageLoss:
     # --------------------------------------------------------------------------------------
 
     def _cast(self, scene: EmbreeScene, mesh: Mesh, view, x, y) -> _Hits:
-        """First hits of the rays through NDC ``(x, y)`` of ``view`` (float64 refined)."""
-        cf = self._coef[view]
-        o = cf[:, 0] + x[:, None] * cf[:, 1] + y[:, None] * cf[:, 2]
-        d = cf[:, 3] + x[:, None] * cf[:, 4] + y[:, None] * cf[:, 5]
+        """First hits of the rays through NDC ``(x, y)`` of ``view`` (float64 refined).
+
+        Chunk by chunk on the threads, ray setup, Embree's cast and the float64 refinement
+        alike (every step is per ray, the clipping applied over all of them: any chunking gives
+        the same hits); at least
+        ``4 x threads`` chunks, so that the edge term's few thousand rays share the threads.
+        """
         tn = self.tnear[view]
         c, sc = scene.center, scene.scale
         r = len(x)
-        bounds = np.arange(0, r + _RAY_CHUNK, _RAY_CHUNK).clip(max=r)
+        if r == 0:
+            return _Hits(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+        step = max(min(_RAY_CHUNK, -(-r // (4 * self.n_threads))), 1024)
+        bounds = np.arange(0, r + step, step).clip(max=r)
+        V, F = mesh.verts, mesh.faces
 
         def run(k):
             sl = slice(int(bounds[k]), int(bounds[k + 1]))
-            o32 = np.ascontiguousarray((o[sl] + tn[sl, None] * d[sl] - c) / sc, np.float32)
-            d32 = np.ascontiguousarray(d[sl] / sc, np.float32)
-            return scene.intersect(o32, d32)
+            cf = self._coef[view[sl]]
+            xs, ys = x[sl, None], y[sl, None]
+            o = cf[:, 0] + xs * cf[:, 1] + ys * cf[:, 2]
+            d = cf[:, 3] + xs * cf[:, 4] + ys * cf[:, 5]
+            o32 = np.ascontiguousarray((o + tn[sl, None] * d - c) / sc, np.float32)
+            d32 = np.ascontiguousarray(d / sc, np.float32)
+            geom, prim, u, v, t = scene.intersect(o32, d32)
+            face = np.where(geom >= 0, prim.astype(np.int64), -1)
+            hit = face >= 0
+            u, v = u[hit].astype(np.float64), v[hit].astype(np.float64)
+            tri = F[face[hit]]
+            b32 = np.stack([1.0 - u - v, u, v], axis=1)
+            bary, depth = _raycast.refine(o[hit], d[hit], V[tri[:, 0]], V[tri[:, 1]],
+                                          V[tri[:, 2]], b32,
+                                          t[hit].astype(np.float64) + tn[sl][hit], clip=False)
+            return face, bary, depth, d[hit]
 
-        parts = parallel_map(run, range(max(len(bounds) - 1, 0)), self.n_threads) if r else []
-        if not parts:
-            return _Hits(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-        geom = np.concatenate([p[0] for p in parts])
-        prim = np.concatenate([p[1] for p in parts]).astype(np.int64)
-        u = np.concatenate([p[2] for p in parts]).astype(np.float64)
-        v = np.concatenate([p[3] for p in parts]).astype(np.float64)
-        t = np.concatenate([p[4] for p in parts]).astype(np.float64)
-        face = np.where(geom >= 0, prim, -1)
-        hit = face >= 0
-        tri = mesh.faces[face[hit]]
-        V = mesh.verts
-        b32 = np.stack([1.0 - u[hit] - v[hit], u[hit], v[hit]], axis=1)
-        bary, depth = _raycast.refine(o[hit], d[hit], V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]],
-                                      b32, t[hit] + tn[hit])
-        return _Hits(face, bary, depth, d[hit])
+        parts = parallel_map(run, range(len(bounds) - 1), self.n_threads)
+        face, bary, depth, dirs = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        return _Hits(face, _raycast.clip_bary(bary), depth, dirs)  # clipped over all rays
 
     def pixel_hits(self, mesh) -> PixelRayHits:
         """Cast every (sub-)pixel ray against ``mesh`` once (see :class:`PixelRayHits`).
@@ -342,12 +349,13 @@ class HardImageLoss:
                                 np.zeros((0, 3)), 0)
         scene = EmbreeScene([(mesh.verts, mesh.faces)])
         rays = self._rays
-        pixels = []
-        for v in range(N):  # views: the sub-pixels each may cover
+
+        def covered(v):  # one view's sub-pixels that a face may cover (views on the threads)
             xy, zv = _raycast.project(mesh.verts, rays[v], self.perspective)
             mk = _raycast.coverage_mask(xy, zv, mesh.faces, sH, sW, float(self.tnear[v]))
-            pixels.append(v * sH * sW + np.flatnonzero(mk))
-        pixels = np.concatenate(pixels)
+            return v * sH * sW + np.flatnonzero(mk)
+
+        pixels = np.concatenate(parallel_map(covered, range(N), self.n_threads))
         h = _raycast.cast_pixels(scene, pixels, rays, self._xs, self._ys, self.tnear,
                                  self.n_threads)
         V, F = mesh.verts, mesh.faces
@@ -612,20 +620,21 @@ class HardImageLoss:
         lo, hi = mesh.verts.min(axis=0), mesh.verts.max(axis=0)
         tol = self.depth_tolerance * float(np.linalg.norm(hi - lo))
         views, ea, eb, ts, ws, ps, ns = [], [], [], [], [], [], []
-        for v in range(N):  # views
+
+        def samples(v):  # one view's contour edges and their samples (views on the threads)
             xy = proj.xy[v]
             if not np.all(np.isfinite(xy)):
-                continue  # a vertex on the camera plane: no contour for this view
+                return None  # a vertex on the camera plane: no contour for this view
             edges, nrm = contour_edges(mesh, xy)
             e, t, w, p = edge_samples(xy[edges[:, 0]], xy[edges[:, 1]], S,
                                       self.samples_per_pixel)
-            views.append(np.full(len(e), v))
-            ea.append(edges[e, 0])
-            eb.append(edges[e, 1])
-            ts.append(t)
-            ws.append(w)
-            ps.append(p)
-            ns.append(nrm[e])
+            return np.full(len(e), v), edges[e, 0], edges[e, 1], t, w, p, nrm[e]
+
+        for r in parallel_map(samples, range(N), self.n_threads):  # views, in order
+            if r is None:
+                continue
+            for lst, a in zip((views, ea, eb, ts, ws, ps, ns), r):  # the seven arrays
+                lst.append(a)
         grad = np.zeros((Vn, 3))
         if not views:
             return grad

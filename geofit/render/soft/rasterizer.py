@@ -395,7 +395,8 @@ def _truncate(f, pix, sd, edge, inside, crowded, x, y, z, faces, px, py, W, K,
                                      "px": px, "py": py})
     g = _EntryGeometry(tmp, 0, slice(0, len(sel)))
     b, _, _ = g.bary(perspective_correct, clip)
-    drop = sel[_ranks(ps, b[0] * g.z0 + b[1] * g.z1 + b[2] * g.z2, fs) >= K]
+    # one view's entries, each pixel's in increasing face order (the chunks' order)
+    drop = sel[_ranks(ps, b[0] * g.z0 + b[1] * g.z1 + b[2] * g.z2, fs, True) >= K]
     keep = np.ones(len(f), bool)
     keep[drop] = False
     return f[keep], pix[keep], sd[keep], edge[keep], inside[keep]
