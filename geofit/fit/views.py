@@ -650,9 +650,9 @@ def fit_mesh_to_views(dataset: MultiViewDataset, *, recipe: str = "default",
         keeps its vertex colours and the ``"texture"`` stage says so. A budget used up while
         carving the hull returns the unfitted ico-sphere with status ``"time_budget"`` and
         says so. None (the default): no budget; the default fit of the tutorial's 20 views of
-        128 px of the cow then needs about 46 s wall and 72 CPU s on 2 cores (quiet machine,
-        load 1.6; benchmarks/results/fit_views_shapes_session10.md); larger surfaces take
-        longer (the thin plate 52 s, the open cylinder 61 s).
+        128 px of the cow then needs about 36 s wall and 62 CPU s on 2 cores (quiet machine,
+        load 1.3; benchmarks/results/fit_views_shapes_session11.md); larger surfaces take
+        longer (the thin plate 44 s, the open cylinder 51 s).
     seed : int or numpy.random.Generator
         For the random views of the stochastic recipes.
     evaluator : callable, optional
