@@ -20,6 +20,7 @@ import numpy as np
 
 from .._validate import as_array, check_positive
 from ..ops import topology
+from ..ops.topology import face_components
 from ..shapes import ico_sphere
 from ..structures import Mesh
 from ..structures.visual_hull import carve_hull, close_unsupported_handles
@@ -463,8 +464,7 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
     if per_part:
         mesh = _decimate_parts(mc, le)
     else:
-        n_faces = int(max(200, float(mc.face_areas.sum()) / (0.433 * le * le)))
-        mesh = decimate(mc, n_faces) if n_faces < mc.n_faces else mc
+        mesh = _decimate_to_edge(mc, le, 200)
     return VisualHullMesh(mesh, g.voxel_size, g.pixel_size, mc.n_faces, n_filled,
                           g.n_closed_pixels, g.n_vote_kept, float(g.field.max()),
                           genus_before=None if genus is None else genus[0],
@@ -475,25 +475,26 @@ def visual_hull_mesh(silhouettes, cameras, *, edge_px: float = 4.0, shrink_px: f
 _MIN_PART_FACES = 48
 
 
+def _decimate_to_edge(mesh: Mesh, edge: float, min_faces: int) -> Mesh:
+    """``mesh`` decimated to faces of about ``edge`` (equilateral: 0.433 edge^2 each), at
+    least ``min_faces``; as it is when it has no more faces than that."""
+    n = int(max(min_faces, float(mesh.face_areas.sum()) / (0.433 * edge * edge)))
+    return decimate(mesh, n) if n < mesh.n_faces else mesh
+
+
 def _decimate_parts(mc: Mesh, edge: float) -> Mesh:
     """Each connected part of ``mc`` decimated on its own to faces of about ``edge`` (its
     area's share, at least :data:`_MIN_PART_FACES`), so that a small part (a leg the carving
     cut off at an ankle thinner than the grid) keeps a shape instead of collapsing."""
-    from scipy.sparse.csgraph import connected_components
-
-    n_parts, lab = connected_components(mc.topology.adjacency, directed=False)
-    if n_parts == 1:
-        n = int(max(200, float(mc.face_areas.sum()) / (0.433 * edge * edge)))
-        return decimate(mc, n) if n < mc.n_faces else mc
-    flab = lab[mc.faces[:, 0]]
-    area = np.bincount(flab, weights=mc.face_areas, minlength=n_parts)
+    flab = face_components(mc.faces)
+    n_parts = int(flab.max()) + 1 if len(flab) else 0
+    if n_parts <= 1:
+        return _decimate_to_edge(mc, edge, 200)
     V, F, off = [], [], 0
     for i in range(n_parts):  # parts (few; each one Open3D call)
-        faces = mc.faces[flab == i]
-        used, inv = np.unique(faces, return_inverse=True)
-        part = Mesh(mc.verts[used], inv.reshape(-1, 3).astype(np.int64))
-        n = int(max(_MIN_PART_FACES, area[i] / (0.433 * edge * edge)))
-        part = decimate(part, n) if n < part.n_faces else part
+        used, inv = np.unique(mc.faces[flab == i], return_inverse=True)
+        part = _decimate_to_edge(Mesh(mc.verts[used], inv.reshape(-1, 3).astype(np.int64)),
+                                 edge, _MIN_PART_FACES)
         if part.n_faces == 0:
             continue
         V.append(part.verts)
