@@ -37,6 +37,14 @@ def _object(level=3):
     return Mesh(V, m.faces, TexturesVertex(np.clip(c, 0, 1)))
 
 
+#: A short silhouette stage alone (no RGB stage, vertex colours: no UV atlas), for the tests of
+#: options that act in the silhouette stage and compare its vertices (0.5 CPU s a fit where
+#: the default's RGB stage and texture made it 4 s).
+_SILHOUETTE_STAGE_ONLY = dict(init="sphere", silhouette_iters=4, levels=((0, 1),),
+                              remesh_rounds=0, textured_method="none", rgb_iters=0,
+                              texture="vertex")
+
+
 @pytest.fixture(scope="module")
 def data() -> MultiViewDataset:
     return tutorial_views(4, mesh=_object(), num_views=6, image_size=24, num_held_out=3)
@@ -592,8 +600,7 @@ def test_final_large_steps_is_the_last_levels_lambda(data):
     """``final_large_steps`` sets lambda of the last coarse-to-fine level only: with one level
     it is that level's lambda (bit-identical to ``large_steps`` set alike, different from the
     other lambda); a negative value is refused."""
-    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
-             textured_method="none")
+    o = dict(_SILHOUETTE_STAGE_ONLY)
 
     def verts(**kw):
         return fit_mesh_to_views(data, options=ViewsFitOptions(**o, **kw),
@@ -618,8 +625,7 @@ def test_final_regularization_scales_the_last_levels_regularisers(data):
     w = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 0.3,
          "normal_variation": 0.02}
     half = {k: (v if k == "silhouette" else 0.5 * v) for k, v in w.items()}
-    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
-             textured_method="none")
+    o = dict(_SILHOUETTE_STAGE_ONLY)
 
     def verts(**kw):
         return fit_mesh_to_views(data, options=ViewsFitOptions(**o, **kw),
@@ -713,8 +719,7 @@ def test_laplacian_anchor_changes_the_fit_only_where_asked(data):
     option left out), "round" and "last" move the fit differently from it (with one level
     and one round "last" and "final" are "round"; with two levels of one round each "final"
     is "last", which differs from "round"); an unknown form is refused."""
-    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
-             textured_method="none")
+    o = dict(_SILHOUETTE_STAGE_ONLY)
 
     def verts(**kw):
         return fit_mesh_to_views(data, options=ViewsFitOptions(**o, **kw),
