@@ -128,8 +128,7 @@ def test_fit_views_cli_on_a_nerf_synthetic_folder_equals_api(tmp_path):
     from geofit.io import load_views
 
     root = tmp_path / "blob"
-    # 24 px: the two default fits below take 6.8 CPU s each (8.4 at 32 px)
-    data = _nerf_synthetic_folder(root, image_size=24)
+    data = _nerf_synthetic_folder(root)
     out = tmp_path / "o"
     res = subprocess.run([sys.executable, "-m", "geofit", "fit-views", str(root), "--out",
                           str(out), "--seed", "2", "--no-progress"], capture_output=True,
