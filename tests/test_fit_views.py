@@ -39,7 +39,7 @@ def _object(level=3):
 
 #: A short silhouette stage alone (no RGB stage, vertex colours: no UV atlas), for the tests of
 #: options that act in the silhouette stage and compare its vertices (0.5 CPU s a fit where
-#: the default's RGB stage and texture made it 4 s).
+#: the default's RGB stage and texture made it 2.5 CPU s, measured warm).
 _SILHOUETTE_STAGE_ONLY = dict(init="sphere", silhouette_iters=4, levels=((0, 1),),
                               remesh_rounds=0, textured_method="none", rgb_iters=0,
                               texture="vertex")
