@@ -78,6 +78,7 @@ from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import (
     REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_background, dataset_lights,
+    silhouette_pinning,
 )
 from .history import Clock, FitHistory, FitResult
 from .init import _check_margins, shortest_edge
@@ -134,6 +135,11 @@ TUTORIAL_PIXEL = 2.0 * 2.7 * math.tan(math.radians(30.0)) / 128
 #: (``"round"``), or so on the last coarse-to-fine level only (``"last"``) or in the last
 #: solve only (``"final"``).
 LAPLACIAN_ANCHORS = ("none", "round", "last", "final")
+
+#: Per-vertex mixes of the anchored and the plain Laplacian (``options.laplacian_pin``):
+#: none (the anchored term on every vertex), or weighted by the silhouettes' share of the
+#: forces on each vertex (``"force"``, :func:`geofit.fit._views_objective.silhouette_pinning`).
+LAPLACIAN_PINS = ("none", "force")
 
 #: Initialisations of :func:`fit_mesh_to_views` (or a Mesh).
 INITS = ("hull", "sphere")
@@ -361,6 +367,14 @@ class ViewsFitOptions:
         ``"round"``: Suzanne 0.9702 / 0.615, torus 0.9933 / 0.997 -> 0.9874 / 0.945;
         ``"final"``: fandisk 0.9822 / 0.380, Suzanne 0.9752 / 0.639, double torus 0.9779 /
         0.954): ``"none"`` in every recipe.
+    laplacian_pin : {"none", "force"}
+        Where ``laplacian_anchor`` anchors the Laplacian, anchor it on every vertex
+        (``"none"``) or only where the silhouettes pin the surface: per vertex the mix
+        ``p_i |(L (V - V0))_i| + (1 - p_i) |(L V)_i|`` with ``p_i`` the silhouette term's share
+        of the forces on the vertex at the solve's start (``"force"``), so the plain term
+        still shrinks the surface no silhouette holds (concavities, faces between the rims)
+        while the held surface keeps its shape. Needs ``laplacian_anchor`` other than
+        ``"none"``.
     contour_threshold : float
         The contour method compares the mesh's hard silhouette with the targets binarised at
         this level (0.9: on the tutorial's 20 views it misclassifies the fewest pixels against
@@ -420,6 +434,7 @@ class ViewsFitOptions:
     rgb_inner_px: int | None = None
     laplacian_anchor: str | None = None
     silhouette_log_eps: float | None = None
+    laplacian_pin: str | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
@@ -431,7 +446,7 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                final_regularization=1.0, rgb_iters=0, rgb_weight=1.0,
                rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4,
                rgb_color_smooth=0.0, rgb_inner_px=0, laplacian_anchor="none",
-               silhouette_log_eps=0.0)
+               silhouette_log_eps=0.0, laplacian_pin="none")
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -762,6 +777,7 @@ class _Plan:
     rgb_inner_px: int = 0
     laplacian_anchor: str = "none"
     silhouette_log_eps: float = 0.0
+    laplacian_pin: str = "none"
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -778,6 +794,11 @@ class _Plan:
                              f"smooth objective; expected silhouette_method='adam', got {sm!r}")
         check_choice(tm, "options.textured_method", TEXTURED_METHODS)
         check_choice(o.laplacian_anchor, "options.laplacian_anchor", LAPLACIAN_ANCHORS)
+        check_choice(o.laplacian_pin, "options.laplacian_pin", LAPLACIAN_PINS)
+        if o.laplacian_pin != "none" and o.laplacian_anchor == "none":
+            raise ValueError(f"options.laplacian_pin: {o.laplacian_pin!r} mixes the anchored "
+                             f"Laplacian in; expected a laplacian_anchor other than 'none', got "
+                             f"'none'")
         check_choice(ti, "options.textured_init", ("silhouette", "sphere"))
         if sm == "none" and tm == "none":
             raise ValueError("options: silhouette_method and textured_method are both 'none': "
@@ -865,7 +886,7 @@ class _Plan:
                    rgb_color_smooth=check_positive(o.rgb_color_smooth,
                                                    "options.rgb_color_smooth", strict=False),
                    rgb_inner_px=check_int(o.rgb_inner_px, "options.rgb_inner_px", 0),
-                   laplacian_anchor=o.laplacian_anchor,
+                   laplacian_anchor=o.laplacian_anchor, laplacian_pin=o.laplacian_pin,
                    silhouette_log_eps=check_positive(o.silhouette_log_eps,
                                                      "options.silhouette_log_eps",
                                                      strict=False),
@@ -975,6 +996,8 @@ def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
                 plan.laplacian_anchor == "final" and last and ri == rounds - 1)
             obj = _silhouette_objective(plan, run, mesh, data, weights, lam,
                                         anchor=mesh.verts if anchored else None)
+            if anchored and plan.laplacian_pin != "none":
+                obj.pin = silhouette_pinning(obj, mesh)
             iters = max(1, round(plan.silhouette_iters * fac / (rounds * total_fac)))
             mesh, res = _silhouette_solve(plan, run, obj, mesh, li, iters, budget)
             status, message = res.status, res.message
@@ -1069,6 +1092,8 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
         weights["silhouette"] = weights.get("silhouette", 0.0) * plan.rgb_silhouette
         obj = _silhouette_objective(plan, run, mesh, v, weights, None, anchor=(
             mesh.verts if plan.laplacian_anchor != "none" else None))
+        if plan.laplacian_anchor != "none" and plan.laplacian_pin != "none":
+            obj.pin = silhouette_pinning(obj, mesh)
 
         def extra(verts, obj=obj):
             value, g = obj(verts.ravel())
