@@ -678,25 +678,35 @@ def test_default_rgb_stage_needs_a_silhouette_stage_and_images(data):
         fit_mesh_to_views(sil_only, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)
 
 
-@pytest.mark.parametrize("large", [None, 5.0])
-def test_anchored_laplacian_gradient_matches_finite_differences(data, large):
-    """With ``anchor`` the objective's Laplacian term acts on ``V - anchor``: a central
-    difference along a random direction matches <grad, u> (float64), the term is 0 at the
-    anchor and equal to the plain term of the displacement mesh elsewhere."""
+def _check_anchored_objective_fd(data, large, seed, pinned):
+    """The silhouette objective with an anchored (``pinned``: per-vertex mixed, random pins)
+    Laplacian on a shrunk ico-sphere whose anchor has bumps: asserts a central difference
+    along a random direction matches <grad, u> (float64); returns the mesh, anchor, pins."""
     m = ico_sphere(2)
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     m = m.update_verts(m.verts * 0.7)
     anchor = m.verts + 0.02 * rng.normal(size=m.verts.shape)  # a rest shape with bumps
+    pin = rng.uniform(size=m.n_verts) if pinned else None
     param = LargeSteps(m, large) if large else IdentityParameterization(m)
     weights = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 1.0}
     st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
-    obj = _Objective(m, data, weights, textured=False, param=param, settings=st, anchor=anchor)
+    obj = _Objective(m, data, weights, textured=False, param=param, settings=st, anchor=anchor,
+                     pin=pin)
     x = param.to_params(m.verts).ravel()
     f, g = obj(x)
     u = rng.normal(size=x.shape)
     h = 1e-7
     fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
     assert fd == pytest.approx(float(g @ u), rel=1e-4)
+    return m, anchor, pin
+
+
+@pytest.mark.parametrize("large", [None, 5.0])
+def test_anchored_laplacian_gradient_matches_finite_differences(data, large):
+    """With ``anchor`` the objective's Laplacian term acts on ``V - anchor``: a central
+    difference along a random direction matches <grad, u> (float64), the term is 0 at the
+    anchor and equal to the plain term of the displacement mesh elsewhere."""
+    m, anchor, _ = _check_anchored_objective_fd(data, large, 3, pinned=False)
     terms, _ = regularizers(m, {"laplacian": 1.0}, anchor)
     lap, _ = mesh_laplacian_smoothing(m.update_verts(m.verts - anchor), "uniform")
     assert terms["laplacian"] == pytest.approx(lap, rel=1e-12) and lap > 0
@@ -742,22 +752,7 @@ def test_pinned_laplacian_gradient_matches_finite_differences(data, large):
     ``pin_i |(L (V - A))_i| + (1 - pin_i) |(L V)_i|``: a central difference along a random
     direction matches <grad, u> (float64); pin 1 everywhere is the anchored term, pin 0 the
     plain one (values and gradients)."""
-    m = ico_sphere(2)
-    rng = np.random.default_rng(4)
-    m = m.update_verts(m.verts * 0.7)
-    anchor = m.verts + 0.02 * rng.normal(size=m.verts.shape)
-    pin = rng.uniform(size=m.n_verts)
-    param = LargeSteps(m, large) if large else IdentityParameterization(m)
-    weights = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 1.0}
-    st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
-    obj = _Objective(m, data, weights, textured=False, param=param, settings=st, anchor=anchor,
-                     pin=pin)
-    x = param.to_params(m.verts).ravel()
-    f, g = obj(x)
-    u = rng.normal(size=x.shape)
-    h = 1e-7
-    fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
-    assert fd == pytest.approx(float(g @ u), rel=1e-4)
+    m, anchor, pin = _check_anchored_objective_fd(data, large, 4, pinned=True)
     w = {"laplacian": 1.0}
     for p, ref in ((np.ones(m.n_verts), regularizers(m, w, anchor)),
                    (np.zeros(m.n_verts), regularizers(m, w))):
