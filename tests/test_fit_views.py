@@ -15,8 +15,9 @@ from geofit import FoVPerspectiveCameras, Mesh, TexturesVertex, ico_sphere, look
 from geofit.structures import MultiViewDataset, TexturesUV
 from geofit.datasets import tutorial_views
 from geofit.fit._views_objective import (_lstsq_colors, _Objective, _silhouette_residual,
-                                             regularizers)
+                                             regularizers, silhouette_pinning)
 from geofit.loss import mesh_laplacian_smoothing
+from geofit.ops import uniform_laplacian
 from geofit.fit.large_steps import IdentityParameterization, LargeSteps
 from geofit.fit.views import (
     SILHOUETTE_METHODS,
@@ -683,25 +684,35 @@ def test_default_rgb_stage_needs_a_silhouette_stage_and_images(data):
         fit_mesh_to_views(sil_only, options=ViewsFitOptions(rgb_iters=2, **o), progress=False)
 
 
-@pytest.mark.parametrize("large", [None, 5.0])
-def test_anchored_laplacian_gradient_matches_finite_differences(data, large):
-    """With ``anchor`` the objective's Laplacian term acts on ``V - anchor``: a central
-    difference along a random direction matches <grad, u> (float64), the term is 0 at the
-    anchor and equal to the plain term of the displacement mesh elsewhere."""
+def _check_anchored_objective_fd(data, large, seed, pinned):
+    """The silhouette objective with an anchored (``pinned``: per-vertex mixed, random pins)
+    Laplacian on a shrunk ico-sphere whose anchor has bumps: asserts a central difference
+    along a random direction matches <grad, u> (float64); returns the mesh, anchor, pins."""
     m = ico_sphere(2)
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     m = m.update_verts(m.verts * 0.7)
     anchor = m.verts + 0.02 * rng.normal(size=m.verts.shape)  # a rest shape with bumps
+    pin = rng.uniform(size=m.n_verts) if pinned else None
     param = LargeSteps(m, large) if large else IdentityParameterization(m)
     weights = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "laplacian": 1.0}
     st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
-    obj = _Objective(m, data, weights, textured=False, param=param, settings=st, anchor=anchor)
+    obj = _Objective(m, data, weights, textured=False, param=param, settings=st, anchor=anchor,
+                     pin=pin)
     x = param.to_params(m.verts).ravel()
     f, g = obj(x)
     u = rng.normal(size=x.shape)
     h = 1e-7
     fd = (obj(x + h * u)[0] - obj(x - h * u)[0]) / (2 * h)
     assert fd == pytest.approx(float(g @ u), rel=1e-4)
+    return m, anchor, pin
+
+
+@pytest.mark.parametrize("large", [None, 5.0])
+def test_anchored_laplacian_gradient_matches_finite_differences(data, large):
+    """With ``anchor`` the objective's Laplacian term acts on ``V - anchor``: a central
+    difference along a random direction matches <grad, u> (float64), the term is 0 at the
+    anchor and equal to the plain term of the displacement mesh elsewhere."""
+    m, anchor, _ = _check_anchored_objective_fd(data, large, 3, pinned=False)
     terms, _ = regularizers(m, {"laplacian": 1.0}, anchor)
     lap, _ = mesh_laplacian_smoothing(m.update_verts(m.verts - anchor), "uniform")
     assert terms["laplacian"] == pytest.approx(lap, rel=1e-12) and lap > 0
@@ -738,3 +749,65 @@ def test_laplacian_anchor_changes_the_fit_only_where_asked(data):
     with pytest.raises(ValueError, match="options.laplacian_anchor"):
         fit_mesh_to_views(data, options=ViewsFitOptions(laplacian_anchor="vertices"),
                           progress=False)
+
+
+@pytest.mark.parametrize("large", [None, 5.0])
+def test_pinned_laplacian_gradient_matches_finite_differences(data, large):
+    """With ``anchor`` and ``pin`` the Laplacian term is the per-vertex mix
+    ``pin_i |(L (V - A))_i| + (1 - pin_i) |(L V)_i|``: a central difference along a random
+    direction matches <grad, u> (float64); pin 1 everywhere is the anchored term, pin 0 the
+    plain one (values and gradients)."""
+    m, anchor, pin = _check_anchored_objective_fd(data, large, 4, pinned=True)
+    w = {"laplacian": 1.0}
+    for p, ref in ((np.ones(m.n_verts), regularizers(m, w, anchor)),
+                   (np.zeros(m.n_verts), regularizers(m, w))):
+        t, gp = regularizers(m, w, anchor, p)
+        assert t["laplacian"] == pytest.approx(ref[0]["laplacian"], rel=1e-12)
+        np.testing.assert_allclose(gp, ref[1], rtol=1e-10, atol=1e-15)
+    L = uniform_laplacian(m)  # the mix, from its definition
+    na = np.linalg.norm(L @ (m.verts - anchor), axis=1)
+    n0 = np.linalg.norm(L @ m.verts, axis=1)
+    mixed = regularizers(m, w, anchor, pin)[0]["laplacian"]
+    assert mixed == pytest.approx(np.mean(pin * na + (1 - pin) * n0), rel=1e-12)
+
+
+def test_silhouette_pinning_is_the_silhouettes_share_of_the_forces(data):
+    """``silhouette_pinning`` (spread 0) is ``2 |g_s| / (|g_s| + |g_L|)`` clipped to [0, 1]
+    from the silhouette term's and the plain Laplacian's vertex gradients; the spread only
+    raises it, toward the neighbours' mean; a mesh well inside the silhouettes (whose
+    outline the silhouette term pulls outward everywhere) is pinned more than its centre."""
+    m = ico_sphere(2)
+    m = m.update_verts(m.verts * 0.5)
+    weights = {"silhouette": 1.0, "laplacian": 0.3}
+    st = SoftRasterizationSettings.tutorial(24, dtype=np.float64)
+    obj = _Objective(m, data, weights, textured=False, param=IdentityParameterization(m),
+                     settings=st)
+    p0 = silhouette_pinning(obj, m, spread=0)
+    sil = _Objective(m, data, {"silhouette": 1.0}, textured=False,
+                     param=IdentityParameterization(m), settings=st)
+    gs = np.linalg.norm(sil(m.verts.ravel())[1].reshape(-1, 3), axis=1)
+    gl = np.linalg.norm(regularizers(m, {"laplacian": 0.3})[1], axis=1)
+    np.testing.assert_allclose(p0, np.clip(2 * gs / (gs + gl), 0, 1), rtol=1e-12)
+    assert p0.shape == (m.n_verts,) and 0 < p0.min() and p0.max() <= 1.0
+    p1 = silhouette_pinning(obj, m)
+    assert np.all(p1 >= p0) and np.any(p1 > p0) and p1.max() <= 1.0
+
+
+def test_laplacian_pin_changes_the_anchored_fit_and_is_validated(data):
+    """``laplacian_pin="force"`` changes the anchored fit (the mix is not the anchored term);
+    an unknown mix, or a mix without an anchored Laplacian, is refused naming the option."""
+    o = dict(init="sphere", silhouette_iters=4, levels=((0, 1),), remesh_rounds=0,
+             textured_method="none", laplacian_anchor="round")
+
+    def verts(**kw):
+        return fit_mesh_to_views(data, options=ViewsFitOptions(**{**o, **kw}),
+                                 progress=False).mesh.verts
+
+    anchored = verts()
+    np.testing.assert_array_equal(anchored, verts(laplacian_pin="none"))
+    pinned = verts(laplacian_pin="force")
+    assert np.all(np.isfinite(pinned)) and np.abs(pinned - anchored).max() > 1e-6
+    with pytest.raises(ValueError, match="options.laplacian_pin"):
+        fit_mesh_to_views(data, options=ViewsFitOptions(laplacian_pin="rims"), progress=False)
+    with pytest.raises(ValueError, match="options.laplacian_pin.*laplacian_anchor"):
+        fit_mesh_to_views(data, options=ViewsFitOptions(laplacian_pin="force"), progress=False)

@@ -31,6 +31,7 @@ from ..render.soft import (
     sigmoid_alpha_blend_vjp,
 )
 from ..structures import Mesh
+from .large_steps import IdentityParameterization
 
 __all__ = ["REG_TERMS", "SIGMA", "dataset_lights", "regularizers"]
 
@@ -93,7 +94,8 @@ def dataset_background(data: MultiViewDataset) -> tuple:
 REG_TERMS = ("edge", "normal", "laplacian", "normal_variation")
 
 
-def regularizers(mesh: Mesh, weights: Mapping[str, float], anchor: np.ndarray | None = None):
+def regularizers(mesh: Mesh, weights: Mapping[str, float], anchor: np.ndarray | None = None,
+                 pin: np.ndarray | None = None):
     """Weighted edge / normal-consistency / uniform-Laplacian / normal-variation terms and
     their gradient.
 
@@ -103,13 +105,19 @@ def regularizers(mesh: Mesh, weights: Mapping[str, float], anchor: np.ndarray | 
     features) is no cost that pulls it away from the silhouettes' equilibrium. The uniform
     ``L`` depends on the faces alone, so its gradient is that of
     :func:`geofit.loss.mesh_laplacian_smoothing` at the displaced vertices.
+
+    ``pin`` (V,) float64 in [0, 1], optional (with ``anchor``): a per-vertex mix of the two,
+    ``mean_i [pin_i |(L (V - anchor))_i| + (1 - pin_i) |(L V)_i|]``: the anchored term where
+    the silhouettes pin the surface (:func:`silhouette_pinning`), the plain, shrinking one
+    where they do not. ``pin`` is held constant (computed once per solve).
     """
     g = np.zeros((mesh.n_verts, 3))
     terms = {}
     lap = mesh if anchor is None else mesh.update_verts(mesh.verts - anchor)
+    lap_fn = ((lambda m: mesh_laplacian_smoothing(lap, "uniform")) if pin is None
+              else (lambda m: _pinned_laplacian(m, anchor, pin)))
     for name, fn in (("edge", mesh_edge_loss), ("normal", mesh_normal_consistency),
-                     ("laplacian", lambda m: mesh_laplacian_smoothing(lap, "uniform")),
-                     ("normal_variation", mesh_normal_variation)):
+                     ("laplacian", lap_fn), ("normal_variation", mesh_normal_variation)):
         w = float(weights.get(name, 0.0))
         if w == 0.0:
             continue
@@ -117,6 +125,27 @@ def regularizers(mesh: Mesh, weights: Mapping[str, float], anchor: np.ndarray | 
         terms[name] = w * float(v)
         g += w * gv
     return terms, g
+
+
+def _unit(r: np.ndarray):
+    """Row norms of ``r`` (n, 3) and the unit rows (0 where a row is 0: the zero subgradient
+    of the norm's kink, never NaN)."""
+    n = np.sqrt(np.einsum("ij,ij->i", r, r))
+    return n, r / np.where(n > 0.0, n, 1.0)[:, None]
+
+
+def _pinned_laplacian(mesh: Mesh, anchor: np.ndarray, pin: np.ndarray):
+    """``mean_i [pin_i |(L (V - A))_i| + (1 - pin_i) |(L V)_i|]`` with the uniform ``L`` and
+    its gradient ``L^T (pin u_A + (1 - pin) u) / V`` (``u`` the unit rows; ``L`` depends on
+    the faces alone)."""
+    L = uniform_laplacian(mesh)
+    V = mesh.verts
+    na, ua = _unit(L @ (V - anchor))
+    n0, u0 = _unit(L @ V)
+    nv = max(mesh.n_verts, 1)
+    value = float(np.sum(pin * na + (1.0 - pin) * n0) / nv)
+    grad = L.T @ (pin[:, None] * ua + (1.0 - pin)[:, None] * u0) / nv
+    return value, np.asarray(grad)
 
 
 class _Objective:
@@ -132,9 +161,11 @@ class _Objective:
     def __init__(self, base: Mesh, data: MultiViewDataset, weights: Mapping[str, float], *,
                  textured: bool, param, settings: SoftRasterizationSettings,
                  views_per_step: int | None = None, rng=None, sigma: float = SIGMA,
-                 max_views: int = 5, anchor: np.ndarray | None = None, log_eps: float = 0.0):
+                 max_views: int = 5, anchor: np.ndarray | None = None, log_eps: float = 0.0,
+                 pin: np.ndarray | None = None):
         self.base = base
         self.anchor = anchor  # the Laplacian's rest vertices (regularizers), None: V itself
+        self.pin = pin  # per-vertex share of the anchored Laplacian (regularizers)
         self.max_views = max_views
         self.data = data
         self.weights = dict(weights)
@@ -169,7 +200,7 @@ class _Objective:
             idx = self.rng.permutation(len(self.data))[:self.views_per_step]
         nv = len(idx)
         H, W = self.data.image_size
-        terms, g_verts = regularizers(mesh, self.weights, self.anchor)
+        terms, g_verts = regularizers(mesh, self.weights, self.anchor, self.pin)
         w_s = float(self.weights.get("silhouette", 0.0))
         w_rgb = float(self.weights.get("rgb", 0.0))
         sil = 0.0
@@ -257,9 +288,11 @@ class _ContourObjective:
     """Geometry-first silhouette objective (see :mod:`geofit.render.soft.contour`) plus
     regularisers."""
 
-    def __init__(self, base: Mesh, closs, weights, param, anchor: np.ndarray | None = None):
+    def __init__(self, base: Mesh, closs, weights, param, anchor: np.ndarray | None = None,
+                 pin: np.ndarray | None = None):
         self.base = base
         self.anchor = anchor
+        self.pin = pin
         self.closs = closs
         self.weights = dict(weights)
         self.param = param
@@ -272,7 +305,7 @@ class _ContourObjective:
     def __call__(self, x):
         verts, _ = self.split(x)
         mesh = self.base.update_verts(verts)
-        terms, g = regularizers(mesh, self.weights, self.anchor)
+        terms, g = regularizers(mesh, self.weights, self.anchor, self.pin)
         v, gv = self.closs(mesh)
         w = float(self.weights.get("silhouette", 0.0))
         terms["silhouette"] = w * v
@@ -283,6 +316,38 @@ class _ContourObjective:
                      "grad_norm": float(np.linalg.norm(gu))}
         _remember(self, x, self.last)
         return value, gu
+
+
+def silhouette_pinning(obj, mesh: Mesh, spread: int = 1) -> np.ndarray:
+    """How much the silhouettes pin each vertex of ``mesh`` (the ``pin`` of
+    :func:`regularizers`), (V,) float64 in [0, 1].
+
+    The share of the silhouette term's force in the forces on the vertex,
+    ``p_i = |g_s,i| / (|g_s,i| + |g_L,i|)`` (``g_s`` the weighted silhouette term's vertex
+    gradient under ``obj``'s weights and data, ``g_L`` the plain Laplacian's), doubled (at
+    an equilibrium where the silhouettes hold the surface against the Laplacian the two are
+    equal: ``p = 1/2``) and clipped to [0, 1], then widened ``spread`` times to the mean of
+    the vertex's neighbours where that is larger (a rim is a curve; the surface it holds is
+    a strip). Surface no silhouette sees (a concavity, a flat face between the rims) has
+    ``g_s = 0``: ``p = 0``, the plain Laplacian.
+    """
+    w_s = float(obj.weights.get("silhouette", 0.0))
+    if isinstance(obj, _ContourObjective):
+        gs = w_s * obj.closs(mesh)[1]
+    else:
+        sil = _Objective(mesh, obj.data, {"silhouette": w_s}, textured=False,
+                         param=IdentityParameterization(mesh), settings=obj.settings,
+                         sigma=obj.sigma, max_views=obj.max_views, log_eps=obj.log_eps)
+        sil.clock = obj.clock
+        gs = sil(mesh.verts.ravel())[1].reshape(-1, 3)
+    gl = regularizers(mesh, {"laplacian": float(obj.weights.get("laplacian", 0.0))})[1]
+    ns, nl = _unit(gs)[0], _unit(gl)[0]
+    tot = ns + nl
+    p = np.clip(2.0 * np.where(tot > 0.0, ns / np.where(tot > 0.0, tot, 1.0), 0.0), 0.0, 1.0)
+    L = uniform_laplacian(mesh)
+    for _ in range(spread):  # (L + I) p: the neighbours' mean
+        p = np.maximum(p, L @ p + p)
+    return p
 
 
 def _remember(obj, x, rec, keep: int = 8):
