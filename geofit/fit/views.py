@@ -75,6 +75,7 @@ from ._options import as_dataset, check_int, check_weights, merge_options, recip
 from ._progress import NoBar, advance, progress_bar
 from ._rgb_refine import interior_masks, refine_rgb
 from ._views_eval import ViewsEvaluator, colored_mesh, render_mesh_at_views
+from ._views_adapt import remesh_adaptive
 from ._views_init import initial_mesh, remesh_to_length
 from ._views_objective import (
     REG_TERMS, _ContourObjective, _lstsq_colors, _Objective, dataset_background, dataset_lights,
@@ -420,6 +421,7 @@ class ViewsFitOptions:
     rgb_inner_px: int | None = None
     laplacian_anchor: str | None = None
     silhouette_log_eps: float | None = None
+    remesh_adapt: float | None = None
 
 
 #: Settings every recipe shares unless it says otherwise.
@@ -431,7 +433,7 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                final_regularization=1.0, rgb_iters=0, rgb_weight=1.0,
                rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4,
                rgb_color_smooth=0.0, rgb_inner_px=0, laplacian_anchor="none",
-               silhouette_log_eps=0.0)
+               silhouette_log_eps=0.0, remesh_adapt=0.0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
 #: ``"default"`` starts from the visual hull and remeshes as the surface moves;
@@ -544,6 +546,14 @@ class ViewsFitResult(FitResult):
 # =========================================================================================
 # The fit
 # =========================================================================================
+
+
+def _check_adapt(value) -> float:
+    """``options.remesh_adapt``: degrees in [0, 180]."""
+    v = check_positive(value, "options.remesh_adapt", strict=False)
+    if v > 180.0:
+        raise ValueError(f"options.remesh_adapt: expected degrees in [0, 180], got {value!r}")
+    return float(v)
 
 
 def _levels(levels, mesh_level_final: int, image_size):
@@ -762,6 +772,7 @@ class _Plan:
     rgb_inner_px: int = 0
     laplacian_anchor: str = "none"
     silhouette_log_eps: float = 0.0
+    remesh_adapt: float = 0.0
 
     @classmethod
     def validate(cls, dataset: MultiViewDataset, recipe, options, time_budget) -> _Plan:
@@ -869,6 +880,7 @@ class _Plan:
                    silhouette_log_eps=check_positive(o.silhouette_log_eps,
                                                      "options.silhouette_log_eps",
                                                      strict=False),
+                   remesh_adapt=_check_adapt(o.remesh_adapt),
                    final_regularization=check_positive(
                        o.final_regularization, "options.final_regularization", strict=False),
                    final_large_steps=(large_steps if o.final_large_steps is None else
@@ -962,8 +974,12 @@ def _silhouette_stage(plan: _Plan, run: _Solver) -> Mesh:
                 floor = shortest_edge(float(mesh.face_areas.sum()),
                                       plan.init_info["pixel_size"], fac, data.image_size,
                                       plan.settings(data.image_size).blur_radius)
-                mesh = remesh_to_length(mesh, max(min(plan.edge_px * fac * plan.init_info[
-                    "pixel_size"], plan.init_info["max_edge"]), floor))
+                length = max(min(plan.edge_px * fac * plan.init_info["pixel_size"],
+                                 plan.init_info["max_edge"]), floor)
+                mesh = (remesh_adaptive(mesh, length, math.radians(plan.remesh_adapt),
+                                        longest=max(plan.init_info["max_edge"], length),
+                                        shortest=fac * plan.init_info["pixel_size"])
+                        if plan.remesh_adapt else remesh_to_length(mesh, length))
             k = li * rounds + ri
             budget = None
             if plan.time_budget is not None:
