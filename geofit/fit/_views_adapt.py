@@ -60,10 +60,11 @@ def _vertex_areas(mesh: Mesh) -> np.ndarray:
 
 def adaptive_edge_lengths(mesh: Mesh, length: float, angle: float, *, longest: float,
                           shortest: float, grade: float = 1.5) -> np.ndarray:
-    """Per-vertex remeshing targets: ``angle / kappa`` (``kappa`` the curvature the mesh shows
-    at the vertex), scaled so that the expected face count ``sum_v a_v / l_v**2`` equals that
-    of the uniform ``length``, clipped to ``[shortest, longest]``, and graded so that no
-    vertex's target exceeds ``grade`` times a neighbour's.
+    """Per-vertex remeshing targets: ``angle / kappa`` (``kappa`` the turning per length the
+    mesh shows at the vertex, :func:`_edge_curvature`), clipped to ``[shortest, longest]`` and
+    graded (three sweeps each lower a target to at most ``grade`` times its neighbours'), the
+    whole scaled so that the expected face count ``sum_v a_v / l_v**2`` of the graded targets
+    equals that of the uniform ``length`` (the remeshing's cost stays about the same).
 
     Parameters
     ----------
@@ -88,30 +89,44 @@ def adaptive_edge_lengths(mesh: Mesh, length: float, angle: float, *, longest: f
     av = _vertex_areas(mesh)
     raw = angle / np.maximum(kv, angle / longest)  # a flat vertex: the longest edge
     want = float(av.sum()) / (length * length)  # the uniform length's face measure
-    lo, hi = 1e-3, 1e3
+    ends = mesh.edges
 
-    def measure(s):
+    def graded(s):
         lv = np.clip(s * raw, shortest, longest)
-        return float(np.sum(av / (lv * lv)))
+        for _ in range(3):  # grading: a few sweeps of the neighbours' minimum
+            nb = lv.copy()
+            np.minimum.at(nb, ends[:, 0], grade * lv[ends[:, 1]])
+            np.minimum.at(nb, ends[:, 1], grade * lv[ends[:, 0]])
+            lv = nb
+        return lv
 
+    lo, hi = 1e-3, 1e3
     for _ in range(_BISECT):  # scalar bisection on the scale (log-spaced)
         mid = np.sqrt(lo * hi)
-        if measure(mid) > want:
+        lv = graded(mid)
+        if float(np.sum(av / (lv * lv))) > want:
             lo = mid
         else:
             hi = mid
-    lv = np.clip(hi * raw, shortest, longest)
-    ends = mesh.edges
-    for _ in range(3):  # grading: a few sweeps of the neighbours' minimum
-        nb = lv.copy()
-        np.minimum.at(nb, ends[:, 0], grade * lv[ends[:, 1]])
-        np.minimum.at(nb, ends[:, 1], grade * lv[ends[:, 0]])
-        lv = nb
+    lv = graded(hi)
     return lv
 
 
 def remesh_adaptive(mesh: Mesh, length: float, angle: float, *, longest: float,
                     shortest: float, n_passes: int = 3) -> Mesh:
-    """:func:`geofit.ops.remesh` towards :func:`adaptive_edge_lengths` (manifold kept)."""
-    lv = adaptive_edge_lengths(mesh, length, angle, longest=longest, shortest=shortest)
-    return remesh(mesh, lv, n_passes=n_passes).mesh
+    """:func:`geofit.ops.remesh` towards :func:`adaptive_edge_lengths` (manifold kept).
+
+    The remesher coarsens a flat region towards a long target only partly in its passes, so
+    the result can have more faces than the targets' measure: when it has over 10 % more
+    than ``area / (0.433 length**2)`` (the uniform length's count), it is remeshed once more
+    from ``mesh`` with ``length`` scaled by the square root of the excess (a plate's fit:
+    5300 faces -> about the uniform 4158, measured)."""
+    want = float(mesh.face_areas.sum()) / (0.433 * length * length)
+    out = mesh
+    for _ in range(2):  # the targets, then once more if the face count ran over
+        lv = adaptive_edge_lengths(mesh, length, angle, longest=longest, shortest=shortest)
+        out = remesh(mesh, lv, n_passes=n_passes).mesh
+        if out.n_faces <= 1.1 * want:
+            break
+        length = length * float(np.sqrt(out.n_faces / want))
+    return out

@@ -379,6 +379,14 @@ class ViewsFitOptions:
         0.973, cow 0.834 -> 0.828, but the ogre 0.476 -> 0.355 (IoU 0.859 -> 0.781; 479
         true-mask pixels of its views have soft targets below 0.05, which it carves) and the open
         cylinder 0.729 -> 0.707: not the default (CHANGELOG.md has the table).
+    remesh_adapt : float
+        Degrees the surface may turn from one face to the next in the remeshing rounds (0:
+        one edge length, ``edge_px``, everywhere): each vertex's target length is this angle
+        over the turning per length the mesh shows there (the angle between neighbouring
+        faces' normals over the edge's length), scaled so that the expected face count is
+        that of the uniform length, between a pixel of the level and the longest edge
+        (:func:`geofit.fit._views_adapt.adaptive_edge_lengths`): folds (a plate's rim, a
+        tube's lip, a thin leg) finer, flat regions coarser, at about the same cost.
     """
     init: Any = None
     silhouette_method: str | None = None
