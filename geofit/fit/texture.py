@@ -643,6 +643,17 @@ def fit_texture(mesh, cameras, images, *, lights=None, materials=None, masks=Non
     fitted surface, 28.7 dB (texel_px 0.5: 28.8): what any texture on that geometry can
     reach. With the ray weights: cow 27.45 dB, teapot 30.45 -> 30.50, fandisk 26.95 -> 27.23,
     true cow 34.14 -> 34.13.
+
+    The same split on the session-11 default fit (hull_close_handles, 27.15 dB, summed squared
+    error 506 over the 16 views; 28 dB is 415): 334 on the 945 pixels whose coverage differs
+    from the truth's (635 too wide, 310 missed; 88 % of them within one pixel of the true
+    outline), 172 on pixels both cover. The texture solved on the held-out views themselves
+    (least squares, no ray weights) scores 28.42 dB on that geometry and still leaves 301 on the
+    mismatched pixels: no texture reaches 28 dB there; the outline must. Measured, none changes
+    that: ``smoothness`` 3e-3 / 3e-2 / 0.1 / 0.3 (27.04 / 27.21 / 27.15 / 26.85 dB),
+    ``texel_px`` 0.7 (27.10), the outline band 2 px (27.08), ``|cos theta|**2`` ray weights
+    (cow 27.23 but fandisk 27.23 -> 27.08), down-weighting rays beside depth discontinuities
+    (27.17); the robust texels (fold check off) 26.58.
     """
     mesh = as_mesh(mesh, "mesh")
     loss = HardImageLoss(cameras, images, lights=lights, materials=materials, masks=masks,
