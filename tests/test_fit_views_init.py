@@ -621,7 +621,8 @@ def test_grey_cores_cover_a_grey_slit_and_keep_the_ramp_and_holes():
     """The grey slit's pixels farther than the radius from every empty pixel are cores; the
     ramp outside the 0.5 outline, the slit's end within the radius of the background and
     the hole are not; a binary mask has no core outside itself; fill_grey_cores raises the
-    cores to 1 and counts those at or below 0.5."""
+    cores at or below 0.5 to 1 and, given images, only those whose colour is not the
+    background's."""
     from geofit.structures.visual_hull import fill_grey_cores, grey_cores
 
     sil, r, hole = _grey_slit_disk()
@@ -629,10 +630,20 @@ def test_grey_cores_cover_a_grey_slit_and_keep_the_ramp_and_holes():
     assert core[23:25, 26:40].all()                  # the slit inside
     assert not core[23:25, 45:48].any()              # its end, within 2 px of the background
     assert not core[(sil[0] <= 0.5) & (r > 21.5)].any() and not core[hole].any()
+    low = core & (sil[0] <= 0.5)
     filled, n = fill_grey_cores(sil, 2.0)
-    np.testing.assert_array_equal(filled[0][core], 1.0)
-    np.testing.assert_array_equal(filled[0][~core], sil[0][~core])
-    assert n == int((core & (sil[0] <= 0.5)).sum()) > 0
+    np.testing.assert_array_equal(filled[0][low], 1.0)
+    np.testing.assert_array_equal(filled[0][~low], sil[0][~low])
+    assert n == int(low.sum()) > 0
+    img = np.ones(sil.shape + (3,))                  # white background everywhere ...
+    img[0, 23:25, 30:48] = 0.4                       # ... but where faces cover the slit
+    filled, n = fill_grey_cores(sil, 2.0, images=img, background=np.ones(3))
+    seen = low & (img[0, ..., 0] < 1.0)
+    assert n == int(seen.sum()) > 0 and n < int(low.sum())
+    np.testing.assert_array_equal(filled[0][seen], 1.0)
+    np.testing.assert_array_equal(filled[0][~seen], sil[0][~seen])
+    with pytest.raises(ValueError, match="images"):
+        fill_grey_cores(sil, 2.0, images=img[:, :10], background=np.ones(3))
     mask = (sil > 0.5).astype(np.float64)
     assert not (grey_cores(mask, 2.0) & (mask <= 0.5)).any()
 

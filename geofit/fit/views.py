@@ -300,10 +300,12 @@ class ViewsFitOptions:
         ogre's hull keeps 50 parts (held-out IoU 0.46 -> 0.51) but its fit ends at IoU 0.7809
         / F@0.01 0.396 (0.8587 / 0.476 without; measured).
     silhouette_grey_px : float
-        Raise the grey cores of the target silhouettes to 1 before the fit (the hull is carved
-        from them and every stage matches them): pixels above 1e-3 and more than this many
-        pixels from every pixel at or below it
-        (:func:`geofit.structures.visual_hull.fill_grey_cores`; 0: none). A soft rasterizer
+        Raise the covered grey pixels of the target silhouettes to 1 before the fit (the
+        hull is carved from them and every stage matches them): pixels at or below 0.5, above
+        1e-3 and more than this many pixels from every pixel at or below 1e-3, whose RGB
+        differs from the dataset's background
+        (:func:`geofit.structures.visual_hull.fill_grey_cores`; 0: none). Targets without
+        such pixels are left as they are. A soft rasterizer
         that keeps the K faces nearest the camera drops the covering face where more than K
         nearer faces of a dense mesh pass within its blur radius (about 2 px for the
         tutorial's): the target then reads grey, down to 0.01, inside the object, the hull
@@ -852,7 +854,9 @@ class _Plan:
                                  strict=False)
         grey_filled = 0
         if grey_px > 0:  # the targets' grey cores (a dense mesh's K-nearest cut) covered
-            sil, grey_filled = fill_grey_cores(dataset.silhouettes, grey_px)
+            sil, grey_filled = fill_grey_cores(dataset.silhouettes, grey_px,
+                                               images=dataset.images,
+                                               background=dataset.background)
             dataset = replace(dataset, silhouettes=sil)
         return cls(dataset, init, recipe, sm, loss, tm, ti, sw, tw, o.silhouette_iters,
                    o.textured_iters, time_budget, large_steps, lv, o.views_per_step,
