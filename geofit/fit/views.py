@@ -312,8 +312,9 @@ class ViewsFitOptions:
         is carved through there (the ogre's: genus 21, 50 parts) and the fit pulls the
         surface in. 2 is about the tutorial's blur radius (1.94 px at 128 px). Not the
         default until measured on all 11 shapes of ``benchmarks/fit_views.py``: the ogre's
-        held-out IoU / F@0.01 / PSNR 0.8587 / 0.476 / 22.62 -> 0.9392 / 0.657 / 26.12 (hull
-        genus 21 -> 0; measured, CHANGELOG).
+        held-out IoU / F@0.01 / PSNR 0.8587 / 0.476 / 22.62 -> 0.9343 / 0.656 / 25.74 (hull
+        genus 21 -> 0), the unseen beetle 0.9168 / 0.805 -> 0.9183 / 0.800; no pixel is
+        raised on two spheres, open cylinder, Suzanne, woody (measured, CHANGELOG).
     rgb_iters : int
         L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
         the vertices against the RGB images with the hard image term
