@@ -313,8 +313,10 @@ class ViewsFitOptions:
         surface in. 2 is about the tutorial's blur radius (1.94 px at 128 px). Not the
         default until measured on all 11 shapes of ``benchmarks/fit_views.py``: the ogre's
         held-out IoU / F@0.01 / PSNR 0.8587 / 0.476 / 22.62 -> 0.9343 / 0.656 / 25.74 (hull
-        genus 21 -> 0), the unseen beetle 0.9168 / 0.805 -> 0.9183 / 0.800; no pixel is
-        raised on two spheres, open cylinder, Suzanne, woody (measured, CHANGELOG).
+        genus 21 -> 0), thin plate 0.9626 / 0.378 -> 0.9795 / 0.526, double torus 0.9807 /
+        0.949 -> 0.9821 / 0.956, cow 0.9827 / 0.828 -> 0.9829 / 0.824, the unseen beetle
+        0.9168 / 0.805 -> 0.9183 / 0.800, but teapot 0.9814 / 0.847 -> 0.9805 / 0.836; no
+        pixel is raised on two spheres, open cylinder, Suzanne, woody (measured, CHANGELOG).
     rgb_iters : int
         L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
         the vertices against the RGB images with the hard image term
