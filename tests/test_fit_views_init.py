@@ -603,3 +603,79 @@ def test_fit_reports_the_handles_it_closed():
     assert ev["hull_handles_closed"] > 0 and ev["hull_filled_nodes"] > 0
     assert ev["hull_genus"] > ev["hull_handles_closed"]
     assert "handles no silhouette supports closed" in fit.message
+
+
+def _grey_slit_disk():
+    """(1, 48, 48) soft silhouette: a disk with a soft ramp (0.5 at r = 22, 0 from r = 23),
+    a grey slit 2 px wide at 0.05 running from its centre across its outline (a K-nearest
+    cut along an inner occlusion contour), and a hole seen through (0)."""
+    yy, xx = np.mgrid[:48, :48]
+    r = np.hypot(yy - 24, xx - 24)
+    sil = np.clip((22.0 - r) / 2.0 + 0.5, 0.0, 1.0)
+    sil[23:25, 24:48] = np.minimum(sil[23:25, 24:48], 0.05)
+    sil[(yy - 32) ** 2 + (xx - 16) ** 2 < 16] = 0.0
+    return sil[None], r, (yy - 32) ** 2 + (xx - 16) ** 2 < 16
+
+
+def test_grey_cores_cover_a_grey_slit_and_keep_the_ramp_and_holes():
+    """The grey slit's pixels farther than the radius from every empty pixel are cores; the
+    ramp outside the 0.5 outline, the slit's end within the radius of the background and
+    the hole are not; a binary mask has no core outside itself; fill_grey_cores raises the
+    cores at or below 0.5 to 1 and, given images, only those whose colour is not the
+    background's."""
+    from geofit.structures.visual_hull import fill_grey_cores, grey_cores
+
+    sil, r, hole = _grey_slit_disk()
+    core = grey_cores(sil, 2.0)[0]
+    assert core[23:25, 26:40].all()                  # the slit inside
+    assert not core[23:25, 45:48].any()              # its end, within 2 px of the background
+    assert not core[(sil[0] <= 0.5) & (r > 21.5)].any() and not core[hole].any()
+    low = core & (sil[0] <= 0.5)
+    filled, n = fill_grey_cores(sil, 2.0)
+    np.testing.assert_array_equal(filled[0][low], 1.0)
+    np.testing.assert_array_equal(filled[0][~low], sil[0][~low])
+    assert n == int(low.sum()) > 0
+    img = np.ones(sil.shape + (3,))                  # white background everywhere ...
+    img[0, 23:25, 30:48] = 0.4                       # ... but where faces cover the slit
+    filled, n = fill_grey_cores(sil, 2.0, images=img, background=np.ones(3))
+    seen = low & (img[0, ..., 0] < 1.0)
+    assert n == int(seen.sum()) > 0 and n < int(low.sum())
+    np.testing.assert_array_equal(filled[0][seen], 1.0)
+    np.testing.assert_array_equal(filled[0][~seen], sil[0][~seen])
+    with pytest.raises(ValueError, match="images"):
+        fill_grey_cores(sil, 2.0, images=img[:, :10], background=np.ones(3))
+    mask = (sil > 0.5).astype(np.float64)
+    assert not (grey_cores(mask, 2.0) & (mask <= 0.5)).any()
+
+
+def test_grey_cores_are_validated():
+    from geofit.structures.visual_hull import grey_cores
+
+    sil = _grey_slit_disk()[0]
+    with pytest.raises(ValueError, match="silhouettes"):
+        grey_cores(sil[0])
+    with pytest.raises(ValueError, match="radius_px"):
+        grey_cores(sil, 0.0)
+    with pytest.raises(ValueError, match="level"):
+        grey_cores(sil, 2.0, -0.1)
+
+
+def test_silhouette_grey_px_covers_the_targets_grey_cores(spheres):
+    """options.silhouette_grey_px raises a grey core planted in a target to 1, the hull keeps
+    it and the fit's first note says how many pixels it covered; a negative value is
+    refused."""
+    from dataclasses import replace
+
+    from scipy.ndimage import distance_transform_edt
+
+    sil = spheres.silhouettes.copy()
+    y, x = np.unravel_index(np.argmax(distance_transform_edt(sil[0] > 0.5)), sil[0].shape)
+    sil[0, y - 1:y + 2, x - 1:x + 2] = 0.2  # grey, far from every empty pixel
+    ds = replace(spheres, silhouettes=sil)
+    opts = dict(silhouette_method="none", texture="vertex")
+    fit = fit_mesh_to_views(ds, options=ViewsFitOptions(silhouette_grey_px=2.0, **opts),
+                            progress=False)
+    assert "9 grey target pixels covered" in fit.message
+    with pytest.raises(ValueError, match="silhouette_grey_px"):
+        fit_mesh_to_views(ds, options=ViewsFitOptions(silhouette_grey_px=-1.0, **opts),
+                          progress=False)

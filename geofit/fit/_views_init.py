@@ -88,6 +88,9 @@ def initial_mesh(plan, run) -> None:
         closed = (f"; {hull.n_closed_pixels:g} silhouette pixels of pinholes and slits "
                   f"closed" if plan.hull_close_px or plan.hull_fill_px or plan.hull_grey_px
                   else "")
+        if plan.grey_filled:
+            closed += (f"; {plan.grey_filled} grey target pixels covered "
+                       f"(silhouette_grey_px)")
         handles = _handles_note(hull)
         if handles:
             closed += "; " + handles

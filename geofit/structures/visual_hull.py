@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ClosedHandles", "HullGrid", "carve_hull", "close_unsupported_handles",
-           "hull_field", "pixel_footprint", "signed_distance_images"]
+           "fill_grey_cores", "grey_cores", "hull_field", "pixel_footprint",
+           "signed_distance_images"]
 
 _COARSE = 32  # nodes per side of the first, coarse carving grid
 
@@ -120,9 +121,7 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
             k = disk.shape[0] // 2
             inside = binary_closing(np.pad(inside, k), structure=disk)[k:-k, k:-k]
         if grey_px > 0:  # grey pixels deeper than grey_px inside the certain background
-            grey = s > grey_level
-            inside = inside | (grey & (distance_transform_edt(np.pad(grey, 1))[1:-1, 1:-1]
-                                       > grey_px * u))
+            inside = inside | _grey_core(s, grey_px * u, grey_level)
         if fill_px > 0:  # enclosed background regions of at most fill_px image pixels
             lab, n = label(np.pad(~inside, 1))  # the padded border is one background region
             size = np.bincount(lab.ravel(), minlength=n + 1)
@@ -132,6 +131,106 @@ def signed_distance_images(silhouettes: np.ndarray, threshold: float = 0.5, *,
         out[i] = np.where(inside, distance_transform_edt(inside) - 0.5,
                           0.5 - distance_transform_edt(~inside)) / u
     return out
+
+
+def _grey_core(s: np.ndarray, radius: float, level: float) -> np.ndarray:
+    """(H, W) bool: pixels of ``s (H, W)`` above ``level`` and more than ``radius`` pixels
+    from every pixel at or below it (the image's border counts as background)."""
+    from scipy.ndimage import distance_transform_edt
+
+    grey = s > level
+    return grey & (distance_transform_edt(np.pad(grey, 1))[1:-1, 1:-1] > radius)
+
+
+def grey_cores(silhouettes: np.ndarray, radius_px: float = 2.0,
+               level: float = 1e-3) -> np.ndarray:
+    """(N, H, W) bool: the pixels of soft silhouettes that some face must cover although their
+    value is low -- those above ``level`` and more than ``radius_px`` pixels from every pixel
+    at or below it.
+
+    A soft rasterizer gives a pixel a value above zero only if a face lies within its blur
+    radius; outside the object such pixels form a ramp at most a blur radius wide along the
+    outline. A pixel farther than that from every empty pixel is covered (or sits in a gap
+    between parts narrower than about two blur radii). Its value can still be low: a
+    rasterizer that keeps the K faces nearest the camera among those within the blur radius
+    drops the covering face where more than K nearer faces of a dense mesh pass close by (at
+    the inner occlusion contours of the 124 008-face ogre: 2 948 of its 28 881 true
+    silhouette pixels in the tutorial's 20 views of 128 px are at or below 0.5, some at 0.01;
+    with ``radius_px=2``, ``level=1e-3`` 2 938 of them are found, with 387 gap pixels; the
+    cow's 5 856 faces: none below 0.5, 31 gap pixels).
+
+    Parameters
+    ----------
+    silhouettes : (N, H, W) float64
+        Soft silhouettes in [0, 1].
+    radius_px : float
+        The soft rasterizer's blur radius in pixels (PyTorch3D's tutorial blur, sigma 1e-4 at
+        128 px: 1.94) (> 0).
+    level : float
+        Values at or below it count as empty (>= 0; a little above 0 keeps a pixel whose only
+        face is at the edge of the blur radius, about 1e-4, empty).
+
+    Returns
+    -------
+    (N, H, W) bool
+
+    Raises
+    ------
+    ValueError
+        If ``silhouettes`` is not (N, H, W), ``radius_px`` is not > 0 or ``level`` < 0.
+    """
+    s = np.asarray(silhouettes, dtype=np.float64)
+    if s.ndim != 3:
+        raise ValueError(f"silhouettes: expected (N, H, W), got shape {s.shape}")
+    if not np.isfinite(radius_px) or radius_px <= 0:
+        raise ValueError(f"radius_px: expected a number > 0, got {radius_px!r}")
+    if not np.isfinite(level) or level < 0:
+        raise ValueError(f"level: expected a number >= 0, got {level!r}")
+    return np.stack([_grey_core(x, float(radius_px), float(level)) for x in s])  # views
+
+
+def fill_grey_cores(silhouettes: np.ndarray, radius_px: float = 2.0, level: float = 1e-3, *,
+                    images=None, background=None, tolerance: float = 0.01):
+    """Soft silhouettes with their covered grey pixels raised to 1, and how many.
+
+    A pixel is raised when it is one of the :func:`grey_cores`, at or below 0.5 (a 0.5
+    outline misses it), and -- given the views' ``images`` and ``background`` colour -- its
+    colour differs from the background by more than ``tolerance`` in some channel (the hard
+    RGB render shows the face the soft silhouette's K-nearest cut dropped; a gap between two
+    parts narrower than two blur radii shows the background and stays: on the tutorial's 20
+    views of 128 px, the ogre's 3 280 cores inside its true mask are all kept and its 410 gap
+    cores all left, the beetle's 585 and 307, woody's 0 and 84, the cow's 6 and 32). Pixels
+    above 0.5 are left as they are, so silhouettes without such pixels come back unchanged.
+
+    Parameters
+    ----------
+    silhouettes : (N, H, W) float64
+    radius_px, level : float
+        As in :func:`grey_cores`.
+    images : (N, H, W, 3) float64, optional
+        The views' RGB images (None: no colour test).
+    background : (3,) float64, optional
+        Their background colour (needed with ``images``).
+    tolerance : float
+        Largest channel difference from ``background`` still counted as background.
+
+    Returns
+    -------
+    (N, H, W) float64
+        The silhouettes, 1 at the raised pixels.
+    int
+        Pixels raised.
+    """
+    s = np.asarray(silhouettes, dtype=np.float64)
+    raise_ = grey_cores(s, radius_px, level) & (s <= 0.5)
+    if images is not None and background is not None:
+        img = np.asarray(images, dtype=np.float64)
+        if img.shape[:3] != s.shape:
+            raise ValueError(f"images: expected shape {s.shape + (3,)} (the silhouettes'), "
+                             f"got {img.shape}")
+        bg = np.asarray(background, dtype=np.float64).reshape(-1)
+        raise_ &= np.abs(img - bg).max(axis=-1) > float(tolerance)
+    return np.where(raise_, 1.0, s), int(raise_.sum())
 
 
 def _disk(radius: float) -> np.ndarray:
