@@ -129,6 +129,9 @@ HULL_SILHOUETTE_WEIGHTS = {"silhouette": 1.0, "edge": 0.3, "normal": 0.01, "lapl
 #: that they weigh the same against the silhouettes at any object scale and image size.
 TUTORIAL_PIXEL = 2.0 * 2.7 * math.tan(math.radians(30.0)) / 128
 
+#: Solvers of the RGB stage (``options.rgb_method``).
+RGB_METHODS = ("lbfgs", "adam")
+
 #: Forms of the silhouette stage's Laplacian term (``options.laplacian_anchor``): on the
 #: vertices (``"none"``, the tutorial's), on the displacement from each remesh round's start
 #: (``"round"``), or so on the last coarse-to-fine level only (``"last"``) or in the last
@@ -418,6 +421,10 @@ class ViewsFitOptions:
     rgb_color_reg: float | None = None
     rgb_color_smooth: float | None = None
     rgb_inner_px: int | None = None
+    rgb_supersample: int | None = None
+    rgb_method: str | None = None
+    rgb_lr: float | None = None
+    rgb_regularization: float | None = None
     laplacian_anchor: str | None = None
     silhouette_log_eps: float | None = None
 
@@ -430,7 +437,8 @@ _COMMON = dict(textured_iters=2000, edge_px=3.0, views_per_step=2, lr=1.0, momen
                hull_vote_depth=0.0, hull_close_handles=0.0, hull_per_part=False,
                final_regularization=1.0, rgb_iters=0, rgb_weight=1.0,
                rgb_silhouette=0.0, rgb_large_steps=10.0, rgb_color_reg=1e-4,
-               rgb_color_smooth=0.0, rgb_inner_px=0, laplacian_anchor="none",
+               rgb_color_smooth=0.0, rgb_inner_px=0, rgb_supersample=2, rgb_method="lbfgs", rgb_lr=0.1,
+               rgb_regularization=1.0, laplacian_anchor="none",
                silhouette_log_eps=0.0)
 
 #: Recipes of :func:`fit_mesh_to_views`: named :class:`ViewsFitOptions` presets.
@@ -760,6 +768,10 @@ class _Plan:
     rgb_color_reg: float = 1e-4
     rgb_color_smooth: float = 0.0
     rgb_inner_px: int = 0
+    rgb_supersample: int = 2
+    rgb_method: str = "lbfgs"
+    rgb_lr: float = 0.1
+    rgb_regularization: float = 1.0
     laplacian_anchor: str = "none"
     silhouette_log_eps: float = 0.0
 
@@ -778,6 +790,7 @@ class _Plan:
                              f"smooth objective; expected silhouette_method='adam', got {sm!r}")
         check_choice(tm, "options.textured_method", TEXTURED_METHODS)
         check_choice(o.laplacian_anchor, "options.laplacian_anchor", LAPLACIAN_ANCHORS)
+        check_choice(o.rgb_method, "options.rgb_method", RGB_METHODS)
         check_choice(ti, "options.textured_init", ("silhouette", "sphere"))
         if sm == "none" and tm == "none":
             raise ValueError("options: silhouette_method and textured_method are both 'none': "
@@ -865,6 +878,12 @@ class _Plan:
                    rgb_color_smooth=check_positive(o.rgb_color_smooth,
                                                    "options.rgb_color_smooth", strict=False),
                    rgb_inner_px=check_int(o.rgb_inner_px, "options.rgb_inner_px", 0),
+                   rgb_supersample=check_int(o.rgb_supersample, "options.rgb_supersample", 1),
+                   rgb_method=o.rgb_method,
+                   rgb_lr=check_positive(o.rgb_lr, "options.rgb_lr"),
+                   rgb_regularization=check_positive(o.rgb_regularization,
+                                                     "options.rgb_regularization",
+                                                     strict=False),
                    laplacian_anchor=o.laplacian_anchor,
                    silhouette_log_eps=check_positive(o.silhouette_log_eps,
                                                      "options.silhouette_log_eps",
@@ -1067,6 +1086,8 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
         # the silhouettes put right is kept, the mesh stays regular
         weights = _level_weights(plan, plan.levels, len(plan.levels) - 1)
         weights["silhouette"] = weights.get("silhouette", 0.0) * plan.rgb_silhouette
+        weights = {k: (w * plan.rgb_regularization if k in REG_TERMS else w)
+                   for k, w in weights.items()}
         obj = _silhouette_objective(plan, run, mesh, v, weights, None, anchor=(
             mesh.verts if plan.laplacian_anchor != "none" else None))
 
@@ -1077,7 +1098,9 @@ def _rgb_stage(plan: _Plan, run: _Solver, mesh: Mesh) -> Mesh:
     res = refine_rgb(mesh, v.cameras, v.images, lights=dataset_lights(v), background=bg,
                      lam=plan.rgb_large_steps, reg=plan.rgb_color_reg,
                      maxiter=plan.rgb_iters, extra=extra, image_weight=plan.rgb_weight,
-                     smooth=plan.rgb_color_smooth,
+                     smooth=plan.rgb_color_smooth, supersample=plan.rgb_supersample,
+                     method=plan.rgb_method,
+                     lr=plan.rgb_lr * plan.init_info.get("pixel_size", TUTORIAL_PIXEL),
                      masks=(interior_masks(v.silhouettes, plan.rgb_inner_px)
                             if plan.rgb_inner_px else None),
                      clock=run.clock if plan.time_budget is not None else None)
