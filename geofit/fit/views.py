@@ -345,6 +345,37 @@ class ViewsFitOptions:
         target silhouettes (0: on every pixel): the outline is the silhouettes' to fit.
         Measured with 2: F@0.01 Suzanne 0.643 -> 0.647, fandisk 0.400 -> 0.385, thin plate
         0.378 -> 0.380 (IoU -0.002 to -0.003).
+    rgb_supersample : int
+        Rays per pixel ``s x s`` of the RGB stage's image term (2). The views' targets are
+        hard renders at the pixel centres: at ``s = 1`` the term compares like with like (the
+        true fandisk's image loss 1.2e-6, the fitted one's 2.8e-3), at ``s = 2`` the
+        sub-pixel rays at outlines and creases miss the centre sample and the term has a
+        floor (4.8e-3 at the truth, 5.6e-3 at the fit: almost no contrast); ``s = 1`` also
+        casts a quarter of the rays (image part of an evaluation 1.0 -> 0.4 CPU s on the
+        fandisk).
+    rgb_method : {"lbfgs", "adam"}
+        Solver of the RGB stage: L-BFGS (the default's; ``rgb_iters`` iterations) or Adam
+        (``rgb_iters`` steps of ``rgb_lr`` pixels, one evaluation each, the evaluated point
+        of least objective kept). Measured on the fandisk from the default's silhouette
+        mesh: L-BFGS's first trial step (up to 3 px) raises the silhouette term tenfold, the
+        line search backs off and the 5 iterations move the vertices 0.1 px (90th
+        percentile along the normals); Adam's per-coordinate steps move the surface the
+        silhouettes do not hold 0.5-0.7 px in 15 steps.
+    rgb_lr : float
+        Adam's step in pixels at the object (0.1).
+    rgb_regularization : float
+        Factor on the edge, normal, Laplacian and normal-variation weights kept in the RGB
+        stage (1): the image term's signal inside the outline is a few times smaller than
+        theirs (fandisk: regularisers 3.2e-3 of an objective of 5.7e-3). Measured from the
+        default's silhouette mesh (``benchmarks/fit_views_shade.py stage``), IoU / F@0.01 /
+        vertex-colour PSNR with ``rgb_method="adam", rgb_supersample=1, rgb_iters=15,
+        rgb_weight=1, rgb_regularization=0.3, rgb_lr=0.1`` against the default's RGB stage:
+        fandisk 0.9838 / 0.400 / 26.8 -> 0.9857 / 0.476 / 27.8 (``rgb_lr=0.2``: F 0.496),
+        Suzanne 0.9764 / 0.643 / 27.8 -> 0.9817 / 0.663 / 28.7, the unseen noisy scan 0.9156
+        / 0.211 / 23.6 -> 0.9536 / 0.564 / 25.3, the cow 0.9827 / 0.829 / 26.0 -> 0.9849 /
+        0.878 / 26.4, for about 5 more CPU s (15 evaluations of about 1.25 CPU s). With the default's weights Adam gives the fandisk F 0.412; L-BFGS
+        with these weights and 10 iterations 0.422 (25 evaluations). Not the default: not
+        yet measured on all 11 shapes.
     laplacian_anchor : {"none", "round", "last", "final"}
         What the silhouette stage's Laplacian term smooths: the vertices (``"none"``, the
         tutorial's ``mean_i |(L V)_i|``), or the displacement from the start of each
