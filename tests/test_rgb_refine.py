@@ -130,6 +130,9 @@ def test_refine_rgb_stops_at_the_clocks_deadline():
 
     r = refine_rgb(s, cams, images, lights=LIGHTS, maxiter=5, extra=extra)
     assert r.stopped and r.n_evaluations == 0 and r.colors is None
+    r = refine_rgb(s, cams, images, lights=LIGHTS, maxiter=5, extra=extra, method="adam",
+                   lr=0.01)
+    assert r.stopped and r.n_evaluations == 0 and r.colors is None
 
 
 def test_dirichlet_stiffness_is_the_gradient_energy_of_a_linear_field():

@@ -300,7 +300,13 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     stopped = False
     try:
         if method == "adam":
-            adam(fun, u0, lr=lr, n_iter=int(maxiter))
+            def step_fun(u):  # the fit's TimeUp ends the stage here, not inside the solver
+                try:
+                    return fun(u)
+                except TimeUp:
+                    raise _Stop from None
+
+            adam(step_fun, u0, lr=lr, n_iter=int(maxiter))
         else:
             minimize(fun, u0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)})
     except (_Stop, TimeUp):
