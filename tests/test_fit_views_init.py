@@ -464,9 +464,14 @@ def test_hull_carving_options_are_validated(spheres):
     with pytest.raises(ValueError, match="rgb_iters"):
         fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_iters=-1), progress=False)
     for name in ("rgb_weight", "rgb_silhouette", "rgb_large_steps", "rgb_color_reg",
-                 "rgb_color_smooth", "rgb_inner_px"):
+                 "rgb_color_smooth", "rgb_inner_px", "rgb_supersample", "rgb_lr", "rgb_regularization",
+                 "rgb_method"):
         with pytest.raises(ValueError, match=name):
             fit_mesh_to_views(spheres, options=ViewsFitOptions(**{name: -1}),
+                              progress=False)
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="rgb_supersample"):
+            fit_mesh_to_views(spheres, options=ViewsFitOptions(rgb_supersample=bad),
                               progress=False)
 
 

@@ -36,7 +36,9 @@ from .._threads import parallel_map
 from ..ops import cot_laplacian, uniform_laplacian
 from ..render.mesh.image_term import HardImageLoss
 from ..structures import Mesh
+from .._validate import check_positive
 from .history import TimeUp
+from .solvers import adam
 from .large_steps import vertex_parameterization
 
 __all__ = ["RGBRefineResult", "dirichlet_stiffness", "interior_masks", "projected_image_loss",
@@ -208,8 +210,10 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
                lam: float = 10.0, reg: float = 1e-4, maxiter: int = 30,
                supersample: int = 2, time_budget: float | None = None,
                image_weight: float = 1.0, extra=None, masks=None,
-               clock=None, smooth: float = 0.0) -> RGBRefineResult:
-    """Refine ``mesh`` against RGB ``images`` (variable projection of the colours, L-BFGS).
+               clock=None, smooth: float = 0.0, method: str = "lbfgs",
+               lr: float = 0.0) -> RGBRefineResult:
+    """Refine ``mesh`` against RGB ``images`` (variable projection of the colours, L-BFGS
+    or Adam).
 
     Parameters
     ----------
@@ -228,7 +232,15 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
         Weight of the colours' Dirichlet energy ``int |grad C|^2 dA`` (cotangent stiffness of
         ``mesh``, held fixed during the refinement; 0: none).
     maxiter : int
-        L-BFGS iterations.
+        L-BFGS iterations (``method="lbfgs"``) or Adam steps (one evaluation each).
+    method : {"lbfgs", "adam"}
+        scipy's L-BFGS-B on the parameters, or Adam (:func:`geofit.fit.solvers.adam`) with
+        step ``lr``: Adam's per-coordinate normalisation moves a vertex whose gradient is
+        small (shading inside the outline) as far per step as one the silhouettes hold
+        stiffly, which L-BFGS's line search, limited by the stiffest direction, does not.
+        Either way the result is the evaluated point of least objective.
+    lr : float
+        Adam's step in the parameters' units (world units; > 0 with ``method="adam"``).
     supersample : int
         Rays per pixel ``s x s`` of the loss: the value then follows the continuous loss the
         edge gradient differentiates more closely, which the line search needs.
@@ -251,6 +263,10 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
     """
     from scipy.optimize import minimize
 
+    if method not in ("lbfgs", "adam"):
+        raise ValueError(f"method: expected 'lbfgs' or 'adam', got {method!r}")
+    if method == "adam":
+        lr = check_positive(lr, "lr")
     t0 = time.perf_counter()
     loss = HardImageLoss(cameras, images, lights=lights, background=background,
                          supersample=supersample, masks=masks)
@@ -283,7 +299,16 @@ def refine_rgb(mesh: Mesh, cameras, images, *, lights=None, background=(1.0, 1.0
 
     stopped = False
     try:
-        minimize(fun, u0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)})
+        if method == "adam":
+            def step_fun(u):  # the fit's TimeUp ends the stage here, not inside the solver
+                try:
+                    return fun(u)
+                except TimeUp:
+                    raise _Stop from None
+
+            adam(step_fun, u0, lr=lr, n_iter=int(maxiter))
+        else:
+            minimize(fun, u0, jac=True, method="L-BFGS-B", options={"maxiter": int(maxiter)})
     except (_Stop, TimeUp):
         stopped = True
     C = best["C"]  # None: stopped before the first evaluation
