@@ -571,8 +571,10 @@ RECIPES: dict[str, ViewsFitOptions] = {
         textured_init="silhouette", large_steps=10.0, final_large_steps=1.0, init="hull",
         levels=((0, 2), (0, 1)),
         remesh_rounds=2, silhouette_iters=120, silhouette_weights=HULL_SILHOUETTE_WEIGHTS,
-        texture="uv", **dict(_COMMON, rgb_iters=5, rgb_silhouette=1.0, rgb_large_steps=1.0,
-                             rgb_weight=0.3, hull_close_handles=4.0)),
+        texture="uv", **dict(_COMMON, rgb_iters=15, rgb_silhouette=1.0, rgb_large_steps=1.0,
+                             rgb_weight=1.0, rgb_supersample=1, rgb_method="adam", rgb_lr=0.1,
+                             rgb_regularization=0.3, final_regularization=0.5,
+                             silhouette_grey_px=2.0, hull_close_handles=4.0)),
     "sphere-lbfgs": ViewsFitOptions(
         silhouette_method="lbfgs", silhouette_loss="soft", textured_method="lstsq",
         textured_init="silhouette", large_steps=0.0, init="sphere", levels=((0, 1),),
