@@ -200,13 +200,15 @@ class ViewsFitOptions:
         Factor on the edge, normal, Laplacian and normal-variation weights at the last
         coarse-to-fine level (and in the RGB stage, which keeps that level's terms; 1: as on
         the other levels). 0.5 on the 11 shapes of ``benchmarks/fit_views.py --shapes all``
-        (the default otherwise; IoU / F@0.01 / texture PSNR from 1 -> 0.5): cow 0.9827 /
+        (session 11's default otherwise; IoU / F@0.01 / texture PSNR 1 -> 0.5): cow 0.9827 /
         0.828 / 27.15 -> 0.9845 / 0.854 / 27.59 (the outline pixels it misses 310 -> 204),
         fandisk 0.400 -> 0.448 F, teapot 0.847 -> 0.869, Suzanne 0.643 -> 0.664 (28.54 dB),
         open cylinder 0.9882 / 0.682 -> 0.9904 / 0.787, ogre 0.8587 / 0.476 -> 0.8737 /
         0.492, torus 31.47 -> 31.94 dB, median F 0.828 -> 0.854; but woody F 0.967 -> 0.942,
         thin plate 0.378 -> 0.374, and texture PSNR double torus 29.78 -> 29.59, two spheres
-        34.66 -> 34.39 dB (their too-wide outline pixels); not the default. 0.25 on the cow:
+        34.66 -> 34.39 dB (their too-wide outline pixels). 0.5 for ``"default"`` since
+        session 12 (with the RGB stage's Adam and ``silhouette_grey_px=2``; the whole
+        default's figures under ``rgb_regularization``). 0.25 on the cow:
         0.9840 / 0.861 / 27.57; 0.75: cow 0.9833 / 0.840 / 27.32, double torus 0.9802 /
         0.970 / 29.71, two spheres 0.9948 / 1.000 / 34.83 (the other 8 not run).
     levels : sequence of (int, int)
@@ -329,28 +331,33 @@ class ViewsFitOptions:
         nearer faces of a dense mesh pass within its blur radius (about 2 px for the
         tutorial's): the target then reads grey, down to 0.01, inside the object, the hull
         is carved through there (the ogre's: genus 21, 50 parts) and the fit pulls the
-        surface in. 2 is about the tutorial's blur radius (1.94 px at 128 px). Not the
-        default until measured on all 11 shapes of ``benchmarks/fit_views.py``: the ogre's
+        surface in. 2 is about the tutorial's blur radius (1.94 px at 128 px); 2 for
+        ``"default"`` (session 12, with the RGB stage's Adam and ``final_regularization=0.5``;
+        the whole default's figures under ``rgb_regularization``). Alone, against session 11's
+        default, on the shapes of ``benchmarks/fit_views.py``: the ogre's
         held-out IoU / F@0.01 / PSNR 0.8587 / 0.476 / 22.62 -> 0.9343 / 0.656 / 25.74 (hull
         genus 21 -> 0), thin plate 0.9626 / 0.378 -> 0.9795 / 0.526, double torus 0.9807 /
         0.949 -> 0.9821 / 0.956, cow 0.9827 / 0.828 -> 0.9829 / 0.824, the unseen beetle
         0.9168 / 0.805 -> 0.9183 / 0.800, but teapot 0.9814 / 0.847 -> 0.9805 / 0.836; no
         pixel is raised on two spheres, open cylinder, Suzanne, woody (measured, CHANGELOG).
     rgb_iters : int
-        L-BFGS iterations of the RGB refinement stage after the silhouette stage (0: none):
+        Iterations (L-BFGS) or steps (Adam, ``rgb_method``) of the RGB refinement stage after
+        the silhouette stage (0: none):
         the vertices against the RGB images with the hard image term
         (:class:`geofit.render.mesh.HardImageLoss`), the vertex colours solved by sparse least
         squares inside every evaluation (variable projection), so the residual moves the
         geometry (:func:`geofit.fit._rgb_refine.refine_rgb`). Needs RGB images. With
         ``silhouette_method="none"`` it refines the initial mesh (e.g. a Mesh given as
         ``init``; set explicitly: the recipe's stage runs only after a silhouette stage and
-        with RGB images). 5 for ``"default"`` (with ``rgb_silhouette=1, rgb_large_steps=1,
-        rgb_weight=0.3``), 0 otherwise: on the 11 shapes of ``benchmarks/fit_views.py --shapes
-        all`` it raises the median held-out F@0.01 and IoU and loses on none more than 0.01
-        IoU or 0.02 F@0.01, for about 12-14 CPU s on the cow
-        (benchmarks/results/fit_views_session9_rgb.md).
+        with RGB images). 15 Adam steps for ``"default"`` (with ``rgb_method="adam",
+        rgb_lr=0.1, rgb_supersample=1, rgb_weight=1, rgb_regularization=0.3,
+        rgb_silhouette=1, rgb_large_steps=1``; session 12, figures under
+        ``rgb_regularization``), 0 otherwise. Session 9's 5 L-BFGS iterations (``rgb_weight=0.3``)
+        raised the median held-out F@0.01 and IoU on the 11 shapes of
+        ``benchmarks/fit_views.py --shapes all`` for about 12-14 CPU s on the cow
+        (benchmarks/results/fit_views_session9_rgb.md) but barely moved the surface.
     rgb_weight : float
-        Weight of the image term in the RGB stage (1; 0.3 for ``"default"``).
+        Weight of the image term in the RGB stage (1, as in ``"default"``).
     rgb_silhouette : float
         Weight of the last level's soft-silhouette term kept in the RGB stage, with that
         level's edge, normal and Laplacian regularisers (0: the image term alone, as before).
@@ -381,16 +388,16 @@ class ViewsFitOptions:
         Measured with 2: F@0.01 Suzanne 0.643 -> 0.647, fandisk 0.400 -> 0.385, thin plate
         0.378 -> 0.380 (IoU -0.002 to -0.003).
     rgb_supersample : int
-        Rays per pixel ``s x s`` of the RGB stage's image term (2). The views' targets are
-        hard renders at the pixel centres: at ``s = 1`` the term compares like with like (the
+        Rays per pixel ``s x s`` of the RGB stage's image term (2; 1 for ``"default"``). The
+        views' targets are hard renders at the pixel centres: at ``s = 1`` the term compares like with like (the
         true fandisk's image loss 1.2e-6, the fitted one's 2.8e-3), at ``s = 2`` the
         sub-pixel rays at outlines and creases miss the centre sample and the term has a
         floor (4.8e-3 at the truth, 5.6e-3 at the fit: almost no contrast); ``s = 1`` also
         casts a quarter of the rays (image part of an evaluation 1.0 -> 0.4 CPU s on the
         fandisk).
     rgb_method : {"lbfgs", "adam"}
-        Solver of the RGB stage: L-BFGS (the default's; ``rgb_iters`` iterations) or Adam
-        (``rgb_iters`` steps of ``rgb_lr`` pixels, one evaluation each, the evaluated point
+        Solver of the RGB stage: L-BFGS (``rgb_iters`` iterations) or Adam (``"default"``;
+        ``rgb_iters`` steps of ``rgb_lr`` pixels, one evaluation each, the evaluated point
         of least objective kept). Measured on the fandisk from the default's silhouette
         mesh: L-BFGS's first trial step (up to 3 px) raises the silhouette term tenfold, the
         line search backs off and the 5 iterations move the vertices 0.1 px (90th
@@ -400,7 +407,7 @@ class ViewsFitOptions:
         Adam's step in pixels at the object (0.1).
     rgb_regularization : float
         Factor on the edge, normal, Laplacian and normal-variation weights kept in the RGB
-        stage (1): the image term's signal inside the outline is a few times smaller than
+        stage (1; 0.3 for ``"default"``): the image term's signal inside the outline is a few times smaller than
         theirs (fandisk: regularisers 3.2e-3 of an objective of 5.7e-3). Measured from the
         default's silhouette mesh (``benchmarks/fit_views_shade.py stage``), IoU / F@0.01 /
         vertex-colour PSNR with ``rgb_method="adam", rgb_supersample=1, rgb_iters=15,
