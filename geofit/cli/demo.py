@@ -158,7 +158,7 @@ def _picture(path: Path, rows: dict, lines: list[str]) -> None:
 
 
 def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
-             time_budget: float = 30.0, verbose: bool = True) -> DemoResult:
+             time_budget: float = 60.0, verbose: bool = True) -> DemoResult:
     """Render views of the cow, fit a mesh and its colours to them, write the picture, the
     textured OBJ and the vertex-coloured PLY.
 
@@ -174,7 +174,8 @@ def run_demo(out, *, views: int = 20, size: int = 128, heldout: int = 8,
     heldout : int
         Held-out views (>= 1); the picture shows up to four of them.
     time_budget : float
-        Seconds for the silhouette stage of the fit.
+        Wall-clock seconds for the whole fit (default 60: the default fit of these views needs
+        about 46 s on 2 cores, so the budget is a bound, not a cut).
     verbose : bool
         Print what is done.
 
@@ -265,7 +266,8 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=20, help="training views (default 20)")
     p.add_argument("--size", type=int, default=128, help="image size in pixels (default 128)")
     p.add_argument("--heldout", type=int, default=8, help="held-out views (default 8)")
-    p.add_argument("--time-budget", type=float, default=30.0,
-                   help="seconds for the silhouette fit (default 30: the demo's short run)")
+    p.add_argument("--time-budget", type=float, default=60.0,
+                   help="wall-clock seconds for the whole fit (default 60: the budget tutorial 4's "
+                        "default is measured against)")
     p.add_argument("--out", default="out", help="output folder (default ./out)")
     p.set_defaults(func=run, check=check_out)
