@@ -566,3 +566,20 @@ def test_trimesh_face_colours_become_vertex_colours():
     tm.visual.face_colors = [[255, 0, 0, 255], [0, 0, 255, 255]]
     cols = Mesh.from_trimesh(tm).textures.verts_features
     assert_array_equal(cols, [[1, 0, 0], [0.5, 0, 0.5], [0.5, 0, 0.5], [0, 0, 1]])
+
+
+def test_topology_edge_faces_lists_each_edges_faces():
+    """Two triangles sharing the edge (1, 2): that edge has faces 0 and 1, the four boundary
+    edges one face and -1; every listed face really has the edge."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    F = np.array([[0, 1, 2], [1, 3, 2]], np.int64)
+    topo = Mesh(V, F).topology
+    ef = topo.edge_faces
+    shared = [i for i, e in enumerate(topo.edges.tolist()) if e == [1, 2]]
+    assert len(shared) == 1
+    assert_array_equal(ef[shared[0]], [0, 1])
+    assert (ef[:, 1] == -1).sum() == 4 and (ef[:, 0] >= 0).all()
+    for e, (f0, f1) in zip(topo.edges, ef):
+        for f in (f0, f1):
+            if f >= 0:
+                assert set(e) <= set(F[f])

@@ -33,14 +33,8 @@ def _edge_curvature(mesh: Mesh) -> np.ndarray:
     apart): ``angle`` of :func:`adaptive_edge_lengths` is the angle between neighbouring
     faces' normals."""
     topo = mesh.topology
-    fe = topo.faces_to_edges.ravel()
-    f = np.repeat(np.arange(mesh.n_faces), 3)
-    order = np.argsort(fe, kind="stable")
-    e_s, f_s = fe[order], f[order]
-    pair = np.flatnonzero(e_s[1:] == e_s[:-1])  # edges seen twice: two faces
-    two = np.bincount(e_s, minlength=len(topo.edges)) == 2
-    pair = pair[two[e_s[pair]]]
-    e, f0, f1 = e_s[pair], f_s[pair], f_s[pair + 1]
+    e = np.flatnonzero(topo.edge_face_counts == 2)
+    f0, f1 = topo.edge_faces[e].T
     n = mesh.face_normals
     cos = np.clip(np.einsum("ij,ij->i", n[f0], n[f1]), -1.0, 1.0)
     ln = mesh.edge_lengths[e]

@@ -79,6 +79,19 @@ class Topology:
         return np.diff(self.edge_face_incidence.indptr).astype(np.int64)
 
     @cached_property
+    def edge_faces(self) -> np.ndarray:
+        """(E, 2) int64: the first two faces on each edge in face order (-1 where an edge has
+        fewer; a non-manifold edge's further faces are left out: ``edge_face_counts``)."""
+        inc = self.edge_face_incidence  # csr: each row's face indices, sorted
+        ef = np.full((len(self.edges), 2), -1, dtype=np.int64)
+        counts = self.edge_face_counts
+        start = inc.indptr[:-1]
+        has1, has2 = counts >= 1, counts >= 2
+        ef[has1, 0] = inc.indices[start[has1]]
+        ef[has2, 1] = inc.indices[start[has2] + 1]
+        return ef
+
+    @cached_property
     def boundary_edges(self) -> np.ndarray:
         """(b,) int64 indices of the edges with exactly one incident face."""
         return np.flatnonzero(self.edge_face_counts == 1)
